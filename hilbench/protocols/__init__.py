@@ -1,0 +1,1 @@
+"""Wire formats: byte layouts, checksums, framing and streaming decoders (no I/O)."""

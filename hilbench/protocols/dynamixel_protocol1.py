@@ -1,0 +1,210 @@
+"""Dynamixel Protocol 1.0: framing, checksum, parameter layouts and a stream decoder.
+
+Wire layout::
+
+    FF FF | ID | LEN | INST (ERR in a status) | PARAMS... | CHECKSUM
+    LEN = params + 2;  CHECKSUM = ~(ID + LEN + INST/ERR + sum(params)) & 0xFF
+
+There is no reserved byte, no CRC and no stuffing. Instruction and status
+packets share one layout (the byte after LEN is the instruction or the error),
+so only the direction tells them apart; the decoder reports a neutral
+:class:`Packet1` and callers interpret ``code`` by who sent it.
+"""
+
+from __future__ import annotations
+
+from enum import IntEnum
+from typing import NamedTuple
+
+from construct import (
+    Bytes,
+    Checksum,
+    Const,
+    Container,
+    GreedyBytes,
+    GreedyRange,
+    Int8ul,
+    RawCopy,
+    Rebuild,
+    Struct,
+    Terminated,
+    len_,
+    this,
+)
+
+from hilbench.protocols.checksums import dynamixel1_checksum
+
+HEADER = b"\xff\xff"
+BROADCAST_ID = 0xFE
+
+
+class Instruction1(IntEnum):
+    """Protocol 1.0 instruction codes."""
+
+    PING = 0x01
+    READ = 0x02
+    WRITE = 0x03
+    REG_WRITE = 0x04
+    ACTION = 0x05
+    RESET = 0x06
+    REBOOT = 0x08
+    SYNC_WRITE = 0x83
+    BULK_READ = 0x92
+
+
+INSTRUCTION_NAMES: dict[int, str] = {i.value: i.name.lower() for i in Instruction1}
+
+#: Protocol 1.0 status ERR bits.
+ERROR_BITS: dict[int, str] = {
+    0x01: "input voltage",
+    0x02: "angle limit",
+    0x04: "overheating",
+    0x08: "range",
+    0x10: "checksum",
+    0x20: "overload",
+    0x40: "instruction",
+}
+
+Packet = Struct(
+    "frame"
+    / RawCopy(
+        Struct(
+            "header" / Const(HEADER),
+            "id" / Int8ul,
+            "length" / Rebuild(Int8ul, len_(this.params) + 2),
+            "code" / Int8ul,
+            "params" / Bytes(this.length - 2),
+        )
+    ),
+    # The checksum covers ID..last parameter, i.e. the frame without its 2-byte header.
+    "checksum" / Checksum(Int8ul, lambda data: dynamixel1_checksum(data[2:]), this.frame.data),
+)
+
+ReadParams = Struct("address" / Int8ul, "length" / Int8ul, Terminated)
+WriteParams = Struct("address" / Int8ul, "data" / GreedyBytes)
+SyncWriteParams = Struct(
+    "address" / Int8ul,
+    "length" / Int8ul,
+    "entries" / GreedyRange(Struct("id" / Int8ul, "data" / Bytes(this._.length))),
+    Terminated,
+)
+BulkReadParams = Struct(
+    "zero" / Const(b"\x00"),
+    "entries" / GreedyRange(Struct("length" / Int8ul, "id" / Int8ul, "address" / Int8ul)),
+    Terminated,
+)
+NoParams = Struct(Terminated)
+
+PARAMS: dict[int, Struct] = {
+    Instruction1.PING: NoParams,
+    Instruction1.READ: ReadParams,
+    Instruction1.WRITE: WriteParams,
+    Instruction1.REG_WRITE: WriteParams,
+    Instruction1.ACTION: NoParams,
+    Instruction1.RESET: NoParams,
+    Instruction1.REBOOT: NoParams,
+    Instruction1.SYNC_WRITE: SyncWriteParams,
+    Instruction1.BULK_READ: BulkReadParams,
+}
+
+
+class Packet1(NamedTuple):
+    """A Protocol 1.0 packet: ``code`` is the instruction (from a master) or ERR (from a device)."""
+
+    id: int
+    code: int
+    params: bytes
+    raw: bytes
+    t: float = 0.0
+
+    def fields(self) -> Container:
+        """Decode ``params`` as the parameters of instruction ``code``."""
+        return PARAMS[self.code].parse(self.params)
+
+
+class DecodeProblem1(NamedTuple):
+    """A discarded candidate: ``kind`` is ``checksum``, ``bad_length`` or ``truncated``."""
+
+    kind: str
+    raw: bytes
+    t: float = 0.0
+
+
+def build(packet_id: int, code: int, params: bytes = b"") -> bytes:
+    """Build a packet (instruction or status: ``code`` is the instruction or ERR)."""
+    return Packet.build({"frame": {"value": {"id": packet_id, "code": code, "params": params}}})
+
+
+def build_instruction(packet_id: int, instruction: int, **fields) -> bytes:
+    """Build an instruction from its named parameter fields."""
+    return build(packet_id, instruction, PARAMS[instruction].build(fields))
+
+
+def parse(raw: bytes) -> Packet1:
+    """Parse one whole packet; raises on a bad checksum or layout."""
+    f = Packet.parse(raw).frame.value
+    return Packet1(f.id, f.code, bytes(f.params), bytes(raw))
+
+
+class Decoder1:
+    """Incremental Protocol 1.0 decoder: resynchronises on ``FF FF`` and never raises."""
+
+    def __init__(self) -> None:
+        self._buf = b""
+        self.bytes_skipped = 0
+        self.packets = 0
+        self.problems: dict[str, int] = {"checksum": 0, "bad_length": 0, "truncated": 0}
+
+    def feed(self, data: bytes, t: float = 0.0) -> list[Packet1 | DecodeProblem1]:
+        """Decode ``data`` and return the packets and problems it completed."""
+        out: list[Packet1 | DecodeProblem1] = []
+        buf = self._buf + bytes(data)
+        self._buf = buf[self._scan(buf, out, t, final=False) :]
+        return out
+
+    def flush(self, t: float = 0.0) -> list[Packet1 | DecodeProblem1]:
+        """End of stream: report a pending partial packet as truncated and decode the rest."""
+        out: list[Packet1 | DecodeProblem1] = []
+        buf, self._buf = self._buf, b""
+        self._scan(buf, out, t, final=True)
+        return out
+
+    def _scan(self, buf: bytes, out: list, t: float, final: bool) -> int:
+        pos = 0
+        n = len(buf)
+        while True:
+            start = buf.find(HEADER, pos)
+            if start < 0:
+                keep = n if final else max(pos, n - 1)
+                self.bytes_skipped += keep - pos
+                return keep
+            # FF FF FF: the header is the last two FFs (an ID is never FF).
+            while start + 2 < n and buf[start + 2] == 0xFF:
+                start += 1
+            self.bytes_skipped += start - pos
+            length = buf[start + 3] if start + 4 <= n else None
+            if length is not None and length < 2:
+                self.problems["bad_length"] += 1
+                out.append(DecodeProblem1("bad_length", buf[start : start + 4], t))
+                self.bytes_skipped += 1
+                pos = start + 1
+                continue
+            if length is None or start + 4 + length > n:
+                if not final:
+                    return start
+                self.problems["truncated"] += 1
+                out.append(DecodeProblem1("truncated", buf[start:], t))
+                self.bytes_skipped += 1
+                pos = start + 1
+                continue
+            end = start + 4 + length
+            raw = buf[start:end]
+            if dynamixel1_checksum(raw[2:-1]) != raw[-1]:
+                self.problems["checksum"] += 1
+                out.append(DecodeProblem1("checksum", raw, t))
+                self.bytes_skipped += 1
+                pos = start + 1
+                continue
+            out.append(Packet1(raw[2], raw[4], raw[5:-1], raw, t))
+            self.packets += 1
+            pos = end
