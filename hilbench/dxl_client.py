@@ -1,0 +1,164 @@
+"""Talking to any Dynamixel port, real or emulated, through the official ``dynamixel-sdk``.
+
+These helpers back ``hilbench dxl``. They use the unmodified SDK on purpose:
+what works here works in a user's own SDK program, on a U2D2 or on a bench.
+SDK result codes become :class:`DxlError` with the SDK's own wording.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+import dynamixel_sdk as sdk
+
+from hilbench.fakes.dynamixel.models import MODELS_BY_NUMBER, Field, Model
+from hilbench.protocols.dynamixel import describe_error
+
+#: Baud rates tried by ``scan`` by default: the Dynamixel baud codes the SDK can open.
+SCAN_BAUDS = (57_600, 115_200, 1_000_000, 2_000_000, 3_000_000, 4_000_000, 9_600)
+
+
+class DxlError(RuntimeError):
+    """A failed exchange; the message says what and why in one line."""
+
+
+@dataclass(frozen=True)
+class Found:
+    """A device that answered a ping."""
+
+    id: int
+    model_number: int
+    firmware: int
+    baud: int
+
+    @property
+    def model_name(self) -> str:
+        model = MODELS_BY_NUMBER.get(self.model_number)
+        return model.name if model else f"unknown ({self.model_number})"
+
+
+@contextlib.contextmanager
+def open_port(path: str, baud: int) -> Iterator[sdk.PortHandler]:
+    """Open ``path`` at ``baud`` with the SDK's PortHandler, closing it afterwards."""
+    port = sdk.PortHandler(path)
+    try:
+        opened = port.openPort()
+    except Exception as exc:  # pyserial raises SerialException with the OS reason
+        raise DxlError(f"cannot open {path}: {exc}") from None
+    if not opened:
+        raise DxlError(f"cannot open {path}")
+    try:
+        if not port.setBaudRate(baud):
+            raise DxlError(f"the Dynamixel SDK cannot use {baud} baud")
+        yield port
+    finally:
+        with contextlib.suppress(Exception):
+            port.closePort()
+
+
+def packet_handler(protocol: float = 2.0):
+    return sdk.PacketHandler(protocol)
+
+
+def _check(ph, result: int, error: int, what: str) -> None:
+    if result != sdk.COMM_SUCCESS:
+        raise DxlError(f"{what}: {ph.getTxRxResult(result)}")
+    if error & 0x7F:
+        raise DxlError(f"{what}: device reports {describe_error(error)}")
+
+
+def ping(path: str, dxl_id: int, baud: int, protocol: float = 2.0) -> Found:
+    """Ping one ID; returns model and firmware."""
+    ph = packet_handler(protocol)
+    with open_port(path, baud) as port:
+        model, result, error = ph.ping(port, dxl_id)
+        _check(ph, result, error, f"ping ID {dxl_id} at {baud} baud")
+        firmware = 0
+        if protocol == 2.0:
+            fw_address = 2 if model in (0xABBA, 0xAFFE, 0xBAFF) else 6
+            firmware, result, error = ph.read1ByteTxRx(port, dxl_id, fw_address)
+            _check(ph, result, error, f"read firmware of ID {dxl_id}")
+        return Found(dxl_id, model, firmware, baud)
+
+
+def scan(path: str, bauds: tuple[int, ...] = SCAN_BAUDS, protocol: float = 2.0) -> list[Found]:
+    """Find devices at each baud rate with a broadcast ping (Protocol 2.0) or ID-by-ID pings (1.0)."""
+    ph = packet_handler(protocol)
+    found: list[Found] = []
+    for baud in bauds:
+        with open_port(path, baud) as port:
+            if protocol == 2.0:
+                replies, result = ph.broadcastPing(port)
+                if result not in (sdk.COMM_SUCCESS, sdk.COMM_RX_TIMEOUT, sdk.COMM_RX_CORRUPT):
+                    raise DxlError(f"broadcast ping at {baud}: {ph.getTxRxResult(result)}")
+                for dxl_id, (model, firmware) in sorted(replies.items()):
+                    found.append(Found(dxl_id, model, firmware, baud))
+            else:
+                for dxl_id in range(0, 253):
+                    model, result, _ = ph.ping(port, dxl_id)
+                    if result == sdk.COMM_SUCCESS:
+                        found.append(Found(dxl_id, model, 0, baud))
+    return found
+
+
+def resolve_field(model: Model | None, item: str, length: int | None) -> tuple[int, int, Field | None]:
+    """(address, size, field) from an address number or a control-table item name."""
+    if item.isdigit():
+        address = int(item)
+        f = model.field_at(address) if model else None
+        size = length or (f.size if f else None)
+        if size is None:
+            raise DxlError(f"address {address}: give a length (unknown item)")
+        return address, size, f
+    if model is None:
+        raise DxlError(f"{item!r}: unknown model, give an address and length instead of a name")
+    try:
+        f = model.field_named(item)
+    except KeyError as exc:
+        raise DxlError(str(exc.args[0])) from None
+    return f.address, length or f.size, f
+
+
+def read(path: str, dxl_id: int, item: str, baud: int, length: int | None = None) -> tuple[int, bytes, Field | None]:
+    """Read an item (by name or address) with the SDK; returns (address, raw bytes, field)."""
+    ph = packet_handler(2.0)
+    with open_port(path, baud) as port:
+        number, result, error = ph.ping(port, dxl_id)
+        _check(ph, result, error, f"ping ID {dxl_id} at {baud} baud")
+        address, size, f = resolve_field(MODELS_BY_NUMBER.get(number), item, length)
+        data, result, error = ph.readTxRx(port, dxl_id, address, size)
+        _check(ph, result, error, f"read ID {dxl_id} address {address} length {size}")
+        return address, bytes(data), f
+
+
+def write(path: str, dxl_id: int, item: str, value: int, baud: int, length: int | None = None) -> tuple[int, Field | None]:
+    """Write an item (by name or address) with the SDK; returns (address, field)."""
+    ph = packet_handler(2.0)
+    with open_port(path, baud) as port:
+        number, result, error = ph.ping(port, dxl_id)
+        _check(ph, result, error, f"ping ID {dxl_id} at {baud} baud")
+        address, size, f = resolve_field(MODELS_BY_NUMBER.get(number), item, length)
+        signed = f.signed if f else value < 0
+        try:
+            data = list(int(value).to_bytes(size, "little", signed=signed))
+        except OverflowError:
+            raise DxlError(f"{value} does not fit in {size} byte(s)") from None
+        result, error = ph.writeTxRx(port, dxl_id, address, size, data)
+        _check(ph, result, error, f"write ID {dxl_id} address {address}")
+        return address, f
+
+
+def format_value(raw: bytes, f: Field | None) -> str:
+    """``2048 (180.0 deg)`` for a known item, the integer for an unknown one."""
+    if f is None:
+        return str(int.from_bytes(raw, "little"))
+    value = f.decode(raw[: f.size])
+    if f.is_float:
+        return f"{value:.4g} {f.unit}".rstrip()
+    if f.unit and f.unit != "C" and f.scale != 1.0:
+        return f"{value} ({f.physical(value):.4g} {f.unit})"
+    if f.unit:
+        return f"{value} {f.unit}"
+    return str(value)

@@ -1,0 +1,1 @@
+"""Emulated devices: behaviour on top of the protocol codecs and transports."""

@@ -1,0 +1,516 @@
+"""A stateful Dynamixel device: its control table and what each instruction does to it.
+
+:class:`Servo` knows nothing about wires or timing of the bus: it takes a
+decoded request and the time, changes its state and says what it would
+answer. The bus (:mod:`hilbench.fakes.dynamixel.bus`) decides who speaks when.
+Custom boards (model kind ``board``) share the same code without motion.
+"""
+
+from __future__ import annotations
+
+import math
+import random
+from dataclasses import dataclass, field
+
+from hilbench.fakes.dynamixel import models as m
+from hilbench.fakes.dynamixel.models import Field, Model
+from hilbench.fakes.dynamixel.motion import Profile
+from hilbench.protocols.dynamixel import ALERT_BIT, BACKUP_KEY, CLEAR_KEY, ErrorNumber
+
+#: Unit conversions used by the motion model.
+PULSES_PER_REV = 4096
+VEL_UNIT = 0.229 / 60 * PULSES_PER_REV  # pulses/s per velocity unit (0.229 rpm)
+ACC_UNIT = 214.577 / 3600 * PULSES_PER_REV  # pulses/s^2 per profile acceleration unit
+#: Acceleration used when Profile Acceleration is 0 ("infinite"): a stiff servo.
+MAX_ACCELERATION = 200 * PULSES_PER_REV
+#: Dynamic items refreshed before a read (Realtime Tick .. Present Temperature).
+DYNAMIC_LO, DYNAMIC_HI = 120, 148
+#: Indirect Data areas and where their addresses live.
+INDIRECT_AREAS = ((224, 252, 168), (634, 662, 578))
+
+
+@dataclass
+class Faults:
+    """Fault knobs; tests and profiles set them to rehearse what goes wrong on real benches.
+
+    Rates are probabilities per reply (drawn from a seeded generator so runs
+    repeat); ``*_next`` counters affect exactly the next N replies.
+    """
+
+    drop_rate: float = 0.0
+    drop_next: int = 0
+    corrupt_rate: float = 0.0
+    corrupt_next: int = 0
+    delay: float = 0.0  # extra seconds before each reply
+    vanished_until: float = 0.0  # silent until this monotonic time (math.inf: until revived)
+    seed: int = 0
+    rng: random.Random = field(default_factory=random.Random, repr=False)
+
+    def __post_init__(self) -> None:
+        self.rng.seed(self.seed)
+
+    def take_drop(self) -> bool:
+        if self.drop_next > 0:
+            self.drop_next -= 1
+            return True
+        return self.drop_rate > 0 and self.rng.random() < self.drop_rate
+
+    def take_corrupt(self) -> bool:
+        if self.corrupt_next > 0:
+            self.corrupt_next -= 1
+            return True
+        return self.corrupt_rate > 0 and self.rng.random() < self.corrupt_rate
+
+
+class Servo:
+    """One emulated device on a Dynamixel bus.
+
+    ``initial`` overrides control-table values by field key at power-up (they
+    become the device's EEPROM contents, as if configured once and saved).
+    ``supply_voltage`` (V) and ``ambient_temperature`` (C) drive the present
+    voltage and temperature.
+    """
+
+    def __init__(
+        self,
+        model: Model,
+        dxl_id: int,
+        *,
+        name: str | None = None,
+        initial: dict[str, int | float] | None = None,
+        position: float | None = None,
+        supply_voltage: float = 12.0,
+        ambient_temperature: float = 30.0,
+        reboot_time: float = 0.2,
+        t: float = 0.0,
+        seed: int = 0,
+        firmware: int | None = None,
+        board_baud: int | None = None,
+    ) -> None:
+        self.model = model
+        self.board_baud = board_baud
+        self.name = name or f"{model.name}#{dxl_id}"
+        self.supply_voltage = supply_voltage
+        self.ambient_temperature = ambient_temperature
+        self.reboot_time = reboot_time
+        self.faults = Faults(seed=seed or dxl_id)
+        self.initial = dict(initial or {})
+        self.mem = model.defaults()
+        if firmware is not None:
+            self.mem[model.firmware_address] = firmware
+        self._poke(model.id_address, 1, dxl_id)
+        for key, value in self.initial.items():
+            f = model.field_named(key)
+            self.mem[f.address : f.address + f.size] = f.encode(value)
+        self._power_on_eeprom = bytes(self.mem[: m.EEPROM_END])
+        self._backup: bytes | None = None
+        self.is_servo = model.kind == "servo"
+        start = position if position is not None else (2048 if self.is_servo else 0)
+        self.profile = Profile(t, float(start))
+        self._torque_since: float | None = None
+        self._registered: tuple[int, bytes] | None = None
+        self._rebooting_until = 0.0
+        self._last_comm = t
+        self._sticky_hw_error = 0
+        self._fields = [model.covering(a) for a in range(model.table_size)]
+
+    # ------------------------------------------------------------------ raw access
+
+    def _peek(self, address: int, size: int, signed: bool = False) -> int:
+        return int.from_bytes(self.mem[address : address + size], "little", signed=signed)
+
+    def _poke(self, address: int, size: int, value: int, signed: bool = False) -> None:
+        self.mem[address : address + size] = int(value).to_bytes(size, "little", signed=signed)
+
+    def get(self, key: str, t: float | None = None) -> int | float:
+        """A control-table value by field key (refreshing dynamic items at ``t``)."""
+        f = self.model.field_named(key)
+        if t is not None:
+            self._refresh(t, f.address, f.address + f.size)
+        return f.decode(bytes(self.mem[f.address : f.address + f.size]))
+
+    def set(self, key: str, value: int | float, t: float = 0.0) -> None:
+        """Set a value directly, bypassing access rules (for tests and scenarios)."""
+        f = self.model.field_named(key)
+        self.mem[f.address : f.address + f.size] = f.encode(value)
+        self._after_write(f, t)
+
+    # ------------------------------------------------------------------ properties
+
+    @property
+    def id(self) -> int:
+        return self.mem[self.model.id_address]
+
+    @property
+    def firmware(self) -> int:
+        return self.mem[self.model.firmware_address]
+
+    @property
+    def secondary_id(self) -> int | None:
+        if not self.is_servo:
+            return None
+        sid = self.mem[12]
+        return sid if sid <= 252 else None
+
+    @property
+    def baud(self) -> int | None:
+        """Baud the device listens at; boards have no Baud Rate item and use ``board_baud`` (None: any)."""
+        return m.BAUD_CODES.get(self.mem[m.BAUD_RATE]) if self.is_servo else self.board_baud
+
+    @property
+    def status_return_level(self) -> int:
+        return self.mem[m.STATUS_RETURN_LEVEL] if self.is_servo else 2
+
+    @property
+    def return_delay(self) -> float:
+        """Return Delay Time in seconds."""
+        return self.mem[m.RETURN_DELAY_TIME] * 2e-6 if self.is_servo else 0.0
+
+    @property
+    def torque(self) -> bool:
+        return self.is_servo and self.mem[m.TORQUE_ENABLE] == 1
+
+    @property
+    def hardware_error(self) -> int:
+        return self.mem[m.HARDWARE_ERROR_STATUS] if self.is_servo else 0
+
+    def error_byte(self, number: int = 0) -> int:
+        """ERR for a status: the error number plus the Alert bit while a hardware error stands."""
+        return number | (ALERT_BIT if self.hardware_error else 0)
+
+    def silent(self, t: float) -> bool:
+        """True while rebooting or vanished: the device hears nothing."""
+        return t < self._rebooting_until or t < self.faults.vanished_until
+
+    # ------------------------------------------------------------------ fault knobs
+
+    def vanish(self, t: float, duration: float = math.inf) -> None:
+        """Fall silent (cable pulled) for ``duration`` seconds, or until :meth:`revive`."""
+        self.faults.vanished_until = t + duration
+
+    def revive(self) -> None:
+        self.faults.vanished_until = 0.0
+
+    def raise_hardware_error(self, bits: int, t: float, *, sticky: bool = False) -> None:
+        """Set Hardware Error Status bits; shutdown bits switch the torque off.
+
+        ``sticky`` bits come back after a reboot (a fault that is still there).
+        """
+        if not self.is_servo:
+            return
+        self._poke(m.HARDWARE_ERROR_STATUS, 1, self.hardware_error | bits)
+        if sticky:
+            self._sticky_hw_error |= bits
+        if bits & self.mem[m.SHUTDOWN]:
+            self._set_torque(False, t)
+
+    def clear_hardware_error(self) -> None:
+        self._sticky_hw_error = 0
+        if self.is_servo:
+            self._poke(m.HARDWARE_ERROR_STATUS, 1, 0)
+
+    # ------------------------------------------------------------------ instructions
+
+    def ping(self) -> bytes:
+        """Ping reply data: model number and firmware version."""
+        return self.mem[0:2] + self.mem[self.model.firmware_address : self.model.firmware_address + 1]
+
+    def read(self, address: int, length: int, t: float) -> tuple[int, bytes]:
+        """A Read: (error number, data). Leaving the table is an Access Error with no data."""
+        self._touch(t)
+        if length == 0 or address + length > self.model.table_size:
+            return ErrorNumber.ACCESS_ERROR, b""
+        end = address + length
+        self._refresh(t, address, end)
+        data = bytes(self.mem[address:end])
+        if self.is_servo and (end > 224 and address < 252 or end > 634):
+            data = self._indirect_read(address, data, t)
+        return 0, data
+
+    def write(self, address: int, data: bytes, t: float) -> int:
+        """A Write: applies it if every check passes; returns the error number (0 = success)."""
+        self._touch(t)
+        err = self._check_write(address, data)
+        if err:
+            return err
+        self._apply_write(address, data, t)
+        return 0
+
+    def reg_write(self, address: int, data: bytes, t: float) -> int:
+        """Reg Write: checks now, applies on Action."""
+        self._touch(t)
+        err = self._check_write(address, data)
+        if err:
+            return err
+        self._registered = (address, bytes(data))
+        if self.is_servo:
+            self.mem[m.REGISTERED_INSTRUCTION] = 1
+        return 0
+
+    def action(self, t: float) -> int:
+        self._touch(t)
+        if self._registered is None:
+            return ErrorNumber.INSTRUCTION_ERROR
+        address, data = self._registered
+        self._registered = None
+        if self.is_servo:
+            self.mem[m.REGISTERED_INSTRUCTION] = 0
+        err = self._check_write(address, data)  # torque may have changed since
+        if not err:
+            self._apply_write(address, data, t)
+        return err
+
+    def reboot(self, t: float) -> int:
+        """Restart: RAM back to defaults, errors cleared, silent for :attr:`reboot_time`."""
+        keep = bytes(self.mem[: m.EEPROM_END])
+        pos = self.profile.at(t).position
+        self.mem = self.model.defaults()
+        self.mem[: m.EEPROM_END] = keep
+        self.profile = Profile(t, pos)
+        self._registered = None
+        self._torque_since = None
+        self._rebooting_until = t + self.reboot_time
+        if self._sticky_hw_error and self.is_servo:
+            self._poke(m.HARDWARE_ERROR_STATUS, 1, self._sticky_hw_error)
+        return 0
+
+    def factory_reset(self, mode: int, t: float) -> int:
+        """Factory Reset: ``0xFF`` everything, ``0x01`` all but ID, ``0x02`` all but ID and baud."""
+        dxl_id, baud, firmware = self.id, self.mem[m.BAUD_RATE], self.firmware
+        self.mem[: m.EEPROM_END] = self.model.defaults()[: m.EEPROM_END]
+        self.mem[self.model.firmware_address] = firmware  # read-only: the firmware stays what it is
+        if mode in (0x01, 0x02):
+            self._poke(self.model.id_address, 1, dxl_id)
+        if mode == 0x02 and self.is_servo:
+            self.mem[m.BAUD_RATE] = baud
+        return self.reboot(t)
+
+    def clear(self, params: bytes, t: float) -> int:
+        """Clear multi-turn (``01 'DXL"'``): Present Position back into one turn."""
+        if not self.is_servo or self.firmware < 42 or params[:1] != b"\x01" or params[1:] != CLEAR_KEY:
+            return ErrorNumber.INSTRUCTION_ERROR
+        s = self.profile.at(t)
+        if s.moving:
+            return ErrorNumber.RESULT_FAIL
+        self.profile = Profile(t, s.position % PULSES_PER_REV)
+        return 0
+
+    def backup(self, params: bytes, t: float) -> int:
+        """Control Table Backup: ``01`` stores, ``02`` restores the EEPROM area (X, firmware 45+)."""
+        if not self.is_servo or not self.model.fast_read or self.firmware < 45 or params[1:] != BACKUP_KEY:
+            return ErrorNumber.INSTRUCTION_ERROR
+        if self.torque:
+            return ErrorNumber.RESULT_FAIL
+        if params[0] == 0x01:
+            self._backup = bytes(self.mem[: m.EEPROM_END])
+            self.mem[147] = 1
+            return 0
+        if self._backup is None:
+            return ErrorNumber.RESULT_FAIL
+        self.mem[: m.EEPROM_END] = self._backup
+        return self.reboot(t)
+
+    # ------------------------------------------------------------------ writes
+
+    def _check_write(self, address: int, data: bytes) -> int:
+        """Access, length, range and limit checks of spec §2.2 for a write."""
+        n = len(data)
+        size = self.model.table_size
+        if n == 0 or address + n > size:
+            return ErrorNumber.ACCESS_ERROR
+        fields = self._fields
+        pos = address
+        end = address + n
+        torque = self.torque
+        while pos < end:
+            f = fields[pos]
+            if f is None:
+                return ErrorNumber.ACCESS_ERROR
+            if f.address != pos or pos + f.size > end:
+                return ErrorNumber.DATA_LENGTH_ERROR
+            if not f.writable or (f.eeprom and torque):
+                return ErrorNumber.ACCESS_ERROR
+            if not (224 <= f.address < 252 or f.address >= 634):  # indirect data checks its target
+                value = f.decode(data[pos - address : pos - address + f.size])
+                if not f.in_range(value):
+                    return ErrorNumber.DATA_RANGE_ERROR
+                err = self._check_limit(f, value, address, data)
+                if err:
+                    return err
+            pos += f.size
+        return 0
+
+    def _value_after(self, key_address: int, address: int, data: bytes, size: int, signed: bool = False) -> int:
+        # A limit written in the same packet counts (e.g. limits then goal in one write).
+        if address <= key_address and key_address + size <= address + len(data):
+            off = key_address - address
+            return int.from_bytes(data[off : off + size], "little", signed=signed)
+        return self._peek(key_address, size, signed)
+
+    def _check_limit(self, f: Field, value: int, address: int, data: bytes) -> int:
+        if not self.is_servo:
+            return 0
+        a = f.address
+        if a in (m.GOAL_POSITION, m.GOAL_VELOCITY, m.GOAL_PWM, m.GOAL_CURRENT) and self.mem[m.BUS_WATCHDOG] == 0xFF:
+            return ErrorNumber.DATA_RANGE_ERROR  # watchdog tripped: goals refused until it is cleared
+        if a == m.GOAL_POSITION:
+            if self.mem[m.OPERATING_MODE] == 3:  # the Position Limits bind in position mode only
+                lo = self._value_after(m.MIN_POSITION, address, data, 4)
+                hi = self._value_after(m.MAX_POSITION, address, data, 4)
+                if not lo <= value <= hi:
+                    return ErrorNumber.DATA_LIMIT_ERROR
+            return 0
+        limits = {m.GOAL_VELOCITY: (m.VELOCITY_LIMIT, 4), m.GOAL_PWM: (m.PWM_LIMIT, 2), m.GOAL_CURRENT: (m.CURRENT_LIMIT, 2)}
+        if a in limits and self.model.field_at(limits[a][0]) is not None:
+            limit_address, size = limits[a]
+            if abs(value) > self._value_after(limit_address, address, data, size):
+                return ErrorNumber.DATA_LIMIT_ERROR
+        return 0
+
+    def _apply_write(self, address: int, data: bytes, t: float) -> None:
+        fields = self._fields
+        pos, end = address, address + len(data)
+        while pos < end:
+            f = fields[pos]
+            chunk = data[pos - address : pos - address + f.size]
+            if self.is_servo and (224 <= f.address < 252 or f.address >= 634):
+                self._indirect_write(f.address, chunk, t)
+            else:
+                old = bytes(self.mem[pos : pos + f.size])
+                self.mem[pos : pos + f.size] = chunk
+                if old != chunk or f.address in (m.GOAL_POSITION, m.GOAL_VELOCITY, m.TORQUE_ENABLE):
+                    self._after_write(f, t)
+            pos += f.size
+
+    def _after_write(self, f: Field, t: float) -> None:
+        """Side effects of a changed item."""
+        if not self.is_servo:
+            return
+        a = f.address
+        if a == m.TORQUE_ENABLE:
+            self._set_torque(self.mem[a] == 1, t, from_write=True)
+        elif a == m.OPERATING_MODE:
+            # A new operating mode puts gains and profile items back to their defaults.
+            defaults = self.model.defaults()
+            for addr in (76, 78, 80, 82, 84, 88, 90, 108, 112):
+                g = self.model.field_at(addr)
+                if g is not None:
+                    self.mem[addr : addr + g.size] = defaults[addr : addr + g.size]
+            self.profile.stop(t)
+        elif a in (m.GOAL_POSITION, m.PROFILE_VELOCITY, m.PROFILE_ACCELERATION, m.GOAL_VELOCITY, m.GOAL_PWM,
+                   m.GOAL_CURRENT):
+            self._retarget(t)
+        elif a == m.BUS_WATCHDOG and self.mem[a] == 0:
+            pass  # writing 0 clears a tripped watchdog
+
+    def _set_torque(self, on: bool, t: float, from_write: bool = False) -> None:
+        if on and self.hardware_error & self.mem[m.SHUTDOWN]:
+            on = False  # in shutdown: only a reboot brings the torque back
+        self.mem[m.TORQUE_ENABLE] = 1 if on else 0
+        if on:
+            self._torque_since = t
+            self._retarget(t)
+        else:
+            self._torque_since = None
+            self.profile.stop(t)
+
+    def _limits(self) -> tuple[float, float]:
+        """Velocity and acceleration limits of the profile in pulses/s and pulses/s^2."""
+        vlim = self._peek(m.VELOCITY_LIMIT, 4) or 1023
+        pv = self._peek(m.PROFILE_VELOCITY, 4)
+        vmax = (min(pv, vlim) if pv else vlim) * VEL_UNIT
+        pa = self._peek(m.PROFILE_ACCELERATION, 4)
+        amax = pa * ACC_UNIT if pa else MAX_ACCELERATION
+        return max(vmax, 1.0), max(amax, 1.0)
+
+    def _retarget(self, t: float) -> None:
+        if not self.torque:
+            return
+        mode = self.mem[m.OPERATING_MODE]
+        vmax, amax = self._limits()
+        if mode in (3, 4, 5):
+            goal = self._peek(m.GOAL_POSITION, 4, signed=True)
+            self.profile.move_to(t, float(goal), vmax, amax)
+        elif mode == 1:
+            self.profile.run_at(t, self._peek(m.GOAL_VELOCITY, 4, signed=True) * VEL_UNIT, amax)
+        elif mode == 16:
+            pwm = self._peek(m.GOAL_PWM, 2, signed=True)
+            self.profile.run_at(t, pwm / 885 * vmax, amax)
+        elif mode == 0:
+            cur = self._peek(m.GOAL_CURRENT, 2, signed=True)
+            lim = self._peek(m.CURRENT_LIMIT, 2) or 1
+            self.profile.run_at(t, max(-1.0, min(1.0, cur / lim)) * vmax, amax)
+
+    # ------------------------------------------------------------------ indirect addressing
+
+    def _indirect_target(self, data_address: int) -> int:
+        for lo, hi, addr_base in INDIRECT_AREAS:
+            if lo <= data_address < hi:
+                return self._peek(addr_base + 2 * (data_address - lo), 2)
+        raise ValueError(data_address)
+
+    def _indirect_read(self, address: int, data: bytes, t: float) -> bytes:
+        out = bytearray(data)
+        for i in range(len(out)):
+            a = address + i
+            if 224 <= a < 252 or 634 <= a < 662:
+                target = self._indirect_target(a)
+                if target < self.model.table_size:
+                    self._refresh(t, target, target + 1)
+                    out[i] = self.mem[target]
+        return bytes(out)
+
+    def _indirect_write(self, address: int, chunk: bytes, t: float) -> None:
+        for i, byte in enumerate(chunk):
+            target = self._indirect_target(address + i)
+            f = self._fields[target] if target < self.model.table_size else None
+            if f is not None and f.writable and not (f.eeprom and self.torque):
+                self.mem[target] = byte
+                self._after_write(f, t)
+
+    # ------------------------------------------------------------------ dynamic state
+
+    def _touch(self, t: float) -> None:
+        """Note bus traffic for the Bus Watchdog, tripping it first if it had expired."""
+        if self.is_servo:
+            wd = self.mem[m.BUS_WATCHDOG]
+            if 0 < wd < 128 and self.torque and t - self._last_comm > wd * 0.020:
+                self.mem[m.BUS_WATCHDOG] = 0xFF  # -1: tripped, motion stops
+                self.profile.stop(self._last_comm + wd * 0.020)
+            volts = self.supply_voltage
+            if not self._peek(m.MIN_VOLTAGE, 2) / 10 <= volts <= self._peek(m.MAX_VOLTAGE, 2) / 10:
+                if not self.hardware_error & 0x01:
+                    self.raise_hardware_error(0x01, t)
+        self._last_comm = t
+
+    def _refresh(self, t: float, lo: int, hi: int) -> None:
+        """Write the present values that overlap [lo, hi) into the control table."""
+        if not self.is_servo or hi <= DYNAMIC_LO or lo >= DYNAMIC_HI:
+            return
+        s = self.profile.at(t)
+        mem = self.mem
+        vel_units = s.velocity / VEL_UNIT
+        if lo < 124:
+            self._poke(m.REALTIME_TICK, 2, int(t * 1000) % 32768)
+            thr = self._peek(24, 4)
+            moving = abs(vel_units) > thr
+            mem[m.MOVING] = 1 if moving else 0
+            in_pos = abs(self.profile.target - s.position) < 20 if math.isfinite(self.profile.target) else False
+            mem[m.MOVING_STATUS] = (1 if in_pos else 0) | (2 if s.moving else 0)
+        if lo < 132 and hi > 124:
+            torque = self.torque
+            pwm = int(max(-885, min(885, vel_units / max(1, self._peek(m.VELOCITY_LIMIT, 4)) * 700))) if torque else 0
+            self._poke(m.PRESENT_PWM, 2, pwm, signed=True)
+            load = (s.acceleration / MAX_ACCELERATION * 800 + (15 if torque else 0)) if torque else 0
+            self._poke(m.PRESENT_CURRENT, 2, int(load), signed=True)
+            self._poke(m.PRESENT_VELOCITY, 4, int(vel_units), signed=True)
+        if hi > 132 and lo < 144:
+            pos = int(round(s.position))
+            self._poke(m.PRESENT_POSITION, 4, pos, signed=True)
+            self._poke(m.VELOCITY_TRAJECTORY, 4, int(vel_units), signed=True)
+            self._poke(m.POSITION_TRAJECTORY, 4, pos, signed=True)
+        if hi > 144:
+            sag = 0.2 if s.moving else 0.0
+            self._poke(m.PRESENT_INPUT_VOLTAGE, 2, int(round((self.supply_voltage - sag) * 10)))
+            warm = min(8.0, (t - self._torque_since) / 60.0) if self._torque_since is not None else 0.0
+            mem[m.PRESENT_TEMPERATURE] = int(self.ambient_temperature + warm)

@@ -1,0 +1,1 @@
+"""Bench profiles shipped with hilbench (installed as the ``hilbench.profiles`` package)."""
