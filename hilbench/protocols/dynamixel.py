@@ -514,13 +514,17 @@ class Decoder:
         """Bytes held back waiting for the rest of a packet."""
         return len(self._buf)
 
-    def feed(self, data: bytes, t: float = 0.0) -> list[Item]:
-        """Decode ``data`` (stamped ``t``) and return what it completed."""
+    def feed(self, data: bytes, t: float = 0.0, t_first: float | None = None) -> list[Item]:
+        """Decode ``data`` (stamped ``t``) and return what it completed.
+
+        ``t_first`` is when the chunk's first byte arrived (default ``t``); the
+        inter-byte timeout measures from the previous chunk's ``t`` to it.
+        """
         out: list[Item] = []
         if (
             self.inter_byte_timeout is not None
             and self._last_t is not None
-            and t - self._last_t > self.inter_byte_timeout
+            and (t if t_first is None else t_first) - self._last_t > self.inter_byte_timeout
             and len(self._buf) >= 4
         ):
             self._flush_into(out, t)

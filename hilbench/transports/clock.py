@@ -10,6 +10,9 @@ import time
 #: Below this much time to a deadline, spin instead of sleeping: the kernel's
 #: wake-up latency (timer slack plus scheduling) is of this order.
 SPIN_WINDOW = 150e-6
+#: After traffic, keep polling input this long in precise mode (a host's next
+#: request usually follows within a millisecond).
+SPIN_AFTER_ACTIVITY = 2e-3
 
 _PR_SET_TIMERSLACK = 29
 
@@ -27,14 +30,31 @@ def reduce_timer_slack(nanoseconds: int = 1000) -> bool:
         return False
 
 
-def wait(fds: list[int], deadline: float | None, *, precise: bool = False, idle: float = 0.5) -> list[int]:
+def wait(
+    fds: list[int],
+    deadline: float | None,
+    *,
+    precise: bool = False,
+    spin_until: float = 0.0,
+    idle: float = 0.5,
+) -> list[int]:
     """Wait until one of ``fds`` is readable or ``time.monotonic()`` reaches ``deadline``.
 
     Returns the readable descriptors (possibly none). With ``precise`` the last
     :data:`SPIN_WINDOW` before the deadline is spent polling, so the caller
     wakes within microseconds of it; select's own wake-up can be 100 us late.
+    Until ``spin_until`` input is polled too, so a reply that follows soon
+    after activity is stamped when it arrives rather than when the thread
+    wakes up.
     """
     now = time.monotonic()
+    if precise and now < spin_until:
+        limit = spin_until if deadline is None else min(spin_until, deadline - SPIN_WINDOW)
+        while now < limit:
+            ready = select.select(fds, [], [], 0)[0]
+            if ready:
+                return ready
+            now = time.monotonic()
     if deadline is None:
         timeout = idle
     else:

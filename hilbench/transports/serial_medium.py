@@ -27,7 +27,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Protocol
 
-from hilbench.transports.clock import reduce_timer_slack, wait
+from hilbench.transports.clock import SPIN_AFTER_ACTIVITY, reduce_timer_slack, wait
 from hilbench.transports.pty import PtyEndpoint
 
 log = logging.getLogger(__name__)
@@ -90,6 +90,7 @@ class SerialMedium:
         self._seq = itertools.count()
         self._lock = threading.Lock()
         self._busy_until = 0.0
+        self._last_activity = 0.0
         self._wake_r, self._wake_w = os.pipe()
         os.set_blocking(self._wake_r, False)
         os.set_blocking(self._wake_w, False)
@@ -218,9 +219,9 @@ class SerialMedium:
                 deadline = self._events[0][0] if self._events else None
                 hosts = list(self._hosts)
             fds = [ep.fileno() for ep, _ in hosts] + [self._wake_r]
-            ready = wait(fds, deadline, precise=self.paced)
+            ready = wait(fds, deadline, precise=self.paced, spin_until=self._last_activity + SPIN_AFTER_ACTIVITY)
             if ready:
-                now = time.monotonic()
+                now = self._last_activity = time.monotonic()
                 for endpoint, listen_only in hosts:
                     if endpoint.fileno() in ready:
                         data = endpoint.read()

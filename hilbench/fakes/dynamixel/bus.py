@@ -49,6 +49,9 @@ class DynamixelBus:
     a Fast read reply lacking a device), ``fast_read`` (per-ID override of
     whether a device answers Fast reads; by default X-series models do and
     MX(2.0) models, which the e-Manual does not list, stay silent).
+    ``inter_byte_timeout`` drops a partial instruction when the line stays
+    quiet longer than that (1.5 ms on real devices; None disables it), which
+    is how devices recover from a corrupted LENGTH.
     """
 
     def __init__(
@@ -60,7 +63,7 @@ class DynamixelBus:
         fast_missing: str = "truncate",
         fast_read: dict[int, bool] | None = None,
         strict_stuffing: bool = False,
-        inter_byte_timeout: float | None = None,
+        inter_byte_timeout: float | None = 0.0015,
         reply_crc_errors: bool = True,
     ) -> None:
         if chain_policy not in CHAIN_POLICIES:
@@ -108,7 +111,10 @@ class DynamixelBus:
     # ------------------------------------------------------------------ receiving
 
     def on_bytes(self, data: bytes, t: float, baud: int | None) -> None:
-        for item in self.decoder.feed(data, t):
+        port = self.port
+        # Paced lines deliver a chunk when its last byte is in; its first came earlier.
+        t_first = t - len(data) * 10 / baud if port is not None and port.paced and baud else t
+        for item in self.decoder.feed(data, t, t_first):
             if type(item) is InstructionPacket:
                 self._dispatch(item, t, baud)
             elif type(item) is DecodeProblem and item.kind == "crc":

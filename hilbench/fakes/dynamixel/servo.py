@@ -493,8 +493,8 @@ class Servo:
         if lo < 124:
             self._poke(m.REALTIME_TICK, 2, int(t * 1000) % 32768)
             thr = self._peek(24, 4)
-            moving = abs(vel_units) > thr
-            mem[m.MOVING] = 1 if moving else 0
+            # Moving: the profile is still running or the speed exceeds the Moving Threshold
+            mem[m.MOVING] = 1 if s.moving or abs(vel_units) > thr else 0
             in_pos = abs(self.profile.target - s.position) < 20 if math.isfinite(self.profile.target) else False
             mem[m.MOVING_STATUS] = (1 if in_pos else 0) | (2 if s.moving else 0)
         if lo < 132 and hi > 124:

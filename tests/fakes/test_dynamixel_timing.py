@@ -1,0 +1,57 @@
+"""Paced benches: what the official SDK measures matches wire time plus Return Delay Time."""
+
+from __future__ import annotations
+
+import statistics
+import time
+
+import dynamixel_sdk as sdk
+
+OK = sdk.COMM_SUCCESS
+
+
+def timed(fn, n: int = 30) -> float:
+    times = []
+    for _ in range(n):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times)
+
+
+def open_sdk(bench, baud):
+    port = sdk.PortHandler(bench.endpoint().path)
+    assert port.openPort() and port.setBaudRate(baud)
+    return port, sdk.PacketHandler(2.0)
+
+
+def test_return_delay_time_and_wire_time_as_the_sdk_sees_them(hilbench_bench):
+    bench = hilbench_bench("arm", paced=True)  # 1 Mbaud, factory Return Delay Time 250 (500 us)
+    port, ph = open_sdk(bench, 1_000_000)
+    # Ping: 10 bytes out, 500 us delay, 14 bytes back at 10 us per byte = 740 us
+    ping = timed(lambda: ph.ping(port, 1))
+    assert 0.00074 <= ping < 0.00074 + 0.0015
+    assert ph.write1ByteTxRx(port, 1, 9, 0) == (OK, 0)  # Return Delay Time 0
+    fast = timed(lambda: ph.ping(port, 1))
+    assert 0.00024 <= fast < 0.00024 + 0.0015
+    assert ping - fast > 0.0004  # the 500 us the servo waited
+    port.closePort()
+
+
+def test_sync_read_chain_adds_every_device_delay(hilbench_bench):
+    bench = hilbench_bench("arm", paced=True)
+    port, ph = open_sdk(bench, 1_000_000)
+    reader = sdk.GroupSyncRead(port, ph, 132, 4)
+    for i in (1, 2, 3, 4, 5):
+        reader.addParam(i)
+    chain = timed(lambda: reader.txRxPacket(), n=20)
+    # 19 bytes out, then 5 x (500 us + 15 bytes) = 190 + 5 x 650 us = 3.44 ms
+    assert 0.00344 <= chain < 0.00344 + 0.0015
+    port.closePort()
+
+
+def test_unpaced_bench_ignores_wire_time(hilbench_bench):
+    bench = hilbench_bench("arm", paced=False)
+    port, ph = open_sdk(bench, 1_000_000)
+    assert timed(lambda: ph.ping(port, 1)) < 0.00074
+    port.closePort()

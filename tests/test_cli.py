@@ -1,0 +1,148 @@
+"""The hilbench command line, run as a user runs it: separate processes, real ptys."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+
+import dynamixel_sdk as sdk
+import pytest
+
+from hilbench.pytest_plugin import wait_until
+
+
+def hb(*args: str, timeout: float = 60) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "hilbench.cli", *args], capture_output=True, text=True,
+                          timeout=timeout)
+
+
+@pytest.mark.parametrize(
+    "verb", [[], ["emulate"], ["dxl"], ["dxl", "scan"], ["dxl", "ping"], ["dxl", "read"], ["dxl", "write"],
+             ["demo"], ["profiles"]],
+)
+def test_every_verb_has_help(verb):
+    proc = hb(*verb, "--help")
+    assert proc.returncode == 0
+    assert "usage: hilbench" in proc.stdout
+
+
+@pytest.fixture(scope="module")
+def wolfgang(tmp_path_factory):
+    """`hilbench emulate wolfgang` in its own process, shared by the dxl tool tests."""
+    manifest = tmp_path_factory.mktemp("emu") / "manifest.json"
+    proc = subprocess.Popen([sys.executable, "-m", "hilbench.cli", "emulate", "wolfgang", "--manifest",
+                             str(manifest)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    wait_until(lambda: manifest.exists() or proc.poll() is not None, timeout=30)
+    assert proc.poll() is None, proc.stderr.read()
+    data = json.loads(manifest.read_text())
+    yield data
+    proc.terminate()
+    proc.wait(timeout=10)
+    proc.stdout.close()
+    proc.stderr.close()
+
+
+def test_manifest_lists_endpoints_and_devices(wolfgang):
+    (ep,) = wolfgang["endpoints"]
+    assert ep["type"] == "pty" and ep["name"] == "dxl" and ep["baud"] == 2_000_000
+    assert os.path.exists(ep["path"])
+    devices = {d["id"]: d for d in wolfgang["devices"]}
+    assert set(devices) == set(range(1, 21)) | {42, 101, 102, 241}
+    assert devices[1]["model"] == "MX-64(2.0)" and devices[1]["model_number"] == 311
+    assert devices[11]["firmware"] == 42
+    assert all(d["endpoint"] == "dxl" for d in devices.values())
+
+
+def test_dxl_scan_finds_the_bus(wolfgang):
+    path = wolfgang["endpoints"][0]["path"]
+    proc = hb("dxl", "scan", path, "--baud", "2000000", "--baud", "1000000", "--json")
+    assert proc.returncode == 0, proc.stderr
+    found = {(d["id"], d["baud"]): d for d in json.loads(proc.stdout)}
+    assert {i for i, b in found if b == 2_000_000} == set(range(1, 21)) | {42, 102, 241}  # 101 never answers
+    assert not [k for k in found if k[1] == 1_000_000]  # nothing listens at 1 Mbaud
+    assert found[(8, 2_000_000)]["model_name"] == "MX-106(2.0)"
+    assert found[(16, 2_000_000)]["firmware"] == 42
+
+
+def test_dxl_ping_read_write(wolfgang):
+    path = wolfgang["endpoints"][0]["path"]
+    ping = hb("dxl", "ping", path, "5", "--baud", "2000000")
+    assert ping.returncode == 0 and "MX-64(2.0) (model 311), firmware 41" in ping.stdout
+    read = hb("dxl", "read", path, "5", "present_input_voltage", "--baud", "2000000", "--json")
+    assert json.loads(read.stdout)["value"] == 140 and json.loads(read.stdout)["unit"] == "V"
+    write = hb("dxl", "write", path, "5", "goal_position", "3000", "--baud", "2000000")
+    assert write.returncode == 0, write.stderr
+    back = hb("dxl", "read", path, "5", "116", "4", "--baud", "2000000", "--json")
+    assert json.loads(back.stdout)["value"] == 3000
+    imu = hb("dxl", "read", path, "241", "accel_z", "--baud", "2000000")
+    assert "9.81 m/s^2" in imu.stdout
+
+
+def test_dxl_errors_are_one_line_and_non_zero(wolfgang):
+    path = wolfgang["endpoints"][0]["path"]
+    silent = hb("dxl", "ping", path, "101", "--baud", "2000000")
+    assert silent.returncode == 1
+    assert silent.stderr.strip().splitlines() == [
+        "hilbench: error: ping ID 101 at 2000000 baud: [TxRxResult] There is no status packet!"]
+    limit = hb("dxl", "write", path, "5", "goal_position", "5000", "--baud", "2000000")
+    assert limit.returncode == 1 and "data limit error" in limit.stderr
+    unknown = hb("dxl", "read", path, "5", "warp_factor", "--baud", "2000000")
+    assert unknown.returncode == 1 and "has no field 'warp_factor'" in unknown.stderr
+    noport = hb("dxl", "ping", "/dev/no-such-port", "1")
+    assert noport.returncode == 1 and len(noport.stderr.strip().splitlines()) == 1
+
+
+def test_sdk_in_another_process_runs_a_wolfgang_cycle(wolfgang):
+    port = sdk.PortHandler(wolfgang["endpoints"][0]["path"])
+    assert port.openPort() and port.setBaudRate(2_000_000)
+    ph = sdk.PacketHandler(2.0)
+    reader = sdk.GroupSyncRead(port, ph, 132, 4)
+    for i in range(1, 21):
+        reader.addParam(i)
+    for _ in range(50):
+        assert reader.txRxPacket() == sdk.COMM_SUCCESS
+    assert all(reader.isAvailable(i, 132, 4) for i in range(1, 21))
+    # the foot sensor read of every Wolfgang cycle times out, as on the robot
+    assert ph.readTxRx(port, 101, 36, 16)[1] == sdk.COMM_RX_TIMEOUT
+    port.closePort()
+
+
+def test_emulate_links_and_cleans_up(tmp_path):
+    manifest = tmp_path / "m.json"
+    proc = subprocess.Popen([sys.executable, "-m", "hilbench.cli", "emulate", "arm", "--manifest", str(manifest),
+                             "--link-dir", str(tmp_path / "dev")], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+    try:
+        wait_until(manifest.exists, timeout=30)
+        link = tmp_path / "dev" / "arm"
+        assert os.path.islink(link)
+        assert json.loads(manifest.read_text())["endpoints"][0]["path"] == str(link)
+        port = sdk.PortHandler(str(link))
+        assert port.openPort()
+        assert sdk.PacketHandler(2.0).ping(port, 5)[0] == 1060  # the XL430 gripper
+        port.closePort()
+    finally:
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=10)
+    assert proc.returncode == 0, err
+    assert "arm:" in out and str(tmp_path / "dev" / "arm") in out
+    assert not manifest.exists() and not os.path.lexists(tmp_path / "dev" / "arm")
+
+
+def test_demo_runs_the_sdk_against_the_default_bench():
+    proc = hb("demo", "--seconds", "1.5", timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    assert "Sync Read / Sync Write through the official SDK" in proc.stdout
+    summary = proc.stdout.strip().splitlines()[-1]
+    assert summary.startswith("demo: ") and summary.endswith(", 0 failed reads")
+    cycles = int(summary.split()[1])
+    assert cycles > 100  # a paced 2 Mbaud bus allows ~440 cycles/s
+
+
+def test_profiles_lists_the_bundled_ones():
+    proc = hb("profiles")
+    assert proc.returncode == 0
+    assert "wolfgang (default)" in proc.stdout and "arm:" in proc.stdout

@@ -1,0 +1,160 @@
+"""Pty endpoints and the multi-drop serial line, with real pseudo-terminals."""
+
+from __future__ import annotations
+
+import os
+import termios
+import time
+
+import serial
+
+from hilbench.pytest_plugin import wait_until
+from hilbench.transports.pty import PtyEndpoint
+from hilbench.transports.serial_medium import SerialMedium
+
+
+class Recorder:
+    """An in-process device that records what it receives and can answer."""
+
+    def __init__(self, name: str) -> None:
+        self.name = name
+        self.got: list[tuple[bytes, float, int | None]] = []
+        self.port = None
+        self.answer: bytes | None = None
+        self.gap = 0.0
+
+    def on_bytes(self, data: bytes, t: float, baud: int | None) -> None:
+        self.got.append((data, t, baud))
+        if self.answer and self.port:
+            self.port.transmit(self.answer, t=t, gap=self.gap)
+
+    def received(self) -> bytes:
+        return b"".join(d for d, _, _ in self.got)
+
+
+def read_exactly(ser: serial.Serial, n: int, timeout: float = 2.0) -> bytes:
+    out = b""
+    deadline = time.monotonic() + timeout
+    while len(out) < n and time.monotonic() < deadline:
+        out += ser.read(n - len(out))
+    return out
+
+
+def test_pty_is_raw_and_survives_reopen(tmp_path):
+    with PtyEndpoint("host", link=tmp_path / "dev" / "bus") as ep:
+        assert os.path.islink(tmp_path / "dev" / "bus")
+        assert ep.client_path == str(tmp_path / "dev" / "bus")
+        for _ in range(3):
+            with serial.Serial(ep.client_path, 115200, timeout=1) as ser:
+                ser.write(b"\x19\x0d\x03\x00")  # bytes a cooked tty would rewrite or treat as signals
+                got = wait_until(ep.read)
+                assert got == b"\x19\x0d\x03\x00"
+                ep.write(b"\x19\x0d\x0a\xff")
+                assert read_exactly(ser, 4) == b"\x19\x0d\x0a\xff"
+                assert ep.client_baud() == 115200
+    assert not os.path.lexists(tmp_path / "dev" / "bus")
+
+
+def test_client_baud_is_read_from_termios():
+    with PtyEndpoint("host") as ep, serial.Serial(ep.path, 1_000_000) as ser:
+        assert ep.client_baud() == 1_000_000
+        ser.baudrate = 57600
+        assert ep.client_baud() == 57600
+        assert termios.tcgetattr(ep.slave_fd)[5] == termios.B57600
+
+
+def test_a_full_client_buffer_drops_and_counts_instead_of_blocking():
+    with PtyEndpoint("host") as ep:
+        sent = ep.write(bytes(1 << 20))  # nobody reads: the pty buffer fills up
+        assert sent < 1 << 20
+        assert ep.dropped == (1 << 20) - sent
+
+
+def test_every_party_hears_every_other_and_taps_see_everything():
+    a, b = PtyEndpoint("a"), PtyEndpoint("b")
+    dev1, dev2 = Recorder("dev1"), Recorder("dev2")
+    line = SerialMedium("line", 115200)
+    tapped: list[tuple[float, str, bytes]] = []
+    line.add_tap(lambda t, src, data: tapped.append((t, src, data)))
+    line.add_host(a)
+    line.add_host(b)
+    dev1.port = line.add_device(dev1)
+    line.add_device(dev2)
+    dev1.answer = b"pong"
+    line.start()
+    try:
+        with serial.Serial(a.path, 115200, timeout=0) as sa, serial.Serial(b.path, 115200, timeout=0) as sb:
+            sa.write(b"ping")
+            # host b hears host a and device 1; host a hears only device 1 (not its own echo)
+            assert read_exactly(sb, 8) == b"pingpong"
+            assert read_exactly(sa, 4) == b"pong"
+            assert wait_until(lambda: dev2.received() == b"pingpong")
+            assert dev1.received() == b"ping"  # a device does not hear itself
+            assert dev1.got[0][2] == 115200  # with the sender's line rate
+        assert [(src, data) for _, src, data in tapped] == [("a", b"ping"), ("dev1", b"pong")]
+        assert tapped[0][0] <= tapped[1][0]
+        assert line.stats.by_source == {"a": 4, "dev1": 4}
+    finally:
+        line.close()
+        a.close()
+        b.close()
+
+
+def test_listen_only_host_hears_but_is_not_heard():
+    host, sniffer = PtyEndpoint("host"), PtyEndpoint("sniffer")
+    dev = Recorder("dev")
+    line = SerialMedium("line", 115200)
+    line.add_host(host)
+    line.add_host(sniffer, listen_only=True)
+    line.add_device(dev)
+    line.start()
+    try:
+        with serial.Serial(host.path, timeout=0) as sh, serial.Serial(sniffer.path, timeout=0) as ss:
+            ss.write(b"ignored")
+            sh.write(b"hello")
+            assert read_exactly(ss, 5) == b"hello"
+            wait_until(lambda: dev.received() == b"hello")
+            assert read_exactly(sh, 1, timeout=0.05) == b""
+    finally:
+        line.close()
+        host.close()
+        sniffer.close()
+
+
+def test_paced_line_models_wire_time_and_reply_gap():
+    """10 bytes at 9600 baud take 10.4 ms each way; the reply waits its gap after the request."""
+    host = PtyEndpoint("host")
+    dev = Recorder("dev")
+    line = SerialMedium("line", 9600, paced=True)
+    line.add_host(host)
+    dev.port = line.add_device(dev)
+    dev.answer = bytes(10)
+    dev.gap = 0.005
+    tapped = []
+    line.add_tap(lambda t, src, data: tapped.append((t, src)))
+    line.start()
+    try:
+        with serial.Serial(host.path, 9600, timeout=0) as ser:
+            t0 = time.monotonic()
+            ser.write(bytes(10))
+            assert read_exactly(ser, 10) == bytes(10)
+            elapsed = time.monotonic() - t0
+        byte_time = 10 / 9600
+        expected = 10 * byte_time + 0.005 + 10 * byte_time  # request, gap, reply
+        assert expected * 0.98 < elapsed < expected + 0.010
+        (t_req, src_req), (t_rep, src_rep) = tapped
+        assert (src_req, src_rep) == ("host", "dev")
+        assert abs((t_rep - t_req) - (0.005 + 10 * byte_time)) < 1e-6  # the model itself is exact
+    finally:
+        line.close()
+        host.close()
+
+
+def test_paced_transmissions_queue_behind_each_other():
+    line = SerialMedium("line", 100_000, paced=True)  # 100 us per byte
+    t = time.monotonic() + 1.0
+    end1 = line.transmit("x", bytes(10), t=t)
+    end2 = line.transmit("y", bytes(5), t=t)  # the line is busy until end1
+    assert abs(end1 - (t + 0.001)) < 1e-9
+    assert abs(end2 - (end1 + 0.0005)) < 1e-9
+    line.close()

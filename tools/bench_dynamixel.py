@@ -1,0 +1,142 @@
+#!/usr/bin/env python3
+"""Dynamixel benchmarks; prints one JSON object per figure (see DESIGN.md §10).
+
+1. Decoder throughput on the real Wolfgang capture, as a ratio to the
+   4.5 Mbaud line rate (450,000 bytes/s). Target: >= 30x.
+2. A 20-servo control cycle (Sync Read of Present Position + Sync Write of
+   Goal Position) driven by the official SDK in this process against
+   ``hilbench emulate wolfgang`` in another:
+   - unpaced: cycles/s (target >= 1000/s on a 2-core machine); the reference
+     is the cycle rate the 2 Mbaud wire allows;
+   - paced at 2 Mbaud: measured cycle time against the wire-time model of the
+     cycle (target: within 10%, i.e. ratio 0.9..1.1).
+
+Usage: tools/bench_dynamixel.py [--capture PATH] [--seconds S] [--only decoder|unpaced|paced]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import dynamixel_sdk as sdk
+
+from hilbench.protocols.dynamixel import Decoder
+
+REPO = Path(__file__).resolve().parents[1]
+LINE_RATE_4M5 = 450_000  # bytes/s at 4.5 Mbaud, 8N1
+BAUD = 2_000_000
+IDS = list(range(1, 21))
+# Wire bytes of one cycle: Sync Read (14 + 20) + 20 replies (11 + 4) + Sync Write (14 + 20 * 5).
+CYCLE_BYTES = (14 + 20) + 20 * 15 + (14 + 20 * 5)
+
+
+def emit(name: str, value: float, unit: str, reference: float, ratio: float, **extra) -> None:
+    print(json.dumps({"name": name, "value": round(value, 3), "unit": unit, "reference": round(reference, 3),
+                      "ratio": round(ratio, 3), **extra}), flush=True)
+
+
+def bench_decoder(capture: Path, repeats: int = 9) -> None:
+    data = capture.read_bytes()
+    for label, chunk in (("whole", len(data)), ("4k_chunks", 4096)):
+        times = []
+        for _ in range(repeats):
+            dec = Decoder()
+            t0 = time.perf_counter()
+            for i in range(0, len(data), chunk):
+                dec.feed(data[i : i + chunk])
+            dec.flush()
+            times.append(time.perf_counter() - t0)
+        rate = len(data) / statistics.median(times)
+        emit(f"dxl_decoder_{label}", rate, "bytes/s", LINE_RATE_4M5, rate / LINE_RATE_4M5, target_ratio=30,
+             best_ratio=round(len(data) / min(times) / LINE_RATE_4M5, 3), packets=dec.packets)
+
+
+def start_emulator(paced: bool) -> tuple[subprocess.Popen, str, tempfile.TemporaryDirectory]:
+    tmp = tempfile.TemporaryDirectory(prefix="hilbench-bench-")
+    manifest = Path(tmp.name) / "manifest.json"
+    cmd = [sys.executable, "-m", "hilbench.cli", "emulate", "wolfgang", "--manifest", str(manifest),
+           "--paced" if paced else "--unpaced"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, cwd=REPO)
+    deadline = time.monotonic() + 20
+    while not manifest.exists():
+        if proc.poll() is not None or time.monotonic() > deadline:
+            proc.kill()
+            raise SystemExit(f"emulator did not start: {proc.stderr.read().decode()}")
+        time.sleep(0.01)
+    path = json.loads(manifest.read_text())["endpoints"][0]["path"]
+    return proc, path, tmp
+
+
+def run_cycles(path: str, seconds: float) -> tuple[int, float]:
+    port = sdk.PortHandler(path)
+    port.openPort()
+    port.setBaudRate(BAUD)
+    ph = sdk.PacketHandler(2.0)
+    reader = sdk.GroupSyncRead(port, ph, 132, 4)
+    writer = sdk.GroupSyncWrite(port, ph, 116, 4)
+    for i in IDS:
+        reader.addParam(i)
+        writer.addParam(i, [0x00, 0x08, 0, 0])
+
+    def cycle() -> None:
+        if reader.txRxPacket() != sdk.COMM_SUCCESS:
+            raise SystemExit("sync read failed")
+        writer.txPacket()
+
+    warm_end = time.perf_counter() + min(0.5, seconds / 4)
+    while time.perf_counter() < warm_end:
+        cycle()
+    n = 0
+    t0 = time.perf_counter()
+    end = t0 + seconds
+    while time.perf_counter() < end:
+        cycle()
+        n += 1
+    dt = time.perf_counter() - t0
+    port.closePort()
+    return n, dt
+
+
+def bench_cycle(paced: bool, seconds: float) -> None:
+    proc, path, tmp = start_emulator(paced)
+    try:
+        n, dt = run_cycles(path, seconds)
+    finally:
+        proc.terminate()
+        proc.wait(timeout=5)
+        tmp.cleanup()
+    wire_cycle = CYCLE_BYTES * 10 / BAUD  # seconds per cycle on the wire, Return Delay Time 0
+    if paced:
+        measured = dt / n
+        emit("dxl_sdk_cycle_paced_2M", measured * 1e3, "ms/cycle", wire_cycle * 1e3, measured / wire_cycle,
+             target="ratio within 0.9..1.1", cycles=n)
+    else:
+        rate = n / dt
+        emit("dxl_sdk_cycle_unpaced", rate, "cycles/s", 1 / wire_cycle, rate * wire_cycle, target_value=1000,
+             cycles=n, cpus=os.cpu_count())
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--capture", type=Path, default=REPO.parent / "shared/data/dynamixel/wolfgang_trace.bin")
+    ap.add_argument("--seconds", type=float, default=3.0, help="measuring time per cycle benchmark")
+    ap.add_argument("--only", choices=("decoder", "unpaced", "paced"))
+    args = ap.parse_args()
+    if args.only in (None, "decoder"):
+        bench_decoder(args.capture)
+    if args.only in (None, "unpaced"):
+        bench_cycle(False, args.seconds)
+    if args.only in (None, "paced"):
+        bench_cycle(True, args.seconds)
+
+
+if __name__ == "__main__":
+    main()
