@@ -15,6 +15,7 @@ import time
 from dataclasses import dataclass, field
 
 import dynamixel_sdk as sdk
+from rich import box
 from rich.console import Console, Group
 from rich.live import Live
 from rich.table import Table
@@ -55,27 +56,34 @@ class DemoResult:
 
 
 def _render(result: DemoResult, elapsed: float, title: str, line_rate: float) -> Group:
-    table = Table(title=title, expand=False, header_style="bold")
-    for col in ("ID", "model", "goal", "position", "deg", "V", "C"):
-        table.add_column(col, justify="right")
-    for v in result.servos.values():
-        pos = "-" if v.position is None else str(v.position)
-        deg = "-" if v.position is None else f"{v.position * 360 / 4096:6.1f}"
-        table.add_row(
+    """Two servos per row, so twenty fit an 80x24 terminal with the status line."""
+    table = Table(title=title, box=box.SIMPLE_HEAD, padding=(0, 1), pad_edge=False, header_style="bold")
+    for _ in range(2):
+        for col in ("ID", "model", "goal", "pos", "V", "C"):
+            table.add_column(col, justify="right")
+    views = list(result.servos.values())
+    half = (len(views) + 1) // 2
+
+    def cells(v: ServoView | None) -> list[str]:
+        if v is None:
+            return [""] * 6
+        return [
             str(v.id),
-            v.model,
+            v.model.replace("(2.0)", ""),
             str(v.goal),
-            pos,
-            deg,
+            "-" if v.position is None else str(v.position),
             "-" if v.voltage is None else f"{v.voltage:.1f}",
             "-" if v.temperature is None else str(v.temperature),
-        )
+        ]
+
+    for k in range(half):
+        right = views[k + half] if k + half < len(views) else None
+        table.add_row(*cells(views[k]), *cells(right))
     rate = result.cycles / elapsed if elapsed else 0.0
+    bps = result.line_bytes / max(elapsed, 1e-9)
     status = Text(
-        f"{result.cycles} cycles in {elapsed:4.1f} s ({rate:5.0f}/s), "
-        f"{result.line_bytes / max(elapsed, 1e-9) / 1000:6.1f} kB/s on the line "
-        f"({result.line_bytes / max(elapsed, 1e-9) / line_rate:4.0%} of its rate), "
-        f"{result.failed_reads} failed reads",
+        f"{elapsed:4.1f} s: {result.cycles} cycles ({rate:4.0f}/s), line {bps / 1000:5.1f} kB/s "
+        f"({bps / line_rate:4.0%} busy), {result.failed_reads} failed reads",
         style="green" if result.failed_reads == 0 else "yellow",
     )
     return Group(table, status)
@@ -120,7 +128,7 @@ def run_demo(
             bytes0 = ep.medium.stats.bytes
             last_draw = 0.0
             timing = "paced at wire speed" if ep.medium.paced else "unpaced"
-            title = f"{prof.name}: Sync Read / Sync Write through the official SDK ({timing})"
+            title = f"{prof.name}: SDK Sync Read / Sync Write, {timing}"
             rate = ep.spec.baud / 10  # bytes/s at 8N1
             with Live(_render(result, 0.0, title, rate), console=console, refresh_per_second=10,
                       auto_refresh=False) as live:

@@ -135,7 +135,7 @@ def test_emulate_links_and_cleans_up(tmp_path):
 def test_demo_runs_the_sdk_against_the_default_bench():
     proc = hb("demo", "--seconds", "1.5", timeout=60)
     assert proc.returncode == 0, proc.stderr
-    assert "Sync Read / Sync Write through the official SDK" in proc.stdout
+    assert "SDK Sync Read / Sync Write" in proc.stdout
     summary = proc.stdout.strip().splitlines()[-1]
     assert summary.startswith("demo: ") and summary.endswith(", 0 failed reads")
     cycles = int(summary.split()[1])

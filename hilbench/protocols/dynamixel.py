@@ -560,6 +560,11 @@ class Decoder:
         max_len = self.max_length
         strict = self.strict_stuffing
         problems = self.problems
+
+        def reject(kind: str, raw: bytes, detail: str) -> None:
+            problems[kind] += 1
+            append(DecodeProblem(kind, raw, t, detail))
+
         skipped = 0
         packets = 0
         pos = 0
@@ -571,70 +576,50 @@ class Decoder:
                 pos = keep
                 break
             skipped += start - pos
+            # Every rejection below counts the candidate's first byte as skipped and
+            # resumes one byte later, so a corrupted LENGTH cannot swallow good packets.
             if start + 7 > n:
-                if final:
-                    problems["truncated"] += 1
-                    append(DecodeProblem("truncated", buf[start:], t, "stream ended inside a packet"))
-                    skipped += 1
-                    pos = start + 1
-                    continue
-                pos = start
-                break
-            length = buf[start + 5] | buf[start + 6] << 8
-            if not 3 <= length <= max_len:
-                problems["bad_length"] += 1
-                append(DecodeProblem("bad_length", buf[start : start + 7], t, f"LENGTH {length}"))
-                skipped += 1
-                pos = start + 1
-                continue
-            end = start + 7 + length
-            if end > n:
-                if final:
-                    problems["truncated"] += 1
-                    append(DecodeProblem("truncated", buf[start:], t, f"LENGTH {length} past the end"))
-                    skipped += 1
-                    pos = start + 1
-                    continue
-                pos = start
-                break
-            if length == 3 and buf[start + 7] == 0x55:  # a status needs ERR too
-                problems["bad_length"] += 1
-                append(DecodeProblem("bad_length", buf[start:end], t, "status with LENGTH 3"))
-                skipped += 1
-                pos = start + 1
-                continue
-            raw = buf[start:end]
-            if crc16(raw[:-2], 0, table) != raw[-2] | raw[-1] << 8:
-                problems["crc"] += 1
-                append(DecodeProblem("crc", raw, t, "mismatched checksum"))
-                skipped += 1
-                pos = start + 1
-                continue
-            pid = raw[4]
-            if raw[7] == 0x55:
-                data = raw[9:-2]
-                if pid != BROADCAST_ID and b"\xff\xff\xfd" in data:
-                    if strict and _unescaped(data):
-                        problems["stuffing"] += 1
-                        append(DecodeProblem("stuffing", raw, t, "unescaped FF FF FD"))
-                        skipped += 1
-                        pos = start + 1
-                        continue
-                    data = data.replace(STUFFED, STUFF_PATTERN)
-                append(new(StatusPacket, (pid, raw[8], data, raw, t)))
+                if not final:
+                    pos = start
+                    break
+                reject("truncated", buf[start:], "stream ended inside a packet")
             else:
-                params = raw[8:-2]
-                if b"\xff\xff\xfd" in params:
-                    if strict and _unescaped(params):
-                        problems["stuffing"] += 1
-                        append(DecodeProblem("stuffing", raw, t, "unescaped FF FF FD"))
-                        skipped += 1
-                        pos = start + 1
+                length = buf[start + 5] | buf[start + 6] << 8
+                end = start + 7 + length
+                if not 3 <= length <= max_len:
+                    reject("bad_length", buf[start : start + 7], f"LENGTH {length}")
+                elif end > n:
+                    if not final:
+                        pos = start
+                        break
+                    reject("truncated", buf[start:], f"LENGTH {length} past the end")
+                elif length == 3 and buf[start + 7] == 0x55:
+                    reject("bad_length", buf[start:end], "status with LENGTH 3")
+                else:
+                    raw = buf[start:end]
+                    if crc16(raw[:-2], 0, table) != raw[-2] | raw[-1] << 8:
+                        reject("crc", raw, "mismatched checksum")
+                    else:
+                        pid = raw[4]
+                        inst = raw[7]
+                        body = raw[8:-2]  # parameters, or ERR + data of a status
+                        # the combined Fast-read reply (FE + status) is never stuffed
+                        if b"\xff\xff\xfd" in body and (pid != BROADCAST_ID or inst != 0x55):
+                            if strict and _unescaped(body):
+                                reject("stuffing", raw, "unescaped FF FF FD")
+                                skipped += 1
+                                pos = start + 1
+                                continue
+                            body = body.replace(STUFFED, STUFF_PATTERN)
+                        if inst == 0x55:
+                            append(new(StatusPacket, (pid, raw[8], body[1:], raw, t)))
+                        else:
+                            append(new(InstructionPacket, (pid, inst, body, raw, t)))
+                        packets += 1
+                        pos = end
                         continue
-                    params = params.replace(STUFFED, STUFF_PATTERN)
-                append(new(InstructionPacket, (pid, raw[7], params, raw, t)))
-            packets += 1
-            pos = end
+            skipped += 1
+            pos = start + 1
         self.bytes_skipped += skipped
         self.packets += packets
         return pos
