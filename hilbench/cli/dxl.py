@@ -1,0 +1,110 @@
+"""``hilbench dxl``: Dynamixel tools for any port, real or emulated, through the official SDK."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+from hilbench.cli.common import int_arg
+
+
+def cmd_dxl_scan(args: argparse.Namespace) -> int:
+    from hilbench import dxl_client
+
+    bauds = tuple(args.baud) if args.baud else dxl_client.SCAN_BAUDS
+    found = dxl_client.scan(args.port, bauds, protocol=float(args.protocol))
+    if args.json:
+        print(json.dumps([{"id": f.id, "model": f.model_number, "model_name": f.model_name,
+                           "firmware": f.firmware, "baud": f.baud} for f in found]))
+        return 0
+    from rich.console import Console
+    from rich.table import Table
+
+    table = Table(title=f"Dynamixel devices on {args.port}")
+    for col in ("ID", "model", "number", "firmware", "baud"):
+        table.add_column(col, justify="right")
+    for f in found:
+        table.add_row(str(f.id), f.model_name, str(f.model_number), str(f.firmware), str(f.baud))
+    Console().print(table)
+    if not found:
+        print(f"no device answered at {', '.join(map(str, bauds))} baud", file=sys.stderr)
+        return 1
+    return 0
+
+
+def cmd_dxl_ping(args: argparse.Namespace) -> int:
+    from hilbench import dxl_client
+
+    f = dxl_client.ping(args.port, args.id, args.baud, protocol=float(args.protocol))
+    if args.json:
+        print(json.dumps({"id": f.id, "model": f.model_number, "model_name": f.model_name, "firmware": f.firmware}))
+    else:
+        print(f"ID {f.id}: {f.model_name} (model {f.model_number}), firmware {f.firmware}")
+    return 0
+
+
+def cmd_dxl_read(args: argparse.Namespace) -> int:
+    from hilbench import dxl_client
+
+    address, raw, f = dxl_client.read(args.port, args.id, args.item, args.baud, args.length)
+    if args.json:
+        value = f.decode(raw[: f.size]) if f and len(raw) >= f.size else int.from_bytes(raw, "little")
+        print(json.dumps({"id": args.id, "address": address, "item": f.key if f else None, "value": value,
+                          "unit": f.unit if f else "", "raw": raw.hex()}))
+    else:
+        name = f.name if f else f"address {address}"
+        print(f"ID {args.id} {name}: {dxl_client.format_value(raw, f)}")
+    return 0
+
+
+def cmd_dxl_write(args: argparse.Namespace) -> int:
+    from hilbench import dxl_client
+
+    address, f = dxl_client.write(args.port, args.id, args.item, args.value, args.baud, args.length)
+    print(f"ID {args.id} {f.name if f else f'address {address}'} <- {args.value}")
+    return 0
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    d = sub.add_parser("dxl", help="Dynamixel tools for any port, real or emulated (official SDK)",
+                       description="Talk to Dynamixel devices on a serial port through the official dynamixel-sdk.")
+    dsub = d.add_subparsers(dest="dxl_verb", required=True, metavar="TOOL")
+
+    def port_args(q: argparse.ArgumentParser, baud: bool = True) -> None:
+        q.add_argument("port", help="serial port, e.g. /dev/ttyUSB0 or an emulated pty")
+        if baud:
+            q.add_argument("--baud", type=int_arg, default=57_600, help="baud rate (default: 57600)")
+
+    s = dsub.add_parser("scan", help="find IDs and models across baud rates",
+                        description="Broadcast-ping at each baud rate and list every device that answers.")
+    port_args(s, baud=False)
+    s.add_argument("--baud", type=int_arg, action="append", help="baud rate to try (repeatable; default: all)")
+    s.add_argument("--protocol", choices=("1", "2"), default="2", help="protocol version (default: 2)")
+    s.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    s.set_defaults(func=cmd_dxl_scan)
+
+    pg = dsub.add_parser("ping", help="ping one ID", description="Ping one ID and print its model and firmware.")
+    port_args(pg)
+    pg.add_argument("id", type=int_arg, help="device ID (0-252)")
+    pg.add_argument("--protocol", choices=("1", "2"), default="2", help="protocol version (default: 2)")
+    pg.add_argument("--json", action="store_true", help="print JSON")
+    pg.set_defaults(func=cmd_dxl_ping)
+
+    r = dsub.add_parser("read", help="read a control-table item",
+                        description="Read an item by name (present_position) or address (132 [LENGTH]).")
+    port_args(r)
+    r.add_argument("id", type=int_arg, help="device ID")
+    r.add_argument("item", help="item name (e.g. present_position) or address")
+    r.add_argument("length", type=int_arg, nargs="?", help="bytes to read (default: the item's size)")
+    r.add_argument("--json", action="store_true", help="print JSON")
+    r.set_defaults(func=cmd_dxl_read)
+
+    w = dsub.add_parser("write", help="write a control-table item",
+                        description="Write an item by name (goal_position) or address.")
+    port_args(w)
+    w.add_argument("id", type=int_arg, help="device ID")
+    w.add_argument("item", help="item name (e.g. goal_position) or address")
+    w.add_argument("value", type=int_arg, help="value to write (decimal or 0x hex; negative for signed items)")
+    w.add_argument("--length", type=int_arg, help="bytes to write (default: the item's size)")
+    w.set_defaults(func=cmd_dxl_write)

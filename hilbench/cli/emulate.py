@@ -1,0 +1,55 @@
+"""``hilbench emulate``: run the devices of a profile until interrupted."""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import threading
+from pathlib import Path
+
+from hilbench.profile import DEFAULT_PROFILE, load_profile
+
+
+def cmd_emulate(args: argparse.Namespace) -> int:
+    from hilbench.bench import Bench
+
+    profile = load_profile(args.profile)
+    paced = True if args.paced else (False if args.unpaced else None)
+    bench = Bench(profile, paced=paced, link_dir=args.link_dir)
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    bench.start()
+    manifest = Path(args.manifest) if args.manifest else None
+    try:
+        if manifest:
+            bench.write_manifest(manifest)
+        print(f"hilbench: bench {profile.name!r} running ({len(bench.devices)} devices); Ctrl-C stops it")
+        for ep in bench.endpoints.values():
+            timing = "paced" if ep.medium.paced else "unpaced"
+            n = len(ep.bus.servos)
+            print(f"  {ep.name}: {ep.path}  ({ep.spec.protocol}, {ep.spec.baud} baud, {timing}, {n} devices)")
+        if manifest:
+            print(f"  manifest: {manifest}")
+        sys.stdout.flush()
+        stop.wait()
+    finally:
+        bench.stop()
+        if manifest:
+            manifest.unlink(missing_ok=True)
+    return 0
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    e = sub.add_parser("emulate", help="run a bench from a profile until interrupted",
+                       description="Start the devices of a profile behind pseudo-terminals and run until Ctrl-C. "
+                                   "Once every endpoint is ready, the manifest (JSON) is written.")
+    e.add_argument("profile", nargs="?", default=DEFAULT_PROFILE,
+                   help=f"profile file or bundled profile name (default: {DEFAULT_PROFILE})")
+    e.add_argument("--manifest", metavar="FILE", help="write where every endpoint and device is to FILE (JSON)")
+    timing = e.add_mutually_exclusive_group()
+    timing.add_argument("--paced", action="store_true", help="model wire time and Return Delay Time on every line")
+    timing.add_argument("--unpaced", action="store_true", help="deliver bytes at once on every line")
+    e.add_argument("--link-dir", metavar="DIR", help="also make a stable symlink DIR/<endpoint> to each pty")
+    e.set_defaults(func=cmd_emulate)
