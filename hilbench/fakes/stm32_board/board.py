@@ -193,8 +193,9 @@ class Board:
     # ------------------------------------------------------------------ live operation
 
     def attach(self, medium) -> None:
-        """Join a serial line as a device (the line delivers host bytes to :meth:`on_bytes`)."""
-        self.port = medium.add_device(self)
+        """Join a serial line as a device named ``<name>-board`` (the host port keeps the endpoint's
+        name, so taps tell the two directions apart); host bytes arrive at :meth:`on_bytes`."""
+        self.port = medium.add_device(_LineParty(self, f"{self.name}-board"))
 
     def on_bytes(self, data: bytes, t: float, baud: int | None) -> None:
         """Host bytes from the line, received at monotonic time ``t`` (the chunk's last byte)."""
@@ -251,3 +252,14 @@ class Board:
                 log.exception("board %s failed", self.name)
             self._wake.wait(STEP_S)
             self._wake.clear()
+
+
+class _LineParty:
+    """The board as a party on a serial line, under its own name."""
+
+    def __init__(self, board: Board, name: str) -> None:
+        self.board = board
+        self.name = name
+
+    def on_bytes(self, data: bytes, t: float, baud: int | None) -> None:
+        self.board.on_bytes(data, t, baud)
