@@ -647,31 +647,18 @@ def _commit(k, tasks, bg, st: _Struct, counts, t_switch_in, t_end_job) -> None:
 
 def _record_fast(k, tasks, bg, st: _Struct, t_in, t_out) -> None:
     """Stamps per burst: background out, (job in, job out)*, background in."""
-    n, m = st.n, st.m
     sw = k.switch_us
-    ids = np.array([t.stamp_id for t in tasks], dtype=np.int16)[st.ji]
-    total = 2 * n + 2 * m
-    t = np.empty(total)
-    sid = np.empty(total, dtype=np.int16)
-    b = np.empty(total, dtype=bool)
-    pos_in = st.pos_in
-    t[pos_in] = t_in + sw
-    sid[pos_in] = ids
-    b[pos_in] = True
-    t[pos_in + 1] = t_out
-    sid[pos_in + 1] = ids
-    b[pos_in + 1] = False
+    sid, b = st.stamp_labels(bg.stamp_id, tuple(t.stamp_id for t in tasks))
+    t = np.empty(len(sid))
+    t[st.pos_in] = t_in + sw
+    t[st.pos_out] = t_out
     t[st.first_pos] = t_in[st.start]
-    sid[st.first_pos] = bg.stamp_id
-    b[st.first_pos] = False
     t[st.last_pos] = t_out[st.last] + sw
-    sid[st.last_pos] = bg.stamp_id
-    b[st.last_pos] = True
     if not (bg.hooked and all(t_.hooked for t_ in tasks)):
-        keep = np.ones(total, dtype=bool)
+        keep = np.ones(len(sid), dtype=bool)
         hooked = np.array([t_.hooked for t_ in tasks])[st.ji]
-        keep[pos_in] = hooked
-        keep[pos_in + 1] = hooked
+        keep[st.pos_in] = hooked
+        keep[st.pos_out] = hooked
         if not bg.hooked:
             keep[st.first_pos] = False
             keep[st.last_pos] = False
@@ -714,12 +701,14 @@ class _ShadowList:
 class _Struct:
     """Per-job and per-burst index arrays of a release pattern (ticks relative to the run's first)."""
 
-    __slots__ = ("jt", "ji", "start", "last", "blen", "brel", "pos_in", "first_pos", "last_pos", "n", "m")
+    __slots__ = ("jt", "ji", "start", "last", "blen", "brel", "pos_in", "first_pos", "last_pos", "n", "m",
+                 "pos_out", "labels")
 
     def __init__(self, jt: np.ndarray, ji: np.ndarray, *, _raw: tuple | None = None) -> None:
+        self.labels: dict = {}  # (background id, task ids) -> stamp ids and edges of every slot
         if _raw is not None:
             (self.jt, self.ji, self.start, self.last, self.blen, self.brel, self.pos_in, self.first_pos,
-             self.last_pos) = _raw
+             self.last_pos, self.pos_out) = _raw
             self.n, self.m = len(self.jt), len(self.start)
             return
         n = len(jt)
@@ -727,6 +716,7 @@ class _Struct:
         if n == 0:
             z = np.zeros(0, dtype=np.int64)
             self.start = self.last = self.blen = self.brel = self.pos_in = self.first_pos = self.last_pos = z
+            self.pos_out = z
             self.m = 0
             return
         new = np.empty(n, dtype=bool)
@@ -740,6 +730,27 @@ class _Struct:
         self.pos_in = 2 * np.arange(n) + 1 + 2 * np.repeat(np.arange(self.m), self.blen)
         self.first_pos = self.pos_in[self.start] - 1
         self.last_pos = self.pos_in[self.last] + 2
+        self.pos_out = self.pos_in + 1
+
+    def stamp_labels(self, bg_id: int, ids: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
+        """Stamp ids and edges of every stamp slot (they do not depend on the durations)."""
+        key = (bg_id, ids)
+        lab = self.labels.get(key)
+        if lab is None:
+            total = 2 * self.n + 2 * self.m
+            sid = np.empty(total, dtype=np.int16)
+            b = np.empty(total, dtype=bool)
+            job_ids = np.array(ids, dtype=np.int16)[self.ji]
+            sid[self.pos_in] = job_ids
+            sid[self.pos_out] = job_ids
+            b[self.pos_in] = True
+            b[self.pos_out] = False
+            sid[self.first_pos] = bg_id
+            b[self.first_pos] = False
+            sid[self.last_pos] = bg_id
+            b[self.last_pos] = True
+            lab = self.labels[key] = (sid, b)
+        return lab
 
     def prefix(self, horizon: int) -> _Struct:
         """The bursts in ticks < horizon."""
@@ -751,8 +762,11 @@ class _Struct:
     def cut(self, m: int) -> _Struct:
         """The first ``m`` bursts."""
         n = int(self.start[m]) if m < self.m else self.n
-        return _Struct(None, None, _raw=(self.jt[:n], self.ji[:n], self.start[:m], self.last[:m], self.blen[:m],
-                                         self.brel[:m], self.pos_in[:n], self.first_pos[:m], self.last_pos[:m]))
+        cut = _Struct(None, None, _raw=(self.jt[:n], self.ji[:n], self.start[:m], self.last[:m], self.blen[:m],
+                                        self.brel[:m], self.pos_in[:n], self.first_pos[:m], self.last_pos[:m],
+                                        self.pos_out[:n]))
+        cut.labels = {key: (sid[: 2 * n + 2 * m], b[: 2 * n + 2 * m]) for key, (sid, b) in self.labels.items()}
+        return cut
 
 
 class _Shadow:
