@@ -558,8 +558,9 @@ def fast_run(k: Kernel, k0: int, k_end: int, tasks: list[Task], bg: Task | None 
     if shadow is not None:
         st, k_end = shadow.structure(k_end)
     else:
-        st = _Struct(np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64))
+        st = _Struct(np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)).view(0)
     n = st.n
+    counts = None
     if n:
         ji = st.ji
         # Durations in each task's own stream order: group the jobs by task (stable), fill, scatter back.
@@ -571,12 +572,13 @@ def fast_run(k: Kernel, k0: int, k_end: int, tasks: list[Task], bg: Task | None 
         step = d + sw
         cs = np.cumsum(step)
         excl = cs - step
+        brel = st.brel
         t_switch_in = (st.jt + k0) * tick_us + (isr - np.repeat(excl[st.start], st.blen)) + excl
         t_end_job = t_switch_in + step  # its switch-out
         burst_end = t_end_job[st.last] + sw  # the background's switch-in stamp
-        bad = np.flatnonzero(burst_end >= (st.brel + (k0 + 1)) * tick_us)
+        bad = np.flatnonzero(burst_end >= (brel + (k0 + 1)) * tick_us)
         if len(bad):
-            k_end = k0 + int(st.brel[bad[0]])
+            k_end = k0 + int(brel[bad[0]])
             k._no_fast_before = k_end + 1  # do not retry until the overloaded tick is past
     else:
         burst_end = np.zeros(0)
@@ -601,10 +603,12 @@ def fast_run(k: Kernel, k0: int, k_end: int, tasks: list[Task], bg: Task | None 
         st = st.cut(keep_bursts)
         n = st.n
         burst_ticks, burst_end = burst_ticks[:keep_bursts], burst_end[:keep_bursts]
+        counts = None
         if n:
             t_switch_in, t_end_job = t_switch_in[:n], t_end_job[:n]
     if n:
-        counts = np.bincount(st.ji, minlength=len(tasks))
+        if counts is None:
+            counts = np.bincount(st.ji, minlength=len(tasks))
         _commit(k, tasks, bg, st, counts, t_switch_in, t_end_job)
     if shadow is not None:
         shadow.apply(k, k_end - 1)
@@ -619,7 +623,7 @@ def fast_run(k: Kernel, k0: int, k_end: int, tasks: list[Task], bg: Task | None 
     k.fast_ticks += k_end - k0
 
 
-def _commit(k, tasks, bg, st: _Struct, counts, t_switch_in, t_end_job) -> None:
+def _commit(k, tasks, bg, st: _View, counts, t_switch_in, t_end_job) -> None:
     """Consume draws, charge run time and record the stamps of a fast run."""
     units = RUNTIME_UNIT_US
     first_in = t_switch_in[st.start]
@@ -645,7 +649,7 @@ def _commit(k, tasks, bg, st: _Struct, counts, t_switch_in, t_end_job) -> None:
         _record_fast(k, tasks, bg, st, t_switch_in, t_end_job)
 
 
-def _record_fast(k, tasks, bg, st: _Struct, t_in, t_out) -> None:
+def _record_fast(k, tasks, bg, st: _View, t_in, t_out) -> None:
     """Stamps per burst: background out, (job in, job out)*, background in."""
     sw = k.switch_us
     sid, b = st.stamp_labels(bg.stamp_id, tuple(t.stamp_id for t in tasks))
@@ -752,21 +756,41 @@ class _Struct:
             lab = self.labels[key] = (sid, b)
         return lab
 
-    def prefix(self, horizon: int) -> _Struct:
+    def prefix(self, horizon: int) -> _View:
         """The bursts in ticks < horizon."""
-        m = int(np.searchsorted(self.brel, horizon))
-        if m == self.m:
-            return self
-        return self.cut(m)
+        return self.view(int(np.searchsorted(self.brel, horizon)))
 
-    def cut(self, m: int) -> _Struct:
+    def view(self, m: int) -> _View:
         """The first ``m`` bursts."""
-        n = int(self.start[m]) if m < self.m else self.n
-        cut = _Struct(None, None, _raw=(self.jt[:n], self.ji[:n], self.start[:m], self.last[:m], self.blen[:m],
-                                        self.brel[:m], self.pos_in[:n], self.first_pos[:m], self.last_pos[:m],
-                                        self.pos_out[:n]))
-        cut.labels = {key: (sid[: 2 * n + 2 * m], b[: 2 * n + 2 * m]) for key, (sid, b) in self.labels.items()}
-        return cut
+        return _View(self, int(self.start[m]) if m < self.m else self.n, m)
+
+
+class _View:
+    """The first ``m`` bursts (``n`` jobs) of a :class:`_Struct`, as cheap slices."""
+
+    __slots__ = ("st", "n", "m")
+
+    def __init__(self, st: _Struct, n: int, m: int) -> None:
+        self.st, self.n, self.m = st, n, m
+
+    def cut(self, m: int) -> _View:
+        return self.st.view(m)
+
+    jt = property(lambda self: self.st.jt[: self.n])
+    ji = property(lambda self: self.st.ji[: self.n])
+    pos_in = property(lambda self: self.st.pos_in[: self.n])
+    pos_out = property(lambda self: self.st.pos_out[: self.n])
+    start = property(lambda self: self.st.start[: self.m])
+    last = property(lambda self: self.st.last[: self.m])
+    blen = property(lambda self: self.st.blen[: self.m])
+    brel = property(lambda self: self.st.brel[: self.m])
+    first_pos = property(lambda self: self.st.first_pos[: self.m])
+    last_pos = property(lambda self: self.st.last_pos[: self.m])
+
+    def stamp_labels(self, bg_id: int, ids: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
+        sid, b = self.st.stamp_labels(bg_id, ids)
+        total = 2 * self.n + 2 * self.m
+        return sid[:total], b[:total]
 
 
 class _Shadow:
@@ -898,7 +922,7 @@ class _Shadow:
         self.cycle = (cyc[0] + k0, cyc[1] + k0)
         self.k_end = None
 
-    def structure(self, k_end: int) -> tuple[_Struct, int]:
+    def structure(self, k_end: int) -> tuple[_View, int]:
         """The job structure of ticks < k_end (cached per pattern, relative to the first tick)."""
         if self.k_end is not None:
             k_end = min(k_end, self.k_end)
