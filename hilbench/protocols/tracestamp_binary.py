@@ -188,6 +188,21 @@ class CheckInserter:
         self.acc = 0
         return [p]
 
+    def add_list(self, payloads: list[int]) -> list[int]:
+        """:meth:`add` for a few payloads as Python ints (cheaper than numpy for short runs)."""
+        out = []
+        count, acc, block = self.count, self.acc, self.block
+        check_base = ID_CONTROL << 18 | Op.CHECK << ARG_BITS
+        for p in payloads:
+            out.append(p)
+            acc ^= (p ^ p >> ARG_BITS) & ARG_MASK
+            count += 1
+            if count == block:
+                out.append(check_base | acc)
+                count = acc = 0
+        self.count, self.acc = count, acc
+        return out
+
     def add(self, payloads: np.ndarray) -> np.ndarray:
         p = np.asarray(payloads, dtype=np.uint32)
         n = len(p)
