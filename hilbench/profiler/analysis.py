@@ -105,7 +105,6 @@ def _report_names(reports) -> set[str]:
 def classify(names: list[str], present: np.ndarray, settings: ProfileSettings, reports,
              ids: np.ndarray, begin: np.ndarray, seg: np.ndarray) -> tuple[np.ndarray, str]:
     """Which names are tasks, and where that came from (``settings``, ``report`` or ``inferred``)."""
-    n = len(names)
     if settings.tasks is not None:
         tasks, source = set(settings.tasks) | KERNEL_TASKS, "settings"
     elif reports:

@@ -13,13 +13,13 @@ from __future__ import annotations
 from collections import deque
 from collections.abc import Iterable
 
+import numpy as np
+
 from hilbench.profiler.settings import ProfileSettings
 from hilbench.profiler.timeline import Timeline
 from hilbench.protocols.tracestamp import BadLine, LogLine, RuntimeReport, Stamp, StampBatch
 from hilbench.protocols.tracestamp_binary import Marker, WordProblem
 from hilbench.protocols.tracestamp_stream import StreamDecoder
-
-import numpy as np
 
 
 class Profiler:
