@@ -17,6 +17,11 @@ and what was expected. Example::
     model = "XM430-W350"
     ids = [1, 2, 3]              # or id = 1 for one device
     endpoint = "arm"
+
+An endpoint's ``protocol`` decides what its devices are: ``dynamixel``
+endpoints carry servos (:class:`DeviceSpec`), ``vel2d`` endpoints carry one
+emulated STM32 rover board (:class:`BoardSpec`, see ``profiles/mecarover.toml``),
+on a pty or on UDP (``type = "udp"``, bound to 127.0.0.1 by default).
 """
 
 from __future__ import annotations
@@ -32,8 +37,15 @@ from hilbench.fakes.dynamixel.models import BAUD_CODES, find_model, model_names
 
 SCHEMA = 1
 DEFAULT_PROFILE = "wolfgang"
-ENDPOINT_TYPES = ("pty",)
-PROTOCOLS = ("dynamixel",)
+ENDPOINT_TYPES = ("pty", "udp")
+PROTOCOLS = ("dynamixel", "vel2d")
+#: Line rates a board endpoint accepts (bit/s); a pty does not care, the board paces its UART by it.
+BOARD_BAUD_RANGE = (1200, 12_500_000)
+BOARD_MODELS = ("stm32f767-rover", "mecarover", "stm32-rover")
+BOARD_KEYS = ("model", "name", "endpoint", "preset", "caches", "output", "dialect", "window_ms", "flush_ms", "seed",
+              "boot_banner", "faults", "tasks")
+BOARD_FAULT_KEYS = ("drop_rate", "corrupt_rate", "drop_next", "corrupt_next")
+TIMING_KEYS = ("mean_us", "sd_us", "min_us", "max_us", "dist")
 #: Rates the official SDK can open (spec §7.1) that are also Dynamixel baud codes.
 DYNAMIXEL_BAUDS = tuple(sorted(set(BAUD_CODES.values()) - {4_500_000}))
 FAULT_KEYS = ("drop_rate", "drop_next", "corrupt_rate", "corrupt_next", "delay", "vanished", "hardware_error",
@@ -59,6 +71,28 @@ class EndpointSpec:
     chain_policy: str = "continue"
     fast_missing: str = "truncate"
     strict_stuffing: bool = False
+    bind: str = "127.0.0.1"  # udp: local address
+    port: int = 0  # udp: local port (0: any free port, see the manifest)
+    peer: str | None = None  # udp: "host:port" that always receives the output stream
+
+
+@dataclass
+class BoardSpec:
+    """An emulated STM32 rover board on a ``vel2d`` endpoint."""
+
+    name: str
+    endpoint: str
+    model: str = "stm32f767-rover"
+    preset: str = "freertos-100-50"
+    caches: bool = True
+    output: str = "v1"
+    dialect: str | None = None
+    window_ms: float | None = None
+    flush_ms: float = 10.0
+    seed: int = 0
+    boot_banner: bool = True
+    faults: dict[str, float] = field(default_factory=dict)
+    tasks: dict[str, dict[str, Any]] = field(default_factory=dict)
 
 
 @dataclass
@@ -86,9 +120,19 @@ class Profile:
     name: str
     description: str
     endpoints: dict[str, EndpointSpec]
-    devices: list[DeviceSpec]
+    devices: list[DeviceSpec | BoardSpec]
     supply_voltage: float = 12.0
     ambient_temperature: float = 30.0
+
+    @property
+    def servos(self) -> list[DeviceSpec]:
+        """The Dynamixel devices."""
+        return [d for d in self.devices if isinstance(d, DeviceSpec)]
+
+    @property
+    def boards(self) -> list[BoardSpec]:
+        """The emulated boards."""
+        return [d for d in self.devices if isinstance(d, BoardSpec)]
 
 
 def bundled_profiles() -> dict[str, Path]:
@@ -147,7 +191,22 @@ def parse_profile(data: dict[str, Any], path: str = "<profile>") -> Profile:
     taken: dict[tuple[str, int], str] = {}
     names: set[str] = set()
     for i, dev in enumerate(raw_devs):
-        for spec in _devices(c, f"devices[{i}]", dev, endpoints):
+        where = f"devices[{i}]"
+        dev = c.table(dev, where)
+        ep_name = dev.get("endpoint")
+        if ep_name is None and len(endpoints) == 1:
+            ep_name = next(iter(endpoints))
+        if ep_name in endpoints and endpoints[ep_name].protocol == "vel2d":
+            board = _board(c, where, dev, endpoints)
+            if any(isinstance(d, BoardSpec) and d.endpoint == board.endpoint for d in devices):
+                c.fail(f"{where}.endpoint", f"endpoint {board.endpoint!r} already has a board (a UART is "
+                                            "point to point)")
+            if board.name in names:
+                c.fail(f"{where}.name", f"device name {board.name!r} is used twice")
+            names.add(board.name)
+            devices.append(board)
+            continue
+        for spec in _devices(c, where, dev, endpoints):
             where = f"devices[{i}]"
             owner = taken.get((spec.endpoint, spec.id))
             if owner is not None:
@@ -217,15 +276,33 @@ def _endpoint(c: _Checker, name: str, ep: Any) -> EndpointSpec:
     key = f"endpoints.{name}"
     ep = c.table(ep, key)
     c.unknown(ep, key, ("type", "protocol", "baud", "paced", "link", "chain_policy", "fast_missing",
-                        "strict_stuffing"))
+                        "strict_stuffing", "bind", "port", "peer"))
     kind = c.choice(ep.get("type", "pty"), f"{key}.type", ENDPOINT_TYPES)
     protocol = c.choice(ep.get("protocol", "dynamixel"), f"{key}.protocol", PROTOCOLS)
-    baud = ep.get("baud", 57_600)
-    if baud not in DYNAMIXEL_BAUDS:
-        c.fail(f"{key}.baud", f"expected a Dynamixel baud rate the SDK can open ({', '.join(map(str, DYNAMIXEL_BAUDS))}), got {baud!r}")
+    if protocol == "dynamixel":
+        baud = ep.get("baud", 57_600)
+        if baud not in DYNAMIXEL_BAUDS:
+            c.fail(f"{key}.baud", f"expected a Dynamixel baud rate the SDK can open ({', '.join(map(str, DYNAMIXEL_BAUDS))}), got {baud!r}")
+        if kind != "pty":
+            c.fail(f"{key}.type", "expected \"pty\" (Dynamixel buses are serial lines)")
+    else:
+        baud = c.integer(ep.get("baud", 115_200), f"{key}.baud", *BOARD_BAUD_RANGE)
     link = ep.get("link")
-    if link is not None and not isinstance(link, str):
-        c.fail(f"{key}.link", f"expected a path string, got {link!r}")
+    if link is not None and (not isinstance(link, str) or kind != "pty"):
+        c.fail(f"{key}.link", f"expected a path string on a pty endpoint, got {link!r}")
+    if kind != "udp":
+        for udp_key in ("bind", "port", "peer"):
+            if udp_key in ep:
+                c.fail(f"{key}.{udp_key}", "only for type = \"udp\" endpoints")
+    bind = ep.get("bind", "127.0.0.1")
+    if not isinstance(bind, str) or not bind:
+        c.fail(f"{key}.bind", f"expected an IP address string, got {bind!r}")
+    port = c.integer(ep.get("port", 0), f"{key}.port", 0, 65535)
+    peer = ep.get("peer")
+    if peer is not None:
+        host, _, pport = str(peer).rpartition(":")
+        if not isinstance(peer, str) or not host or not pport.isdigit() or not 0 < int(pport) < 65536:
+            c.fail(f"{key}.peer", f"expected \"host:port\", got {peer!r}")
     return EndpointSpec(
         name=name,
         type=kind,
@@ -236,11 +313,78 @@ def _endpoint(c: _Checker, name: str, ep: Any) -> EndpointSpec:
         chain_policy=c.choice(ep.get("chain_policy", "continue"), f"{key}.chain_policy", CHAIN_POLICIES),
         fast_missing=c.choice(ep.get("fast_missing", "truncate"), f"{key}.fast_missing", FAST_MISSING_POLICIES),
         strict_stuffing=c.boolean(ep.get("strict_stuffing", False), f"{key}.strict_stuffing"),
+        bind=bind,
+        port=port,
+        peer=peer,
+    )
+
+
+def _board(c: _Checker, key: str, dev: dict[str, Any], endpoints: dict[str, EndpointSpec]) -> BoardSpec:
+    from hilbench.fakes.stm32_board.presets import OUTPUTS, make_preset, preset_names
+
+    c.unknown(dev, key, BOARD_KEYS)
+    model = dev.get("model", BOARD_MODELS[0])
+    c.choice(model, f"{key}.model", BOARD_MODELS)
+    endpoint = dev.get("endpoint")
+    if endpoint is None and len(endpoints) == 1:
+        endpoint = next(iter(endpoints))
+    preset = dev.get("preset", "freertos-100-50")
+    if not isinstance(preset, str) or preset not in preset_names():
+        c.fail(f"{key}.preset", f"expected one of {', '.join(preset_names())}, got {preset!r}")
+    output = c.choice(dev.get("output", "v1"), f"{key}.output", OUTPUTS)
+    dialect = dev.get("dialect")
+    if dialect is not None:
+        c.choice(dialect, f"{key}.dialect", ("thesis", "branch"))
+    window = dev.get("window_ms")
+    if window is not None:
+        window = c.number(window, f"{key}.window_ms", 1, 3_600_000)
+    name = dev.get("name", endpoint)
+    if not isinstance(name, str) or not name:
+        c.fail(f"{key}.name", f"expected a string, got {name!r}")
+    faults = c.table(dev.get("faults", {}), f"{key}.faults")
+    c.unknown(faults, f"{key}.faults", BOARD_FAULT_KEYS)
+    for fk in ("drop_rate", "corrupt_rate"):
+        if fk in faults:
+            c.number(faults[fk], f"{key}.faults.{fk}", 0.0, 1.0)
+    for fk in ("drop_next", "corrupt_next"):
+        if fk in faults:
+            c.integer(faults[fk], f"{key}.faults.{fk}", 0, 2**31)
+    tasks = c.table(dev.get("tasks", {}), f"{key}.tasks")
+    base = make_preset(preset, dev.get("caches", True) is not False)
+    known = {t.name for t in base.tasks} | {f.name for f in base.functions} | {"line_cost"}
+    for tname, timing in tasks.items():
+        where = f"{key}.tasks.{tname}"
+        if tname not in known:
+            c.fail(where, f"no such task or function in preset {preset!r} (expected one of: "
+                          f"{', '.join(sorted(known))})")
+        timing = c.table(timing, where)
+        c.unknown(timing, where, TIMING_KEYS)
+        for tk in ("mean_us", "sd_us", "min_us", "max_us"):
+            if tk in timing:
+                c.number(timing[tk], f"{where}.{tk}", 0.0, 1e6)
+        if "dist" in timing:
+            c.choice(timing["dist"], f"{where}.dist", ("normal", "fixed"))
+    return BoardSpec(
+        name=name,
+        endpoint=endpoint,
+        model=model,
+        preset=preset,
+        caches=c.boolean(dev.get("caches", True), f"{key}.caches"),
+        output=output,
+        dialect=dialect,
+        window_ms=window,
+        flush_ms=c.number(dev.get("flush_ms", 10.0), f"{key}.flush_ms", 1, 10_000),
+        seed=c.integer(dev.get("seed", 0), f"{key}.seed", 0, 2**31),
+        boot_banner=c.boolean(dev.get("boot_banner", True), f"{key}.boot_banner"),
+        faults=dict(faults),
+        tasks={k: dict(v) for k, v in tasks.items()},
     )
 
 
 def _devices(c: _Checker, key: str, dev: Any, endpoints: dict[str, EndpointSpec]) -> list[DeviceSpec]:
     dev = c.table(dev, key)
+    if dev.get("model") in BOARD_MODELS:
+        c.fail(f"{key}.endpoint", f"a {dev['model']} board needs an endpoint with protocol = \"vel2d\"")
     c.unknown(dev, key, DEVICE_KEYS)
     if "model" not in dev:
         c.fail(f"{key}.model", "missing (expected a model name such as 'XM430-W350')")

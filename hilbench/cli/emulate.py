@@ -23,13 +23,22 @@ def cmd_emulate(args: argparse.Namespace) -> int:
     bench.start()
     manifest = Path(args.manifest) if args.manifest else None
     try:
+        if bench.profile.boards:
+            bench.serve_control()
         if manifest:
             bench.write_manifest(manifest)
         print(f"hilbench: bench {profile.name!r} running ({len(bench.devices)} devices); Ctrl-C stops it")
         for ep in bench.endpoints.values():
+            if ep.board is not None:
+                b = ep.board.config
+                print(f"  {ep.name}: {ep.path}  (vel2d, {ep.spec.baud} baud, board {ep.board.name!r}: "
+                      f"{b.preset.name}{'' if b.preset.caches else ' no caches'}, output {b.output})")
+                continue
             timing = "paced" if ep.medium.paced else "unpaced"
-            n = len(ep.bus.servos)
+            n = len(ep.bus.servos) if ep.bus else 0
             print(f"  {ep.name}: {ep.path}  ({ep.spec.protocol}, {ep.spec.baud} baud, {timing}, {n} devices)")
+        if bench.control is not None:
+            print(f"  control: {bench.control.address_text}  (hilbench board --control ... button|reset|fault)")
         if manifest:
             print(f"  manifest: {manifest}")
         sys.stdout.flush()

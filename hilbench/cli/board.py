@@ -1,0 +1,95 @@
+"""``hilbench board``: press the button, reset, or turn fault knobs of an emulated board in another process."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+from hilbench.cli.common import CliError
+
+
+def _client(args: argparse.Namespace):
+    from hilbench.control import ControlClient, ControlError
+
+    try:
+        if args.control:
+            return ControlClient(args.control)
+        if args.manifest:
+            return ControlClient.from_manifest(args.manifest)
+    except ControlError as exc:
+        raise CliError(str(exc)) from None
+    raise CliError("tell me where the bench is: --manifest FILE (from hilbench emulate) or --control HOST:PORT")
+
+
+def _knob(text: str) -> tuple[str, float]:
+    key, sep, value = text.partition("=")
+    if not sep:
+        raise argparse.ArgumentTypeError(f"expected KEY=VALUE, got {text!r}")
+    try:
+        return key, float(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number after {key}=, got {value!r}") from None
+
+
+def cmd_board(args: argparse.Namespace) -> int:
+    from hilbench.control import ControlError
+
+    client = _client(args)
+    try:
+        if args.action == "button":
+            st = client.button(args.device)
+            print(f"{st['name']}: button pressed (sampling {'on' if st['sampling'] else 'off'}, window {st['window']})")
+        elif args.action == "reset":
+            st = client.reset(args.device)
+            print(f"{st['name']}: reset (boot {st['boots']})")
+        elif args.action == "fault":
+            if not args.knobs:
+                raise CliError("fault: give KEY=VALUE knobs (drop_rate, corrupt_rate, drop_next, corrupt_next, stall)")
+            faults = client.fault(args.device, **dict(args.knobs))
+            print(json.dumps(faults) if args.json else ", ".join(f"{k}={v:g}" for k, v in faults.items()))
+        elif args.action == "log":
+            for line in client.log(args.device):
+                print(line)
+        elif args.action == "wait-report":
+            reply = client.wait_report(args.device, timeout=args.timeout, after=args.after)
+            rep = reply["report"]
+            if args.json:
+                print(json.dumps(rep))
+            else:
+                print(f"report: ctx switches {rep['ctx_switches']}, {rep['closing']} {rep['closing_us']} us")
+        else:
+            st = client.status(args.device)
+            if args.json:
+                print(json.dumps(st))
+            else:
+                tr = st["truth"]
+                print(f"{st['name']}: {st['preset']} ({'caches' if st['caches'] else 'no caches'}), output "
+                      f"{st['output']}, {st['baud']} baud, boot {st['boots']}, t={st['now_us'] / 1e6:.3f} s")
+                print(f"  sampling {'on' if st['sampling'] else 'off'}, window {st['window']}, frames ok "
+                      f"{tr['frames_ok']}, crc errors {tr['frames_crc_error']}, length errors "
+                      f"{tr['frames_length_error']}")
+                print(f"  stamps recorded {tr['stamps_recorded']}, sent {tr['stamps_sent']}, dropped "
+                      f"{tr['stamps_dropped']}, records lost {tr['records_lost']}")
+                for line in st["log"][-5:]:
+                    print(f"  {line}")
+    except ControlError as exc:
+        raise CliError(str(exc)) from None
+    return 0
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    b = sub.add_parser("board", help="control an emulated board of a running bench (button, reset, faults)",
+                       description="Talk to the control channel of `hilbench emulate`: press the user button "
+                                   "(starts/stops a trace window), reset the board, turn fault knobs, read status.")
+    where = b.add_mutually_exclusive_group()
+    where.add_argument("--manifest", metavar="FILE", help="the manifest hilbench emulate wrote")
+    where.add_argument("--control", metavar="HOST:PORT", help="the control address (printed by hilbench emulate)")
+    b.add_argument("--device", help="board name (default: the only board)")
+    b.add_argument("--json", action="store_true", help="print JSON")
+    b.add_argument("action", choices=("status", "button", "reset", "fault", "log", "wait-report"),
+                   help="what to do")
+    b.add_argument("knobs", nargs="*", type=_knob, metavar="KEY=VALUE",
+                   help="fault knobs: drop_rate, corrupt_rate (per byte), drop_next, corrupt_next (bytes), stall (s)")
+    b.add_argument("--timeout", type=float, default=30.0, help="wait-report: seconds to wait (default: 30)")
+    b.add_argument("--after", type=int, help="wait-report: return once more than N reports exist")
+    b.set_defaults(func=cmd_board)

@@ -1,0 +1,129 @@
+"""``hilbench send-vel`` and ``hilbench teleop``: drive a rover board (real or emulated) without ROS."""
+
+from __future__ import annotations
+
+import argparse
+import math
+import signal
+import time
+
+from hilbench.cli.common import CliError
+
+
+def _finite(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
+    return value
+
+
+def _print_logs(decoder, data: bytes) -> int:
+    n = 0
+    for item in decoder.feed(data):
+        if type(item).__name__ == "LogLine":
+            print(f"board: {item.clock} [{item.level}]: {item.message}", flush=True)
+            n += 1
+    return n
+
+
+def cmd_send_vel(args: argparse.Namespace) -> int:
+    from hilbench.protocols import vel2d
+    from hilbench.protocols.tracestamp_stream import StreamDecoder
+    from hilbench.transports.host_link import HostLink
+
+    if args.rate is not None and args.rate <= 0:
+        raise CliError(f"--rate: expected a positive rate in Hz, got {args.rate}")
+    try:
+        link = HostLink.open(args.port, args.baud)
+    except ValueError as exc:
+        raise CliError(str(exc)) from None
+    frame = vel2d.build(args.x, args.y, args.z)
+    decoder = StreamDecoder()
+    stop = []
+    signal.signal(signal.SIGTERM, lambda *_: stop.append(1))
+    sent = 0
+    try:
+        if args.echo:
+            link.register()
+            link.read()  # forget what was waiting: only replies to our frames matter
+        if args.rate is None:
+            link.send(frame)
+            sent = 1
+            print(f"sent x={args.x:g} y={args.y:g} z={args.z:g}: {frame.hex(' ')}", flush=True)
+        else:
+            period = 1.0 / args.rate
+            t0 = time.monotonic()
+            next_t = t0
+            print(f"sending x={args.x:g} y={args.y:g} z={args.z:g} at {args.rate:g} Hz; Ctrl-C stops", flush=True)
+            while not stop:
+                if args.count is not None and sent >= args.count:
+                    break
+                if args.duration is not None and time.monotonic() - t0 >= args.duration:
+                    break
+                link.send(frame)
+                sent += 1
+                next_t += period
+                while True:
+                    wait = next_t - time.monotonic()
+                    if args.echo:
+                        _print_logs(decoder, link.read(max(0.0, wait)))
+                    elif wait > 0:
+                        time.sleep(wait)
+                    if time.monotonic() >= next_t:
+                        break
+            print(f"sent {sent} frames in {time.monotonic() - t0:.2f} s", flush=True)
+        if args.echo:
+            deadline = time.monotonic() + args.echo_time
+            while time.monotonic() < deadline:
+                _print_logs(decoder, link.read(0.02))
+    except KeyboardInterrupt:
+        print(f"sent {sent} frames", flush=True)
+    finally:
+        link.close()
+    return 0
+
+
+def cmd_teleop(args: argparse.Namespace) -> int:
+    from hilbench import teleop
+
+    try:
+        teleop.run(args.port, args.baud, args.speed, args.turn, args.repeat_rate)
+    except ValueError as exc:
+        raise CliError(str(exc)) from None
+    return 0
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    s = sub.add_parser("send-vel", help="send Vel2d velocity frames to a rover board (serial port or UDP)",
+                       description="Send one 28-byte Vel2d frame (x, y in m/s, z in rad/s, CRC-32/MPEG-2) with one "
+                                   "write, as the ROS bridge vel2d_bridge does, or stream it with --rate.")
+    s.add_argument("port", help="serial port (/dev/ttyACM0, an emulated pty) or udp://127.0.0.1:PORT")
+    s.add_argument("x", type=_finite, help="linear.x in m/s")
+    s.add_argument("y", type=_finite, help="linear.y in m/s")
+    s.add_argument("z", type=_finite, help="angular.z in rad/s")
+    s.add_argument("--baud", type=int, default=115_200, help="serial baud rate (default: 115200)")
+    s.add_argument("--rate", type=float, metavar="HZ", help="stream the frame at HZ until Ctrl-C (or --count)")
+    s.add_argument("--count", type=int, help="with --rate: stop after N frames")
+    s.add_argument("--duration", type=float, metavar="S", help="with --rate: stop after S seconds")
+    s.add_argument("--echo", action="store_true", help="print the log lines the board sends back")
+    s.add_argument("--echo-time", type=float, default=0.5, metavar="S",
+                   help="with --echo: how long to listen after the last frame (default: 0.5)")
+    s.set_defaults(func=cmd_send_vel)
+
+    t = sub.add_parser("teleop", help="drive a rover board from the keyboard (teleop_twist_keyboard keys)",
+                       description="Keyboard teleoperation with teleop_twist_keyboard's keys (u i o / j k l / "
+                                   "m , . and shift for strafing; q/z w/x e/c change speeds; anything else stops). "
+                                   "Every key sends one Vel2d frame; Ctrl-C sends a stop frame and quits.")
+    t.add_argument("port", help="serial port or udp://127.0.0.1:PORT")
+    t.add_argument("--baud", type=int, default=115_200, help="serial baud rate (default: 115200)")
+    t.add_argument("--speed", type=float, default=0.5, help="initial linear speed in m/s (default: 0.5)")
+    t.add_argument("--turn", type=float, default=1.0, help="initial angular speed in rad/s (default: 1.0)")
+    t.add_argument("--repeat-rate", type=float, default=0.0, metavar="HZ",
+                   help="also resend the current command at HZ (default: 0, only on key presses)")
+    t.set_defaults(func=cmd_teleop)
+
+
+

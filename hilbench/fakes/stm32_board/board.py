@@ -1,0 +1,265 @@
+"""The emulated STM32F767 rover board: firmware in virtual time, paced onto a real line.
+
+Two ways to run it:
+
+- **Offline** (tests, benchmarks, scripts): ``board.run_for(seconds)`` simulates
+  as fast as the host allows; ``board.receive(frame)``, ``board.press_button()``
+  and ``board.take_output()`` work in virtual time.
+- **Live** (``Bench``, ``hilbench emulate``): :meth:`Board.attach` joins a
+  :class:`~hilbench.transports.serial_medium.SerialMedium` as a device. A
+  thread keeps the virtual clock a few milliseconds ahead of the wall clock
+  and hands each piece of output to the line stamped with the wall time its
+  last byte leaves the UART, so taps, monitors and clients see the board's
+  real timing. Bytes from the host enter the simulation at the virtual time
+  they arrived (at most the lookahead late when the simulation is ahead).
+
+Virtual time is µs since the board's first boot; a reset starts a new boot
+(new scheduler, empty buffers) at the current virtual time.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import asdict
+from typing import Any
+
+from hilbench.fakes.stm32_board.firmware import Firmware
+from hilbench.fakes.stm32_board.presets import BoardConfig, make_preset
+from hilbench.fakes.stm32_board.robot import RobotState
+from hilbench.fakes.stm32_board.sink import Truth
+from hilbench.protocols.tracestamp import LogLine, RuntimeReport
+
+log = logging.getLogger(__name__)
+
+#: Live operation: how far the simulation runs ahead of the wall clock, and how often it steps.
+LOOKAHEAD_US = 2000.0
+STEP_S = 0.001
+FAULT_KEYS = ("drop_rate", "corrupt_rate", "drop_next", "corrupt_next")
+
+
+class Board:
+    """One emulated rover board. ``name`` is its device name on a line; see the module docstring."""
+
+    def __init__(self, config: BoardConfig | None = None, name: str = "rover") -> None:
+        self.config = config or BoardConfig(make_preset("freertos-100-50"))
+        self.name = name
+        self.boots = 1
+        self.boot_offset = 0.0  # virtual µs at which the current boot started
+        self.fw = Firmware(self.config, boot_count=1)
+        self.lock = threading.RLock()
+        self.history_truth: list[Truth] = []
+        # Live operation.
+        self.port = None
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+        self._wake = threading.Event()
+        self.wall0: float | None = None
+        self.lag_us = 0.0
+        self.on_output: Callable[[bytes, float], None] | None = None
+        self.rx_baud_mismatch = 0
+
+    # ------------------------------------------------------------------ time
+
+    @property
+    def now_us(self) -> float:
+        """Virtual time (µs since the first boot)."""
+        return self.boot_offset + self.fw.now
+
+    def run_until(self, t_us: float) -> None:
+        with self.lock:
+            self.fw.run_until(t_us - self.boot_offset)
+
+    def run_for(self, seconds: float) -> None:
+        """Simulate ``seconds`` of board time as fast as possible."""
+        self.run_until(self.now_us + seconds * 1e6)
+
+    # ------------------------------------------------------------------ inputs
+
+    def receive(self, data: bytes, at_us: float | None = None) -> None:
+        """Bytes from the host whose first byte reaches the UART at ``at_us`` (default: now)."""
+        with self.lock:
+            t = self.now_us if at_us is None else at_us
+            self.fw.uart_rx(bytes(data), t - self.boot_offset)
+
+    def press_button(self, at_us: float | None = None) -> None:
+        """Press the user button (B1): starts or stops sampling, as the firmware variant does."""
+        with self.lock:
+            t = self.now_us if at_us is None else at_us
+            self.fw.press_button(t - self.boot_offset)
+        self._wake.set()
+
+    def reset(self) -> None:
+        """Reset the board: a new boot of the firmware at the current virtual time; unsent output is lost."""
+        with self.lock:
+            now = self.now_us
+            self.history_truth.append(self.fw.truth)
+            self.boots += 1
+            old_wire = self.fw.wire
+            self.fw = Firmware(self.config, boot_count=self.boots, seed=self.config.seed + self.boots)
+            # Keep what the old UART had already shifted out; the rest dies with the reset.
+            self.fw.wire.busy_until = max(0.0, old_wire.busy_until - now)
+            self._carry = old_wire.take(now - self.boot_offset)[0]
+            self.boot_offset = now
+        self._wake.set()
+
+    _carry = b""
+
+    def set_faults(self, **knobs: float) -> dict[str, float]:
+        """Turn output fault knobs: ``drop_rate``, ``corrupt_rate`` (per byte), ``drop_next``,
+        ``corrupt_next`` (counts), ``stall`` (seconds the sink stops sending); returns the new values."""
+        with self.lock:
+            f = self.fw.faults
+            for key, value in knobs.items():
+                if key == "stall":
+                    f.stall_until_us = self.fw.now + float(value) * 1e6
+                elif key in FAULT_KEYS:
+                    setattr(f, key, type(getattr(f, key))(value))
+                else:
+                    raise KeyError(f"unknown fault knob {key!r} (expected one of: {', '.join(FAULT_KEYS)}, stall)")
+            return {k: getattr(f, k) for k in FAULT_KEYS} | {"stall_until_us": f.stall_until_us}
+
+    # ------------------------------------------------------------------ outputs
+
+    def take_output(self, until_us: float | None = None) -> bytes:
+        """Wire bytes fully sent by ``until_us`` (default: now), in order; offline use."""
+        with self.lock:
+            carry, self._carry = self._carry, b""
+            if until_us is None:
+                until_us = self.now_us
+            data, _ = self.fw.wire.take(until_us - self.boot_offset)
+            return carry + data
+
+    @property
+    def truth(self) -> Truth:
+        """Counters of the current boot (what was recorded, sent, dropped, lost)."""
+        return self.fw.truth
+
+    @property
+    def log(self) -> list[LogLine]:
+        """The log lines the firmware printed (most recent boot, last 200)."""
+        with self.lock:
+            return list(self.fw.log)
+
+    @property
+    def reports(self) -> list[RuntimeReport]:
+        with self.lock:
+            return list(self.fw.reports)
+
+    @property
+    def sampling(self) -> bool:
+        return self.fw.sampling
+
+    @property
+    def reporting(self) -> bool:
+        """True from a window's start until its report has been written."""
+        return self.fw.sampling or self.fw._reporting
+
+    def robot_state(self) -> RobotState:
+        with self.lock:
+            return self.fw.robot.state(self.fw.now)
+
+    def status(self) -> dict[str, Any]:
+        """A JSON-able summary: time, counters, robot, faults, last log lines."""
+        with self.lock:
+            fw = self.fw
+            st = fw.robot.state(fw.now)
+            return {
+                "name": self.name,
+                "preset": self.config.preset.name,
+                "caches": self.config.preset.caches,
+                "output": self.config.output,
+                "baud": self.config.baud,
+                "boots": self.boots,
+                "now_us": self.now_us,
+                "sampling": fw.sampling,
+                "reporting": fw.sampling or fw._reporting,
+                "window": fw.window,
+                "crc_err": fw.crc_err,
+                "truth": asdict(fw.truth),
+                "ctx_switches": fw.kernel.ctx_switches,
+                "robot": {"setpoint": st.setpoint, "command": st.command, "wheels": st.wheels, "duty": st.duty,
+                          "pose": st.pose, "pose_cycles": st.pose_cycles},
+                "faults": {k: getattr(fw.faults, k) for k in FAULT_KEYS},
+                "log": [f"{x.clock} [{x.level}]: {x.message}" for x in list(fw.log)[-20:]],
+                "lag_us": self.lag_us,
+                "fast_ticks": fw.kernel.fast_ticks,
+                "exact_ticks": fw.kernel.exact_ticks,
+                "rx_baud_mismatch": self.rx_baud_mismatch,
+            }
+
+    # ------------------------------------------------------------------ live operation
+
+    def attach(self, medium) -> None:
+        """Join a serial line as a device named ``<name>-board`` (the host port keeps the endpoint's
+        name, so taps tell the two directions apart); host bytes arrive at :meth:`on_bytes`."""
+        self.port = medium.add_device(_LineParty(self, f"{self.name}-board"))
+
+    def on_bytes(self, data: bytes, t: float, baud: int | None) -> None:
+        """Host bytes from the line, received at monotonic time ``t`` (the chunk's last byte)."""
+        if self.wall0 is None:
+            return
+        if baud is not None and baud != self.config.baud:
+            # A host at another baud rate: the UART sees framing garbage, as on the real link.
+            self.rx_baud_mismatch += len(data)
+            data = bytes(b ^ 0xA5 for b in data)
+        t_first = t - len(data) * 10 / self.config.baud if baud else t
+        self.receive(data, (t_first - self.wall0) * 1e6)
+        self._wake.set()
+
+    def start(self, wall0: float | None = None) -> None:
+        """Start the live thread; virtual time 0 (or the current virtual time) is now."""
+        if self._thread is not None:
+            return
+        self.wall0 = (wall0 if wall0 is not None else time.monotonic()) - self.now_us / 1e6
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._run, name=f"board-{self.name}", daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._wake.set()
+        if self._thread is not None:
+            self._thread.join(timeout=5)
+            self._thread = None
+
+    def _run(self) -> None:
+        sent_until = self.now_us
+        while not self._stop.is_set():
+            wall = time.monotonic()
+            v_now = (wall - self.wall0) * 1e6
+            target = v_now + LOOKAHEAD_US
+            try:
+                with self.lock:
+                    if self.now_us < target:
+                        self.fw.run_until(target - self.boot_offset)
+                    self.lag_us = max(0.0, v_now - self.now_us)
+                    horizon = v_now + STEP_S * 1e6
+                    carry, self._carry = self._carry, b""
+                    data, t_last = self.fw.wire.take(horizon - self.boot_offset)
+                    t_last += self.boot_offset
+                data = carry + data
+                if data:
+                    t_wall = self.wall0 + max(t_last, sent_until) / 1e6
+                    sent_until = max(t_last, sent_until)
+                    if self.port is not None:
+                        self.port.transmit(data, t=t_wall)
+                    if self.on_output is not None:
+                        self.on_output(data, t_wall)
+            except Exception:  # keep the board alive; the failure is logged
+                log.exception("board %s failed", self.name)
+            self._wake.wait(STEP_S)
+            self._wake.clear()
+
+
+class _LineParty:
+    """The board as a party on a serial line, under its own name."""
+
+    def __init__(self, board: Board, name: str) -> None:
+        self.board = board
+        self.name = name
+
+    def on_bytes(self, data: bytes, t: float, baud: int | None) -> None:
+        self.board.on_bytes(data, t, baud)

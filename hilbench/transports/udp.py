@@ -1,0 +1,119 @@
+"""A UDP endpoint that stands where a serial port would: datagrams in, datagrams out.
+
+:class:`UdpEndpoint` has the pty endpoint's interface (``fileno``, ``read``,
+``write``, ``client_baud``, ``close``), so a
+:class:`~hilbench.transports.serial_medium.SerialMedium` carries it like a
+host port, with the same taps. Each datagram a host sends is one write on
+the line (e.g. one 28-byte velocity frame); what the device sends goes out as
+datagrams to every peer: the fixed ``peer`` of the profile, if any, and the
+most recent senders (a host registers by sending anything, even an empty
+datagram). It binds 127.0.0.1 unless told otherwise.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import socket
+from collections import OrderedDict
+
+#: Largest payload sent in one datagram; longer writes are split.
+MAX_DATAGRAM = 8192
+#: How many recent senders receive the output.
+MAX_PEERS = 8
+
+
+def parse_address(text: str) -> tuple[str, int]:
+    """``"host:port"`` or ``"udp://host:port"`` to ``(host, port)``; raises ValueError."""
+    if text.startswith("udp://"):
+        text = text[6:]
+    host, sep, port = text.rpartition(":")
+    if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise ValueError(f"expected udp://HOST:PORT, got {text!r}")
+    return host.strip("[]"), int(port)
+
+
+class UdpEndpoint:
+    """A bound UDP socket acting as one host port; see the module docstring."""
+
+    def __init__(self, name: str = "udp", bind: str = "127.0.0.1", port: int = 0, peer: str | None = None) -> None:
+        self.name = name
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind((bind, port))
+        self.sock.setblocking(False)
+        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, 1 << 20)
+        self.fixed_peer = parse_address(peer) if peer else None
+        self.peers: OrderedDict[tuple[str, int], None] = OrderedDict()
+        self.bytes_in = 0
+        self.bytes_out = 0
+        self.datagrams_in = 0
+        self.dropped = 0  # bytes a full socket buffer refused
+
+    @property
+    def address(self) -> tuple[str, int]:
+        return self.sock.getsockname()[:2]
+
+    @property
+    def url(self) -> str:
+        host, port = self.address
+        return f"udp://{host}:{port}"
+
+    @property
+    def client_path(self) -> str:
+        return self.url
+
+    def fileno(self) -> int:
+        return self.sock.fileno()
+
+    def client_baud(self) -> int | None:
+        return None  # datagrams have no line rate
+
+    def read(self) -> bytes:
+        """One datagram's payload (b'' if none is waiting, or for an empty registration datagram)."""
+        try:
+            data, addr = self.sock.recvfrom(65536)
+        except (BlockingIOError, InterruptedError):
+            return b""
+        except OSError:  # e.g. ICMP port unreachable reported on a later call
+            return b""
+        self.peers.pop(addr, None)
+        self.peers[addr] = None
+        while len(self.peers) > MAX_PEERS:
+            self.peers.popitem(last=False)
+        self.datagrams_in += 1
+        self.bytes_in += len(data)
+        return data
+
+    def targets(self) -> list[tuple[str, int]]:
+        out = list(self.peers)
+        if self.fixed_peer and self.fixed_peer not in self.peers:
+            out.append(self.fixed_peer)
+        return out
+
+    def write(self, data: bytes) -> int:
+        """Send ``data`` to every peer (split into datagrams of at most :data:`MAX_DATAGRAM` bytes)."""
+        sent = 0
+        for addr in self.targets():
+            for i in range(0, len(data), MAX_DATAGRAM):
+                chunk = data[i : i + MAX_DATAGRAM]
+                try:
+                    self.sock.sendto(chunk, addr)
+                    sent += len(chunk)
+                except (BlockingIOError, InterruptedError):
+                    self.dropped += len(chunk)
+                except OSError:
+                    self.dropped += len(chunk)
+        self.bytes_out += sent
+        return sent
+
+    def close(self) -> None:
+        with contextlib.suppress(OSError):
+            self.sock.close()
+
+    def __enter__(self) -> UdpEndpoint:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        return f"UdpEndpoint({self.name!r}, {self.url})"
