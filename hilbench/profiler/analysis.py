@@ -125,10 +125,8 @@ def _infer(names, present, ids, begin, seg) -> np.ndarray:
     if len(ids) == 0:
         return lut
     p = pair(ids, begin, seg, lut)  # everything LIFO
-    delta = np.zeros(len(ids) + 1, dtype=np.int64)
-    np.add.at(delta, p.b_pos, 1)
-    np.add.at(delta, p.e_pos, -1)
-    depth = np.cumsum(delta[:-1])
+    delta = np.bincount(p.b_pos, minlength=len(ids)) - np.bincount(p.e_pos, minlength=len(ids))
+    depth = np.cumsum(delta)
     level = depth[p.b_pos]
     outer = np.bincount(p.name, weights=(level == 1), minlength=n)
     total = np.bincount(p.name, minlength=n)
@@ -142,8 +140,25 @@ def _infer(names, present, ids, begin, seg) -> np.ndarray:
 # --------------------------------------------------------------------------- analysis
 
 
+def _tail_start(t: np.ndarray, cutoff: float, margin: float, block: int = 1 << 16) -> int:
+    """An index before which no stamp is >= ``cutoff`` - arrival order is time order up to ``margin``.
+
+    Walks back from the end a block at a time, so the live view's cost follows the window, not the store.
+    """
+    i = len(t)
+    while i > 0:
+        j = max(0, i - block)
+        if t[j:i].max() < cutoff - margin:
+            return i
+        i = j
+    return 0
+
+
 def _select(profiler, settings: ProfileSettings, last_us: float | None):
     t, ids, begin, seg = profiler.timeline.columns()
+    if last_us is not None and len(t):
+        k = _tail_start(t, profiler.timeline.global_end - last_us, settings.reorder_us)
+        t, ids, begin, seg = t[k:], ids[k:], begin[k:], seg[k:]
     mask = None
     if settings.window is not None:
         a, b = settings.window
@@ -168,9 +183,9 @@ def analyse(profiler, settings: ProfileSettings, *, last_us: float | None = None
     present = counts > 0
     is_task, source = classify(names, present, settings, profiler.reports, ids, begin, seg)
     p = pair(ids, begin, seg, is_task)
-    net, owner, fallback = net_durations(t, is_task, p.name, p.b_pos, p.e_pos)
     b_all = t[p.b_pos]
     e_all = t[p.e_pos]
+    net, owner, fallback = net_durations(t, is_task, p.name, p.b_pos, p.e_pos, b_all, e_all)
     d_all = e_all - b_all
     iseg = seg[p.b_pos]
 
@@ -324,14 +339,22 @@ def _runtime(profiler, settings, names, is_task, p: Pairing, d_all, iseg, t, seg
     unit = settings.runtime_unit_us
     total_abs = rep.total_abs
     recomputed = rep.recomputed_percent()
-    # The profiler's figures for that window.
-    in_seg = iseg == seg_idx
-    totals = np.bincount(p.name[in_seg], weights=d_all[in_seg], minlength=len(names))
-    sel = seg == seg_idx
-    span = int(t[sel].max() - t[sel].min()) if sel.any() else 0
+    # The profiler's figures for that window (masks only when there are several windows).
+    one = len(seg) > 0 and seg[0] == seg[-1] == seg_idx
+    if one:
+        totals = np.bincount(p.name, weights=d_all, minlength=len(names))
+        span = int(t[-1] - t[0])
+    else:
+        in_seg = iseg == seg_idx
+        totals = np.bincount(p.name[in_seg], weights=d_all[in_seg], minlength=len(names))
+        sel = seg == seg_idx
+        span = int(t[sel].max() - t[sel].min()) if sel.any() else 0
     # Hook stamps of that window, over the whole timeline (a --window selection must not change the estimate).
-    tt, tid, _, tseg = profiler.timeline.columns()
-    hook = int(np.count_nonzero(is_task[tid[tseg == seg_idx]])) if len(tid) else 0
+    _, tid, _, tseg = profiler.timeline.columns()
+    if len(tid) and tseg[0] == tseg[-1] == seg_idx:
+        hook = int(np.bincount(tid, minlength=len(names))[is_task].sum())
+    else:
+        hook = int(np.count_nonzero(is_task[tid[tseg == seg_idx]])) if len(tid) else 0
     est = None
     if rep.ctx_switches is not None and hook:
         est = max(0, rep.ctx_switches - hook)

@@ -68,11 +68,11 @@ def pair(ids: np.ndarray, begin: np.ndarray, seg: np.ndarray, is_task: np.ndarra
     g = np.argsort(key, kind="stable")  # grouped by name, time order kept (radix sort for int16)
     gn = ids[g]
     gb = begin[g]
-    gs = seg[g]
     first = np.empty(n, dtype=bool)
     first[0] = True
     np.not_equal(gn[1:], gn[:-1], out=first[1:])
-    if gs[0] != gs[-1] or (len(gs) > 1 and np.any(gs[1:] != gs[:-1])):
+    if seg[0] != seg[-1]:  # several windows (seg never decreases in time order)
+        gs = seg[g]
         first[1:] |= gs[1:] != gs[:-1]
     last = np.empty(n, dtype=bool)
     last[-1] = True
@@ -147,12 +147,13 @@ def pair(ids: np.ndarray, begin: np.ndarray, seg: np.ndarray, is_task: np.ndarra
         oe.append(oe_idx)
         oe_edge.append(begins_before[f_oe] == 0)
 
-    ib_all = np.concatenate(ib)
-    ie_all = np.concatenate(ie)
-    if len(fi):  # task pairs are already in group order; function pairs need sorting in
-        o = np.argsort(ib_all, kind="stable")
-        ib_all = ib_all[o]
-        ie_all = ie_all[o]
+    ib_all, ie_all = ib[0], ie[0]
+    if len(ib) > 1 and len(ib[1]):  # task pairs are in group order already; merge the function pairs in
+        o = np.argsort(ib[1], kind="stable")
+        fb_, fe_ = ib[1][o], ie[1][o]
+        at = np.searchsorted(ib_all, fb_)
+        ib_all = np.insert(ib_all, at, fb_)
+        ie_all = np.insert(ie_all, at, fe_)
     oe_all = np.concatenate(oe)
     oe_edge_all = np.concatenate(oe_edge)
     ob_all = np.concatenate(ob)

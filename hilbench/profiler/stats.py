@@ -162,7 +162,8 @@ def offenders(mask: np.ndarray, a: np.ndarray, values: np.ndarray, limit: int) -
 
 
 def net_durations(t: np.ndarray, is_task: np.ndarray, name: np.ndarray, b_pos: np.ndarray,
-                  e_pos: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                  e_pos: np.ndarray, b_t: np.ndarray | None = None,
+                  e_t: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Net (self) time of every function interval (§5.2).
 
     Arguments are the sorted stamp times and the pairing's intervals (sorted by
@@ -171,10 +172,10 @@ def net_durations(t: np.ndarray, is_task: np.ndarray, name: np.ndarray, b_pos: n
     that had no owner (net = gross - children's gross, preemption not removed).
     """
     m = len(name)
-    b_t = t[b_pos]
-    e_t = t[e_pos]
+    b_t = t[b_pos] if b_t is None else b_t
+    e_t = t[e_pos] if e_t is None else e_t
     gross = e_t - b_t
-    net = gross.astype(np.int64).copy()
+    net = gross.astype(np.int64)  # a new array: task slices keep gross, function intervals get their net
     owner = np.full(m, -1, dtype=np.int64)
     fallback = np.zeros(m, dtype=bool)
     tmask = is_task[name]
@@ -186,7 +187,10 @@ def net_durations(t: np.ndarray, is_task: np.ndarray, name: np.ndarray, b_pos: n
     # Owner: the task slice that contains the function's begin (by position, so ties are exact).
     fb = b_pos[fidx]
     if len(tidx):
-        order = tidx[np.argsort(b_pos[tidx], kind="stable")]
+        # Task slices in time order without a sort: mark each slice at its begin position.
+        at = np.full(len(t), -1, dtype=np.int64)
+        at[b_pos[tidx]] = tidx
+        order = at[at >= 0]
         tb_sorted = b_pos[order]
         j = np.searchsorted(tb_sorted, fb, side="left") - 1
         ok = j >= 0
@@ -197,7 +201,10 @@ def net_durations(t: np.ndarray, is_task: np.ndarray, name: np.ndarray, b_pos: n
         own = np.full(len(fidx), -1, dtype=np.int64)
     owner[fidx] = own
 
-    # Running time of task o up to time x: R_o(x), over o's slices (sorted by name then begin).
+    # Running time of task o up to time x: R_o(x), over o's slices (sorted by name then begin); only the
+    # tasks that own a function interval matter.
+    owners = np.unique(own[own >= 0])
+    tidx = tidx[np.isin(name[tidx], owners)] if len(owners) else tidx[:0]
     if len(tidx):
         sn = name[tidx].astype(np.int64)
         sb = b_t[tidx]
@@ -228,10 +235,8 @@ def net_durations(t: np.ndarray, is_task: np.ndarray, name: np.ndarray, b_pos: n
 
     # Parent of each function interval: the innermost enclosing function interval (global nesting).
     n = len(t)
-    delta = np.zeros(n + 1, dtype=np.int64)
-    np.add.at(delta, b_pos[fidx], 1)
-    np.add.at(delta, e_pos[fidx], -1)
-    depth = np.cumsum(delta[:n])
+    delta = np.bincount(b_pos[fidx], minlength=n) - np.bincount(e_pos[fidx], minlength=n)
+    depth = np.cumsum(delta)
     level = depth[b_pos[fidx]]
     keys2 = level * (n + 1) + b_pos[fidx]
     o2 = np.argsort(keys2, kind="stable")

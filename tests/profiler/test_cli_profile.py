@@ -65,7 +65,7 @@ def test_table_export_and_gantt_from_stdin(spec, tmp_path):
 def test_report_beside_the_runtime_statistics(spec, tmp_path):
     path = tmp_path / "l38.txt"
     path.write_bytes(spec.lines(spec.LISTING_38) + spec.REPORT_65)
-    proc = run(str(path), check_rc=3, *("--strict",))  # the excerpt lacks 76,129 hook stamps: untrustworthy
+    proc = run(str(path), "--strict", check_rc=3)  # the excerpt lacks 76,129 hook stamps: untrustworthy
     out = proc.stdout.decode()
     assert "Run-time statistics of the board beside the profiler" in out and "UNTRUSTWORTHY" in out
     assert "estimated_drops=76129" in proc.stderr.decode()
