@@ -127,8 +127,8 @@ def render_gantt(a: Analysis, path: str | Path, *, window: tuple[float, float] |
             task = a.tasks[name]["kind"] == "task"
             color = colors(row % 10)
             bars = np.column_stack(((b - t0) / scale, (e - b) / scale))
-            # Zero-length slices get a hairline so they stay visible.
-            bars[:, 1] = np.maximum(bars[:, 1], (t1 - t0) / scale / 4000)
+            # Short slices get a hairline so they stay visible.
+            bars[:, 1] = np.maximum(bars[:, 1], (t1 - t0) / scale / 700)  # at least about a pixel
             y = len(drawn) - 1 - row
             ax.broken_barh(bars, (y - 0.35, 0.7), facecolors=color, edgecolors="none",
                            alpha=1.0 if task else 0.65, label=name)
