@@ -55,9 +55,9 @@ def linear_histogram(values, bins: int = 20, *, width: float | None = None,
     if width is not None and width > 0:
         n = max(1, int(np.ceil((hi - lo) / width)) or 1)
         edges = lo + width * np.arange(n + 1)
+        counts, edges = np.histogram(v, bins=edges)
     else:
         if hi <= lo:
             hi = lo + 1.0
-        edges = np.linspace(lo, hi, bins + 1)
-    counts, edges = np.histogram(v, bins=edges)
+        counts, edges = np.histogram(v, bins=bins, range=(lo, hi))  # equal bins: numpy's linear-time path
     return {"edges": [round(float(e), 6) for e in edges], "counts": [int(c) for c in counts]}

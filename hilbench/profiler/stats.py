@@ -28,11 +28,22 @@ import math
 import numpy as np
 
 
+def rank_index(n: int, q: float) -> int:
+    """0-based index of the nearest rank ceil(q*n/100) (at least rank 1)."""
+    return min(max(1, math.ceil(q * n / 100 - 1e-9)), n) - 1
+
+
 def nearest_rank(sorted_values: np.ndarray, q: float):
     """The value at rank ceil(q*n/100) (at least 1) of ascending values."""
-    n = len(sorted_values)
-    rank = max(1, math.ceil(q * n / 100 - 1e-9))
-    return sorted_values[min(rank, n) - 1]
+    return sorted_values[rank_index(len(sorted_values), q)]
+
+
+def percentiles(values: np.ndarray, qs: tuple[float, ...]) -> list:
+    """Nearest-rank percentiles without a full sort (np.partition is linear)."""
+    n = len(values)
+    idx = [rank_index(n, q) for q in qs]
+    part = np.partition(values, sorted(set(idx)))
+    return [part[i] for i in idx]
 
 
 def num(x):
@@ -51,18 +62,18 @@ def duration_stats(d: np.ndarray, b_t: np.ndarray) -> dict:
                 "std_us": None, "p50_us": None, "p90_us": None, "p99_us": None}
     total = d.sum()
     imax = int(np.argmax(d))
-    s = np.sort(d)
+    p50, p90, p99 = percentiles(d, (50, 90, 99))
     return {
         "count": n,
         "total_us": num(total),
         "mean_us": float(total) / n,
-        "min_us": num(s[0]),
-        "max_us": num(s[-1]),
+        "min_us": num(d.min()),
+        "max_us": num(d[imax]),
         "max_at_us": num(b_t[imax]),
         "std_us": float(np.std(d, ddof=1)) if n > 1 else None,
-        "p50_us": num(nearest_rank(s, 50)),
-        "p90_us": num(nearest_rank(s, 90)),
-        "p99_us": num(nearest_rank(s, 99)),
+        "p50_us": num(p50),
+        "p90_us": num(p90),
+        "p99_us": num(p99),
     }
 
 
@@ -134,15 +145,16 @@ def periodicity(a: np.ndarray, seg: np.ndarray, period: float | None) -> dict:
         return out
     total = float(p.sum())
     mean = total / len(p)
-    s = np.sort(p)
+    lo, hi = p.min(), p.max()
+    p1, p99 = percentiles(p, (1, 99))
     out.update({
         "freq_hz": len(p) / total * 1e6 if total > 0 else None,
         "period_mean_us": mean,
-        "period_min_us": num(s[0]),
-        "period_max_us": num(s[-1]),
-        "jitter_us": num(s[-1] - s[0]),
+        "period_min_us": num(lo),
+        "period_max_us": num(hi),
+        "jitter_us": num(hi - lo),
         "jitter_std_us": float(np.std(p, ddof=1)) if len(p) > 1 else None,
-        "jitter_p99_p1_us": num(nearest_rank(s, 99) - nearest_rank(s, 1)),
+        "jitter_p99_p1_us": num(p99 - p1),
     })
     if period:
         err = np.abs(p - period)

@@ -104,3 +104,9 @@ def test_gantt_suffix_error(trace64, tmp_path):
     proc = run(str(trace64), "--gantt", str(tmp_path / "g.jpg"), check_rc=2)
     assert proc.stderr.decode().strip() == f"hilbench: error: {tmp_path / 'g.jpg'}: the Gantt chart is written " \
                                            "as .png or .svg"
+
+
+def test_live_view_on_a_file_ends_with_the_full_report(trace64):
+    proc = run(str(trace64), *SPEC_ARGS, "--live", "--live-gantt", "6ms")
+    out = proc.stdout.decode()
+    assert "rate Hz" in out and "last 6 ms" in out and "Trace profile of" in out
