@@ -81,7 +81,7 @@ class Profiler:
                 tl.attach_report(item)
             elif kind is Marker:
                 if item.kind == "drops":
-                    tl.add_drops(item.value)
+                    tl.add_drops(item.value, item.t_us)
                 elif item.kind == "window_start":
                     self.windows_started += 1
                     tl.new_window("window_start")

@@ -124,10 +124,14 @@ class Timeline:
         self.segment.report = report
         self.new_window("report")
 
-    def add_drops(self, count: int) -> None:
+    def add_drops(self, count: int, t_local: int | None = None) -> None:
+        """Stamps the board reported lost (binary DROPS), at the stream time ``t_local`` if known."""
         seg = self.segment
         seg.drops += count
-        t = seg.t_last if seg.t_last is not None else self.global_end
+        if t_local is not None and seg.first_local is not None:
+            t = int(t_local) + seg.offset
+        else:
+            t = seg.t_last if seg.t_last is not None else self.global_end
         seg.drop_marks.append((t, count))
 
     def _open(self, reason: str, first_local: int) -> None:
