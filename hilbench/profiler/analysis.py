@@ -118,7 +118,7 @@ def _infer(names, present, ids, begin, seg) -> np.ndarray:
     """No report and no task list: a name whose intervals mostly nest inside another's is a function.
 
     Tasks run one at a time, so their slices are outermost; function scopes lie
-    inside task slices. Kernel names are always tasks.
+    inside task slices. Kernel names, and names with no closed interval, are tasks.
     """
     n = len(names)
     lut = np.zeros(n, dtype=bool)
@@ -130,7 +130,7 @@ def _infer(names, present, ids, begin, seg) -> np.ndarray:
     level = depth[p.b_pos]
     outer = np.bincount(p.name, weights=(level == 1), minlength=n)
     total = np.bincount(p.name, minlength=n)
-    lut = (total > 0) & (outer * 2 > total)
+    lut = (total == 0) | (outer * 2 > total)  # a name with no closed interval yet: most likely a task
     for i, nm in enumerate(names):
         if nm in KERNEL_TASKS:
             lut[i] = True
