@@ -134,7 +134,8 @@ def cmd_profile(args: argparse.Namespace) -> int:
         stream = open_stream(args.source, baud=args.baud)
     except StreamError as exc:
         raise CliError(str(exc)) from None
-    if stream.live and not args.live and not args.duration and not args.reports:
+    endless = stream.live and (args.source != "-" or sys.stdin.isatty())  # a pipe ends by itself
+    if endless and not args.live and not args.duration and not args.reports:
         print(f"reading {stream.name} until Ctrl-C (or give --duration / --reports)", file=sys.stderr)
     to_stderr = args.json or args.json_out == "-"
     tty = (sys.stderr if to_stderr else sys.stdout).isatty()
