@@ -107,9 +107,11 @@ class ControlServer:
             return {"status": board.status()}
         if cmd == "button":
             board.press_button()
+            board.settle()  # the reply shows the press's effect (sampling on/off)
             return {"status": board.status()}
         if cmd == "reset":
             board.reset()
+            board.settle()
             return {"status": board.status()}
         if cmd == "fault":
             knobs = req.get("knobs", {})

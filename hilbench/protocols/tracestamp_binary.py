@@ -9,8 +9,8 @@ Full description with a worked example: ``docs/tracestamp-binary.md``. In short:
   damages one word only: the next ``11`` byte starts the next word.
 * **Payload** ``[23:18]`` id. ids 0..59 are stamps: ``[17]`` edge (1 = begin),
   ``[16:0]`` time in µs modulo 2^17 (131.072 ms). id 62 is TIME: ``[17:0]`` =
-  (t >> 15) mod 2^18, sent at window start, every 32.768 ms and after every
-  DROPS word, so a host can always unwrap. id 63 is a control word: ``[17:13]``
+  (t >> 15) mod 2^18, sent at window start, before the first stamp of each new
+  32.768 ms period and after every DROPS word, so a host can always unwrap. id 63 is a control word: ``[17:13]``
   op, ``[12:0]`` argument (ops in :class:`Op`). ids 60 and 61 are reserved.
 * **Drops**: a stamp that finds the sink full is counted, not written. Once
   space returns, DROPS words (up to 8191 each) report exactly how many were lost.
@@ -47,7 +47,7 @@ TIME_MASK = TIME_WRAP - 1
 HI_SHIFT = 15
 HI_BITS = 18
 HI_WRAP = 1 << HI_BITS
-TIME_INTERVAL_US = 1 << HI_SHIFT  # 32,768 µs
+TIME_INTERVAL_US = 1 << HI_SHIFT  # 32,768 µs: the period whose first stamp a TIME word precedes
 ARG_BITS = 13
 ARG_MASK = (1 << ARG_BITS) - 1
 MAX_DROPS_PER_WORD = ARG_MASK

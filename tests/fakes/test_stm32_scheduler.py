@@ -114,6 +114,40 @@ def test_fast_path_matches_the_exact_path_and_is_used():
     assert [r for _, r in fast_rt] == pytest.approx([r for _, r in exact_rt], abs=1e-6)
 
 
+def test_fast_path_with_a_long_computation_in_the_background():
+    """A prio-24 task formatting for milliseconds interleaves with the control ticks (time slicing)."""
+    results = []
+    for fast in (True, False):
+        k = Kernel(10_000, isr_us=0.6, switch_us=0.4)
+        idle = Task("IDLE", 0, 9, 0)
+        k.add_task(idle, None, idle=True)
+        k._make_ready(idle)
+        for num, (name, period, mean) in enumerate((("hal", 1, 6.6), ("wheel", 1, 10.7), ("pose", 2, 9.9)), 1):
+            t = Task(name, 24, num, num)
+            t.durations = Durations(Timing(mean), seed=num)
+            t.fast = Periodic(period, t.durations)
+            k.add_task(t, periodic_drawn(t, period))
+        worker = Task("profile", 24, 7, 7)
+        worker.durations = Durations(Timing(1500.0, sd_us=300.0), seed=7)
+
+        def work(task=worker):
+            while True:
+                yield (RUN, task.durations.draw())  # e.g. formatting a batch of lines
+                yield (DELAY_UNTIL, task.wake_tick + 50)
+
+        k.add_task(worker, work())
+        k.fast_enabled = fast
+        k.start()
+        k.sampling = True
+        k.run_until(200_000)
+        results.append((k.take_stamps(), [t.runtime_units for t in k.tasks], k.fast_ticks, k.exact_ticks))
+    (fast_st, fast_rt, fast_ticks, fast_exact), (exact_st, exact_rt, _, _) = results
+    assert fast_ticks > 1000, (fast_ticks, fast_exact)  # background phases ran on the fast path too
+    assert np.allclose(fast_st[0], exact_st[0], rtol=0, atol=1e-6)
+    assert np.array_equal(fast_st[1], exact_st[1]) and np.array_equal(fast_st[2], exact_st[2])
+    assert fast_rt == exact_rt
+
+
 def periodic_drawn(task, period):
     yield (DELAY_UNTIL, period)
     while True:

@@ -91,6 +91,17 @@ class Board:
             self.fw.press_button(t - self.boot_offset)
         self._wake.set()
 
+    def settle(self, us: float = 5000.0, timeout: float = 2.0) -> None:
+        """Let ``us`` of virtual time pass: offline by simulating it, live by waiting for the thread."""
+        target = self.now_us + us
+        if self._thread is None:
+            self.run_until(target)
+            return
+        deadline = time.monotonic() + timeout
+        while self.now_us < target and time.monotonic() < deadline:
+            self._wake.set()
+            time.sleep(0.001)
+
     def reset(self) -> None:
         """Reset the board: a new boot of the firmware at the current virtual time; unsent output is lost."""
         with self.lock:

@@ -199,7 +199,7 @@ class Firmware:
             if ok:
                 return
             # Retries are periodic while the line still does not fit (space only returns when a DMA ends).
-            task.fast = Periodic(self.poll_ticks, task.durations, lambda: len(data) > self.ring.free)
+            task.fast = Periodic(self.poll_ticks, task.durations, lambda: len(data) > self.ring.free, relative=True)
             yield (DELAY, self.poll_ticks)
             task.fast = None
             yield (RUN, task.durations.draw())
@@ -258,7 +258,7 @@ class Firmware:
     def _tsink(self, task: Task):
         # Polling an empty ring is periodic until someone writes into it.
         poll = Periodic(self.poll_ticks, task.durations,
-                        lambda: self.ring.used == 0 and not (self.output == "binary" and self.sampling))
+                        lambda: self.ring.used == 0 and not (self.output == "binary" and self.sampling), relative=True)
         after_tx = False
         binary = self.output == "binary"
         while True:
@@ -481,17 +481,42 @@ class Firmware:
             self._reporting = False
 
     def _print_records(self, task: Task):
+        """Format and write the buffered records.
+
+        Lines are formatted in batches of as many as fit into the ring's free space: the batch
+        costs the sum of its lines' formatting times (one long computation, which the control
+        tasks interleave with at every tick) and is written at its end. The real task writes each
+        line as soon as it is formatted, so bytes enter the ring up to one batch later here; when
+        nothing fits, it waits in 1 ms steps as the sink makes writers do.
+        """
         self.sync()
         t, ids, b = self.records.take()
         if not len(t):
             return
         t_us = np.maximum(np.floor(t - self.ref), 0).astype(np.int64)
         lines = ts.format_stamps(self.names_b, ids, t_us, b, self.dialect)
-        for line in lines:
-            yield (RUN, self.line_cost.draw())
-            yield from self.write_blocking(task, line)
-            self.truth.stamps_sent += 1
-            self.truth.lines_written += 1
+        ends = np.cumsum([len(x) for x in lines])
+        i = 0
+        n = len(lines)
+        while i < n:
+            free = yield (CALL, lambda k: (self.sync(), self.ring.free)[1])
+            base = int(ends[i - 1]) if i else 0
+            m = int(np.searchsorted(ends[i:], base + free, side="right"))
+            if m == 0:  # not even one line fits: format it, then wait for space
+                yield (RUN, self.line_cost.draw())
+                yield from self.write_blocking(task, lines[i])
+                m = 1
+            else:
+                yield (RUN, float(np.sum(self.line_cost.peek(m))))
+                self.line_cost.consume(m)
+                chunk = b"".join(lines[i : i + m])
+                ok = yield (CALL, lambda k, chunk=chunk: self.try_write(chunk))
+                if not ok:  # someone else wrote meanwhile: line by line, waiting as needed
+                    for line in lines[i : i + m]:
+                        yield from self.write_blocking(task, line)
+            i += m
+            self.truth.stamps_sent += m
+            self.truth.lines_written += m
 
     def _btn(self, task: Task):
         window_ticks = max(1, round(self.window_ms * self.preset.tick_hz / 1000))

@@ -27,6 +27,7 @@ they produce identical stamps.
 
 from __future__ import annotations
 
+import bisect
 import heapq
 import math
 from collections.abc import Callable, Generator
@@ -92,14 +93,16 @@ class Durations:
 
 @dataclass
 class Periodic:
-    """A task's fast model while it is blocked: released every ``period`` ticks, each job one RUN
-    drawn from ``durations``, then it blocks again (vTaskDelayUntil, or a relative delay that
-    starts in the release tick, which is the same thing when the job ends within the tick)."""
+    """A task's fast model: each time it is selected it computes one RUN drawn from ``durations``,
+    then calls ``vTaskDelayUntil(wake + period)`` (``relative=False``: blocks, or only yields when
+    that tick has passed) or ``vTaskDelay(period)`` (``relative=True``). The generator must be
+    suspended at that delay (or ready right after it) whenever the model is set."""
 
     period: int
     durations: Durations
     #: Whether the model still holds when a fast run starts (e.g. "the ring is still empty").
     valid: Callable[[], bool] | None = None
+    relative: bool = False
 
 
 class Task:
@@ -201,6 +204,7 @@ class Kernel:
         self.fast_ticks = 0
         self.exact_ticks = 0
         self.fast_enabled = True
+        self._patterns: dict[tuple, tuple] = {}  # release patterns by relative start state
         self.on_drain: Callable[[], None] | None = None  # called before the board looks at stamps
 
     # ------------------------------------------------------------------ setup
@@ -267,8 +271,12 @@ class Kernel:
             self._st_id.append(stamp_id)
             self._st_b.append(begin)
 
+    _EMPTY = (np.zeros(0), np.zeros(0, np.int16), np.zeros(0, bool))
+
     def take_stamps(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """All stamps recorded since the last call, in time order: (t µs float, stamp id, begin)."""
+        if not self._st_t and not self._chunks:
+            return self._EMPTY
         self._flush_lists()
         chunks = self._chunks
         self._chunks = []
@@ -313,12 +321,12 @@ class Kernel:
                 return p
         return -1
 
-    def _delay_until(self, task: Task, tick: int) -> None:
-        self.ready[task.priority].remove(task)
+    def _delay_until(self, task: Task, tick: int) -> bool:
+        """Block ``task`` until ``tick``; False (and no list change) when that tick has already come."""
         task.wake_tick = tick  # vTaskDelayUntil advances the previous wake time even when already due
-        if tick <= self.tick:  # already due: stays ready (vTaskDelayUntil does not block)
-            self._make_ready(task)
-            return
+        if tick <= self.tick:
+            return False
+        self.ready[task.priority].remove(task)
         task.state = "blocked"
         task.wake_tick = tick
         self._seq += 1
@@ -336,6 +344,7 @@ class Kernel:
                 else:
                     hi = mid
             d.insert(lo, entry)
+        return True
 
     # ------------------------------------------------------------------ switching
 
@@ -400,9 +409,12 @@ class Kernel:
                     self._switch(self.now)
                     return ()
             elif op == DELAY_UNTIL:
-                self._delay_until(cur, action[1])
-                if cur.state != "blocked":
-                    continue
+                if not self._delay_until(cur, action[1]):
+                    # Already due: vTaskDelayUntil does not block but yields (portYIELD_WITHIN_API).
+                    self._switch(self.now)
+                    if self.current is cur:
+                        continue
+                    return ()
                 self._switch(self.now)
                 return ()
             elif op == DELAY:
@@ -450,7 +462,7 @@ class Kernel:
         while True:
             cur = self.current
             now = self.now
-            if self.fast_enabled and cur is self.idle:
+            if self.fast_enabled and (cur is self.idle or cur.remaining > self.tick_us):
                 self._try_fast(t_end)
                 cur = self.current
                 now = self.now
@@ -489,21 +501,32 @@ class Kernel:
     _no_fast_before = 0
 
     def _try_fast(self, t_end: float) -> None:
-        """Run whole ticks with numpy while the CPU is idle between periodic releases."""
+        """Run whole ticks with numpy while only periodic tasks interrupt the running task.
+
+        The running task is the background: the idle task, or a task in the middle of a long
+        computation (e.g. the profiling task formatting lines), which resumes after each tick's
+        burst of periodic jobs, as time slicing and priorities make it do. Ready tasks other than
+        the background must be periodic ones waiting for their turn (e.g. one release behind).
+        """
         k0 = self.tick + 1  # the first tick to process
         if k0 < self._no_fast_before:
             return
-        for t in self.ready.get(self.idle.priority, ReadyList()).items:
-            if t is not self.idle:
-                return
+        cur = self.current
+        if cur is not self.idle and cur.remaining <= 0:
+            return
+        tasks = []
         for p in self._prios:
-            if p != self.idle.priority and self.ready[p].items:
-                return
+            for t in self.ready[p].items:
+                if t is cur or t is self.idle:
+                    continue
+                fast = t.fast
+                if fast is None or t.remaining > 0 or (fast.valid is not None and not fast.valid()):
+                    return
+                tasks.append(t)
         # The run ends at the first tick that needs the exact path.
         limit = math.floor(t_end / self.tick_us)
         if self.events:
             limit = min(limit, math.floor(self.events[0][0] / self.tick_us))
-        tasks = []
         for wake, _, task in self.delayed:
             if wake >= limit:
                 break
@@ -514,203 +537,472 @@ class Kernel:
             tasks.append(task)
         if limit - k0 < 2:
             return
-        fast_run(self, k0, limit, [t for t in tasks if t.wake_tick < limit])
+        fast_run(self, k0, limit, tasks, cur)
 
 
-def fast_run(k: Kernel, k0: int, k_end: int, tasks: list[Task]) -> None:
-    """Process ticks k0 .. k_end-1 in bulk (see the module docstring); stops early at an irregular tick."""
+def fast_run(k: Kernel, k0: int, k_end: int, tasks: list[Task], bg: Task | None = None) -> None:
+    """Process ticks k0 .. k_end-1 in bulk (see the module docstring); stops early at an irregular tick.
+
+    ``bg`` is the running task that resumes after each burst (default: the idle task); if it is not
+    the idle task, the run ends in the tick where its remaining computation would finish.
+    """
     tick_us = k.tick_us
-    if not tasks:
-        # Nothing wakes: the idle task runs on.
-        k.tick = k_end - 1
-        k.now = max(k.now, (k_end - 1) * tick_us + k.isr_us)
-        k.fast_ticks += k_end - k0
-        return
-    job_tick, job_task, k_end = _release_sequence(k, tasks, k0, k_end)  # per job: tick, index into tasks
-    n = len(job_tick)
-    if n == 0:
-        k.tick = k_end - 1
-        k.now = max(k.now, (k_end - 1) * tick_us)
-        k.fast_ticks += k_end - k0
-        return
-    # Durations in each task's own stream order.
-    d = np.empty(n)
-    counts = np.bincount(job_task, minlength=len(tasks))
-    for i, task in enumerate(tasks):
-        if counts[i]:
-            d[job_task == i] = task.fast.durations.peek(int(counts[i]))
     sw = k.switch_us
     isr = k.isr_us
-    # Per tick: first job starts at T + isr + sw; each job's switch-out at its end; next job + sw.
-    new_tick = np.empty(n, dtype=bool)
-    new_tick[0] = True
-    new_tick[1:] = job_tick[1:] != job_tick[:-1]
-    step = d + sw
-    cs = np.cumsum(step)
-    start_idx = np.flatnonzero(new_tick)
-    base = np.repeat(cs[start_idx] - step[start_idx], np.diff(np.append(start_idx, n)))
-    tick_t = job_tick * tick_us
-    t_switch_in = tick_t + isr + (cs - step - base)  # the switch that brings the job in
-    t_end_job = t_switch_in + step  # its switch-out
-    last_idx = np.append(start_idx[1:] - 1, n - 1)
-    burst_end = t_end_job[last_idx] + sw  # the idle task's switch-in stamp
-    next_tick_t = (job_tick[last_idx] + 1) * tick_us
-    bad = np.flatnonzero(burst_end >= next_tick_t)
-    if len(bad):
-        first_bad_tick = int(job_tick[last_idx[bad[0]]])
-        cut = int(start_idx[bad[0]])  # jobs before the bad tick
-        k_end = first_bad_tick
-        k._no_fast_before = first_bad_tick + 1  # do not retry until the overloaded tick is past
-        if cut == 0:
-            if k_end - 1 >= k0:
-                k.tick = k_end - 1
-                k.now = max(k.now, (k_end - 1) * tick_us)
-                k.fast_ticks += k_end - k0
+    bg = bg or k.idle
+    budget = math.inf if bg is k.idle else bg.remaining
+    pre = k0 * tick_us - max(k.now, k._resume_at)  # background computing before the first tick
+    if pre >= budget:
+        return
+    shadow = _Shadow(k, tasks, bg, k0, k_end) if tasks else None
+    if shadow is not None:
+        st, k_end = shadow.structure(k_end)
+    else:
+        st = _Struct(np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)).view(0)
+    n = st.n
+    counts = None
+    if n:
+        ji = st.ji
+        # Durations in each task's own stream order: group the jobs by task (stable), fill, scatter back.
+        counts = np.bincount(ji, minlength=len(tasks))
+        d = np.empty(n)
+        d[np.argsort(ji, kind="stable")] = np.concatenate(
+            [task.fast.durations.peek(c) for task, c in zip(tasks, counts.tolist(), strict=True) if c])
+        # Per burst: the first job is switched in at T + isr; each job's switch-out at its end.
+        step = d + sw
+        cs = np.cumsum(step)
+        excl = cs - step
+        brel = st.brel
+        t_switch_in = (st.jt + k0) * tick_us + (isr - np.repeat(excl[st.start], st.blen)) + excl
+        t_end_job = t_switch_in + step  # its switch-out
+        burst_end = t_end_job[st.last] + sw  # the background's switch-in stamp
+        bad = np.flatnonzero(burst_end >= (brel + (k0 + 1)) * tick_us)
+        if len(bad):
+            k_end = k0 + int(brel[bad[0]])
+            k._no_fast_before = k_end + 1  # do not retry until the overloaded tick is past
+    else:
+        burst_end = np.zeros(0)
+    burst_ticks = st.brel + k0
+    done = None
+    if budget != math.inf:
+        # Background computing per tick: from its resumption (after the burst, or the ISR) to the next tick.
+        if k_end - k0 <= 0:
             return
-        n = cut
-        job_tick, job_task, d = job_tick[:n], job_task[:n], d[:n]
-        t_switch_in, t_end_job, new_tick = t_switch_in[:n], t_end_job[:n], new_tick[:n]
-        start_idx = start_idx[: bad[0]]
-        last_idx = last_idx[: bad[0]]
-        counts = np.bincount(job_task, minlength=len(tasks))
-    # Commit: consume draws, advance tasks, charge run time, record stamps.
-    units = RUNTIME_UNIT_US
-    idle = k.idle
-    first_in = t_switch_in[start_idx]
-    last_out = t_end_job[last_idx]
-    for i, task in enumerate(tasks):
-        c = int(counts[i])
-        if not c:
-            continue
-        task.fast.durations.consume(c)
-        sel = job_task == i
-        ti, to = t_switch_in[sel], t_end_job[sel]
-        task.runtime_us += float(np.sum(to - ti))
-        task.runtime_units += int(np.sum(np.floor(to / units) - np.floor(ti / units)))
-        task.slices += c
-    # Idle: from its last switch-in to the first burst, then between bursts.
-    idle_in = np.concatenate(([idle.in_at], last_out))
-    idle_out = np.concatenate((first_in, [np.nan]))[:-1]
-    idle.runtime_us += float(np.sum(idle_out - idle_in[:-1]))
-    idle.runtime_units += int(np.sum(np.floor(idle_out / units) - np.floor(idle_in[:-1] / units)))
-    idle.in_at = float(last_out[-1])
-    idle.slices += len(start_idx)
-    if k.sampling:
-        _record_fast(k, tasks, job_task, t_switch_in, t_end_job, new_tick, start_idx, last_idx)
-    # Re-insert the tasks into the delayed list with their next wake ticks, in the order the
-    # exact path would have (by the tick and position of their last job).
-    last_job = {}
-    for j in range(n - 1, -1, -1):
-        ti = int(job_task[j])
-        if ti not in last_job:
-            last_job[ti] = j
-            if len(last_job) == len(tasks):
-                break
-    k.delayed = [e for e in k.delayed if e[2] not in tasks or int(counts[tasks.index(e[2])]) == 0]
-    for ti, j in sorted(last_job.items(), key=lambda kv: kv[1]):
-        task = tasks[ti]
-        k._seq += 1
-        task.seq = k._seq
-        task.wake_tick = int(job_tick[j]) + task.fast.period
-        k.delayed.append((task.wake_tick, task.seq, task))
-    k.delayed.sort(key=lambda e: e[:2])
-    k.tick = k_end - 1
-    k.now = max(float(last_out[-1]) + sw, (k_end - 1) * tick_us)
+        ticks = np.arange(k0, k_end + 1) * tick_us
+        resume = ticks[:-1] + isr
+        inside = burst_ticks < k_end
+        resume[burst_ticks[inside] - k0] = burst_end[inside]
+        done = pre + np.cumsum(ticks[1:] - resume)  # computed by the end of each tick
+        over = int(np.searchsorted(done, budget))
+        if over < len(done):
+            k_end = min(k_end, k0 + over + 1)  # hand over in the tick where it finishes
+    if k_end - k0 < 1:
+        return
+    keep_bursts = int(np.searchsorted(burst_ticks, k_end))
+    if keep_bursts < st.m:
+        st = st.cut(keep_bursts)
+        n = st.n
+        burst_ticks, burst_end = burst_ticks[:keep_bursts], burst_end[:keep_bursts]
+        counts = None
+        if n:
+            t_switch_in, t_end_job = t_switch_in[:n], t_end_job[:n]
+    if n:
+        if counts is None:
+            counts = np.bincount(st.ji, minlength=len(tasks))
+        _commit(k, tasks, bg, st, counts, t_switch_in, t_end_job)
+    if shadow is not None:
+        shadow.apply(k, k_end - 1)
+    # Hand over at the background's resumption in the last processed tick.
+    last = k_end - 1
+    handover = float(burst_end[-1]) if n and int(burst_ticks[-1]) == last else last * tick_us + isr
+    if done is not None:
+        bg.remaining = budget - (pre if last == k0 else float(done[last - k0 - 1]))
+    k.tick = last
+    k.now = max(k.now, handover)
     k._resume_at = k.now
     k.fast_ticks += k_end - k0
 
 
-def _record_fast(k, tasks, job_task, t_in, t_out, new_tick, start_idx, last_idx) -> None:
-    n = len(job_task)
-    m = len(start_idx)
+def _commit(k, tasks, bg, st: _View, counts, t_switch_in, t_end_job) -> None:
+    """Consume draws, charge run time and record the stamps of a fast run."""
+    units = RUNTIME_UNIT_US
+    first_in = t_switch_in[st.start]
+    last_out = t_end_job[st.last]
+    ji = st.ji
+    nt = len(tasks)
+    fin, fout = np.floor(t_switch_in / units), np.floor(t_end_job / units)
+    rt = np.bincount(ji, weights=t_end_job - t_switch_in, minlength=nt).tolist()
+    ut = np.bincount(ji, weights=fout - fin, minlength=nt).tolist()
+    for task, c, r, u in zip(tasks, counts.tolist(), rt, ut, strict=True):
+        if c:
+            task.fast.durations.consume(c)
+            task.runtime_us += r
+            task.runtime_units += round(u)
+            task.slices += c
+    # The background: from its last switch-in to the first burst, then between bursts.
+    bg_in = np.concatenate(([bg.in_at], last_out[:-1]))
+    bg.runtime_us += float(np.sum(first_in - bg_in))
+    bg.runtime_units += int(np.sum(fin[st.start]) - np.sum(np.floor(bg_in / units)))
+    bg.in_at = float(last_out[-1])
+    bg.slices += st.m
+    if k.sampling:
+        _record_fast(k, tasks, bg, st, t_switch_in, t_end_job)
+
+
+def _record_fast(k, tasks, bg, st: _View, t_in, t_out) -> None:
+    """Stamps per burst: background out, (job in, job out)*, background in."""
     sw = k.switch_us
-    ids = np.array([t.stamp_id for t in tasks], dtype=np.int16)[job_task]
-    hooked = np.array([t.hooked for t in tasks])[job_task]
-    idle_id = k.idle.stamp_id
-    # Per tick: IDLE out, (job in, job out)*, IDLE in. Build in one array of 2n + 2m entries.
-    total = 2 * n + 2 * m
-    t = np.empty(total)
-    sid = np.empty(total, dtype=np.int16)
-    b = np.empty(total, dtype=bool)
-    keep = np.ones(total, dtype=bool)
-    tick_of_job = np.cumsum(new_tick) - 1  # 0..m-1
-    pos_in = 2 * np.arange(n) + 1 + 2 * tick_of_job  # IDLE-out slots before each tick's jobs
-    t[pos_in] = t_in + sw
-    sid[pos_in] = ids
-    b[pos_in] = True
-    t[pos_in + 1] = t_out
-    sid[pos_in + 1] = ids
-    b[pos_in + 1] = False
-    keep[pos_in] = hooked
-    keep[pos_in + 1] = hooked
-    first_pos = pos_in[start_idx] - 1
-    t[first_pos] = t_in[start_idx]
-    sid[first_pos] = idle_id
-    b[first_pos] = False
-    last_pos = pos_in[last_idx] + 2
-    t[last_pos] = t_out[last_idx] + sw
-    sid[last_pos] = idle_id
-    b[last_pos] = True
-    if not keep.all():
+    sid, b = st.stamp_labels(bg.stamp_id, tuple(t.stamp_id for t in tasks))
+    t = np.empty(len(sid))
+    t[st.pos_in] = t_in + sw
+    t[st.pos_out] = t_out
+    t[st.first_pos] = t_in[st.start]
+    t[st.last_pos] = t_out[st.last] + sw
+    if not (bg.hooked and all(t_.hooked for t_ in tasks)):
+        keep = np.ones(len(sid), dtype=bool)
+        hooked = np.array([t_.hooked for t_ in tasks])[st.ji]
+        keep[st.pos_in] = hooked
+        keep[st.pos_out] = hooked
+        if not bg.hooked:
+            keep[st.first_pos] = False
+            keep[st.last_pos] = False
         t, sid, b = t[keep], sid[keep], b[keep]
     k._flush_lists()
     k._chunks.append((t, sid, b))
     k.ctx_switches += len(t)
 
 
-def _release_sequence(k: Kernel, tasks: list[Task], k0: int, k_end: int):
-    """Jobs released in ticks [k0, k_end) in execution order: ``(ticks, task indices, k_end)``.
+class _ShadowList:
+    """ReadyList semantics on task indices (for the order-only shadow of the fast path)."""
 
-    Within a tick: priority first, then delayed-list order (wake tick, insertion
-    sequence); a task re-inserts after its job, so the order is periodic. The
-    release pattern is simulated until its relative state repeats, then tiled.
-    ``k_end`` may come back smaller when no repetition was found in time.
+    __slots__ = ("items", "idx")
+
+    def __init__(self, items: list[int], idx: int | None) -> None:
+        self.items = items
+        self.idx = idx
+
+    def insert_end(self, t: int) -> None:
+        if self.idx is None:
+            self.items.append(t)
+        else:
+            self.items.insert(self.items.index(self.idx), t)
+
+    def remove(self, t: int) -> None:
+        i = self.items.index(t)
+        if self.idx == t:
+            self.idx = self.items[i - 1] if i > 0 else None
+        self.items.pop(i)
+
+    def next(self) -> int:
+        items = self.items
+        i = 0 if self.idx is None else items.index(self.idx) + 1
+        if i == len(items):
+            i = 0
+        self.idx = items[i]
+        return self.idx
+
+
+class _Struct:
+    """Per-job and per-burst index arrays of a release pattern (ticks relative to the run's first)."""
+
+    __slots__ = ("jt", "ji", "start", "last", "blen", "brel", "pos_in", "first_pos", "last_pos", "n", "m",
+                 "pos_out", "labels")
+
+    def __init__(self, jt: np.ndarray, ji: np.ndarray, *, _raw: tuple | None = None) -> None:
+        self.labels: dict = {}  # (background id, task ids) -> stamp ids and edges of every slot
+        if _raw is not None:
+            (self.jt, self.ji, self.start, self.last, self.blen, self.brel, self.pos_in, self.first_pos,
+             self.last_pos, self.pos_out) = _raw
+            self.n, self.m = len(self.jt), len(self.start)
+            return
+        n = len(jt)
+        self.jt, self.ji, self.n = jt, ji, n
+        if n == 0:
+            z = np.zeros(0, dtype=np.int64)
+            self.start = self.last = self.blen = self.brel = self.pos_in = self.first_pos = self.last_pos = z
+            self.pos_out = z
+            self.m = 0
+            return
+        new = np.empty(n, dtype=bool)
+        new[0] = True
+        new[1:] = jt[1:] != jt[:-1]
+        self.start = np.flatnonzero(new)
+        self.m = len(self.start)
+        self.last = np.append(self.start[1:] - 1, n - 1)
+        self.blen = np.diff(np.append(self.start, n))
+        self.brel = jt[self.start]
+        self.pos_in = 2 * np.arange(n) + 1 + 2 * np.repeat(np.arange(self.m), self.blen)
+        self.first_pos = self.pos_in[self.start] - 1
+        self.last_pos = self.pos_in[self.last] + 2
+        self.pos_out = self.pos_in + 1
+
+    def stamp_labels(self, bg_id: int, ids: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
+        """Stamp ids and edges of every stamp slot (they do not depend on the durations)."""
+        key = (bg_id, ids)
+        lab = self.labels.get(key)
+        if lab is None:
+            total = 2 * self.n + 2 * self.m
+            sid = np.empty(total, dtype=np.int16)
+            b = np.empty(total, dtype=bool)
+            job_ids = np.array(ids, dtype=np.int16)[self.ji]
+            sid[self.pos_in] = job_ids
+            sid[self.pos_out] = job_ids
+            b[self.pos_in] = True
+            b[self.pos_out] = False
+            sid[self.first_pos] = bg_id
+            b[self.first_pos] = False
+            sid[self.last_pos] = bg_id
+            b[self.last_pos] = True
+            lab = self.labels[key] = (sid, b)
+        return lab
+
+    def prefix(self, horizon: int) -> _View:
+        """The bursts in ticks < horizon."""
+        return self.view(int(np.searchsorted(self.brel, horizon)))
+
+    def view(self, m: int) -> _View:
+        """The first ``m`` bursts."""
+        return _View(self, int(self.start[m]) if m < self.m else self.n, m)
+
+
+class _View:
+    """The first ``m`` bursts (``n`` jobs) of a :class:`_Struct`, as cheap slices."""
+
+    __slots__ = ("st", "n", "m")
+
+    def __init__(self, st: _Struct, n: int, m: int) -> None:
+        self.st, self.n, self.m = st, n, m
+
+    def cut(self, m: int) -> _View:
+        return self.st.view(m)
+
+    jt = property(lambda self: self.st.jt[: self.n])
+    ji = property(lambda self: self.st.ji[: self.n])
+    pos_in = property(lambda self: self.st.pos_in[: self.n])
+    pos_out = property(lambda self: self.st.pos_out[: self.n])
+    start = property(lambda self: self.st.start[: self.m])
+    last = property(lambda self: self.st.last[: self.m])
+    blen = property(lambda self: self.st.blen[: self.m])
+    brel = property(lambda self: self.st.brel[: self.m])
+    first_pos = property(lambda self: self.st.first_pos[: self.m])
+    last_pos = property(lambda self: self.st.last_pos[: self.m])
+
+    def stamp_labels(self, bg_id: int, ids: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
+        sid, b = self.st.stamp_labels(bg_id, ids)
+        total = 2 * self.n + 2 * self.m
+        return sid[:total], b[:total]
+
+
+class _Shadow:
+    """The job order of a fast run: the kernel's ready and delayed lists replayed without time.
+
+    Every selected periodic task runs one job and then delays (vTaskDelayUntil: blocks, or
+    yields when its next wake tick has already come; vTaskDelay: blocks); the background task
+    resumes when the round robin reaches it. The relative state repeats after a few ticks, so
+    the sequence is simulated until it does and then tiled; :meth:`state_at` rebuilds the
+    lists for any tick of the run.
     """
-    idx = {id(t): i for i, t in enumerate(tasks)}
-    periods = [t.fast.period for t in tasks]
-    prio = [t.priority for t in tasks]
-    state = sorted((t.wake_tick, t.seq, idx[id(t)]) for t in tasks)
-    ticks: list[int] = []
-    order: list[int] = []
-    seq = max(t.seq for t in tasks)
-    seen: dict[tuple, tuple[int, int]] = {}
-    cycle = None
-    steps = 0
-    tick = k0
-    while True:
-        nxt = state[0][0]
-        if nxt >= k_end:
-            break
-        tick = max(nxt, k0)
-        released = [s for s in state if s[0] <= tick]
-        state = [s for s in state if s[0] > tick]
-        released.sort(key=lambda s: (-prio[s[2]], s[0], s[1]))
-        for s in released:
-            ticks.append(tick)
-            order.append(s[2])
-            seq += 1
-            state.append((tick + periods[s[2]], seq, s[2]))
-        state.sort()
-        key = tuple((w - tick, i) for w, _, i in state)
-        if key in seen:
-            cycle = (*seen[key], tick, len(ticks))
-            break
-        seen[key] = (tick, len(ticks))
-        steps += 1
-        if steps > 4096:  # no short cycle: run the simulated part only
-            k_end = tick + 1
-            break
-    ticks_a = np.array(ticks, dtype=np.int64)
-    order_a = np.array(order, dtype=np.int64)
-    if cycle is not None:
-        t_prev, n_prev, t_now, n_now = cycle
+
+    def __init__(self, k: Kernel, tasks: list[Task], bg: Task, k0: int, k_end: int) -> None:
+        allt = list(tasks) + [bg] + ([k.idle] if bg is not k.idle else [])
+        self.allt = allt
+        ix = {id(t): i for i, t in enumerate(allt)}
+        n = len(tasks)
+        self.n = n
+        self.prio = [t.priority for t in allt]
+        period = [t.fast.period for t in tasks]
+        relative = [t.fast.relative for t in tasks]
+        cur = n
+        lists = {p: _ShadowList([ix[id(t)] for t in rl.items], ix[id(rl.idx)] if rl.idx is not None else None)
+                 for p, rl in k.ready.items()}
+        delayed = [(w, sq, ix[id(t)]) for w, sq, t in k.delayed if id(t) in ix and ix[id(t)] < n]
+        wake = [t.wake_tick for t in tasks]
+        prios = sorted(lists, reverse=True)
+        seq = k._seq
+        self.unsupported_from: int | None = None
+
+        def select() -> int:
+            for p in prios:
+                lst = lists[p]
+                if lst.items:
+                    return lst.next()
+            raise RuntimeError("no task ready")
+
+        def snapshot(te: int):
+            # Relative delays do not use the wake time, so it is left out (it would never repeat).
+            return (tuple((p, tuple(lst.items), lst.idx) for p, lst in sorted(lists.items())),
+                    tuple((w - te, i) for w, _, i in delayed),
+                    tuple(None if relative[i] else w - te for i, w in enumerate(wake)))
+
+        init_key = (snapshot(k0 - 1), tuple(period), tuple(relative), tuple(self.prio[:n]), bg is k.idle)
+        cached = k._patterns.get(init_key)
+        if cached is not None:
+            self._load(cached, k0)
+            return
+        jobs_t: list[int] = []
+        jobs_i: list[int] = []
+        events: list[int] = []
+        snaps: list[tuple] = []
+        seen: dict[tuple, int] = {}
+        cycle = None
+        last = k0 - 1
+        while len(events) < 4096:
+            pending = len(lists[self.prio[cur]].items) > 1
+            nxt = delayed[0][0] if delayed else math.inf
+            if pending:
+                nxt = min(nxt, last + 1)
+            nxt = max(nxt, k0)
+            if nxt >= k_end:
+                break
+            tick = int(nxt)
+            woke = False
+            while delayed and delayed[0][0] <= tick:
+                _, _, i = delayed.pop(0)
+                lists[self.prio[i]].insert_end(i)
+                woke = True
+            top = next((p for p in prios if lists[p].items), -1)
+            if (woke and top >= self.prio[cur]) or len(lists[self.prio[cur]].items) > 1:
+                x = select()
+                prev = None
+                while x != cur and x < n:
+                    if x == prev:  # the same task again without a switch: not modelled, hand over
+                        self.unsupported_from = tick
+                        break
+                    jobs_t.append(tick)
+                    jobs_i.append(x)
+                    lst = lists[self.prio[x]]
+                    target = tick + period[x] if relative[x] else wake[x] + period[x]
+                    if not relative[x]:
+                        wake[x] = target
+                    if relative[x] or target > tick:
+                        lst.remove(x)
+                        seq += 1
+                        entry = (target, seq, x)
+                        pos = len(delayed)
+                        while pos and delayed[pos - 1][:2] > entry[:2]:
+                            pos -= 1
+                        delayed.insert(pos, entry)
+                    prev = x
+                    x = select()
+                if self.unsupported_from is not None:
+                    break
+            last = tick
+            snap = snapshot(tick)
+            events.append(tick)
+            snaps.append(snap)
+            if snap in seen:
+                j = seen[snap]
+                cycle = (events[j], tick)
+                break
+            seen[snap] = len(events) - 1
+        self.jobs_t = np.array(jobs_t, dtype=np.int64)
+        self.jobs_i = np.array(jobs_i, dtype=np.int64)
+        self.events = events
+        self.snaps = snaps
+        self.cycle = cycle
+        self.k_end = k_end if cycle is not None or not events or len(events) < 4096 else events[-1] + 1
+        if self.unsupported_from is not None:
+            self.k_end = min(self.k_end, self.unsupported_from)
+        self.k0 = k0
+        self.entry: dict | None = None
+        if cycle is not None and self.unsupported_from is None and len(k._patterns) < 256:
+            self.entry = k._patterns[init_key] = {
+                "jobs": (self.jobs_t - k0, self.jobs_i), "events": [e - k0 for e in events], "snaps": snaps,
+                "cycle": (cycle[0] - k0, cycle[1] - k0), "struct": None}
+
+    def _load(self, cached: dict, k0: int) -> None:
+        jt, ji = cached["jobs"]
+        self.k0 = k0
+        self.entry = cached
+        self.jobs_t = jt + k0
+        self.jobs_i = ji
+        self.events = [e + k0 for e in cached["events"]]
+        self.snaps = cached["snaps"]
+        cyc = cached["cycle"]
+        self.cycle = (cyc[0] + k0, cyc[1] + k0)
+        self.k_end = None
+
+    def structure(self, k_end: int) -> tuple[_View, int]:
+        """The job structure of ticks < k_end (cached per pattern, relative to the first tick)."""
+        if self.k_end is not None:
+            k_end = min(k_end, self.k_end)
+        horizon = k_end - self.k0
+        entry = self.entry
+        if entry is not None and entry["struct"] is not None and entry["struct"][0] >= horizon:
+            st = entry["struct"][1]
+        else:
+            span = max(horizon, 2048) if entry is not None else horizon
+            jt, ji, _ = self.jobs(self.k0 + span)
+            st = _Struct(jt - self.k0, ji)
+            if entry is not None:
+                entry["struct"] = (span, st)
+        return st.prefix(horizon), k_end
+
+    def jobs(self, k_end: int) -> tuple[np.ndarray, np.ndarray, int]:
+        """Job ticks and task indices for ticks < k_end (tiled past the simulated part if a cycle was
+        found; otherwise k_end is limited to what was simulated)."""
+        if self.k_end is not None and self.cycle is None:
+            k_end = min(k_end, self.k_end)
+        ticks, order = self.jobs_t, self.jobs_i
+        if self.cycle is not None:
+            t_prev, t_now = self.cycle
+            period = t_now - t_prev
+            in_cycle = (ticks > t_prev) & (ticks <= t_now)
+            pat_rel = ticks[in_cycle] - t_prev
+            pat_order = order[in_cycle]
+            head = ticks <= t_now
+            ticks, order = ticks[head], order[head]
+            reps = max(0, (k_end - t_now) // period + 1)
+            if reps and len(pat_rel):
+                future = (t_now + np.arange(reps, dtype=np.int64)[:, None] * period + pat_rel[None, :]).ravel()
+                ticks = np.concatenate((ticks, future))
+                order = np.concatenate((order, np.tile(pat_order, reps)))
+        keep = ticks < k_end
+        return ticks[keep], order[keep], k_end
+
+    def state_at(self, tick: int):
+        """(event tick, relative snapshot) of the lists after processing ``tick``; None if unchanged."""
+        events = self.events
+        if not events or tick < events[0]:
+            return None
+        if self.cycle is None or tick <= self.cycle[1]:
+            j = bisect.bisect_right(events, tick) - 1
+            return events[j], self.snaps[j]
+        t_prev, t_now = self.cycle
         period = t_now - t_prev
-        pat_rel = ticks_a[n_prev:n_now] - t_prev  # in (0, period]
-        pat_order = order_a[n_prev:n_now]
-        reps = (k_end - t_now) // period + 1
-        future = (t_now + np.arange(reps, dtype=np.int64)[:, None] * period + pat_rel[None, :]).ravel()
-        future_order = np.tile(pat_order, reps)
-        keep = future < k_end
-        ticks_a = np.concatenate((ticks_a, future[keep]))
-        order_a = np.concatenate((order_a, future_order[keep]))
-    return ticks_a, order_a, k_end
+        reps = (tick - t_prev - 1) // period
+        base = tick - reps * period  # in (t_prev, t_now]
+        j = bisect.bisect_right(events, base) - 1  # events includes t_prev (same relative state as t_now)
+        return events[j] + reps * period, self.snaps[j]
+
+    def apply(self, k: Kernel, tick: int) -> None:
+        """Write the lists after ``tick`` back into the kernel."""
+        st = self.state_at(tick)
+        if st is None:
+            return
+        te, (lists, delayed, wake) = st
+        allt = self.allt
+        n = self.n
+        for p, items, idx in lists:
+            rl = k.ready[p]
+            rl.items = [allt[i] for i in items]
+            rl.idx = allt[idx] if idx is not None else None
+            for i in items:
+                if i < n:
+                    allt[i].state = "ready"
+        keep = [e for e in k.delayed if not any(e[2] is allt[i] for i in range(n))]
+        for rel, i in delayed:
+            task = allt[i]
+            k._seq += 1
+            task.seq = k._seq
+            task.state = "blocked"
+            keep.append((rel + te, task.seq, task))
+        keep.sort(key=lambda e: e[:2])
+        k.delayed = keep
+        for i in range(n):
+            if wake[i] is not None:
+                allt[i].wake_tick = wake[i] + te
+        for rel, i in delayed:
+            allt[i].wake_tick = rel + te  # what _delay_until records for every delay
+
+
