@@ -1,0 +1,253 @@
+"""``hilbench profile SOURCE``: per-task timing, periodicity, jitter, histograms, Gantt and Perfetto export.
+
+SOURCE is a file, ``-`` (stdin), a serial port or pty (``/dev/ttyACM0``,
+``serial:///dev/ttyACM0?baud=N``) or a UDP port (``udp://127.0.0.1:PORT``,
+``?peer=HOST:PORT`` to register with a board). Files are read to their end;
+live sources until ``--duration``, ``--reports`` or Ctrl-C, then the results
+are printed (and written) as for a file.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import sys
+import time
+
+from hilbench.cli.common import CliError
+
+_UNITS_US = {"": 1.0, "us": 1.0, "µs": 1.0, "ms": 1e3, "s": 1e6}
+_TIME = re.compile(r"\s*([0-9]*\.?[0-9]+(?:e[+-]?\d+)?)\s*(us|µs|ms|s|hz|khz)?\s*", re.I)
+
+
+def time_us(text: str, *, allow_hz: bool = False) -> float:
+    """``"250"`` (µs), ``"1.5ms"``, ``"2s"``, and with ``allow_hz`` ``"1kHz"`` (a period of 1000 µs)."""
+    m = _TIME.fullmatch(text)
+    if m is None:
+        raise argparse.ArgumentTypeError(f"expected a time such as 250, 1.5ms or 2s, got {text!r}")
+    value, unit = float(m[1]), (m[2] or "").lower()
+    if unit in ("hz", "khz"):
+        if not allow_hz:
+            raise argparse.ArgumentTypeError(f"expected a time, got a frequency {text!r}")
+        hz = value * (1000 if unit == "khz" else 1)
+        if hz <= 0:
+            raise argparse.ArgumentTypeError(f"frequency must be positive, got {text!r}")
+        return 1e6 / hz
+    return value * _UNITS_US[unit]
+
+
+def window_arg(text: str) -> tuple[float, float]:
+    """``A:B`` in µs or with units (``1s:2s``); either side may be empty."""
+    a, sep, b = text.partition(":")
+    if not sep:
+        raise argparse.ArgumentTypeError(f"expected A:B (e.g. 1s:1.02s or 3000:4000), got {text!r}")
+    lo = time_us(a) if a.strip() else float("-inf")
+    hi = time_us(b) if b.strip() else float("inf")
+    if hi < lo:
+        raise argparse.ArgumentTypeError(f"window end before its start: {text!r}")
+    return lo, hi
+
+
+def name_value(text: str, *, allow_hz: bool = False) -> tuple[str, float]:
+    name, sep, value = text.rpartition("=")
+    if not sep or not name:
+        raise argparse.ArgumentTypeError(f"expected NAME=VALUE (e.g. wheel_ctrl=1ms), got {text!r}")
+    return name, time_us(value, allow_hz=allow_hz)
+
+
+def _names(text: str) -> list[str]:
+    return [n.strip() for n in text.split(",") if n.strip()]
+
+
+def settings_from(args: argparse.Namespace):
+    from hilbench.profiler import ProfileSettings
+
+    denominator: str | float = "span"
+    if args.denominator not in (None, "span"):
+        denominator = "profiled" if args.denominator == "profiled" else time_us(args.denominator)
+    return ProfileSettings(
+        tasks=frozenset(_names(args.tasks)) if args.tasks is not None else None,
+        periods=dict(args.period or []),
+        merge_gaps=dict(args.merge_gap or []),
+        deadlines=dict(args.deadline or []),
+        budgets=dict(args.budget or []),
+        window=args.window,
+        denominator=denominator,
+        reorder_us=args.reorder,
+        hist_tick_us=args.tick,
+        linear_bins=args.bins,
+    )
+
+
+def _read(args, profiler, stream, console) -> None:
+    from hilbench.profiler.live import LiveView
+
+    deadline = time.monotonic() + args.duration if args.duration else None
+
+    def done() -> bool:
+        if deadline is not None and time.monotonic() >= deadline:
+            return True
+        return bool(args.reports and len(profiler.reports) >= args.reports)
+
+    view = LiveView(profiler, console, source=stream.name, stats_us=args.live_window,
+                    gantt_us=args.live_gantt) if args.live else None
+    try:
+        if view is not None:
+            view.__enter__()
+        while not done():
+            data = stream.read(0.05)
+            if data is None:
+                break
+            if data:
+                profiler.feed(data)
+            if view is not None:
+                view.tick()
+        if view is not None:
+            view.tick(force=True)
+    except KeyboardInterrupt:
+        pass  # Ctrl-C ends a live capture; the results still come
+    finally:
+        if view is not None:
+            view.__exit__(None, None, None)
+        stream.close()
+    profiler.finish()
+
+
+def cmd_profile(args: argparse.Namespace) -> int:
+    from rich.console import Console
+
+    from hilbench.profiler import Profiler
+    from hilbench.profiler.compare import compare, load_summary
+    from hilbench.profiler.report import compare_table, full_report
+    from hilbench.transports.streams import StreamError, open_stream
+
+    settings = settings_from(args)
+    base = None
+    if args.compare:
+        # The other run: a saved --json document, or another capture analysed with the same settings.
+        try:
+            base = load_summary(args.compare) if args.compare.endswith(".json") else None
+        except (OSError, ValueError) as exc:
+            raise CliError(str(exc)) from None
+    try:
+        stream = open_stream(args.source, baud=args.baud)
+    except StreamError as exc:
+        raise CliError(str(exc)) from None
+    endless = stream.live and (args.source != "-" or sys.stdin.isatty())  # a pipe ends by itself
+    if endless and not args.live and not args.duration and not args.reports:
+        print(f"reading {stream.name} until Ctrl-C (or give --duration / --reports)", file=sys.stderr)
+    to_stderr = args.json or args.json_out == "-"
+    tty = (sys.stderr if to_stderr else sys.stdout).isatty()
+    # Tables are wide; a pipe or file gets 132 columns rather than rich's default 80.
+    console = Console(stderr=to_stderr, width=None if tty else 132)
+    profiler = Profiler(settings.with_(joined_mid_stream=stream.live))
+    _read(args, profiler, stream, console)
+    a = profiler.analyse()
+    if args.compare and base is None:
+        other = Profiler(settings)
+        try:
+            with open_stream(args.compare, baud=args.baud) as s2:
+                if s2.live:
+                    raise CliError(f"--compare {args.compare}: give a file or a saved --json document")
+                while (d := s2.read()) is not None:
+                    other.feed(d)
+        except StreamError as exc:
+            raise CliError(str(exc)) from None
+        other.finish()
+        base = other.analyse()
+
+    doc = a.to_json()
+    doc["source"] = stream.name
+    cmp = None
+    if base is not None:
+        cmp = compare(base, a)
+        doc["compare"] = {"base": args.compare, **cmp}
+    if args.export:
+        from hilbench.profiler.export_perfetto import write_trace
+
+        n = write_trace(a, args.export, board=args.board_name)
+        print(f"wrote {n} trace events to {args.export} (open it in ui.perfetto.dev)", file=sys.stderr)
+    if args.gantt:
+        from hilbench.profiler.gantt import PlotUnavailable, render_gantt
+
+        try:
+            rows = render_gantt(a, args.gantt, window=args.gantt_window, names=_names(args.only) if args.only
+                                else None)
+        except (PlotUnavailable, ValueError) as exc:
+            raise CliError(str(exc)) from None
+        print(f"wrote Gantt chart of {len(rows)} rows to {args.gantt}", file=sys.stderr)
+    if args.json_out and args.json_out != "-":
+        with open(args.json_out, "w", encoding="utf-8") as f:
+            json.dump(doc, f, indent=1)
+    if args.json or args.json_out == "-":
+        json.dump(doc, sys.stdout, indent=1)
+        sys.stdout.write("\n")
+    else:
+        only = _names(args.only) if args.only else None
+        hist = tuple(h for h in (args.hist or "").split(",") if h)
+        console.print(full_report(a, only=only, histograms=hist, title=f"Trace profile of {stream.name}",
+                                  thesis=args.thesis))
+        if cmp is not None:
+            console.print(compare_table(cmp, args.compare, stream.name))
+    if args.strict and a.quality["untrustworthy"]:
+        print("hilbench: untrustworthy statistics: " + "; ".join(a.quality["reasons"]), file=sys.stderr)
+        return 3
+    return 0
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "profile", help="trace profiler: per-task timing, periods, jitter, Gantt, Perfetto export",
+        description="Analyse a board's trace stamps (text in either dialect, or hilbench's binary words, mixed "
+                    "with logs and run-time statistics reports): per task and function count, total, mean, min, "
+                    "observed max, share of the window, gross and net time, frequency, period, jitter, "
+                    "deadline misses, histograms, data quality. Definitions: spec sheet stm32_board.md §5.",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog="examples:\n"
+               "  hilbench profile trace.txt --period wheel_ctrl=10ms --gantt trace.png\n"
+               "  hilbench profile /dev/ttyACM0 --baud 1152000 --live\n"
+               "  hilbench profile udp://127.0.0.1:9000 --reports 1 --json > run.json\n"
+               "  hilbench profile caches_on.txt --compare caches_off.txt")
+    p.add_argument("source", help="file, - (stdin), serial port or pty, serial://PATH?baud=N, "
+                                  "udp://HOST:PORT[?peer=HOST:PORT]")
+    p.add_argument("--baud", type=int, help="serial baud rate (default 115200)")
+    p.add_argument("--tasks", metavar="A,B,...", help="the task (hook-stamp) names; default: from the run-time "
+                                                     "report, plus IDLE and Tmr Svc, else inferred")
+    p.add_argument("--period", action="append", type=lambda s: name_value(s, allow_hz=True), metavar="NAME=T",
+                   help="nominal period of a task or function (µs, or 10ms, or 100Hz); repeatable")
+    p.add_argument("--deadline", action="append", type=name_value, metavar="NAME=D",
+                   help="relative deadline for response times (default: the period)")
+    p.add_argument("--budget", action="append", type=name_value, metavar="NAME=B",
+                   help="execution budget for overruns (default: the period)")
+    p.add_argument("--merge-gap", action="append", type=name_value, metavar="NAME=G",
+                   help="slices closer than G form one job (default: half the period)")
+    p.add_argument("--window", type=window_arg, metavar="A:B", help="analyse only stamps in [A, B] (µs or 1s:2s)")
+    p.add_argument("--denominator", metavar="span|profiled|T",
+                   help="share denominator: stamps' span (default), the report's 'profiled for', or a time")
+    p.add_argument("--reorder", type=time_us, default=500_000, metavar="T",
+                   help="reorder window for late stamps (default 500ms)")
+    p.add_argument("--tick", type=float, default=1.0, metavar="US", help="histogram tick in µs (default 1)")
+    p.add_argument("--bins", type=int, default=20, help="linear histogram bins in --json (default 20)")
+    p.add_argument("--hist", metavar="KINDS", help="print PX4 histograms: duration,latency,response,period_error")
+    p.add_argument("--only", metavar="A,B,...", help="show only these names")
+    p.add_argument("--thesis", action="store_true", help="show the thesis's %% column (total over the sum of "
+                                                        "all totals) instead of the share of the window")
+    p.add_argument("--json", action="store_true", help="print the JSON document instead of tables")
+    p.add_argument("--json-out", metavar="FILE", help="also write the JSON document to FILE")
+    p.add_argument("--export", metavar="TRACE.json", help="write Chrome/Perfetto trace-event JSON")
+    p.add_argument("--board-name", default="stm32f767-rover", help="process name in the exported trace")
+    p.add_argument("--gantt", metavar="OUT.png|OUT.svg", help="write a Gantt chart (needs hilbench[plot])")
+    p.add_argument("--gantt-window", type=window_arg, metavar="A:B", help="time window of the Gantt chart")
+    p.add_argument("--compare", metavar="OTHER", help="compare with another run: a capture file or a --json "
+                                                     "document (change in %% of OTHER, as the thesis reports it)")
+    p.add_argument("--live", action="store_true", help="live view while the stream runs (refresh <= 10/s)")
+    p.add_argument("--live-window", type=time_us, default=1_000_000, metavar="T",
+                   help="live view: statistics over the last T (default 1s)")
+    p.add_argument("--live-gantt", type=time_us, default=20_000, metavar="T",
+                   help="live view: text Gantt of the last T (default 20ms)")
+    p.add_argument("--duration", type=float, metavar="S", help="live sources: stop after S seconds")
+    p.add_argument("--reports", type=int, metavar="N", help="stop after N run-time statistics reports")
+    p.add_argument("--strict", action="store_true", help="exit 3 when the data quality makes the figures "
+                                                        "untrustworthy")
+    p.set_defaults(func=cmd_profile)

@@ -1,0 +1,124 @@
+"""The profiler's front end: bytes or decoded items in, a :class:`Timeline` and counters out.
+
+:class:`Profiler` owns one :class:`~hilbench.protocols.tracestamp_stream.StreamDecoder`
+(text and binary stamps mixed with logs and run-time reports on one port) and
+keeps everything the analysis needs: the stamps (unwrapped, per window), the
+reports, binary markers and the decoders' counters. :meth:`Profiler.analyse`
+runs the statistics on what has arrived so far, so a live view calls it as
+often as it likes.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Iterable
+
+import numpy as np
+
+from hilbench.profiler.settings import ProfileSettings
+from hilbench.profiler.timeline import Timeline
+from hilbench.protocols.tracestamp import BadLine, LogLine, RuntimeReport, Stamp, StampBatch
+from hilbench.protocols.tracestamp_binary import Marker, WordProblem
+from hilbench.protocols.tracestamp_stream import StreamDecoder
+
+
+class Profiler:
+    """Feed it a board's output; ask it for an :class:`~hilbench.profiler.analysis.Analysis`.
+
+    >>> p = Profiler()
+    >>> p.feed(b"IDLE 0 out\\nwheel_ctrl 0 in\\nwheel_ctrl 10 out\\nIDLE 10 in\\n")
+    >>> p.finish()
+    >>> p.analyse().tasks["wheel_ctrl"]["total_us"]
+    10
+    """
+
+    def __init__(self, settings: ProfileSettings | None = None) -> None:
+        self.settings = settings or ProfileSettings()
+        self.decoder = StreamDecoder()
+        self.timeline = Timeline(self.settings.reorder_us, self.settings.max_stamps)
+        self.reports: list[tuple[int, RuntimeReport]] = []  # (window index, report)
+        self.log_lines: deque[LogLine] = deque(maxlen=50)
+        self.bad_lines: deque[BadLine] = deque(maxlen=20)
+        self.word_problems: dict[str, int] = {}
+        self.windows_started = 0
+        self.windows_stopped = 0
+        self.finished = False
+
+    @property
+    def names(self) -> list[str]:
+        """Name table the stamp ids index (shared by text and binary)."""
+        return self.decoder.names
+
+    # ------------------------------------------------------------------ input
+
+    def feed(self, data: bytes) -> None:
+        """Decode a chunk of the stream (any size, any split) and take in what it holds."""
+        self.feed_items(self.decoder.feed_batch(data))
+
+    def finish(self) -> None:
+        """End of the stream: decode what the decoders still hold."""
+        if not self.finished:
+            self.feed_items(self.decoder.flush())
+            self.finished = True
+
+    def feed_items(self, items: Iterable) -> None:
+        """Take in decoded items (as :meth:`StreamDecoder.feed_batch` returns them)."""
+        tl = self.timeline
+        registry = self.decoder.registry
+        stamps: list[Stamp] = []
+        for item in items:
+            kind = type(item)
+            if kind is Stamp:
+                stamps.append(item)
+                continue
+            if stamps:
+                self._add_stamps(stamps, registry)
+                stamps = []
+            if kind is StampBatch:
+                tl.add(item.ids, item.t_us, item.begin)
+            elif kind is RuntimeReport:
+                self.reports.append((tl.segment.index, item))
+                tl.attach_report(item)
+            elif kind is Marker:
+                if item.kind == "drops":
+                    tl.add_drops(item.value, item.t_us)
+                elif item.kind == "window_start":
+                    self.windows_started += 1
+                    tl.new_window("window_start")
+                elif item.kind == "window_stop":
+                    self.windows_stopped += 1
+            elif kind is LogLine:
+                self.log_lines.append(item)
+            elif kind is BadLine:
+                self.bad_lines.append(item)
+            elif kind is WordProblem:
+                self.word_problems[item.kind] = self.word_problems.get(item.kind, 0) + item.count
+        if stamps:
+            self._add_stamps(stamps, registry)
+
+    def _add_stamps(self, stamps: list[Stamp], registry) -> None:
+        ids = np.fromiter((registry.id_of_str(s.name) for s in stamps), np.int32, len(stamps))
+        t = np.fromiter((s.t_us for s in stamps), np.int64, len(stamps))
+        b = np.fromiter((s.begin for s in stamps), bool, len(stamps))
+        self.timeline.add(ids, t, b)
+
+    # ------------------------------------------------------------------ output
+
+    def analyse(self, settings: ProfileSettings | None = None, *, last_us: float | None = None):
+        """Statistics of everything so far (``settings`` overrides the profiler's own).
+
+        ``last_us`` restricts the analysis to the last that many µs of the
+        timeline (the live view's window).
+        """
+        from hilbench.profiler.analysis import analyse
+
+        return analyse(self, settings or self.settings, last_us=last_us)
+
+
+def profile_bytes(data: bytes, settings: ProfileSettings | None = None, chunk: int = 1 << 20):
+    """Analyse a complete capture held in memory."""
+    p = Profiler(settings)
+    for i in range(0, len(data), chunk):
+        p.feed(data[i : i + chunk])
+    p.finish()
+    return p.analyse()

@@ -1,0 +1,112 @@
+"""``hilbench profile`` as a user runs it (real subprocesses): files, stdin, JSON keys, export, Gantt, compare,
+windows, strict mode and one-line errors."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+JSON_TASK_KEYS = {"count", "mean_us", "min_us", "max_us", "total_us", "share", "freq_hz", "period_mean_us",
+                  "jitter_us"}
+
+
+def run(*args: str, stdin: bytes | None = None, check_rc: int | None = 0) -> subprocess.CompletedProcess:
+    proc = subprocess.run([sys.executable, "-m", "hilbench.cli", "profile", *args], input=stdin,
+                          capture_output=True, timeout=60)
+    if check_rc is not None:
+        assert proc.returncode == check_rc, proc.stderr.decode()
+    return proc
+
+
+@pytest.fixture
+def trace64(spec, tmp_path):
+    path = tmp_path / "t64.txt"
+    path.write_bytes(spec.lines(spec.TRACE_64))
+    return path
+
+
+SPEC_ARGS = ("--tasks", "IDLE,wheel_ctrl,tsink", "--period", "wheel_ctrl=1kHz", "--merge-gap", "wheel_ctrl=500",
+             "--deadline", "wheel_ctrl=25us")
+
+
+def test_help():
+    out = run("--help").stdout.decode()
+    for opt in ("--json", "--export", "--gantt", "--window", "--period", "--compare", "--live", "--tasks", "udp://"):
+        assert opt in out
+
+
+def test_json_document_has_the_issue_keys_and_the_spec_figures(trace64, tmp_path):
+    doc = json.loads(run(str(trace64), "--json", *SPEC_ARGS).stdout)
+    assert set(doc) >= {"tasks", "quality", "runtime_stats", "window"}
+    for name in ("IDLE", "wheel_ctrl", "tsink", "pid"):
+        assert set(doc["tasks"][name]) >= JSON_TASK_KEYS, name
+    wc = doc["tasks"]["wheel_ctrl"]
+    assert (wc["count"], wc["total_us"], wc["jitter_us"], wc["deadline_misses"]) == (7, 72, 22, 1)
+    assert wc["share"] == pytest.approx(1.4368, abs=1e-4) and wc["freq_hz"] == pytest.approx(999.80, abs=0.01)
+    assert doc["quality"]["out_of_order"] == 2 and doc["quality"]["untrustworthy"] is False
+    assert doc["runtime_stats"] is None and doc["window"]["W_us"] == 5011
+
+
+def test_table_export_and_gantt_from_stdin(spec, tmp_path):
+    export, gantt = tmp_path / "trace.json", tmp_path / "g.png"
+    proc = run("-", *SPEC_ARGS, "--export", str(export), "--gantt", str(gantt), "--gantt-window", "2.9ms:3.1ms",
+               "--hist", "latency", stdin=spec.lines(spec.TRACE_64))
+    out = proc.stdout.decode()
+    assert "Trace profile of stdin" in out and "wheel_ctrl" in out and "fn pid" in out and "98.364" in out
+    assert "latency histogram" in out and "Periodicity against nominal periods" in out
+    doc = json.loads(export.read_text())
+    assert {e["name"] for e in doc["traceEvents"] if e["ph"] == "X"} == {"wheel_ctrl", "IDLE", "tsink", "pid"}
+    assert gantt.stat().st_size > 5000 and b"4 rows" in proc.stderr
+
+
+def test_report_beside_the_runtime_statistics(spec, tmp_path):
+    path = tmp_path / "l38.txt"
+    path.write_bytes(spec.lines(spec.LISTING_38) + spec.REPORT_65)
+    proc = run(str(path), "--strict", check_rc=3)  # the excerpt lacks 76,129 hook stamps: untrustworthy
+    out = proc.stdout.decode()
+    assert "Run-time statistics of the board beside the profiler" in out and "UNTRUSTWORTHY" in out
+    assert "estimated_drops=76129" in proc.stderr.decode()
+    doc = json.loads(run(str(path), "--json").stdout)
+    assert doc["runtime_stats"]["tasks"]["IDLE"]["pct_printed"] == 95
+
+
+def test_window_and_compare_with_a_saved_run(trace64, tmp_path):
+    base = tmp_path / "base.json"
+    run(str(trace64), *SPEC_ARGS, "--json-out", str(base))
+    doc = json.loads(run(str(trace64), *SPEC_ARGS, "--window", "2ms:4.1ms", "--json", "--compare",
+                         str(base)).stdout)
+    assert doc["window"]["t_first_us"] == 2007 and doc["window"]["t_last_us"] == 4011  # stamps inside 2000..4100
+    c = doc["compare"]["tasks"]["wheel_ctrl"]
+    assert c["base_total"] == 72 and c["other_total"] == 31 and round(c["change_total_pct"], 2) == -56.94
+    proc = run(str(trace64), *SPEC_ARGS, "--compare", str(trace64))  # a capture file works as the baseline too
+    assert b"Comparison" in proc.stdout and b"+0.00" in proc.stdout
+
+
+@pytest.mark.parametrize(("args", "message"), [
+    (("/nonexistent/trace.txt",), "no such file, port or source"),
+    (("udp://127.0.0.1:99999",), "expected HOST:PORT"),
+    (("x.txt", "--period", "wheel_ctrl"), "expected NAME=VALUE"),
+    (("x.txt", "--window", "5:1"), "window end before its start"),
+])
+def test_errors_are_one_line(args, message, tmp_path):
+    (tmp_path / "x.txt").write_bytes(b"a 1 in\n")
+    proc = subprocess.run([sys.executable, "-m", "hilbench.cli", "profile", *args], capture_output=True,
+                          timeout=60, cwd=tmp_path)
+    assert proc.returncode == 2
+    err = proc.stderr.decode().strip().splitlines()
+    assert message in err[-1] and not any("Traceback" in line for line in err)
+
+
+def test_gantt_suffix_error(trace64, tmp_path):
+    proc = run(str(trace64), "--gantt", str(tmp_path / "g.jpg"), check_rc=2)
+    assert proc.stderr.decode().strip() == f"hilbench: error: {tmp_path / 'g.jpg'}: the Gantt chart is written " \
+                                           "as .png or .svg"
+
+
+def test_live_view_on_a_file_ends_with_the_full_report(trace64):
+    proc = run(str(trace64), *SPEC_ARGS, "--live", "--live-gantt", "6ms")
+    out = proc.stdout.decode()
+    assert "rate Hz" in out and "last 6 ms" in out and "Trace profile of" in out
