@@ -557,64 +557,54 @@ class Decoder:
         pieces are exactly the candidates a byte-by-byte search would find. A
         packet normally ends inside its piece (fast path); one that runs past the
         next header (an unstuffed FF FF FD 00 in the SDK's instructions or in a
-        Fast-read reply, or a corrupted LENGTH) is framed from ``buf`` directly.
+        Fast-read reply, or a corrupted LENGTH), or that needs unstuffing, goes
+        through :meth:`_candidate`, which frames it from ``buf`` directly.
         """
         append = out.append
         crc16, table = raw_crc_routine(crc16_buypass)
         new = tuple.__new__  # NamedTuple's own __new__ is a Python frame; skip it
         n = len(buf)
         max_len = self.max_length
-        strict = self.strict_stuffing
-        problems = self.problems
-        pieces = buf.split(HEADER)
+        pieces = iter(buf.split(HEADER))
         skipped = 0
         packets = 0
         pos = 0  # first byte not yet consumed
-        h = len(pieces[0])  # where the current piece's header starts
+        h = len(next(pieces))  # where the next piece's header starts
         stop = -1  # set where an incomplete packet waits for more input
-        for k in range(1, len(pieces)):
-            piece = pieces[k]
+        for piece in pieces:
             here = h
-            h += 4 + len(piece)  # the next piece's header
+            p_len = len(piece)
+            h = here + 4 + p_len
             if here < pos:
                 continue  # a header inside a packet already framed
             skipped += here - pos
-            p_len = len(piece)
             if p_len >= 3:
                 length = piece[1] | piece[2] << 8
-                if 3 <= length <= max_len and p_len >= length + 3:
-                    # fast path: the whole packet lies inside this piece
-                    inst = piece[3]
-                    if length == 3 and inst == 0x55:
-                        problems["bad_length"] += 1
-                        append(DecodeProblem("bad_length", HEADER + piece[:6], t, "status with LENGTH 3"))
-                    elif crc16(piece[: length + 1], _HEADER_CRC, table) == piece[length + 1] | piece[length + 2] << 8:
-                        raw = HEADER + piece[: length + 3]
-                        pid = piece[0]
-                        body = piece[4 : length + 1]  # parameters, or ERR + data of a status
-                        # the combined Fast-read reply (FE + status) is never stuffed
-                        if b"\xff\xff\xfd" in body and (pid != BROADCAST_ID or inst != 0x55):
-                            if strict and _unescaped(body):
-                                problems["stuffing"] += 1
-                                append(DecodeProblem("stuffing", raw, t, "unescaped FF FF FD"))
-                                skipped += 1
-                                pos = here + 1
-                                continue
-                            body = body.replace(STUFFED, STUFF_PATTERN)
-                        if inst == 0x55:
-                            append(new(StatusPacket, (pid, body[0], body[1:], raw, t)))
-                        else:
-                            append(new(InstructionPacket, (pid, inst, body, raw, t)))
-                        packets += 1
-                        pos = here + length + 7
+                end = here + 7 + length
+                # fast path: a plain packet that lies inside its piece
+                if end <= h and 3 <= length <= max_len and (length != 3 or piece[3] != 0x55):
+                    if crc16(piece[: length + 1], _HEADER_CRC, table) != piece[length + 1] | piece[length + 2] << 8:
+                        self.problems["crc"] += 1
+                        append(DecodeProblem("crc", buf[here:end], t, "mismatched checksum"))
+                        skipped += 1
+                        pos = here + 1
                         continue
+                    if piece[3] == 0x55:
+                        data = piece[5 : length + 1]
+                        # stuffing could start at ERR (FF) or inside the data: the general path unstuffs
+                        if b"\xff\xff\xfd" not in data and piece[4] != 0xFF:
+                            append(new(StatusPacket, (piece[0], piece[4], data, buf[here:end], t)))
+                            packets += 1
+                            pos = end
+                            continue
                     else:
-                        problems["crc"] += 1
-                        append(DecodeProblem("crc", HEADER + piece[: length + 3], t, "mismatched checksum"))
-                    skipped += 1
-                    pos = here + 1
-                    continue
-            # slow path: the candidate needs bytes beyond its piece, or is invalid
+                        body = piece[4 : length + 1]
+                        if b"\xff\xff\xfd" not in body:
+                            append(new(InstructionPacket, (piece[0], piece[3], body, buf[here:end], t)))
+                            packets += 1
+                            pos = end
+                            continue
+            # general path: the candidate needs bytes beyond its piece, unstuffing, or is invalid
             nxt = self._candidate(buf, here, out, t, final)
             if nxt < 0:
                 stop = here
