@@ -21,6 +21,7 @@ from hilbench.fakes.dynamixel.servo import Servo
 from hilbench.profile import EndpointSpec, Profile, load_profile
 from hilbench.transports.pty import PtyEndpoint
 from hilbench.transports.serial_medium import SerialMedium
+from hilbench.transports.tap_server import TapServer
 
 
 @dataclass
@@ -31,6 +32,7 @@ class Endpoint:
     pty: PtyEndpoint
     medium: SerialMedium
     bus: DynamixelBus
+    tap: TapServer | None = None
 
     @property
     def name(self) -> str:
@@ -46,7 +48,9 @@ class Bench:
     """The devices of a profile behind real pseudo-terminals.
 
     ``paced`` overrides every endpoint's ``paced`` setting; ``link_dir`` puts a
-    stable symlink named after each endpoint into that directory.
+    stable symlink named after each endpoint into that directory. ``tap``
+    serves each line's traffic on 127.0.0.1 (a TCP tap server, listed as
+    ``tap`` in the manifest) for monitors and recorders in other processes.
     """
 
     def __init__(
@@ -55,9 +59,11 @@ class Bench:
         *,
         paced: bool | None = None,
         link_dir: str | Path | None = None,
+        tap: bool = False,
     ) -> None:
         self.profile = profile if isinstance(profile, Profile) else load_profile(profile)
         self.paced = paced
+        self.tap = tap
         self.link_dir = Path(link_dir) if link_dir else None
         self.endpoints: dict[str, Endpoint] = {}
         self.devices: dict[str, Servo] = {}
@@ -99,7 +105,12 @@ class Bench:
                 )
                 bus.attach(medium)
                 medium.add_host(pty)
-                self.endpoints[spec.name] = Endpoint(spec, pty, medium, bus)
+                server = None
+                if self.tap:
+                    server = TapServer(baud=spec.baud, protocol=spec.protocol,
+                                       description=f"bench {prof.name}, endpoint {spec.name}")
+                    medium.add_tap(server.feed)
+                self.endpoints[spec.name] = Endpoint(spec, pty, medium, bus, server)
             for ep in self.endpoints.values():
                 ep.medium.start()
         except Exception:
@@ -141,6 +152,8 @@ class Bench:
         for ep in self.endpoints.values():
             ep.medium.close()
             ep.pty.close()
+            if ep.tap is not None:
+                ep.tap.close()
         self.started_at = None
 
     def __enter__(self) -> Bench:
@@ -185,6 +198,7 @@ class Bench:
                     "protocol": ep.spec.protocol,
                     "baud": ep.spec.baud,
                     "paced": ep.medium.paced,
+                    "tap": ep.tap.url if ep.tap is not None else None,
                 }
             )
         devs = []
