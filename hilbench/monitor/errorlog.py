@@ -60,6 +60,8 @@ class ErrorLog:
         self.total = 0
         #: Bus time the offsets are measured from (the first data seen).
         self.t0: float | None = None
+        #: False when the bus times mean nothing (a raw dump): entries then show no time.
+        self.timed = True
 
     def add(self, t: float, kind: str, message: str, device: int | None = None) -> None:
         """Record an event at bus time ``t``."""
@@ -84,7 +86,7 @@ class ErrorLog:
 
     def format(self, entry: LogEntry) -> str:
         """``[+MM:SS.mmm] error: message`` (with ``(xN)`` for folded repeats)."""
-        offset = format_offset(entry.t - (self.t0 or 0.0))
+        offset = format_offset(entry.t - (self.t0 or 0.0)) if self.timed else "--:--.---"
         repeats = f" (x{entry.repeats})" if entry.repeats > 1 else ""
         return f"[{offset}] error: {entry.message}{repeats}"
 

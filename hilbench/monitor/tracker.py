@@ -219,6 +219,7 @@ class BusTracker:
         self.max_length = max_length
         self.devices: dict[int, DeviceState] = {}
         self.log = ErrorLog(log_capacity)
+        self.log.timed = timestamps
         self.decoders: dict[str, Decoder] = {}
         #: Instruction packets by instruction code.
         self.counts = [0] * 256

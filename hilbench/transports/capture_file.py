@@ -260,9 +260,12 @@ class CaptureReader:
 class CaptureWriter:
     """Writes chunks to a hilbench capture.
 
-    ``t0`` is the ``time.monotonic()`` value stored times count from (default:
-    now). ``timestamps`` is ``measured``, ``synthetic`` or ``none`` (then every
-    time is stored as 0). Sources get ids in order of appearance (at most 256).
+    Stored times count from ``t0`` (a ``time.monotonic()`` value; default: the
+    time of the first chunk), so a recording of a live source replays with the
+    original times. ``timestamps`` is ``measured``, ``synthetic`` or ``none``
+    (then every time is stored as 0). ``t0_wall`` is the Unix time of ``t0``
+    (default: derived from the clocks now, right for live sources). Sources
+    get ids in order of appearance (at most 256).
     """
 
     def __init__(
@@ -273,8 +276,11 @@ class CaptureWriter:
         protocol: str = "dynamixel",
         description: str = "",
         t0: float | None = None,
+        t0_wall: float | None = None,
         timestamps: str = "measured",
     ) -> None:
+        if timestamps not in ("measured", "synthetic", "none"):
+            raise ValueError(f"timestamps must be measured, synthetic or none, not {timestamps!r}")
         if isinstance(target, str | os.PathLike):
             if str(target) == "-":
                 self._f, self._owned = sys.stdout.buffer, False
@@ -282,21 +288,32 @@ class CaptureWriter:
                 self._f, self._owned = open(Path(target), "wb"), True  # noqa: SIM115
         else:
             self._f, self._owned = target, False
-        now_mono, now_wall = time.monotonic(), time.time()
-        self.t0 = now_mono if t0 is None else t0
+        self.t0 = t0
         self.timed = timestamps != "none"
-        flags = {"measured": Flags.MEASURED, "synthetic": Flags.SYNTHETIC, "none": 0}[timestamps]
+        self._flags = {"measured": Flags.MEASURED, "synthetic": Flags.SYNTHETIC, "none": 0}[timestamps]
+        self._head = {"baud": baud, "protocol": protocol, "description": description, "t0_wall": t0_wall}
         self._ids: dict[str, int] = {}
         self.bytes = 0
         self.records = 0
+        self._started = False
+
+    def _start(self, t: float | None) -> None:
+        """Write the header, fixing t0 (the first chunk's time unless given)."""
+        self._started = True
+        now_mono, now_wall = time.monotonic(), time.time()
+        if self.t0 is None:
+            self.t0 = t if (t is not None and self.timed) else now_mono
+        wall = self._head["t0_wall"]
+        if wall is None:
+            wall = now_wall - (now_mono - self.t0)
         self._f.write(
             cap.build_header(
-                flags=flags,
-                baud=baud,
-                t0_wall=now_wall - (now_mono - self.t0),
+                flags=self._flags,
+                baud=self._head["baud"],
+                t0_wall=wall,
                 t0_monotonic=self.t0 if self.timed else 0.0,
-                protocol=protocol,
-                description=description,
+                protocol=self._head["protocol"],
+                description=self._head["description"],
             )
         )
 
@@ -314,6 +331,8 @@ class CaptureWriter:
 
     def write(self, t: float, source: str, data: bytes) -> None:
         """Store ``data`` from ``source`` at time ``t`` (split into records of at most 65535 bytes)."""
+        if not self._started:
+            self._start(t)
         sid = self._source_id(source)
         t_ns = self._t_ns(t)
         write = self._f.write
@@ -324,6 +343,8 @@ class CaptureWriter:
 
     def gap(self, t: float, source: str, nbytes: int) -> None:
         """Note that ``nbytes`` of ``source`` were lost before reaching the recorder."""
+        if not self._started:
+            self._start(t)
         sid = self._source_id(source)
         self._f.write(cap.pack_record(RecordKind.GAP, sid, self._t_ns(t), min(nbytes, 0xFFFFFFFF).to_bytes(4, "little")))
 
@@ -339,6 +360,11 @@ class CaptureWriter:
             self._f.flush()
 
     def close(self) -> None:
+        """Finish the file (a capture of nothing still gets its header)."""
+        if self._f.closed:
+            return
+        if not self._started:
+            self._start(None)
         self.flush()
         if self._owned:
             self._f.close()
