@@ -19,7 +19,7 @@ import math
 from typing import NamedTuple, Protocol
 
 from hilbench.protocols.dynamixel import describe_hardware_error
-from hilbench.protocols.dynamixel_models import MODELS_BY_NUMBER, MX106_2, Field, Model
+from hilbench.protocols.dynamixel_models import MODEL_NAMES, MODELS_BY_NUMBER, MX106_2, Field, Model
 
 #: Device states.
 UNKNOWN = "unknown"  # addressed, no verdict yet
@@ -39,8 +39,7 @@ def model_name(number: int | None) -> str:
     """Model name for a model number; ``"<unknown>"`` when there is none."""
     if number is None:
         return "<unknown>"
-    model = MODELS_BY_NUMBER.get(number)
-    return model.name if model else f"model {number}"
+    return MODEL_NAMES.get(number) or f"model {number}"
 
 
 class RequestGroup(Protocol):

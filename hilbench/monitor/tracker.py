@@ -597,11 +597,21 @@ class BusTracker:
             dev.hardware_error = bits
 
     @staticmethod
-    def _identify(dev: DeviceState, number: int, firmware: int | None, how: str) -> None:
+    def _identify(dev: DeviceState, number: int, firmware: int | None, how: str, t: float | None = None) -> None:
+        """Model (and firmware) from a Ping reply or a Model Number read; a Ping also tells the ID."""
         dev.model = number
         dev.model_from = how
         if firmware is not None:
             dev.firmware = firmware
+        if how == "ping" and t is not None:
+            # what a Ping reply carries is the control table's bytes 0-1, the firmware byte, and the ID
+            model = dev.model_info
+            obs = dev.obs
+            obs[(MODEL_NUMBER, 2)] = (number.to_bytes(2, "little"), t, READ)
+            if firmware is not None:
+                obs[(model.firmware_address if model else FIRMWARE, 1)] = (bytes((firmware,)), t, READ)
+            if model is not None and dev.id <= 0xFF:
+                obs[(model.id_address, 1)] = (bytes((dev.id,)), t, READ)
 
     def _rebooted(self, dev: DeviceState, inst: int) -> None:
         """After Reboot the RAM items (64 on) are back to defaults; after Factory Reset everything is."""
@@ -657,7 +667,7 @@ class BusTracker:
                     dev.extra_replies += 1
                     self._alive(dev, st.t)
                     self._error_byte(dev, st, exp)
-                    self._identify(dev, st.data[0] | st.data[1] << 8, st.data[2], "ping")
+                    self._identify(dev, st.data[0] | st.data[1] << 8, st.data[2], "ping", st.t)
                     return
             else:
                 idx = exp.index.get(st.id)
@@ -691,7 +701,7 @@ class BusTracker:
                 self.bad_replies += 1
                 self.log.add(t, "bad_reply", f"ID {dev.id} ping reply has {len(st.data)} data bytes, not 3", dev.id)
                 return
-            self._identify(dev, st.data[0] | st.data[1] << 8, st.data[2], "ping")
+            self._identify(dev, st.data[0] | st.data[1] << 8, st.data[2], "ping", t)
         elif kind == NODATA:
             pending = self._pending_write
             if pending is not None:

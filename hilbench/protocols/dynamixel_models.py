@@ -454,3 +454,13 @@ def find_model(name_or_number: str | int) -> Model:
 def model_names() -> list[str]:
     """Names and aliases a profile may use."""
     return sorted(MODELS) + sorted(ALIASES)
+
+#: Names of every model number the spec sheet lists (§5.1), including models hilbench
+#: has no control table for; a monitor names what it sees even if it cannot emulate it.
+MODEL_NAMES: dict[int, str] = {
+    **{number: model.name for number, model in MODELS_BY_NUMBER.items()},
+    1030: "XM430-W210",
+    29: "MX-28 (Protocol 1.0)",
+    310: "MX-64 (Protocol 1.0)",
+    320: "MX-106 (Protocol 1.0)",
+}
