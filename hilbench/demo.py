@@ -189,12 +189,16 @@ def run_demo(
     prof = load_profile(profile)
     with Bench(prof, paced=paced) as bench:
         ep = bench.endpoint(next(iter(bench.endpoints)))
-        source = MediumSource(ep.medium, name=f"demo {prof.name}: SDK Sync Read / Sync Write on {ep.path}")
+        source = MediumSource(ep.medium, name=f"demo {prof.name} on {ep.path}")
         monitor = Monitor(source, silence=0.5).start()
         ctl = Controller(bench, seconds).start()
-        timing = "paced at wire speed" if ep.medium.paced else "unpaced"
-        dash = Dashboard(monitor.tracker, lock=monitor.lock, source=source.name, view=view,
-                         status=lambda: f"{ctl.result.cycles} cycles, {timing}" if not ctl.done.is_set() else "done")
+        timing = "paced" if ep.medium.paced else "unpaced"
+
+        def status() -> str:
+            state = "done" if ctl.done.is_set() else timing
+            return f"SDK: {ctl.result.cycles} cycles, {state}"
+
+        dash = Dashboard(monitor.tracker, lock=monitor.lock, source=source.name, view=view, status=status)
         try:
             dash.run(console=console, stop=ctl.done.is_set, screen_mode=False)
         except KeyboardInterrupt:
