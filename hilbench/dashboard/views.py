@@ -240,10 +240,11 @@ def model_overview(fr: Frame, height: int) -> Group:
 
 
 def _field_rows(fields: list[FieldValue]) -> list[FieldValue]:
-    """Observed fields first, then defaults; indirect-address items only when observed."""
-    observed = [f for f in fields if f.observed]
+    """Values read back first (the live state), then values written, then defaults (indirect items only if seen)."""
+    read = [f for f in fields if f.how == "read"]
+    written = [f for f in fields if f.how == "written"]
     defaults = [f for f in fields if not f.observed and not f.field.name.startswith("Indirect")]
-    return observed + defaults
+    return read + written + defaults
 
 
 def device_details(fr: Frame, height: int) -> Group:
