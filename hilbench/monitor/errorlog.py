@@ -11,7 +11,8 @@ repeats the previous one exactly is folded into it with a repeat count.
 from __future__ import annotations
 
 from collections import deque
-from typing import NamedTuple
+from collections.abc import Callable
+from typing import Any, NamedTuple
 
 #: Kinds of entries, in the order a summary lists them.
 KINDS = (
@@ -32,13 +33,25 @@ KINDS = (
 
 
 class LogEntry(NamedTuple):
-    """One logged event: bus time ``t``, ``kind`` (see :data:`KINDS`), device ID or None, text."""
+    """One logged event: bus time ``t``, ``kind`` (see :data:`KINDS`), device ID or None, and its text.
+
+    The text is built only when someone reads it (:attr:`text`): ``message``
+    is the text itself, a ``str.format`` template for ``args``, or a function
+    of ``args``. Frequent events thus cost no formatting on a busy bus.
+    """
 
     t: float
     kind: str
     device: int | None
-    message: str
+    message: str | Callable[..., str]
     repeats: int = 1
+    args: tuple[Any, ...] = ()
+
+    @property
+    def text(self) -> str:
+        if callable(self.message):
+            return self.message(*self.args)
+        return self.message.format(*self.args) if self.args else self.message
 
 
 def format_offset(seconds: float) -> str:
@@ -63,17 +76,18 @@ class ErrorLog:
         #: False when the bus times mean nothing (a raw dump): entries then show no time.
         self.timed = True
 
-    def add(self, t: float, kind: str, message: str, device: int | None = None) -> None:
-        """Record an event at bus time ``t``."""
+    def add(self, t: float, kind: str, message: str | Callable[..., str], device: int | None = None,
+            *args: Any) -> None:
+        """Record an event at bus time ``t`` (``message`` with ``args``: see :class:`LogEntry`)."""
         self.counts[kind] = self.counts.get(kind, 0) + 1
         self.total += 1
         entries = self.entries
         if entries:
             last = entries[-1]
-            if last.kind == kind and last.message == message and last.device == device:
+            if last.kind == kind and last.message == message and last.args == args and last.device == device:
                 entries[-1] = last._replace(t=t, repeats=last.repeats + 1)
                 return
-        entries.append(LogEntry(t, kind, device, message))
+        entries.append(LogEntry(t, kind, device, message, 1, args))
 
     def newest(self, n: int = 50) -> list[LogEntry]:
         """The ``n`` newest entries, newest first."""
@@ -88,7 +102,7 @@ class ErrorLog:
         """``[+MM:SS.mmm] error: message`` (with ``(xN)`` for folded repeats)."""
         offset = format_offset(entry.t - (self.t0 or 0.0)) if self.timed else "--:--.---"
         repeats = f" (x{entry.repeats})" if entry.repeats > 1 else ""
-        return f"[{offset}] error: {entry.message}{repeats}"
+        return f"[{offset}] error: {entry.text}{repeats}"
 
     def lines(self, n: int = 50) -> list[str]:
         """The ``n`` newest entries formatted, newest first."""

@@ -72,11 +72,25 @@ _SPECIAL = (MODEL_NUMBER, MODEL_NUMBER + 1, FIRMWARE_BOARD, FIRMWARE, STATUS_RET
 _NODATA_INSTRUCTIONS = frozenset({I.WRITE, I.REG_WRITE, I.ACTION, I.FACTORY_RESET, I.REBOOT, I.CLEAR, I.BACKUP})
 #: Multi-device reads; the most frequent one of these is the bus's main cycle.
 _CYCLE_INSTRUCTIONS = frozenset({I.SYNC_READ, I.BULK_READ, I.FAST_SYNC_READ, I.FAST_BULK_READ})
+#: Instructions that carry data to remember (plain ints: compared per packet).
+_WRITES = frozenset({int(I.WRITE), int(I.REG_WRITE), int(I.SYNC_WRITE), int(I.BULK_WRITE)})
+_SYNC_WRITE, _REBOOT, _FACTORY_RESET = int(I.SYNC_WRITE), int(I.REBOOT), int(I.FACTORY_RESET)
 #: Distinct repeating requests remembered (folded into the devices when full: bounded memory).
 GROUP_CACHE = 4096
 #: Bus-time spacing and span of the history the "per second" figures use.
 HISTORY_STEP = 0.1
 HISTORY_SPAN = 5.0
+
+
+def _crc_text(raw: bytes) -> str:
+    """Log text of a candidate that failed its CRC, with a guess at what it was."""
+    guess = ""
+    if len(raw) >= 8:
+        if raw[7] == 0x55:
+            guess = f", status from ID {raw[4]}?"
+        else:
+            guess = f", {INSTRUCTION_NAMES.get(raw[7], 'instruction')} to ID {raw[4]}?"
+    return f"mismatched checksum ({len(raw)} bytes{guess})"
 
 
 def _covers_special(address: int, length: int) -> bool:
@@ -101,6 +115,7 @@ class Expectation:
         "lengths",
         "special",
         "fast",
+        "cycle",
         "last",
         "count",
         "last_t",
@@ -122,6 +137,8 @@ class Expectation:
         self.special = tuple(kind != DATA or _covers_special(e[1], e[2]) for e in entries)
         #: Replies may take the tracker's fast path (plain data, nothing to interpret).
         self.fast = kind == DATA and not any(self.special)
+        #: A multi-device read: candidate for the bus's main cycle.
+        self.cycle = instruction in _CYCLE_INSTRUCTIONS
         #: Newest plain reply per entry (a StatusPacket), set by the fast path.
         self.last: list[StatusPacket | None] = [None] * len(entries)
         self.count = 0
@@ -406,28 +423,33 @@ class BusTracker:
     # ------------------------------------------------------------------ instructions
 
     def _instruction(self, pkt: InstructionPacket) -> None:
-        t = pkt.t
-        inst = pkt.instruction
+        _, inst, params, raw, t = pkt
         self.counts[inst] += 1
         if self._exp is not None:
-            self._close(t)
+            if self._answered.find(0) >= 0:
+                self._close(t)
+            else:  # everyone answered: nothing to count
+                self._exp = None
+                self._pending_write = None
         if self._orphans:
             self._flush_orphans(t)
-        exp = self.expectations.get(pkt.raw)
+        exp = self.expectations.get(raw)
         if exp is None:
+            if inst == _SYNC_WRITE and pkt.id == BROADCAST_ID and self._sync_write(params, t):
+                return
             problem = dxl.check_instruction(pkt)
             if problem:
                 self.invalid_instructions += 1
-                self.log.add(t, "invalid_instruction", f"invalid instruction packet: {problem}", pkt.id)
+                self.log.add(t, "invalid_instruction", "invalid instruction packet: {}", pkt.id, problem)
                 return
-            if inst in (I.WRITE, I.SYNC_WRITE, I.BULK_WRITE, I.REG_WRITE):
+            if inst in _WRITES:
                 self._write(pkt, t)
                 return
             exp = self._expectation(pkt)
             if exp is None:
                 return
         exp.count += 1  # a request to each listed device (DeviceState.requests)
-        if exp.instruction in _CYCLE_INSTRUCTIONS:
+        if exp.cycle:
             if exp.last_t is not None and self.timestamps:
                 exp.add_interval(t - exp.last_t)
             exp.last_t = t
@@ -435,8 +457,35 @@ class BusTracker:
         self._exp = exp
         self._exp_t = t
         self._answered = bytearray(len(exp.ids))
-        if inst in (I.REBOOT, I.FACTORY_RESET):
+        if inst in (_REBOOT, _FACTORY_RESET):
             self._pending_write = (inst, b"")
+
+    def _sync_write(self, p: bytes, t: float) -> bool:
+        """A valid repeating Sync Write costs one dictionary lookup; False if it needs the general path."""
+        n = len(p)
+        if n < 4:
+            return False
+        address, length = p[0] | p[1] << 8, p[2] | p[3] << 8
+        step = length + 1
+        if (n - 4) % step or _covers_special(address, length):
+            return False
+        key = p[:4] + p[4::step]
+        group = self.write_groups.get(key)
+        if group is None:
+            if BROADCAST_ID in key[4:]:
+                return False
+            if len(self.write_groups) >= GROUP_CACHE:
+                self._forget_groups()
+            devices = [self.device(i, t) for i in key[4:]]
+            group = self.write_groups[key] = WriteGroup(address, length, devices)
+            for k, dev in enumerate(devices):
+                dev.groups.append((group, k))
+        group.count += 1
+        group.params = p
+        group.t = t
+        if group.cleared:
+            group.cleared = set()
+        return True
 
     def _expectation(self, pkt: InstructionPacket) -> Expectation | None:
         """Build (and cache) what a valid request expects; None if it expects nothing."""
@@ -546,21 +595,7 @@ class BusTracker:
                     dev.direct_requests += 1
                     self._store(dev, address, p[k + 1 : k + step], t, WRITTEN)
                 return
-            # A repeating Sync Write (Goal Position every cycle) costs one dictionary lookup.
-            key = p[:4] + p[4::step]
-            group = self.write_groups.get(key)
-            if group is None:
-                if len(self.write_groups) >= GROUP_CACHE:
-                    self._forget_groups()
-                devices = [self.device(i, t) for i in p[4::step]]
-                group = self.write_groups[key] = WriteGroup(address, length, devices)
-                for k, dev in enumerate(devices):
-                    dev.groups.append((group, k))
-            group.count += 1
-            group.params = p
-            group.t = t
-            if group.cleared:
-                group.cleared = set()
+            self._sync_write(p, t)
             return
         k = 0  # Bulk Write
         while k < len(p):
@@ -647,7 +682,8 @@ class BusTracker:
             if dev.consecutive == 1:
                 dev.owed_since = self._exp_t
                 if dev.state is not DISCONNECTED:
-                    self.log.add(self._exp_t, "missed_reply", f"ID {dev.id} missed its reply to {exp.name}", dev.id)
+                    self.log.add(self._exp_t, "missed_reply", "ID {} missed its reply to {}", dev.id, dev.id,
+                                 INSTRUCTION_NAMES.get(exp.instruction, "request"))
             if dev.consecutive > limit and dev.state is not DISCONNECTED:
                 self._disconnect(dev, t, f"{dev.consecutive} consecutive missed replies")
 
@@ -759,14 +795,19 @@ class BusTracker:
     def _orphan(self, st: StatusPacket) -> None:
         """A valid status nobody asked for: proof of life, but its data cannot be placed."""
         self.unexpected += 1
-        if st.id <= dxl.MAX_ID:
-            dev = self.device(st.id, st.t)
+        pid, err, _, _, t = st
+        if pid <= dxl.MAX_ID:
+            dev = self.devices.get(pid) or self.device(pid, t)
             dev.extra_replies += 1
-            self._alive(dev, st.t)
-            self._error_byte(dev, st, None)
-        self._orphans.append(st.id)
+            if dev.health:
+                self._alive(dev, t)
+            else:
+                dev.seen_t = t
+            if err or dev.alert:
+                self._error_byte(dev, st, None)
+        self._orphans.append(pid)
         if len(self._orphans) > 64:
-            self._flush_orphans(st.t)
+            self._flush_orphans(t)
 
     def _flush_orphans(self, t: float) -> None:
         ids = self._orphans
@@ -783,23 +824,20 @@ class BusTracker:
     def _problem(self, pr: DecodeProblem) -> None:
         self.problem_items += 1
         kind, raw, t = pr.kind, pr.raw, pr.t
-        guess = ""
-        if len(raw) >= 8:
-            if raw[7] == 0x55:
-                guess = f", status from ID {raw[4]}?"
-                exp = self._exp
-                if exp is not None and raw[4] in exp.index:
-                    exp.devices[exp.index[raw[4]]].crc_errors += 1
-            else:
-                guess = f", {INSTRUCTION_NAMES.get(raw[7], 'instruction')} to ID {raw[4]}?"
         if kind == "crc":
-            self.log.add(t, "crc", f"mismatched checksum ({len(raw)} bytes{guess})")
+            if len(raw) >= 8 and raw[7] == 0x55:
+                exp = self._exp
+                if exp is not None:
+                    idx = exp.index.get(raw[4])
+                    if idx is not None:
+                        exp.devices[idx].crc_errors += 1  # most likely its reply, damaged
+            self.log.add(t, "crc", _crc_text, None, raw)
         elif kind == "bad_length":
-            self.log.add(t, "bad_length", f"invalid packet length ({pr.detail})")
+            self.log.add(t, "bad_length", "invalid packet length ({})", None, pr.detail)
         elif kind == "truncated":
-            self.log.add(t, "truncated", f"truncated packet ({len(raw)} bytes, {pr.detail})")
+            self.log.add(t, "truncated", "truncated packet ({} bytes, {})", None, len(raw), pr.detail)
         else:
-            self.log.add(t, "invalid_instruction", f"{kind}: {pr.detail}")
+            self.log.add(t, "invalid_instruction", "{}: {}", None, kind, pr.detail)
 
     # ------------------------------------------------------------------ bus figures
 

@@ -55,6 +55,22 @@ BACKUP_KEY = b"\x43\x54\x52\x4c"  # 'CTRL'
 _HEADER_CRC = crc16_buypass(HEADER)
 
 
+def _crc_residues() -> tuple[int, ...]:
+    """Register value after running the CRC over a message *and* its correct CRC (low byte first).
+
+    Hand-derived because no library offers it for a little-endian CRC field: when
+    the register holds c and the bytes c_lo, c_hi follow, the result depends only on
+    c_lo ^ c_hi, so a 256-entry table gives it. Each register update is a bijection
+    of the register, so for given stored bytes only the matching CRC reaches that
+    value: the check is exact, not probabilistic (a test proves it against crcmod).
+    """
+    routine, table = raw_crc_routine(crc16_buypass)
+    return tuple(routine(bytes((x, 0)), x, table) for x in range(256))
+
+
+_CRC_RESIDUE = _crc_residues()
+
+
 class Instruction(IntEnum):
     """Protocol 2.0 instruction codes (the SDK's INST_* constants)."""
 
@@ -565,6 +581,7 @@ class Decoder:
         new = tuple.__new__  # NamedTuple's own __new__ is a Python frame; skip it
         n = len(buf)
         max_len = self.max_length
+        residue = _CRC_RESIDUE
         pieces = iter(buf.split(HEADER))
         skipped = 0
         packets = 0
@@ -583,7 +600,10 @@ class Decoder:
                 end = here + 7 + length
                 # fast path: a plain packet that lies inside its piece
                 if end <= h and 3 <= length <= max_len and (length != 3 or piece[3] != 0x55):
-                    if crc16(piece[: length + 1], _HEADER_CRC, table) != piece[length + 1] | piece[length + 2] << 8:
+                    # CRC over the packet *including* its CRC bytes, against the register value a
+                    # matching CRC leaves (_CRC_RESIDUE): no slice when the packet fills its piece
+                    whole = piece if p_len == length + 3 else piece[: length + 3]
+                    if crc16(whole, _HEADER_CRC, table) != residue[piece[length + 1] ^ piece[length + 2]]:
                         self.problems["crc"] += 1
                         append(DecodeProblem("crc", buf[here:end], t, "mismatched checksum"))
                         skipped += 1

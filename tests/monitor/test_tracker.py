@@ -145,7 +145,7 @@ def test_a_device_that_never_answers_is_shown_as_such():
     bus.tr.finish()
     dev = bus.tr.devices[101]
     assert dev.state == DISCONNECTED and dev.never_answered and dev.misses == 6
-    assert "never answered" in bus.tr.log.entries[-1].message
+    assert "never answered" in bus.tr.log.entries[-1].text
     report = summary(bus.tr)
     assert report["devices"]["101"]["never_answered"] is True
     assert report["devices"]["101"]["state"] == "disconnected"
@@ -160,7 +160,7 @@ def test_silence_and_reply_timeout_disconnect_a_device_without_more_traffic():
     assert tr.devices[3].misses == 1 and tr.devices[3].state == CONNECTED
     tr.tick(bus.t + 0.7)
     assert tr.devices[3].state == DISCONNECTED
-    assert "silent for" in tr.log.entries[-1].message
+    assert "silent for" in tr.log.entries[-1].text
 
 
 def test_error_status_alert_and_hardware_error_bits():
@@ -172,7 +172,7 @@ def test_error_status_alert_and_hardware_error_bits():
     dev = tr.devices[1]
     assert dev.error_statuses == 1 and dev.alert and dev.hardware_error == 0x24
     assert dev.hardware_error_bits == ["overheating", "overload"]
-    messages = [e.message for e in tr.log.entries]
+    messages = [e.text for e in tr.log.entries]
     assert "ID 1 status packet has an error: access error (reply to read)" in messages
     assert any("raised the Alert bit" in m for m in messages)
     assert "ID 1 hardware error: overheating, overload" in messages
@@ -210,7 +210,7 @@ def test_statuses_nobody_asked_for_are_logged_once_per_burst():
     bus = Bus()
     tr = bus.send(status(5, u32(1)), status(6, u32(2)), inst(0xFE, I.ACTION))
     assert tr.unexpected == 2
-    assert tr.log.entries[-1].message == "2 status packets without a matching request (ID 5, 6)"
+    assert tr.log.entries[-1].text == "2 status packets without a matching request (ID 5, 6)"
     assert tr.devices[5].state == CONNECTED
 
 
@@ -222,7 +222,7 @@ def test_crc_failures_are_counted_and_attributed():
     tr.finish()
     assert tr.crc_errors == 1 and tr.devices[2].crc_errors == 1 and tr.devices[2].misses == 1
     assert tr.log.counts["crc"] == 1
-    assert "mismatched checksum (15 bytes, status from ID 2?)" in [e.message for e in tr.log.entries]
+    assert "mismatched checksum (15 bytes, status from ID 2?)" in [e.text for e in tr.log.entries]
 
 
 def test_main_cycle_rate_and_jitter():
