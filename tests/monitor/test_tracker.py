@@ -282,3 +282,15 @@ def test_summary_shape_uses_the_sheets_instruction_names():
 def test_state_before_any_reply_is_unknown():
     tr = Bus().send(sync_read([4]))
     assert tr.devices[4].state == UNKNOWN
+
+
+def test_input_lost_by_a_slow_monitor_is_logged_and_the_decoder_restarts():
+    bus = Bus()
+    read = inst(1, I.READ, h("84000400"))
+    bus.send(read)
+    bus.tr.feed(bus.t, "bus", status(1, u32(5))[:6])  # half a reply, then the rest was lost
+    bus.tr.gap(bus.t + 0.001, "bus", 9)
+    bus.send(read, status(1, u32(6)))
+    tr = bus.tr
+    assert tr.dropped_input == 9 and tr.log.counts["dropped_input"] == 1 and tr.problems()["truncated"] == 1
+    assert {f.field.key: f.raw for f in tr.devices[1].fields(observed_only=True)}["present_position"] == 6
