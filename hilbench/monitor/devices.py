@@ -33,6 +33,8 @@ HOW_NAMES = {0: "default", READ: "read", WRITTEN: "written"}
 
 #: Latency samples kept for the percentile (the newest ones).
 LATENCY_WINDOW = 1024
+#: Distinct observed ranges kept per device before they are merged into runs (bounded memory).
+OBS_LIMIT = 256
 
 
 def model_name(number: int | None) -> str:
@@ -239,6 +241,34 @@ class DeviceState:
                 out.append(seen)
         out.sort(key=lambda o: o[2])
         return out
+
+    def compact(self) -> None:
+        """Merge the observed ranges into runs of bytes seen the same way at the same time.
+
+        Keeps memory bounded when traffic touches many different ranges; what
+        :meth:`fields` shows does not change.
+        """
+        obs = [(a, d, t, how) for (a, _), (d, t, how) in self.obs.items()]
+        obs.sort(key=lambda o: o[2])
+        latest: dict[int, tuple[int, float, int]] = {}
+        for address, data, t, how in obs:
+            for k, b in enumerate(data):
+                latest[address + k] = (b, t, how)
+        runs: dict[tuple[int, int], tuple[bytes, float, int]] = {}
+        start = None
+        buf = bytearray()
+        key = None
+        for a in sorted(latest):
+            b, t, how = latest[a]
+            if start is not None and a == start + len(buf) and (t, how) == key:
+                buf.append(b)
+                continue
+            if start is not None:
+                runs[(start, len(buf))] = (bytes(buf), key[0], key[1])
+            start, buf, key = a, bytearray((b,)), (t, how)
+        if start is not None:
+            runs[(start, len(buf))] = (bytes(buf), key[0], key[1])
+        self.obs = runs
 
     def table(self) -> tuple[bytearray, bytearray, dict[int, float]]:
         """The control table as observed: (bytes, how per byte, bus time per observed byte).

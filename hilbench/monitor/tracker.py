@@ -37,6 +37,7 @@ from collections import deque
 from hilbench.monitor.devices import (
     CONNECTED,
     DISCONNECTED,
+    OBS_LIMIT,
     READ,
     UNKNOWN,
     WRITTEN,
@@ -610,7 +611,10 @@ class BusTracker:
         length = len(data)
         if not length or address + length > 0x10000:
             return
-        dev.obs[(address, length)] = (data, t, how)
+        obs = dev.obs
+        obs[(address, length)] = (data, t, how)
+        if len(obs) > OBS_LIMIT:
+            dev.compact()
         if not _covers_special(address, length):
             return
         end = address + length

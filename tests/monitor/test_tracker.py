@@ -294,3 +294,13 @@ def test_input_lost_by_a_slow_monitor_is_logged_and_the_decoder_restarts():
     tr = bus.tr
     assert tr.dropped_input == 9 and tr.log.counts["dropped_input"] == 1 and tr.problems()["truncated"] == 1
     assert {f.field.key: f.raw for f in tr.devices[1].fields(observed_only=True)}["present_position"] == 6
+
+
+def test_many_different_ranges_stay_bounded_and_keep_their_values():
+    bus = Bus()
+    for address in range(0, 600, 2):  # 300 distinct 2-byte reads of one device
+        bus.send(inst(1, I.READ, address.to_bytes(2, "little") + h("0200")), status(1, address.to_bytes(2, "little")))
+    dev = bus.tr.devices[1]
+    assert len(dev.obs) <= 256
+    mem, how, _ = dev.table()
+    assert all(mem[a] | mem[a + 1] << 8 == a for a in range(0, 600, 2)) and all(how[:600])
