@@ -329,12 +329,17 @@ class BusTracker:
                     if idx is not None and not answered[idx]:
                         answered[idx] = 1
                         dev = devices[idx]
-                        if err or dev.health or len(data) != lengths[idx]:
+                        if err or len(data) != lengths[idx]:
                             self._reply(item, exp, idx, dev)
-                        else:
-                            last[idx] = item
-                            if timed:
-                                dev.lat.append(t - exp_t)
+                            continue
+                        if dev.health:
+                            if dev.state is not CONNECTED:
+                                self._reply(item, exp, idx, dev)  # it comes back: logged there
+                                continue
+                            dev.consecutive = dev.health = 0  # a reply ends its streak of misses
+                        last[idx] = item
+                        if timed:
+                            dev.lat.append(t - exp_t)
                         continue
                 self._status(item)
             elif cls is instruction:
