@@ -12,7 +12,8 @@
    - ``dxl_decoder_4k``: the decoder alone, measured in the same run, for
      comparison.
    Each figure is the median of several runs (``ratio``) with the best run
-   (``best_ratio``): the machine is shared and noisy.
+   (``best_ratio``), the figures taking turns run by run: the machine is
+   shared and noisy, and its speed changes by 2x from one minute to the next.
 2. Lag between a byte entering a tap and the monitor state reflecting it, with
    the SDK driving the Wolfgang bench (unpaced) in this process:
    - ``monitor_lag_bench_line``: tapped on the bench's serial line (in-process);
@@ -94,8 +95,12 @@ def bench_throughput(capture: Path, repeats: int) -> None:
         "monitor_pipeline_file": lambda: _pipeline(capture),
         "dxl_decoder_4k": lambda: _decode(data, 4096),
     }
-    for name, run in runs.items():
-        times = [run() for _ in range(repeats)]
+    # round robin, so every figure samples the same phases of a noisy machine
+    all_times: dict[str, list[float]] = {name: [] for name in runs}
+    for _ in range(repeats):
+        for name, run in runs.items():
+            all_times[name].append(run())
+    for name, times in all_times.items():
         rate = len(data) / statistics.median(times)
         emit(name, rate, "bytes/s", LINE_RATE_4M5, rate / LINE_RATE_4M5, target_ratio=20 if name != "dxl_decoder_4k" else 30,
              best_ratio=round(len(data) / min(times) / LINE_RATE_4M5, 3), runs=repeats)
@@ -195,6 +200,17 @@ def _screen_lag(path: str, mon: Monitor, samples: int) -> None:
     _lag_figure("dashboard_lag_screen", shown, path="SDK write -> bench line -> tracker -> rendered frame (10 fps)")
 
 
+def _settle(mon: Monitor, total) -> None:
+    """Wait until the monitor has taken in every byte sent so far (``total()``)."""
+    deadline = time.monotonic() + 10
+    while time.monotonic() < deadline:
+        with mon.lock:
+            if mon.tracker.bytes >= total():
+                return
+        time.sleep(0.005)
+    raise SystemExit("the monitor did not catch up within 10 s")
+
+
 def bench_lag(samples: int) -> None:
     with Bench("wolfgang", paced=False, tap=True) as bench:
         ep = bench.endpoint()
@@ -203,17 +219,18 @@ def bench_lag(samples: int) -> None:
         probe = LagProbe(mon.tracker, _goal_marker)
         mon.start()
         _drive(ep.path, samples)
-        time.sleep(0.3)
+        _settle(mon, lambda: ep.medium.stats.bytes)
         _lag_figure("monitor_lag_bench_line", probe.lags, path="bench line -> MediumSource -> tracker")
         # 1b. until the dashboard (10 frames/s, device details of ID 1) shows a new Goal Position
         _screen_lag(ep.path, mon, max(10, samples // 15))
         mon.stop()
         # 2. the bench's TCP tap, as `hilbench monitor manifest.json` in another process reads it
+        base = ep.medium.stats.bytes
         mon = Monitor(open_source(ep.tap.url))
         probe = LagProbe(mon.tracker, _goal_marker)
         mon.start()
         _drive(ep.path, samples)
-        time.sleep(0.3)
+        _settle(mon, lambda: ep.medium.stats.bytes - base)
         mon.stop()
         _lag_figure("monitor_lag_tcp_tap", probe.lags, path="bench line -> TapServer -> TCP -> tracker")
         # 3. hilbench tap between the SDK and the bench's pty
@@ -222,7 +239,7 @@ def bench_lag(samples: int) -> None:
         probe = LagProbe(mon.tracker, lambda d: 1 if d[7:12] == b"\x83\x74\x00\x04\x00" else None)
         mon.start()
         _drive(tap.app_path, samples)
-        time.sleep(0.3)
+        _settle(mon, lambda: tap.bytes_to_device + tap.bytes_to_app)
         tap.close()
         mon.stop()
         _lag_figure("monitor_lag_serial_tap", probe.lags, path="SerialTap read -> PushSource -> tracker")

@@ -417,10 +417,6 @@ class BusTracker:
                 pending = 1
         return expected - dev.misses - pending + dev.extra_replies
 
-    def last_status(self, dev: DeviceState) -> float | None:
-        """Bus time of the newest status from ``dev``."""
-        return dev.last_seen
-
     @property
     def statuses(self) -> int:
         """Status packets seen (a combined Fast-read reply counts once)."""
