@@ -62,6 +62,10 @@ def open_cli_source(spec: str, *, baud: int | None, speed: float | None) -> Iter
 
 
 def _tracker_options(args: argparse.Namespace) -> dict:
+    if not 3 <= args.max_length <= 0xFFFF:
+        raise CliError(f"--max-length must be 3..65535, got {args.max_length}")
+    if args.miss_limit < 0 or args.silence < 0:
+        raise CliError("--miss-limit and --silence must not be negative")
     return {"silence": args.silence, "max_length": args.max_length, "miss_limit": args.miss_limit}
 
 
