@@ -74,7 +74,7 @@ def test_record_converts_a_raw_dump_and_replays_to_the_same_summary(trace, tmp_p
     assert proc.returncode == 0 and "never answered: ID 101" in proc.stdout
 
 
-def test_monitor_and_record_a_bench_in_another_process(hilbench_emulator, tmp_path):
+def test_monitor_and_record_a_bench_in_another_process(hilbench_emulator, tmp_path, patient_sdk):
     manifest = hilbench_emulator("wolfgang")
     path = manifest["endpoints"][0]["path"]
     assert manifest["endpoints"][0]["tap"].startswith("tcp://127.0.0.1:")
@@ -106,7 +106,7 @@ def test_monitor_and_record_a_bench_in_another_process(hilbench_emulator, tmp_pa
         assert report["devices"]["1"]["latency_ms"]["max"] < 50
 
 
-def test_tap_forwards_a_full_sdk_session_byte_exactly(hilbench_bench, tmp_path):
+def test_tap_forwards_a_full_sdk_session_byte_exactly(hilbench_bench, tmp_path, patient_sdk):
     bench = hilbench_bench("wolfgang")
     ep = bench.endpoint()
     seen: list[tuple[str, bytes]] = []

@@ -211,6 +211,9 @@ def cmd_tap(args: argparse.Namespace) -> int:
     from hilbench.transports.sources import SourceError
 
     _terminate_on_sigterm()
+    # The forwarding thread must get the interpreter as soon as its read returns, not when the
+    # decoding thread's time slice ends (5 ms by default): a tap must not make the SDK time out.
+    sys.setswitchinterval(1e-4)
     try:
         tap = SerialTap(args.port, baud=args.baud, link=args.link)
     except SourceError as exc:

@@ -44,7 +44,7 @@ def assert_same(a, b, path="summary"):
 
 
 @pytest.fixture
-def watched(hilbench_bench):
+def watched(hilbench_bench, patient_sdk):
     """The Wolfgang bench paced at 2 Mbaud, watched by a monitor that also records."""
     bench = hilbench_bench("wolfgang", paced=True)
     ep = bench.endpoint()
@@ -135,7 +135,7 @@ def test_a_servo_that_drops_out_and_one_that_overheats(watched):
         assert text in log
 
 
-def test_fast_sync_read_on_x_series_servos(hilbench_bench):
+def test_fast_sync_read_on_x_series_servos(hilbench_bench, patient_sdk):
     bench = hilbench_bench("arm")
     ep = bench.endpoint()
     mon = Monitor(MediumSource(ep.medium)).start()
