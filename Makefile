@@ -24,3 +24,4 @@ test: $(VENV)/.installed
 bench: $(VENV)/.installed
 	$(PY) tools/bench_dynamixel.py
 	$(PY) tools/bench_profiler.py
+	$(PY) tools/bench_monitor.py

@@ -27,6 +27,7 @@ from hilbench.fakes.stm32_board import Board, BoardConfig, make_preset
 from hilbench.profile import BoardSpec, DeviceSpec, EndpointSpec, Profile, load_profile
 from hilbench.transports.pty import PtyEndpoint
 from hilbench.transports.serial_medium import SerialMedium
+from hilbench.transports.tap_server import TapServer
 from hilbench.transports.udp import UdpEndpoint
 
 
@@ -44,6 +45,7 @@ class Endpoint:
     bus: DynamixelBus | None = None
     board: Board | None = None
     udp: UdpEndpoint | None = None
+    tap: TapServer | None = None
 
     @property
     def name(self) -> str:
@@ -65,7 +67,9 @@ class Bench:
     """The devices of a profile behind real pseudo-terminals.
 
     ``paced`` overrides every endpoint's ``paced`` setting; ``link_dir`` puts a
-    stable symlink named after each endpoint into that directory.
+    stable symlink named after each endpoint into that directory. ``tap``
+    serves each line's traffic on 127.0.0.1 (a TCP tap server, listed as
+    ``tap`` in the manifest) for monitors and recorders in other processes.
     """
 
     def __init__(
@@ -74,9 +78,11 @@ class Bench:
         *,
         paced: bool | None = None,
         link_dir: str | Path | None = None,
+        tap: bool = False,
     ) -> None:
         self.profile = profile if isinstance(profile, Profile) else load_profile(profile)
         self.paced = paced
+        self.tap = tap
         self.link_dir = Path(link_dir) if link_dir else None
         self.endpoints: dict[str, Endpoint] = {}
         self.devices: dict[str, Servo | Board] = {}
@@ -108,6 +114,10 @@ class Bench:
                 self.endpoints[spec.name] = ep
                 DEVICE_FACTORIES[spec.protocol](self, ep, t)
                 medium.add_host(host)
+                if self.tap:
+                    ep.tap = TapServer(baud=spec.baud, protocol=spec.protocol,
+                                       description=f"bench {prof.name}, endpoint {spec.name}")
+                    medium.add_tap(ep.tap.feed)
             for ep in self.endpoints.values():
                 ep.medium.start()
             for ep in self.endpoints.values():
@@ -189,6 +199,8 @@ class Bench:
                 ep.board.stop()
             ep.medium.close()
             ep.host_port.close()
+            if ep.tap is not None:
+                ep.tap.close()
         self.started_at = None
 
     def __enter__(self) -> Bench:
@@ -249,6 +261,7 @@ class Bench:
                 "protocol": ep.spec.protocol,
                 "baud": ep.spec.baud,
                 "paced": ep.medium.paced if ep.board is None else True,
+                "tap": ep.tap.url if ep.tap is not None else None,
             }
             if ep.udp is not None:
                 entry["address"] = list(ep.udp.address)

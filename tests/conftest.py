@@ -23,3 +23,15 @@ def wolfgang_capture() -> bytes:
     if not path.exists():
         pytest.skip(f"shared capture not found at {path} (set HILBENCH_SHARED_DATA)")
     return path.read_bytes()
+
+
+@pytest.fixture
+def patient_sdk(monkeypatch):
+    """Official SDK reply timeouts of ~200 ms instead of ~35 ms (spec §7.2: LATENCY_TIMER is read at call time).
+
+    For tests about bytes and state, not timing, that run the SDK next to other busy threads or
+    processes on a loaded 2-core machine.
+    """
+    import dynamixel_sdk.port_handler as port_handler
+
+    monkeypatch.setattr(port_handler, "LATENCY_TIMER", 100)

@@ -21,7 +21,7 @@ def hb(*args: str, timeout: float = 60) -> subprocess.CompletedProcess:
 
 @pytest.mark.parametrize(
     "verb", [[], ["emulate"], ["dxl"], ["dxl", "scan"], ["dxl", "ping"], ["dxl", "read"], ["dxl", "write"],
-             ["demo"], ["profiles"]],
+             ["demo"], ["profiles"], ["monitor"], ["record"], ["tap"]],
 )
 def test_every_verb_has_help(verb):
     proc = hb(*verb, "--help")
@@ -133,13 +133,21 @@ def test_emulate_links_and_cleans_up(tmp_path):
 
 
 def test_demo_runs_the_sdk_against_the_default_bench():
-    proc = hb("demo", "--seconds", "1.5", timeout=60)
+    proc = hb("demo", "--seconds", "3", timeout=60)
     assert proc.returncode == 0, proc.stderr
-    assert "SDK Sync Read / Sync Write" in proc.stdout
-    summary = proc.stdout.strip().splitlines()[-1]
-    assert summary.startswith("demo: ") and summary.endswith(", 0 failed reads")
-    cycles = int(summary.split()[1])
-    assert cycles > 100  # a paced 2 Mbaud bus allows ~440 cycles/s
+    out = proc.stdout
+    # the dashboard's last frame (stdout is not a terminal: only the final frame is printed)
+    assert "hilbench monitor  demo wolfgang on /dev/" in out and "Device overview" in out
+    assert "cycles, done]" in out
+    assert all(len(line) <= 80 for line in out.splitlines())
+    # what the monitor saw of the staged faults, and what the SDK saw
+    assert "monitor: ID 7 dropped out 1 time(s)" in out and "came back" in out
+    assert "monitor: ID 12 alert on, hardware error: overheating" in out
+    assert "monitor: never answered: ID 101" in out
+    summary = out.strip().splitlines()[-1]
+    assert summary.startswith("demo: ")
+    cycles, failed = int(summary.split()[1]), int(summary.split(", ")[-1].split()[0])
+    assert cycles > 100 and failed >= 5  # the Sync Reads that time out while ID 7 is gone
 
 
 def test_profiles_lists_the_bundled_ones():

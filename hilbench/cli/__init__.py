@@ -17,7 +17,7 @@ from hilbench.cli.common import CliError
 from hilbench.profile import ProfileError
 
 #: Modules under ``hilbench.cli`` that register verbs.
-VERB_MODULES = ("emulate", "dxl", "rover", "board", "profile", "demo")
+VERB_MODULES = ("emulate", "monitor", "dxl", "rover", "board", "profile", "demo")
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -7,11 +7,34 @@ import argparse
 from hilbench.profile import DEFAULT_PROFILE, bundled_profiles, load_profile
 
 
+def demo_report(result) -> list[str]:
+    """What the monitor saw of the demo's staged faults, in a few lines."""
+    lines = []
+    sc = result.scenario
+    devices = result.summary.get("devices", {})
+    gone = devices.get(str(sc.vanish_id), {}) if sc else {}
+    hot = devices.get(str(sc.error_id), {}) if sc else {}
+    if gone:
+        back = "came back" if gone.get("state") == "connected" else f"is {gone.get('state')}"
+        lines.append(f"monitor: ID {sc.vanish_id} dropped out {gone.get('disconnects', 0)} time(s), "
+                     f"missed {gone.get('misses', 0)} replies, {back}")
+    if hot:
+        bits = ", ".join(hot.get("hardware_error_bits") or []) or "none read"
+        lines.append(f"monitor: ID {sc.error_id} alert {'on' if hot.get('alert') else 'off'}, hardware error: {bits}")
+    never = [k for k, d in devices.items() if d.get("never_answered")]
+    if never:
+        lines.append(f"monitor: never answered: ID {', '.join(never)}")
+    return lines
+
+
 def cmd_demo(args: argparse.Namespace) -> int:
     from hilbench.demo import run_demo
 
-    result = run_demo(args.profile, args.seconds, paced=not args.unpaced)
-    print(f"\ndemo: {result.cycles} control cycles in {result.seconds:.1f} s ({result.rate:.0f}/s), "
+    result = run_demo(args.profile, args.seconds, paced=not args.unpaced, view=args.view)
+    print()
+    for line in demo_report(result):
+        print(line)
+    print(f"demo: {result.cycles} control cycles in {result.seconds:.1f} s ({result.rate:.0f}/s), "
           f"{result.failed_reads} failed reads")
     return 0 if result.cycles else 1
 
@@ -25,12 +48,16 @@ def cmd_profiles(args: argparse.Namespace) -> int:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    dm = sub.add_parser("demo", help="run the default bench and drive it with the official SDK, live",
-                        description="Start a bench and run a Sync Read / Sync Write control loop against it "
-                                    "with the official dynamixel-sdk, showing what it reads.")
+    from hilbench.dashboard import VIEWS
+
+    dm = sub.add_parser("demo", help="run the default bench, drive it with the official SDK, watch it live",
+                        description="Start a bench, run a Sync Read / Sync Write control loop against it with the "
+                                    "official dynamixel-sdk, and show the bus monitor's dashboard while one servo "
+                                    "drops out and comes back and another reports overheating.")
     dm.add_argument("--profile", default=DEFAULT_PROFILE, help=f"profile (default: {DEFAULT_PROFILE})")
     dm.add_argument("--seconds", type=float, default=10.0, help="how long to run (0: until Ctrl-C; default 10)")
     dm.add_argument("--unpaced", action="store_true", help="deliver bytes at once instead of at wire speed")
+    dm.add_argument("--view", choices=VIEWS, default="devices", help="dashboard view to start with (keys: 1-4)")
     dm.set_defaults(func=cmd_demo)
 
     pr = sub.add_parser("profiles", help="list the bundled profiles", description="List the bundled profiles.")

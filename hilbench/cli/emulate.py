@@ -16,7 +16,7 @@ def cmd_emulate(args: argparse.Namespace) -> int:
 
     profile = load_profile(args.profile)
     paced = True if args.paced else (False if args.unpaced else None)
-    bench = Bench(profile, paced=paced, link_dir=args.link_dir)
+    bench = Bench(profile, paced=paced, link_dir=args.link_dir, tap=not args.no_tap)
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
@@ -33,10 +33,12 @@ def cmd_emulate(args: argparse.Namespace) -> int:
                 b = ep.board.config
                 print(f"  {ep.name}: {ep.path}  (vel2d, {ep.spec.baud} baud, board {ep.board.name!r}: "
                       f"{b.preset.name}{'' if b.preset.caches else ' no caches'}, output {b.output})")
-                continue
-            timing = "paced" if ep.medium.paced else "unpaced"
-            n = len(ep.bus.servos) if ep.bus else 0
-            print(f"  {ep.name}: {ep.path}  ({ep.spec.protocol}, {ep.spec.baud} baud, {timing}, {n} devices)")
+            else:
+                timing = "paced" if ep.medium.paced else "unpaced"
+                n = len(ep.bus.servos) if ep.bus else 0
+                print(f"  {ep.name}: {ep.path}  ({ep.spec.protocol}, {ep.spec.baud} baud, {timing}, {n} devices)")
+            if ep.tap is not None:
+                print(f"    traffic tap: {ep.tap.url}  (hilbench monitor {manifest or ep.tap.url})")
         if bench.control is not None:
             print(f"  control: {bench.control.address_text}  (hilbench board --control ... button|reset|fault)")
         if manifest:
@@ -61,4 +63,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     timing.add_argument("--paced", action="store_true", help="model wire time and Return Delay Time on every line")
     timing.add_argument("--unpaced", action="store_true", help="deliver bytes at once on every line")
     e.add_argument("--link-dir", metavar="DIR", help="also make a stable symlink DIR/<endpoint> to each pty")
+    e.add_argument("--no-tap", action="store_true",
+                   help="do not serve each line's traffic on 127.0.0.1 for `hilbench monitor` / `record`")
     e.set_defaults(func=cmd_emulate)

@@ -278,6 +278,10 @@ def test_garbage_on_the_bus_does_not_disturb_the_next_exchange(sdk_port, bench):
         os.close(fd)
     decoder = bench.endpoint().bus.decoder
     wait_until(lambda: decoder.bytes_in >= 51)
+    # The garbage ends in a candidate claiming 64 bytes: like a servo, the bus takes what follows
+    # within its 1.5 ms inter-byte timeout (spec §1.1) as part of it, so the line must be quiet
+    # that long before the next exchange (a ping sent sooner is lost on hardware too).
+    time.sleep(0.002)
     assert ph.ping(port, 1) == (1020, OK, 0)
     assert ph.read2ByteTxRx(port, 3, 0) == (1060, OK, 0)
 

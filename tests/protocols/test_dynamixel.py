@@ -310,3 +310,54 @@ def test_mutated_streams_keep_every_untouched_packet(specs, junk, seed):
     got = [i.raw for i in items if not isinstance(i, dxl.DecodeProblem)]
     for raw in packets:
         assert raw in got
+
+
+def reference_frames(stream: bytes, max_length: int = dxl.MAX_LENGTH) -> list:
+    """Spec §1.7 framed the slow, obvious way, with the construct layout judging each candidate."""
+    out = []
+    pos = 0
+    while (start := stream.find(dxl.HEADER, pos)) >= 0:
+        pos = start + 1
+        if start + 7 > len(stream):
+            out.append(("truncated", stream[start:]))
+            continue
+        length = stream[start + 5] | stream[start + 6] << 8
+        end = start + 7 + length
+        if not 3 <= length <= max_length:
+            out.append(("bad_length", stream[start : start + 7]))
+        elif end > len(stream):
+            out.append(("truncated", stream[start:]))
+        elif length == 3 and stream[start + 7] == dxl.STATUS:
+            out.append(("bad_length", stream[start:end]))
+        else:
+            try:
+                out.append(dxl.parse(stream[start:end]))
+                pos = end
+            except Exception:
+                out.append(("crc", stream[start:end]))
+    return out
+
+
+packet_bytes = st.one_of(
+    st.builds(dxl.instruction_packet_unstuffed, st.integers(0, 0xFE), st.sampled_from([1, 2, 3, 0x82, 0x83]),
+              st.binary(max_size=12).map(lambda b: b.replace(b"\x01", b"\xff\xff\xfd\x00"))),
+    st.builds(dxl.status_packet, st.integers(0, 0xFC), st.integers(0, 255),
+              st.binary(max_size=12).map(lambda b: b.replace(b"\x01", b"\xff\xff\xfd"))),
+    st.builds(lambda d: dxl.build_fast_reply([(3, 0, d), (7, 0, d)]), st.binary(min_size=4, max_size=4)),
+    st.binary(max_size=16),
+    st.just(dxl.HEADER),
+)
+
+
+@settings(max_examples=400)
+@given(st.lists(packet_bytes, max_size=10), st.integers(0, 255), st.integers(0, 10_000), st.sampled_from([20, 1024]))
+def test_split_fast_path_frames_exactly_like_the_reference(parts, flip, where, max_length):
+    stream = bytearray(b"".join(parts))
+    if stream and flip:
+        stream[where % len(stream)] ^= flip  # corrupt one byte somewhere
+    stream = bytes(stream)
+    dec = dxl.Decoder(max_length=max_length)
+    cut = where % (len(stream) + 1)
+    items = dec.feed(stream[:cut]) + dec.feed(stream[cut:]) + dec.flush()
+    got = [(i.kind, i.raw) if isinstance(i, dxl.DecodeProblem) else i for i in items]
+    assert got == reference_frames(stream, max_length)

@@ -1,0 +1,300 @@
+"""``hilbench monitor``, ``record`` and ``tap``: watching, recording and tapping a bus.
+
+SOURCE is anything :func:`hilbench.transports.sources.open_source` opens (a
+capture file, ``-``, a serial port, ``tcp://127.0.0.1:PORT``, a bench
+manifest) or ``bench:PROFILE``, which starts that profile's bench in this
+process and watches its line (its pty is shown in the header).
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import signal
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterator
+
+from hilbench.cli.common import CliError, int_arg
+
+PROTOCOLS = ("dynamixel",)
+
+
+def _terminate_on_sigterm() -> None:
+    """SIGTERM ends a verb like Ctrl-C does (summary printed, files closed)."""
+
+    def handler(*_):
+        raise KeyboardInterrupt
+
+    with contextlib.suppress(ValueError):  # not the main thread
+        signal.signal(signal.SIGTERM, handler)
+
+
+@contextlib.contextmanager
+def open_cli_source(spec: str, *, baud: int | None, speed: float | None) -> Iterator:
+    """A source for a verb; ``bench:PROFILE`` starts a bench here. Errors become one-line CliErrors."""
+    from hilbench.transports.capture_file import CaptureError
+    from hilbench.transports.sources import MediumSource, SourceError, open_source
+
+    bench = None
+    try:
+        if spec.startswith("bench:"):
+            from hilbench.bench import Bench
+            from hilbench.profile import DEFAULT_PROFILE
+
+            bench = Bench(spec[len("bench:"):] or DEFAULT_PROFILE).start()
+            ep = bench.endpoint(next(iter(bench.endpoints)))
+            source = MediumSource(ep.medium, name=f"bench {bench.profile.name}: {ep.path}")
+        else:
+            source = open_source(spec, baud=baud, speed=speed)
+    except (SourceError, CaptureError) as exc:
+        if bench is not None:
+            bench.stop()
+        raise CliError(str(exc)) from None
+    try:
+        yield source
+    finally:
+        source.close()
+        if bench is not None:
+            bench.stop()
+
+
+def _tracker_options(args: argparse.Namespace) -> dict:
+    if not 3 <= args.max_length <= 0xFFFF:
+        raise CliError(f"--max-length must be 3..65535, got {args.max_length}")
+    if args.miss_limit < 0 or args.silence < 0:
+        raise CliError("--miss-limit and --silence must not be negative")
+    return {"silence": args.silence, "max_length": args.max_length, "miss_limit": args.miss_limit}
+
+
+def _writer(path: str | None, source, description: str | None = None):
+    if not path:
+        return None
+    from hilbench.transports.capture_file import CaptureWriter
+
+    info = getattr(getattr(source, "reader", None), "info", None)
+    return CaptureWriter(path, baud=source.baud, protocol=source.protocol or "dynamixel",
+                         description=description or source.name, timestamps=source.timestamps,
+                         t0_wall=info.t0_wall if info is not None and info.measured else None)
+
+
+def _watch(monitor, args: argparse.Namespace, label: str, status: Callable[[], str],
+           stop: Callable[[], bool] | None = None) -> None:
+    """Show the dashboard (or, with --summary/--json, just wait), then print the summary."""
+    from rich.console import Console
+
+    deadline = time.monotonic() + args.seconds if args.seconds else None
+
+    def done() -> bool:
+        return (deadline is not None and time.monotonic() >= deadline) or (stop is not None and stop())
+
+    console = Console()
+    quiet = args.summary or args.json
+    try:
+        if quiet:
+            while not monitor.ended.is_set() and not done():
+                monitor.ended.wait(0.05)
+        else:
+            from hilbench.dashboard import Dashboard
+
+            dash = Dashboard(monitor.tracker, lock=monitor.lock, source=label, view=args.view, device=args.device,
+                             clock=monitor.source.clock, status=status)
+            interactive = console.is_terminal and sys.stdin.isatty() and not args.once
+            dash.run(console=console, stop=lambda: done() or (not interactive and monitor.ended.is_set()))
+    except KeyboardInterrupt:
+        pass
+    monitor.stop()
+    if monitor.error is not None:
+        raise CliError(f"{label}: {monitor.error}")
+    if quiet:
+        report = monitor.summary()
+        if args.json:
+            print(json.dumps(report, indent=None if args.compact else 2))
+        else:
+            print_summary(report, console)
+
+
+def print_summary(report: dict, console) -> None:
+    """The summary as a person reads it: the bus, then one line per device."""
+    from rich import box
+    from rich.table import Table
+
+    bus = report["bus"]
+    packets = ", ".join(f"{k} {v}" for k, v in report["packets"].items() if v)
+    if report["timestamps"] == "none":
+        when = "no times (a raw dump: --baud gives it byte time)"
+    else:
+        when = f"{report['duration_s'] or 0:.3f} s ({report['timestamps']} times)"
+    console.print(f"[bold]{report['source']}[/]: {report['bytes']} bytes, {when}", highlight=False)
+    console.print(f"packets: {packets or 'none'}", highlight=False)
+    load = f", load {bus['load']:.1%}" if bus["load"] is not None else ""
+    rate = f"{bus['bytes_per_s'] / 1000:.1f} kB/s{load}; " if bus["bytes_per_s"] is not None else ""
+    console.print(f"bus: {rate}CRC errors {report['crc_errors']}, unanswered requests {bus['unanswered']}, "
+                  f"unexpected replies {bus['unexpected_replies']}", highlight=False)
+    cycle = bus["main_cycle"]
+    if cycle:
+        hz = f" at {cycle['rate_hz']} Hz, jitter {cycle['jitter_ms']} ms" if cycle["rate_hz"] else ""
+        console.print(f"main cycle: {cycle['instruction']} {cycle['address']}/{cycle['length']} of "
+                      f"{len(cycle['ids'])} IDs, {cycle['count']} times{hz}", highlight=False)
+    table = Table(box=box.SIMPLE_HEAD, padding=(0, 0), pad_edge=False, header_style="bold", show_edge=False)
+    for col in ("ID", "model", "fw", "state", "req", "replies", "missed", "CRC", "err", "lat ms"):
+        table.add_column(col, justify="left" if col in ("model", "state") else "right", no_wrap=True)
+    never = []
+    for dev_id, d in report["devices"].items():
+        lat = d["latency_ms"]
+        if d["never_answered"]:
+            never.append(dev_id)
+        table.add_row(dev_id, d["model_name"], "-" if d["firmware"] is None else str(d["firmware"]), d["state"],
+                      str(d["requests"]), str(d["replies"]), str(d["misses"]), str(d["crc_errors"]),
+                      str(d["error_statuses"]), f"{lat['mean']:.3f}" if lat else "-")
+    console.print(table)
+    if never:
+        console.print(f"never answered: ID {', '.join(never)}", highlight=False)
+    for line in report["errors"]["last"][:10]:
+        console.print(line, markup=False, highlight=False)
+
+
+# --------------------------------------------------------------------------- verbs
+
+
+def cmd_monitor(args: argparse.Namespace) -> int:
+    from hilbench.monitor import Monitor
+
+    _terminate_on_sigterm()
+    speed = args.speed if args.speed is not None else (1.0 if args.realtime else None)
+    with open_cli_source(args.source, baud=args.baud, speed=speed) as source:
+        if args.baud and source.baud != args.baud:
+            source.baud = args.baud  # the user knows the line rate better than the source
+        mon = Monitor(source, record=_writer(args.record, source), **_tracker_options(args))
+        mon.start()
+
+        def status() -> str:
+            if mon.ended.is_set():
+                return "ended - q quits" if sys.stdin.isatty() else "ended"
+            if source.live:
+                return "live"
+            return f"replay {speed:g}x" if speed else "replay"
+
+        _watch(mon, args, source.name, status)
+    return 0
+
+
+def cmd_record(args: argparse.Namespace) -> int:
+    _terminate_on_sigterm()
+    speed = args.speed if args.speed is not None else None
+    deadline = time.monotonic() + args.seconds if args.seconds else None
+    with open_cli_source(args.source, baud=args.baud, speed=speed) as source:
+        writer = _writer(args.file, source)
+        stop = threading.Event()
+        try:
+            for chunk in source.chunks(0.1 if source.live else None):
+                if chunk is not None:
+                    writer.chunk(chunk)
+                if deadline is not None and time.monotonic() >= deadline:
+                    break
+                if stop.is_set():
+                    break
+        except KeyboardInterrupt:
+            pass
+        finally:
+            writer.close()
+    out = sys.stderr if args.file == "-" else sys.stdout
+    print(f"recorded {writer.bytes} bytes in {writer.records} records from {source.name} to {args.file}", file=out)
+    return 0
+
+
+def cmd_tap(args: argparse.Namespace) -> int:
+    from hilbench.monitor import Monitor
+    from hilbench.transports.serial_tap import SerialTap
+    from hilbench.transports.sources import SourceError
+
+    _terminate_on_sigterm()
+    # The forwarding thread must get the interpreter as soon as its read returns, not when the
+    # decoding thread's time slice ends (5 ms by default): a tap must not make the SDK time out.
+    sys.setswitchinterval(1e-4)
+    try:
+        tap = SerialTap(args.port, baud=args.baud, link=args.link)
+    except SourceError as exc:
+        raise CliError(str(exc)) from None
+    try:
+        label = f"tap {args.port} <-> app {tap.app_path}"
+        mon = Monitor(tap.source, record=_writer(args.record, tap.source, label), **_tracker_options(args))
+        mon.start()
+        tap.start()
+        print(f"hilbench tap: application port {tap.app_path} <-> {args.port}", flush=True)
+        _watch(mon, args, label, lambda: "tapping" if not mon.ended.is_set() else "device gone",
+               stop=lambda: tap.error is not None)
+    finally:
+        tap.close()
+    if tap.error is not None:
+        raise CliError(f"{args.port}: {tap.error}")
+    print(f"hilbench tap: forwarded {tap.bytes_to_device} bytes to the device, {tap.bytes_to_app} to the application",
+          file=sys.stderr)
+    return 0
+
+
+# --------------------------------------------------------------------------- parsers
+
+
+def _watch_args(p: argparse.ArgumentParser) -> None:
+    from hilbench.dashboard import VIEWS
+
+    p.add_argument("--protocol", choices=PROTOCOLS, default="dynamixel", help="bus protocol (default: dynamixel)")
+    p.add_argument("--summary", action="store_true",
+                   help="no dashboard: print a summary when the source ends (or on Ctrl-C / --seconds)")
+    p.add_argument("--json", action="store_true", help="print the summary as one JSON document (implies --summary)")
+    p.add_argument("--compact", action="store_true", help="JSON on one line")
+    p.add_argument("--seconds", type=float, help="stop after this many seconds")
+    p.add_argument("--view", choices=VIEWS, default="devices", help="dashboard view to start with (keys: 1-4)")
+    p.add_argument("--device", type=int_arg, help="device ID the details view shows first (keys: left/right)")
+    p.add_argument("--once", action="store_true",
+                   help="leave the dashboard when the source ends, even in a terminal")
+    p.add_argument("--record", metavar="FILE", help="also record everything to FILE (hilbench capture format)")
+    p.add_argument("--silence", type=float, default=1.0,
+                   help="disconnect a device owing a reply that said nothing for S seconds (0: off; default 1)")
+    p.add_argument("--miss-limit", type=int, default=4,
+                   help="disconnect after more than N consecutive missed replies (default 4, as the thesis monitor)")
+    p.add_argument("--max-length", type=int_arg, default=1024,
+                   help="largest LENGTH accepted (default 1024 like the SDK; 65535 counts like the spec sheet)")
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    m = sub.add_parser(
+        "monitor", help="watch a bus: live dashboard, or a summary (--summary --json)",
+        description="Decode and track a Dynamixel bus from SOURCE: a capture file (hilbench format or raw dump), "
+                    "'-' (stdin), a serial port (receive-only), tcp://127.0.0.1:PORT or a manifest.json of "
+                    "`hilbench emulate` (its traffic tap), or bench:PROFILE (start that bench here).")
+    m.add_argument("source", help="what to watch (see above)")
+    m.add_argument("--baud", type=int_arg,
+                   help="line rate in bit/s (for the bus load; a serial port's rate; the byte time of a raw dump)")
+    speed = m.add_mutually_exclusive_group()
+    speed.add_argument("--realtime", action="store_true", help="replay a capture at its recorded speed")
+    speed.add_argument("--speed", type=float, help="replay a capture at this multiple of its recorded speed")
+    _watch_args(m)
+    m.set_defaults(func=cmd_monitor)
+
+    r = sub.add_parser(
+        "record", help="record a bus to a capture file",
+        description="Store every byte from SOURCE (as for `hilbench monitor`) with its time and direction in FILE "
+                    "(hilbench capture format, see docs/capture-format.md; '-' for stdout). Stops when the source "
+                    "ends, on Ctrl-C / SIGTERM, or after --seconds. Converts raw dumps too.")
+    r.add_argument("source", help="what to record")
+    r.add_argument("file", help="capture file to write ('-': stdout)")
+    r.add_argument("--baud", type=int_arg, help="line rate in bit/s (a serial port's rate; a raw dump's byte time)")
+    r.add_argument("--seconds", type=float, help="stop after this many seconds")
+    r.add_argument("--speed", type=float, help="read a capture at this multiple of its recorded speed")
+    r.set_defaults(func=cmd_record)
+
+    t = sub.add_parser(
+        "tap", help="sit between an application and a serial port, forwarding and decoding both ways",
+        description="Create a pty for the application, forward every byte between it and PORT as soon as it is "
+                    "read, and decode both directions: dashboard (in a terminal), --summary/--json at the end "
+                    "(Ctrl-C, SIGTERM or --seconds), --record FILE.")
+    t.add_argument("port", help="the real port (e.g. /dev/ttyUSB0, or an emulated bench's pty)")
+    t.add_argument("--baud", type=int_arg,
+                   help="fixed baud rate for PORT (default: follow the rate the application sets)")
+    t.add_argument("--link", metavar="PATH", help="also make PATH a symlink to the application's pty")
+    _watch_args(t)
+    t.set_defaults(func=cmd_tap)

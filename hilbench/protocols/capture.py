@@ -1,0 +1,182 @@
+"""hilbench capture format (``.hbcap``): bus bytes with their time and source.
+
+One definition of the layout, used by the recorder, the capture reader and
+the bench's tap server (which streams the same records over TCP). Full
+description: ``docs/capture-format.md``. All integers little-endian::
+
+    file   = header record*
+    header = magic(8) = 89 'HBC' 0D 0A 1A 0A
+             version u16 (1)
+             body_size u16, then body_size bytes:
+                 flags u16           bit 0: times are measured (live or recorded)
+                                     bit 1: times are synthetic (byte time at `baud`)
+                 baud u32            line rate in bit/s, 0 if unknown
+                 t0_wall f64         Unix time of t = 0
+                 t0_monotonic f64    time.monotonic() of t = 0 in the recording process
+                 protocol str8       e.g. "dynamixel" ("" if unknown)
+                 description str8    what was recorded (a port, a bench endpoint, ...)
+             (readers ignore body bytes they do not know: later versions may append fields)
+    record = kind u8, source u8, length u16, t_ns i64, payload[length]
+             kind 0 DATA    payload = bytes `source` put on the bus, complete at t0 + t_ns
+             kind 1 SOURCE  payload = UTF-8 name of source id `source` (before its first DATA)
+             kind 2 GAP     payload = u32: bytes of `source` lost before reaching the recorder
+             (readers skip records of unknown kinds)
+
+The magic is built like PNG's (0x89, CR LF, ^Z, LF), so text-mode
+transfers and 7-bit channels show up as a bad magic, and no raw Dynamixel
+capture (which starts with FF FF FD 00 or fill bytes) is mistaken for one.
+A record carries at most 65535 payload bytes; writers split longer chunks.
+
+:func:`pack_record` / :func:`unpack_record_header` are the fast paths the
+reader and writer use per record; tests prove they agree with the construct
+layouts.
+"""
+
+from __future__ import annotations
+
+import struct
+from enum import IntEnum, IntFlag
+from typing import NamedTuple
+
+from construct import (
+    Bytes,
+    Const,
+    Float64l,
+    Int8ul,
+    Int16ul,
+    Int32ul,
+    Int64sl,
+    PascalString,
+    Prefixed,
+    Struct,
+    this,
+)
+
+MAGIC = b"\x89HBC\r\n\x1a\n"
+VERSION = 1
+#: Largest payload of one record.
+MAX_PAYLOAD = 0xFFFF
+#: Suggested file name extension.
+EXTENSION = ".hbcap"
+
+
+class RecordKind(IntEnum):
+    DATA = 0
+    SOURCE = 1
+    GAP = 2
+
+
+class Flags(IntFlag):
+    MEASURED = 1  # times were measured (a live source, or a recording of one)
+    SYNTHETIC = 2  # times were computed from byte counts at `baud`
+
+
+HeaderBody = Struct(
+    "flags" / Int16ul,
+    "baud" / Int32ul,
+    "t0_wall" / Float64l,
+    "t0_monotonic" / Float64l,
+    "protocol" / PascalString(Int8ul, "utf8"),
+    "description" / PascalString(Int8ul, "utf8"),
+)
+
+#: The file header: magic, version, then a length-prefixed body (future fields go at its end).
+Header = Struct(
+    "magic" / Const(MAGIC),
+    "version" / Int16ul,
+    "body" / Prefixed(Int16ul, HeaderBody),
+)
+
+RecordHeader = Struct(
+    "kind" / Int8ul,
+    "source" / Int8ul,
+    "length" / Int16ul,
+    "t_ns" / Int64sl,
+)
+
+Record = Struct(
+    "kind" / Int8ul,
+    "source" / Int8ul,
+    "length" / Int16ul,
+    "t_ns" / Int64sl,
+    "payload" / Bytes(this.length),
+)
+
+#: Bytes of a record before its payload.
+RECORD_HEADER_SIZE = RecordHeader.sizeof()
+#: Bytes of the header up to and including body_size (the body follows).
+HEADER_PREFIX_SIZE = len(MAGIC) + 4
+
+_RECORD = struct.Struct("<BBHq")
+
+
+class CaptureInfo(NamedTuple):
+    """What a capture's header says."""
+
+    version: int
+    flags: int
+    baud: int | None
+    t0_wall: float
+    t0_monotonic: float
+    protocol: str
+    description: str
+
+    @property
+    def measured(self) -> bool:
+        return bool(self.flags & Flags.MEASURED)
+
+    @property
+    def synthetic(self) -> bool:
+        return bool(self.flags & Flags.SYNTHETIC)
+
+
+def build_header(
+    *,
+    flags: int = Flags.MEASURED,
+    baud: int | None = None,
+    t0_wall: float = 0.0,
+    t0_monotonic: float = 0.0,
+    protocol: str = "",
+    description: str = "",
+) -> bytes:
+    """The file header (construct layout)."""
+    return Header.build(
+        {
+            "version": VERSION,
+            "body": {
+                "flags": int(flags),
+                "baud": baud or 0,
+                "t0_wall": t0_wall,
+                "t0_monotonic": t0_monotonic,
+                "protocol": protocol[:255],
+                "description": description.encode()[:255].decode(errors="ignore"),
+            },
+        }
+    )
+
+
+def parse_header(data: bytes) -> CaptureInfo:
+    """Parse a whole header (prefix and body); raises ``ValueError`` on a bad magic or version."""
+    if data[: len(MAGIC)] != MAGIC:
+        raise ValueError("not a hilbench capture (bad magic)")
+    version = data[8] | data[9] << 8
+    if version > VERSION:
+        raise ValueError(f"capture format version {version} is newer than this hilbench reads ({VERSION})")
+    c = Header.parse(data)
+    b = c.body
+    return CaptureInfo(c.version, b.flags, b.baud or None, b.t0_wall, b.t0_monotonic, b.protocol, b.description)
+
+
+def header_body_size(prefix: bytes) -> int:
+    """The body size from the first :data:`HEADER_PREFIX_SIZE` bytes of a header."""
+    return prefix[10] | prefix[11] << 8
+
+
+def pack_record(kind: int, source: int, t_ns: int, payload: bytes) -> bytes:
+    """Fast path: one record (payload at most :data:`MAX_PAYLOAD` bytes)."""
+    return _RECORD.pack(kind, source, len(payload), t_ns) + payload
+
+
+def unpack_record_header(buf: bytes, offset: int = 0) -> tuple[int, int, int, int]:
+    """Fast path: (kind, source, length, t_ns) of the record at ``offset``."""
+    return _RECORD.unpack_from(buf, offset)

@@ -1,0 +1,201 @@
+"""A bench's traffic for other processes: a TCP tap server on 127.0.0.1.
+
+Two readers of one pty steal each other's bytes (spec sheet §7.7), so a
+monitor in another process cannot watch a bench by opening its pty. Instead
+the bench's serial line hands every transmission to :meth:`TapServer.feed`,
+and the server streams it to each connected client as a hilbench capture
+(:mod:`hilbench.protocols.capture`): a header, then one record per
+transmission with its time and sender. A client therefore reads the stream
+exactly like a capture file (``hilbench monitor tcp://127.0.0.1:PORT``, or the
+``tap`` address in a bench's manifest).
+
+The line thread never waits for a client: what a client cannot take at once
+is buffered, and beyond ``max_buffer`` bytes per client new data is dropped
+and reported to that client as a GAP record once it catches up.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import selectors
+import socket
+import threading
+import time
+
+from hilbench.protocols import capture as cap
+from hilbench.protocols.capture import MAX_PAYLOAD, Flags, RecordKind
+
+log = logging.getLogger(__name__)
+
+
+class _Client:
+    __slots__ = ("sock", "pending", "lost")
+
+    def __init__(self, sock: socket.socket) -> None:
+        self.sock = sock
+        self.pending = bytearray()
+        self.lost: dict[int, int] = {}
+
+
+class TapServer:
+    """Serves a line's transmissions to TCP clients in the capture format (binds 127.0.0.1 by default)."""
+
+    def __init__(
+        self,
+        *,
+        host: str = "127.0.0.1",
+        port: int = 0,
+        baud: int | None = None,
+        protocol: str = "dynamixel",
+        description: str = "",
+        max_buffer: int = 8 << 20,
+    ) -> None:
+        self.t0 = time.monotonic()
+        self.max_buffer = max_buffer
+        self._header = cap.build_header(
+            flags=Flags.MEASURED,
+            baud=baud,
+            t0_wall=time.time(),
+            t0_monotonic=self.t0,
+            protocol=protocol,
+            description=description,
+        )
+        self._listener = socket.create_server((host, port))
+        self._listener.setblocking(False)
+        self.host, self.port = self._listener.getsockname()[:2]
+        self._lock = threading.Lock()
+        self._clients: list[_Client] = []
+        self._ids: dict[str, int] = {}
+        self._names = bytearray()  # SOURCE records sent to every new client
+        self._wake_r, self._wake_w = os.pipe()
+        os.set_blocking(self._wake_r, False)
+        os.set_blocking(self._wake_w, False)
+        self._stop = threading.Event()
+        self.clients_served = 0
+        self._thread = threading.Thread(target=self._run, name=f"tap-{self.port}", daemon=True)
+        self._thread.start()
+
+    @property
+    def url(self) -> str:
+        """Where clients connect: ``tcp://127.0.0.1:PORT``."""
+        return f"tcp://{self.host}:{self.port}"
+
+    @property
+    def clients(self) -> int:
+        return len(self._clients)
+
+    def feed(self, t: float, source: str, data: bytes) -> None:
+        """A transmission on the line (a :data:`~hilbench.transports.serial_medium.Tap`); never blocks."""
+        if not self._clients:
+            return
+        with self._lock:
+            sid = self._ids.get(source)
+            if sid is None:
+                sid = self._ids[source] = len(self._ids) & 0xFF
+                names = cap.pack_record(RecordKind.SOURCE, sid, 0, source.encode()[:MAX_PAYLOAD])
+                self._names += names
+                for c in self._clients:
+                    c.pending += names
+            t_ns = round((t - self.t0) * 1e9)
+            records = b"".join(
+                cap.pack_record(RecordKind.DATA, sid, t_ns, data[i : i + MAX_PAYLOAD])
+                for i in range(0, len(data), MAX_PAYLOAD)
+            )
+            wake = False
+            for c in self._clients:
+                if len(c.pending) > self.max_buffer:
+                    c.lost[sid] = c.lost.get(sid, 0) + len(data)
+                    continue
+                if c.lost:
+                    for lost_sid, n in c.lost.items():
+                        c.pending += cap.pack_record(RecordKind.GAP, lost_sid, t_ns, n.to_bytes(4, "little"))
+                    c.lost.clear()
+                if not c.pending:
+                    try:
+                        sent = c.sock.send(records)
+                    except (BlockingIOError, InterruptedError):
+                        sent = 0
+                    except OSError:
+                        continue  # the server thread notices the broken connection
+                    if sent == len(records):
+                        continue
+                    c.pending += records[sent:]
+                else:
+                    c.pending += records
+                wake = True
+        if wake:
+            with contextlib.suppress(BlockingIOError):
+                os.write(self._wake_w, b"x")
+
+    def _run(self) -> None:
+        sel = selectors.DefaultSelector()
+        sel.register(self._listener, selectors.EVENT_READ, "accept")
+        sel.register(self._wake_r, selectors.EVENT_READ, "wake")
+        try:
+            while not self._stop.is_set():
+                with self._lock:
+                    for c in self._clients:
+                        events = selectors.EVENT_READ | (selectors.EVENT_WRITE if c.pending else 0)
+                        try:
+                            sel.modify(c.sock, events, c)
+                        except KeyError:
+                            sel.register(c.sock, events, c)
+                for key, mask in sel.select(timeout=0.5):
+                    if key.data == "accept":
+                        self._accept()
+                    elif key.data == "wake":
+                        with contextlib.suppress(BlockingIOError):
+                            os.read(self._wake_r, 4096)
+                    else:
+                        self._serve(sel, key.data, mask)
+        finally:
+            sel.close()
+
+    def _accept(self) -> None:
+        try:
+            sock, _ = self._listener.accept()
+        except (BlockingIOError, InterruptedError):
+            return
+        sock.setblocking(False)
+        with contextlib.suppress(OSError):
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        c = _Client(sock)
+        with self._lock:
+            c.pending += self._header + self._names
+            self._clients.append(c)
+            self.clients_served += 1
+
+    def _serve(self, sel: selectors.BaseSelector, c: _Client, mask: int) -> None:
+        try:
+            if mask & selectors.EVENT_READ and not c.sock.recv(4096):
+                raise ConnectionResetError  # the client went away (it never sends anything)
+            if mask & selectors.EVENT_WRITE:
+                with self._lock:
+                    sent = c.sock.send(c.pending)
+                    del c.pending[:sent]
+        except (BlockingIOError, InterruptedError):
+            return
+        except OSError:
+            with self._lock:
+                if c in self._clients:
+                    self._clients.remove(c)
+            with contextlib.suppress(KeyError, ValueError):
+                sel.unregister(c.sock)
+            c.sock.close()
+
+    def close(self) -> None:
+        """Stop serving and disconnect every client."""
+        self._stop.set()
+        with contextlib.suppress(OSError):
+            os.write(self._wake_w, b"x")
+        self._thread.join(timeout=5)
+        with self._lock:
+            for c in self._clients:
+                c.sock.close()
+            self._clients.clear()
+        self._listener.close()
+        for fd in (self._wake_r, self._wake_w):
+            with contextlib.suppress(OSError):
+                os.close(fd)

@@ -1,0 +1,55 @@
+"""The capture format's layout: construct definitions and the per-record fast paths agree."""
+
+from __future__ import annotations
+
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from hilbench.protocols import capture as cap
+
+
+def test_header_round_trip_and_byte_layout():
+    raw = cap.build_header(flags=cap.Flags.MEASURED, baud=2_000_000, t0_wall=1.5, t0_monotonic=2.5,
+                           protocol="dynamixel", description="bench wolfgang")
+    assert raw[:8] == b"\x89HBC\r\n\x1a\n"
+    assert raw[8:10] == b"\x01\x00"  # version 1
+    assert cap.header_body_size(raw) == len(raw) - cap.HEADER_PREFIX_SIZE
+    info = cap.parse_header(raw)
+    assert info == cap.CaptureInfo(1, 1, 2_000_000, 1.5, 2.5, "dynamixel", "bench wolfgang")
+    assert info.measured and not info.synthetic
+
+
+def test_header_body_may_grow_in_later_versions():
+    raw = cap.build_header(baud=0, protocol="dynamixel")
+    body_size = cap.header_body_size(raw)
+    longer = raw[:10] + (body_size + 3).to_bytes(2, "little") + raw[12:] + b"new"
+    info = cap.parse_header(longer)
+    assert info.protocol == "dynamixel" and info.baud is None
+
+
+def test_bad_magic_and_newer_versions_are_refused_in_one_line():
+    with pytest.raises(ValueError, match="bad magic"):
+        cap.parse_header(b"\xff\xff\xfd\x00" + bytes(30))
+    newer = bytearray(cap.build_header())
+    newer[8] = 9
+    with pytest.raises(ValueError, match="version 9 is newer"):
+        cap.parse_header(bytes(newer))
+
+
+@given(st.sampled_from(list(cap.RecordKind)), st.integers(0, 255), st.integers(-(2**63), 2**63 - 1),
+       st.binary(max_size=300))
+def test_record_fast_path_agrees_with_construct(kind, source, t_ns, payload):
+    fast = cap.pack_record(kind, source, t_ns, payload)
+    assert fast == cap.Record.build({"kind": kind, "source": source, "length": len(payload), "t_ns": t_ns,
+                                     "payload": payload})
+    assert cap.unpack_record_header(fast) == (kind, source, len(payload), t_ns)
+    parsed = cap.Record.parse(fast)
+    assert (parsed.kind, parsed.source, parsed.t_ns, parsed.payload) == (kind, source, t_ns, payload)
+    assert len(fast) == cap.RECORD_HEADER_SIZE + len(payload)
+
+
+def test_record_payload_is_bounded_by_its_length_field():
+    assert cap.MAX_PAYLOAD == 0xFFFF
+    with pytest.raises(Exception):  # noqa: B017 (struct.error: the u16 cannot hold it)
+        cap.pack_record(cap.RecordKind.DATA, 0, 0, bytes(cap.MAX_PAYLOAD + 1))

@@ -1,0 +1,173 @@
+"""Byte sources: a receive-only serial sniffer on a real pty, a bench's TCP tap, push sources, source strings."""
+
+from __future__ import annotations
+
+import json
+import os
+import select
+import socket
+import threading
+import time
+import tty
+
+import dynamixel_sdk as sdk
+import pytest
+
+from hilbench.bench import Bench
+from hilbench.protocols import dynamixel as dxl
+from hilbench.pytest_plugin import wait_until
+from hilbench.transports.capture_file import CaptureParser, Chunk
+from hilbench.transports.sources import (
+    FileSource,
+    PushSource,
+    SerialSource,
+    SourceError,
+    TcpSource,
+    open_source,
+)
+from hilbench.transports.tap_server import TapServer
+
+
+class Collector:
+    """Iterates a source in a thread and keeps what it yields."""
+
+    def __init__(self, source, idle: float | None = None) -> None:
+        self.source = source
+        self.chunks: list[Chunk] = []
+        self.idles = 0
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.idle = idle
+        self.thread.start()
+
+    def _run(self) -> None:
+        for c in self.source.chunks(self.idle):
+            if c is None:
+                self.idles += 1
+            else:
+                self.chunks.append(c)
+
+    def data(self, source: str | None = None) -> bytes:
+        return b"".join(c.data for c in list(self.chunks) if source is None or c.source == source)
+
+
+def test_serial_source_sniffs_a_real_pty_and_never_writes():
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    try:
+        src = open_source(os.ttyname(slave), baud=2_000_000)
+        assert isinstance(src, SerialSource) and src.baud == 2_000_000
+        col = Collector(src, idle=0.02)
+        packet = dxl.status_packet(1, 0, b"\x32\x08\x00\x00")
+        os.write(master, packet[:5])
+        os.write(master, packet[5:])
+        wait_until(lambda: col.data() == packet)
+        wait_until(lambda: col.idles > 0)  # a quiet line still wakes the consumer
+        assert all(c.source == "bus" for c in col.chunks)
+        assert not select.select([master], [], [], 0.05)[0]  # receive-only: nothing came back
+        src.close()
+        col.thread.join(timeout=2)
+        assert not col.thread.is_alive()
+    finally:
+        os.close(master)
+        os.close(slave)
+
+
+def test_a_bench_tap_streams_both_directions_to_every_client():
+    with Bench("arm", tap=True) as bench:
+        ep = bench.endpoint()
+        assert bench.manifest()["endpoints"][0]["tap"] == ep.tap.url
+        assert ep.tap.url.startswith("tcp://127.0.0.1:")
+        first, second = (open_source(ep.tap.url) for _ in range(2))
+        assert isinstance(first, TcpSource) and first.baud == 1_000_000 and first.protocol == "dynamixel"
+        cols = [Collector(first), Collector(second)]
+        wait_until(lambda: ep.tap.clients == 2)
+        port = sdk.PortHandler(ep.path)
+        assert port.openPort() and port.setBaudRate(1_000_000)
+        assert sdk.PacketHandler(2.0).ping(port, 3)[1] == sdk.COMM_SUCCESS
+        port.closePort()
+        ping = dxl.instruction_packet(3, dxl.Instruction.PING)
+        for col in cols:
+            wait_until(lambda col=col: col.data("arm") == ping and len(col.data("arm-devices")) == 14)
+            assert col.chunks[0].t <= col.chunks[1].t  # the request before its reply
+        for src in (first, second):
+            src.close()
+
+
+def test_a_slow_tap_client_gets_a_gap_record_not_unbounded_memory():
+    server = TapServer(max_buffer=64 << 10)
+    try:
+        client = socket.socket()
+        client.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+        client.connect((server.host, server.port))
+        wait_until(lambda: server.clients == 1)
+        block = bytes(1024)
+        total = 0
+        for _ in range(4096):  # 4 MiB while the client reads nothing
+            server.feed(time.monotonic(), "bus", block)
+            total += len(block)
+        parser = CaptureParser()
+        got: list[Chunk] = []
+        client.setblocking(False)
+        deadline = time.monotonic() + 20
+        while not any(c.data == b"end" for c in got):
+            assert time.monotonic() < deadline
+            server.feed(time.monotonic(), "bus", b"end")
+            total += 3
+            while select.select([client], [], [], 0.01)[0]:
+                data = client.recv(1 << 16)
+                if not data:
+                    break
+                got += parser.feed(data)
+        lost = sum(c.lost for c in got)
+        assert lost > 0
+        assert sum(len(c.data) for c in got) + lost <= total
+        assert sum(len(c.data) for c in got) > 64 << 10
+        client.close()
+    finally:
+        server.close()
+
+
+def test_push_source_bounds_memory_and_reports_losses():
+    src = PushSource("test", max_bytes=10)
+    src.push(1.0, "a", b"12345678")
+    src.push(2.0, "a", b"too much")  # would exceed 10 bytes waiting: dropped, counted
+    it = src.chunks()
+    assert next(it) == Chunk(1.0, "a", b"12345678")
+    src.push(3.0, "b", b"ok")
+    src.end()
+    assert list(it) == [Chunk(3.0, "a", b"", 8), Chunk(3.0, "b", b"ok")]
+
+
+def test_source_strings(tmp_path):
+    capture = tmp_path / "trace.bin"
+    capture.write_bytes(b"\x00" * 10)
+    assert isinstance(open_source(str(capture)), FileSource)
+    with pytest.raises(SourceError, match="no such file, port or source"):
+        open_source(str(tmp_path / "missing"))
+    with pytest.raises(SourceError, match="expected tcp://HOST:PORT"):
+        open_source("tcp://nowhere")
+    with pytest.raises(SourceError, match="cannot connect"):
+        open_source("tcp://127.0.0.1:1")
+    manifest = tmp_path / "bench.json"
+    manifest.write_text(json.dumps({"endpoints": [{"name": "dxl", "tap": None}]}))
+    with pytest.raises(SourceError, match="offers no tap"):
+        open_source(str(manifest))
+    with pytest.raises(SourceError, match="no endpoint named 'arm'"):
+        open_source(f"{manifest}#arm")
+    with pytest.raises(SourceError, match="no times"):
+        FileSource(capture, speed=1.0)
+    with pytest.raises(SourceError, match="cannot open"):
+        open_source("serial:///dev/no-such-port?baud=57600")
+
+
+def test_replay_at_recorded_speed_takes_the_recorded_time(tmp_path):
+    capture = tmp_path / "trace.bin"
+    capture.write_bytes(bytes(2000))  # 2000 bytes at 100 kbaud: 0.2 s of byte time
+    t0 = time.monotonic()
+    chunks = list(FileSource(capture, baud=100_000, speed=1.0))
+    elapsed = time.monotonic() - t0
+    assert sum(len(c.data) for c in chunks) == 2000
+    assert 0.18 <= elapsed < 1.0
+    fast = time.monotonic()
+    list(FileSource(capture, baud=100_000))
+    assert time.monotonic() - fast < 0.15
