@@ -1,8 +1,11 @@
-"""What every verb of the ``hilbench`` command shares: the one-line error and argument types."""
+"""What every verb of the ``hilbench`` command shares: one-line errors, argument types, byte sources."""
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import signal
+from collections.abc import Iterator
 
 
 class CliError(Exception):
@@ -15,3 +18,46 @@ def int_arg(text: str) -> int:
         return int(text, 0)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+
+
+def terminate_on_sigterm() -> None:
+    """SIGTERM ends a verb like Ctrl-C does (summary printed, files closed)."""
+
+    def handler(*_):
+        raise KeyboardInterrupt
+
+    with contextlib.suppress(ValueError):  # not the main thread
+        signal.signal(signal.SIGTERM, handler)
+
+
+@contextlib.contextmanager
+def open_cli_source(spec: str, *, baud: int | None, speed: float | None = None,
+                    default_baud: int = 57_600, endpoint: str | None = None) -> Iterator:
+    """A byte source for a verb (:func:`hilbench.transports.sources.open_source`), or ``bench:PROFILE``,
+    which starts that bench in this process and taps ``endpoint`` (default: the first). Errors become
+    one-line :class:`CliError` s; the source (and bench) close when the block ends."""
+    from hilbench.transports.capture_file import CaptureError
+    from hilbench.transports.sources import MediumSource, SourceError, open_source
+
+    bench = None
+    try:
+        if spec.startswith("bench:"):
+            from hilbench.bench import Bench
+            from hilbench.profile import DEFAULT_PROFILE
+
+            bench = Bench(spec[len("bench:"):] or DEFAULT_PROFILE).start()
+            ep = bench.endpoint(endpoint or next(iter(bench.endpoints)))
+            source = MediumSource(ep.medium, name=f"bench {bench.profile.name}: {ep.path}",
+                                  protocol=ep.spec.protocol)
+        else:
+            source = open_source(spec, baud=baud, speed=speed, default_baud=default_baud)
+    except (SourceError, CaptureError) as exc:
+        if bench is not None:
+            bench.stop()
+        raise CliError(str(exc)) from None
+    try:
+        yield source
+    finally:
+        source.close()
+        if bench is not None:
+            bench.stop()

@@ -9,56 +9,15 @@ process and watches its line (its pty is shown in the header).
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
-import signal
 import sys
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 
-from hilbench.cli.common import CliError, int_arg
+from hilbench.cli.common import CliError, int_arg, open_cli_source, terminate_on_sigterm
 
 PROTOCOLS = ("dynamixel",)
-
-
-def _terminate_on_sigterm() -> None:
-    """SIGTERM ends a verb like Ctrl-C does (summary printed, files closed)."""
-
-    def handler(*_):
-        raise KeyboardInterrupt
-
-    with contextlib.suppress(ValueError):  # not the main thread
-        signal.signal(signal.SIGTERM, handler)
-
-
-@contextlib.contextmanager
-def open_cli_source(spec: str, *, baud: int | None, speed: float | None) -> Iterator:
-    """A source for a verb; ``bench:PROFILE`` starts a bench here. Errors become one-line CliErrors."""
-    from hilbench.transports.capture_file import CaptureError
-    from hilbench.transports.sources import MediumSource, SourceError, open_source
-
-    bench = None
-    try:
-        if spec.startswith("bench:"):
-            from hilbench.bench import Bench
-            from hilbench.profile import DEFAULT_PROFILE
-
-            bench = Bench(spec[len("bench:"):] or DEFAULT_PROFILE).start()
-            ep = bench.endpoint(next(iter(bench.endpoints)))
-            source = MediumSource(ep.medium, name=f"bench {bench.profile.name}: {ep.path}")
-        else:
-            source = open_source(spec, baud=baud, speed=speed)
-    except (SourceError, CaptureError) as exc:
-        if bench is not None:
-            bench.stop()
-        raise CliError(str(exc)) from None
-    try:
-        yield source
-    finally:
-        source.close()
-        if bench is not None:
-            bench.stop()
 
 
 def _tracker_options(args: argparse.Namespace) -> dict:
@@ -162,7 +121,7 @@ def print_summary(report: dict, console) -> None:
 def cmd_monitor(args: argparse.Namespace) -> int:
     from hilbench.monitor import Monitor
 
-    _terminate_on_sigterm()
+    terminate_on_sigterm()
     speed = args.speed if args.speed is not None else (1.0 if args.realtime else None)
     with open_cli_source(args.source, baud=args.baud, speed=speed) as source:
         if args.baud and source.baud != args.baud:
@@ -182,7 +141,7 @@ def cmd_monitor(args: argparse.Namespace) -> int:
 
 
 def cmd_record(args: argparse.Namespace) -> int:
-    _terminate_on_sigterm()
+    terminate_on_sigterm()
     speed = args.speed if args.speed is not None else None
     deadline = time.monotonic() + args.seconds if args.seconds else None
     with open_cli_source(args.source, baud=args.baud, speed=speed) as source:
@@ -210,7 +169,7 @@ def cmd_tap(args: argparse.Namespace) -> int:
     from hilbench.transports.serial_tap import SerialTap
     from hilbench.transports.sources import SourceError
 
-    _terminate_on_sigterm()
+    terminate_on_sigterm()
     # The forwarding thread must get the interpreter as soon as its read returns, not when the
     # decoding thread's time slice ends (5 ms by default): a tap must not make the SDK time out.
     sys.setswitchinterval(1e-4)

@@ -1,21 +1,27 @@
 """``hilbench profile SOURCE``: per-task timing, periodicity, jitter, histograms, Gantt and Perfetto export.
 
-SOURCE is a file, ``-`` (stdin), a serial port or pty (``/dev/ttyACM0``,
-``serial:///dev/ttyACM0?baud=N``) or a UDP port (``udp://127.0.0.1:PORT``,
-``?peer=HOST:PORT`` to register with a board). Files are read to their end;
-live sources until ``--duration``, ``--reports`` or Ctrl-C, then the results
-are printed (and written) as for a file.
+SOURCE is anything :func:`hilbench.transports.sources.open_source` opens: a
+file (text or binary stamps, or a hilbench capture), ``-`` (stdin), a serial
+port or pty (``/dev/ttyACM0``, ``serial:///dev/ttyACM0?baud=N``), a UDP port
+(``udp://127.0.0.1:PORT``, ``?peer=HOST:PORT`` to register with a board), a
+bench's tap (``tcp://...`` or ``manifest.json#endpoint``), or ``bench:PROFILE``.
+Files are read to their end; live sources until ``--duration``, ``--reports``
+or Ctrl-C, then the results are printed (and written) as for a file.
 """
 
 from __future__ import annotations
 
 import argparse
+import fnmatch
 import json
 import re
 import sys
 import time
 
-from hilbench.cli.common import CliError
+from hilbench.cli.common import CliError, open_cli_source, terminate_on_sigterm
+
+#: The rover board's UART rate on the firmware branch heads (spec §1.1).
+DEFAULT_BAUD = 115_200
 
 _UNITS_US = {"": 1.0, "us": 1.0, "µs": 1.0, "ms": 1e3, "s": 1e6}
 _TIME = re.compile(r"\s*([0-9]*\.?[0-9]+(?:e[+-]?\d+)?)\s*(us|µs|ms|s|hz|khz)?\s*", re.I)
@@ -80,29 +86,50 @@ def settings_from(args: argparse.Namespace):
     )
 
 
-def _read(args, profiler, stream, console) -> None:
+def board_sources(source, pattern: str | None):
+    """Which chunk sources carry the board's output: ``--from`` globs, or by default everything except
+    the host's side of a board line (a bench names it after the endpoint, the board ``<name>-board``)."""
+    if pattern:
+        globs = _names(pattern)
+        return lambda name: any(fnmatch.fnmatchcase(name, g) for g in globs)
+    if source.protocol == "vel2d":
+        return lambda name: name.endswith("-board")
+    return lambda name: True
+
+
+def _read(args, profiler, source, console) -> int:
+    """Feed ``source`` to ``profiler`` until it ends, --duration, --reports or Ctrl-C; returns bytes lost."""
     from hilbench.profiler.live import LiveView
 
     deadline = time.monotonic() + args.duration if args.duration else None
+    wanted = board_sources(source, args.from_)
+    verdict: dict[str, bool] = {}
+    lost = 0
 
     def done() -> bool:
         if deadline is not None and time.monotonic() >= deadline:
             return True
         return bool(args.reports and len(profiler.reports) >= args.reports)
 
-    view = LiveView(profiler, console, source=stream.name, stats_us=args.live_window,
+    view = LiveView(profiler, console, source=source.name, stats_us=args.live_window,
                     gantt_us=args.live_gantt) if args.live else None
     try:
         if view is not None:
             view.__enter__()
-        while not done():
-            data = stream.read(0.05)
-            if data is None:
-                break
-            if data:
-                profiler.feed(data)
+        for chunk in source.chunks(0.05 if source.live else None):
+            if chunk is not None:
+                ok = verdict.get(chunk.source)
+                if ok is None:
+                    ok = verdict[chunk.source] = wanted(chunk.source)
+                if ok:
+                    if chunk.lost:
+                        lost += chunk.lost
+                    else:
+                        profiler.feed(chunk.data)
             if view is not None:
                 view.tick()
+            if done():
+                break
         if view is not None:
             view.tick(force=True)
     except KeyboardInterrupt:
@@ -110,8 +137,8 @@ def _read(args, profiler, stream, console) -> None:
     finally:
         if view is not None:
             view.__exit__(None, None, None)
-        stream.close()
     profiler.finish()
+    return lost
 
 
 def cmd_profile(args: argparse.Namespace) -> int:
@@ -120,7 +147,6 @@ def cmd_profile(args: argparse.Namespace) -> int:
     from hilbench.profiler import Profiler
     from hilbench.profiler.compare import compare, load_summary
     from hilbench.profiler.report import compare_table, full_report
-    from hilbench.transports.streams import StreamError, open_stream
 
     settings = settings_from(args)
     base = None
@@ -130,35 +156,34 @@ def cmd_profile(args: argparse.Namespace) -> int:
             base = load_summary(args.compare) if args.compare.endswith(".json") else None
         except (OSError, ValueError) as exc:
             raise CliError(str(exc)) from None
-    try:
-        stream = open_stream(args.source, baud=args.baud)
-    except StreamError as exc:
-        raise CliError(str(exc)) from None
-    endless = stream.live and (args.source != "-" or sys.stdin.isatty())  # a pipe ends by itself
-    if endless and not args.live and not args.duration and not args.reports:
-        print(f"reading {stream.name} until Ctrl-C (or give --duration / --reports)", file=sys.stderr)
-    to_stderr = args.json or args.json_out == "-"
-    tty = (sys.stderr if to_stderr else sys.stdout).isatty()
-    # Tables are wide; a pipe or file gets 132 columns rather than rich's default 80.
-    console = Console(stderr=to_stderr, width=None if tty else 132)
-    profiler = Profiler(settings.with_(joined_mid_stream=stream.live))
-    _read(args, profiler, stream, console)
+    terminate_on_sigterm()
+    with open_cli_source(args.source, baud=args.baud, default_baud=DEFAULT_BAUD) as source:
+        endless = source.live and not (args.source == "-" and not sys.stdin.isatty())  # a pipe ends by itself
+        if endless and not args.live and not args.duration and not args.reports:
+            print(f"reading {source.name} until Ctrl-C (or give --duration / --reports)", file=sys.stderr)
+        to_stderr = args.json or args.json_out == "-"
+        tty = (sys.stderr if to_stderr else sys.stdout).isatty()
+        # Tables are wide; a pipe or file gets 132 columns rather than rich's default 80.
+        console = Console(stderr=to_stderr, width=None if tty else 132)
+        profiler = Profiler(settings.with_(joined_mid_stream=source.live))
+        lost = _read(args, profiler, source, console)
+        source_name = source.name
     a = profiler.analyse()
     if args.compare and base is None:
         other = Profiler(settings)
-        try:
-            with open_stream(args.compare, baud=args.baud) as s2:
-                if s2.live:
-                    raise CliError(f"--compare {args.compare}: give a file or a saved --json document")
-                while (d := s2.read()) is not None:
-                    other.feed(d)
-        except StreamError as exc:
-            raise CliError(str(exc)) from None
-        other.finish()
+        with open_cli_source(args.compare, baud=args.baud, default_baud=DEFAULT_BAUD) as s2:
+            if s2.live:
+                raise CliError(f"--compare {args.compare}: give a file or a saved --json document")
+            _read(argparse.Namespace(**{**vars(args), "live": False, "duration": None, "reports": None}),
+                  other, s2, console)
         base = other.analyse()
 
     doc = a.to_json()
-    doc["source"] = stream.name
+    doc["source"] = source_name
+    if lost:  # bytes the transport lost (a slow tap client): the board's own counters cannot know
+        doc["quality"]["source_bytes_lost"] = lost
+        doc["quality"]["untrustworthy"] = True
+        doc["quality"]["reasons"].append(f"{lost} bytes lost between the board and the profiler")
     cmp = None
     if base is not None:
         cmp = compare(base, a)
@@ -186,10 +211,10 @@ def cmd_profile(args: argparse.Namespace) -> int:
     else:
         only = _names(args.only) if args.only else None
         hist = tuple(h for h in (args.hist or "").split(",") if h)
-        console.print(full_report(a, only=only, histograms=hist, title=f"Trace profile of {stream.name}",
+        console.print(full_report(a, only=only, histograms=hist, title=f"Trace profile of {source_name}",
                                   thesis=args.thesis))
         if cmp is not None:
-            console.print(compare_table(cmp, args.compare, stream.name))
+            console.print(compare_table(cmp, args.compare, source_name))
     if args.strict and a.quality["untrustworthy"]:
         print("hilbench: untrustworthy statistics: " + "; ".join(a.quality["reasons"]), file=sys.stderr)
         return 3
@@ -209,9 +234,13 @@ def register(sub: argparse._SubParsersAction) -> None:
                "  hilbench profile /dev/ttyACM0 --baud 1152000 --live\n"
                "  hilbench profile udp://127.0.0.1:9000 --reports 1 --json > run.json\n"
                "  hilbench profile caches_on.txt --compare caches_off.txt")
-    p.add_argument("source", help="file, - (stdin), serial port or pty, serial://PATH?baud=N, "
-                                  "udp://HOST:PORT[?peer=HOST:PORT]")
+    p.add_argument("source", help="file or capture, - (stdin), serial port or pty, serial://PATH?baud=N, "
+                                  "udp://HOST:PORT[?peer=HOST:PORT], tcp://HOST:PORT (a bench tap), a bench "
+                                  "manifest.json[#endpoint], or bench:PROFILE")
     p.add_argument("--baud", type=int, help="serial baud rate (default 115200)")
+    p.add_argument("--from", dest="from_", metavar="GLOB,...",
+                   help="read only these chunk sources of a capture or tap (default: on a board line, the "
+                        "board's side, '*-board'; elsewhere everything)")
     p.add_argument("--tasks", metavar="A,B,...", help="the task (hook-stamp) names; default: from the run-time "
                                                      "report, plus IDLE and Tmr Svc, else inferred")
     p.add_argument("--period", action="append", type=lambda s: name_value(s, allow_hz=True), metavar="NAME=T",

@@ -6,19 +6,25 @@ Every source yields :class:`~hilbench.transports.capture_file.Chunk` s
 for captures). The monitor, the recorder and the trace profiler consume
 sources the same way:
 
-=================================  ==================================================
-source string                      what it opens
-=================================  ==================================================
-``capture.hbcap``, ``trace.bin``   a capture file: hilbench format, or a raw dump
-``-``                              the same, read from stdin
-``/dev/ttyUSB0``                   a serial port, receive-only (sniffing a bus)
-``serial:///dev/ttyUSB0?baud=N``   the same with its baud rate in the URL
-``tcp://127.0.0.1:PORT``           a bench's tap server (capture format over TCP)
-``manifest.json[#endpoint]``       the tap server of a running ``hilbench emulate``
-=================================  ==================================================
+=====================================  ==================================================
+source string                          what it opens
+=====================================  ==================================================
+``capture.hbcap``, ``trace.bin``       a capture file: hilbench format, or a raw dump
+``-``, a FIFO                          the same, arriving live on stdin or a named pipe
+``/dev/ttyUSB0``, a pty                a serial port, receive-only (sniffing a bus)
+``serial:///dev/ttyUSB0?baud=N``       the same with its baud rate in the URL
+``udp://127.0.0.1:PORT[?peer=H:P]``    datagrams arriving on a UDP port (bound to
+                                       127.0.0.1 when the host is empty); ``peer``
+                                       announces this socket to a sender that streams
+                                       to whoever registers (hilbench's emulated board)
+``tcp://127.0.0.1:PORT``               a bench's tap server (capture format over TCP)
+``manifest.json[#endpoint]``           the tap server of a running ``hilbench emulate``
+=====================================  ==================================================
 
 In-process benches are tapped with :class:`MediumSource`, and
 :class:`PushSource` turns any callback (a pty proxy, a test) into a source.
+Live raw bytes (a serial port, a pipe, UDP) are stamped with their arrival
+time; raw files have no times unless a baud rate gives them byte time.
 
 ``Source.chunks(idle)`` yields ``None`` after ``idle`` seconds without data
 (live sources only), so a consumer can advance its clock (``Source.clock()``)
@@ -28,18 +34,20 @@ while the bus is quiet. ``close()`` ends the iteration from another thread.
 from __future__ import annotations
 
 import collections
+import contextlib
 import json
 import os
 import select
 import socket
 import stat
+import sys
 import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
 from urllib.parse import parse_qs, urlparse
 
-from hilbench.transports.capture_file import CaptureError, CaptureParser, CaptureReader, Chunk
+from hilbench.transports.capture_file import READ_SIZE, CaptureError, CaptureParser, CaptureReader, Chunk
 
 __all__ = [
     "Chunk",
@@ -49,7 +57,9 @@ __all__ = [
     "SerialSource",
     "Source",
     "SourceError",
+    "StreamSource",
     "TcpSource",
+    "UdpSource",
     "open_source",
 ]
 
@@ -268,9 +278,9 @@ class PushSource(Source):
 class MediumSource(PushSource):
     """Taps an in-process :class:`~hilbench.transports.serial_medium.SerialMedium` (a bench's line)."""
 
-    def __init__(self, medium, **kwargs) -> None:
+    def __init__(self, medium, *, protocol: str | None = "dynamixel", **kwargs) -> None:
         super().__init__(kwargs.pop("name", f"bench line {medium.name}"), baud=medium.baud, **kwargs)
-        self.protocol = "dynamixel"
+        self.protocol = protocol
         self._medium = medium
         medium.add_tap(self.push)
 
@@ -279,18 +289,83 @@ class MediumSource(PushSource):
         super().close()
 
 
-class TcpSource(Source):
+class StreamSource(Source):
+    """Bytes arriving live on a descriptor (a pipe, a FIFO, stdin, a socket), decoded as they come.
+
+    The input is a hilbench capture stream (its header decides, as in a file)
+    or raw bytes; raw bytes are stamped with their arrival time. ``chunks(idle)``
+    yields None while the input is quiet and ends when the writer closes it.
+    """
+
+    def __init__(self, fd: int, *, name: str, baud: int | None = None, own: bool = True) -> None:
+        self.name = name
+        self._fd = fd
+        self._own = own
+        self._baud = baud
+        self._stop = threading.Event()
+        self.parser = CaptureParser(name=name)
+        self._early: list[Chunk] = []
+
+    @property
+    def baud(self) -> int | None:  # type: ignore[override]
+        info = self.parser.info
+        return info.baud if info is not None and info.baud else self._baud
+
+    @property
+    def protocol(self) -> str | None:  # type: ignore[override]
+        info = self.parser.info
+        return (info.protocol or None) if info is not None else None
+
+    def _parse(self, data: bytes, now: float) -> list[Chunk]:
+        chunks = self.parser.feed(data)
+        if self.parser.mode == "raw":
+            # Raw live bytes have no clock of their own: their arrival time is the truth we have.
+            return [Chunk(now, c.source, c.data) for c in chunks]
+        return chunks
+
+    def _recv(self) -> bytes:
+        return os.read(self._fd, READ_SIZE)
+
+    def chunks(self, idle: float | None = None) -> Iterator[Chunk | None]:
+        early, self._early = self._early, []
+        yield from early
+        fd = self._fd
+        while not self._stop.is_set():
+            try:
+                if not select.select([fd], [], [], idle if idle is not None else 0.5)[0]:
+                    if idle is not None:
+                        yield None
+                    continue
+                data = self._recv()
+            except (OSError, ValueError):
+                if self._stop.is_set():
+                    return  # closed under us
+                raise
+            if not data:  # the writer closed: what a raw input still holds is complete now
+                now = time.monotonic()
+                raw = self.parser.info is None
+                yield from (Chunk(now, c.source, c.data) if raw else c for c in self.parser.finish())
+                return
+            yield from self._parse(data, time.monotonic())
+
+    def close(self) -> None:
+        self._stop.set()
+        if self._own:
+            self._own = False
+            with contextlib.suppress(OSError):
+                os.close(self._fd)
+
+
+class TcpSource(StreamSource):
     """A bench's tap server (``tcp://127.0.0.1:PORT``): a live capture stream over TCP."""
 
     def __init__(self, host: str, port: int, *, name: str | None = None, timeout: float = 5.0) -> None:
-        self.name = name or f"tcp://{host}:{port}"
+        name = name or f"tcp://{host}:{port}"
         try:
             self._sock = socket.create_connection((host, port), timeout=timeout)
         except OSError as exc:
-            raise SourceError(f"cannot connect to {self.name}: {exc.strerror or exc}") from None
-        self._stop = threading.Event()
-        self.parser = CaptureParser(name=self.name)
-        self._early: list[Chunk] = []
+            raise SourceError(f"cannot connect to {name}: {exc.strerror or exc}") from None
+        super().__init__(self._sock.fileno(), name=name, own=False)
         try:
             while not self.parser.decided:
                 data = self._sock.recv(65536)
@@ -304,38 +379,100 @@ class TcpSource(Source):
             self._sock.close()
             raise SourceError(f"{self.name} does not speak the hilbench capture format")
         self._sock.settimeout(None)
-        self.baud = self.parser.info.baud
-        self.protocol = self.parser.info.protocol or None
+
+    def _recv(self) -> bytes:
+        return self._sock.recv(READ_SIZE)
+
+    def close(self) -> None:
+        self._stop.set()
+        with contextlib.suppress(OSError):
+            self._sock.shutdown(socket.SHUT_RDWR)
+        self._sock.close()
+
+
+class UdpSource(Source):
+    """Datagrams arriving on a UDP port, receive-only; binds 127.0.0.1 unless told otherwise.
+
+    Each wake-up yields the datagrams that arrived, joined per sender, stamped
+    with their arrival time and named ``udp:HOST:PORT`` after the sender. With
+    ``peer``, an empty datagram announces this socket to a sender that streams
+    to whoever registers (hilbench's emulated board does), repeated every
+    ``announce_s`` seconds until data arrives.
+    """
+
+    def __init__(self, host: str = "127.0.0.1", port: int = 0, *, peer: tuple[str, int] | None = None,
+                 announce_s: float = 0.5) -> None:
+        self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        # Room for bursts while the consumer is busy: the kernel drops what does not fit.
+        self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4 << 20)
+        try:
+            self._sock.bind((host, port))
+        except OSError as exc:
+            self._sock.close()
+            raise SourceError(f"cannot bind udp://{host}:{port}: {exc.strerror or exc}") from None
+        self._sock.setblocking(False)
+        self.address: tuple[str, int] = self._sock.getsockname()[:2]
+        self.name = f"udp://{self.address[0]}:{self.address[1]}"
+        self.peer = peer
+        self.announce_s = announce_s
+        self.datagrams = 0
+        self._announced = 0.0
+        self._heard = False
+        self._stop = threading.Event()
+        self._announce()
+
+    def _announce(self) -> None:
+        if self.peer is not None and not self._heard:
+            now = time.monotonic()
+            if now - self._announced >= self.announce_s:
+                self._announced = now
+                with contextlib.suppress(OSError):
+                    self._sock.sendto(b"", self.peer)
+
+    def _drain(self) -> list[Chunk]:
+        out: list[Chunk] = []
+        now = time.monotonic()
+        while True:
+            try:
+                data, sender = self._sock.recvfrom(65536)
+            except (BlockingIOError, InterruptedError):
+                break
+            except ConnectionRefusedError:  # ICMP for an announcement nobody heard yet
+                break
+            except OSError:
+                if self._stop.is_set():
+                    break  # closed under us
+                raise
+            self.datagrams += 1
+            src = f"udp:{sender[0]}:{sender[1]}"
+            if out and out[-1].source == src:
+                out[-1] = Chunk(now, src, out[-1].data + data)
+            else:
+                out.append(Chunk(now, src, data))
+        if out:
+            self._heard = True
+        return out
 
     def chunks(self, idle: float | None = None) -> Iterator[Chunk | None]:
-        early, self._early = self._early, []
-        yield from early
         sock = self._sock
-        parser = self.parser
         while not self._stop.is_set():
+            self._announce()
             try:
-                ready = select.select([sock], [], [], idle if idle is not None else 0.5)[0]
-                if not ready:
-                    if idle is not None:
-                        yield None
-                    continue
-                data = sock.recv(65536)
+                ready = select.select([sock], [], [], min(idle if idle is not None else 0.5, self.announce_s))[0]
             except (OSError, ValueError):
                 if self._stop.is_set():
                     return
                 raise
-            if not data:
-                yield from parser.finish()
-                return
-            yield from parser.feed(data)
+            if not ready:
+                if idle is not None:
+                    yield None
+                continue
+            yield from self._drain()
 
     def close(self) -> None:
         self._stop.set()
-        try:
-            self._sock.shutdown(socket.SHUT_RDWR)
-        except OSError:
-            pass
-        self._sock.close()
+        with contextlib.suppress(OSError):
+            self._sock.close()
 
 
 def _manifest_tap(path: Path, endpoint: str | None) -> tuple[str, str]:
@@ -356,15 +493,41 @@ def _manifest_tap(path: Path, endpoint: str | None) -> tuple[str, str]:
     raise SourceError(f"{path}: the bench offers no tap (started with --no-tap?)")
 
 
-def open_source(spec: str, *, baud: int | None = None, speed: float | None = None) -> Source:
-    """Open a source string (see the module docstring); raises :class:`SourceError` with one line."""
-    if spec == "-":
+def _host_port(text: str, what: str) -> tuple[str, int]:
+    host, sep, port = text.rpartition(":")
+    if not sep or not port.isdigit() or not 0 <= int(port) < 65536:
+        raise SourceError(f"{what}: expected HOST:PORT, got {text!r}")
+    return host.strip("[]") or "127.0.0.1", int(port)
+
+
+def _stdin(*, baud: int | None, speed: float | None) -> Source:
+    """stdin redirected from a file is replayed like that file; a pipe or terminal is live."""
+    fd = sys.stdin.buffer.fileno()
+    if stat.S_ISREG(os.fstat(fd).st_mode):  # `< file`: replay it like a named file
         return FileSource("-", baud=baud, speed=speed)
+    return StreamSource(fd, name="stdin", baud=baud, own=False)
+
+
+def open_source(spec: str, *, baud: int | None = None, speed: float | None = None,
+                default_baud: int = 57_600) -> Source:
+    """Open a source string (see the module docstring); raises :class:`SourceError` with one line.
+
+    ``baud`` is the line rate of a serial port (``default_baud`` if not given)
+    and the byte time of a raw file; ``speed`` replays a file in its recorded
+    time (1.0) instead of as fast as possible.
+    """
+    if spec == "-":
+        return _stdin(baud=baud, speed=speed)
     url = urlparse(spec)
     if url.scheme == "tcp":
         if not url.hostname or not url.port:
             raise SourceError(f"{spec}: expected tcp://HOST:PORT")
         return TcpSource(url.hostname, url.port)
+    if url.scheme == "udp":
+        host, port = _host_port(url.netloc, spec)
+        query = parse_qs(url.query)
+        peer = _host_port(query["peer"][0], f"{spec}: peer") if "peer" in query else None
+        return UdpSource(host, port, peer=peer)
     if url.scheme == "serial":
         query = parse_qs(url.query)
         if "baud" in query:
@@ -372,14 +535,20 @@ def open_source(spec: str, *, baud: int | None = None, speed: float | None = Non
                 baud = int(query["baud"][0])
             except ValueError:
                 raise SourceError(f"{spec}: baud must be an integer") from None
-        return SerialSource(url.path or url.netloc, baud)
+        return SerialSource(url.path or url.netloc, baud or default_baud)
+    if len(url.scheme) > 1:  # one letter would be a Windows drive
+        raise SourceError(f"{spec}: unknown source scheme {url.scheme!r} "
+                          "(use a path, -, serial://, udp:// or tcp://)")
     path_text, _, fragment = spec.partition("#")
     path = Path(path_text)
     if not path.exists():
         raise SourceError(f"{spec}: no such file, port or source")
     mode = os.stat(path).st_mode
     if stat.S_ISCHR(mode):
-        return SerialSource(str(path), baud)
+        return SerialSource(str(path), baud or default_baud)
+    if stat.S_ISFIFO(mode):
+        # O_NONBLOCK so the open does not wait for a writer; reads then wait in select.
+        return StreamSource(os.open(path, os.O_RDONLY | os.O_NONBLOCK), name=str(path), baud=baud)
     if path.suffix == ".json":
         tap, name = _manifest_tap(path, fragment or None)
         tap_url = urlparse(tap)

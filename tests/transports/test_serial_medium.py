@@ -134,17 +134,20 @@ def test_paced_line_models_wire_time_and_reply_gap():
     line.add_tap(lambda t, src, data: tapped.append((t, src)))
     line.start()
     try:
-        with serial.Serial(host.path, 9600, timeout=0) as ser:
-            t0 = time.monotonic()
-            ser.write(bytes(10))
-            assert read_exactly(ser, 10) == bytes(10)
-            elapsed = time.monotonic() - t0
         byte_time = 10 / 9600
         expected = 10 * byte_time + 0.005 + 10 * byte_time  # request, gap, reply
-        assert expected * 0.98 < elapsed < expected + 0.010
-        (t_req, src_req), (t_rep, src_rep) = tapped
-        assert (src_req, src_rep) == ("host", "dev")
-        assert abs((t_rep - t_req) - (0.005 + 10 * byte_time)) < 1e-6  # the model itself is exact
+        times = []
+        with serial.Serial(host.path, 9600, timeout=0) as ser:
+            for _ in range(3):  # the fastest of three: a loaded machine only adds delay
+                t0 = time.monotonic()
+                ser.write(bytes(10))
+                assert read_exactly(ser, 10) == bytes(10)
+                times.append(time.monotonic() - t0)
+        assert expected * 0.98 < min(times) < expected + 0.010
+        assert len(tapped) == 6
+        for (t_req, src_req), (t_rep, src_rep) in zip(tapped[::2], tapped[1::2], strict=True):
+            assert (src_req, src_rep) == ("host", "dev")
+            assert abs((t_rep - t_req) - (0.005 + 10 * byte_time)) < 1e-6  # the model itself is exact
     finally:
         line.close()
         host.close()

@@ -1,4 +1,5 @@
-"""Byte sources: a receive-only serial sniffer on a real pty, a bench's TCP tap, push sources, source strings."""
+"""Byte sources: a receive-only serial sniffer on a real pty, a bench's TCP tap, push sources, FIFOs and
+stdin pipes, UDP on 127.0.0.1 with peer registration, source strings and their one-line errors."""
 
 from __future__ import annotations
 
@@ -6,6 +7,8 @@ import json
 import os
 import select
 import socket
+import subprocess
+import sys
 import threading
 import time
 import tty
@@ -22,7 +25,9 @@ from hilbench.transports.sources import (
     PushSource,
     SerialSource,
     SourceError,
+    StreamSource,
     TcpSource,
+    UdpSource,
     open_source,
 )
 from hilbench.transports.tap_server import TapServer
@@ -158,6 +163,82 @@ def test_source_strings(tmp_path):
         FileSource(capture, speed=1.0)
     with pytest.raises(SourceError, match="cannot open"):
         open_source("serial:///dev/no-such-port?baud=57600")
+
+
+@pytest.mark.parametrize(("spec", "message"), [
+    ("udp://127.0.0.1:70000", "expected HOST:PORT"),
+    ("udp://127.0.0.1:1?peer=nowhere", "peer: expected HOST:PORT"),
+    ("ftp://127.0.0.1:5", "unknown source scheme 'ftp'"),
+    ("serial:///dev/ttyS0?baud=fast", "baud must be an integer"),
+])
+def test_bad_source_strings_are_one_line_errors(spec, message):
+    with pytest.raises(SourceError, match=message):
+        open_source(spec)
+
+
+def test_a_raw_file_is_read_to_its_end_without_times(tmp_path):
+    path = tmp_path / "trace.txt"
+    path.write_bytes(b"wheel_ctrl 96 in\n" * 20_000)
+    with open_source(str(path)) as src:
+        assert isinstance(src, FileSource) and not src.live and src.timestamps == "none"
+        chunks = list(src)
+    assert b"".join(c.data for c in chunks) == path.read_bytes()
+    assert {c.t for c in chunks} == {0.0}
+
+
+def test_a_fifo_is_live_and_ends_when_the_writer_closes(tmp_path):
+    fifo = tmp_path / "fifo"
+    os.mkfifo(fifo)
+    src = open_source(str(fifo))
+    assert isinstance(src, StreamSource) and src.live
+    col = Collector(src, idle=0.01)
+    wfd = os.open(fifo, os.O_WRONLY)
+    try:
+        wait_until(lambda: col.idles > 0)  # quiet: idle ticks, not the end
+        assert col.thread.is_alive()
+        t0 = time.monotonic()
+        os.write(wfd, b"IDLE 1 0\n")
+        wait_until(lambda: col.data() == b"IDLE 1 0\n")
+        assert t0 <= col.chunks[0].t <= time.monotonic()  # raw live bytes carry their arrival time
+    finally:
+        os.close(wfd)
+    col.thread.join(timeout=5)
+    assert not col.thread.is_alive()  # the writer closed: the source ended
+    src.close()
+
+
+def test_stdin_pipe_is_live_and_a_redirected_file_is_replayed(tmp_path):
+    code = ("import sys; from hilbench.transports.sources import open_source\n"
+            "s = open_source('-'); print(type(s).__name__, s.live, sum(len(c.data) for c in s))")
+    piped = subprocess.run([sys.executable, "-c", code], input=b"x" * 5000, capture_output=True, timeout=30)
+    assert piped.stdout.split() == [b"StreamSource", b"True", b"5000"], piped.stderr
+    path = tmp_path / "in.bin"
+    path.write_bytes(b"y" * 7000)
+    with open(path, "rb") as f:
+        redirected = subprocess.run([sys.executable, "-c", code], stdin=f, capture_output=True, timeout=30)
+    assert redirected.stdout.split() == [b"FileSource", b"False", b"7000"], redirected.stderr
+
+
+def test_udp_binds_loopback_and_registers_with_a_peer():
+    board = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    board.bind(("127.0.0.1", 0))
+    board.settimeout(5)
+    try:
+        bport = board.getsockname()[1]
+        src = open_source(f"udp://:0?peer=127.0.0.1:{bport}")
+        assert isinstance(src, UdpSource) and src.address[0] == "127.0.0.1" and src.live
+        data, addr = board.recvfrom(100)  # the announcement: an empty datagram from the source's socket
+        assert data == b"" and addr == src.address
+        col = Collector(src, idle=0.01)
+        for k in range(5):
+            board.sendto(b"word%d" % k, addr)
+        wait_until(lambda: col.data() == b"word0word1word2word3word4")
+        assert src.datagrams == 5
+        assert {c.source for c in col.chunks} == {f"udp:127.0.0.1:{bport}"}
+        src.close()
+        col.thread.join(timeout=5)
+    finally:
+        board.close()
 
 
 def test_replay_at_recorded_speed_takes_the_recorded_time(tmp_path):
