@@ -7,7 +7,8 @@ per line each way::
     -> {"cmd": "button", "device": "rover"}
     <- {"ok": true, "status": {...}}
 
-Commands: ``devices`` (the boards), ``status``, ``button``, ``reset``,
+Commands: ``devices`` (the boards), ``taps`` (each endpoint's traffic tap and how
+many clients it serves), ``status``, ``button``, ``reset``,
 ``fault`` (with ``"knobs": {"drop_rate": 0.01, "stall": 0.5, ...}``), ``log``
 (recent log lines) and ``wait_report`` (until the board has printed more
 reports than ``"after"``, default: the count when asked; ``"timeout"`` seconds). ``device`` may be left out when
@@ -102,6 +103,9 @@ class ControlServer:
             from hilbench.fakes.stm32_board import Board
 
             return {"boards": sorted(n for n, d in self.bench.devices.items() if isinstance(d, Board))}
+        if cmd == "taps":
+            return {"taps": {ep.name: {"url": ep.tap.url, "clients": ep.tap.clients}
+                             for ep in self.bench.endpoints.values() if ep.tap is not None}}
         board = self._board(req)
         if cmd == "status":
             return {"status": board.status()}
@@ -173,6 +177,10 @@ class ControlClient:
 
     def status(self, device: str | None = None) -> dict[str, Any]:
         return self.call("status", device=device)["status"]
+
+    def taps(self) -> dict[str, dict[str, Any]]:
+        """Each endpoint's traffic tap: ``{"rover": {"url": "tcp://...", "clients": 1}}``."""
+        return self.call("taps")["taps"]
 
     def button(self, device: str | None = None) -> dict[str, Any]:
         return self.call("button", device=device)["status"]

@@ -9,10 +9,12 @@ import subprocess
 import sys
 
 import pytest
+import serial
 
 from hilbench.fakes.stm32_board.board import Board
 from hilbench.fakes.stm32_board.presets import BoardConfig, make_preset
 from hilbench.profiler import Profiler, ProfileSettings
+from hilbench.protocols import vel2d
 from hilbench.pytest_plugin import wait_until
 
 ROLES = ("hal_fetch", "wheel_ctrl", "odometry", "pose_control")
@@ -165,3 +167,31 @@ def test_cli_on_the_emulated_board_over_udp(hilbench_bench):
     assert doc["tasks"]["hal_fetch"]["freq_hz"] == pytest.approx(1000, rel=2e-3)
     assert doc["runtime_stats"]["ctx_switches"] == q["binary_stamps"] + q["drops"]
     assert doc["source"].startswith("udp://127.0.0.1:")
+
+
+def test_cli_follows_a_running_bench_through_its_tap(hilbench_emulator, tmp_path):
+    """`hilbench emulate mecarover` in its own process; the profiler reads the board's side of its traffic
+    tap (manifest.json#rover), while a host sends a frame on the same line (which it must skip)."""
+    from hilbench.control import ControlClient
+
+    manifest = hilbench_emulator("mecarover")
+    path = tmp_path / "bench.json"
+    path.write_text(json.dumps({k: v for k, v in manifest.items() if k != "process"}))
+    proc = _profile_cli(f"{path}#rover", "--reports", "1", "--json", "--duration", "30")
+    try:
+        client = ControlClient.from_manifest(path)
+        wait_until(lambda: client.taps()["rover"]["clients"] == 1, timeout=20)  # the profiler is listening
+        with serial.Serial(manifest["endpoints"][0]["path"], 115_200) as host:
+            host.write(vel2d.build(0.1, -0.2, 0.3))  # host -> board bytes pass the same tap
+            host.flush()
+        client.button()  # a 1000 ms window on this (V3) board, then the dump and the report
+        out, err = proc.communicate(timeout=40)
+    finally:
+        proc.kill()
+    assert proc.returncode == 0, err
+    doc = json.loads(out)
+    assert doc["source"] == f"{path}#rover"
+    assert doc["quality"]["parse_errors"] == 0 and doc["quality"]["broken_words"] == 0  # no host frame bytes
+    assert doc["tasks"]["wheel_ctrl"]["freq_hz"] == pytest.approx(50, rel=2e-3)
+    assert doc["tasks"]["pose_control"]["freq_hz"] == pytest.approx(1e6 / 33_000, rel=2e-3)
+    assert doc["runtime_stats"]["estimated_drops"] == 0
