@@ -231,6 +231,7 @@ def net_durations(t: np.ndarray, is_task: np.ndarray, name: np.ndarray, b_pos: n
         before = before - before[first][np.cumsum(first) - 1]
 
         def running(o: np.ndarray, x: np.ndarray) -> np.ndarray:
+            o = o.astype(np.int64)  # name ids may be int32: o * big must not wrap (long traces)
             q = o * big + (x - t0)
             k = np.searchsorted(keys, q, side="right") - 1
             kk = np.maximum(k, 0)

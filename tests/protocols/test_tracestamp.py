@@ -255,3 +255,24 @@ def test_random_bytes_never_raise_and_chunking_does_not_matter(parts, chunk):
 
 def test_runtime_percentages():
     assert ts.runtime_percentages([9669, 201086, 81, 87, 49, 51, 615, 0, 0]) == [4, 95, 0, 0, 0, 0, 0, 0, 0]
+
+
+_lines = st.one_of(
+    st.builds(lambda n, t, e: f"{n} {t} {e}".encode(), st.sampled_from(["IDLE", "Tmr Svc", "x"]),
+              st.integers(0, 10**30), st.sampled_from(["in", "out", "0", "1"])),
+    st.binary(max_size=30),
+)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(_lines, max_size=80), st.integers(1, 64))
+def test_stamp_like_lines_with_any_time_never_raise(lines, chunk):
+    """Times of any size (here up to 10^30) are stamps when they fit an int64, else bad lines."""
+    data = b"\n".join(lines) + b"\n"
+    whole, d1 = decode(data)
+    pieces, _ = decode(data, chunk)
+    assert whole == pieces
+    batched = ts.TextDecoder().feed_batch(data * 3)  # enough lines for the vectorised path
+    assert sum(b.count for b in batched if type(b) is StampBatch) + sum(
+        type(b) is Stamp for b in batched) == 3 * d1.stamp_lines
+    assert all(s.t_us < 10**18 for s in whole if type(s) is Stamp)
