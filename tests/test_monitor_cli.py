@@ -82,8 +82,9 @@ def test_monitor_and_record_a_bench_in_another_process(hilbench_emulator, tmp_pa
     mfile.write_text(json.dumps({k: v for k, v in manifest.items() if k != "process"}))
     capture = tmp_path / "live.hbcap"
     procs = [
-        subprocess.Popen([sys.executable, "-m", "hilbench.cli", "monitor", str(mfile), "--json", "--seconds", "2"],
-                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True),
+        # --baud overrides what the tap's header says (the user knows the line better)
+        subprocess.Popen([sys.executable, "-m", "hilbench.cli", "monitor", str(mfile), "--json", "--seconds", "2",
+                          "--baud", "3000000"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True),
         subprocess.Popen([sys.executable, "-m", "hilbench.cli", "record", str(mfile), str(capture), "--seconds",
                           "2"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True),
     ]
@@ -98,6 +99,7 @@ def test_monitor_and_record_a_bench_in_another_process(hilbench_emulator, tmp_pa
     port.closePort()
     outs = [p.communicate(timeout=10) for p in procs]
     assert [p.returncode for p in procs] == [0, 0], outs
+    assert json.loads(outs[0][0])["baud"] == 3_000_000
     for report in (json.loads(outs[0][0]), summary_of(str(capture))):
         sync_reads, statuses = report["packets"]["sync_read"], report["packets"]["status"]
         assert sync_reads > 10 and abs(statuses - 20 * sync_reads) <= 20  # a cycle may be cut at either end
@@ -180,3 +182,13 @@ def test_monitor_errors_are_one_line(tmp_path):
     assert proc.returncode == 2 and "not a bench manifest" in proc.stderr
     proc = hb("tap", "/dev/no-such-port")
     assert proc.returncode == 2 and len(proc.stderr.strip().splitlines()) == 1
+
+
+def test_monitor_refuses_a_line_that_is_not_dynamixel(hilbench_emulator, tmp_path):
+    manifest = hilbench_emulator("mecarover")
+    mfile = tmp_path / "bench.json"
+    mfile.write_text(json.dumps({k: v for k, v in manifest.items() if k != "process"}))
+    proc = hb("monitor", f"{mfile}#rover", "--json")
+    assert proc.returncode == 2
+    assert proc.stderr.strip() == (f"hilbench: error: {mfile}#rover carries vel2d, not dynamixel "
+                                   "(a board's trace output: use `hilbench profile`)")

@@ -38,7 +38,9 @@ def cmd_emulate(args: argparse.Namespace) -> int:
                 n = len(ep.bus.servos) if ep.bus else 0
                 print(f"  {ep.name}: {ep.path}  ({ep.spec.protocol}, {ep.spec.baud} baud, {timing}, {n} devices)")
             if ep.tap is not None:
-                print(f"    traffic tap: {ep.tap.url}  (hilbench monitor {manifest or ep.tap.url})")
+                verb = "profile" if ep.board is not None else "monitor"
+                where = f"{manifest}#{ep.name}" if manifest else ep.tap.url
+                print(f"    traffic tap: {ep.tap.url}  (hilbench {verb} {where})")
         if bench.control is not None:
             print(f"  control: {bench.control.address_text}  (hilbench board --control ... button|reset|fault)")
         if manifest:

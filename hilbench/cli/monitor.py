@@ -118,12 +118,20 @@ def print_summary(report: dict, console) -> None:
 # --------------------------------------------------------------------------- verbs
 
 
+def _check_protocol(source) -> None:
+    """The monitor decodes Dynamixel; a line known to carry something else is refused in one line."""
+    if source.protocol not in (None, *PROTOCOLS):
+        hint = " (a board's trace output: use `hilbench profile`)" if source.protocol == "vel2d" else ""
+        raise CliError(f"{source.name} carries {source.protocol}, not {'/'.join(PROTOCOLS)}{hint}")
+
+
 def cmd_monitor(args: argparse.Namespace) -> int:
     from hilbench.monitor import Monitor
 
     terminate_on_sigterm()
     speed = args.speed if args.speed is not None else (1.0 if args.realtime else None)
     with open_cli_source(args.source, baud=args.baud, speed=speed) as source:
+        _check_protocol(source)
         if args.baud and source.baud != args.baud:
             source.baud = args.baud  # the user knows the line rate better than the source
         mon = Monitor(source, record=_writer(args.record, source), **_tracker_options(args))

@@ -302,14 +302,22 @@ class StreamSource(Source):
         self._fd = fd
         self._own = own
         self._baud = baud
+        self._baud_set: int | None = None
         self._stop = threading.Event()
         self.parser = CaptureParser(name=name)
         self._early: list[Chunk] = []
 
     @property
     def baud(self) -> int | None:  # type: ignore[override]
+        """The line rate: as set, else the capture header's, else the one given at opening."""
+        if self._baud_set is not None:
+            return self._baud_set
         info = self.parser.info
         return info.baud if info is not None and info.baud else self._baud
+
+    @baud.setter
+    def baud(self, value: int | None) -> None:
+        self._baud_set = value
 
     @property
     def protocol(self) -> str | None:  # type: ignore[override]

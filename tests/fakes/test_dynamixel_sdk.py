@@ -206,8 +206,8 @@ def test_hardware_error_sets_alert_and_shuts_down(sdk_port, bench):
 def test_torque_gates_motion_and_present_values_follow(sdk_port, bench):
     port, ph = sdk_port
     assert ph.write4ByteTxRx(port, 3, 116, 3000) == (OK, 0)
-    time.sleep(0.05)
-    assert ph.read4ByteTxRx(port, 3, 132)[0] == 2048  # torque off: no motion
+    assert ph.read4ByteTxRx(port, 3, 132)[0] == 2048
+    assert bench.device(3).get("present_position", bench.now() + 1.0) == 2048  # torque off: no motion, ever
     assert ph.write1ByteTxRx(port, 3, 64, 1) == (OK, 0)
     t0 = time.monotonic()
     velocities = []
@@ -221,6 +221,21 @@ def test_torque_gates_motion_and_present_values_follow(sdk_port, bench):
     wait_until(lambda: ph.read1ByteTxRx(port, 3, 122)[0] == 0)  # Moving ends with the profile
     assert ph.read2ByteTxRx(port, 3, 144)[0] == 120  # 12.0 V supply
     assert 25 <= ph.read1ByteTxRx(port, 3, 146)[0] <= 40
+
+
+def test_torque_on_after_power_up_or_reboot_holds_the_position(sdk_port, bench):
+    port, ph = sdk_port
+    servo = bench.device(3)
+    assert ph.read4ByteTxRx(port, 3, 116)[0] == 2048  # Goal Position starts where the horn is
+    assert ph.write1ByteTxRx(port, 3, 64, 1) == (OK, 0)
+    assert servo.get("present_position", bench.now() + 1.0) == 2048  # no swing to 0
+    assert ph.write4ByteTxRx(port, 3, 116, 2500) == (OK, 0)
+    wait_until(lambda: ph.read4ByteTxRx(port, 3, 132)[0] == 2500)
+    assert ph.reboot(port, 3) == (OK, 0)
+    wait_until(lambda: ph.ping(port, 3)[1] == OK, timeout=3)
+    assert ph.read4ByteTxRx(port, 3, 116)[0] == 2500  # after the reboot too
+    assert ph.write1ByteTxRx(port, 3, 64, 1) == (OK, 0)
+    assert servo.get("present_position", bench.now() + 1.0) == 2500
 
 
 def test_status_return_level(sdk_port):

@@ -107,12 +107,19 @@ class Servo:
         self.is_servo = model.kind == "servo"
         start = position if position is not None else (2048 if self.is_servo else 0)
         self.profile = Profile(t, float(start))
+        self._goal_at_power_on(start)
         self._torque_since: float | None = None
         self._registered: tuple[int, bytes] | None = None
         self._rebooting_until = 0.0
         self._last_comm = t
         self._sticky_hw_error = 0
         self._fields = [model.covering(a) for a in range(model.table_size)]
+
+    def _goal_at_power_on(self, position: float) -> None:
+        """After power-on or a reboot Goal Position holds where the horn is, not 0, so switching the
+        torque on does not swing the servo (ROBOTIS servos keep their position at torque-on)."""
+        if self.is_servo:
+            self._poke(m.GOAL_POSITION, 4, round(position), signed=True)
 
     # ------------------------------------------------------------------ raw access
 
@@ -267,6 +274,7 @@ class Servo:
         self.mem = self.model.defaults()
         self.mem[: m.EEPROM_END] = keep
         self.profile = Profile(t, pos)
+        self._goal_at_power_on(pos)
         self._registered = None
         self._torque_since = None
         self._rebooting_until = t + self.reboot_time
