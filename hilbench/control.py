@@ -42,11 +42,11 @@ class ControlServer:
 
         class Handler(socketserver.StreamRequestHandler):
             def handle(self) -> None:
-                for raw in self.rfile:
+                while raw := self.rfile.readline(MAX_LINE + 1):  # bounded: a line never grows past this
                     if len(raw) > MAX_LINE:
-                        reply = {"ok": False, "error": "request too long"}
-                    else:
-                        reply = server.handle(raw)
+                        self.wfile.write(b'{"ok": false, "error": "request too long"}\n')
+                        return  # the rest of that line is not worth reading
+                    reply = server.handle(raw)
                     self.wfile.write((json.dumps(reply) + "\n").encode())
                     self.wfile.flush()
 
@@ -162,14 +162,18 @@ class ControlClient:
         """Send one command; returns the reply or raises :class:`ControlError`."""
         req = {"cmd": cmd, **{k: v for k, v in args.items() if v is not None}}
         timeout = self.timeout + float(args.get("timeout") or 0)
-        with socket.create_connection(self.address, timeout=timeout) as sock:
-            sock.sendall((json.dumps(req) + "\n").encode())
-            buf = b""
-            while not buf.endswith(b"\n"):
-                chunk = sock.recv(65536)
-                if not chunk:
-                    raise ControlError("the bench closed the control connection")
-                buf += chunk
+        where = f"{self.address[0]}:{self.address[1]}"
+        try:
+            with socket.create_connection(self.address, timeout=timeout) as sock:
+                sock.sendall((json.dumps(req) + "\n").encode())
+                buf = b""
+                while not buf.endswith(b"\n"):
+                    chunk = sock.recv(65536)
+                    if not chunk:
+                        raise ControlError(f"the bench at {where} closed the control connection")
+                    buf += chunk
+        except OSError as exc:
+            raise ControlError(f"no bench control channel at {where}: {exc.strerror or exc}") from None
         reply = json.loads(buf)
         if not reply.get("ok"):
             raise ControlError(reply.get("error", "command failed"))

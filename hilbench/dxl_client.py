@@ -13,8 +13,8 @@ from dataclasses import dataclass
 
 import dynamixel_sdk as sdk
 
-from hilbench.fakes.dynamixel.models import MODELS_BY_NUMBER, Field, Model
 from hilbench.protocols.dynamixel import describe_error
+from hilbench.protocols.dynamixel_models import MODEL_NAMES, MODELS_BY_NUMBER, Field, Model
 
 #: Baud rates tried by ``scan`` by default: the Dynamixel baud codes the SDK can open.
 SCAN_BAUDS = (57_600, 115_200, 1_000_000, 2_000_000, 3_000_000, 4_000_000, 9_600)
@@ -35,8 +35,7 @@ class Found:
 
     @property
     def model_name(self) -> str:
-        model = MODELS_BY_NUMBER.get(self.model_number)
-        return model.name if model else f"unknown ({self.model_number})"
+        return MODEL_NAMES.get(self.model_number, f"unknown ({self.model_number})")
 
 
 @contextlib.contextmanager

@@ -154,3 +154,11 @@ def test_profiles_lists_the_bundled_ones():
     proc = hb("profiles")
     assert proc.returncode == 0
     assert "wolfgang (default)" in proc.stdout and "arm:" in proc.stdout
+
+
+@pytest.mark.parametrize("args", [[], ["dxl", "read"], ["profile", "x", "--period", "foo=bar"],
+                                  ["send-vel", "P", "a", "b", "c"], ["monitor", "x", "--view", "nope"]])
+def test_usage_errors_are_one_line(args):
+    proc = hb(*args)
+    assert proc.returncode == 2
+    assert len(proc.stderr.strip().splitlines()) == 1 and "error:" in proc.stderr and "--help" in proc.stderr

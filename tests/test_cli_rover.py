@@ -6,6 +6,7 @@ import json
 import os
 import shutil
 import signal
+import socket
 import subprocess
 import sys
 import uuid
@@ -145,3 +146,13 @@ def test_teleop_in_a_real_terminal(hilbench_bench):
         assert board.truth.frames_crc_error == 0 and board.truth.frames_length_error == 0
     finally:
         subprocess.run([*tmux, "kill-server"], capture_output=True)
+
+
+def test_control_channel_refuses_an_endless_line(rover):
+    """A client that never sends a newline gets one refusal, and the bench keeps serving others."""
+    host, port = rover["control"].split(":")
+    with socket.create_connection((host, int(port)), timeout=10) as sock:
+        sock.sendall(b"x" * 200_000)  # > MAX_LINE, no newline
+        reply = sock.makefile("rb").readline()
+    assert json.loads(reply) == {"ok": False, "error": "request too long"}
+    assert status(rover)["name"] == "rover"

@@ -13,7 +13,7 @@ import sys
 from collections.abc import Callable, Sequence
 
 from hilbench import __version__
-from hilbench.cli.common import CliError
+from hilbench.cli.common import CliError, OneLineParser
 from hilbench.profile import ProfileError
 
 #: Modules under ``hilbench.cli`` that register verbs.
@@ -22,7 +22,7 @@ VERB_MODULES = ("emulate", "monitor", "dxl", "rover", "board", "profile", "demo"
 
 def build_parser() -> argparse.ArgumentParser:
     """The whole argument parser, every verb registered."""
-    p = argparse.ArgumentParser(
+    p = OneLineParser(
         prog="hilbench",
         description="Hardware-in-the-loop benches for robots: emulated devices on real ptys, and tools to talk to them.",
     )

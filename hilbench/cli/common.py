@@ -12,6 +12,16 @@ class CliError(Exception):
     """An error to report on one line with exit status 2."""
 
 
+class OneLineParser(argparse.ArgumentParser):
+    """An argument parser whose usage errors are one line (exit 2), like every other hilbench error.
+
+    Sub-parsers inherit the class, so every verb behaves the same; ``--help`` still shows the usage.
+    """
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def int_arg(text: str) -> int:
     """Integers in decimal or 0x hex."""
     try:

@@ -9,6 +9,14 @@ import sys
 from hilbench.cli.common import int_arg
 
 
+def dxl_id(text: str) -> int:
+    """A device ID, 0-252 (253-255 are reserved or broadcast)."""
+    value = int_arg(text)
+    if not 0 <= value <= 252:
+        raise argparse.ArgumentTypeError(f"expected a device ID 0..252, got {value}")
+    return value
+
+
 def cmd_dxl_scan(args: argparse.Namespace) -> int:
     from hilbench import dxl_client
 
@@ -86,7 +94,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
     pg = dsub.add_parser("ping", help="ping one ID", description="Ping one ID and print its model and firmware.")
     port_args(pg)
-    pg.add_argument("id", type=int_arg, help="device ID (0-252)")
+    pg.add_argument("id", type=dxl_id, help="device ID (0-252)")
     pg.add_argument("--protocol", choices=("1", "2"), default="2", help="protocol version (default: 2)")
     pg.add_argument("--json", action="store_true", help="print JSON")
     pg.set_defaults(func=cmd_dxl_ping)
@@ -94,7 +102,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     r = dsub.add_parser("read", help="read a control-table item",
                         description="Read an item by name (present_position) or address (132 [LENGTH]).")
     port_args(r)
-    r.add_argument("id", type=int_arg, help="device ID")
+    r.add_argument("id", type=dxl_id, help="device ID")
     r.add_argument("item", help="item name (e.g. present_position) or address")
     r.add_argument("length", type=int_arg, nargs="?", help="bytes to read (default: the item's size)")
     r.add_argument("--json", action="store_true", help="print JSON")
@@ -103,7 +111,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     w = dsub.add_parser("write", help="write a control-table item",
                         description="Write an item by name (goal_position) or address.")
     port_args(w)
-    w.add_argument("id", type=int_arg, help="device ID")
+    w.add_argument("id", type=dxl_id, help="device ID")
     w.add_argument("item", help="item name (e.g. goal_position) or address")
     w.add_argument("value", type=int_arg, help="value to write (decimal or 0x hex; negative for signed items)")
     w.add_argument("--length", type=int_arg, help="bytes to write (default: the item's size)")

@@ -31,7 +31,8 @@ def time_us(text: str, *, allow_hz: bool = False) -> float:
     """``"250"`` (µs), ``"1.5ms"``, ``"2s"``, and with ``allow_hz`` ``"1kHz"`` (a period of 1000 µs)."""
     m = _TIME.fullmatch(text)
     if m is None:
-        raise argparse.ArgumentTypeError(f"expected a time such as 250, 1.5ms or 2s, got {text!r}")
+        rate = " or a rate such as 100Hz" if allow_hz else ""
+        raise argparse.ArgumentTypeError(f"expected a time such as 250, 1.5ms or 2s{rate}, got {text!r}")
     value, unit = float(m[1]), (m[2] or "").lower()
     if unit in ("hz", "khz"):
         if not allow_hz:

@@ -180,3 +180,17 @@ def pack_record(kind: int, source: int, t_ns: int, payload: bytes) -> bytes:
 def unpack_record_header(buf: bytes, offset: int = 0) -> tuple[int, int, int, int]:
     """Fast path: (kind, source, length, t_ns) of the record at ``offset``."""
     return _RECORD.unpack_from(buf, offset)
+
+
+#: The payload of a GAP record: how many bytes of the source were lost.
+GapPayload = Struct("lost" / Int32ul)
+
+
+def gap_record(source: int, t_ns: int, lost: int) -> bytes:
+    """A GAP record: ``lost`` bytes of ``source`` (capped at 2^32 - 1) never reached the reader."""
+    return pack_record(RecordKind.GAP, source, t_ns, GapPayload.build({"lost": min(lost, 0xFFFFFFFF)}))
+
+
+def gap_lost(payload: bytes) -> int | None:
+    """The byte count of a GAP record's payload, or None if it is too short."""
+    return GapPayload.parse(payload).lost if len(payload) >= GapPayload.sizeof() else None

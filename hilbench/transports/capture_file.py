@@ -166,8 +166,7 @@ class CaptureParser:
                 append(Chunk(t0 + t_ns * 1e-9, names.get(source) or f"source{source}", payload))
             elif kind == RecordKind.SOURCE:
                 names[source] = payload.decode("utf-8", errors="replace")
-            elif kind == RecordKind.GAP and length >= 4:
-                lost = int.from_bytes(payload[:4], "little")
+            elif kind == RecordKind.GAP and (lost := cap.gap_lost(payload)) is not None:
                 append(Chunk(t0 + t_ns * 1e-9, names.get(source) or f"source{source}", b"", lost))
             # other kinds belong to a later format version and are skipped by their length
         return buf[pos:]
@@ -346,7 +345,7 @@ class CaptureWriter:
         if not self._started:
             self._start(t)
         sid = self._source_id(source)
-        self._f.write(cap.pack_record(RecordKind.GAP, sid, self._t_ns(t), min(nbytes, 0xFFFFFFFF).to_bytes(4, "little")))
+        self._f.write(cap.gap_record(sid, self._t_ns(t), nbytes))
 
     def chunk(self, chunk: Chunk) -> None:
         """Store a :class:`Chunk` (data or loss)."""

@@ -437,10 +437,13 @@ class UdpSource(Source):
                 with contextlib.suppress(OSError):
                     self._sock.sendto(b"", self.peer)
 
+    #: Datagrams taken per wake-up, so one burst cannot hold the consumer (or memory) for long.
+    MAX_DATAGRAMS = 256
+
     def _drain(self) -> list[Chunk]:
-        out: list[Chunk] = []
+        parts: list[tuple[str, list[bytes]]] = []
         now = time.monotonic()
-        while True:
+        for _ in range(self.MAX_DATAGRAMS):
             try:
                 data, sender = self._sock.recvfrom(65536)
             except (BlockingIOError, InterruptedError):
@@ -453,13 +456,13 @@ class UdpSource(Source):
                 raise
             self.datagrams += 1
             src = f"udp:{sender[0]}:{sender[1]}"
-            if out and out[-1].source == src:
-                out[-1] = Chunk(now, src, out[-1].data + data)
+            if parts and parts[-1][0] == src:
+                parts[-1][1].append(data)
             else:
-                out.append(Chunk(now, src, data))
-        if out:
+                parts.append((src, [data]))
+        if parts:
             self._heard = True
-        return out
+        return [Chunk(now, src, b"".join(datas)) for src, datas in parts]
 
     def chunks(self, idle: float | None = None) -> Iterator[Chunk | None]:
         sock = self._sock

@@ -110,7 +110,7 @@ class TapServer:
                     continue
                 if c.lost:
                     for lost_sid, n in c.lost.items():
-                        c.pending += cap.pack_record(RecordKind.GAP, lost_sid, t_ns, n.to_bytes(4, "little"))
+                        c.pending += cap.gap_record(lost_sid, t_ns, n)
                     c.lost.clear()
                 if not c.pending:
                     try:

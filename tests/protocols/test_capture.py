@@ -53,3 +53,12 @@ def test_record_payload_is_bounded_by_its_length_field():
     assert cap.MAX_PAYLOAD == 0xFFFF
     with pytest.raises(Exception):  # noqa: B017 (struct.error: the u16 cannot hold it)
         cap.pack_record(cap.RecordKind.DATA, 0, 0, bytes(cap.MAX_PAYLOAD + 1))
+
+
+def test_gap_record_is_one_layout():
+    raw = cap.gap_record(3, 1_000, 70_000)
+    rec = cap.Record.parse(raw)
+    assert (rec.kind, rec.source, rec.t_ns, rec.length) == (cap.RecordKind.GAP, 3, 1_000, 4)
+    assert cap.gap_lost(rec.payload) == 70_000 == cap.GapPayload.parse(rec.payload).lost
+    assert cap.gap_lost(cap.gap_record(0, 0, 2**40)[cap.RECORD_HEADER_SIZE:]) == 0xFFFFFFFF  # capped
+    assert cap.gap_lost(b"\x01") is None  # too short: not a count

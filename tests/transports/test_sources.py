@@ -252,3 +252,19 @@ def test_replay_at_recorded_speed_takes_the_recorded_time(tmp_path):
     fast = time.monotonic()
     list(FileSource(capture, baud=100_000))
     assert time.monotonic() - fast < 0.15
+
+
+def test_a_udp_burst_is_taken_in_bounded_bites_and_in_order():
+    src = UdpSource()
+    sender = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        n = 3 * UdpSource.MAX_DATAGRAMS + 7
+        for k in range(n):  # queued in the socket before anyone reads
+            sender.sendto(b"%05d" % k, src.address)
+        bites = []
+        wait_until(lambda: bites.append(src._drain()) or sum(len(c.data) for b in bites for c in b) >= 5 * n)
+        assert all(len(c.data) <= 5 * UdpSource.MAX_DATAGRAMS for b in bites for c in b)
+        assert b"".join(c.data for b in bites for c in b) == b"".join(b"%05d" % k for k in range(n))
+    finally:
+        sender.close()
+        src.close()
