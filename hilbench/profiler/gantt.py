@@ -19,6 +19,10 @@ import numpy as np
 from hilbench.profiler.analysis import Analysis
 
 MAX_INTERVALS = 50_000
+#: Columns of the picture's time axis (about the plot area's width in pixels at the default size).
+PIXELS = 1000
+#: Opacity of a pixel that holds any sub-pixel slice (more with how busy it is).
+MIN_ALPHA = 0.4
 
 
 class PlotUnavailable(RuntimeError):
@@ -122,16 +126,27 @@ def render_gantt(a: Analysis, path: str | Path, *, window: tuple[float, float] |
         fig, ax = plt.subplots(figsize=(11, fig_h), dpi=110)
         colors = plt.get_cmap("tab10")
         scale, unit = (1.0, "µs") if t1 - t0 < 5000 else (1000.0, "ms")
+        px = (t1 - t0) / PIXELS  # µs per column of the plot area
+        faint = False
         for row, name in enumerate(drawn):
             b, e = _clipped(a, name, t0, t1)
             task = a.tasks[name]["kind"] == "task"
             color = colors(row % 10)
-            bars = np.column_stack(((b - t0) / scale, (e - b) / scale))
-            # Short slices get a hairline so they stay visible.
-            bars[:, 1] = np.maximum(bars[:, 1], (t1 - t0) / scale / 700)  # at least about a pixel
             y = len(drawn) - 1 - row
+            wide = (e - b) >= px
+            bars = np.column_stack(((b[wide] - t0) / scale, (e[wide] - b[wide]) / scale))
             ax.broken_barh(bars, (y - 0.35, 0.7), facecolors=color, edgecolors="none",
                            alpha=1.0 if task else 0.65, label=name)
+            if not wide.all():
+                # Slices narrower than a pixel: one strip whose opacity says how busy each pixel is.
+                # Drawn as hairlines they would paint a 1 kHz, 3 µs task as a solid bar.
+                cov = coverage(b[~wide], e[~wide], t0, t1, PIXELS)
+                rgba = np.zeros((1, PIXELS, 4))
+                rgba[..., :3] = color[:3]
+                rgba[0, :, 3] = np.where(cov > 0, MIN_ALPHA + (1 - MIN_ALPHA) * np.clip(cov, 0, 1), 0.0)
+                ax.imshow(rgba, extent=(0, (t1 - t0) / scale, y - 0.35, y + 0.35), aspect="auto",
+                          interpolation="nearest", origin="lower")
+                faint = True
             for end, _resp, _dl in a.deadline_misses.get(name, []):
                 if t0 <= end <= t1:
                     ax.plot([(end - t0) / scale], [y + 0.42], marker="v", color="red", markersize=5)
@@ -139,7 +154,9 @@ def render_gantt(a: Analysis, path: str | Path, *, window: tuple[float, float] |
         ax.set_yticklabels(list(reversed([n if a.tasks[n]["kind"] == "task" else f"fn {n}" for n in drawn])))
         ax.set_xlim(0, (t1 - t0) / scale)
         ax.set_ylim(-0.6, len(drawn) - 0.4)
-        ax.set_xlabel(f"time ({unit}) from t = {t0 / 1000:.3f} ms")
+        width = f"{px:,.0f}" if px >= 10 else f"{px:.2g}"
+        note = f"; pale: slices under {width} µs, shaded by how busy each pixel is" if faint else ""
+        ax.set_xlabel(f"time ({unit}) from t = {t0 / 1000:.3f} ms{note}")
         ax.grid(axis="x", alpha=0.3)
         ax.set_title(title or f"Trace {t0 / 1000:.3f}-{t1 / 1000:.3f} ms: {len(drawn)} rows")
         fig.tight_layout()

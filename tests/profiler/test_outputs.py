@@ -223,3 +223,28 @@ def test_comparison_reproduces_the_thesis_cache_effect():
     # Table 10: micro-ROS (T5) against FreeRTOS (T9) with the micro-ROS names mapped: +524 µs, mean -3.10.
     t10 = compare(t9, t5, aliases={"odom": "odometry"})["tasks"]["odometry"]
     assert t10["diff_total"] == 524 and round(t10["diff_mean"], 2) == -3.10
+
+
+def test_gantt_does_not_paint_a_short_frequent_task_as_a_solid_bar(tmp_path):
+    """tsink runs 3 µs every millisecond: over a second that is 0.3 % busy, not a full row."""
+    import matplotlib.image as mpimg
+    from matplotlib import colormaps
+
+    lines = []
+    for k in range(1000):
+        t = k * 1000
+        lines += [f"IDLE {t} out", f"tsink {t} in", f"tsink {t + 3} out", f"IDLE {t + 3} in"]
+    p = Profiler()
+    p.feed(("\n".join(lines) + "\n").encode())
+    p.finish()
+    a = p.analyse()
+    png = tmp_path / "g.png"
+    drawn = render_gantt(a, png)
+    pixels = mpimg.imread(png)[:, :, :3].reshape(-1, 3)
+
+    def full(name: str) -> int:
+        rgb = np.array(colormaps["tab10"](drawn.index(name))[:3])
+        return int((np.abs(pixels - rgb).max(axis=1) < 0.02).sum())
+
+    assert full("IDLE") > 10_000  # the idle task fills its row
+    assert full("tsink") == 0  # tsink is shown pale, by how busy each pixel is
