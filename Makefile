@@ -23,5 +23,6 @@ test: $(VENV)/.installed
 
 bench: $(VENV)/.installed
 	$(PY) tools/bench_dynamixel.py
-	$(PY) tools/bench_profiler.py
 	$(PY) tools/bench_monitor.py
+	$(PY) tools/bench_board.py
+	$(PY) tools/bench_profiler.py

@@ -49,8 +49,9 @@ def _watch(monitor, args: argparse.Namespace, label: str, status: Callable[[], s
     def done() -> bool:
         return (deadline is not None and time.monotonic() >= deadline) or (stop is not None and stop())
 
-    console = Console()
     quiet = args.summary or args.json
+    # A summary into a pipe or file gets 132 columns rather than rich's 80, so its lines do not wrap.
+    console = Console(width=None if not quiet or sys.stdout.isatty() else 132)
     try:
         if quiet:
             while not monitor.ended.is_set() and not done():

@@ -90,12 +90,17 @@ class ErrorLog:
         entries.append(LogEntry(t, kind, device, message, 1, args))
 
     def newest(self, n: int = 50) -> list[LogEntry]:
-        """The ``n`` newest entries, newest first."""
+        """The ``n`` newest entries, newest first by bus time.
+
+        A miss is found when its timeout expires, after later events were logged; sorting the
+        newest entries by their time shows them where they happened.
+        """
         out = []
         for entry in reversed(self.entries):
             if len(out) >= n:
                 break
             out.append(entry)
+        out.sort(key=lambda e: e.t, reverse=True)
         return out
 
     def format(self, entry: LogEntry) -> str:

@@ -147,12 +147,13 @@ def runtime_table(a: Analysis) -> Table | None:
 
 def compare_table(cmp: dict, base_label: str = "base", other_label: str = "other") -> Table:
     """Per-name change from one run to another, in percent of the first (as the thesis reports it)."""
-    t = Table(title=f"Comparison: {other_label} against {base_label}", title_justify="left", header_style="bold",
-              pad_edge=False, box=box.SIMPLE_HEAD, padding=(0, 1, 0, 0),
-              caption=f"sum of totals {_f(cmp['base_sum_us'])} -> {_f(cmp['other_sum_us'])} µs "
-                      f"({_f(cmp['diff_sum_us'])} µs)", caption_justify="left")
-    for col in ("name", "total base", "total other", "change%", "mean base", "mean other", "diff mean",
-                "share base", "share other"):
+    t = Table(title=f"Comparison: this run ({other_label}) against the reference ({base_label})",
+              title_justify="left", header_style="bold", pad_edge=False, box=box.SIMPLE_HEAD,
+              padding=(0, 1, 0, 0),
+              caption=f"change% = (this - ref) / ref x 100; sum of totals {_f(cmp['base_sum_us'])} -> "
+                      f"{_f(cmp['other_sum_us'])} µs ({_f(cmp['diff_sum_us'])} µs)", caption_justify="left")
+    for col in ("name", "total ref", "total this", "change%", "mean ref", "mean this", "diff mean",
+                "share ref", "share this"):
         t.add_column(col, justify="left" if col == "name" else "right", no_wrap=True)
     for name, r in cmp["tasks"].items():
         ch = r["change_total_pct"]
