@@ -313,5 +313,5 @@ def test_error_log_lists_the_newest_entries_in_time_order():
     log.t0 = 0.0
     for t, text in ((2.641, "a"), (2.642, "b"), (2.638, "late detection of an earlier miss"), (2.650, "c")):
         log.add(t, "missed_reply", text)
-    assert [e.t for e in log.newest(3)] == [2.650, 2.642, 2.641]  # the three detected last, by time
+    assert [e.t for e in log.newest(3)] == [2.650, 2.642, 2.638]  # the three detected last, by time
     assert log.lines(4)[-1] == "[+00:02.638] error: late detection of an earlier miss"
