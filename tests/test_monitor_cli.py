@@ -163,6 +163,7 @@ def test_tap_forwards_a_full_sdk_session_byte_exactly(hilbench_bench, tmp_path, 
     assert b"".join(c.data for c in chunks if c.source == "app") == to_bench
     assert b"".join(c.data for c in chunks if c.source == "device") == from_bench
     report = json.loads(out[out.index("{"):])
+    assert report["baud"] == 2_000_000  # the bus load is computed at the rate the application set
     assert {k: v for k, v in report["packets"].items() if v} == {
         "ping": 1, "write": 1, "read": 2, "sync_read": 20, "sync_write": 20, "bulk_read": 1,
         "status": 1 + 1 + 1 + 20 * 20 + 2}

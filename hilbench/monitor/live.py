@@ -32,6 +32,10 @@ from hilbench.transports.sources import Source
 IDLE_FLUSH = 0.05
 #: How often a quiet live source wakes the monitor up.
 IDLE_TICK = 0.05
+#: How far behind the wall clock a quiet live source's time is assumed to be. Bytes reach the
+#: monitor later than they were stamped when the machine is busy (a bench's line thread, a TCP tap);
+#: a reply still on its way must not be declared missed by the clock alone.
+TICK_LAG = 0.5
 
 
 class Monitor:
@@ -82,6 +86,8 @@ class Monitor:
                     now = source.clock()
                     with lock:
                         if now is not None:
+                            if source.live:
+                                now -= TICK_LAG
                             if time.monotonic() - last_data >= IDLE_FLUSH:
                                 tracker.flush(now)
                             if tracker.timestamps and tracker.t0 is not None:
@@ -90,6 +96,8 @@ class Monitor:
                         rec.flush()
                     continue
                 last_data = time.monotonic()
+                if source.baud and source.baud != tracker.baud:
+                    tracker.baud = source.baud  # a tap follows the rate the application sets
                 with lock:
                     if chunk.lost:
                         tracker.gap(chunk.t, chunk.source, chunk.lost)

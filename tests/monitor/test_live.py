@@ -154,3 +154,26 @@ def test_fast_sync_read_on_x_series_servos(hilbench_bench, patient_sdk):
     for i in ("1", "2", "3"):
         assert report["devices"][i]["replies"] == 1 and report["devices"][i]["misses"] == 0
         assert report["devices"][i]["values"]["present_position"]["how"] == "read"
+
+
+def test_a_reply_delayed_on_its_way_to_the_monitor_is_not_a_miss():
+    """A busy machine delivers bytes to the monitor late (a bench's line thread, a TCP tap): the quiet
+    source's clock must not declare a reply missed that is still on its way."""
+    import time
+
+    from hilbench.protocols import dynamixel as dxl
+    from hilbench.transports.sources import PushSource
+
+    src = PushSource("stalled", baud=2_000_000)
+    src.live = True
+    with Monitor(src) as mon:
+        t0 = time.monotonic()
+        src.push(t0, "host", dxl.instruction_packet(1, dxl.Instruction.READ, b"\x84\x00\x04\x00"))
+        # The reply was on the wire 0.3 ms later, but reaches the monitor 0.3 s late; meanwhile the
+        # monitor's quiet-source ticks run (reply timeout 0.1 s).
+        wait_until(lambda: time.monotonic() > t0 + 0.3, timeout=2)
+        src.push(t0 + 0.0003, "device", dxl.status_packet(1, 0, (2048).to_bytes(4, "little")))
+        wait_until(lambda: mon.summary()["packets"]["status"] == 1)
+        dev = mon.summary()["devices"]["1"]
+    assert (dev["replies"], dev["misses"], dev["state"]) == (1, 0, "connected")
+    assert dev["values"]["present_position"]["raw"] == 2048
