@@ -9,7 +9,9 @@ priority's round; selection advances a round-robin index), a readied task of
 higher priority preempts at once, one of equal priority at the next tick
 (time slicing), and an ISR's notification preempts only a lower priority.
 Every switch records the switch-out stamp of the old task and, one switch
-time later, the switch-in stamp of the new one, and charges run time the way
+time later, the switch-in stamp of the new one (a switch requested before the
+previous one has finished waits for it, so no slice ends before it begins),
+and charges run time the way
 the kernel's run-time statistics do (sampled at each switch, counted in TIM13
 units of ≈92.6 µs).
 
@@ -349,11 +351,19 @@ class Kernel:
     # ------------------------------------------------------------------ switching
 
     def _switch(self, t: float) -> None:
-        """Context switch at ``t``: charge the old task, stamp out/in, pick the next task."""
+        """Context switch at ``t``: charge the old task, stamp out/in, pick the next task.
+
+        A switch requested before the previous one has finished (the task blocked without
+        computing, or an ISR fired during the switch-in) happens when that one ends: the old
+        task's switch-out never precedes its own switch-in stamp, so every slice has begin <= end
+        and the stamps stay in time order.
+        """
         old = self.current
         new = self._select()
         if new is old:
             return
+        if t < self._resume_at:
+            t = self._resume_at
         self._charge(old, t)
         self._record_out(old, t)
         if old.state == "running":
@@ -510,6 +520,10 @@ class Kernel:
         """
         k0 = self.tick + 1  # the first tick to process
         if k0 < self._no_fast_before:
+            return
+        if self._resume_at > k0 * self.tick_us + self.isr_us:
+            # A switch still in progress when tick k0's ISR ends would delay that tick's first switch
+            # (see _switch); the bursts assume it starts at the ISR's end, so this tick goes exact.
             return
         cur = self.current
         if cur is not self.idle and cur.remaining <= 0:
