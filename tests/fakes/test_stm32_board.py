@@ -176,18 +176,24 @@ def test_stamps_periods_match_the_rates_and_durations_follow_the_distributions()
     assert rep.recomputed_percent() == {r.name: r.percent for r in rep.runtime}
 
 
-def test_fast_path_and_exact_simulation_give_identical_output():
+@pytest.mark.parametrize(("preset", "caches", "output", "baud"), [
+    ("freertos-10000-5000", True, "v2", 2_000_000),
+    ("freertos-10000-5000", True, "v1", 1_152_000),  # the profile task's batches run in the background
+    ("freertos-5000-2000", False, "v1", 2_000_000),  # overloaded ticks: bursts end just before the next tick
+])
+def test_fast_path_and_exact_simulation_give_identical_output(preset, caches, output, baud):
     outputs = []
     for fast in (True, False):
-        b = board("freertos-10000-5000", output="v2", baud=2_000_000, window_ms=150)
+        b = board(preset, output=output, baud=baud, window_ms=150, caches=caches)
         b.fw.kernel.fast_enabled = fast
         b.run_for(0.01)
         b.press_button()
         b.run_for(0.4)
-        outputs.append((b.take_output(), b.fw.kernel.fast_ticks))
-    (fast_out, fast_ticks), (exact_out, exact_ticks) = outputs
+        outputs.append((b.take_output(), b.fw.kernel.fast_ticks, b.truth))
+    (fast_out, fast_ticks, fast_truth), (exact_out, exact_ticks, exact_truth) = outputs
     assert fast_ticks > 1000 and exact_ticks == 0
     assert fast_out == exact_out and len(fast_out) > 20_000
+    assert fast_truth == exact_truth
 
 
 @pytest.mark.parametrize(("preset", "caches"), [("freertos-100-50", True), ("freertos-1000", False),
@@ -308,3 +314,14 @@ def test_button_is_debounced_and_reset_reboots():
     assert "boot 2" in b.log[0].message and b.truth.stamps_recorded == 0
     with pytest.raises(KeyError):
         b.set_faults(warp=1)
+
+
+def test_stamp_times_are_whole_us_of_dwt_cycles_whatever_the_float_summation():
+    from hilbench.fakes.stm32_board.firmware import elapsed_us, stamp_us
+
+    # Tick + ISR + switch summed in another order lands a hair below the whole µs it is.
+    t = (35 + 1.8 - 0.1) + (1.2 + 0.1)
+    assert t < 38.0 and stamp_us(np.array([t, 38.0, 38.99]), 0.0).tolist() == [38, 38, 38]
+    assert elapsed_us(t, 0.0) == 38 and elapsed_us(1000.99, 0.0) == 1000
+    # On the 216 MHz grid: one cycle short of a whole µs still truncates.
+    assert stamp_us(np.array([50.0 + 215 / 216, 50.0 + 216 / 216]), 50.0).tolist() == [0, 1]

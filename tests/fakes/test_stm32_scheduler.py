@@ -250,3 +250,42 @@ def test_fast_path_equals_exact_with_short_jobs_and_a_switch_that_ends_after_the
     assert np.array_equal(st[1], exact_st[1]) and np.array_equal(st[2], exact_st[2])
     assert [u for u, _ in rt] == [u for u, _ in exact_rt]
     assert [r for _, r in rt] == pytest.approx([r for _, r in exact_rt], abs=1e-6)
+
+
+def test_fast_path_equals_exact_when_the_background_resumes_after_a_tick():
+    """An overloaded tick's burst (exact path) ends 0.3 µs before the next tick, so the background task's
+    switch-in completes after it; the fast run that starts there must not credit the background with
+    negative computing time before its first burst."""
+    results = []
+    for fast in (True, False):
+        k = Kernel(10_000, isr_us=0.6, switch_us=0.4)
+        idle = Task("IDLE", 0, 9, 0)
+        k.add_task(idle, None, idle=True)
+        k._make_ready(idle)
+        # Every 10th tick: a (90 µs) and b (8.3 µs) end at T + 99.7, the background is back in at T + 100.1.
+        for num, (name, period, mean) in enumerate((("a", 10, 90.0), ("b", 1, 8.3)), start=1):
+            t = Task(name, 24, num, num)
+            t.durations = Durations(Timing(mean, dist="fixed"), seed=num)
+            t.fast = Periodic(period, t.durations)
+            k.add_task(t, periodic_drawn(t, period))
+        worker = Task("profile", 24, 7, 7)
+        worker.durations = Durations(Timing(3000.0, sd_us=300.0), seed=7)
+
+        def work(task=worker):
+            while True:
+                yield (RUN, task.durations.draw())
+                yield (DELAY_UNTIL, task.wake_tick + 100)
+
+        k.add_task(worker, work())
+        k.fast_enabled = fast
+        k.start()
+        k.sampling = True
+        k.run_until(100_000)
+        results.append((k.take_stamps(), [(t.runtime_units, t.runtime_us) for t in k.tasks], k.fast_ticks))
+    (st, rt, fast_ticks), (exact_st, exact_rt, _) = results
+    assert fast_ticks > 200, fast_ticks
+    assert_slices_in_order(st)
+    assert len(st[0]) == len(exact_st[0])
+    assert np.allclose(st[0], exact_st[0], rtol=0, atol=1e-6)
+    assert np.array_equal(st[1], exact_st[1]) and np.array_equal(st[2], exact_st[2])
+    assert [r for _, r in rt] == pytest.approx([r for _, r in exact_rt], abs=1e-6)

@@ -31,7 +31,14 @@ from dataclasses import replace
 
 import numpy as np
 
-from hilbench.fakes.stm32_board.presets import RUNTIME_UNIT_US, BoardConfig, Preset, TaskSpec, Timing
+from hilbench.fakes.stm32_board.presets import (
+    RUNTIME_UNIT_US,
+    SYSTEM_CLOCK_HZ,
+    BoardConfig,
+    Preset,
+    TaskSpec,
+    Timing,
+)
 from hilbench.fakes.stm32_board.robot import Robot
 from hilbench.fakes.stm32_board.scheduler import (
     CALL,
@@ -57,6 +64,20 @@ RECORD_RING = 512
 BINARY_MIN_CHUNK = 256
 RECORD_ARRAY = 32_768
 LOG_HISTORY = 200
+CYCLES_PER_US = SYSTEM_CLOCK_HZ / 1_000_000
+
+
+def stamp_us(t: np.ndarray, ref: float) -> np.ndarray:
+    """Whole µs from ``ref`` to the virtual times ``t`` as the firmware prints them (spec §3.3): both on
+    the 216 MHz DWT cycle grid, the cycle difference truncated to µs. Snapping to cycles first also makes
+    the result independent of how a time was summed: T + isr + switch may come out a hair below a whole
+    µs in one summation order and not in another, and the fast path and the exact path sum differently."""
+    return ((np.rint(t * CYCLES_PER_US) - round(ref * CYCLES_PER_US)) // CYCLES_PER_US).astype(np.int64)
+
+
+def elapsed_us(t: float, ref: float) -> int:
+    """:func:`stamp_us` for one time."""
+    return int((round(t * CYCLES_PER_US) - round(ref * CYCLES_PER_US)) // CYCLES_PER_US)
 
 
 def task_set(preset: Preset, output: str) -> list[TaskSpec]:
@@ -183,7 +204,7 @@ class Firmware:
             if self.output in ("v2", "v3"):
                 self.ref = self.first_stamp
         if self.output == "binary":
-            t_us = np.floor(t - self.ref).astype(np.int64)
+            t_us = stamp_us(t, self.ref)
             self.binary.write(t_us, ids, b)
         else:
             self.truth.records_lost += self.records.push(t, ids, b)
@@ -351,7 +372,7 @@ class Firmware:
         self.truth.stamps_recorded += 1
         self.truth.stamps_sent += 1
         self.truth.lines_written += 1
-        return ts.format_stamp(self.names[sid], max(0, math.floor(t - (self.ref or 0.0))), begin, self.dialect)
+        return ts.format_stamp(self.names[sid], max(0, elapsed_us(t, self.ref or 0.0)), begin, self.dialect)
 
     def _uros(self, task: Task):
         """The micro-ROS executor: spins every tick; rcl timers fire the callbacks, skipping missed periods."""
@@ -493,7 +514,7 @@ class Firmware:
         t, ids, b = self.records.take()
         if not len(t):
             return
-        t_us = np.maximum(np.floor(t - self.ref), 0).astype(np.int64)
+        t_us = np.maximum(stamp_us(t, self.ref), 0)
         lines = ts.format_stamps(self.names_b, ids, t_us, b, self.dialect)
         ends = np.cumsum([len(x) for x in lines])
         i = 0
@@ -555,7 +576,7 @@ class Firmware:
             while self.sampling:
                 yield (WAIT,)
             yield (CALL, lambda k: self.sync())
-            t_stop = math.floor(self.window_stop - self.ref)
+            t_stop = elapsed_us(self.window_stop, self.ref)
             yield from self.write_blocking(task, self.binary.stop(t_stop))
             yield from self._print_report(task)
             self._reporting = False
@@ -604,7 +625,7 @@ class Firmware:
 
     def _print_report(self, task: Task):
         if self.output == "v1":  # thesis: the sampling duration, framed by separators
-            report = self.runtime_report(task, math.floor(self.window_stop - self.window_start))
+            report = self.runtime_report(task, elapsed_us(self.window_stop, self.window_start))
             lines = ts.format_report(report).splitlines(keepends=True)
             last = None
         else:  # branch heads: from the first stamp to the end of the report, known only at the end
@@ -616,6 +637,6 @@ class Firmware:
             yield from self.write_blocking(task, line)
         if last is not None:
             start = self.first_stamp if self.first_stamp is not None else self.window_start
-            report = report._replace(closing_us=math.floor(self.kernel.now - start))
+            report = report._replace(closing_us=elapsed_us(self.kernel.now, start))
             yield from self.write_blocking(task, ts.format_report(report).splitlines(keepends=True)[-1])
         self.reports.append(report)
