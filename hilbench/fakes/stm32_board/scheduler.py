@@ -828,26 +828,51 @@ class _Shadow:
     yields when its next wake tick has already come; vTaskDelay: blocks); the background task
     resumes when the round robin reaches it. The relative state repeats after a few ticks, so
     the sequence is simulated until it does and then tiled; :meth:`state_at` rebuilds the
-    lists for any tick of the run.
+    lists for any tick of the run. Ticks are relative to the run's first tick ``k0``; a pattern
+    found once is kept per relative start state and reused by later runs.
     """
 
     def __init__(self, k: Kernel, tasks: list[Task], bg: Task, k0: int, k_end: int) -> None:
-        allt = list(tasks) + [bg] + ([k.idle] if bg is not k.idle else [])
+        allt = [*tasks, bg] if bg is k.idle else [*tasks, bg, k.idle]
         self.allt = allt
-        ix = {id(t): i for i, t in enumerate(allt)}
         n = len(tasks)
         self.n = n
-        self.prio = [t.priority for t in allt]
-        period = [t.fast.period for t in tasks]
-        relative = [t.fast.relative for t in tasks]
-        cur = n
-        lists = {p: _ShadowList([ix[id(t)] for t in rl.items], ix[id(rl.idx)] if rl.idx is not None else None)
-                 for p, rl in k.ready.items()}
-        delayed = [(w, sq, ix[id(t)]) for w, sq, t in k.delayed if id(t) in ix and ix[id(t)] < n]
-        wake = [t.wake_tick for t in tasks]
-        prios = sorted(lists, reverse=True)
-        seq = k._seq
+        self.k0 = k0
+        ix = {t: i for i, t in enumerate(allt)}
+        period = tuple(t.fast.period for t in tasks)
+        relative = tuple(t.fast.relative for t in tasks)
+        te = k0 - 1
+        # The lists relative to the tick before the run, as the simulation's snapshots describe them.
+        init = (tuple((p, tuple([ix[t] for t in rl.items]), None if rl.idx is None else ix[rl.idx])
+                      for p, rl in sorted(k.ready.items())),
+                tuple((w - te, ix[t]) for w, _, t in k.delayed if ix.get(t, n) < n),
+                tuple(None if rel else t.wake_tick - te for t, rel in zip(tasks, relative, strict=True)))
+        key = (init, period, relative, tuple(t.priority for t in tasks), bg is k.idle)
         self.unsupported_from: int | None = None
+        cached = k._patterns.get(key)
+        if cached is not None:
+            self.entry: dict | None = cached
+            self.jobs_t, self.jobs_i = cached["jobs"]
+            self.events, self.snaps, self.cycle = cached["events"], cached["snaps"], cached["cycle"]
+            self.horizon: int | None = None
+            return
+        self._simulate(k, init, period, relative, [t.priority for t in allt], k_end - k0)
+        self.entry = None
+        if self.cycle is not None and self.unsupported_from is None and len(k._patterns) < 256:
+            self.entry = k._patterns[key] = {"jobs": (self.jobs_t, self.jobs_i), "events": self.events,
+                                             "snaps": self.snaps, "cycle": self.cycle, "struct": None}
+
+    def _simulate(self, k: Kernel, init: tuple, period: tuple, relative: tuple, prio: list[int],
+                  horizon: int) -> None:
+        """Replay the lists from ``init`` (relative tick -1) until the state repeats or ``horizon``."""
+        n = self.n
+        cur = n  # the background task
+        lists = {p: _ShadowList(list(items), idx) for p, items, idx in init[0]}
+        # Relative wake ticks; sequence numbers keep the kernel's order (new entries go after equal ones).
+        delayed = [(w - 1, sq, i) for sq, (w, i) in enumerate(init[1])]
+        seq = len(delayed)
+        wake = [None if w is None else w - 1 for w in init[2]]
+        prios = sorted(lists, reverse=True)
 
         def select() -> int:
             for p in prios:
@@ -862,34 +887,29 @@ class _Shadow:
                     tuple((w - te, i) for w, _, i in delayed),
                     tuple(None if relative[i] else w - te for i, w in enumerate(wake)))
 
-        init_key = (snapshot(k0 - 1), tuple(period), tuple(relative), tuple(self.prio[:n]), bg is k.idle)
-        cached = k._patterns.get(init_key)
-        if cached is not None:
-            self._load(cached, k0)
-            return
         jobs_t: list[int] = []
         jobs_i: list[int] = []
         events: list[int] = []
         snaps: list[tuple] = []
         seen: dict[tuple, int] = {}
         cycle = None
-        last = k0 - 1
+        last = -1
         while len(events) < 4096:
-            pending = len(lists[self.prio[cur]].items) > 1
+            pending = len(lists[prio[cur]].items) > 1
             nxt = delayed[0][0] if delayed else math.inf
             if pending:
                 nxt = min(nxt, last + 1)
-            nxt = max(nxt, k0)
-            if nxt >= k_end:
+            nxt = max(nxt, 0)
+            if nxt >= horizon:
                 break
             tick = int(nxt)
             woke = False
             while delayed and delayed[0][0] <= tick:
                 _, _, i = delayed.pop(0)
-                lists[self.prio[i]].insert_end(i)
+                lists[prio[i]].insert_end(i)
                 woke = True
             top = next((p for p in prios if lists[p].items), -1)
-            if (woke and top >= self.prio[cur]) or len(lists[self.prio[cur]].items) > 1:
+            if (woke and top >= prio[cur]) or len(lists[prio[cur]].items) > 1:
                 x = select()
                 prev = None
                 while x != cur and x < n:
@@ -898,7 +918,7 @@ class _Shadow:
                         break
                     jobs_t.append(tick)
                     jobs_i.append(x)
-                    lst = lists[self.prio[x]]
+                    lst = lists[prio[x]]
                     target = tick + period[x] if relative[x] else wake[x] + period[x]
                     if not relative[x]:
                         wake[x] = target
@@ -928,49 +948,28 @@ class _Shadow:
         self.events = events
         self.snaps = snaps
         self.cycle = cycle
-        self.k_end = k_end if cycle is not None or not events or len(events) < 4096 else events[-1] + 1
+        self.horizon = horizon if cycle is not None or not events or len(events) < 4096 else events[-1] + 1
         if self.unsupported_from is not None:
-            self.k_end = min(self.k_end, self.unsupported_from)
-        self.k0 = k0
-        self.entry: dict | None = None
-        if cycle is not None and self.unsupported_from is None and len(k._patterns) < 256:
-            self.entry = k._patterns[init_key] = {
-                "jobs": (self.jobs_t - k0, self.jobs_i), "events": [e - k0 for e in events], "snaps": snaps,
-                "cycle": (cycle[0] - k0, cycle[1] - k0), "struct": None}
-
-    def _load(self, cached: dict, k0: int) -> None:
-        jt, ji = cached["jobs"]
-        self.k0 = k0
-        self.entry = cached
-        self.jobs_t = jt + k0
-        self.jobs_i = ji
-        self.events = [e + k0 for e in cached["events"]]
-        self.snaps = cached["snaps"]
-        cyc = cached["cycle"]
-        self.cycle = (cyc[0] + k0, cyc[1] + k0)
-        self.k_end = None
+            self.horizon = min(self.horizon, self.unsupported_from)
 
     def structure(self, k_end: int) -> tuple[_View, int]:
         """The job structure of ticks < k_end (cached per pattern, relative to the first tick)."""
-        if self.k_end is not None:
-            k_end = min(k_end, self.k_end)
         horizon = k_end - self.k0
+        if self.horizon is not None:
+            horizon = min(horizon, self.horizon)
         entry = self.entry
         if entry is not None and entry["struct"] is not None and entry["struct"][0] >= horizon:
             st = entry["struct"][1]
         else:
             span = max(horizon, 2048) if entry is not None else horizon
-            jt, ji, _ = self.jobs(self.k0 + span)
-            st = _Struct(jt - self.k0, ji)
+            st = _Struct(*self.jobs(span))
             if entry is not None:
                 entry["struct"] = (span, st)
-        return st.prefix(horizon), k_end
+        return st.prefix(horizon), self.k0 + horizon
 
-    def jobs(self, k_end: int) -> tuple[np.ndarray, np.ndarray, int]:
-        """Job ticks and task indices for ticks < k_end (tiled past the simulated part if a cycle was
-        found; otherwise k_end is limited to what was simulated)."""
-        if self.k_end is not None and self.cycle is None:
-            k_end = min(k_end, self.k_end)
+    def jobs(self, horizon: int) -> tuple[np.ndarray, np.ndarray]:
+        """Relative job ticks and task indices for ticks < horizon (tiled past the simulated part if a
+        cycle was found; otherwise only what was simulated)."""
         ticks, order = self.jobs_t, self.jobs_i
         if self.cycle is not None:
             t_prev, t_now = self.cycle
@@ -980,57 +979,61 @@ class _Shadow:
             pat_order = order[in_cycle]
             head = ticks <= t_now
             ticks, order = ticks[head], order[head]
-            reps = max(0, (k_end - t_now) // period + 1)
+            reps = max(0, (horizon - t_now) // period + 1)
             if reps and len(pat_rel):
                 future = (t_now + np.arange(reps, dtype=np.int64)[:, None] * period + pat_rel[None, :]).ravel()
                 ticks = np.concatenate((ticks, future))
                 order = np.concatenate((order, np.tile(pat_order, reps)))
-        keep = ticks < k_end
-        return ticks[keep], order[keep], k_end
+        keep = ticks < horizon
+        return ticks[keep], order[keep]
 
-    def state_at(self, tick: int):
-        """(event tick, relative snapshot) of the lists after processing ``tick``; None if unchanged."""
+    def state_at(self, rel: int):
+        """(relative event tick, snapshot) of the lists after processing relative tick ``rel``; None if
+        nothing changed."""
         events = self.events
-        if not events or tick < events[0]:
+        if not events or rel < events[0]:
             return None
-        if self.cycle is None or tick <= self.cycle[1]:
-            j = bisect.bisect_right(events, tick) - 1
+        if self.cycle is None or rel <= self.cycle[1]:
+            j = bisect.bisect_right(events, rel) - 1
             return events[j], self.snaps[j]
         t_prev, t_now = self.cycle
         period = t_now - t_prev
-        reps = (tick - t_prev - 1) // period
-        base = tick - reps * period  # in (t_prev, t_now]
+        reps = (rel - t_prev - 1) // period
+        base = rel - reps * period  # in (t_prev, t_now]
         j = bisect.bisect_right(events, base) - 1  # events includes t_prev (same relative state as t_now)
         return events[j] + reps * period, self.snaps[j]
 
     def apply(self, k: Kernel, tick: int) -> None:
         """Write the lists after ``tick`` back into the kernel."""
-        st = self.state_at(tick)
+        st = self.state_at(tick - self.k0)
         if st is None:
             return
         te, (lists, delayed, wake) = st
+        te += self.k0
         allt = self.allt
         n = self.n
+        ready = k.ready
         for p, items, idx in lists:
-            rl = k.ready[p]
+            rl = ready[p]
             rl.items = [allt[i] for i in items]
             rl.idx = allt[idx] if idx is not None else None
             for i in items:
                 if i < n:
                     allt[i].state = "ready"
-        keep = [e for e in k.delayed if not any(e[2] is allt[i] for i in range(n))]
+        mine = set(allt[:n])
+        keep = [e for e in k.delayed if e[2] not in mine]
+        seq = k._seq
         for rel, i in delayed:
             task = allt[i]
-            k._seq += 1
-            task.seq = k._seq
+            seq += 1
+            task.seq = seq
             task.state = "blocked"
-            keep.append((rel + te, task.seq, task))
-        keep.sort(key=lambda e: e[:2])
+            keep.append((rel + te, seq, task))
+        k._seq = seq
+        keep.sort()  # (wake tick, sequence number) is unique
         k.delayed = keep
         for i in range(n):
             if wake[i] is not None:
                 allt[i].wake_tick = wake[i] + te
         for rel, i in delayed:
             allt[i].wake_tick = rel + te  # what _delay_until records for every delay
-
-
