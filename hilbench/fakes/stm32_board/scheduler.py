@@ -560,6 +560,10 @@ def fast_run(k: Kernel, k0: int, k_end: int, tasks: list[Task], bg: Task | None 
 
     ``bg`` is the running task that resumes after each burst (default: the idle task); if it is not
     the idle task, the run ends in the tick where its remaining computation would finish.
+
+    Times are computed per context switch: a burst of L jobs has L + 1 switch points (the first at
+    the tick ISR's end, each next one a job's execution time and a switch later); every switch point
+    x stamps the old task out at x and the new one in at x + switch time, as the exact path does.
     """
     tick_us = k.tick_us
     sw = k.switch_us
@@ -575,33 +579,24 @@ def fast_run(k: Kernel, k0: int, k_end: int, tasks: list[Task], bg: Task | None 
         # is likely to need (the run ends at the horizon otherwise, and the next one continues).
         k_end = min(k_end, k0 + _background_ticks(k, tasks, budget - pre))
     if shadow is not None:
-        st, k_end = shadow.structure(k_end)
+        st, n, m, k_end = shadow.structure(k_end)
     else:
-        st = _Struct(np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)).view(0)
-    n = st.n
-    counts = None
+        st, n, m = _EMPTY_STRUCT, 0, 0
     if n:
-        ji = st.ji
+        ji = st.ji[:n]
         # Durations in each task's own stream order: group the jobs by task (stable), fill, scatter back.
-        counts = np.bincount(ji, minlength=len(tasks))
+        counts = np.bincount(ji, minlength=len(tasks)).tolist()
+        peeks = [task.fast.durations.peek(c) for task, c in zip(tasks, counts, strict=True) if c]
         d = np.empty(n)
-        d[np.argsort(ji, kind="stable")] = np.concatenate(
-            [task.fast.durations.peek(c) for task, c in zip(tasks, counts.tolist(), strict=True) if c])
-        # Per burst: the first job is switched in at T + isr; each job's switch-out at its end.
-        step = d + sw
-        cs = np.cumsum(step)
-        excl = cs - step
-        brel = st.brel
-        t_switch_in = (st.jt + k0) * tick_us + (isr - np.repeat(excl[st.start], st.blen)) + excl
-        t_end_job = t_switch_in + step  # its switch-out
-        burst_end = t_end_job[st.last] + sw  # the background's switch-in stamp
-        bad = np.flatnonzero(burst_end >= (brel + (k0 + 1)) * tick_us)
-        if len(bad):
-            k_end = k0 + int(brel[bad[0]])
+        d[np.argsort(ji, kind="stable")] = peeks[0] if len(peeks) == 1 else np.concatenate(peeks)
+        step = d + sw  # a job's execution time and the switch that ends it
+        x = _switch_points(st, n, m, step, k0 * tick_us + isr, tick_us)
+        burst_end = x[st.bslot_last[:m]] + sw  # the background's switch-in stamp
+        bad = burst_end >= st.brel_us(tick_us)[:m] + (k0 + 1) * tick_us  # the burst runs into the next tick
+        if bad.any():
+            k_end = k0 + int(st.brel[int(np.argmax(bad))])
             k._no_fast_before = k_end + 1  # do not retry until the overloaded tick is past
-    else:
-        burst_end = np.zeros(0)
-    burst_ticks = st.brel + k0
+    brel = st.brel[:m]
     done = None
     if budget != math.inf:
         # Background computing per tick: from its resumption (after the burst, or the ISR) to the next tick.
@@ -609,37 +604,47 @@ def fast_run(k: Kernel, k0: int, k_end: int, tasks: list[Task], bg: Task | None 
             return
         ticks = np.arange(k0, k_end + 1) * tick_us
         resume = ticks[:-1] + isr
-        inside = burst_ticks < k_end
-        resume[burst_ticks[inside] - k0] = burst_end[inside]
+        inside = int(np.searchsorted(brel, k_end - k0))
+        if inside:
+            resume[brel[:inside]] = burst_end[:inside]
         done = pre + np.cumsum(ticks[1:] - resume)  # computed by the end of each tick
         over = int(np.searchsorted(done, budget))
         if over < len(done):
             k_end = min(k_end, k0 + over + 1)  # hand over in the tick where it finishes
     if k_end - k0 < 1:
         return
-    keep_bursts = int(np.searchsorted(burst_ticks, k_end))
-    if keep_bursts < st.m:
-        st = st.cut(keep_bursts)
-        n = st.n
-        burst_ticks, burst_end = burst_ticks[:keep_bursts], burst_end[:keep_bursts]
-        counts = None
-        if n:
-            t_switch_in, t_end_job = t_switch_in[:n], t_end_job[:n]
+    keep = int(np.searchsorted(brel, k_end - k0))
+    if keep < m:
+        m = keep
+        n2 = int(st.start[m]) if m < st.m else st.n
+        if n2 < n:
+            n = n2
+            ji, step, counts = ji[:n], step[:n], None
+        x = x[: n + m]
     if n:
         if counts is None:
-            counts = np.bincount(st.ji, minlength=len(tasks))
-        _commit(k, tasks, bg, st, counts, t_switch_in, t_end_job)
+            counts = np.bincount(ji, minlength=len(tasks)).tolist()
+        _commit(k, tasks, bg, st, n, m, counts, ji, step, x)
     if shadow is not None:
         shadow.apply(k, k_end - 1)
     # Hand over at the background's resumption in the last processed tick.
     last = k_end - 1
-    handover = float(burst_end[-1]) if n and int(burst_ticks[-1]) == last else last * tick_us + isr
+    handover = float(x[st.bslot_last[m - 1]]) + sw if m and int(brel[m - 1]) == last - k0 else last * tick_us + isr
     if done is not None:
         bg.remaining = budget - (pre if last == k0 else float(done[last - k0 - 1]))
     k.tick = last
     k.now = max(k.now, handover)
     k._resume_at = k.now
     k.fast_ticks += k_end - k0
+
+
+def _switch_points(st: _Struct, n: int, m: int, step: np.ndarray, t0: float, tick_us: float) -> np.ndarray:
+    """The switch times of the first ``m`` bursts (``n`` jobs), burst by burst: the first at the tick's
+    ISR end, then one after each job. ``t0`` is the first tick's ISR end."""
+    a = np.zeros(n + m)
+    a[st.jslot_end[:n]] = step
+    ca = np.cumsum(a)
+    return (ca - ca[st.slot_first[: n + m]]) + (st.slot_base_us(tick_us)[: n + m] + t0)
 
 
 def _background_ticks(k: Kernel, tasks: list[Task], work_us: float) -> int:
@@ -651,49 +656,47 @@ def _background_ticks(k: Kernel, tasks: list[Task], work_us: float) -> int:
     return 2 + math.ceil(1.5 * max(work_us, 0.0) / avail)
 
 
-def _commit(k, tasks, bg, st: _View, counts, t_switch_in, t_end_job) -> None:
-    """Consume draws, charge run time and record the stamps of a fast run."""
+def _commit(k, tasks, bg, st: _Struct, n: int, m: int, counts: list[int], ji, step, x) -> None:
+    """Consume draws, charge run time and record the stamps of the first ``m`` bursts (``n`` jobs)."""
     units = RUNTIME_UNIT_US
-    first_in = t_switch_in[st.start]
-    last_out = t_end_job[st.last]
-    ji = st.ji
     nt = len(tasks)
-    fin, fout = np.floor(t_switch_in / units), np.floor(t_end_job / units)
-    rt = np.bincount(ji, weights=t_end_job - t_switch_in, minlength=nt).tolist()
-    ut = np.bincount(ji, weights=fout - fin, minlength=nt).tolist()
-    for task, c, r, u in zip(tasks, counts.tolist(), rt, ut, strict=True):
+    fx = np.floor(x / units)
+    rt = np.bincount(ji, weights=step, minlength=nt).tolist()
+    ut = np.bincount(ji, weights=fx[st.jslot_end[:n]] - fx[st.jslot_start[:n]], minlength=nt).tolist()
+    for task, c, r, u in zip(tasks, counts, rt, ut, strict=True):
         if c:
             task.fast.durations.consume(c)
             task.runtime_us += r
             task.runtime_units += round(u)
             task.slices += c
     # The background: from its last switch-in to the first burst, then between bursts.
-    bg_in = np.concatenate(([bg.in_at], last_out[:-1]))
-    bg.runtime_us += float(np.sum(first_in - bg_in))
-    bg.runtime_units += int(np.sum(fin[st.start]) - np.sum(np.floor(bg_in / units)))
-    bg.in_at = float(last_out[-1])
-    bg.slices += st.m
+    first, last = st.bslot_first[:m], st.bslot_last[:m]
+    x_last = x[last]
+    in_at = bg.in_at
+    bg.runtime_us += float(x[first].sum() - x_last[:-1].sum()) - in_at
+    bg.runtime_units += int(fx[first].sum() - fx[last[:-1]].sum()) - math.floor(in_at / units)
+    bg.in_at = float(x_last[-1])
+    bg.slices += m
     if k.sampling:
-        _record_fast(k, tasks, bg, st, t_switch_in, t_end_job)
+        _record_fast(k, tasks, bg, st, n, m, x)
 
 
-def _record_fast(k, tasks, bg, st: _View, t_in, t_out) -> None:
-    """Stamps per burst: background out, (job in, job out)*, background in."""
-    sw = k.switch_us
-    sid, b = st.stamp_labels(bg.stamp_id, tuple(t.stamp_id for t in tasks))
-    t = np.empty(len(sid))
-    t[st.pos_in] = t_in + sw
-    t[st.pos_out] = t_out
-    t[st.first_pos] = t_in[st.start]
-    t[st.last_pos] = t_out[st.last] + sw
+def _record_fast(k, tasks, bg, st: _Struct, n: int, m: int, x) -> None:
+    """Stamps per switch point: the old task out, the new one in a switch later."""
+    sid, b = st.stamp_labels(bg.stamp_id, tuple([t.stamp_id for t in tasks]))
+    total = 2 * (n + m)
+    sid, b = sid[:total], b[:total]
+    t = np.empty(total)
+    t[0::2] = x
+    t[1::2] = x + k.switch_us
     if not (bg.hooked and all(t_.hooked for t_ in tasks)):
-        keep = np.ones(len(sid), dtype=bool)
-        hooked = np.array([t_.hooked for t_ in tasks])[st.ji]
-        keep[st.pos_in] = hooked
-        keep[st.pos_out] = hooked
+        keep = np.ones(total, dtype=bool)
+        hooked = np.array([t_.hooked for t_ in tasks])[st.ji[:n]]
+        keep[2 * st.jslot_start[:n] + 1] = hooked
+        keep[2 * st.jslot_end[:n]] = hooked
         if not bg.hooked:
-            keep[st.first_pos] = False
-            keep[st.last_pos] = False
+            keep[2 * st.bslot_first[:m]] = False
+            keep[2 * st.bslot_last[:m] + 1] = False
         t, sid, b = t[keep], sid[keep], b[keep]
     k._flush_lists()
     k._chunks.append((t, sid, b))
@@ -731,94 +734,82 @@ class _ShadowList:
 
 
 class _Struct:
-    """Per-job and per-burst index arrays of a release pattern (ticks relative to the run's first)."""
+    """Per-job, per-burst and per-switch-point index arrays of a release pattern (ticks relative to
+    the run's first). Burst b's switch points are slots ``start[b] + b`` .. ``last[b] + b + 1``, so
+    the first m bursts (n jobs) are always the first n + m slots, and any prefix is a slice."""
 
-    __slots__ = ("jt", "ji", "start", "last", "blen", "brel", "pos_in", "first_pos", "last_pos", "n", "m",
-                 "pos_out", "labels")
+    __slots__ = ("jt", "ji", "start", "last", "brel", "n", "m", "jslot_start", "jslot_end", "bslot_first",
+                 "bslot_last", "slot_first", "labels", "_us")
 
-    def __init__(self, jt: np.ndarray, ji: np.ndarray, *, _raw: tuple | None = None) -> None:
-        self.labels: dict = {}  # (background id, task ids) -> stamp ids and edges of every slot
-        if _raw is not None:
-            (self.jt, self.ji, self.start, self.last, self.blen, self.brel, self.pos_in, self.first_pos,
-             self.last_pos, self.pos_out) = _raw
-            self.n, self.m = len(self.jt), len(self.start)
-            return
+    def __init__(self, jt: np.ndarray, ji: np.ndarray) -> None:
+        self.labels: dict = {}  # (background id, task ids) -> stamp ids and edges of every stamp
+        self._us: dict = {}
         n = len(jt)
         self.jt, self.ji, self.n = jt, ji, n
         if n == 0:
             z = np.zeros(0, dtype=np.int64)
-            self.start = self.last = self.blen = self.brel = self.pos_in = self.first_pos = self.last_pos = z
-            self.pos_out = z
+            self.start = self.last = self.brel = self.jslot_start = self.jslot_end = z
+            self.bslot_first = self.bslot_last = self.slot_first = z
             self.m = 0
             return
         new = np.empty(n, dtype=bool)
         new[0] = True
         new[1:] = jt[1:] != jt[:-1]
         self.start = np.flatnonzero(new)
-        self.m = len(self.start)
+        m = self.m = len(self.start)
         self.last = np.append(self.start[1:] - 1, n - 1)
-        self.blen = np.diff(np.append(self.start, n))
         self.brel = jt[self.start]
-        self.pos_in = 2 * np.arange(n) + 1 + 2 * np.repeat(np.arange(self.m), self.blen)
-        self.first_pos = self.pos_in[self.start] - 1
-        self.last_pos = self.pos_in[self.last] + 2
-        self.pos_out = self.pos_in + 1
+        burst = np.cumsum(new) - 1  # burst index of every job
+        self.jslot_start = np.arange(n) + burst
+        self.jslot_end = self.jslot_start + 1
+        self.bslot_first = self.start + np.arange(m)
+        self.bslot_last = self.last + np.arange(m) + 1
+        slot_burst = np.repeat(np.arange(m), np.diff(np.append(self.start, n)) + 1)
+        self.slot_first = self.bslot_first[slot_burst]
+
+    def brel_us(self, tick_us: float) -> np.ndarray:
+        """Each burst's tick, in µs after the run's first tick."""
+        v = self._us.get(("brel", tick_us))
+        if v is None:
+            v = self._us[("brel", tick_us)] = self.brel * tick_us
+        return v
+
+    def slot_base_us(self, tick_us: float) -> np.ndarray:
+        """Every switch point's burst tick, in µs after the run's first tick."""
+        v = self._us.get(("slot", tick_us))
+        if v is None:
+            counts = self.bslot_last - self.bslot_first + 1
+            v = self._us[("slot", tick_us)] = np.repeat(self.brel_us(tick_us), counts)
+        return v
 
     def stamp_labels(self, bg_id: int, ids: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
-        """Stamp ids and edges of every stamp slot (they do not depend on the durations)."""
+        """Stamp ids and edges of every stamp (they do not depend on the durations): switch point s
+        stamps the old task out (2s) and the new one in (2s + 1)."""
         key = (bg_id, ids)
         lab = self.labels.get(key)
         if lab is None:
-            total = 2 * self.n + 2 * self.m
+            total = 2 * (self.n + self.m)
             sid = np.empty(total, dtype=np.int16)
             b = np.empty(total, dtype=bool)
             job_ids = np.array(ids, dtype=np.int16)[self.ji]
-            sid[self.pos_in] = job_ids
-            sid[self.pos_out] = job_ids
-            b[self.pos_in] = True
-            b[self.pos_out] = False
-            sid[self.first_pos] = bg_id
-            b[self.first_pos] = False
-            sid[self.last_pos] = bg_id
-            b[self.last_pos] = True
+            sid[2 * self.jslot_start + 1] = job_ids
+            sid[2 * self.jslot_end] = job_ids
+            b[2 * self.jslot_start + 1] = True
+            b[2 * self.jslot_end] = False
+            sid[2 * self.bslot_first] = bg_id
+            b[2 * self.bslot_first] = False
+            sid[2 * self.bslot_last + 1] = bg_id
+            b[2 * self.bslot_last + 1] = True
             lab = self.labels[key] = (sid, b)
         return lab
 
-    def prefix(self, horizon: int) -> _View:
-        """The bursts in ticks < horizon."""
-        return self.view(int(np.searchsorted(self.brel, horizon)))
-
-    def view(self, m: int) -> _View:
-        """The first ``m`` bursts."""
-        return _View(self, int(self.start[m]) if m < self.m else self.n, m)
+    def prefix(self, horizon: int) -> tuple[int, int]:
+        """(jobs, bursts) in ticks < horizon."""
+        m = int(np.searchsorted(self.brel, horizon))
+        return (int(self.start[m]) if m < self.m else self.n), m
 
 
-class _View:
-    """The first ``m`` bursts (``n`` jobs) of a :class:`_Struct`, as cheap slices."""
-
-    __slots__ = ("st", "n", "m")
-
-    def __init__(self, st: _Struct, n: int, m: int) -> None:
-        self.st, self.n, self.m = st, n, m
-
-    def cut(self, m: int) -> _View:
-        return self.st.view(m)
-
-    jt = property(lambda self: self.st.jt[: self.n])
-    ji = property(lambda self: self.st.ji[: self.n])
-    pos_in = property(lambda self: self.st.pos_in[: self.n])
-    pos_out = property(lambda self: self.st.pos_out[: self.n])
-    start = property(lambda self: self.st.start[: self.m])
-    last = property(lambda self: self.st.last[: self.m])
-    blen = property(lambda self: self.st.blen[: self.m])
-    brel = property(lambda self: self.st.brel[: self.m])
-    first_pos = property(lambda self: self.st.first_pos[: self.m])
-    last_pos = property(lambda self: self.st.last_pos[: self.m])
-
-    def stamp_labels(self, bg_id: int, ids: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
-        sid, b = self.st.stamp_labels(bg_id, ids)
-        total = 2 * self.n + 2 * self.m
-        return sid[:total], b[:total]
+_EMPTY_STRUCT = _Struct(np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64))
 
 
 class _Shadow:
@@ -952,8 +943,10 @@ class _Shadow:
         if self.unsupported_from is not None:
             self.horizon = min(self.horizon, self.unsupported_from)
 
-    def structure(self, k_end: int) -> tuple[_View, int]:
-        """The job structure of ticks < k_end (cached per pattern, relative to the first tick)."""
+    def structure(self, k_end: int) -> tuple[_Struct, int, int, int]:
+        """The job structure of ticks < k_end (cached per pattern, relative to the first tick): the
+        structure, the jobs and bursts before k_end, and k_end (earlier if the pattern is unknown
+        beyond)."""
         horizon = k_end - self.k0
         if self.horizon is not None:
             horizon = min(horizon, self.horizon)
@@ -965,7 +958,7 @@ class _Shadow:
             st = _Struct(*self.jobs(span))
             if entry is not None:
                 entry["struct"] = (span, st)
-        return st.prefix(horizon), self.k0 + horizon
+        return (st, *st.prefix(horizon), self.k0 + horizon)
 
     def jobs(self, horizon: int) -> tuple[np.ndarray, np.ndarray]:
         """Relative job ticks and task indices for ticks < horizon (tiled past the simulated part if a
