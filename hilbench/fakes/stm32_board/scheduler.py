@@ -538,28 +538,38 @@ class Kernel:
                 if fast is None or t.remaining > 0 or (fast.valid is not None and not fast.valid()):
                     return
                 tasks.append(t)
-        # The run ends at the first tick that needs the exact path.
+        # The run ends at the first tick that needs the exact path. The tick of the next event may
+        # be processed too when its burst is over before the event (the run hands over there).
         limit = math.floor(t_end / self.tick_us)
+        until = None
         if self.events:
-            limit = min(limit, math.floor(self.events[0][0] / self.tick_us))
+            t_event = self.events[0][0]
+            if math.floor(t_event / self.tick_us) < limit:
+                limit = math.floor(t_event / self.tick_us)
+                until = t_event
         for wake, _, task in self.delayed:
-            if wake >= limit:
+            if wake > limit or (wake == limit and until is None):
                 break
             fast = task.fast
             if fast is None or (fast.valid is not None and not fast.valid()):
-                limit = wake
+                if wake < limit:
+                    limit = wake
+                until = None
                 break
             tasks.append(task)
         if limit - k0 < 2:
             return
-        fast_run(self, k0, limit, tasks, cur)
+        fast_run(self, k0, limit, tasks, cur, until)
 
 
-def fast_run(k: Kernel, k0: int, k_end: int, tasks: list[Task], bg: Task | None = None) -> None:
+def fast_run(k: Kernel, k0: int, k_end: int, tasks: list[Task], bg: Task | None = None,
+             until: float | None = None) -> None:
     """Process ticks k0 .. k_end-1 in bulk (see the module docstring); stops early at an irregular tick.
 
     ``bg`` is the running task that resumes after each burst (default: the idle task); if it is not
-    the idle task, the run ends in the tick where its remaining computation would finish.
+    the idle task, the run ends in the tick where its remaining computation would finish. With
+    ``until`` (the time of the next event, in tick k_end), tick k_end is processed too if the run
+    can hand over before that time.
 
     Times are computed per context switch: a burst of L jobs has L + 1 switch points (the first at
     the tick ISR's end, each next one a job's execution time and a switch later); every switch point
@@ -578,6 +588,10 @@ def fast_run(k: Kernel, k0: int, k_end: int, tasks: list[Task], bg: Task | None 
         # The background finishes long before the run's limit, typically: compute only the ticks it
         # is likely to need (the run ends at the horizon otherwise, and the next one continues).
         k_end = min(k_end, k0 + _background_ticks(k, tasks, budget - pre))
+    tail = None
+    if until is not None and k_end * tick_us < until:
+        tail = k_end  # the event's tick, processed only if its burst is over before the event
+        k_end += 1
     if shadow is not None:
         st, n, m, k_end = shadow.structure(k_end)
     else:
@@ -611,6 +625,11 @@ def fast_run(k: Kernel, k0: int, k_end: int, tasks: list[Task], bg: Task | None 
         over = int(np.searchsorted(done, budget))
         if over < len(done):
             k_end = min(k_end, k0 + over + 1)  # hand over in the tick where it finishes
+    if tail is not None and k_end == tail + 1:
+        burst_at_tail = m and int(brel[m - 1]) == tail - k0
+        handover = float(x[st.bslot_last[m - 1]]) + sw if burst_at_tail else tail * tick_us + isr
+        if not handover < until:
+            k_end = tail
     if k_end - k0 < 1:
         return
     keep = int(np.searchsorted(brel, k_end - k0))
