@@ -195,19 +195,26 @@ class Firmware:
 
     def sync(self) -> None:
         """Hand the stamps the kernel recorded to the output path (before any ring operation)."""
-        t, ids, b = self.kernel.take_stamps()
-        if not len(t):
+        k = self.kernel
+        if not k.has_stamps:
             return
-        self.truth.stamps_recorded += len(t)
+        if self.output == "binary":
+            chunks = [k.take_stamps()]
+        else:
+            chunks = [c for c in k.take_chunks() if len(c[0])]
+            if not chunks:
+                return
         if self.first_stamp is None:
-            self.first_stamp = float(t[0])
+            self.first_stamp = float(chunks[0][0][0])
             if self.output in ("v2", "v3"):
                 self.ref = self.first_stamp
-        if self.output == "binary":
-            t_us = stamp_us(t, self.ref)
-            self.binary.write(t_us, ids, b)
-        else:
-            self.truth.records_lost += self.records.push(t, ids, b)
+        truth = self.truth
+        for t, ids, b in chunks:
+            truth.stamps_recorded += len(t)
+            if self.output == "binary":
+                self.binary.write(stamp_us(t, self.ref), ids, b)
+            else:
+                truth.records_lost += self.records.push(t, ids, b)
 
     def try_write(self, data: bytes) -> bool:
         self.sync()

@@ -289,10 +289,23 @@ class Kernel:
         return (np.concatenate([c[0] for c in chunks]), np.concatenate([c[1] for c in chunks]),
                 np.concatenate([c[2] for c in chunks]))
 
+    def take_chunks(self) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        """:meth:`take_stamps` as the pieces they were recorded in (consecutive, in time order)."""
+        if self._st_t:
+            self._flush_lists()
+        chunks = self._chunks
+        self._chunks = []
+        return chunks
+
     def _flush_lists(self) -> None:
         if self._st_t:
             self._chunks.append((np.array(self._st_t), np.array(self._st_id, np.int16), np.array(self._st_b, bool)))
             self._st_t, self._st_id, self._st_b = [], [], []
+
+    @property
+    def has_stamps(self) -> bool:
+        """Whether stamps were recorded since the last take."""
+        return bool(self._st_t or self._chunks)
 
     @property
     def pending_stamps(self) -> int:
@@ -333,19 +346,8 @@ class Kernel:
         task.wake_tick = tick
         self._seq += 1
         task.seq = self._seq
-        entry = (tick, self._seq, task)
-        d = self.delayed
-        if not d or d[-1][:2] < entry[:2]:
-            d.append(entry)
-        else:
-            lo, hi = 0, len(d)
-            while lo < hi:
-                mid = (lo + hi) // 2
-                if d[mid][:2] < entry[:2]:
-                    lo = mid + 1
-                else:
-                    hi = mid
-            d.insert(lo, entry)
+        # (wake tick, sequence number) is unique, so tuple order never compares the tasks.
+        bisect.insort(self.delayed, (tick, self._seq, task))
         return True
 
     # ------------------------------------------------------------------ switching
@@ -364,16 +366,29 @@ class Kernel:
             return
         if t < self._resume_at:
             t = self._resume_at
-        self._charge(old, t)
-        self._record_out(old, t)
+        t_in = t + self.switch_us  # the new task's switch-in stamp; it starts computing then
+        # _charge, _record_out and _record_in, inlined (the exact path's hottest code).
+        u = RUNTIME_UNIT_US
+        old.runtime_us += t - old.in_at
+        old.runtime_units += math.floor(t / u) - math.floor(old.in_at / u)
+        if self.sampling:
+            if old.hooked:
+                self._st_t.append(t)
+                self._st_id.append(old.stamp_id)
+                self._st_b.append(False)
+                self.ctx_switches += 1
+            if new.hooked:
+                self._st_t.append(t_in)
+                self._st_id.append(new.stamp_id)
+                self._st_b.append(True)
+                self.ctx_switches += 1
         if old.state == "running":
             old.state = "ready"
         new.state = "running"
         new.in_at = t
+        new.slices += 1
         self.current = new
-        self._record_in(new, t + self.switch_us)
-        # The new task starts computing after the switch.
-        self._resume_at = t + self.switch_us
+        self._resume_at = t_in
 
     _resume_at = 0.0
 
@@ -602,7 +617,7 @@ def fast_run(k: Kernel, k0: int, k_end: int, tasks: list[Task], bg: Task | None 
         counts = np.bincount(ji, minlength=len(tasks)).tolist()
         peeks = [task.fast.durations.peek(c) for task, c in zip(tasks, counts, strict=True) if c]
         d = np.empty(n)
-        d[np.argsort(ji, kind="stable")] = peeks[0] if len(peeks) == 1 else np.concatenate(peeks)
+        d[ji.argsort(kind="stable")] = peeks[0] if len(peeks) == 1 else np.concatenate(peeks)
         step = d + sw  # a job's execution time and the switch that ends it
         x = _switch_points(st, n, m, step, k0 * tick_us + isr, tick_us)
         burst_end = x[st.bslot_last[:m]] + sw  # the background's switch-in stamp
@@ -618,11 +633,11 @@ def fast_run(k: Kernel, k0: int, k_end: int, tasks: list[Task], bg: Task | None 
             return
         ticks = np.arange(k0, k_end + 1) * tick_us
         resume = ticks[:-1] + isr
-        inside = int(np.searchsorted(brel, k_end - k0))
+        inside = int(brel.searchsorted(k_end - k0))
         if inside:
             resume[brel[:inside]] = burst_end[:inside]
-        done = pre + np.cumsum(ticks[1:] - resume)  # computed by the end of each tick
-        over = int(np.searchsorted(done, budget))
+        done = pre + (ticks[1:] - resume).cumsum()  # computed by the end of each tick
+        over = int(done.searchsorted(budget))
         if over < len(done):
             k_end = min(k_end, k0 + over + 1)  # hand over in the tick where it finishes
     if tail is not None and k_end == tail + 1:
@@ -632,7 +647,7 @@ def fast_run(k: Kernel, k0: int, k_end: int, tasks: list[Task], bg: Task | None 
             k_end = tail
     if k_end - k0 < 1:
         return
-    keep = int(np.searchsorted(brel, k_end - k0))
+    keep = int(brel.searchsorted(k_end - k0))
     if keep < m:
         m = keep
         n2 = int(st.start[m]) if m < st.m else st.n
@@ -662,7 +677,7 @@ def _switch_points(st: _Struct, n: int, m: int, step: np.ndarray, t0: float, tic
     ISR end, then one after each job. ``t0`` is the first tick's ISR end."""
     a = np.zeros(n + m)
     a[st.jslot_end[:n]] = step
-    ca = np.cumsum(a)
+    ca = a.cumsum()
     return (ca - ca[st.slot_first[: n + m]]) + (st.slot_base_us(tick_us)[: n + m] + t0)
 
 
@@ -682,19 +697,23 @@ def _commit(k, tasks, bg, st: _Struct, n: int, m: int, counts: list[int], ji, st
     fx = np.floor(x / units)
     rt = np.bincount(ji, weights=step, minlength=nt).tolist()
     ut = np.bincount(ji, weights=fx[st.jslot_end[:n]] - fx[st.jslot_start[:n]], minlength=nt).tolist()
+    busy_us = busy_units = 0
     for task, c, r, u in zip(tasks, counts, rt, ut, strict=True):
         if c:
             task.fast.durations.consume(c)
             task.runtime_us += r
-            task.runtime_units += round(u)
+            u = round(u)
+            task.runtime_units += u
             task.slices += c
-    # The background: from its last switch-in to the first burst, then between bursts.
-    first, last = st.bslot_first[:m], st.bslot_last[:m]
-    x_last = x[last]
-    in_at = bg.in_at
-    bg.runtime_us += float(x[first].sum() - x_last[:-1].sum()) - in_at
-    bg.runtime_units += int(fx[first].sum() - fx[last[:-1]].sum()) - math.floor(in_at / units)
-    bg.in_at = float(x_last[-1])
+            busy_us += r
+            busy_units += u
+    # The background ran from its last switch-in to the end of the last burst, except in the bursts
+    # (whose spans are the jobs' times, each switch point ending one job and starting the next).
+    end = st.bslot_last[m - 1]
+    x_end = float(x[end])
+    bg.runtime_us += (x_end - bg.in_at) - busy_us
+    bg.runtime_units += int(fx[end]) - math.floor(bg.in_at / units) - busy_units
+    bg.in_at = x_end
     bg.slices += m
     if k.sampling:
         _record_fast(k, tasks, bg, st, n, m, x)
@@ -824,7 +843,7 @@ class _Struct:
 
     def prefix(self, horizon: int) -> tuple[int, int]:
         """(jobs, bursts) in ticks < horizon."""
-        m = int(np.searchsorted(self.brel, horizon))
+        m = int(self.brel.searchsorted(horizon))
         return (int(self.start[m]) if m < self.m else self.n), m
 
 
