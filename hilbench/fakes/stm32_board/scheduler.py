@@ -85,11 +85,15 @@ class Durations:
         return float(v)
 
     def peek(self, n: int) -> np.ndarray:
-        self._fill(n)
+        """The next ``n`` draws, without taking them."""
+        if len(self._buf) - self._pos < n:
+            self._fill(n)
         return self._buf[self._pos : self._pos + n]
 
     def consume(self, n: int) -> None:
-        self._fill(n)
+        """Take ``n`` draws (after :meth:`peek`)."""
+        if len(self._buf) - self._pos < n:
+            self._fill(n)
         self._pos += n
 
 
@@ -736,7 +740,8 @@ def _record_fast(k, tasks, bg, st: _Struct, n: int, m: int, x) -> None:
             keep[2 * st.bslot_first[:m]] = False
             keep[2 * st.bslot_last[:m] + 1] = False
         t, sid, b = t[keep], sid[keep], b[keep]
-    k._flush_lists()
+    if k._st_t:
+        k._flush_lists()
     k._chunks.append((t, sid, b))
     k.ctx_switches += len(t)
 
@@ -992,7 +997,9 @@ class _Shadow:
         if entry is not None and entry["struct"] is not None and entry["struct"][0] >= horizon:
             st = entry["struct"][1]
         else:
-            span = max(horizon, 2048) if entry is not None else horizon
+            span = horizon
+            if entry is not None:  # cached structures grow by doubling: most runs are short
+                span = max(horizon, 256, 2 * entry["struct"][0] if entry["struct"] is not None else 0)
             st = _Struct(*self.jobs(span))
             if entry is not None:
                 entry["struct"] = (span, st)
