@@ -25,6 +25,8 @@ Output paths:
 
 from __future__ import annotations
 
+import bisect
+import itertools
 import math
 from collections import deque
 from dataclasses import replace
@@ -523,19 +525,19 @@ class Firmware:
             return
         t_us = np.maximum(stamp_us(t, self.ref), 0)
         lines = ts.format_stamps(self.names_b, ids, t_us, b, self.dialect)
-        ends = np.cumsum([len(x) for x in lines])
+        ends = list(itertools.accumulate(map(len, lines)))
         i = 0
         n = len(lines)
         while i < n:
             free = yield (CALL, lambda k: (self.sync(), self.ring.free)[1])
-            base = int(ends[i - 1]) if i else 0
-            m = int(np.searchsorted(ends[i:], base + free, side="right"))
+            base = ends[i - 1] if i else 0
+            m = bisect.bisect_right(ends, base + free, lo=i) - i
             if m == 0:  # not even one line fits: format it, then wait for space
                 yield (RUN, self.line_cost.draw())
                 yield from self.write_blocking(task, lines[i])
                 m = 1
             else:
-                yield (RUN, float(np.sum(self.line_cost.peek(m))))
+                yield (RUN, float(self.line_cost.peek(m).sum()))
                 self.line_cost.consume(m)
                 chunk = b"".join(lines[i : i + m])
                 ok = yield (CALL, lambda k, chunk=chunk: self.try_write(chunk))
