@@ -880,15 +880,17 @@ class _Shadow:
         self.n = n
         self.k0 = k0
         ix = {t: i for i, t in enumerate(allt)}
-        period = tuple(t.fast.period for t in tasks)
-        relative = tuple(t.fast.relative for t in tasks)
+        fasts = [t.fast for t in tasks]
+        period = tuple([f.period for f in fasts])
+        relative = tuple([f.relative for f in fasts])
         te = k0 - 1
+        ready = k.ready
         # The lists relative to the tick before the run, as the simulation's snapshots describe them.
-        init = (tuple((p, tuple([ix[t] for t in rl.items]), None if rl.idx is None else ix[rl.idx])
-                      for p, rl in sorted(k.ready.items())),
-                tuple((w - te, ix[t]) for w, _, t in k.delayed if ix.get(t, n) < n),
-                tuple(None if rel else t.wake_tick - te for t, rel in zip(tasks, relative, strict=True)))
-        key = (init, period, relative, tuple(t.priority for t in tasks), bg is k.idle)
+        init = (tuple([(p, tuple([ix[t] for t in ready[p].items]), None if ready[p].idx is None else ix[ready[p].idx])
+                       for p in reversed(k._prios)]),
+                tuple([(w - te, ix[t]) for w, _, t in k.delayed if ix.get(t, n) < n]),
+                tuple([None if f.relative else t.wake_tick - te for t, f in zip(tasks, fasts, strict=True)]))
+        key = (init, period, relative, tuple([t.priority for t in tasks]), bg is k.idle)
         self.unsupported_from: int | None = None
         cached = k._patterns.get(key)
         if cached is not None:
