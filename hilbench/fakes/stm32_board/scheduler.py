@@ -60,6 +60,8 @@ class Durations:
     def __init__(self, timing: Timing, seed: int) -> None:
         t = timing.resolved()
         self.timing = t
+        #: No draw is longer (normal draws are clipped to max_us, fixed ones are the mean).
+        self.longest = t.mean_us if t.dist == "fixed" or not t.sd_us else max(t.max_us, t.min_us)
         self.rng = np.random.default_rng(seed)
         self._buf = np.zeros(0)
         self._pos = 0
@@ -626,16 +628,21 @@ def fast_run(k: Kernel, k0: int, k_end: int, tasks: list[Task], bg: Task | None 
         ji = st.ji[:n]
         # Durations in each task's own stream order: group the jobs by task (stable), fill, scatter back.
         counts = np.bincount(ji, minlength=len(tasks)).tolist()
-        peeks = [task.fast.durations.peek(c) for task, c in zip(tasks, counts, strict=True) if c]
+        # Durations in each task's own stream order: the task's first c jobs get its next c draws.
         d = np.empty(n)
-        d[ji.argsort(kind="stable")] = peeks[0] if len(peeks) == 1 else np.concatenate(peeks)
+        positions = st.task_positions()
+        for i, (task, c) in enumerate(zip(tasks, counts, strict=True)):
+            if c:
+                d[positions[i][:c]] = task.fast.durations.peek(c)
         step = d + sw  # a job's execution time and the switch that ends it
         x = _switch_points(st, n, m, step, k0 * tick_us + isr, tick_us)
-        burst_end = x[st.bslot_last[:m]] + sw  # the background's switch-in stamp
-        bad = burst_end >= st.brel_us(tick_us)[:m] + (k0 + 1) * tick_us  # the burst runs into the next tick
-        if bad.any():
-            k_end = k0 + int(st.brel[int(np.argmax(bad))])
-            k._no_fast_before = k_end + 1  # do not retry until the overloaded tick is past
+        # Does a burst run into the next tick? Not even possible with the longest draws, usually.
+        if isr + st.longest_burst(tuple([t.fast.durations.longest for t in tasks]), sw) >= tick_us - 1e-6:
+            burst_end = x[st.bslot_last[:m]] + sw  # the background's switch-in stamp
+            bad = burst_end >= st.brel_us(tick_us)[:m] + (k0 + 1) * tick_us
+            if bad.any():
+                k_end = k0 + int(st.brel[int(np.argmax(bad))])
+                k._no_fast_before = k_end + 1  # do not retry until the overloaded tick is past
     brel = st.brel[:m]
     done = None
     if budget != math.inf:
@@ -646,7 +653,7 @@ def fast_run(k: Kernel, k0: int, k_end: int, tasks: list[Task], bg: Task | None 
         resume = ticks[:-1] + isr
         inside = int(brel.searchsorted(k_end - k0))
         if inside:
-            resume[brel[:inside]] = burst_end[:inside]
+            resume[brel[:inside]] = x[st.bslot_last[:inside]] + sw
         done = pre + (ticks[1:] - resume).cumsum()  # computed by the end of each tick
         over = int(done.searchsorted(budget))
         if over < len(done):
@@ -789,17 +796,19 @@ class _Struct:
     the first m bursts (n jobs) are always the first n + m slots, and any prefix is a slice."""
 
     __slots__ = ("jt", "ji", "start", "last", "brel", "n", "m", "jslot_start", "jslot_end", "bslot_first",
-                 "bslot_last", "slot_first", "labels", "_us")
+                 "bslot_last", "slot_first", "labels", "_us", "_positions", "_longest", "jburst")
 
     def __init__(self, jt: np.ndarray, ji: np.ndarray) -> None:
         self.labels: dict = {}  # (background id, task ids) -> stamp ids and edges of every stamp
         self._us: dict = {}
+        self._positions: list[np.ndarray] | None = None
+        self._longest: dict = {}
         n = len(jt)
         self.jt, self.ji, self.n = jt, ji, n
         if n == 0:
             z = np.zeros(0, dtype=np.int64)
             self.start = self.last = self.brel = self.jslot_start = self.jslot_end = z
-            self.bslot_first = self.bslot_last = self.slot_first = z
+            self.bslot_first = self.bslot_last = self.slot_first = self.jburst = z
             self.m = 0
             return
         new = np.empty(n, dtype=bool)
@@ -809,13 +818,35 @@ class _Struct:
         m = self.m = len(self.start)
         self.last = np.append(self.start[1:] - 1, n - 1)
         self.brel = jt[self.start]
-        burst = np.cumsum(new) - 1  # burst index of every job
+        burst = self.jburst = np.cumsum(new) - 1  # burst index of every job
         self.jslot_start = np.arange(n) + burst
         self.jslot_end = self.jslot_start + 1
         self.bslot_first = self.start + np.arange(m)
         self.bslot_last = self.last + np.arange(m) + 1
         slot_burst = np.repeat(np.arange(m), np.diff(np.append(self.start, n)) + 1)
         self.slot_first = self.bslot_first[slot_burst]
+
+    def task_positions(self) -> list[np.ndarray]:
+        """Per task index, the positions of its jobs (ascending): a prefix's jobs of a task are the
+        first of them."""
+        if self._positions is None:
+            order = self.ji.argsort(kind="stable")
+            bounds = np.cumsum(np.bincount(self.ji)).tolist()
+            self._positions = [order[a:b] for a, b in zip([0, *bounds[:-1]], bounds, strict=True)]
+        return self._positions
+
+    def longest_burst(self, longest: tuple[float, ...], sw: float) -> float:
+        """The longest any burst can take from its first switch to the background's switch-in, with
+        every job at its task's longest draw (``longest`` per task index)."""
+        v = self._longest.get((longest, sw))
+        if v is None:
+            if self.n == 0:
+                v = 0.0
+            else:
+                per_burst = np.bincount(self.jburst, weights=np.asarray(longest)[self.ji] + sw, minlength=self.m)
+                v = float(per_burst.max()) + sw
+            self._longest[(longest, sw)] = v
+        return v
 
     def brel_us(self, tick_us: float) -> np.ndarray:
         """Each burst's tick, in µs after the run's first tick."""
