@@ -11,20 +11,23 @@ higher priority preempts at once, one of equal priority at the next tick
 Every switch records the switch-out stamp of the old task and, one switch
 time later, the switch-in stamp of the new one (a switch requested before the
 previous one has finished waits for it, so no slice ends before it begins),
-and charges run time the way
-the kernel's run-time statistics do (sampled at each switch, counted in TIM13
-units of ≈92.6 µs).
+and charges run time the way the kernel's run-time statistics do (sampled at
+each switch, counted in TIM13 units of ≈92.6 µs).
 
-Fast path: when the CPU is idle at a tick boundary and every blocked task
-that will wake before the next irregular event (an ISR, a task without a
-periodic model) is periodic, the kernel generates whole runs of ticks with
-numpy: the release order per tick comes from the delayed list (computed once
-per hyperperiod and tiled), execution times are drawn in bulk from each
-task's own random stream, and switch stamps and run-time counters follow from
-cumulative sums. A tick whose burst would run into the next tick (overload,
-time slicing) ends the fast run and the exact path takes over. Both paths
-draw from the same per-task streams in the same order, so a test can prove
-they produce identical stamps.
+Fast path: when the running task is the idle task or a long computation (the
+background) and every task that will be ready before the next irregular
+event (an ISR, a task without a periodic model) is periodic, the kernel
+generates whole runs of ticks with numpy: the release order per tick comes
+from the ready and delayed lists (replayed once per relative start state until
+it repeats, then tiled, and cached), execution times are drawn in bulk from
+each task's own random stream, and the switch times of every tick's burst
+follow from one cumulative sum; stamps, run-time counters and the
+background's progress follow from those. A run ends at the first tick that
+needs the exact path: a burst that would run into the next tick (overload),
+the tick where the background finishes, an event (whose tick is included
+when its burst is over before the event) or a task whose model does not
+hold. Both paths draw from the same per-task streams in the same order, so
+tests can prove they produce the same stamps and the same output bytes.
 """
 
 from __future__ import annotations
