@@ -196,7 +196,10 @@ class Firmware:
     # ------------------------------------------------------------------ stamps into the output path
 
     def sync(self) -> None:
-        """Hand the stamps the kernel recorded to the output path (before any ring operation)."""
+        """Hand the stamps the kernel recorded to the output path. Binary words go into the ring, so
+        this runs before any ring operation (:meth:`sync_ring`); text paths buffer records apart from
+        the ring, so they need it only before the records are read, at the window's edges and at the
+        end of a :meth:`run_until`."""
         k = self.kernel
         if not k.has_stamps:
             return
@@ -218,8 +221,13 @@ class Firmware:
             else:
                 truth.records_lost += self.records.push(t, ids, b)
 
+    def sync_ring(self) -> None:
+        """:meth:`sync` where the ring's content depends on it (binary words)."""
+        if self.output == "binary":
+            self.sync()
+
     def try_write(self, data: bytes) -> bool:
-        self.sync()
+        self.sync_ring()
         return self.ring.write(data)
 
     def write_blocking(self, task: Task, data: bytes):
@@ -242,7 +250,7 @@ class Firmware:
     # ------------------------------------------------------------------ tsink and DMA
 
     def start_dma(self, k: Kernel, min_bytes: int = 1) -> int:
-        self.sync()
+        self.sync_ring()
         if k.now < self.faults.stall_until_us or self.ring.used < min_bytes:
             return 0
         n = self.ring.dma_chunk()
@@ -257,7 +265,7 @@ class Firmware:
         return n
 
     def _dma_done(self, k: Kernel) -> None:
-        self.sync()
+        self.sync_ring()
         self.ring.complete()
         k.notify_from_isr(self.tasks["tsink"])
 
@@ -529,7 +537,7 @@ class Firmware:
         i = 0
         n = len(lines)
         while i < n:
-            free = yield (CALL, lambda k: (self.sync(), self.ring.free)[1])
+            free = yield (CALL, lambda k: self.ring.free)
             base = ends[i - 1] if i else 0
             m = bisect.bisect_right(ends, base + free, lo=i) - i
             if m == 0:  # not even one line fits: format it, then wait for space
