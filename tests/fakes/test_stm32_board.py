@@ -89,6 +89,15 @@ def test_idle_line_framing_cases_of_the_spec():
                    "parsing velocity failed: insufficient bytes received", "[recv vel] [0.000000 0.000000 0.000000]"]
 
 
+def test_a_micro_ros_board_ignores_uart_frames():
+    b = board("micro-ros-100-50", output="v2", baud=2_000_000)
+    b.run_for(0.01)
+    b.receive(C)  # the micro-ROS build takes setpoints over XRCE-DDS; UART3 only transmits
+    b.run_for(0.05)
+    assert b.truth.rx_bytes_ignored == 28 and b.truth.frames_ok == b.truth.frames_length_error == 0
+    assert not any("recv vel" in line for line in logs(b))
+
+
 @pytest.mark.parametrize(
     "frame,wheels,duty",
     [

@@ -43,6 +43,7 @@ class Truth:
     frames_crc_error: int = 0
     frames_length_error: int = 0
     setpoints_dropped: int = 0  # vel_sp_queue full
+    rx_bytes_ignored: int = 0  # host bytes on a board without a UART receiver (micro-ROS build)
 
 
 @dataclass
