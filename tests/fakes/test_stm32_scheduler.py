@@ -289,3 +289,54 @@ def test_fast_path_equals_exact_when_the_background_resumes_after_a_tick():
     assert np.allclose(st[0], exact_st[0], rtol=0, atol=1e-6)
     assert np.array_equal(st[1], exact_st[1]) and np.array_equal(st[2], exact_st[2])
     assert [r for _, r in rt] == pytest.approx([r for _, r in exact_rt], abs=1e-6)
+
+
+def test_fast_path_equals_exact_with_events_between_and_inside_bursts():
+    """ISR events at random times (like DMA completions waking tsink) while a long computation runs
+    in the background: a run takes the event's tick when its burst is over before the event."""
+    rng = np.random.default_rng(5)
+    times = np.sort(rng.uniform(1_000, 199_000, 300))
+    results = []
+    for fast in (True, False):
+        k = Kernel(10_000, isr_us=0.6, switch_us=0.4)
+        idle = Task("IDLE", 0, 9, 0)
+        k.add_task(idle, None, idle=True)
+        k._make_ready(idle)
+        for num, (name, period, mean) in enumerate((("hal", 1, 6.6), ("wheel", 1, 10.7), ("pose", 2, 9.9)), 1):
+            t = Task(name, 24, num, num)
+            t.durations = Durations(Timing(mean), seed=num)
+            t.fast = Periodic(period, t.durations)
+            k.add_task(t, periodic_drawn(t, period))
+        sink = Task("tsink", 32, 4, 4)
+        sink.durations = Durations(Timing(3.0), seed=4)
+
+        def serve(task=sink):
+            while True:
+                yield (WAIT,)
+                yield (RUN, task.durations.draw())
+
+        k.add_task(sink, serve())
+        worker = Task("profile", 24, 7, 7)
+        worker.durations = Durations(Timing(700.0, sd_us=200.0), seed=7)
+
+        def work(task=worker):
+            while True:
+                yield (RUN, task.durations.draw())
+                yield (DELAY_UNTIL, task.wake_tick + 30)
+
+        k.add_task(worker, work())
+        for t_ev in times:
+            k.at(float(t_ev), lambda kk, sink=sink: kk.notify_from_isr(sink))
+        k.fast_enabled = fast
+        k.start()
+        k.sampling = True
+        k.run_until(200_000)
+        results.append((k.take_stamps(), [(t.runtime_units, t.runtime_us) for t in k.tasks], k.fast_ticks))
+    (st, rt, fast_ticks), (exact_st, exact_rt, _) = results
+    assert fast_ticks > 1000, fast_ticks
+    assert_slices_in_order(st)
+    assert len(st[0]) == len(exact_st[0])
+    assert np.allclose(st[0], exact_st[0], rtol=0, atol=1e-6)
+    assert np.array_equal(st[1], exact_st[1]) and np.array_equal(st[2], exact_st[2])
+    assert [u for u, _ in rt] == [u for u, _ in exact_rt]
+    assert [r for _, r in rt] == pytest.approx([r for _, r in exact_rt], abs=1e-6)
