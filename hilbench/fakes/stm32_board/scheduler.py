@@ -695,11 +695,17 @@ def fast_run(k: Kernel, k0: int, k_end: int, tasks: list[Task], bg: Task | None 
 
 def _switch_points(st: _Struct, n: int, m: int, step: np.ndarray, t0: float, tick_us: float) -> np.ndarray:
     """The switch times of the first ``m`` bursts (``n`` jobs), burst by burst: the first at the tick's
-    ISR end, then one after each job. ``t0`` is the first tick's ISR end."""
-    a = np.zeros(n + m)
+    ISR end, then one after each job. ``t0`` is the first tick's ISR end.
+
+    One cumulative sum over the switch slots: a job's slot adds its step, a burst's first slot adds
+    the gap from the previous burst's last switch (the ticks between them less that burst's steps)."""
+    a = np.empty(n + m)
     a[st.jslot_end[:n]] = step
-    ca = a.cumsum()
-    return (ca - ca[st.slot_first[: n + m]]) + (st.slot_base_us(tick_us)[: n + m] + t0)
+    a[0] = t0 + float(st.brel[0]) * tick_us
+    if m > 1:
+        per_burst = np.add.reduceat(step, st.start[:m])
+        a[st.bslot_first[1:m]] = st.brel_gap_us(tick_us)[: m - 1] - per_burst[:-1]
+    return a.cumsum()
 
 
 def _background_ticks(k: Kernel, tasks: list[Task], work_us: float) -> int:
@@ -799,7 +805,7 @@ class _Struct:
     the first m bursts (n jobs) are always the first n + m slots, and any prefix is a slice."""
 
     __slots__ = ("jt", "ji", "start", "last", "brel", "n", "m", "jslot_start", "jslot_end", "bslot_first",
-                 "bslot_last", "slot_first", "labels", "_us", "_positions", "_longest", "jburst")
+                 "bslot_last", "labels", "_us", "_positions", "_longest", "jburst")
 
     def __init__(self, jt: np.ndarray, ji: np.ndarray) -> None:
         self.labels: dict = {}  # (background id, task ids) -> stamp ids and edges of every stamp
@@ -811,7 +817,7 @@ class _Struct:
         if n == 0:
             z = np.zeros(0, dtype=np.int64)
             self.start = self.last = self.brel = self.jslot_start = self.jslot_end = z
-            self.bslot_first = self.bslot_last = self.slot_first = self.jburst = z
+            self.bslot_first = self.bslot_last = self.jburst = z
             self.m = 0
             return
         new = np.empty(n, dtype=bool)
@@ -826,8 +832,6 @@ class _Struct:
         self.jslot_end = self.jslot_start + 1
         self.bslot_first = self.start + np.arange(m)
         self.bslot_last = self.last + np.arange(m) + 1
-        slot_burst = np.repeat(np.arange(m), np.diff(np.append(self.start, n)) + 1)
-        self.slot_first = self.bslot_first[slot_burst]
 
     def task_positions(self) -> list[np.ndarray]:
         """Per task index, the positions of its jobs (ascending): a prefix's jobs of a task are the
@@ -858,12 +862,11 @@ class _Struct:
             v = self._us[("brel", tick_us)] = self.brel * tick_us
         return v
 
-    def slot_base_us(self, tick_us: float) -> np.ndarray:
-        """Every switch point's burst tick, in µs after the run's first tick."""
-        v = self._us.get(("slot", tick_us))
+    def brel_gap_us(self, tick_us: float) -> np.ndarray:
+        """µs from each burst's tick to the next one's."""
+        v = self._us.get(("gap", tick_us))
         if v is None:
-            counts = self.bslot_last - self.bslot_first + 1
-            v = self._us[("slot", tick_us)] = np.repeat(self.brel_us(tick_us), counts)
+            v = self._us[("gap", tick_us)] = np.diff(self.brel) * tick_us
         return v
 
     def stamp_labels(self, bg_id: int, ids: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
