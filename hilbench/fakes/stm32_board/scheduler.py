@@ -837,9 +837,8 @@ class _Struct:
         """Per task index, the positions of its jobs (ascending): a prefix's jobs of a task are the
         first of them."""
         if self._positions is None:
-            order = self.ji.argsort(kind="stable")
-            bounds = np.cumsum(np.bincount(self.ji)).tolist()
-            self._positions = [order[a:b] for a, b in zip([0, *bounds[:-1]], bounds, strict=True)]
+            ji = self.ji
+            self._positions = [np.flatnonzero(ji == i) for i in range(int(ji.max()) + 1 if self.n else 0)]
         return self._positions
 
     def longest_burst(self, longest: tuple[float, ...], sw: float) -> float:
