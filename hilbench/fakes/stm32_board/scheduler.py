@@ -618,7 +618,6 @@ def fast_run(k: Kernel, k0: int, k_end: int, tasks: list[Task], bg: Task | None 
         st, n, m = _EMPTY_STRUCT, 0, 0
     if n:
         ji = st.ji[:n]
-        # Durations in each task's own stream order: group the jobs by task (stable), fill, scatter back.
         counts = np.bincount(ji, minlength=len(tasks)).tolist()
         # Durations in each task's own stream order: the task's first c jobs get its next c draws.
         d = np.empty(n)
