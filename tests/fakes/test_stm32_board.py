@@ -89,6 +89,15 @@ def test_idle_line_framing_cases_of_the_spec():
                    "parsing velocity failed: insufficient bytes received", "[recv vel] [0.000000 0.000000 0.000000]"]
 
 
+def test_a_micro_ros_board_ignores_uart_frames():
+    b = board("micro-ros-100-50", output="v2", baud=2_000_000)
+    b.run_for(0.01)
+    b.receive(C)  # the micro-ROS build takes setpoints over XRCE-DDS; UART3 only transmits
+    b.run_for(0.05)
+    assert b.truth.rx_bytes_ignored == 28 and b.truth.frames_ok == b.truth.frames_length_error == 0
+    assert not any("recv vel" in line for line in logs(b))
+
+
 @pytest.mark.parametrize(
     "frame,wheels,duty",
     [
@@ -176,18 +185,42 @@ def test_stamps_periods_match_the_rates_and_durations_follow_the_distributions()
     assert rep.recomputed_percent() == {r.name: r.percent for r in rep.runtime}
 
 
-def test_fast_path_and_exact_simulation_give_identical_output():
+@pytest.mark.parametrize(("preset", "caches", "output", "baud"), [
+    ("freertos-10000-5000", True, "v2", 2_000_000),
+    ("freertos-10000-5000", True, "v1", 1_152_000),  # the profile task's batches run in the background
+    ("freertos-5000-2000", False, "v1", 2_000_000),  # overloaded ticks: bursts end just before the next tick
+])
+def test_fast_path_and_exact_simulation_give_identical_output(preset, caches, output, baud):
     outputs = []
     for fast in (True, False):
-        b = board("freertos-10000-5000", output="v2", baud=2_000_000, window_ms=150)
+        b = board(preset, output=output, baud=baud, window_ms=150, caches=caches)
         b.fw.kernel.fast_enabled = fast
         b.run_for(0.01)
         b.press_button()
         b.run_for(0.4)
-        outputs.append((b.take_output(), b.fw.kernel.fast_ticks))
-    (fast_out, fast_ticks), (exact_out, exact_ticks) = outputs
+        outputs.append((b.take_output(), b.fw.kernel.fast_ticks, b.truth))
+    (fast_out, fast_ticks, fast_truth), (exact_out, exact_ticks, exact_truth) = outputs
     assert fast_ticks > 1000 and exact_ticks == 0
     assert fast_out == exact_out and len(fast_out) > 20_000
+    assert fast_truth == exact_truth
+
+
+@pytest.mark.parametrize(("preset", "caches"), [("freertos-100-50", True), ("freertos-1000", False),
+                                               ("micro-ros-100-50", True)])
+def test_v1_slices_never_end_before_they_begin(preset, caches):
+    """Per name, V1 lines alternate begin/end in non-decreasing time, from the window's first line on (the
+    profile task, woken by the button, blocks without computing: its slice is shorter than a switch)."""
+    b = board(preset, output="v1", baud=2_000_000, caches=caches)
+    items, dec = run_window(b, 0.2)
+    stamps = stamps_of(items)
+    assert b.truth.records_lost == 0 and len(stamps) == b.truth.stamps_sent > 500
+    per_name = defaultdict(list)
+    for s in stamps:  # arrival order: each name's lines come from one writer, in record order
+        per_name[s.name].append((s.t_us, s.begin))
+    for name, seq in per_name.items():
+        assert all(a[1] != c[1] and a[0] <= c[0] for a, c in zip(seq, seq[1:], strict=False)), (name, seq[:6])
+    first_profile = per_name["profile"][:2]
+    assert first_profile[0][1] and first_profile[0][0] <= first_profile[1][0]
 
 
 def test_v1_micro_ros_writes_scope_stamps_directly_so_lines_are_out_of_order():
@@ -290,3 +323,14 @@ def test_button_is_debounced_and_reset_reboots():
     assert "boot 2" in b.log[0].message and b.truth.stamps_recorded == 0
     with pytest.raises(KeyError):
         b.set_faults(warp=1)
+
+
+def test_stamp_times_are_whole_us_of_dwt_cycles_whatever_the_float_summation():
+    from hilbench.fakes.stm32_board.firmware import elapsed_us, stamp_us
+
+    # Tick + ISR + switch summed in another order lands a hair below the whole µs it is.
+    t = (35 + 1.8 - 0.1) + (1.2 + 0.1)
+    assert t < 38.0 and stamp_us(np.array([t, 38.0, 38.99]), 0.0).tolist() == [38, 38, 38]
+    assert elapsed_us(t, 0.0) == 38 and elapsed_us(1000.99, 0.0) == 1000
+    # On the 216 MHz grid: one cycle short of a whole µs still truncates.
+    assert stamp_us(np.array([50.0 + 215 / 216, 50.0 + 216 / 216]), 50.0).tolist() == [0, 1]

@@ -153,3 +153,190 @@ def periodic_drawn(task, period):
     while True:
         yield (RUN, task.durations.draw())
         yield (DELAY_UNTIL, task.wake_tick + period)
+
+
+def assert_slices_in_order(stamps) -> None:
+    """Stamps are in time order, and each task's begins and ends alternate with no end before its begin."""
+    t, sid, b = stamps
+    assert len(t) > 0
+    assert np.all(np.diff(t) >= 0), f"stamps out of time order at {np.flatnonzero(np.diff(t) < 0)[:5]}"
+    for i in np.unique(sid):
+        edges, times = b[sid == i], t[sid == i]
+        assert not np.any(edges[1:] == edges[:-1]), f"stamp id {i}: two begins or two ends in a row"
+        first_begin = 0 if edges[0] else 1
+        begins, ends = times[first_begin::2], times[first_begin + 1 :: 2]
+        assert np.all(ends >= begins[: len(ends)]), f"stamp id {i}: a slice ends before it begins"
+
+
+def test_a_slice_shorter_than_a_switch_never_ends_before_it_begins():
+    """A task that blocks again at once (V1's profile task at the button press) or is preempted by an ISR
+    during its own switch-in: its switch-out comes after its switch-in stamp, and the stamps stay in order."""
+    k = Kernel(1000, isr_us=0.6, switch_us=0.4)
+    idle = Task("IDLE", 0, 9, 0)
+    k.add_task(idle, None, idle=True)
+    k._make_ready(idle)
+    flusher = Task("profile", 24, 1, 1)
+    high = Task("high", 32, 2, 2)
+    work = Task("work", 24, 3, 3)
+
+    def flush(task):
+        while True:
+            yield (WAIT,)
+            yield (DELAY_UNTIL, k.tick + 1)  # no computation before blocking (nor after): zero-length slices
+
+    def waiter(task):
+        while True:
+            yield (WAIT,)
+            yield (RUN, 5.0)
+
+    k.add_task(flusher, flush(flusher))
+    k.add_task(high, waiter(high))
+    k.add_task(work, periodic(work, 2, 4, 20.0))
+    k.fast_enabled = False
+    k.start()
+    k.sampling = True
+    k.at(1500.0, lambda kk: kk.notify_from_isr(flusher))  # IDLE -> profile, which blocks at once
+    # work is switched in at 4000.6 (tick ISR); an ISR 0.1 µs later, inside the switch, wakes high.
+    k.at(4000.7, lambda kk: kk.notify_from_isr(high))
+    k.run_until(10_000)
+    stamps = k.take_stamps()
+    assert_slices_in_order(stamps)
+    t, sid, b = stamps
+    prof = t[sid == flusher.stamp_id]
+    # Woken at 1500 (switch-in 1500.4) and at tick 2 (switch at 2000.6, in at 2001.0): out as soon as in.
+    assert prof.tolist() == pytest.approx([1500.4, 1500.4, 2001.0, 2001.0])
+    w = t[sid == work.stamp_id]
+    assert w[0] == pytest.approx(4001.0) and w[1] == pytest.approx(4001.0)  # switched out as its switch-in ends
+
+
+@pytest.mark.parametrize("isr_us", [0.6, 0.0])
+def test_fast_path_equals_exact_with_short_jobs_and_a_switch_that_ends_after_the_tick(isr_us):
+    """Jobs shorter than a context switch (down to 0 µs), and ISR-woken tasks that leave the idle task's
+    switch-in unfinished when the next tick comes (possible when the tick ISR is shorter than a switch):
+    the fast path gives the exact path's stamps and run times, and both keep slices in order."""
+    results = []
+    for fast in (True, False):
+        k = Kernel(10_000, isr_us=isr_us, switch_us=0.4)
+        idle = Task("IDLE", 0, 9, 0)
+        k.add_task(idle, None, idle=True)
+        k._make_ready(idle)
+        for num, (name, period, timing) in enumerate((("zero", 1, Timing(0.0, dist="fixed")),
+                                                      ("short", 2, Timing(0.2, dist="fixed")),
+                                                      ("wheel", 1, Timing(10.7))), start=1):
+            t = Task(name, 24, num, num)
+            t.durations = Durations(timing, seed=num)
+            t.fast = Periodic(period, t.durations)
+            k.add_task(t, periodic_drawn(t, period))
+        high = Task("isr_task", 32, 4, 4)
+
+        def waiter(task=high):
+            while True:
+                yield (WAIT,)
+                yield (RUN, 0.0)
+
+        k.add_task(high, waiter())
+        for ms in range(1, 50):  # woken 0.5 µs before a tick: idle's switch-in ends 0.3 µs after it
+            k.at(ms * 1000 - 0.5, lambda kk, high=high: kk.notify_from_isr(high))
+        k.fast_enabled = fast
+        k.start()
+        k.sampling = True
+        k.run_until(50_000)
+        results.append((k.take_stamps(), [(t.runtime_units, t.runtime_us) for t in k.tasks], k.fast_ticks))
+    (st, rt, ticks), (exact_st, exact_rt, _) = results
+    assert_slices_in_order(exact_st)
+    assert_slices_in_order(st)
+    assert ticks > 400
+    assert np.allclose(st[0], exact_st[0], rtol=0, atol=1e-6)
+    assert np.array_equal(st[1], exact_st[1]) and np.array_equal(st[2], exact_st[2])
+    assert [u for u, _ in rt] == [u for u, _ in exact_rt]
+    assert [r for _, r in rt] == pytest.approx([r for _, r in exact_rt], abs=1e-6)
+
+
+def test_fast_path_equals_exact_when_the_background_resumes_after_a_tick():
+    """An overloaded tick's burst (exact path) ends 0.3 µs before the next tick, so the background task's
+    switch-in completes after it; the fast run that starts there must not credit the background with
+    negative computing time before its first burst."""
+    results = []
+    for fast in (True, False):
+        k = Kernel(10_000, isr_us=0.6, switch_us=0.4)
+        idle = Task("IDLE", 0, 9, 0)
+        k.add_task(idle, None, idle=True)
+        k._make_ready(idle)
+        # Every 10th tick: a (90 µs) and b (8.3 µs) end at T + 99.7, the background is back in at T + 100.1.
+        for num, (name, period, mean) in enumerate((("a", 10, 90.0), ("b", 1, 8.3)), start=1):
+            t = Task(name, 24, num, num)
+            t.durations = Durations(Timing(mean, dist="fixed"), seed=num)
+            t.fast = Periodic(period, t.durations)
+            k.add_task(t, periodic_drawn(t, period))
+        worker = Task("profile", 24, 7, 7)
+        worker.durations = Durations(Timing(3000.0, sd_us=300.0), seed=7)
+
+        def work(task=worker):
+            while True:
+                yield (RUN, task.durations.draw())
+                yield (DELAY_UNTIL, task.wake_tick + 100)
+
+        k.add_task(worker, work())
+        k.fast_enabled = fast
+        k.start()
+        k.sampling = True
+        k.run_until(100_000)
+        results.append((k.take_stamps(), [(t.runtime_units, t.runtime_us) for t in k.tasks], k.fast_ticks))
+    (st, rt, fast_ticks), (exact_st, exact_rt, _) = results
+    assert fast_ticks > 200, fast_ticks
+    assert_slices_in_order(st)
+    assert len(st[0]) == len(exact_st[0])
+    assert np.allclose(st[0], exact_st[0], rtol=0, atol=1e-6)
+    assert np.array_equal(st[1], exact_st[1]) and np.array_equal(st[2], exact_st[2])
+    assert [r for _, r in rt] == pytest.approx([r for _, r in exact_rt], abs=1e-6)
+
+
+def test_fast_path_equals_exact_with_events_between_and_inside_bursts():
+    """ISR events at random times (like DMA completions waking tsink) while a long computation runs
+    in the background: a run takes the event's tick when its burst is over before the event."""
+    rng = np.random.default_rng(5)
+    times = np.sort(rng.uniform(1_000, 199_000, 300))
+    results = []
+    for fast in (True, False):
+        k = Kernel(10_000, isr_us=0.6, switch_us=0.4)
+        idle = Task("IDLE", 0, 9, 0)
+        k.add_task(idle, None, idle=True)
+        k._make_ready(idle)
+        for num, (name, period, mean) in enumerate((("hal", 1, 6.6), ("wheel", 1, 10.7), ("pose", 2, 9.9)), 1):
+            t = Task(name, 24, num, num)
+            t.durations = Durations(Timing(mean), seed=num)
+            t.fast = Periodic(period, t.durations)
+            k.add_task(t, periodic_drawn(t, period))
+        sink = Task("tsink", 32, 4, 4)
+        sink.durations = Durations(Timing(3.0), seed=4)
+
+        def serve(task=sink):
+            while True:
+                yield (WAIT,)
+                yield (RUN, task.durations.draw())
+
+        k.add_task(sink, serve())
+        worker = Task("profile", 24, 7, 7)
+        worker.durations = Durations(Timing(700.0, sd_us=200.0), seed=7)
+
+        def work(task=worker):
+            while True:
+                yield (RUN, task.durations.draw())
+                yield (DELAY_UNTIL, task.wake_tick + 30)
+
+        k.add_task(worker, work())
+        for t_ev in times:
+            k.at(float(t_ev), lambda kk, sink=sink: kk.notify_from_isr(sink))
+        k.fast_enabled = fast
+        k.start()
+        k.sampling = True
+        k.run_until(200_000)
+        results.append((k.take_stamps(), [(t.runtime_units, t.runtime_us) for t in k.tasks], k.fast_ticks))
+    (st, rt, fast_ticks), (exact_st, exact_rt, _) = results
+    assert fast_ticks > 1000, fast_ticks
+    assert_slices_in_order(st)
+    assert len(st[0]) == len(exact_st[0])
+    assert np.allclose(st[0], exact_st[0], rtol=0, atol=1e-6)
+    assert np.array_equal(st[1], exact_st[1]) and np.array_equal(st[2], exact_st[2])
+    assert [u for u, _ in rt] == [u for u, _ in exact_rt]
+    assert [r for _, r in rt] == pytest.approx([r for _, r in exact_rt], abs=1e-6)

@@ -64,6 +64,18 @@ def test_record_buffers_ring_and_array():
     assert list(arr.take()[0]) == [8.0, 9.0] and arr.lost == 8
 
 
+def test_record_ring_keeps_the_newest_records_across_many_pushes():
+    ring = RecordBuffer(5, "ring")
+    lost = 0
+    for start in range(0, 100, 3):  # 34 pushes of 3 (the last of 1): chunks pile up and get cut
+        t = np.arange(start, min(start + 3, 100), dtype=float)
+        lost += ring.push(t, t.astype(np.int16), np.ones(len(t), bool))
+        assert len(ring) == min(5, start + len(t))
+    t, ids, b = ring.take()
+    assert t.tolist() == [95, 96, 97, 98, 99] and ids.tolist() == [95, 96, 97, 98, 99] and b.all()
+    assert lost == ring.lost == 95 and len(ring) == 0 and len(ring.take()[0]) == 0
+
+
 def test_wire_paces_bytes_at_the_baud():
     w = Wire(115_200)
     w.send(0.0, b"abcdefghij")  # 10 bytes = 868 µs

@@ -50,8 +50,8 @@ def analyse(data: bytes, settings: ProfileSettings | None = None, chunk: int = 4
     return p.analyse()
 
 
-@pytest.mark.parametrize(("output", "baud", "share_tol_pp"), [("v2", 2_000_000, 0.15), ("binary", 2_000_000, 0.15),
-                                                              ("v3", 115_200, 1.0)])
+@pytest.mark.parametrize(("output", "baud", "share_tol_pp"), [("v1", 2_000_000, 0.15), ("v2", 2_000_000, 0.15),
+                                                              ("binary", 2_000_000, 0.15), ("v3", 115_200, 1.0)])
 def test_recovers_configured_rates_times_and_shares(output, baud, share_tol_pp):
     board, data = emulate(output, baud=baud)
     preset = board.config.preset
@@ -84,7 +84,9 @@ def test_thesis_output_v1_micro_ros_functions_arrive_late_and_nest_in_the_execut
     a = analyse(data, ProfileSettings(periods={"w_ctrl": 1e4, "p_ctrl": 2e4, "odom": 1e4}))
     q = a.quality
     # V1 writes scope stamps at once and hook stamps at the next flush: many lines arrive out of order.
-    assert q["out_of_order"] > 100 and q["late_beyond_reorder"] == 0 and q["orphan_ends"] == 0
+    assert q["out_of_order"] > 100 and q["late_beyond_reorder"] == 0
+    assert (q["parse_errors"], q["orphan_ends"], q["orphan_begins"], q["double_begins"], q["drops"]) == (0,) * 5
+    assert q["edge_orphan_ends"] == q["edge_orphan_begins"] == 1 and not q["untrustworthy"]
     assert a.runtime_stats["closing"] == "profiled for"
     for f in preset.functions:
         s = a.tasks[f.name]
@@ -135,7 +137,9 @@ def test_cli_on_the_emulated_board_over_a_pty(bench):
         proc.kill()
     assert proc.returncode == 0, err
     doc = json.loads(out)
-    assert doc["runtime_stats"]["closing"] == "profiled for" and doc["quality"]["parse_errors"] == 0
+    q = doc["quality"]
+    assert doc["runtime_stats"]["closing"] == "profiled for" and q["parse_errors"] == 0
+    assert (q["orphan_ends"], q["orphan_begins"], q["double_begins"]) == (0, 0, 0)
     for name in ("wheel_ctrl", "hal_fetch"):
         assert doc["tasks"][name]["freq_hz"] == pytest.approx(100, rel=2e-3)
         assert doc["tasks"][name]["missed_activations"] == 0

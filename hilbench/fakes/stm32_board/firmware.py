@@ -25,13 +25,22 @@ Output paths:
 
 from __future__ import annotations
 
+import bisect
+import itertools
 import math
 from collections import deque
 from dataclasses import replace
 
 import numpy as np
 
-from hilbench.fakes.stm32_board.presets import RUNTIME_UNIT_US, BoardConfig, Preset, TaskSpec, Timing
+from hilbench.fakes.stm32_board.presets import (
+    RUNTIME_UNIT_US,
+    SYSTEM_CLOCK_HZ,
+    BoardConfig,
+    Preset,
+    TaskSpec,
+    Timing,
+)
 from hilbench.fakes.stm32_board.robot import Robot
 from hilbench.fakes.stm32_board.scheduler import (
     CALL,
@@ -57,6 +66,20 @@ RECORD_RING = 512
 BINARY_MIN_CHUNK = 256
 RECORD_ARRAY = 32_768
 LOG_HISTORY = 200
+CYCLES_PER_US = SYSTEM_CLOCK_HZ / 1_000_000
+
+
+def stamp_us(t: np.ndarray, ref: float) -> np.ndarray:
+    """Whole µs from ``ref`` to the virtual times ``t`` as the firmware prints them (spec §3.3): both on
+    the 216 MHz DWT cycle grid, the cycle difference truncated to µs. Snapping to cycles first also makes
+    the result independent of how a time was summed: T + isr + switch may come out a hair below a whole
+    µs in one summation order and not in another, and the fast path and the exact path sum differently."""
+    return ((np.rint(t * CYCLES_PER_US) - round(ref * CYCLES_PER_US)) // CYCLES_PER_US).astype(np.int64)
+
+
+def elapsed_us(t: float, ref: float) -> int:
+    """:func:`stamp_us` for one time."""
+    return int((round(t * CYCLES_PER_US) - round(ref * CYCLES_PER_US)) // CYCLES_PER_US)
 
 
 def task_set(preset: Preset, output: str) -> list[TaskSpec]:
@@ -173,23 +196,38 @@ class Firmware:
     # ------------------------------------------------------------------ stamps into the output path
 
     def sync(self) -> None:
-        """Hand the stamps the kernel recorded to the output path (before any ring operation)."""
-        t, ids, b = self.kernel.take_stamps()
-        if not len(t):
+        """Hand the stamps the kernel recorded to the output path. Binary words go into the ring, so
+        this runs before any ring operation (:meth:`sync_ring`); text paths buffer records apart from
+        the ring, so they need it only before the records are read, at the window's edges and at the
+        end of a :meth:`run_until`."""
+        k = self.kernel
+        if not k.has_stamps:
             return
-        self.truth.stamps_recorded += len(t)
+        if self.output == "binary":
+            chunks = [k.take_stamps()]
+        else:
+            chunks = [c for c in k.take_chunks() if len(c[0])]
+            if not chunks:
+                return
         if self.first_stamp is None:
-            self.first_stamp = float(t[0])
+            self.first_stamp = float(chunks[0][0][0])
             if self.output in ("v2", "v3"):
                 self.ref = self.first_stamp
+        truth = self.truth
+        for t, ids, b in chunks:
+            truth.stamps_recorded += len(t)
+            if self.output == "binary":
+                self.binary.write(stamp_us(t, self.ref), ids, b)
+            else:
+                truth.records_lost += self.records.push(t, ids, b)
+
+    def sync_ring(self) -> None:
+        """:meth:`sync` where the ring's content depends on it (binary words)."""
         if self.output == "binary":
-            t_us = np.floor(t - self.ref).astype(np.int64)
-            self.binary.write(t_us, ids, b)
-        else:
-            self.truth.records_lost += self.records.push(t, ids, b)
+            self.sync()
 
     def try_write(self, data: bytes) -> bool:
-        self.sync()
+        self.sync_ring()
         return self.ring.write(data)
 
     def write_blocking(self, task: Task, data: bytes):
@@ -212,7 +250,7 @@ class Firmware:
     # ------------------------------------------------------------------ tsink and DMA
 
     def start_dma(self, k: Kernel, min_bytes: int = 1) -> int:
-        self.sync()
+        self.sync_ring()
         if k.now < self.faults.stall_until_us or self.ring.used < min_bytes:
             return 0
         n = self.ring.dma_chunk()
@@ -227,7 +265,7 @@ class Firmware:
         return n
 
     def _dma_done(self, k: Kernel) -> None:
-        self.sync()
+        self.sync_ring()
         self.ring.complete()
         k.notify_from_isr(self.tasks["tsink"])
 
@@ -351,7 +389,7 @@ class Firmware:
         self.truth.stamps_recorded += 1
         self.truth.stamps_sent += 1
         self.truth.lines_written += 1
-        return ts.format_stamp(self.names[sid], max(0, math.floor(t - (self.ref or 0.0))), begin, self.dialect)
+        return ts.format_stamp(self.names[sid], max(0, elapsed_us(t, self.ref or 0.0)), begin, self.dialect)
 
     def _uros(self, task: Task):
         """The micro-ROS executor: spins every tick; rcl timers fire the callbacks, skipping missed periods."""
@@ -375,6 +413,10 @@ class Firmware:
 
     def uart_rx(self, data: bytes, t_us: float) -> None:
         """Bytes from the host start arriving at ``t_us`` (on the wire back to back)."""
+        if "recv_vel" not in self.tasks:
+            # The micro-ROS build takes setpoints over XRCE-DDS and never arms UART3's receiver.
+            self.truth.rx_bytes_ignored += len(data)
+            return
         t_us = max(t_us, self.kernel.now)
         for raw, t_end in self.framer.feed(data, t_us / 1e6):
             self.kernel.at(t_end * 1e6, lambda k, raw=raw: self._rx_event(k, raw))
@@ -493,21 +535,21 @@ class Firmware:
         t, ids, b = self.records.take()
         if not len(t):
             return
-        t_us = np.maximum(np.floor(t - self.ref), 0).astype(np.int64)
+        t_us = np.maximum(stamp_us(t, self.ref), 0)
         lines = ts.format_stamps(self.names_b, ids, t_us, b, self.dialect)
-        ends = np.cumsum([len(x) for x in lines])
+        ends = list(itertools.accumulate(map(len, lines)))
         i = 0
         n = len(lines)
         while i < n:
-            free = yield (CALL, lambda k: (self.sync(), self.ring.free)[1])
-            base = int(ends[i - 1]) if i else 0
-            m = int(np.searchsorted(ends[i:], base + free, side="right"))
+            free = yield (CALL, lambda k: self.ring.free)
+            base = ends[i - 1] if i else 0
+            m = bisect.bisect_right(ends, base + free, lo=i) - i
             if m == 0:  # not even one line fits: format it, then wait for space
                 yield (RUN, self.line_cost.draw())
                 yield from self.write_blocking(task, lines[i])
                 m = 1
             else:
-                yield (RUN, float(np.sum(self.line_cost.peek(m))))
+                yield (RUN, float(self.line_cost.peek(m).sum()))
                 self.line_cost.consume(m)
                 chunk = b"".join(lines[i : i + m])
                 ok = yield (CALL, lambda k, chunk=chunk: self.try_write(chunk))
@@ -555,7 +597,7 @@ class Firmware:
             while self.sampling:
                 yield (WAIT,)
             yield (CALL, lambda k: self.sync())
-            t_stop = math.floor(self.window_stop - self.ref)
+            t_stop = elapsed_us(self.window_stop, self.ref)
             yield from self.write_blocking(task, self.binary.stop(t_stop))
             yield from self._print_report(task)
             self._reporting = False
@@ -604,7 +646,7 @@ class Firmware:
 
     def _print_report(self, task: Task):
         if self.output == "v1":  # thesis: the sampling duration, framed by separators
-            report = self.runtime_report(task, math.floor(self.window_stop - self.window_start))
+            report = self.runtime_report(task, elapsed_us(self.window_stop, self.window_start))
             lines = ts.format_report(report).splitlines(keepends=True)
             last = None
         else:  # branch heads: from the first stamp to the end of the report, known only at the end
@@ -616,6 +658,6 @@ class Firmware:
             yield from self.write_blocking(task, line)
         if last is not None:
             start = self.first_stamp if self.first_stamp is not None else self.window_start
-            report = report._replace(closing_us=math.floor(self.kernel.now - start))
+            report = report._replace(closing_us=elapsed_us(self.kernel.now, start))
             yield from self.write_blocking(task, ts.format_report(report).splitlines(keepends=True)[-1])
         self.reports.append(report)

@@ -9,20 +9,25 @@ priority's round; selection advances a round-robin index), a readied task of
 higher priority preempts at once, one of equal priority at the next tick
 (time slicing), and an ISR's notification preempts only a lower priority.
 Every switch records the switch-out stamp of the old task and, one switch
-time later, the switch-in stamp of the new one, and charges run time the way
-the kernel's run-time statistics do (sampled at each switch, counted in TIM13
-units of ≈92.6 µs).
+time later, the switch-in stamp of the new one (a switch requested before the
+previous one has finished waits for it, so no slice ends before it begins),
+and charges run time the way the kernel's run-time statistics do (sampled at
+each switch, counted in TIM13 units of ≈92.6 µs).
 
-Fast path: when the CPU is idle at a tick boundary and every blocked task
-that will wake before the next irregular event (an ISR, a task without a
-periodic model) is periodic, the kernel generates whole runs of ticks with
-numpy: the release order per tick comes from the delayed list (computed once
-per hyperperiod and tiled), execution times are drawn in bulk from each
-task's own random stream, and switch stamps and run-time counters follow from
-cumulative sums. A tick whose burst would run into the next tick (overload,
-time slicing) ends the fast run and the exact path takes over. Both paths
-draw from the same per-task streams in the same order, so a test can prove
-they produce identical stamps.
+Fast path: when the running task is the idle task or a long computation (the
+background) and every task that will be ready before the next irregular
+event (an ISR, a task without a periodic model) is periodic, the kernel
+generates whole runs of ticks with numpy: the release order per tick comes
+from the ready and delayed lists (replayed once per relative start state until
+it repeats, then tiled, and cached), execution times are drawn in bulk from
+each task's own random stream, and the switch times of every tick's burst
+follow from one cumulative sum; stamps, run-time counters and the
+background's progress follow from those. A run ends at the first tick that
+needs the exact path: a burst that would run into the next tick (overload),
+the tick where the background finishes, an event (whose tick is included
+when its burst is over before the event) or a task whose model does not
+hold. Both paths draw from the same per-task streams in the same order, so
+tests can prove they produce the same stamps and the same output bytes.
 """
 
 from __future__ import annotations
@@ -58,6 +63,8 @@ class Durations:
     def __init__(self, timing: Timing, seed: int) -> None:
         t = timing.resolved()
         self.timing = t
+        #: No draw is longer (normal draws are clipped to max_us, fixed ones are the mean).
+        self.longest = t.mean_us if t.dist == "fixed" or not t.sd_us else max(t.max_us, t.min_us)
         self.rng = np.random.default_rng(seed)
         self._buf = np.zeros(0)
         self._pos = 0
@@ -83,11 +90,15 @@ class Durations:
         return float(v)
 
     def peek(self, n: int) -> np.ndarray:
-        self._fill(n)
+        """The next ``n`` draws, without taking them."""
+        if len(self._buf) - self._pos < n:
+            self._fill(n)
         return self._buf[self._pos : self._pos + n]
 
     def consume(self, n: int) -> None:
-        self._fill(n)
+        """Take ``n`` draws (after :meth:`peek`)."""
+        if len(self._buf) - self._pos < n:
+            self._fill(n)
         self._pos += n
 
 
@@ -258,13 +269,6 @@ class Kernel:
             self._st_b.append(True)
             self.ctx_switches += 1
 
-    def _record_out(self, task: Task, t: float) -> None:
-        if self.sampling and task.hooked:
-            self._st_t.append(t)
-            self._st_id.append(task.stamp_id)
-            self._st_b.append(False)
-            self.ctx_switches += 1
-
     def function_stamp(self, stamp_id: int, begin: bool) -> None:
         if self.sampling:
             self._st_t.append(max(self.now, self._resume_at))
@@ -287,10 +291,23 @@ class Kernel:
         return (np.concatenate([c[0] for c in chunks]), np.concatenate([c[1] for c in chunks]),
                 np.concatenate([c[2] for c in chunks]))
 
+    def take_chunks(self) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        """:meth:`take_stamps` as the pieces they were recorded in (consecutive, in time order)."""
+        if self._st_t:
+            self._flush_lists()
+        chunks = self._chunks
+        self._chunks = []
+        return chunks
+
     def _flush_lists(self) -> None:
         if self._st_t:
             self._chunks.append((np.array(self._st_t), np.array(self._st_id, np.int16), np.array(self._st_b, bool)))
             self._st_t, self._st_id, self._st_b = [], [], []
+
+    @property
+    def has_stamps(self) -> bool:
+        """Whether stamps were recorded since the last take."""
+        return bool(self._st_t or self._chunks)
 
     @property
     def pending_stamps(self) -> int:
@@ -331,46 +348,52 @@ class Kernel:
         task.wake_tick = tick
         self._seq += 1
         task.seq = self._seq
-        entry = (tick, self._seq, task)
-        d = self.delayed
-        if not d or d[-1][:2] < entry[:2]:
-            d.append(entry)
-        else:
-            lo, hi = 0, len(d)
-            while lo < hi:
-                mid = (lo + hi) // 2
-                if d[mid][:2] < entry[:2]:
-                    lo = mid + 1
-                else:
-                    hi = mid
-            d.insert(lo, entry)
+        # (wake tick, sequence number) is unique, so tuple order never compares the tasks.
+        bisect.insort(self.delayed, (tick, self._seq, task))
         return True
 
     # ------------------------------------------------------------------ switching
 
     def _switch(self, t: float) -> None:
-        """Context switch at ``t``: charge the old task, stamp out/in, pick the next task."""
+        """Context switch at ``t``: charge the old task, stamp out/in, pick the next task.
+
+        A switch requested before the previous one has finished (the task blocked without
+        computing, or an ISR fired during the switch-in) happens when that one ends: the old
+        task's switch-out never precedes its own switch-in stamp, so every slice has begin <= end
+        and the stamps stay in time order.
+        """
         old = self.current
         new = self._select()
         if new is old:
             return
-        self._charge(old, t)
-        self._record_out(old, t)
+        if t < self._resume_at:
+            t = self._resume_at
+        t_in = t + self.switch_us  # the new task's switch-in stamp; it starts computing then
+        # Charge the old task's run time (TIM13 units sampled at each switch) and stamp both hooks;
+        # inlined, as this is the exact path's hottest code.
+        u = RUNTIME_UNIT_US
+        old.runtime_us += t - old.in_at
+        old.runtime_units += math.floor(t / u) - math.floor(old.in_at / u)
+        if self.sampling:
+            if old.hooked:
+                self._st_t.append(t)
+                self._st_id.append(old.stamp_id)
+                self._st_b.append(False)
+                self.ctx_switches += 1
+            if new.hooked:
+                self._st_t.append(t_in)
+                self._st_id.append(new.stamp_id)
+                self._st_b.append(True)
+                self.ctx_switches += 1
         if old.state == "running":
             old.state = "ready"
         new.state = "running"
         new.in_at = t
+        new.slices += 1
         self.current = new
-        self._record_in(new, t + self.switch_us)
-        # The new task starts computing after the switch.
-        self._resume_at = t + self.switch_us
+        self._resume_at = t_in
 
     _resume_at = 0.0
-
-    def _charge(self, task: Task, t: float) -> None:
-        task.runtime_us += t - task.in_at
-        u = RUNTIME_UNIT_US
-        task.runtime_units += math.floor(t / u) - math.floor(task.in_at / u)
 
     def _advance_current(self) -> None:
         """Let the current task run its generator until it computes or blocks (possibly switching)."""
@@ -511,8 +534,20 @@ class Kernel:
         k0 = self.tick + 1  # the first tick to process
         if k0 < self._no_fast_before:
             return
+        if self._resume_at > k0 * self.tick_us:
+            # A switch still in progress at tick k0: the running task has not computed yet, and a switch
+            # requested before it completes waits for it (see _switch); the bursts assume neither, so
+            # this tick goes the exact way.
+            return
         cur = self.current
         if cur is not self.idle and cur.remaining <= 0:
+            return
+        # Cheap early exits for what ends a run within two ticks anyway (micro-ROS: the executor wakes
+        # every tick; network events come every few ticks).
+        d = self.delayed
+        if d and d[0][0] <= k0 + 1 and d[0][2].fast is None:
+            return
+        if self.events and self.events[0][0] < (k0 + 2) * self.tick_us:
             return
         tasks = []
         for p in self._prios:
@@ -523,28 +558,42 @@ class Kernel:
                 if fast is None or t.remaining > 0 or (fast.valid is not None and not fast.valid()):
                     return
                 tasks.append(t)
-        # The run ends at the first tick that needs the exact path.
+        # The run ends at the first tick that needs the exact path. The tick of the next event may
+        # be processed too when its burst is over before the event (the run hands over there).
         limit = math.floor(t_end / self.tick_us)
+        until = None
         if self.events:
-            limit = min(limit, math.floor(self.events[0][0] / self.tick_us))
+            t_event = self.events[0][0]
+            if math.floor(t_event / self.tick_us) < limit:
+                limit = math.floor(t_event / self.tick_us)
+                until = t_event
         for wake, _, task in self.delayed:
-            if wake >= limit:
+            if wake > limit or (wake == limit and until is None):
                 break
             fast = task.fast
             if fast is None or (fast.valid is not None and not fast.valid()):
-                limit = wake
+                if wake < limit:
+                    limit = wake
+                until = None
                 break
             tasks.append(task)
         if limit - k0 < 2:
             return
-        fast_run(self, k0, limit, tasks, cur)
+        fast_run(self, k0, limit, tasks, cur, until)
 
 
-def fast_run(k: Kernel, k0: int, k_end: int, tasks: list[Task], bg: Task | None = None) -> None:
+def fast_run(k: Kernel, k0: int, k_end: int, tasks: list[Task], bg: Task | None = None,
+             until: float | None = None) -> None:
     """Process ticks k0 .. k_end-1 in bulk (see the module docstring); stops early at an irregular tick.
 
     ``bg`` is the running task that resumes after each burst (default: the idle task); if it is not
-    the idle task, the run ends in the tick where its remaining computation would finish.
+    the idle task, the run ends in the tick where its remaining computation would finish. With
+    ``until`` (the time of the next event, in tick k_end), tick k_end is processed too if the run
+    can hand over before that time.
+
+    Times are computed per context switch: a burst of L jobs has L + 1 switch points (the first at
+    the tick ISR's end, each next one a job's execution time and a switch later); every switch point
+    x stamps the old task out at x and the new one in at x + switch time, as the exact path does.
     """
     tick_us = k.tick_us
     sw = k.switch_us
@@ -555,34 +604,37 @@ def fast_run(k: Kernel, k0: int, k_end: int, tasks: list[Task], bg: Task | None 
     if pre >= budget:
         return
     shadow = _Shadow(k, tasks, bg, k0, k_end) if tasks else None
+    if budget != math.inf:
+        # The background finishes long before the run's limit, typically: compute only the ticks it
+        # is likely to need (the run ends at the horizon otherwise, and the next one continues).
+        k_end = min(k_end, k0 + _background_ticks(k, tasks, budget - pre))
+    tail = None
+    if until is not None and k_end * tick_us < until:
+        tail = k_end  # the event's tick, processed only if its burst is over before the event
+        k_end += 1
     if shadow is not None:
-        st, k_end = shadow.structure(k_end)
+        st, n, m, k_end = shadow.structure(k_end)
     else:
-        st = _Struct(np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)).view(0)
-    n = st.n
-    counts = None
+        st, n, m = _EMPTY_STRUCT, 0, 0
     if n:
-        ji = st.ji
-        # Durations in each task's own stream order: group the jobs by task (stable), fill, scatter back.
-        counts = np.bincount(ji, minlength=len(tasks))
+        ji = st.ji[:n]
+        counts = np.bincount(ji, minlength=len(tasks)).tolist()
+        # Durations in each task's own stream order: the task's first c jobs get its next c draws.
         d = np.empty(n)
-        d[np.argsort(ji, kind="stable")] = np.concatenate(
-            [task.fast.durations.peek(c) for task, c in zip(tasks, counts.tolist(), strict=True) if c])
-        # Per burst: the first job is switched in at T + isr; each job's switch-out at its end.
-        step = d + sw
-        cs = np.cumsum(step)
-        excl = cs - step
-        brel = st.brel
-        t_switch_in = (st.jt + k0) * tick_us + (isr - np.repeat(excl[st.start], st.blen)) + excl
-        t_end_job = t_switch_in + step  # its switch-out
-        burst_end = t_end_job[st.last] + sw  # the background's switch-in stamp
-        bad = np.flatnonzero(burst_end >= (brel + (k0 + 1)) * tick_us)
-        if len(bad):
-            k_end = k0 + int(brel[bad[0]])
-            k._no_fast_before = k_end + 1  # do not retry until the overloaded tick is past
-    else:
-        burst_end = np.zeros(0)
-    burst_ticks = st.brel + k0
+        positions = st.task_positions()
+        for i, (task, c) in enumerate(zip(tasks, counts, strict=True)):
+            if c:
+                d[positions[i][:c]] = task.fast.durations.peek(c)
+        step = d + sw  # a job's execution time and the switch that ends it
+        x = _switch_points(st, n, m, step, k0 * tick_us + isr, tick_us)
+        # Does a burst run into the next tick? Not even possible with the longest draws, usually.
+        if isr + st.longest_burst(tuple([t.fast.durations.longest for t in tasks]), sw) >= tick_us - 1e-6:
+            burst_end = x[st.bslot_last[:m]] + sw  # the background's switch-in stamp
+            bad = burst_end >= st.brel_us(tick_us)[:m] + (k0 + 1) * tick_us
+            if bad.any():
+                k_end = k0 + int(st.brel[int(np.argmax(bad))])
+                k._no_fast_before = k_end + 1  # do not retry until the overloaded tick is past
+    brel = st.brel[:m]
     done = None
     if budget != math.inf:
         # Background computing per tick: from its resumption (after the burst, or the ISR) to the next tick.
@@ -590,31 +642,37 @@ def fast_run(k: Kernel, k0: int, k_end: int, tasks: list[Task], bg: Task | None 
             return
         ticks = np.arange(k0, k_end + 1) * tick_us
         resume = ticks[:-1] + isr
-        inside = burst_ticks < k_end
-        resume[burst_ticks[inside] - k0] = burst_end[inside]
-        done = pre + np.cumsum(ticks[1:] - resume)  # computed by the end of each tick
-        over = int(np.searchsorted(done, budget))
+        inside = int(brel.searchsorted(k_end - k0))
+        if inside:
+            resume[brel[:inside]] = x[st.bslot_last[:inside]] + sw
+        done = pre + (ticks[1:] - resume).cumsum()  # computed by the end of each tick
+        over = int(done.searchsorted(budget))
         if over < len(done):
             k_end = min(k_end, k0 + over + 1)  # hand over in the tick where it finishes
+    if tail is not None and k_end == tail + 1:
+        burst_at_tail = m and int(brel[m - 1]) == tail - k0
+        handover = float(x[st.bslot_last[m - 1]]) + sw if burst_at_tail else tail * tick_us + isr
+        if not handover < until:
+            k_end = tail
     if k_end - k0 < 1:
         return
-    keep_bursts = int(np.searchsorted(burst_ticks, k_end))
-    if keep_bursts < st.m:
-        st = st.cut(keep_bursts)
-        n = st.n
-        burst_ticks, burst_end = burst_ticks[:keep_bursts], burst_end[:keep_bursts]
-        counts = None
-        if n:
-            t_switch_in, t_end_job = t_switch_in[:n], t_end_job[:n]
+    keep = int(brel.searchsorted(k_end - k0))
+    if keep < m:
+        m = keep
+        n2 = int(st.start[m]) if m < st.m else st.n
+        if n2 < n:
+            n = n2
+            ji, step, counts = ji[:n], step[:n], None
+        x = x[: n + m]
     if n:
         if counts is None:
-            counts = np.bincount(st.ji, minlength=len(tasks))
-        _commit(k, tasks, bg, st, counts, t_switch_in, t_end_job)
+            counts = np.bincount(ji, minlength=len(tasks)).tolist()
+        _commit(k, tasks, bg, st, n, m, counts, ji, step, x)
     if shadow is not None:
         shadow.apply(k, k_end - 1)
     # Hand over at the background's resumption in the last processed tick.
     last = k_end - 1
-    handover = float(burst_end[-1]) if n and int(burst_ticks[-1]) == last else last * tick_us + isr
+    handover = float(x[st.bslot_last[m - 1]]) + sw if m and int(brel[m - 1]) == last - k0 else last * tick_us + isr
     if done is not None:
         bg.remaining = budget - (pre if last == k0 else float(done[last - k0 - 1]))
     k.tick = last
@@ -623,51 +681,78 @@ def fast_run(k: Kernel, k0: int, k_end: int, tasks: list[Task], bg: Task | None 
     k.fast_ticks += k_end - k0
 
 
-def _commit(k, tasks, bg, st: _View, counts, t_switch_in, t_end_job) -> None:
-    """Consume draws, charge run time and record the stamps of a fast run."""
+def _switch_points(st: _Struct, n: int, m: int, step: np.ndarray, t0: float, tick_us: float) -> np.ndarray:
+    """The switch times of the first ``m`` bursts (``n`` jobs), burst by burst: the first at the tick's
+    ISR end, then one after each job. ``t0`` is the first tick's ISR end.
+
+    One cumulative sum over the switch slots: a job's slot adds its step, a burst's first slot adds
+    the gap from the previous burst's last switch (the ticks between them less that burst's steps)."""
+    a = np.empty(n + m)
+    a[st.jslot_end[:n]] = step
+    a[0] = t0 + float(st.brel[0]) * tick_us
+    if m > 1:
+        per_burst = np.add.reduceat(step, st.start[:m])
+        a[st.bslot_first[1:m]] = st.brel_gap_us(tick_us)[: m - 1] - per_burst[:-1]
+    return a.cumsum()
+
+
+def _background_ticks(k: Kernel, tasks: list[Task], work_us: float) -> int:
+    """A generous estimate of the ticks a background task needs for ``work_us`` of computation
+    while ``tasks`` run their jobs in every tick's burst (mean execution times)."""
+    sw = k.switch_us
+    load = k.isr_us + sum((t.fast.durations.timing.mean_us + 2 * sw) / t.fast.period for t in tasks)
+    avail = max(k.tick_us - load, 0.05 * k.tick_us)
+    return 2 + math.ceil(1.5 * max(work_us, 0.0) / avail)
+
+
+def _commit(k, tasks, bg, st: _Struct, n: int, m: int, counts: list[int], ji, step, x) -> None:
+    """Consume draws, charge run time and record the stamps of the first ``m`` bursts (``n`` jobs)."""
     units = RUNTIME_UNIT_US
-    first_in = t_switch_in[st.start]
-    last_out = t_end_job[st.last]
-    ji = st.ji
     nt = len(tasks)
-    fin, fout = np.floor(t_switch_in / units), np.floor(t_end_job / units)
-    rt = np.bincount(ji, weights=t_end_job - t_switch_in, minlength=nt).tolist()
-    ut = np.bincount(ji, weights=fout - fin, minlength=nt).tolist()
-    for task, c, r, u in zip(tasks, counts.tolist(), rt, ut, strict=True):
+    fx = np.floor(x / units)
+    rt = np.bincount(ji, weights=step, minlength=nt).tolist()
+    ut = np.bincount(ji, weights=fx[st.jslot_end[:n]] - fx[st.jslot_start[:n]], minlength=nt).tolist()
+    busy_us = busy_units = 0
+    for task, c, r, u in zip(tasks, counts, rt, ut, strict=True):
         if c:
             task.fast.durations.consume(c)
             task.runtime_us += r
-            task.runtime_units += round(u)
+            u = round(u)
+            task.runtime_units += u
             task.slices += c
-    # The background: from its last switch-in to the first burst, then between bursts.
-    bg_in = np.concatenate(([bg.in_at], last_out[:-1]))
-    bg.runtime_us += float(np.sum(first_in - bg_in))
-    bg.runtime_units += int(np.sum(fin[st.start]) - np.sum(np.floor(bg_in / units)))
-    bg.in_at = float(last_out[-1])
-    bg.slices += st.m
+            busy_us += r
+            busy_units += u
+    # The background ran from its last switch-in to the end of the last burst, except in the bursts
+    # (whose spans are the jobs' times, each switch point ending one job and starting the next).
+    end = st.bslot_last[m - 1]
+    x_end = float(x[end])
+    bg.runtime_us += (x_end - bg.in_at) - busy_us
+    bg.runtime_units += int(fx[end]) - math.floor(bg.in_at / units) - busy_units
+    bg.in_at = x_end
+    bg.slices += m
     if k.sampling:
-        _record_fast(k, tasks, bg, st, t_switch_in, t_end_job)
+        _record_fast(k, tasks, bg, st, n, m, x)
 
 
-def _record_fast(k, tasks, bg, st: _View, t_in, t_out) -> None:
-    """Stamps per burst: background out, (job in, job out)*, background in."""
-    sw = k.switch_us
-    sid, b = st.stamp_labels(bg.stamp_id, tuple(t.stamp_id for t in tasks))
-    t = np.empty(len(sid))
-    t[st.pos_in] = t_in + sw
-    t[st.pos_out] = t_out
-    t[st.first_pos] = t_in[st.start]
-    t[st.last_pos] = t_out[st.last] + sw
+def _record_fast(k, tasks, bg, st: _Struct, n: int, m: int, x) -> None:
+    """Stamps per switch point: the old task out, the new one in a switch later."""
+    sid, b = st.stamp_labels(bg.stamp_id, tuple([t.stamp_id for t in tasks]))
+    total = 2 * (n + m)
+    sid, b = sid[:total], b[:total]
+    t = np.empty(total)
+    t[0::2] = x
+    t[1::2] = x + k.switch_us
     if not (bg.hooked and all(t_.hooked for t_ in tasks)):
-        keep = np.ones(len(sid), dtype=bool)
-        hooked = np.array([t_.hooked for t_ in tasks])[st.ji]
-        keep[st.pos_in] = hooked
-        keep[st.pos_out] = hooked
+        keep = np.ones(total, dtype=bool)
+        hooked = np.array([t_.hooked for t_ in tasks])[st.ji[:n]]
+        keep[2 * st.jslot_start[:n] + 1] = hooked
+        keep[2 * st.jslot_end[:n]] = hooked
         if not bg.hooked:
-            keep[st.first_pos] = False
-            keep[st.last_pos] = False
+            keep[2 * st.bslot_first[:m]] = False
+            keep[2 * st.bslot_last[:m] + 1] = False
         t, sid, b = t[keep], sid[keep], b[keep]
-    k._flush_lists()
+    if k._st_t:
+        k._flush_lists()
     k._chunks.append((t, sid, b))
     k.ctx_switches += len(t)
 
@@ -703,94 +788,102 @@ class _ShadowList:
 
 
 class _Struct:
-    """Per-job and per-burst index arrays of a release pattern (ticks relative to the run's first)."""
+    """Per-job, per-burst and per-switch-point index arrays of a release pattern (ticks relative to
+    the run's first). Burst b's switch points are slots ``start[b] + b`` .. ``last[b] + b + 1``, so
+    the first m bursts (n jobs) are always the first n + m slots, and any prefix is a slice."""
 
-    __slots__ = ("jt", "ji", "start", "last", "blen", "brel", "pos_in", "first_pos", "last_pos", "n", "m",
-                 "pos_out", "labels")
+    __slots__ = ("jt", "ji", "start", "last", "brel", "n", "m", "jslot_start", "jslot_end", "bslot_first",
+                 "bslot_last", "labels", "_us", "_positions", "_longest", "jburst")
 
-    def __init__(self, jt: np.ndarray, ji: np.ndarray, *, _raw: tuple | None = None) -> None:
-        self.labels: dict = {}  # (background id, task ids) -> stamp ids and edges of every slot
-        if _raw is not None:
-            (self.jt, self.ji, self.start, self.last, self.blen, self.brel, self.pos_in, self.first_pos,
-             self.last_pos, self.pos_out) = _raw
-            self.n, self.m = len(self.jt), len(self.start)
-            return
+    def __init__(self, jt: np.ndarray, ji: np.ndarray) -> None:
+        self.labels: dict = {}  # (background id, task ids) -> stamp ids and edges of every stamp
+        self._us: dict = {}
+        self._positions: list[np.ndarray] | None = None
+        self._longest: dict = {}
         n = len(jt)
         self.jt, self.ji, self.n = jt, ji, n
         if n == 0:
             z = np.zeros(0, dtype=np.int64)
-            self.start = self.last = self.blen = self.brel = self.pos_in = self.first_pos = self.last_pos = z
-            self.pos_out = z
+            self.start = self.last = self.brel = self.jslot_start = self.jslot_end = z
+            self.bslot_first = self.bslot_last = self.jburst = z
             self.m = 0
             return
         new = np.empty(n, dtype=bool)
         new[0] = True
         new[1:] = jt[1:] != jt[:-1]
         self.start = np.flatnonzero(new)
-        self.m = len(self.start)
+        m = self.m = len(self.start)
         self.last = np.append(self.start[1:] - 1, n - 1)
-        self.blen = np.diff(np.append(self.start, n))
         self.brel = jt[self.start]
-        self.pos_in = 2 * np.arange(n) + 1 + 2 * np.repeat(np.arange(self.m), self.blen)
-        self.first_pos = self.pos_in[self.start] - 1
-        self.last_pos = self.pos_in[self.last] + 2
-        self.pos_out = self.pos_in + 1
+        burst = self.jburst = np.cumsum(new) - 1  # burst index of every job
+        self.jslot_start = np.arange(n) + burst
+        self.jslot_end = self.jslot_start + 1
+        self.bslot_first = self.start + np.arange(m)
+        self.bslot_last = self.last + np.arange(m) + 1
+
+    def task_positions(self) -> list[np.ndarray]:
+        """Per task index, the positions of its jobs (ascending): a prefix's jobs of a task are the
+        first of them."""
+        if self._positions is None:
+            ji = self.ji
+            self._positions = [np.flatnonzero(ji == i) for i in range(int(ji.max()) + 1 if self.n else 0)]
+        return self._positions
+
+    def longest_burst(self, longest: tuple[float, ...], sw: float) -> float:
+        """The longest any burst can take from its first switch to the background's switch-in, with
+        every job at its task's longest draw (``longest`` per task index)."""
+        v = self._longest.get((longest, sw))
+        if v is None:
+            if self.n == 0:
+                v = 0.0
+            else:
+                per_burst = np.bincount(self.jburst, weights=np.asarray(longest)[self.ji] + sw, minlength=self.m)
+                v = float(per_burst.max()) + sw
+            self._longest[(longest, sw)] = v
+        return v
+
+    def brel_us(self, tick_us: float) -> np.ndarray:
+        """Each burst's tick, in µs after the run's first tick."""
+        v = self._us.get(("brel", tick_us))
+        if v is None:
+            v = self._us[("brel", tick_us)] = self.brel * tick_us
+        return v
+
+    def brel_gap_us(self, tick_us: float) -> np.ndarray:
+        """µs from each burst's tick to the next one's."""
+        v = self._us.get(("gap", tick_us))
+        if v is None:
+            v = self._us[("gap", tick_us)] = np.diff(self.brel) * tick_us
+        return v
 
     def stamp_labels(self, bg_id: int, ids: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
-        """Stamp ids and edges of every stamp slot (they do not depend on the durations)."""
+        """Stamp ids and edges of every stamp (they do not depend on the durations): switch point s
+        stamps the old task out (2s) and the new one in (2s + 1)."""
         key = (bg_id, ids)
         lab = self.labels.get(key)
         if lab is None:
-            total = 2 * self.n + 2 * self.m
+            total = 2 * (self.n + self.m)
             sid = np.empty(total, dtype=np.int16)
             b = np.empty(total, dtype=bool)
             job_ids = np.array(ids, dtype=np.int16)[self.ji]
-            sid[self.pos_in] = job_ids
-            sid[self.pos_out] = job_ids
-            b[self.pos_in] = True
-            b[self.pos_out] = False
-            sid[self.first_pos] = bg_id
-            b[self.first_pos] = False
-            sid[self.last_pos] = bg_id
-            b[self.last_pos] = True
+            sid[2 * self.jslot_start + 1] = job_ids
+            sid[2 * self.jslot_end] = job_ids
+            b[2 * self.jslot_start + 1] = True
+            b[2 * self.jslot_end] = False
+            sid[2 * self.bslot_first] = bg_id
+            b[2 * self.bslot_first] = False
+            sid[2 * self.bslot_last + 1] = bg_id
+            b[2 * self.bslot_last + 1] = True
             lab = self.labels[key] = (sid, b)
         return lab
 
-    def prefix(self, horizon: int) -> _View:
-        """The bursts in ticks < horizon."""
-        return self.view(int(np.searchsorted(self.brel, horizon)))
-
-    def view(self, m: int) -> _View:
-        """The first ``m`` bursts."""
-        return _View(self, int(self.start[m]) if m < self.m else self.n, m)
+    def prefix(self, horizon: int) -> tuple[int, int]:
+        """(jobs, bursts) in ticks < horizon."""
+        m = int(self.brel.searchsorted(horizon))
+        return (int(self.start[m]) if m < self.m else self.n), m
 
 
-class _View:
-    """The first ``m`` bursts (``n`` jobs) of a :class:`_Struct`, as cheap slices."""
-
-    __slots__ = ("st", "n", "m")
-
-    def __init__(self, st: _Struct, n: int, m: int) -> None:
-        self.st, self.n, self.m = st, n, m
-
-    def cut(self, m: int) -> _View:
-        return self.st.view(m)
-
-    jt = property(lambda self: self.st.jt[: self.n])
-    ji = property(lambda self: self.st.ji[: self.n])
-    pos_in = property(lambda self: self.st.pos_in[: self.n])
-    pos_out = property(lambda self: self.st.pos_out[: self.n])
-    start = property(lambda self: self.st.start[: self.m])
-    last = property(lambda self: self.st.last[: self.m])
-    blen = property(lambda self: self.st.blen[: self.m])
-    brel = property(lambda self: self.st.brel[: self.m])
-    first_pos = property(lambda self: self.st.first_pos[: self.m])
-    last_pos = property(lambda self: self.st.last_pos[: self.m])
-
-    def stamp_labels(self, bg_id: int, ids: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
-        sid, b = self.st.stamp_labels(bg_id, ids)
-        total = 2 * self.n + 2 * self.m
-        return sid[:total], b[:total]
+_EMPTY_STRUCT = _Struct(np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64))
 
 
 class _Shadow:
@@ -800,26 +893,53 @@ class _Shadow:
     yields when its next wake tick has already come; vTaskDelay: blocks); the background task
     resumes when the round robin reaches it. The relative state repeats after a few ticks, so
     the sequence is simulated until it does and then tiled; :meth:`state_at` rebuilds the
-    lists for any tick of the run.
+    lists for any tick of the run. Ticks are relative to the run's first tick ``k0``; a pattern
+    found once is kept per relative start state and reused by later runs.
     """
 
     def __init__(self, k: Kernel, tasks: list[Task], bg: Task, k0: int, k_end: int) -> None:
-        allt = list(tasks) + [bg] + ([k.idle] if bg is not k.idle else [])
+        allt = [*tasks, bg] if bg is k.idle else [*tasks, bg, k.idle]
         self.allt = allt
-        ix = {id(t): i for i, t in enumerate(allt)}
         n = len(tasks)
         self.n = n
-        self.prio = [t.priority for t in allt]
-        period = [t.fast.period for t in tasks]
-        relative = [t.fast.relative for t in tasks]
-        cur = n
-        lists = {p: _ShadowList([ix[id(t)] for t in rl.items], ix[id(rl.idx)] if rl.idx is not None else None)
-                 for p, rl in k.ready.items()}
-        delayed = [(w, sq, ix[id(t)]) for w, sq, t in k.delayed if id(t) in ix and ix[id(t)] < n]
-        wake = [t.wake_tick for t in tasks]
-        prios = sorted(lists, reverse=True)
-        seq = k._seq
+        self.k0 = k0
+        ix = {t: i for i, t in enumerate(allt)}
+        fasts = [t.fast for t in tasks]
+        period = tuple([f.period for f in fasts])
+        relative = tuple([f.relative for f in fasts])
+        te = k0 - 1
+        ready = k.ready
+        # The lists relative to the tick before the run, as the simulation's snapshots describe them.
+        init = (tuple([(p, tuple([ix[t] for t in ready[p].items]), None if ready[p].idx is None else ix[ready[p].idx])
+                       for p in reversed(k._prios)]),
+                tuple([(w - te, ix[t]) for w, _, t in k.delayed if ix.get(t, n) < n]),
+                tuple([None if f.relative else t.wake_tick - te for t, f in zip(tasks, fasts, strict=True)]))
+        key = (init, period, relative, tuple([t.priority for t in tasks]), bg is k.idle)
         self.unsupported_from: int | None = None
+        cached = k._patterns.get(key)
+        if cached is not None:
+            self.entry: dict | None = cached
+            self.jobs_t, self.jobs_i = cached["jobs"]
+            self.events, self.snaps, self.cycle = cached["events"], cached["snaps"], cached["cycle"]
+            self.horizon: int | None = None
+            return
+        self._simulate(k, init, period, relative, [t.priority for t in allt], k_end - k0)
+        self.entry = None
+        if self.cycle is not None and self.unsupported_from is None and len(k._patterns) < 256:
+            self.entry = k._patterns[key] = {"jobs": (self.jobs_t, self.jobs_i), "events": self.events,
+                                             "snaps": self.snaps, "cycle": self.cycle, "struct": None}
+
+    def _simulate(self, k: Kernel, init: tuple, period: tuple, relative: tuple, prio: list[int],
+                  horizon: int) -> None:
+        """Replay the lists from ``init`` (relative tick -1) until the state repeats or ``horizon``."""
+        n = self.n
+        cur = n  # the background task
+        lists = {p: _ShadowList(list(items), idx) for p, items, idx in init[0]}
+        # Relative wake ticks; sequence numbers keep the kernel's order (new entries go after equal ones).
+        delayed = [(w - 1, sq, i) for sq, (w, i) in enumerate(init[1])]
+        seq = len(delayed)
+        wake = [None if w is None else w - 1 for w in init[2]]
+        prios = sorted(lists, reverse=True)
 
         def select() -> int:
             for p in prios:
@@ -834,34 +954,29 @@ class _Shadow:
                     tuple((w - te, i) for w, _, i in delayed),
                     tuple(None if relative[i] else w - te for i, w in enumerate(wake)))
 
-        init_key = (snapshot(k0 - 1), tuple(period), tuple(relative), tuple(self.prio[:n]), bg is k.idle)
-        cached = k._patterns.get(init_key)
-        if cached is not None:
-            self._load(cached, k0)
-            return
         jobs_t: list[int] = []
         jobs_i: list[int] = []
         events: list[int] = []
         snaps: list[tuple] = []
         seen: dict[tuple, int] = {}
         cycle = None
-        last = k0 - 1
+        last = -1
         while len(events) < 4096:
-            pending = len(lists[self.prio[cur]].items) > 1
+            pending = len(lists[prio[cur]].items) > 1
             nxt = delayed[0][0] if delayed else math.inf
             if pending:
                 nxt = min(nxt, last + 1)
-            nxt = max(nxt, k0)
-            if nxt >= k_end:
+            nxt = max(nxt, 0)
+            if nxt >= horizon:
                 break
             tick = int(nxt)
             woke = False
             while delayed and delayed[0][0] <= tick:
                 _, _, i = delayed.pop(0)
-                lists[self.prio[i]].insert_end(i)
+                lists[prio[i]].insert_end(i)
                 woke = True
             top = next((p for p in prios if lists[p].items), -1)
-            if (woke and top >= self.prio[cur]) or len(lists[self.prio[cur]].items) > 1:
+            if (woke and top >= prio[cur]) or len(lists[prio[cur]].items) > 1:
                 x = select()
                 prev = None
                 while x != cur and x < n:
@@ -870,7 +985,7 @@ class _Shadow:
                         break
                     jobs_t.append(tick)
                     jobs_i.append(x)
-                    lst = lists[self.prio[x]]
+                    lst = lists[prio[x]]
                     target = tick + period[x] if relative[x] else wake[x] + period[x]
                     if not relative[x]:
                         wake[x] = target
@@ -900,49 +1015,32 @@ class _Shadow:
         self.events = events
         self.snaps = snaps
         self.cycle = cycle
-        self.k_end = k_end if cycle is not None or not events or len(events) < 4096 else events[-1] + 1
+        self.horizon = horizon if cycle is not None or not events or len(events) < 4096 else events[-1] + 1
         if self.unsupported_from is not None:
-            self.k_end = min(self.k_end, self.unsupported_from)
-        self.k0 = k0
-        self.entry: dict | None = None
-        if cycle is not None and self.unsupported_from is None and len(k._patterns) < 256:
-            self.entry = k._patterns[init_key] = {
-                "jobs": (self.jobs_t - k0, self.jobs_i), "events": [e - k0 for e in events], "snaps": snaps,
-                "cycle": (cycle[0] - k0, cycle[1] - k0), "struct": None}
+            self.horizon = min(self.horizon, self.unsupported_from)
 
-    def _load(self, cached: dict, k0: int) -> None:
-        jt, ji = cached["jobs"]
-        self.k0 = k0
-        self.entry = cached
-        self.jobs_t = jt + k0
-        self.jobs_i = ji
-        self.events = [e + k0 for e in cached["events"]]
-        self.snaps = cached["snaps"]
-        cyc = cached["cycle"]
-        self.cycle = (cyc[0] + k0, cyc[1] + k0)
-        self.k_end = None
-
-    def structure(self, k_end: int) -> tuple[_View, int]:
-        """The job structure of ticks < k_end (cached per pattern, relative to the first tick)."""
-        if self.k_end is not None:
-            k_end = min(k_end, self.k_end)
+    def structure(self, k_end: int) -> tuple[_Struct, int, int, int]:
+        """The job structure of ticks < k_end (cached per pattern, relative to the first tick): the
+        structure, the jobs and bursts before k_end, and k_end (earlier if the pattern is unknown
+        beyond)."""
         horizon = k_end - self.k0
+        if self.horizon is not None:
+            horizon = min(horizon, self.horizon)
         entry = self.entry
         if entry is not None and entry["struct"] is not None and entry["struct"][0] >= horizon:
             st = entry["struct"][1]
         else:
-            span = max(horizon, 2048) if entry is not None else horizon
-            jt, ji, _ = self.jobs(self.k0 + span)
-            st = _Struct(jt - self.k0, ji)
+            span = horizon
+            if entry is not None:  # cached structures grow by doubling: most runs are short
+                span = max(horizon, 256, 2 * entry["struct"][0] if entry["struct"] is not None else 0)
+            st = _Struct(*self.jobs(span))
             if entry is not None:
                 entry["struct"] = (span, st)
-        return st.prefix(horizon), k_end
+        return (st, *st.prefix(horizon), self.k0 + horizon)
 
-    def jobs(self, k_end: int) -> tuple[np.ndarray, np.ndarray, int]:
-        """Job ticks and task indices for ticks < k_end (tiled past the simulated part if a cycle was
-        found; otherwise k_end is limited to what was simulated)."""
-        if self.k_end is not None and self.cycle is None:
-            k_end = min(k_end, self.k_end)
+    def jobs(self, horizon: int) -> tuple[np.ndarray, np.ndarray]:
+        """Relative job ticks and task indices for ticks < horizon (tiled past the simulated part if a
+        cycle was found; otherwise only what was simulated)."""
         ticks, order = self.jobs_t, self.jobs_i
         if self.cycle is not None:
             t_prev, t_now = self.cycle
@@ -952,57 +1050,61 @@ class _Shadow:
             pat_order = order[in_cycle]
             head = ticks <= t_now
             ticks, order = ticks[head], order[head]
-            reps = max(0, (k_end - t_now) // period + 1)
+            reps = max(0, (horizon - t_now) // period + 1)
             if reps and len(pat_rel):
                 future = (t_now + np.arange(reps, dtype=np.int64)[:, None] * period + pat_rel[None, :]).ravel()
                 ticks = np.concatenate((ticks, future))
                 order = np.concatenate((order, np.tile(pat_order, reps)))
-        keep = ticks < k_end
-        return ticks[keep], order[keep], k_end
+        keep = ticks < horizon
+        return ticks[keep], order[keep]
 
-    def state_at(self, tick: int):
-        """(event tick, relative snapshot) of the lists after processing ``tick``; None if unchanged."""
+    def state_at(self, rel: int):
+        """(relative event tick, snapshot) of the lists after processing relative tick ``rel``; None if
+        nothing changed."""
         events = self.events
-        if not events or tick < events[0]:
+        if not events or rel < events[0]:
             return None
-        if self.cycle is None or tick <= self.cycle[1]:
-            j = bisect.bisect_right(events, tick) - 1
+        if self.cycle is None or rel <= self.cycle[1]:
+            j = bisect.bisect_right(events, rel) - 1
             return events[j], self.snaps[j]
         t_prev, t_now = self.cycle
         period = t_now - t_prev
-        reps = (tick - t_prev - 1) // period
-        base = tick - reps * period  # in (t_prev, t_now]
+        reps = (rel - t_prev - 1) // period
+        base = rel - reps * period  # in (t_prev, t_now]
         j = bisect.bisect_right(events, base) - 1  # events includes t_prev (same relative state as t_now)
         return events[j] + reps * period, self.snaps[j]
 
     def apply(self, k: Kernel, tick: int) -> None:
         """Write the lists after ``tick`` back into the kernel."""
-        st = self.state_at(tick)
+        st = self.state_at(tick - self.k0)
         if st is None:
             return
         te, (lists, delayed, wake) = st
+        te += self.k0
         allt = self.allt
         n = self.n
+        ready = k.ready
         for p, items, idx in lists:
-            rl = k.ready[p]
+            rl = ready[p]
             rl.items = [allt[i] for i in items]
             rl.idx = allt[idx] if idx is not None else None
             for i in items:
                 if i < n:
                     allt[i].state = "ready"
-        keep = [e for e in k.delayed if not any(e[2] is allt[i] for i in range(n))]
+        mine = set(allt[:n])
+        keep = [e for e in k.delayed if e[2] not in mine]
+        seq = k._seq
         for rel, i in delayed:
             task = allt[i]
-            k._seq += 1
-            task.seq = k._seq
+            seq += 1
+            task.seq = seq
             task.state = "blocked"
-            keep.append((rel + te, task.seq, task))
-        keep.sort(key=lambda e: e[:2])
+            keep.append((rel + te, seq, task))
+        k._seq = seq
+        keep.sort()  # (wake tick, sequence number) is unique
         k.delayed = keep
         for i in range(n):
             if wake[i] is not None:
                 allt[i].wake_tick = wake[i] + te
         for rel, i in delayed:
             allt[i].wake_tick = rel + te  # what _delay_until records for every delay
-
-

@@ -43,6 +43,7 @@ class Truth:
     frames_crc_error: int = 0
     frames_length_error: int = 0
     setpoints_dropped: int = 0  # vel_sp_queue full
+    rx_bytes_ignored: int = 0  # host bytes on a board without a UART receiver (micro-ROS build)
 
 
 @dataclass
@@ -158,22 +159,26 @@ class Wire:
 
 class RecordBuffer:
     """A hook-record buffer: ``ring`` (V1, V2: oldest unprinted records overwritten) or ``array`` (V3:
-    the index wraps, and the dump prints only the records written after the last wrap)."""
+    the index wraps, and the dump prints only the records written after the last wrap).
+
+    The ring keeps pushed chunks as they come and cuts them to the newest ``capacity`` records only
+    when they are read (or pile up), so a push costs no copying."""
 
     def __init__(self, capacity: int, mode: str) -> None:
         self.capacity = capacity
         self.mode = mode
-        self.t = np.zeros(0)
-        self.ids = np.zeros(0, np.int16)
-        self.begin = np.zeros(0, bool)
         self.written = 0  # records written since clear()
         self.lost = 0
+        self.clear()
 
     def clear(self) -> None:
         self.t = np.zeros(0)
         self.ids = np.zeros(0, np.int16)
         self.begin = np.zeros(0, bool)
         self.written = 0
+        self._chunks: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        self._held = 0  # unprinted records that survive (<= capacity)
+        self._raw = 0  # records in _chunks
 
     def push(self, t: np.ndarray, ids: np.ndarray, begin: np.ndarray) -> int:
         """Add records; returns how many unprinted records were lost to overwriting."""
@@ -191,26 +196,45 @@ class RecordBuffer:
             self.t, self.ids, self.begin = t, ids, begin
             self.lost += before - keep
             return before - keep
-        t = np.concatenate((self.t, t))
-        ids = np.concatenate((self.ids, ids))
-        begin = np.concatenate((self.begin, begin))
-        lost = max(0, len(t) - self.capacity)
-        if lost:
-            t, ids, begin = t[lost:], ids[lost:], begin[lost:]
-        self.t, self.ids, self.begin = t, ids, begin
+        self._chunks.append((t, ids, begin))
+        self._raw += n
+        held = self._held + n
+        lost = max(0, held - self.capacity)
+        self._held = held - lost
         self.lost += lost
+        if self._raw > 8 * self.capacity:
+            self._compact()
         return lost
+
+    def _compact(self) -> None:
+        chunks = self._chunks
+        if len(chunks) == 1:
+            t, ids, begin = chunks[0]
+        else:
+            t = np.concatenate([c[0] for c in chunks])
+            ids = np.concatenate([c[1] for c in chunks])
+            begin = np.concatenate([c[2] for c in chunks])
+        h = self._held
+        self._chunks = [(t[len(t) - h :], ids[len(t) - h :], begin[len(t) - h :])]
+        self._raw = h
 
     def take(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """All unprinted records (the reader's snapshot); the buffer is empty afterwards."""
-        out = (self.t, self.ids, self.begin)
-        self.t = np.zeros(0)
-        self.ids = np.zeros(0, np.int16)
-        self.begin = np.zeros(0, bool)
+        if self.mode == "array":
+            out = (self.t, self.ids, self.begin)
+            self.t = np.zeros(0)
+            self.ids = np.zeros(0, np.int16)
+            self.begin = np.zeros(0, bool)
+            return out
+        if not self._chunks:
+            return np.zeros(0), np.zeros(0, np.int16), np.zeros(0, bool)
+        self._compact()
+        out = self._chunks[0]
+        self._chunks, self._held, self._raw = [], 0, 0
         return out
 
     def __len__(self) -> int:
-        return len(self.t)
+        return len(self.t) if self.mode == "array" else self._held
 
 
 class BinaryWriter:
