@@ -199,3 +199,29 @@ def test_cli_follows_a_running_bench_through_its_tap(hilbench_emulator, tmp_path
     assert doc["tasks"]["wheel_ctrl"]["freq_hz"] == pytest.approx(50, rel=2e-3)
     assert doc["tasks"]["pose_control"]["freq_hz"] == pytest.approx(1e6 / 33_000, rel=2e-3)
     assert doc["runtime_stats"]["estimated_drops"] == 0
+
+
+def test_every_preset_and_output_gives_clean_pairs_unless_stamps_were_lost():
+    """Across every preset, cache setting and output path: no double begins or orphans except where the
+    board really lost stamps (records overrun or binary drops), which the profiler then reports."""
+    from hilbench.fakes.stm32_board.presets import preset_names
+
+    dirty = []
+    for name in preset_names():
+        for caches in (True, False):
+            for output in ("v1", "v2", "v3", "binary"):
+                board = Board(BoardConfig(make_preset(name, caches), output=output, baud=2_000_000, window_ms=100))
+                board.run_for(0.002)
+                board.press_button()
+                board.run_for(0.12)
+                if output != "v3":
+                    board.press_button()
+                board.run_for(0.4 if output != "v3" else 1.5)
+                q = analyse(board.take_output(), ProfileSettings()).quality
+                lost = board.truth.records_lost + board.truth.stamps_dropped
+                anomalies = (q["double_begins"], q["orphan_ends"], q["orphan_begins"])
+                if any(anomalies) and not lost:
+                    dirty.append((name, caches, output, anomalies))
+                if lost:
+                    assert q["untrustworthy"], (name, caches, output)
+    assert dirty == []
