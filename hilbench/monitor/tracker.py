@@ -33,6 +33,8 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from itertools import repeat
+from operator import attrgetter
 
 from hilbench.monitor.devices import (
     CONNECTED,
@@ -53,6 +55,7 @@ from hilbench.protocols.dynamixel import (
     DecodeProblem,
     Decoder,
     InstructionPacket,
+    ReplySlots,
     StatusPacket,
     describe_error,
     describe_hardware_error,
@@ -81,6 +84,10 @@ GROUP_CACHE = 4096
 #: Bus-time spacing and span of the history the "per second" figures use.
 HISTORY_STEP = 0.1
 HISTORY_SPAN = 5.0
+
+
+_NO_SLOTS: dict[int, int] = {}
+_health = attrgetter("health")
 
 
 def _crc_text(raw: bytes) -> str:
@@ -114,12 +121,16 @@ class Expectation:
         "devices",
         "ranges",
         "lengths",
+        "sizes",
         "special",
         "fast",
         "cycle",
         "last",
-        "count",
         "last_t",
+        "lat_lists",
+        "slot_index",
+        "count",
+        "last_at",
         "iv_n",
         "iv_mean",
         "iv_m2",
@@ -135,13 +146,20 @@ class Expectation:
         self.devices = devices
         self.ranges = tuple((e[1], e[2]) for e in entries)
         self.lengths = tuple(e[2] for e in entries)
+        #: Wire size of each plain reply (data + 11 bytes), for the decoder's reply slots.
+        self.sizes = tuple(e[2] + 11 for e in entries)
         self.special = tuple(kind != DATA or _covers_special(e[1], e[2]) for e in entries)
         #: Replies may take the tracker's fast path (plain data, nothing to interpret).
         self.fast = kind == DATA and not any(self.special)
         #: A multi-device read: candidate for the bus's main cycle.
         self.cycle = instruction in _CYCLE_INSTRUCTIONS
-        #: Newest plain reply per entry (a StatusPacket), set by the fast path.
-        self.last: list[StatusPacket | None] = [None] * len(entries)
+        #: Newest plain reply per entry (its data and bus time), set by the fast paths.
+        self.last: list[bytes | None] = [None] * len(entries)
+        self.last_at: list[float] = [0.0] * len(entries)
+        #: Each entry's device's latency samples (the lists themselves, appended to in bulk).
+        self.lat_lists = tuple(dev.lat for dev in devices)
+        #: Reply-slot indexes by the entries' ``health`` bytes (see BusTracker._arm).
+        self.slot_index: dict[bytes, dict[int, int]] = {}
         self.count = 0
         self.last_t: float | None = None
         self.iv_n = 0
@@ -171,8 +189,8 @@ class Expectation:
         return math.sqrt(self.iv_m2 / (self.iv_n - 1)) if self.iv_n > 1 else 0.0
 
     def observation(self, k: int) -> tuple[int, bytes, float, int] | None:
-        st = self.last[k]
-        return None if st is None else (self.ranges[k][0], st.data, st.t, READ)
+        data = self.last[k]
+        return None if data is None else (self.ranges[k][0], data, self.last_at[k], READ)
 
     def clear(self, k: int) -> None:
         self.last[k] = None
@@ -260,6 +278,9 @@ class BusTracker:
         self.history: deque[tuple[float, int, tuple[int, ...]]] = deque()
         self._exp: Expectation | None = None
         self._exp_t = 0.0
+        #: Replies the decoders may store straight into the pending request (see _arm).
+        self._slots = ReplySlots()
+        self._scan_t = 0.0
         self._answered = bytearray()
         self._pending_write: tuple[int, bytes] | None = None
         self._orphans: list[int] = []
@@ -279,9 +300,8 @@ class BusTracker:
         dec = self.decoders.get(source)
         if dec is None:
             dec = self.decoders[source] = Decoder(max_length=self.max_length)
-        items = dec.feed(data, t)
-        if items:
-            self.feed_items(items)
+        self._scan_t = t
+        self._consume(dec.scan(data, t, slots=self._arm()))
         if self.timestamps and t - self._last_tick >= HISTORY_STEP / 2:
             self.tick(t)
 
@@ -309,17 +329,23 @@ class BusTracker:
 
     def feed_items(self, items: list) -> None:
         """Decoded packets and problems in bus order (from :class:`~hilbench.protocols.dynamixel.Decoder`)."""
-        self.items += len(items)
+        self._consume(items)
+
+    def _consume(self, items) -> None:
+        """Every item in order; replies the decoder put in the reply slots are settled in bulk."""
+        n = 0
         timed = self.timestamps
         exp = self._exp
         answered = self._answered
         exp_t = self._exp_t
         fast = exp is not None and exp.fast
         if fast:
-            index_get, devices, lengths, last = exp.index.get, exp.devices, exp.lengths, exp.last
+            index_get, devices, lengths, last, last_at = exp.index.get, exp.devices, exp.lengths, exp.last, exp.last_at
         status = StatusPacket
         instruction = InstructionPacket
+        fills = self._slots.fills
         for item in items:
+            n += 1
             cls = item.__class__
             if cls is status:
                 if fast:
@@ -337,21 +363,71 @@ class BusTracker:
                                 self._reply(item, exp, idx, dev)  # it comes back: logged there
                                 continue
                             dev.consecutive = dev.health = 0  # a reply ends its streak of misses
-                        last[idx] = item
+                        last[idx] = data
+                        last_at[idx] = t
                         if timed:
                             dev.lat.append(t - exp_t)
                         continue
                 self._status(item)
             elif cls is instruction:
+                if fills:
+                    self._settle_fills()
                 self._instruction(item)
+                self._arm()
                 exp = self._exp
                 answered = self._answered
                 exp_t = self._exp_t
                 fast = exp is not None and exp.fast
                 if fast:
-                    index_get, devices, lengths, last = exp.index.get, exp.devices, exp.lengths, exp.last
+                    index_get, devices, lengths, last, last_at = (
+                        exp.index.get, exp.devices, exp.lengths, exp.last, exp.last_at
+                    )
             else:
                 self._problem(item)
+        self.items += n
+        if fills:
+            self._settle_fills()
+
+    def _arm(self) -> ReplySlots:
+        """Point the reply slots at the pending request: the replies its fast path would take.
+
+        Those are plain replies (ERR 0, the requested length) to a plain
+        (Sync/Bulk) Read from devices that are connected and owe nothing
+        (``health`` 0): for them the fast path only stores the data and the
+        latency, so the decoder may store the data itself and
+        :meth:`_settle_fills` adds the rest. Every other reply comes as an item.
+        """
+        slots = self._slots
+        exp = self._exp
+        if exp is None or not exp.fast:
+            slots.index = _NO_SLOTS
+            return slots
+        if any(map(_health, exp.devices)):
+            # some device owes replies or is not connected: slots for the others (cached per pattern)
+            key = bytes(map(_health, exp.devices))
+            index = exp.slot_index.get(key)
+            if index is None:
+                if len(exp.slot_index) >= 64:
+                    exp.slot_index.clear()
+                index = exp.slot_index[key] = {i: k for i, k in exp.index.items() if not key[k]}
+            slots.index = index
+        else:
+            slots.index = exp.index
+        slots.sizes = exp.sizes
+        slots.filled = self._answered
+        slots.store = exp.last
+        slots.stamps = exp.last_at
+        return slots
+
+    def _settle_fills(self) -> None:
+        """What the fast path does besides storing the data, for the replies the decoder slotted."""
+        fills = self._slots.fills
+        self.items += len(fills)
+        if self.timestamps:
+            # every reply of one scan has the scan's time: one latency for all (appended in C)
+            exp = self._exp
+            deque(map(list.append, map(exp.lat_lists.__getitem__, fills), repeat(self._scan_t - self._exp_t)), 0)
+        fills.clear()
 
     def tick(self, t: float) -> None:
         """Advance bus time without data: reply timeout, silence rule, rate history."""
@@ -734,7 +810,8 @@ class BusTracker:
             if len(st.data) != length:
                 self._bad_length(st, exp, idx)
             elif exp.fast:
-                exp.last[idx] = st
+                exp.last[idx] = st.data
+                exp.last_at[idx] = t
             else:
                 self._store(dev, address, st.data, t, READ)
         elif kind == PING:
