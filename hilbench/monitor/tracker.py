@@ -402,17 +402,14 @@ class BusTracker:
         if exp is None or not exp.fast:
             slots.index = _NO_SLOTS
             return slots
-        if any(map(_health, exp.devices)):
-            # some device owes replies or is not connected: slots for the others (cached per pattern)
-            key = bytes(map(_health, exp.devices))
-            index = exp.slot_index.get(key)
-            if index is None:
-                if len(exp.slot_index) >= 64:
-                    exp.slot_index.clear()
-                index = exp.slot_index[key] = {i: k for i, k in exp.index.items() if not key[k]}
-            slots.index = index
-        else:
-            slots.index = exp.index
+        # slots for the devices with health 0, by the pattern of health flags (cached)
+        key = bytes(map(_health, exp.devices))
+        index = exp.slot_index.get(key)
+        if index is None:
+            if len(exp.slot_index) >= 64:
+                exp.slot_index.clear()
+            index = exp.slot_index[key] = {i: k for i, k in exp.index.items() if not key[k]}
+        slots.index = index
         slots.sizes = exp.sizes
         slots.filled = self._answered
         slots.store = exp.last
@@ -526,6 +523,8 @@ class BusTracker:
             exp = self._expectation(pkt)
             if exp is None:
                 return
+            if inst in (_REBOOT, _FACTORY_RESET):
+                self._pending_write = (inst, b"")
         exp.count += 1  # a request to each listed device (DeviceState.requests)
         if exp.cycle:
             if exp.last_t is not None and self.timestamps:
@@ -535,8 +534,6 @@ class BusTracker:
         self._exp = exp
         self._exp_t = t
         self._answered = bytearray(len(exp.ids))
-        if inst in (_REBOOT, _FACTORY_RESET):
-            self._pending_write = (inst, b"")
 
     def _sync_write(self, p: bytes, t: float) -> bool:
         """A valid repeating Sync Write costs one dictionary lookup; False if it needs the general path."""

@@ -19,6 +19,7 @@ from __future__ import annotations
 from bisect import bisect_left
 from collections.abc import Iterator, Sequence
 from enum import IntEnum
+from functools import cache
 from typing import NamedTuple
 
 import numpy as np
@@ -869,55 +870,66 @@ VECTOR_MIN = 2048
 def _judge_candidates(buf: bytes, max_length: int) -> tuple[list[int], list[int], list[int]]:
     """Every ``FF FF FD 00`` in ``buf`` and a verdict on it, computed with numpy for all at once.
 
-    Returns ``(starts, ends, expect)``, one entry per candidate in order.
-    ``expect`` is -1 where the candidate needs :meth:`Decoder._candidate`
-    (fewer than 8 bytes, LENGTH out of range or past the end, a status with
-    LENGTH 3, or ``FF FF FD`` inside the body: stuffing, or an unstuffed header
-    as the SDK sends it). Otherwise the packet lies in ``buf`` and ``expect`` is
-    the CRC register value (:data:`_CRC_RESIDUE`) that running the CRC over the
-    whole packet leaves when its CRC matches, plus 0x10000 for an instruction.
-    The byte layout used here is the one of §1.2: ID at 4, LENGTH at 5-6,
-    INSTRUCTION at 7, CRC in the last two bytes.
+    Returns ``(starts, ends, verdicts)``, one entry per candidate in order. The
+    verdict is -1 where the candidate needs :meth:`Decoder._candidate`: fewer
+    than 8 bytes, LENGTH out of range or past the end, a status with LENGTH 3,
+    or another candidate (or ``FF FF FD``) starting inside it, as stuffing or
+    an unstuffed header the SDK sends make. Otherwise the packet lies in
+    ``buf`` and the verdict is the CRC register value that running the CRC over
+    the whole packet leaves when its CRC matches (:data:`_CRC_RESIDUE`), plus
+    0x10000 for an instruction. The byte layout is the one of §1.2: ID at 4,
+    LENGTH at 5-6, INSTRUCTION at 7, CRC in the last two bytes.
     """
     n = len(buf)
     if n < 8:
         starts = [i for i in range(n - 3) if buf.startswith(HEADER, i)]
         return starts, starts, [-1] * len(starts)
-    # Each line is one numpy call on all candidates; at 4 KiB per feed their fixed cost is what
-    # limits the decoder, so the expressions are folded to as few calls as possible.
+    # At 4 KiB per feed numpy's fixed cost per call is what limits this function: the checks are
+    # folded into as few calls as possible (lookup tables instead of comparisons, 4-byte views).
     a = np.frombuffer(buf, dtype=np.uint8)
-    # positions p with FD at p + 2 (and p + 3 inside buf); 4-byte little-endian views read the rest
-    fd = np.flatnonzero(a[2 : n - 1] == 0xFD)
-    w = np.ndarray((n - 3,), "<u4", buf, 0, (1,))[fd]
+    fd = np.flatnonzero(a[2 : n - 1] == 0xFD)  # p with FD at p + 2 and p + 3 inside buf
+    words = np.ndarray((n - 3,), "<u4", buf, 0, (1,))  # unaligned little-endian view: bytes p..p+3
+    w = words[fd]
     heads = fd[w == 0x00FDFFFF]
     starts = heads.tolist()
     m = bisect_left(starts, n - 7)  # candidates with ID, LENGTH and INSTRUCTION inside buf
     if not m:
         return starts, starts, [-1] * len(starts)
     h = heads[:m] if m < len(starts) else heads
-    # bytes 4..7 of each candidate: ID | LEN_L << 8 | LEN_H << 16 | INSTRUCTION << 24
-    w4 = np.ndarray((n - 7,), "<u4", buf, 4, (1,))[h].astype(np.int64)
+    w4 = words[h + 4]  # ID | LEN_L << 8 | LEN_H << 16 | INSTRUCTION << 24
     length = (w4 >> 8) & 0xFFFF
-    end = h + 7 + length
-    instruction = (w4 >> 24) != STATUS
-    # LENGTH >= 3 (>= 4 for a status), within the cap, packet inside buf
-    ok = (length + instruction >= 4) & (length <= max_length) & (end <= n)
-    # FF FF FD inside INSTRUCTION..PARAMETERS ([start + 7, end - 5] for its first byte) needs the
-    # general path, except in the never-stuffed Fast-read reply (ID FE + status)
-    patterns = fd[(w & 0xFFFFFF) == 0xFDFFFF]  # headers included
-    if len(patterns) == len(starts):
-        first = heads[1 : m + 1] if m < len(starts) else np.append(heads[1:], n)  # the next header
-    else:
+    kind = _KIND[w4 >> 24]  # 0 for a status, 0x10000 for an instruction
+    end = h + length + 7
+    ok = _length_ok(max_length)[length + kind]
+    # A packet is plain if nothing that looks like a header starts inside it. Where FF FF FD
+    # occurs only in headers that is the next candidate; otherwise search every FF FF FD. Both
+    # end with n, so this also rejects packets that run past the end of buf.
+    if len(fd) > len(starts) and np.count_nonzero((w & 0xFFFFFF) == 0xFDFFFF) > len(starts):
+        patterns = fd[(w & 0xFFFFFF) == 0xFDFFFF]
         first = np.append(patterns, n)[np.searchsorted(patterns, h + 7)]
-    ok &= (first > end - 5) | ~(instruction | ((w4 & 0xFF) != BROADCAST_ID))
-    end = np.where(ok, end, h + 2)
+    else:
+        first = heads[1 : m + 1] if m < len(starts) else np.append(heads[1:], n)
+    ok &= first >= end
+    end = np.minimum(end, n)
     crc = np.ndarray((n - 1,), "<u2", buf, 0, (1,))[end - 2]  # the CRC field (for the general path: any)
-    verdicts = _VERDICTS[np.where(ok, crc + (instruction << 16), _GENERAL)].tolist()
+    verdicts = _VERDICTS[np.where(ok, crc + kind, _GENERAL)].tolist()
     ends = end.tolist()
     if m < len(starts):
         ends += starts[m:]
         verdicts += [-1] * (len(starts) - m)
     return starts, ends, verdicts
+
+
+#: INSTRUCTION byte -> 0 for a status, 0x10000 for an instruction (the offset of its verdicts).
+_KIND = np.full(256, 0x10000, dtype=np.int64)
+_KIND[STATUS] = 0
+
+
+@cache
+def _length_ok(max_length: int) -> np.ndarray:
+    """LENGTH + kind offset -> whether LENGTH is valid: 3..max_length, 4..max_length for a status."""
+    length = np.arange(0x10000)
+    return np.concatenate(((length >= 4) & (length <= max_length), (length >= 3) & (length <= max_length)))
 
 
 def _unescaped(body: bytes) -> bool:
