@@ -129,6 +129,7 @@ class Expectation:
         "last_t",
         "lat_lists",
         "slot_index",
+        "slot_epoch",
         "count",
         "last_at",
         "iv_n",
@@ -158,8 +159,9 @@ class Expectation:
         self.last_at: list[float] = [0.0] * len(entries)
         #: Each entry's device's latency samples (the lists themselves, appended to in bulk).
         self.lat_lists = tuple(dev.lat for dev in devices)
-        #: Reply-slot indexes by the entries' ``health`` bytes (see BusTracker._arm).
-        self.slot_index: dict[bytes, dict[int, int]] = {}
+        #: The reply slots of the connected devices, as of BusTracker._epoch == slot_epoch (see _arm).
+        self.slot_index: dict[int, int] = {}
+        self.slot_epoch = -1
         self.count = 0
         self.last_t: float | None = None
         self.iv_n = 0
@@ -281,6 +283,7 @@ class BusTracker:
         #: Replies the decoders may store straight into the pending request (see _arm).
         self._slots = ReplySlots()
         self._scan_t = 0.0
+        self._epoch = 0  # counts device state changes (connected / disconnected)
         self._answered = bytearray()
         self._pending_write: tuple[int, bytes] | None = None
         self._orphans: list[int] = []
@@ -392,24 +395,22 @@ class BusTracker:
         """Point the reply slots at the pending request: the replies its fast path would take.
 
         Those are plain replies (ERR 0, the requested length) to a plain
-        (Sync/Bulk) Read from devices that are connected and owe nothing
-        (``health`` 0): for them the fast path only stores the data and the
-        latency, so the decoder may store the data itself and
-        :meth:`_settle_fills` adds the rest. Every other reply comes as an item.
+        (Sync/Bulk) Read from connected devices: for them the fast path only
+        stores the data and the latency and clears a streak of misses, so the
+        decoder may store the data itself and :meth:`_settle_fills` does the
+        rest. Replies from devices not connected (whose return is logged) and
+        every other packet come as items. Which devices are connected changes
+        rarely, so the slot index is cached per request and state epoch.
         """
         slots = self._slots
         exp = self._exp
         if exp is None or not exp.fast:
             slots.index = _NO_SLOTS
             return slots
-        # slots for the devices with health 0, by the pattern of health flags (cached)
-        key = bytes(map(_health, exp.devices))
-        index = exp.slot_index.get(key)
-        if index is None:
-            if len(exp.slot_index) >= 64:
-                exp.slot_index.clear()
-            index = exp.slot_index[key] = {i: k for i, k in exp.index.items() if not key[k]}
-        slots.index = index
+        if exp.slot_epoch != self._epoch:
+            exp.slot_epoch = self._epoch
+            exp.slot_index = {i: k for i, k in exp.index.items() if exp.devices[k].state is CONNECTED}
+        slots.index = exp.slot_index
         slots.sizes = exp.sizes
         slots.filled = self._answered
         slots.store = exp.last
@@ -419,10 +420,16 @@ class BusTracker:
     def _settle_fills(self) -> None:
         """What the fast path does besides storing the data, for the replies the decoder slotted."""
         fills = self._slots.fills
+        exp = self._exp
         self.items += len(fills)
+        devices = exp.devices
+        if any(map(_health, map(devices.__getitem__, fills))):
+            for k in fills:
+                dev = devices[k]
+                if dev.health:
+                    dev.consecutive = dev.health = 0  # a reply ends its streak of misses
         if self.timestamps:
             # every reply of one scan has the scan's time: one latency for all (appended in C)
-            exp = self._exp
             deque(map(list.append, map(exp.lat_lists.__getitem__, fills), repeat(self._scan_t - self._exp_t)), 0)
         fills.clear()
 
@@ -463,10 +470,12 @@ class BusTracker:
                 self.log.add(t, "reconnected", f"ID {dev.id} reconnected", dev.id)
             dev.state = CONNECTED
             dev.ever_replied = True
+            self._epoch += 1
 
     def _disconnect(self, dev: DeviceState, t: float, why: str) -> None:
         dev.state = DISCONNECTED
         dev.health = 1
+        self._epoch += 1
         dev.disconnects += 1
         what = f"never answered ({why})" if not dev.ever_replied else why
         self.log.add(t, "disconnected", f"ID {dev.id} disconnected: {what}", dev.id)
