@@ -33,7 +33,6 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from itertools import repeat
 from operator import attrgetter
 
 from hilbench.monitor.devices import (
@@ -127,7 +126,6 @@ class Expectation:
         "cycle",
         "last",
         "last_t",
-        "lat_lists",
         "slot_index",
         "slot_epoch",
         "count",
@@ -157,8 +155,6 @@ class Expectation:
         #: Newest plain reply per entry (its data and bus time), set by the fast paths.
         self.last: list[bytes | None] = [None] * len(entries)
         self.last_at: list[float] = [0.0] * len(entries)
-        #: Each entry's device's latency samples (the lists themselves, appended to in bulk).
-        self.lat_lists = tuple(dev.lat for dev in devices)
         #: The reply slots of the connected devices, as of BusTracker._epoch == slot_epoch (see _arm).
         self.slot_index: dict[int, int] = {}
         self.slot_epoch = -1
@@ -420,17 +416,20 @@ class BusTracker:
     def _settle_fills(self) -> None:
         """What the fast path does besides storing the data, for the replies the decoder slotted."""
         fills = self._slots.fills
-        exp = self._exp
         self.items += len(fills)
-        devices = exp.devices
-        if any(map(_health, map(devices.__getitem__, fills))):
+        devices = self._exp.devices
+        if self.timestamps:
+            lat = self._scan_t - self._exp_t  # every reply of one scan has the scan's time
             for k in fills:
                 dev = devices[k]
                 if dev.health:
                     dev.consecutive = dev.health = 0  # a reply ends its streak of misses
-        if self.timestamps:
-            # every reply of one scan has the scan's time: one latency for all (appended in C)
-            deque(map(list.append, map(exp.lat_lists.__getitem__, fills), repeat(self._scan_t - self._exp_t)), 0)
+                dev.lat.append(lat)
+        else:
+            for k in fills:
+                dev = devices[k]
+                if dev.health:
+                    dev.consecutive = dev.health = 0
         fills.clear()
 
     def tick(self, t: float) -> None:
