@@ -33,7 +33,6 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from operator import attrgetter
 
 from hilbench.monitor.devices import (
     CONNECTED,
@@ -83,10 +82,6 @@ GROUP_CACHE = 4096
 #: Bus-time spacing and span of the history the "per second" figures use.
 HISTORY_STEP = 0.1
 HISTORY_SPAN = 5.0
-
-
-_NO_SLOTS: dict[int, int] = {}
-_health = attrgetter("health")
 
 
 def _crc_text(raw: bytes) -> str:
@@ -401,16 +396,12 @@ class BusTracker:
         slots = self._slots
         exp = self._exp
         if exp is None or not exp.fast:
-            slots.index = _NO_SLOTS
+            slots.clear()
             return slots
         if exp.slot_epoch != self._epoch:
             exp.slot_epoch = self._epoch
             exp.slot_index = {i: k for i, k in exp.index.items() if exp.devices[k].state is CONNECTED}
-        slots.index = exp.slot_index
-        slots.sizes = exp.sizes
-        slots.filled = self._answered
-        slots.store = exp.last
-        slots.stamps = exp.last_at
+        slots.point(exp.slot_index, exp.sizes, self._answered, exp.last, exp.last_at)
         return slots
 
     def _settle_fills(self) -> None:

@@ -520,28 +520,37 @@ class ReplySlots:
 
     After a Sync/Bulk Read or a Read the master knows which IDs answer and how
     many data bytes each sends (§2.4). A consumer that only wants the data of
-    those replies (the bus monitor) hands these slots to :meth:`Decoder.scan`:
-    a status that passes its CRC, is not stuffed, has ERR 0, comes from an ID in
-    ``index`` whose slot is not yet ``filled`` and is exactly ``sizes[slot]``
-    bytes long on the wire (data length + 11) is then not yielded; instead
-    ``filled[slot] = 1``, ``store[slot] = data``, ``stamps[slot] = t`` and
-    ``fills.append(slot)``.
-    Every other packet is yielded as usual, and the consumer may change the
-    slots whenever ``scan`` yields. Saving the item is worth it: in a servo bus
-    such replies are nine packets in ten.
+    those replies (the bus monitor) hands these slots to :meth:`Decoder.scan`
+    and points them at its bookkeeping with :meth:`point`: a status that passes
+    its CRC, is not stuffed, has ERR 0, comes from an ID in ``index`` whose slot
+    is not yet ``filled`` and is exactly ``sizes[slot]`` bytes long on the wire
+    (data length + 11) is then not yielded; instead ``filled[slot] = 1``,
+    ``store[slot] = data``, ``stamps[slot] = t`` and ``fills.append(slot)``.
+    Every other packet is yielded as usual, and the consumer may re-point or
+    :meth:`clear` the slots whenever ``scan`` yields. Saving the item is worth
+    it: in a servo bus such replies are nine packets in ten.
     """
 
-    __slots__ = ("index", "sizes", "filled", "store", "stamps", "fills")
+    __slots__ = ("state", "fills")
 
     def __init__(self) -> None:
-        #: Device ID -> slot.
-        self.index: dict[int, int] = {}
-        self.sizes: Sequence[int] = ()
-        self.filled = bytearray()
-        self.store: list[bytes | None] = []
-        self.stamps: list[float] = []
-        #: Slots filled by the decoder, in order, until the consumer clears the list.
+        #: Slots filled by the decoder, in order, until the consumer empties the list.
         self.fills: list[int] = []
+        self.clear()
+
+    def point(
+        self, index: dict[int, int], sizes: Sequence[int], filled: bytearray, store: list, stamps: list
+    ) -> None:
+        """Expect replies: device ID -> slot, wire size, filled flag, data and time per slot."""
+        # one tuple, so the decoder sees a change with one identity check per yielded item
+        self.state = (index.get, sizes, filled, store, stamps)
+
+    def clear(self) -> None:
+        """Expect nothing: every packet is yielded."""
+        self.state = _NO_SLOTS
+
+
+_NO_SLOTS = ({}.get, (), bytearray(), [], [])
 
 
 class Decoder:
@@ -676,7 +685,8 @@ class Decoder:
         stop = -1
         slotted = slots is not None
         if slotted:
-            slot_of, sizes, filled, store, stamps = slots.index.get, slots.sizes, slots.filled, slots.store, slots.stamps
+            state = slots.state
+            slot_of, sizes, filled, store, stamps = state
             fills = slots.fills
         for s, e, x in zip(starts, ends, verdicts, strict=True):
             if s != pos:
@@ -700,8 +710,9 @@ class Decoder:
                             fills.append(k)
                             continue
                         yield new(status, (raw[4], raw[8], raw[9:-2], raw, t))
-                        slot_of, sizes, filled, store = slots.index.get, slots.sizes, slots.filled, slots.store
-                        stamps, fills = slots.stamps, slots.fills
+                        if slots.state is not state:  # the consumer re-pointed the slots
+                            state = slots.state
+                            slot_of, sizes, filled, store, stamps = state
                         continue
                     yield new(status, (raw[4], raw[8], raw[9:-2], raw, t))
                     continue
@@ -724,9 +735,9 @@ class Decoder:
                 pos = nxt
                 yield side[0]
                 side.clear()
-            if slotted:
-                slot_of, sizes, filled, store = slots.index.get, slots.sizes, slots.filled, slots.store
-                stamps, fills = slots.stamps, slots.fills
+            if slotted and slots.state is not state:
+                state = slots.state
+                slot_of, sizes, filled, store, stamps = state
         # every candidate up to the stop was a packet, a rejection or covered
         self.packets += (bisect_left(starts, stop) if stop >= 0 else len(starts)) - others
         self._consumed = self._settle(pos, stop, len(buf), skipped, final)
@@ -887,7 +898,7 @@ def _judge_candidates(buf: bytes, max_length: int) -> tuple[list[int], list[int]
     # At 4 KiB per feed numpy's fixed cost per call is what limits this function: the checks are
     # folded into as few calls as possible (lookup tables instead of comparisons, 4-byte views).
     a = np.frombuffer(buf, dtype=np.uint8)
-    fd = np.flatnonzero(a[2 : n - 1] == 0xFD)  # p with FD at p + 2 and p + 3 inside buf
+    fd = (a[2 : n - 1] == 0xFD).nonzero()[0]  # p with FD at p + 2 and p + 3 inside buf
     words = np.ndarray((n - 3,), "<u4", buf, 0, (1,))  # unaligned little-endian view: bytes p..p+3
     w = words[fd]
     heads = fd[w == 0x00FDFFFF]

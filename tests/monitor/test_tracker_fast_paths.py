@@ -19,7 +19,7 @@ class ItemsOnly(BusTracker):
 
     def _arm(self) -> ReplySlots:
         slots = self._slots
-        slots.index = {}
+        slots.clear()
         return slots
 
 
