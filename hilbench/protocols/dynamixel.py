@@ -5,8 +5,11 @@ reference layouts (they read like the ROBOTIS e-Manual); fakes and senders build
 with them and the monitor parses with them. Two hot paths are hand-tuned because
 interpreted construct is ~50x too slow for a bus at line rate: building
 instruction/status packets (:func:`instruction_packet`, :func:`status_packet`)
-and framing a byte stream (:class:`Decoder`). Tests prove both agree with the
-construct definitions on every vector of the spec sheet.
+and framing a byte stream (:class:`Decoder`: plain Python for small chunks,
+numpy judging every header candidate of large ones, :class:`ReplySlots` for a
+consumer that wants only the data of expected replies). Tests prove they agree
+with the construct definitions on every vector of the spec sheet, with a slow
+reference framer on random streams, and with each other.
 
 Wire layout (all multi-byte fields little-endian)::
 
@@ -73,7 +76,6 @@ def _crc_residues() -> tuple[int, ...]:
 
 
 _CRC_RESIDUE = _crc_residues()
-
 
 
 def _verdicts() -> np.ndarray:
@@ -561,6 +563,9 @@ class Decoder:
     ``FF FF FD 00``, frame by LENGTH, check the CRC; on a mismatch resume one
     byte after the candidate start, so a corrupted LENGTH cannot swallow good
     packets. Memory is bounded by ``7 + max_length`` bytes of pending input.
+
+    :meth:`scan` yields the same items one by one and can store expected
+    replies in place instead (:class:`ReplySlots`).
 
     ``strict_stuffing`` reports unescaped ``FF FF FD`` inside a packet as a
     ``stuffing`` problem; the default accepts it, because the official SDK never

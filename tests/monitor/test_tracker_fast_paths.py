@@ -61,8 +61,10 @@ def traffic(seed: int, cycles: int) -> bytes:
     """Wolfgang-like cycles with every way a reply can go wrong: lost, corrupted, late, doubled, erring."""
     rnd = random.Random(seed)
     ids = list(range(1, rnd.randint(2, 8)))
+    gone = rnd.choice(ids)  # drops out for a while: disconnected, then back
+    away = range(rnd.randrange(cycles), rnd.randrange(cycles) + 12)
     out = []
-    for _ in range(cycles):
+    for c in range(cycles):
         read = rnd.choice([(132, 4), (144, 3), (70, 1), (0, 2)])  # (0, 2): the model number, a special field
         out.append(dxl.instruction_packet_unstuffed(0xFE, I.SYNC_READ, bytes((read[0], 0, read[1], 0, *ids))))
         order = ids[:]
@@ -70,7 +72,7 @@ def traffic(seed: int, cycles: int) -> bytes:
             rnd.shuffle(order)
         for i in order:
             r = rnd.random()
-            if r < 0.1:
+            if r < 0.1 or (i == gone and c in away):
                 continue  # lost
             data = bytes(rnd.randrange(256) for _ in range(read[1]))
             if r < 0.13:
