@@ -91,3 +91,35 @@ def test_vector_framing_equals_plain_framing_on_the_capture(wolfgang_capture):
             vector = decode(data, cuts, "vector", **kw)
             assert vector == decode(data, cuts, "plain", **kw)
             assert vector[1][0] == (23_478 if not kw else vector[1][0])
+
+
+def test_scan_stores_the_expected_replies_and_yields_the_rest():
+    def sync_read(ids):
+        return dxl.instruction_packet_unstuffed(0xFE, 0x82, bytes((132, 0, 4, 0, *ids)))
+
+    first = [
+        sync_read([1, 2, 3]),
+        dxl.status_packet(1, 0, b"\x01\x00\x00\x00"),  # slotted
+        dxl.status_packet(2, 4, b"\x02\x00\x00\x00"),  # ERR 4: yielded
+        dxl.status_packet(3, 0, b"\x03\x00\x00"),  # one byte short: yielded
+        dxl.status_packet(1, 0, b"\x09\x00\x00\x00"),  # slot 0 already filled: yielded
+        dxl.status_packet(7, 0, b"\x07\x00\x00\x00"),  # no slot: yielded
+    ]
+    second = [sync_read([7]), dxl.status_packet(7, 0, b"\x08\x00\x00\x00")]  # slotted after re-pointing
+    stream = b"".join(first + second) + bytes(dxl.VECTOR_MIN)
+    slots = dxl.ReplySlots()
+    filled, store, stamps = bytearray(3), [None] * 3, [0.0] * 3
+    slots.point({1: 0, 2: 1, 3: 2}, (15, 15, 15), filled, store, stamps)
+    later = (bytearray(1), [None], [0.0])
+    dec = dxl.Decoder()
+    got = []
+    for item in dec.scan(stream, 5.0, slots=slots):
+        got.append(item.raw)
+        if item.raw == second[0]:
+            slots.point({7: 0}, (15,), *later)
+    assert got == [first[0], *first[2:], second[0]]
+    assert (filled, store, stamps, slots.fills) == (b"\x01\x00\x00", [b"\x01\x00\x00\x00", None, None], [5.0, 0, 0], [0, 0])
+    assert later == (b"\x01", [b"\x08\x00\x00\x00"], [5.0])
+    assert dec.packets == len(first) + len(second)  # slotted replies count as packets
+    with framing("plain"):  # small chunks are framed in plain Python: every packet is yielded
+        assert [i.raw for i in dxl.Decoder().scan(b"".join(first), slots=slots)] == first
