@@ -54,6 +54,9 @@ class LogEntry(NamedTuple):
         return self.message.format(*self.args) if self.args else self.message
 
 
+_new = tuple.__new__
+
+
 def format_offset(seconds: float) -> str:
     """``+MM:SS.mmm`` (minutes grow past 99 rather than wrapping)."""
     if seconds < 0:
@@ -79,15 +82,18 @@ class ErrorLog:
     def add(self, t: float, kind: str, message: str | Callable[..., str], device: int | None = None,
             *args: Any) -> None:
         """Record an event at bus time ``t`` (``message`` with ``args``: see :class:`LogEntry`)."""
-        self.counts[kind] = self.counts.get(kind, 0) + 1
+        counts = self.counts
+        counts[kind] = counts.get(kind, 0) + 1
         self.total += 1
         entries = self.entries
+        # on a bus that fails often this runs per packet: fields by index, and tuple.__new__
+        # instead of the NamedTuple's own __new__ (a Python frame)
         if entries:
             last = entries[-1]
-            if last.kind == kind and last.message == message and last.args == args and last.device == device:
-                entries[-1] = last._replace(t=t, repeats=last.repeats + 1)
+            if last[1] == kind and last[3] == message and last[5] == args and last[2] == device:
+                entries[-1] = _new(LogEntry, (t, kind, device, message, last[4] + 1, args))
                 return
-        entries.append(LogEntry(t, kind, device, message, 1, args))
+        entries.append(_new(LogEntry, (t, kind, device, message, 1, args)))
 
     def newest(self, n: int = 50) -> list[LogEntry]:
         """The ``n`` newest entries, newest first by bus time.

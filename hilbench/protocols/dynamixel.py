@@ -5,8 +5,11 @@ reference layouts (they read like the ROBOTIS e-Manual); fakes and senders build
 with them and the monitor parses with them. Two hot paths are hand-tuned because
 interpreted construct is ~50x too slow for a bus at line rate: building
 instruction/status packets (:func:`instruction_packet`, :func:`status_packet`)
-and framing a byte stream (:class:`Decoder`). Tests prove both agree with the
-construct definitions on every vector of the spec sheet.
+and framing a byte stream (:class:`Decoder`: plain Python for small chunks,
+numpy judging every header candidate of large ones, :class:`ReplySlots` for a
+consumer that wants only the data of expected replies). Tests prove they agree
+with the construct definitions on every vector of the spec sheet, with a slow
+reference framer on random streams, and with each other.
 
 Wire layout (all multi-byte fields little-endian)::
 
@@ -16,9 +19,13 @@ Wire layout (all multi-byte fields little-endian)::
 
 from __future__ import annotations
 
+from bisect import bisect_left
+from collections.abc import Iterator, Sequence
 from enum import IntEnum
+from functools import cache
 from typing import NamedTuple
 
+import numpy as np
 from construct import (
     Adapter,
     Bytes,
@@ -69,6 +76,22 @@ def _crc_residues() -> tuple[int, ...]:
 
 
 _CRC_RESIDUE = _crc_residues()
+
+
+def _verdicts() -> np.ndarray:
+    """:func:`_judge_candidates`' lookup: (CRC field as u16 LE) | (0x10000 for an instruction) -> verdict.
+
+    The verdict is the residue a matching CRC leaves (plus 0x10000 for an
+    instruction); the extra last entry (-1) is for candidates that need the
+    general path.
+    """
+    crc = np.arange(0x10000)
+    residue = np.array(_CRC_RESIDUE, dtype=np.int64)[(crc & 0xFF) ^ (crc >> 8)]
+    return np.concatenate((residue, residue + 0x10000, [-1]))
+
+
+_VERDICTS = _verdicts()
+_GENERAL = 0x20000  # index of the -1 verdict
 
 
 class Instruction(IntEnum):
@@ -494,6 +517,44 @@ def check_instruction(pkt: InstructionPacket) -> str | None:
 Item = InstructionPacket | StatusPacket | DecodeProblem
 
 
+class ReplySlots:
+    """Status packets a consumer expects next, to be stored in place instead of returned as items.
+
+    After a Sync/Bulk Read or a Read the master knows which IDs answer and how
+    many data bytes each sends (§2.4). A consumer that only wants the data of
+    those replies (the bus monitor) hands these slots to :meth:`Decoder.scan`
+    and points them at its bookkeeping with :meth:`point`: a status that passes
+    its CRC, is not stuffed, has ERR 0, comes from an ID in ``index`` whose slot
+    is not yet ``filled`` and is exactly ``sizes[slot]`` bytes long on the wire
+    (data length + 11) is then not yielded; instead ``filled[slot] = 1``,
+    ``store[slot] = data``, ``stamps[slot] = t`` and ``fills.append(slot)``.
+    Every other packet is yielded as usual, and the consumer may re-point or
+    :meth:`clear` the slots whenever ``scan`` yields. Saving the item is worth
+    it: in a servo bus such replies are nine packets in ten.
+    """
+
+    __slots__ = ("state", "fills")
+
+    def __init__(self) -> None:
+        #: Slots filled by the decoder, in order, until the consumer empties the list.
+        self.fills: list[int] = []
+        self.clear()
+
+    def point(
+        self, index: dict[int, int], sizes: Sequence[int], filled: bytearray, store: list, stamps: list
+    ) -> None:
+        """Expect replies: device ID -> slot, wire size, filled flag, data and time per slot."""
+        # one tuple, so the decoder sees a change with one identity check per yielded item
+        self.state = (index.get, sizes, filled, store, stamps)
+
+    def clear(self) -> None:
+        """Expect nothing: every packet is yielded."""
+        self.state = _NO_SLOTS
+
+
+_NO_SLOTS = ({}.get, (), bytearray(), [], [])
+
+
 class Decoder:
     """Incremental Protocol 2.0 stream decoder; never raises on input.
 
@@ -502,6 +563,9 @@ class Decoder:
     ``FF FF FD 00``, frame by LENGTH, check the CRC; on a mismatch resume one
     byte after the candidate start, so a corrupted LENGTH cannot swallow good
     packets. Memory is bounded by ``7 + max_length`` bytes of pending input.
+
+    :meth:`scan` yields the same items one by one and can store expected
+    replies in place instead (:class:`ReplySlots`).
 
     ``strict_stuffing`` reports unescaped ``FF FF FD`` inside a packet as a
     ``stuffing`` problem; the default accepts it, because the official SDK never
@@ -521,6 +585,7 @@ class Decoder:
         self.inter_byte_timeout = inter_byte_timeout
         self._buf = b""
         self._last_t: float | None = None
+        self._consumed = 0  # where the last _frames() left off
         #: Counters: bytes fed, bytes outside valid packets, packets, and problems by kind.
         self.bytes_in = 0
         self.bytes_skipped = 0
@@ -539,6 +604,41 @@ class Decoder:
         inter-byte timeout measures from the previous chunk's ``t`` to it.
         """
         out: list[Item] = []
+        buf = self._take(data, t, t_first, out)
+        self._buf = buf[self._scan(buf, out, t, final=False) :]
+        return out
+
+    def scan(
+        self, data: bytes, t: float = 0.0, t_first: float | None = None, slots: ReplySlots | None = None
+    ) -> Iterator[Item]:
+        """:meth:`feed`, item by item, optionally storing expected replies in ``slots``.
+
+        Iterate to the end: the decoder's state is settled when the iterator
+        finishes. ``slots`` (:class:`ReplySlots`) may be changed by the consumer
+        between items; from :data:`VECTOR_MIN` bytes on, replies that fit them
+        are stored there instead of being yielded.
+        """
+        out: list[Item] = []
+        buf = self._take(data, t, t_first, out)
+        self._buf = b""
+        if out:
+            yield from out
+        if len(buf) >= VECTOR_MIN:
+            yield from self._frames(buf, t, False, slots)
+            self._buf = buf[self._consumed :]
+        else:
+            out = []
+            self._buf = buf[self._scan_plain(buf, out, t, False) :]
+            yield from out
+
+    def flush(self, t: float = 0.0) -> list[Item]:
+        """End of stream (or idle line): report a pending partial packet as truncated."""
+        out: list[Item] = []
+        self._flush_into(out, t)
+        return out
+
+    def _take(self, data: bytes, t: float, t_first: float | None, out: list[Item]) -> bytes:
+        """Start of a feed: apply the inter-byte timeout, count the bytes, join them to the pending ones."""
         if (
             self.inter_byte_timeout is not None
             and self._last_t is not None
@@ -548,15 +648,7 @@ class Decoder:
             self._flush_into(out, t)
         self._last_t = t
         self.bytes_in += len(data)
-        buf = self._buf + data if self._buf else bytes(data)
-        self._buf = buf[self._scan(buf, out, t, final=False) :]
-        return out
-
-    def flush(self, t: float = 0.0) -> list[Item]:
-        """End of stream (or idle line): report a pending partial packet as truncated."""
-        out: list[Item] = []
-        self._flush_into(out, t)
-        return out
+        return self._buf + data if self._buf else bytes(data)
 
     def _flush_into(self, out: list[Item], t: float) -> None:
         buf = self._buf
@@ -565,7 +657,110 @@ class Decoder:
             self._scan(buf, out, t, final=True)
 
     def _scan(self, buf: bytes, out: list[Item], t: float, final: bool) -> int:
-        """Frame packets in ``buf``; return the offset of the first unconsumed byte.
+        """Frame packets in ``buf`` into ``out``; return the offset of the first unconsumed byte.
+
+        Two hand-tuned implementations of spec §1.7 with identical output (a
+        test runs both on random and real streams): numpy's fixed cost per call
+        (about 40 us) pays off from :data:`VECTOR_MIN` bytes on.
+        """
+        if len(buf) >= VECTOR_MIN:
+            out.extend(self._frames(buf, t, final, None))
+            return self._consumed
+        return self._scan_plain(buf, out, t, final)
+
+    def _frames(self, buf: bytes, t: float, final: bool, slots: ReplySlots | None) -> Iterator[Item]:
+        """:meth:`_scan` for large buffers: numpy judges every candidate, Python only builds items.
+
+        :func:`_judge_candidates` finds the headers and decides, for all
+        candidates at once, whether each is a plain packet that lies within
+        the buffer (then only its CRC is left to check) or needs the general
+        path (:meth:`_candidate`: bad LENGTH, incomplete, stuffed). The loop
+        below is what remains per packet: skip headers inside the previous good
+        packet, one CRC call, one item or one reply slot. A generator, so that
+        :meth:`scan`'s consumer can change ``slots`` between items; where to
+        resume is left in ``self._consumed``.
+        """
+        starts, ends, verdicts = _judge_candidates(buf, self.max_length)
+        crc16, table = raw_crc_routine(crc16_buypass)
+        new = tuple.__new__  # NamedTuple's own __new__ is a Python frame; skip it
+        status, instruction = StatusPacket, InstructionPacket
+        problems = self.problems
+        side: list[Item] = []
+        others = skipped = pos = 0  # others: candidates that were not packets; pos: first byte not consumed
+        stop = -1
+        slotted = slots is not None
+        if slotted:
+            state = slots.state
+            slot_of, sizes, filled, store, stamps = state
+            fills = slots.fills
+        for s, e, x in zip(starts, ends, verdicts, strict=True):
+            if s != pos:
+                if s < pos:
+                    others += 1
+                    continue  # a header inside a packet already framed
+                skipped += s - pos
+            if x >= 0:
+                # CRC over the whole packet, CRC bytes included, against the register value a
+                # matching CRC leaves; x also tells status (x < 0x10000) from instruction
+                raw = buf[s:e]
+                c = crc16(raw, 0, table)
+                pos = e
+                if c == x:
+                    if slotted:
+                        k = slot_of(raw[4])
+                        if k is not None and not filled[k] and len(raw) == sizes[k] and not raw[8]:
+                            filled[k] = 1
+                            store[k] = raw[9:-2]
+                            stamps[k] = t
+                            fills.append(k)
+                            continue
+                        yield new(status, (raw[4], raw[8], raw[9:-2], raw, t))
+                        if slots.state is not state:  # the consumer re-pointed the slots
+                            state = slots.state
+                            slot_of, sizes, filled, store, stamps = state
+                        continue
+                    yield new(status, (raw[4], raw[8], raw[9:-2], raw, t))
+                    continue
+                if c + 0x10000 == x:
+                    yield new(instruction, (raw[4], raw[7], raw[8:-2], raw, t))
+                else:
+                    problems["crc"] += 1
+                    others += 1
+                    skipped += 1
+                    pos = s + 1
+                    yield DecodeProblem("crc", raw, t, "mismatched checksum")
+            else:
+                nxt = self._candidate(buf, s, side, t, final)
+                if nxt < 0:
+                    stop = s
+                    break
+                if nxt == s + 1:
+                    others += 1
+                    skipped += 1
+                pos = nxt
+                yield side[0]
+                side.clear()
+            if slotted and slots.state is not state:
+                state = slots.state
+                slot_of, sizes, filled, store, stamps = state
+        # every candidate up to the stop was a packet, a rejection or covered
+        self.packets += (bisect_left(starts, stop) if stop >= 0 else len(starts)) - others
+        self._consumed = self._settle(pos, stop, len(buf), skipped, final)
+
+    def _settle(self, pos: int, stop: int, n: int, skipped: int, final: bool) -> int:
+        """End of a scan: where to resume, with the bytes left behind counted as skipped."""
+        if stop >= 0:
+            pos = stop
+        else:
+            keep = n if final else max(pos, n - 3)  # a header may straddle the chunks
+            if keep > pos:
+                skipped += keep - pos
+                pos = keep
+        self.bytes_skipped += skipped
+        return pos
+
+    def _scan_plain(self, buf: bytes, out: list[Item], t: float, final: bool) -> int:
+        """:meth:`_scan` for small buffers, in plain Python.
 
         Hand-tuned: this loop is the decoder's (and the bus monitor's) throughput,
         so it avoids construct and per-candidate searches. ``bytes.split`` finds
@@ -619,7 +814,8 @@ class Decoder:
                             continue
                     else:
                         body = piece[4 : length + 1]
-                        if b"\xff\xff\xfd" not in body:
+                        # stuffing could start at the instruction byte (FF) or inside the parameters
+                        if b"\xff\xff\xfd" not in body and piece[3] != 0xFF:
                             append(new(InstructionPacket, (piece[0], piece[3], body, buf[here:end], t)))
                             packets += 1
                             pos = end
@@ -634,16 +830,8 @@ class Decoder:
             else:
                 packets += 1
             pos = nxt
-        if stop >= 0:
-            pos = stop
-        else:
-            keep = n if final else max(pos, n - 3)  # a header may straddle the chunks
-            if keep > pos:
-                skipped += keep - pos
-                pos = keep
-        self.bytes_skipped += skipped
         self.packets += packets
-        return pos
+        return self._settle(pos, stop, n, skipped, final)
 
     def _candidate(self, buf: bytes, start: int, out: list[Item], t: float, final: bool) -> int:
         """Frame the candidate at ``start`` from ``buf``; return where to resume.
@@ -673,21 +861,91 @@ class Decoder:
                 if crc16_buypass(raw[:-2]) != raw[-2] | raw[-1] << 8:
                     kind, detail = "crc", "mismatched checksum"
                 else:
-                    pid, inst, body = raw[4], raw[7], raw[8:-2]
-                    if b"\xff\xff\xfd" in body and (pid != BROADCAST_ID or inst != 0x55):
+                    # stuffing covers INSTRUCTION..PARAMETERS (§1.6), the instruction byte included
+                    pid, body = raw[4], raw[7:-2]
+                    if b"\xff\xff\xfd" in body and (pid != BROADCAST_ID or body[0] != 0x55):
                         if self.strict_stuffing and _unescaped(body):
                             problems["stuffing"] += 1
                             out.append(DecodeProblem("stuffing", raw, t, "unescaped FF FF FD"))
                             return start + 1
                         body = body.replace(STUFFED, STUFF_PATTERN)
-                    if inst == 0x55:
-                        out.append(StatusPacket(pid, body[0], body[1:], raw, t))
+                    if body[0] == 0x55:
+                        out.append(StatusPacket(pid, body[1], body[2:], raw, t))
                     else:
-                        out.append(InstructionPacket(pid, inst, body, raw, t))
+                        out.append(InstructionPacket(pid, body[0], body[1:], raw, t))
                     return end
         problems[kind] += 1
         out.append(DecodeProblem(kind, raw, t, detail))
         return start + 1
+
+
+#: From this many bytes on, :meth:`Decoder._scan` judges candidates with numpy.
+VECTOR_MIN = 2048
+
+
+def _judge_candidates(buf: bytes, max_length: int) -> tuple[list[int], list[int], list[int]]:
+    """Every ``FF FF FD 00`` in ``buf`` and a verdict on it, computed with numpy for all at once.
+
+    Returns ``(starts, ends, verdicts)``, one entry per candidate in order. The
+    verdict is -1 where the candidate needs :meth:`Decoder._candidate`: fewer
+    than 8 bytes, LENGTH out of range or past the end, a status with LENGTH 3,
+    or another candidate (or ``FF FF FD``) starting inside it, as stuffing or
+    an unstuffed header the SDK sends make. Otherwise the packet lies in
+    ``buf`` and the verdict is the CRC register value that running the CRC over
+    the whole packet leaves when its CRC matches (:data:`_CRC_RESIDUE`), plus
+    0x10000 for an instruction. The byte layout is the one of §1.2: ID at 4,
+    LENGTH at 5-6, INSTRUCTION at 7, CRC in the last two bytes.
+    """
+    n = len(buf)
+    if n < 8:
+        starts = [i for i in range(n - 3) if buf.startswith(HEADER, i)]
+        return starts, starts, [-1] * len(starts)
+    # At 4 KiB per feed numpy's fixed cost per call is what limits this function: the checks are
+    # folded into as few calls as possible (lookup tables instead of comparisons, 4-byte views).
+    a = np.frombuffer(buf, dtype=np.uint8)
+    fd = (a[2 : n - 1] == 0xFD).nonzero()[0]  # p with FD at p + 2 and p + 3 inside buf
+    words = np.ndarray((n - 3,), "<u4", buf, 0, (1,))  # unaligned little-endian view: bytes p..p+3
+    w = words[fd]
+    heads = fd[w == 0x00FDFFFF]
+    starts = heads.tolist()
+    m = bisect_left(starts, n - 7)  # candidates with ID, LENGTH and INSTRUCTION inside buf
+    if not m:
+        return starts, starts, [-1] * len(starts)
+    h = heads[:m] if m < len(starts) else heads
+    w4 = words[h + 4]  # ID | LEN_L << 8 | LEN_H << 16 | INSTRUCTION << 24
+    length = (w4 >> 8) & 0xFFFF
+    kind = _KIND[w4 >> 24]  # 0 for a status, 0x10000 for an instruction
+    end = h + length + 7
+    ok = _length_ok(max_length)[length + kind]
+    # A packet is plain if nothing that looks like a header starts inside it. Where FF FF FD
+    # occurs only in headers that is the next candidate; otherwise search every FF FF FD. Both
+    # end with n, so this also rejects packets that run past the end of buf.
+    if len(fd) > len(starts) and np.count_nonzero((w & 0xFFFFFF) == 0xFDFFFF) > len(starts):
+        patterns = fd[(w & 0xFFFFFF) == 0xFDFFFF]
+        first = np.append(patterns, n)[np.searchsorted(patterns, h + 7)]
+    else:
+        first = heads[1 : m + 1] if m < len(starts) else np.append(heads[1:], n)
+    ok &= first >= end
+    end = np.minimum(end, n)
+    crc = np.ndarray((n - 1,), "<u2", buf, 0, (1,))[end - 2]  # the CRC field (for the general path: any)
+    verdicts = _VERDICTS[np.where(ok, crc + kind, _GENERAL)].tolist()
+    ends = end.tolist()
+    if m < len(starts):
+        ends += starts[m:]
+        verdicts += [-1] * (len(starts) - m)
+    return starts, ends, verdicts
+
+
+#: INSTRUCTION byte -> 0 for a status, 0x10000 for an instruction (the offset of its verdicts).
+_KIND = np.full(256, 0x10000, dtype=np.int64)
+_KIND[STATUS] = 0
+
+
+@cache
+def _length_ok(max_length: int) -> np.ndarray:
+    """LENGTH + kind offset -> whether LENGTH is valid: 3..max_length, 4..max_length for a status."""
+    length = np.arange(0x10000)
+    return np.concatenate(((length >= 4) & (length <= max_length), (length >= 3) & (length <= max_length)))
 
 
 def _unescaped(body: bytes) -> bool:
