@@ -79,7 +79,14 @@ def start_emulator(paced: bool) -> tuple[subprocess.Popen, str, tempfile.Tempora
     return proc, path, tmp
 
 
-def run_cycles(path: str, seconds: float) -> tuple[int, float]:
+def process_cpu_s(pid: int) -> float:
+    """User + system CPU seconds of a process so far (Linux /proc)."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def run_cycles(path: str, seconds: float, emulator_pid: int) -> tuple[int, float, float]:
+    """(cycles, seconds, emulator CPU seconds) of the measured cycles, after a warm-up."""
     port = sdk.PortHandler(path)
     port.openPort()
     port.setBaudRate(BAUD)
@@ -99,20 +106,22 @@ def run_cycles(path: str, seconds: float) -> tuple[int, float]:
     while time.perf_counter() < warm_end:
         cycle()
     n = 0
+    cpu0 = process_cpu_s(emulator_pid)
     t0 = time.perf_counter()
     end = t0 + seconds
     while time.perf_counter() < end:
         cycle()
         n += 1
     dt = time.perf_counter() - t0
+    cpu = process_cpu_s(emulator_pid) - cpu0
     port.closePort()
-    return n, dt
+    return n, dt, cpu
 
 
 def bench_cycle(paced: bool, seconds: float) -> None:
     proc, path, tmp = start_emulator(paced)
     try:
-        n, dt = run_cycles(path, seconds)
+        n, dt, emulator_cpu = run_cycles(path, seconds, proc.pid)
     finally:
         proc.terminate()
         proc.wait(timeout=5)
@@ -126,6 +135,11 @@ def bench_cycle(paced: bool, seconds: float) -> None:
         rate = n / dt
         emit("dxl_sdk_cycle_unpaced", rate, "cycles/s", 1 / wire_cycle, rate * wire_cycle, target_value=1000,
              cycles=n, cpus=os.cpu_count())
+        # The emulator's CPU per cycle varies far less with the machine's load than the cycle rate,
+        # which also includes the SDK's own (busy-polling) side and both processes' wake-ups.
+        per_cycle = emulator_cpu / n
+        emit("dxl_emulator_cpu_per_cycle", per_cycle * 1e6, "us", wire_cycle * 1e6, per_cycle / wire_cycle,
+             note="emulator process CPU per 20-servo cycle, against the cycle's wire time")
 
 
 def main() -> None:

@@ -79,7 +79,7 @@ class DynamixelBus:
         self.decoder = dxl.Decoder(strict_stuffing=strict_stuffing, inter_byte_timeout=inter_byte_timeout)
         self.stats = BusStats()
         self.port: DevicePort | None = None
-        self._handlers: dict[int, Callable[[InstructionPacket, float, int | None], None]] = {
+        self._handlers: dict[int, Callable[[InstructionPacket, float, int | None, list[Servo]], None]] = {
             I.PING: self._ping,
             I.READ: self._read,
             I.WRITE: self._write,
@@ -122,7 +122,9 @@ class DynamixelBus:
 
     def _hearing(self, t: float, baud: int | None) -> list[Servo]:
         """Devices that receive this transmission: awake, and at the sender's baud."""
-        return [s for s in self.servos if not s.silent(t) and (baud is None or s.baud is None or s.baud == baud)]
+        if baud is None:
+            return [s for s in self.servos if not s.silent(t)]
+        return [s for s in self.servos if not s.silent(t) and ((b := s.baud) is None or b == baud)]
 
     def _dispatch(self, pkt: InstructionPacket, t: float, baud: int | None) -> None:
         self.stats.requests[pkt.name] += 1
@@ -136,7 +138,7 @@ class DynamixelBus:
                     if s.id == pkt.id and s.status_return_level >= 2:
                         self._send([(s, s.error_byte(err), b"", s.id)], t)
             return
-        self._handlers[pkt.instruction](pkt, t, baud)
+        self._handlers[pkt.instruction](pkt, t, baud, hearing)
 
     def _crc_error(self, problem: DecodeProblem, t: float, baud: int | None) -> None:
         """A unicast instruction that failed its CRC check gets a CRC Error status."""
@@ -151,25 +153,49 @@ class DynamixelBus:
     # ------------------------------------------------------------------ sending
 
     def _send(self, replies: list[tuple[Servo, int, bytes, int]], t: float) -> None:
-        """Put status packets on the line in order: ``(device, err, data, reply id)``."""
+        """Put status packets on the line in order: ``(device, err, data, reply id)``.
+
+        On an unpaced line, replies without a delay all arrive at once anyway; they go out as one
+        transmission (one pty write instead of twenty for a Sync Read), which changes nothing a
+        host or tap can observe but the chunking.
+        """
         port = self.port
         if port is None:
             return
+        paced = port.paced
         end = t
-        for s, err, data, reply_id in replies:
-            faults = s.faults
-            if faults.take_drop():
-                self.stats.dropped_replies += 1
-                if self.chain_policy == "stall":
-                    return
-                continue
-            raw = dxl.status_packet(reply_id, err, data)
-            if faults.take_corrupt():
-                raw = raw[:-2] + bytes((raw[-2] ^ 0xFF, raw[-1]))
-                self.stats.corrupted_replies += 1
-            gap = (s.return_delay if port.paced else 0.0) + faults.delay
-            end = port.transmit(raw, t=end, gap=gap, baud=s.baud)
-            self.stats.replies += 1
+        batch = bytearray()
+        batch_baud: int | None = None
+        try:
+            for s, err, data, reply_id in replies:
+                faults = s.faults
+                if faults.take_drop():
+                    self.stats.dropped_replies += 1
+                    if self.chain_policy == "stall":
+                        return
+                    continue
+                raw = dxl.status_packet(reply_id, err, data)
+                if faults.take_corrupt():
+                    raw = raw[:-2] + bytes((raw[-2] ^ 0xFF, raw[-1]))
+                    self.stats.corrupted_replies += 1
+                gap = (s.return_delay if paced else 0.0) + faults.delay
+                baud = s.baud
+                self.stats.replies += 1
+                if not paced and gap == 0.0 and (not batch or baud == batch_baud):
+                    batch += raw
+                    batch_baud = baud
+                    continue
+                if batch:
+                    end = port.transmit(bytes(batch), t=end, baud=batch_baud)
+                    batch.clear()
+                if not paced and gap == 0.0:
+                    batch += raw
+                    batch_baud = baud
+                else:
+                    end = port.transmit(raw, t=end, gap=gap, baud=baud)
+        finally:
+            if batch:
+                port.transmit(bytes(batch), t=end, baud=batch_baud)
 
     @staticmethod
     def _answers(s: Servo, inst: int) -> bool:
@@ -191,30 +217,29 @@ class DynamixelBus:
         shadow = [s for s in hearing if s.secondary_id == pkt.id and s not in primary]
         return primary, shadow
 
-    def _ping(self, pkt: InstructionPacket, t: float, baud: int | None) -> None:
-        hearing = self._hearing(t, baud)
+    def _ping(self, pkt: InstructionPacket, t: float, baud: int | None, hearing: list[Servo]) -> None:
         if pkt.id == BROADCAST_ID:
             ordered = sorted(hearing, key=lambda s: s.id)
             self._send([(s, s.error_byte(), s.ping(), s.id) for s in ordered], t)
         else:
             self._send([(s, s.error_byte(), s.ping(), s.id) for s in hearing if s.id == pkt.id], t)
 
-    def _read(self, pkt: InstructionPacket, t: float, baud: int | None) -> None:
+    def _read(self, pkt: InstructionPacket, t: float, baud: int | None, hearing: list[Servo]) -> None:
         if pkt.id == BROADCAST_ID:
             return  # a broadcast Read is not executed
         address, length = _u16s(pkt.params)
         replies = []
-        for s in self._hearing(t, baud):
+        for s in hearing:
             if s.id == pkt.id:
                 err, data = s.read(address, length, t)
                 if self._answers(s, I.READ):
                     replies.append((s, s.error_byte(err), data, s.id))
         self._send(replies, t)
 
-    def _write(self, pkt: InstructionPacket, t: float, baud: int | None) -> None:
+    def _write(self, pkt: InstructionPacket, t: float, baud: int | None, hearing: list[Servo]) -> None:
         address = pkt.params[0] | pkt.params[1] << 8
         data = pkt.params[2:]
-        primary, shadow = self._targets(pkt, self._hearing(t, baud))
+        primary, shadow = self._targets(pkt, hearing)
         replies = []
         for s in primary + shadow:
             reply_id = s.id  # an ID change answers from the old ID
@@ -224,9 +249,9 @@ class DynamixelBus:
                 replies.append((s, s.error_byte(err), b"", reply_id))
         self._send(replies, t)
 
-    def _simple(self, pkt: InstructionPacket, t: float, baud: int | None) -> None:
+    def _simple(self, pkt: InstructionPacket, t: float, baud: int | None, hearing: list[Servo]) -> None:
         """Action, Factory Reset, Reboot, Clear, Backup: execute, answer a unicast."""
-        primary, shadow = self._targets(pkt, self._hearing(t, baud))
+        primary, shadow = self._targets(pkt, hearing)
         inst = pkt.instruction
         replies = []
         for s in primary + shadow:
@@ -256,8 +281,8 @@ class DynamixelBus:
             return [(i, address, length) for i in p[4:]]
         return [(p[k], p[k + 1] | p[k + 2] << 8, p[k + 3] | p[k + 4] << 8) for k in range(0, len(p), 5)]
 
-    def _multi_read(self, pkt: InstructionPacket, t: float, baud: int | None) -> None:
-        by_id = {s.id: s for s in self._hearing(t, baud)}
+    def _multi_read(self, pkt: InstructionPacket, t: float, baud: int | None, hearing: list[Servo]) -> None:
+        by_id = {s.id: s for s in hearing}
         replies = []
         for dxl_id, address, length in self._read_list(pkt):
             s = by_id.get(dxl_id)
@@ -272,8 +297,8 @@ class DynamixelBus:
     def _supports_fast(self, s: Servo) -> bool:
         return self.fast_read.get(s.id, s.model.fast_read)
 
-    def _fast_read(self, pkt: InstructionPacket, t: float, baud: int | None) -> None:
-        by_id = {s.id: s for s in self._hearing(t, baud)}
+    def _fast_read(self, pkt: InstructionPacket, t: float, baud: int | None, hearing: list[Servo]) -> None:
+        by_id = {s.id: s for s in hearing}
         wanted = self._read_list(pkt)
         slices: list[tuple[int, int, bytes]] = []
         missing = False
@@ -314,8 +339,7 @@ class DynamixelBus:
             port.transmit(raw, t=t, gap=gap, baud=first.baud)
             self.stats.replies += 1
 
-    def _multi_write(self, pkt: InstructionPacket, t: float, baud: int | None) -> None:
-        hearing = self._hearing(t, baud)
+    def _multi_write(self, pkt: InstructionPacket, t: float, baud: int | None, hearing: list[Servo]) -> None:
         by_id: dict[int, list[Servo]] = {}
         for s in hearing:
             by_id.setdefault(s.id, []).append(s)
