@@ -13,19 +13,12 @@ from hilbench.fakes.stm32_board.robot import forward_kinematics
 from hilbench.protocols import vel2d
 from hilbench.protocols.tracestamp import RuntimeReport, Stamp
 from hilbench.protocols.tracestamp_stream import StreamDecoder, stamps_of
+from tests.stm32_vectors import crc32_mpeg2_bitwise
 
 BYTE_US = 10e6 / 115_200
 A = vel2d.build(0.0, 0.0, 0.0)
 C = vel2d.build(0.1, -0.2, 0.3)
 
-
-def crc32_mpeg2_bitwise(data: bytes) -> int:
-    crc = 0xFFFFFFFF
-    for byte in data:
-        crc ^= byte << 24
-        for _ in range(8):
-            crc = ((crc << 1) ^ 0x04C11DB7) & 0xFFFFFFFF if crc & 0x80000000 else (crc << 1) & 0xFFFFFFFF
-    return crc
 
 
 def board(preset="freertos-100-50", output="v1", baud=115_200, **kw) -> Board:

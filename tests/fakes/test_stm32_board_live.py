@@ -12,15 +12,7 @@ from hilbench.protocols.tracestamp import LogLine, RuntimeReport
 from hilbench.protocols.tracestamp_stream import StreamDecoder, stamps_of
 from hilbench.pytest_plugin import wait_until
 from hilbench.transports.host_link import HostLink
-
-
-def crc32_mpeg2_bitwise(data: bytes) -> int:
-    crc = 0xFFFFFFFF
-    for byte in data:
-        crc ^= byte << 24
-        for _ in range(8):
-            crc = ((crc << 1) ^ 0x04C11DB7) & 0xFFFFFFFF if crc & 0x80000000 else (crc << 1) & 0xFFFFFFFF
-    return crc
+from tests.stm32_vectors import crc32_mpeg2_bitwise
 
 
 class Reader:

@@ -90,16 +90,8 @@ def test_run_time_counters_use_tim13_units():
 def test_fast_path_matches_the_exact_path_and_is_used():
     results = []
     for fast in (True, False):
-        k = Kernel(10_000, isr_us=0.6, switch_us=0.4)
-        idle = Task("IDLE", 0, 9, 0)
-        k.add_task(idle, None, idle=True)
-        k._make_ready(idle)
-        for num, (name, period, mean) in enumerate((("hal", 1, 6.6), ("wheel", 1, 10.7), ("pose", 2, 9.9),
-                                                    ("odo", 2, 6.8), ("poll", 10, 3.0)), start=1):
-            t = Task(name, 32 if name == "poll" else 24, num, num)
-            t.durations = Durations(Timing(mean), seed=num)
-            t.fast = Periodic(period, t.durations)
-            k.add_task(t, periodic_drawn(t, period))
+        k = control_kernel((("hal", 1, 6.6), ("wheel", 1, 10.7), ("pose", 2, 9.9), ("odo", 2, 6.8),
+                            ("poll", 10, 3.0)), prio={"poll": 32})
         k.fast_enabled = fast
         k.start()
         k.sampling = True
@@ -118,15 +110,7 @@ def test_fast_path_with_a_long_computation_in_the_background():
     """A prio-24 task formatting for milliseconds interleaves with the control ticks (time slicing)."""
     results = []
     for fast in (True, False):
-        k = Kernel(10_000, isr_us=0.6, switch_us=0.4)
-        idle = Task("IDLE", 0, 9, 0)
-        k.add_task(idle, None, idle=True)
-        k._make_ready(idle)
-        for num, (name, period, mean) in enumerate((("hal", 1, 6.6), ("wheel", 1, 10.7), ("pose", 2, 9.9)), 1):
-            t = Task(name, 24, num, num)
-            t.durations = Durations(Timing(mean), seed=num)
-            t.fast = Periodic(period, t.durations)
-            k.add_task(t, periodic_drawn(t, period))
+        k = control_kernel((("hal", 1, 6.6), ("wheel", 1, 10.7), ("pose", 2, 9.9)))
         worker = Task("profile", 24, 7, 7)
         worker.durations = Durations(Timing(1500.0, sd_us=300.0), seed=7)
 
@@ -153,6 +137,22 @@ def periodic_drawn(task, period):
     while True:
         yield (RUN, task.durations.draw())
         yield (DELAY_UNTIL, task.wake_tick + period)
+
+
+
+def control_kernel(tasks, *, isr_us: float = 0.6, prio: dict[str, int] | None = None) -> Kernel:
+    """A 10 kHz kernel with IDLE and periodic tasks ``(name, period in ticks, Timing or mean µs)``, numbered
+    from 1, for comparing the fast path with the exact simulation."""
+    k = Kernel(10_000, isr_us=isr_us, switch_us=0.4)
+    idle = Task("IDLE", 0, 9, 0)
+    k.add_task(idle, None, idle=True)
+    k._make_ready(idle)
+    for num, (name, period, timing) in enumerate(tasks, start=1):
+        t = Task(name, (prio or {}).get(name, 24), num, num)
+        t.durations = Durations(timing if isinstance(timing, Timing) else Timing(timing), seed=num)
+        t.fast = Periodic(period, t.durations)
+        k.add_task(t, periodic_drawn(t, period))
+    return k
 
 
 def assert_slices_in_order(stamps) -> None:
@@ -216,17 +216,8 @@ def test_fast_path_equals_exact_with_short_jobs_and_a_switch_that_ends_after_the
     the fast path gives the exact path's stamps and run times, and both keep slices in order."""
     results = []
     for fast in (True, False):
-        k = Kernel(10_000, isr_us=isr_us, switch_us=0.4)
-        idle = Task("IDLE", 0, 9, 0)
-        k.add_task(idle, None, idle=True)
-        k._make_ready(idle)
-        for num, (name, period, timing) in enumerate((("zero", 1, Timing(0.0, dist="fixed")),
-                                                      ("short", 2, Timing(0.2, dist="fixed")),
-                                                      ("wheel", 1, Timing(10.7))), start=1):
-            t = Task(name, 24, num, num)
-            t.durations = Durations(timing, seed=num)
-            t.fast = Periodic(period, t.durations)
-            k.add_task(t, periodic_drawn(t, period))
+        k = control_kernel((("zero", 1, Timing(0.0, dist="fixed")), ("short", 2, Timing(0.2, dist="fixed")),
+                            ("wheel", 1, Timing(10.7))), isr_us=isr_us)
         high = Task("isr_task", 32, 4, 4)
 
         def waiter(task=high):
@@ -258,16 +249,8 @@ def test_fast_path_equals_exact_when_the_background_resumes_after_a_tick():
     negative computing time before its first burst."""
     results = []
     for fast in (True, False):
-        k = Kernel(10_000, isr_us=0.6, switch_us=0.4)
-        idle = Task("IDLE", 0, 9, 0)
-        k.add_task(idle, None, idle=True)
-        k._make_ready(idle)
         # Every 10th tick: a (90 µs) and b (8.3 µs) end at T + 99.7, the background is back in at T + 100.1.
-        for num, (name, period, mean) in enumerate((("a", 10, 90.0), ("b", 1, 8.3)), start=1):
-            t = Task(name, 24, num, num)
-            t.durations = Durations(Timing(mean, dist="fixed"), seed=num)
-            t.fast = Periodic(period, t.durations)
-            k.add_task(t, periodic_drawn(t, period))
+        k = control_kernel((("a", 10, Timing(90.0, dist="fixed")), ("b", 1, Timing(8.3, dist="fixed"))))
         worker = Task("profile", 24, 7, 7)
         worker.durations = Durations(Timing(3000.0, sd_us=300.0), seed=7)
 
@@ -298,15 +281,7 @@ def test_fast_path_equals_exact_with_events_between_and_inside_bursts():
     times = np.sort(rng.uniform(1_000, 199_000, 300))
     results = []
     for fast in (True, False):
-        k = Kernel(10_000, isr_us=0.6, switch_us=0.4)
-        idle = Task("IDLE", 0, 9, 0)
-        k.add_task(idle, None, idle=True)
-        k._make_ready(idle)
-        for num, (name, period, mean) in enumerate((("hal", 1, 6.6), ("wheel", 1, 10.7), ("pose", 2, 9.9)), 1):
-            t = Task(name, 24, num, num)
-            t.durations = Durations(Timing(mean), seed=num)
-            t.fast = Periodic(period, t.durations)
-            k.add_task(t, periodic_drawn(t, period))
+        k = control_kernel((("hal", 1, 6.6), ("wheel", 1, 10.7), ("pose", 2, 9.9)))
         sink = Task("tsink", 32, 4, 4)
         sink.durations = Durations(Timing(3.0), seed=4)
 

@@ -13,16 +13,7 @@ from hypothesis import strategies as st
 from hilbench.protocols import vel2d
 from hilbench.protocols.checksums import crc32_mpeg2
 from hilbench.protocols.vel2d import FrameProblem, IdleLineFramer, Velocity
-
-
-def crc32_mpeg2_bitwise(data: bytes) -> int:
-    """An independent CRC-32/MPEG-2: poly 0x04C11DB7, init 0xFFFFFFFF, MSB first, no reflection, no xorout."""
-    crc = 0xFFFFFFFF
-    for byte in data:
-        crc ^= byte << 24
-        for _ in range(8):
-            crc = ((crc << 1) ^ 0x04C11DB7) & 0xFFFFFFFF if crc & 0x80000000 else (crc << 1) & 0xFFFFFFFF
-    return crc
+from tests.stm32_vectors import crc32_mpeg2_bitwise
 
 
 def stm32_word_mode_crc(data: bytes) -> int:
