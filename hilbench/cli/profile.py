@@ -63,6 +63,19 @@ def name_value(text: str, *, allow_hz: bool = False) -> tuple[str, float]:
     return name, time_us(value, allow_hz=allow_hz)
 
 
+HIST_KINDS = ("duration", "latency", "response", "period_error", "duration:linear", "latency:linear",
+              "response:linear")
+
+
+def hist_kinds(text: str) -> tuple[str, ...]:
+    """``--hist`` kinds, checked."""
+    kinds = tuple(k.strip() for k in text.split(",") if k.strip())
+    for k in kinds:
+        if k not in HIST_KINDS:
+            raise argparse.ArgumentTypeError(f"unknown histogram {k!r} (expected: {', '.join(HIST_KINDS)})")
+    return kinds
+
+
 def _names(text: str) -> list[str]:
     return [n.strip() for n in text.split(",") if n.strip()]
 
@@ -211,7 +224,7 @@ def cmd_profile(args: argparse.Namespace) -> int:
         sys.stdout.write("\n")
     else:
         only = _names(args.only) if args.only else None
-        hist = tuple(h for h in (args.hist or "").split(",") if h)
+        hist = args.hist or ()
         console.print(full_report(a, only=only, histograms=hist, title=f"Trace profile of {source_name}",
                                   thesis=args.thesis))
         if cmp is not None:
@@ -258,8 +271,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--reorder", type=time_us, default=500_000, metavar="T",
                    help="reorder window for late stamps (default 500ms)")
     p.add_argument("--tick", type=float, default=1.0, metavar="US", help="histogram tick in µs (default 1)")
-    p.add_argument("--bins", type=int, default=20, help="linear histogram bins in --json (default 20)")
-    p.add_argument("--hist", metavar="KINDS", help="print PX4 histograms: duration,latency,response,period_error")
+    p.add_argument("--bins", type=int, default=20, help="linear histogram bins (default 20)")
+    p.add_argument("--hist", metavar="KINDS", type=hist_kinds,
+                   help="print histograms: duration, latency, response, period_error in PX4 buckets; "
+                        "duration:linear, latency:linear, response:linear in linear bins (--bins)")
     p.add_argument("--only", metavar="A,B,...", help="show only these names")
     p.add_argument("--thesis", action="store_true", help="show the thesis's %% column (total over the sum of "
                                                         "all totals) instead of the share of the window")

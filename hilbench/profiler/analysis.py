@@ -236,6 +236,7 @@ def analyse(profiler, settings: ProfileSettings, *, last_us: float | None = None
             st["release_latency_min_us"] = num(lat.min()) if len(lat) else None
             st["release_latency_max_us"] = num(lat.max()) if len(lat) else None
             hist["latency"] = px4_histogram(lat, tick)
+            hist["latency_linear"] = linear_histogram(lat, settings.linear_bins)
             hist["period_error"] = px4_histogram(np.abs(periods_of(acts, aseg) - period), tick)
         deadline = settings.deadlines.get(name, period)
         budget = settings.budgets.get(name, period)
@@ -245,6 +246,7 @@ def analyse(profiler, settings: ProfileSettings, *, last_us: float | None = None
             st["deadline_misses"] = int(miss.sum())
             st["deadline_offenders"] = offenders(miss, acts, r_vals, settings.offenders)
             hist["response"] = px4_histogram(r_vals, tick)
+            hist["response_linear"] = linear_histogram(r_vals, settings.linear_bins)
             if miss.any():
                 ends = (acts + r_vals)[miss]
                 misses[name] = list(zip(ends.tolist(), r_vals[miss].tolist(), [deadline] * int(miss.sum()),

@@ -104,6 +104,24 @@ def histogram_table(a: Analysis, which: str = "duration", *, only: list[str] | N
     return t
 
 
+def linear_histogram_table(a: Analysis, which: str = "duration", *, only: list[str] | None = None,
+                           width: int = 30) -> Table:
+    """Linear bins of ``duration``, ``latency`` or ``response`` per name, with a bar per bin."""
+    t = Table(title=f"{which} histogram, linear bins (µs)", title_justify="left", header_style="bold",
+              pad_edge=False, box=box.SIMPLE_HEAD, padding=(0, 1, 0, 0))
+    for col in ("name", "from", "to", "count", ""):
+        t.add_column(col, justify="left" if col in ("name", "") else "right", no_wrap=True)
+    for n, s in a.tasks.items():
+        h = s["histograms"].get(f"{which}_linear")
+        if not h or not h["counts"] or (only and n not in only):
+            continue
+        top = max(h["counts"]) or 1
+        for k, c in enumerate(h["counts"]):
+            t.add_row(n if k == 0 else "", _f(h["edges"][k]), _f(h["edges"][k + 1]), _f(c),
+                      "#" * round(c / top * width))
+    return t
+
+
 def quality_text(a: Analysis) -> Text:
     q = a.quality
     items = [("stamps", q["stamps"]), ("out of order", q["out_of_order"]), ("late", q["late_beyond_reorder"]),
@@ -172,7 +190,11 @@ def full_report(a: Analysis, *, only: list[str] | None = None, histograms: tuple
     if pt is not None:
         parts.append(pt)
     for which in histograms:
-        parts.append(histogram_table(a, which, only=only))
+        kind, _, style = which.partition(":")
+        if style == "linear":
+            parts.append(linear_histogram_table(a, kind, only=only))
+        else:
+            parts.append(histogram_table(a, kind, only=only))
     rt = runtime_table(a)
     if rt is not None:
         parts.append(rt)

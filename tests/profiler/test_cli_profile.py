@@ -110,3 +110,17 @@ def test_live_view_on_a_file_ends_with_the_full_report(trace64):
     proc = run(str(trace64), *SPEC_ARGS, "--live", "--live-gantt", "6ms")
     out = proc.stdout.decode()
     assert "rate Hz" in out and "last 6 ms" in out and "Trace profile of" in out
+
+
+def test_linear_histograms_are_printed_and_in_the_json(trace64, tmp_path):
+    out = tmp_path / "run.json"
+    proc = run(str(trace64), *SPEC_ARGS, "--hist", "duration:linear,latency:linear", "--bins", "4", "--only",
+               "wheel_ctrl", "--json-out", str(out))
+    text = proc.stdout.decode()
+    assert "duration histogram, linear bins" in text and "latency histogram, linear bins" in text
+    hists = json.loads(out.read_text())["tasks"]["wheel_ctrl"]["histograms"]
+    assert sum(hists["duration_linear"]["counts"]) == 7 and len(hists["duration_linear"]["edges"]) == 5
+    assert sum(hists["latency_linear"]["counts"]) == 6  # one release latency per job (spec §6.4)
+    assert sum(hists["response_linear"]["counts"]) == 6
+    bad = run(str(trace64), "--hist", "durations", check_rc=2)
+    assert b"unknown histogram 'durations'" in bad.stderr
