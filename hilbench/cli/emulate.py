@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import ipaddress
 import signal
 import sys
 import threading
@@ -28,6 +29,10 @@ def cmd_emulate(args: argparse.Namespace) -> int:
         if manifest:
             bench.write_manifest(manifest)
         print(f"hilbench: bench {profile.name!r} running ({len(bench.devices)} devices); Ctrl-C stops it")
+        for ep in bench.endpoints.values():
+            if ep.udp is not None and not ipaddress.ip_address(ep.udp.address[0]).is_loopback:
+                print(f"hilbench: warning: endpoint {ep.name!r} listens on {ep.udp.address[0]}, beyond this machine "
+                      "(the profile's bind; the default is 127.0.0.1)", file=sys.stderr)
         for ep in bench.endpoints.values():
             if ep.board is not None:
                 b = ep.board.config
