@@ -21,10 +21,10 @@ from pathlib import Path
 from typing import Any
 
 from hilbench.fakes.dynamixel.bus import DynamixelBus
-from hilbench.fakes.dynamixel.models import BAUD_TO_CODE, find_model
 from hilbench.fakes.dynamixel.servo import Servo
 from hilbench.fakes.stm32_board import Board, BoardConfig, make_preset
 from hilbench.profile import BoardSpec, DeviceSpec, EndpointSpec, Profile, load_profile
+from hilbench.protocols.dynamixel_models import BAUD_TO_CODE, find_model
 from hilbench.transports.pty import PtyEndpoint
 from hilbench.transports.serial_medium import SerialMedium
 from hilbench.transports.tap_server import TapServer

@@ -33,7 +33,8 @@ from pathlib import Path
 from typing import Any
 
 from hilbench.fakes.dynamixel.bus import CHAIN_POLICIES, FAST_MISSING_POLICIES
-from hilbench.fakes.dynamixel.models import BAUD_CODES, find_model, model_names
+from hilbench.protocols.dynamixel_models import BAUD_CODES, find_model, model_names
+from hilbench.transports.udp import parse_address
 
 SCHEMA = 1
 DEFAULT_PROFILE = "wolfgang"
@@ -300,8 +301,11 @@ def _endpoint(c: _Checker, name: str, ep: Any) -> EndpointSpec:
     port = c.integer(ep.get("port", 0), f"{key}.port", 0, 65535)
     peer = ep.get("peer")
     if peer is not None:
-        host, _, pport = str(peer).rpartition(":")
-        if not isinstance(peer, str) or not host or not pport.isdigit() or not 0 < int(pport) < 65536:
+        try:
+            if not isinstance(peer, str):
+                raise ValueError
+            parse_address(peer)  # what the endpoint will parse: the rules live in one place
+        except ValueError:
             c.fail(f"{key}.peer", f"expected \"host:port\", got {peer!r}")
     return EndpointSpec(
         name=name,

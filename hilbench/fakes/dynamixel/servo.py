@@ -12,10 +12,10 @@ import math
 import random
 from dataclasses import dataclass, field
 
-from hilbench.fakes.dynamixel import models as m
-from hilbench.fakes.dynamixel.models import Field, Model
 from hilbench.fakes.dynamixel.motion import Profile
+from hilbench.protocols import dynamixel_models as m
 from hilbench.protocols.dynamixel import ALERT_BIT, BACKUP_KEY, CLEAR_KEY, ErrorNumber
+from hilbench.protocols.dynamixel_models import Field, Model
 
 #: Unit conversions used by the motion model.
 PULSES_PER_REV = 4096
