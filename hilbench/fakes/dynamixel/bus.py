@@ -181,14 +181,11 @@ class DynamixelBus:
                 gap = (s.return_delay if paced else 0.0) + faults.delay
                 baud = s.baud
                 self.stats.replies += 1
-                if not paced and gap == 0.0 and (not batch or baud == batch_baud):
-                    batch += raw
-                    batch_baud = baud
-                    continue
-                if batch:
+                joins = not paced and gap == 0.0
+                if batch and not (joins and baud == batch_baud):
                     end = port.transmit(bytes(batch), t=end, baud=batch_baud)
                     batch.clear()
-                if not paced and gap == 0.0:
+                if joins:
                     batch += raw
                     batch_baud = baud
                 else:
