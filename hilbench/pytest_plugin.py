@@ -30,7 +30,7 @@ from typing import Any
 import pytest
 
 from hilbench.bench import Bench
-from hilbench.profile import DEFAULT_PROFILE
+from hilbench.bench.profile import DEFAULT_PROFILE
 
 
 def wait_until(predicate: Callable[[], Any], timeout: float = 5.0, interval: float = 0.005) -> Any:

@@ -7,7 +7,7 @@ import sys
 
 import pytest
 
-from hilbench.profile import DEFAULT_PROFILE, ProfileError, bundled_profiles, load_profile
+from hilbench.bench.profile import DEFAULT_PROFILE, ProfileError, bundled_profiles, load_profile
 
 GOOD = """
 schema = 1

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from hilbench.bench import board_config
-from hilbench.profile import BoardSpec, ProfileError, load_profile
+from hilbench.bench.profile import ProfileError, load_profile
+from hilbench.families.stm32_rover import BoardSpec, board_config
 
 GOOD = """
 schema = 1
@@ -54,7 +54,7 @@ def test_board_defaults_and_task_overrides(tmp_path):
         (GOOD + "faults = { drop_rate = 3 }\n", "devices[0].faults.drop_rate", "expected a number 0.0..1.0"),
         (GOOD.replace("115200", "50"), "endpoints.rover.baud", "expected an integer 1200..12500000"),
         (GOOD.replace('protocol = "vel2d"', 'protocol = "vel2d"\nport = 9000'), "endpoints.rover.port",
-         'only for type = "udp"'),
+         '"udp"'),
         (GOOD.replace('protocol = "vel2d"', 'protocol = "vel2d"\ntype = "udp"\npeer = "nowhere"'),
          "endpoints.rover.peer", 'expected "host:port"'),
         (GOOD + '[[devices]]\nmodel = "stm32f767-rover"\nname = "two"\n', "devices[1].endpoint",

@@ -45,7 +45,7 @@ from rich.console import Console
 from hilbench.bench import Bench
 from hilbench.dashboard import Dashboard
 from hilbench.monitor import Monitor
-from hilbench.monitor.tracker import BusTracker
+from hilbench.monitor.dynamixel.tracker import BusTracker
 from hilbench.protocols.dynamixel import Decoder
 from hilbench.transports.serial_tap import SerialTap
 from hilbench.transports.sources import MediumSource, open_source

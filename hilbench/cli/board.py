@@ -9,7 +9,8 @@ from hilbench.cli.common import CliError
 
 
 def _client(args: argparse.Namespace):
-    from hilbench.control import ControlClient, ControlError
+    from hilbench.bench.control import ControlError
+    from hilbench.families.stm32_rover import BoardClient as ControlClient
 
     try:
         if args.control:
@@ -32,7 +33,7 @@ def _knob(text: str) -> tuple[str, float]:
 
 
 def cmd_board(args: argparse.Namespace) -> int:
-    from hilbench.control import ControlError
+    from hilbench.bench.control import ControlError
 
     client = _client(args)
     try:
@@ -75,6 +76,9 @@ def cmd_board(args: argparse.Namespace) -> int:
     except ControlError as exc:
         raise CliError(str(exc)) from None
     return 0
+
+
+ORDER = 50
 
 
 def register(sub: argparse._SubParsersAction) -> None:

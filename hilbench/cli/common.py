@@ -7,9 +7,11 @@ import contextlib
 import signal
 from collections.abc import Iterator
 
+from hilbench.errors import UsageError
 
-class CliError(Exception):
-    """An error to report on one line with exit status 2."""
+
+class CliError(UsageError):
+    """A usage mistake found by a verb: one line, exit status 2."""
 
 
 class OneLineParser(argparse.ArgumentParser):
@@ -53,7 +55,7 @@ def open_cli_source(spec: str, *, baud: int | None, speed: float | None = None,
     try:
         if spec.startswith("bench:"):
             from hilbench.bench import Bench
-            from hilbench.profile import DEFAULT_PROFILE
+            from hilbench.bench.profile import DEFAULT_PROFILE
 
             bench = Bench(spec[len("bench:"):] or DEFAULT_PROFILE).start()
             ep = bench.endpoint(endpoint or next(iter(bench.endpoints)))

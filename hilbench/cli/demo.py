@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from hilbench.profile import DEFAULT_PROFILE, bundled_profiles, load_profile
+from hilbench.bench.profile import DEFAULT_PROFILE, bundled_profiles, load_profile
 
 
 def demo_report(result) -> list[str]:
@@ -28,7 +28,7 @@ def demo_report(result) -> list[str]:
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
-    from hilbench.demo import run_demo
+    from hilbench.clients.dynamixel_demo import run_demo
 
     result = run_demo(args.profile, args.seconds, paced=not args.unpaced, view=args.view)
     print()
@@ -47,8 +47,11 @@ def cmd_profiles(args: argparse.Namespace) -> int:
     return 0
 
 
+ORDER = 70
+
+
 def register(sub: argparse._SubParsersAction) -> None:
-    from hilbench.dashboard import VIEWS
+    from hilbench.dashboard.dynamixel_views import VIEWS
 
     dm = sub.add_parser("demo", help="run the default bench, drive it with the official SDK, watch it live",
                         description="Start a bench, run a Sync Read / Sync Write control loop against it with the "

@@ -18,7 +18,7 @@ def dxl_id(text: str) -> int:
 
 
 def cmd_dxl_scan(args: argparse.Namespace) -> int:
-    from hilbench import dxl_client
+    from hilbench.clients import dynamixel as dxl_client
 
     bauds = tuple(args.baud) if args.baud else dxl_client.SCAN_BAUDS
     found = dxl_client.scan(args.port, bauds, protocol=float(args.protocol))
@@ -42,7 +42,7 @@ def cmd_dxl_scan(args: argparse.Namespace) -> int:
 
 
 def cmd_dxl_ping(args: argparse.Namespace) -> int:
-    from hilbench import dxl_client
+    from hilbench.clients import dynamixel as dxl_client
 
     f = dxl_client.ping(args.port, args.id, args.baud, protocol=float(args.protocol))
     if args.json:
@@ -53,7 +53,7 @@ def cmd_dxl_ping(args: argparse.Namespace) -> int:
 
 
 def cmd_dxl_read(args: argparse.Namespace) -> int:
-    from hilbench import dxl_client
+    from hilbench.clients import dynamixel as dxl_client
 
     address, raw, f = dxl_client.read(args.port, args.id, args.item, args.baud, args.length)
     if args.json:
@@ -67,11 +67,14 @@ def cmd_dxl_read(args: argparse.Namespace) -> int:
 
 
 def cmd_dxl_write(args: argparse.Namespace) -> int:
-    from hilbench import dxl_client
+    from hilbench.clients import dynamixel as dxl_client
 
     address, f = dxl_client.write(args.port, args.id, args.item, args.value, args.baud, args.length)
     print(f"ID {args.id} {f.name if f else f'address {address}'} <- {args.value}")
     return 0
+
+
+ORDER = 30
 
 
 def register(sub: argparse._SubParsersAction) -> None:

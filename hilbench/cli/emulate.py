@@ -9,7 +9,7 @@ import sys
 import threading
 from pathlib import Path
 
-from hilbench.profile import DEFAULT_PROFILE, load_profile
+from hilbench.bench.profile import DEFAULT_PROFILE, load_profile
 
 
 def cmd_emulate(args: argparse.Namespace) -> int:
@@ -24,30 +24,26 @@ def cmd_emulate(args: argparse.Namespace) -> int:
     bench.start()
     manifest = Path(args.manifest) if args.manifest else None
     try:
-        if bench.profile.boards:
+        if bench.has_control_commands:
             bench.serve_control()
         if manifest:
             bench.write_manifest(manifest)
         print(f"hilbench: bench {profile.name!r} running ({len(bench.devices)} devices); Ctrl-C stops it")
         for ep in bench.endpoints.values():
-            if ep.udp is not None and not ipaddress.ip_address(ep.udp.address[0]).is_loopback:
-                print(f"hilbench: warning: endpoint {ep.name!r} listens on {ep.udp.address[0]}, beyond this machine "
+            address = getattr(ep.port, "address", None)
+            if address is not None and not _is_loopback(address[0]):
+                print(f"hilbench: warning: endpoint {ep.name!r} listens on {address[0]}, beyond this machine "
                       "(the profile's bind; the default is 127.0.0.1)", file=sys.stderr)
         for ep in bench.endpoints.values():
-            if ep.board is not None:
-                b = ep.board.config
-                print(f"  {ep.name}: {ep.path}  (vel2d, {ep.spec.baud} baud, board {ep.board.name!r}: "
-                      f"{b.preset.name}{'' if b.preset.caches else ' no caches'}, output {b.output})")
-            else:
-                timing = "paced" if ep.medium.paced else "unpaced"
-                n = len(ep.bus.servos) if ep.bus else 0
-                print(f"  {ep.name}: {ep.path}  ({ep.spec.protocol}, {ep.spec.baud} baud, {timing}, {n} devices)")
+            print(f"  {ep.name}: {ep.path}  ({ep.family.summary(ep)})")
             if ep.tap is not None:
-                verb = "profile" if ep.board is not None else "monitor"
                 where = f"{manifest}#{ep.name}" if manifest else ep.tap.url
-                print(f"    traffic tap: {ep.tap.url}  (hilbench {verb} {where})")
+                print(f"    traffic tap: {ep.tap.url}  (hilbench {ep.family.tap_reader} {where})")
         if bench.control is not None:
-            print(f"  control: {bench.control.address_text}  (hilbench board --control ... button|reset|fault)")
+            takers = "; ".join(f"{name}: {', '.join(ep.family.control_commands)}"
+                               for ep in bench.endpoints.values() if ep.family.control_commands
+                               for name in ep.devices)
+            print(f"  control: {bench.control.address_text}  ({takers})")
         if manifest:
             print(f"  manifest: {manifest}")
         sys.stdout.flush()
@@ -57,6 +53,16 @@ def cmd_emulate(args: argparse.Namespace) -> int:
         if manifest:
             manifest.unlink(missing_ok=True)
     return 0
+
+
+def _is_loopback(host: str) -> bool:
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return host == "localhost"
+
+
+ORDER = 10
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -4,6 +4,11 @@ SOURCE is anything :func:`hilbench.transports.sources.open_source` opens (a
 capture file, ``-``, a serial port, ``tcp://127.0.0.1:PORT``, a bench
 manifest) or ``bench:PROFILE``, which starts that profile's bench in this
 process and watches its line (its pty is shown in the header).
+
+What is decoded comes from the instrument registered for the source's
+protocol (:mod:`hilbench.monitor.instrument`): ``--protocol`` names it, a
+bench or capture says it, or the monitor tells it from the first bytes. Each
+instrument adds its own options, summary and dashboard views.
 """
 
 from __future__ import annotations
@@ -17,15 +22,39 @@ from collections.abc import Callable
 
 from hilbench.cli.common import CliError, int_arg, open_cli_source, terminate_on_sigterm
 
-PROTOCOLS = ("dynamixel",)
+
+def _monitor_instruments() -> list:
+    """Instruments ``hilbench monitor`` runs (others belong to other verbs)."""
+    from hilbench import registry
+
+    return [i for i in registry.instruments.values() if i.verb == "monitor"]
 
 
-def _tracker_options(args: argparse.Namespace) -> dict:
-    if not 3 <= args.max_length <= 0xFFFF:
-        raise CliError(f"--max-length must be 3..65535, got {args.max_length}")
-    if args.miss_limit < 0 or args.silence < 0:
-        raise CliError("--miss-limit and --silence must not be negative")
-    return {"silence": args.silence, "max_length": args.max_length, "miss_limit": args.miss_limit}
+def _instrument(args: argparse.Namespace, source):
+    """The instrument ``--protocol`` or the source names (None: the monitor tells it from the bytes)."""
+    from hilbench.monitor.detect import choose
+
+    declared = choose(source.protocol, name=source.name) if source.protocol else None
+    if args.protocol:
+        asked = choose(args.protocol, name=source.name)
+        if declared is not None and declared is not asked:
+            raise CliError(f"{source.name} carries {source.protocol}, not {args.protocol}")
+        return asked
+    return declared or choose(None, name=source.name)
+
+
+def _options(args: argparse.Namespace):
+    """Each instrument's tracker options, checked up front: a function of the instrument chosen."""
+    by_protocol = {inst.protocol: inst.tracker_options(args) for inst in _monitor_instruments()}
+    return lambda inst: by_protocol.get(inst.protocol, {})
+
+
+def _view(text: str) -> str:
+    """A dashboard view some monitoring instrument has."""
+    names = sorted({v for inst in _monitor_instruments() if inst.views() for v in inst.views().views})
+    if text not in names:
+        raise argparse.ArgumentTypeError(f"expected one of {', '.join(names)}, got {text!r}")
+    return text
 
 
 def _writer(path: str | None, source, description: str | None = None):
@@ -34,7 +63,7 @@ def _writer(path: str | None, source, description: str | None = None):
     from hilbench.transports.capture_file import CaptureWriter
 
     info = getattr(getattr(source, "reader", None), "info", None)
-    return CaptureWriter(path, baud=source.baud, protocol=source.protocol or "dynamixel",
+    return CaptureWriter(path, baud=source.baud, protocol=source.protocol or "",
                          description=description or source.name, timestamps=source.timestamps,
                          t0_wall=info.t0_wall if info is not None and info.measured else None)
 
@@ -59,8 +88,8 @@ def _watch(monitor, args: argparse.Namespace, label: str, status: Callable[[], s
         else:
             from hilbench.dashboard import Dashboard
 
-            dash = Dashboard(monitor.tracker, lock=monitor.lock, source=label, view=args.view, device=args.device,
-                             clock=monitor.source.clock, status=status)
+            dash = Dashboard(monitor, source=label, view=args.view, device=args.device,
+                             clock=lambda: monitor.source.clock(), status=status)
             interactive = console.is_terminal and sys.stdin.isatty() and not args.once
             dash.run(console=console, stop=lambda: done() or (not interactive and monitor.ended.is_set()))
     except KeyboardInterrupt:
@@ -72,58 +101,13 @@ def _watch(monitor, args: argparse.Namespace, label: str, status: Callable[[], s
         report = monitor.summary()
         if args.json:
             print(json.dumps(report, indent=None if args.compact else 2))
+        elif monitor.instrument is None or monitor.tracker is None:
+            console.print(f"[bold]{report['source']}[/]: {report['note']}", highlight=False)
         else:
-            print_summary(report, console)
-
-
-def print_summary(report: dict, console) -> None:
-    """The summary as a person reads it: the bus, then one line per device."""
-    from rich import box
-    from rich.table import Table
-
-    bus = report["bus"]
-    packets = ", ".join(f"{k} {v}" for k, v in report["packets"].items() if v)
-    if report["timestamps"] == "none":
-        when = "no times (a raw dump: --baud gives it byte time)"
-    else:
-        when = f"{report['duration_s'] or 0:.3f} s ({report['timestamps']} times)"
-    console.print(f"[bold]{report['source']}[/]: {report['bytes']} bytes, {when}", highlight=False)
-    console.print(f"packets: {packets or 'none'}", highlight=False)
-    load = f", load {bus['load']:.1%}" if bus["load"] is not None else ""
-    rate = f"{bus['bytes_per_s'] / 1000:.1f} kB/s{load}; " if bus["bytes_per_s"] is not None else ""
-    console.print(f"bus: {rate}CRC errors {report['crc_errors']}, unanswered requests {bus['unanswered']}, "
-                  f"unexpected replies {bus['unexpected_replies']}", highlight=False)
-    cycle = bus["main_cycle"]
-    if cycle:
-        hz = f" at {cycle['rate_hz']} Hz, jitter {cycle['jitter_ms']} ms" if cycle["rate_hz"] else ""
-        console.print(f"main cycle: {cycle['instruction']} {cycle['address']}/{cycle['length']} of "
-                      f"{len(cycle['ids'])} IDs, {cycle['count']} times{hz}", highlight=False)
-    table = Table(box=box.SIMPLE_HEAD, padding=(0, 0), pad_edge=False, header_style="bold", show_edge=False)
-    for col in ("ID", "model", "fw", "state", "req", "replies", "missed", "CRC", "err", "lat ms"):
-        table.add_column(col, justify="left" if col in ("model", "state") else "right", no_wrap=True)
-    never = []
-    for dev_id, d in report["devices"].items():
-        lat = d["latency_ms"]
-        if d["never_answered"]:
-            never.append(dev_id)
-        table.add_row(dev_id, d["model_name"], "-" if d["firmware"] is None else str(d["firmware"]), d["state"],
-                      str(d["requests"]), str(d["replies"]), str(d["misses"]), str(d["crc_errors"]),
-                      str(d["error_statuses"]), f"{lat['mean']:.3f}" if lat else "-")
-    console.print(table)
-    if never:
-        console.print(f"never answered: ID {', '.join(never)}", highlight=False)
-    for line in report["errors"]["last"][:10]:
-        console.print(line, markup=False, highlight=False)
+            monitor.instrument.print_summary(report, console)
 
 
 # --------------------------------------------------------------------------- verbs
-
-
-def _check_protocol(source) -> None:
-    """The monitor decodes Dynamixel; a line known to carry something else is refused in one line."""
-    if source.protocol not in (None, *PROTOCOLS):
-        hint = " (a board's trace output: use `hilbench profile`)" if source.protocol == "vel2d" else ""
-        raise CliError(f"{source.name} carries {source.protocol}, not {'/'.join(PROTOCOLS)}{hint}")
 
 
 def cmd_monitor(args: argparse.Namespace) -> int:
@@ -131,11 +115,12 @@ def cmd_monitor(args: argparse.Namespace) -> int:
 
     terminate_on_sigterm()
     speed = args.speed if args.speed is not None else (1.0 if args.realtime else None)
+    options = _options(args)
     with open_cli_source(args.source, baud=args.baud, speed=speed) as source:
-        _check_protocol(source)
+        instrument = _instrument(args, source)
         if args.baud and source.baud != args.baud:
             source.baud = args.baud  # the user knows the line rate better than the source
-        mon = Monitor(source, record=_writer(args.record, source), **_tracker_options(args))
+        mon = Monitor(source, instrument=instrument, record=_writer(args.record, source), options=options)
         mon.start()
 
         def status() -> str:
@@ -179,6 +164,7 @@ def cmd_tap(args: argparse.Namespace) -> int:
     from hilbench.transports.sources import SourceError
 
     terminate_on_sigterm()
+    options = _options(args)
     # The forwarding thread must get the interpreter as soon as its read returns, not when the
     # decoding thread's time slice ends (5 ms by default): a tap must not make the SDK time out.
     sys.setswitchinterval(1e-4)
@@ -188,7 +174,9 @@ def cmd_tap(args: argparse.Namespace) -> int:
         raise CliError(str(exc)) from None
     try:
         label = f"tap {args.port} <-> app {tap.app_path}"
-        mon = Monitor(tap.source, record=_writer(args.record, tap.source, label), **_tracker_options(args))
+        instrument = _instrument(args, tap.source)
+        mon = Monitor(tap.source, instrument=instrument, record=_writer(args.record, tap.source, label),
+                      options=options)
         mon.start()
         tap.start()
         print(f"hilbench tap: application port {tap.app_path} <-> {args.port}", flush=True)
@@ -206,34 +194,43 @@ def cmd_tap(args: argparse.Namespace) -> int:
 # --------------------------------------------------------------------------- parsers
 
 
-def _watch_args(p: argparse.ArgumentParser) -> None:
-    from hilbench.dashboard import VIEWS
+def _kinds() -> str:
+    from hilbench.transports.sources import source_kinds
 
-    p.add_argument("--protocol", choices=PROTOCOLS, default="dynamixel", help="bus protocol (default: dynamixel)")
+    return "; ".join(k.usage for k in source_kinds() if k.usage)
+
+
+
+def _watch_args(p: argparse.ArgumentParser) -> None:
+    protocols = [i.protocol for i in _monitor_instruments()]
+    p.add_argument("--protocol", choices=protocols,
+                   help=f"what the source carries ({', '.join(protocols)}; default: what a bench or capture says, "
+                        "else told from the first bytes)")
     p.add_argument("--summary", action="store_true",
                    help="no dashboard: print a summary when the source ends (or on Ctrl-C / --seconds)")
     p.add_argument("--json", action="store_true", help="print the summary as one JSON document (implies --summary)")
     p.add_argument("--compact", action="store_true", help="JSON on one line")
     p.add_argument("--seconds", type=float, help="stop after this many seconds")
-    p.add_argument("--view", choices=VIEWS, default="devices", help="dashboard view to start with (keys: 1-4)")
+    p.add_argument("--view", type=_view, help="dashboard view to start with (the instrument's, e.g. devices, models, details, "
+                                  "log; keys 1-9)")
     p.add_argument("--device", type=int_arg, help="device ID the details view shows first (keys: left/right)")
     p.add_argument("--once", action="store_true",
                    help="leave the dashboard when the source ends, even in a terminal")
     p.add_argument("--record", metavar="FILE", help="also record everything to FILE (hilbench capture format)")
-    p.add_argument("--silence", type=float, default=1.0,
-                   help="disconnect a device owing a reply that said nothing for S seconds (0: off; default 1)")
-    p.add_argument("--miss-limit", type=int, default=4,
-                   help="disconnect after more than N consecutive missed replies (default 4, as the thesis monitor)")
-    p.add_argument("--max-length", type=int_arg, default=1024,
-                   help="largest LENGTH accepted (default 1024 like the SDK; 65535 counts like the spec sheet)")
+    for inst in _monitor_instruments():
+        inst.add_arguments(p)
+
+
+ORDER = 20
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     m = sub.add_parser(
         "monitor", help="watch a bus: live dashboard, or a summary (--summary --json)",
-        description="Decode and track a Dynamixel bus from SOURCE: a capture file (hilbench format or raw dump), "
-                    "'-' (stdin), a serial port (receive-only), tcp://127.0.0.1:PORT or a manifest.json of "
-                    "`hilbench emulate` (its traffic tap), or bench:PROFILE (start that bench here).")
+        description="Decode and track traffic from SOURCE with the instrument of its protocol: a capture file "
+                    "(hilbench format or raw dump), '-' (stdin), a serial port (receive-only), "
+                    "tcp://127.0.0.1:PORT or a manifest.json of `hilbench emulate` (its traffic tap), or "
+                    "bench:PROFILE (start that bench here); every kind: " + _kinds() + ".")
     m.add_argument("source", help="what to watch (see above)")
     m.add_argument("--baud", type=int_arg,
                    help="line rate in bit/s (for the bus load; a serial port's rate; the byte time of a raw dump)")

@@ -155,6 +155,14 @@ def _read(args, profiler, source, console) -> int:
     return lost
 
 
+def _check_protocol(source) -> None:
+    """A source that says it carries something else (a servo bus) is refused in one line."""
+    from hilbench.monitor.detect import choose
+
+    if source.protocol:
+        choose(source.protocol, verb="profile", name=source.name)
+
+
 def cmd_profile(args: argparse.Namespace) -> int:
     from rich.console import Console
 
@@ -172,6 +180,7 @@ def cmd_profile(args: argparse.Namespace) -> int:
             raise CliError(str(exc)) from None
     terminate_on_sigterm()
     with open_cli_source(args.source, baud=args.baud, default_baud=DEFAULT_BAUD) as source:
+        _check_protocol(source)
         endless = source.live and not (args.source == "-" and not sys.stdin.isatty())  # a pipe ends by itself
         if endless and not args.live and not args.duration and not args.reports:
             print(f"reading {source.name} until Ctrl-C (or give --duration / --reports)", file=sys.stderr)
@@ -233,6 +242,9 @@ def cmd_profile(args: argparse.Namespace) -> int:
         print("hilbench: untrustworthy statistics: " + "; ".join(a.quality["reasons"]), file=sys.stderr)
         return 3
     return 0
+
+
+ORDER = 60
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -87,13 +87,16 @@ def cmd_send_vel(args: argparse.Namespace) -> int:
 
 
 def cmd_teleop(args: argparse.Namespace) -> int:
-    from hilbench import teleop
+    from hilbench.clients import teleop
 
     try:
         teleop.run(args.port, args.baud, args.speed, args.turn, args.repeat_rate)
     except ValueError as exc:
         raise CliError(str(exc)) from None
     return 0
+
+
+ORDER = 40
 
 
 def register(sub: argparse._SubParsersAction) -> None:

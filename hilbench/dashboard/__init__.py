@@ -1,7 +1,14 @@
-"""The terminal dashboard: rich views of a bus monitor's state (device overview,
-model overview, device details, error log) on one live screen."""
+"""The terminal dashboard: a generic live frame over a monitor, with each instrument's views.
 
-from hilbench.dashboard.app import MAX_FPS, Dashboard
-from hilbench.dashboard.views import TITLES, VIEWS
+:class:`Dashboard` refreshes at most :data:`MAX_FPS` times a second and handles
+keys; what it shows comes from the view set (:class:`~hilbench.dashboard.app.ViewSet`)
+of the tracker's instrument, e.g. :mod:`hilbench.dashboard.dynamixel_views`
+(device overview, model overview, device details, error log).
+"""
 
-__all__ = ["MAX_FPS", "TITLES", "VIEWS", "Dashboard"]
+from hilbench import _compat
+from hilbench.dashboard.app import MAX_FPS, Dashboard, ViewSet
+
+__getattr__ = _compat.module_getattr(__name__)
+
+__all__ = ["MAX_FPS", "Dashboard", "ViewSet"]

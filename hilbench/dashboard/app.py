@@ -1,16 +1,16 @@
 """The live dashboard: one rich screen over a monitor, refreshed at most 10 times a second.
 
-The screen is redrawn on a timer, never per packet, so its cost does not
-grow with the bus's data rate; between frames the loop only waits for keys.
-Keys (real terminal, cbreak mode):
+The frame is generic: the screen's content comes from the view set of the
+tracker's instrument (:class:`ViewSet`, e.g. the Dynamixel bus's device
+overview, model overview, device details and error log), so a scanner, CAN
+or UDP instrument brings views of its own. The screen is redrawn on a timer,
+never per packet, so its cost does not grow with the data rate; between
+frames the loop only waits for keys. Keys (real terminal, cbreak mode):
 
 =================  ===========================================
-``1`` ``d``        device overview (start screen)
-``2`` ``m``        model overview
-``3`` ``i`` Enter  device details
-``4`` ``e``        error log
+``1`` ... ``9``    the view set's views, in order (also its letters)
 Tab / Shift-Tab    next / previous view
-Left / Right       previous / next device (model in view 2)
+Left / Right       previous / next selection (the view set decides)
 Up / Down, PgUp    scroll the list of the current view
 ``q``              quit
 =================  ===========================================
@@ -25,42 +25,67 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable
+from typing import Any, Protocol
 
 from rich.console import Console, Group
 from rich.live import Live
+from rich.text import Text
 
+from hilbench import registry
 from hilbench.dashboard.keys import KeyReader
-from hilbench.dashboard.views import VIEWS, Frame, screen
-from hilbench.monitor.tracker import BusTracker
 
 #: The refresh cap (frames per second).
 MAX_FPS = 10
+#: Keys every view set has: scrolling and quitting.
+SCROLL_KEYS = {"down": 1, "j": 1, "up": -1, "k": -1, "pgdn": 10, "space": 10, "pgup": -10}
+
+
+class ViewSet(Protocol):
+    """An instrument's screens (its :meth:`~hilbench.monitor.instrument.Instrument.views`)."""
+
+    #: View names; keys 1..n select them in this order.
+    views: tuple[str, ...]
+    #: View name -> title.
+    titles: dict[str, str]
+    #: Extra keys -> view name (``{"d": "devices", "enter": "details"}``).
+    letters: dict[str, str]
+
+    def render(self, dash: Dashboard, width: int, height: int) -> Group:
+        """The whole screen for the dashboard's state, exactly ``height`` lines (called under the lock)."""
+
+    def navigate(self, dash: Dashboard, key: str) -> bool:
+        """Handle a selection key (left/right, ...) under the lock; False if it is not one of its keys."""
 
 
 class Dashboard:
     """Renders a tracker's state; :meth:`run` shows it live until quit (or until ``stop()`` is true).
 
-    ``lock`` is the lock the tracker is fed under (a :class:`~hilbench.monitor.live.Monitor`'s),
-    ``clock`` returns the bus time "now" (for ages; default: the newest data's time),
+    ``tracker`` is a tracker, or a :class:`~hilbench.monitor.live.Monitor` whose
+    tracker may appear later (while it tells the protocol, the screen says it
+    waits). ``views`` defaults to the view set of the tracker's instrument.
+    ``lock`` is the lock the tracker is fed under (a monitor's own by default),
+    ``clock`` returns the time "now" (for ages; default: the newest data's time),
     ``status`` returns a short word for the footer ("live", "replay", "ended").
     """
 
     def __init__(
         self,
-        tracker: BusTracker,
+        tracker: Any,
         *,
+        views: ViewSet | None = None,
         lock: threading.Lock | None = None,
         source: str = "",
-        view: str = "devices",
-        device: int | None = None,
+        view: str | None = None,
+        device: Any = None,
         model: str | None = None,
         clock: Callable[[], float | None] | None = None,
         status: Callable[[], str] | None = None,
     ) -> None:
-        if view not in VIEWS:
-            raise ValueError(f"view must be one of {', '.join(VIEWS)}")
-        self.tracker = tracker
-        self.lock = lock or threading.Lock()
+        is_monitor = hasattr(tracker, "instrument") and hasattr(tracker, "ended")
+        self.monitor = tracker if is_monitor else None
+        self._tracker = None if is_monitor else tracker
+        self.lock = lock or (tracker.lock if is_monitor else threading.Lock())
+        self._views = views
         self.source = source
         self.view = view
         self.device = device
@@ -69,25 +94,44 @@ class Dashboard:
         self.clock = clock
         self.status = status or (lambda: "live")
         self.frames = 0
+        vs = self.views
+        if vs is not None and view is not None and view not in vs.views:
+            raise ValueError(f"view must be one of {', '.join(vs.views)}")
+
+    @property
+    def tracker(self) -> Any:
+        """The tracker shown (None while a monitor still tells the protocol)."""
+        return self.monitor.tracker if self.monitor is not None else self._tracker
+
+    @property
+    def views(self) -> ViewSet | None:
+        """The view set (of the tracker's instrument unless one was given)."""
+        if self._views is None and self.tracker is not None:
+            inst = registry.instrument_for(getattr(self.tracker, "protocol", ""))
+            self._views = inst.views() if inst is not None else None
+        return self._views
+
+    def now(self) -> float | None:
+        """The time the screen shows ages against."""
+        now = self.clock() if self.clock else None
+        if now is None and self.tracker is not None:
+            now = self.tracker.t_last
+        return now
 
     # ------------------------------------------------------------------ rendering
-
-    def frame(self, width: int = 80) -> Frame:
-        tr = self.tracker
-        now = self.clock() if self.clock else None
-        if now is None:
-            now = tr.t_last
-        return Frame(tr, now, self.source, self.status(), self.view, self.device, self.model, self.scroll, width,
-                     tr.models())
 
     def render(self, width: int = 80, height: int = 24) -> Group:
         """The current screen, ``height`` lines of at most ``width`` columns (taken under the lock)."""
         with self.lock:
-            fr = self.frame(width)
-            if self.device is None or self.device not in self.tracker.devices:
-                ids = sorted(self.tracker.devices)
-                self.device = fr.device = ids[0] if ids else None
-            return screen(fr, height)
+            vs = self.views
+            if vs is None:
+                what = "waiting for traffic to tell what it carries" if self.tracker is None else \
+                    "no dashboard views for this protocol"
+                lines = [Text(f" hilbench monitor  {self.source}", style="bold"), Text(f" {what} [{self.status()}]")]
+                return Group(*lines, *[Text("")] * max(0, height - len(lines)))
+            if self.view is None or self.view not in vs.views:
+                self.view = vs.views[0]
+            return vs.render(self, width, height)
 
     # ------------------------------------------------------------------ keys
 
@@ -95,42 +139,27 @@ class Dashboard:
         """Apply one key; False means quit."""
         if key in ("q", "Q", "eof"):
             return False
-        views = {"1": "devices", "d": "devices", "2": "models", "m": "models", "3": "details", "i": "details",
-                 "enter": "details", "4": "log", "e": "log"}
+        vs = self.views
+        if vs is None:
+            return True
+        views = {str(n + 1): name for n, name in enumerate(vs.views[:9])} | vs.letters
         if key in views:
             if self.view != views[key]:
                 self.scroll = 0
             self.view = views[key]
         elif key in ("tab", "backtab"):
             step = 1 if key == "tab" else -1
-            self.view = VIEWS[(VIEWS.index(self.view) + step) % len(VIEWS)]
+            cur = vs.views.index(self.view) if self.view in vs.views else 0
+            self.view = vs.views[(cur + step) % len(vs.views)]
             self.scroll = 0
-        elif key in ("left", "right", ",", ".", "p", "n"):
-            step = 1 if key in ("right", ".", "n") else -1
-            with self.lock:
-                if self.view == "models":
-                    names = list(self.tracker.models())
-                    if names:
-                        cur = names.index(self.model) if self.model in names else 0
-                        self.model = names[(cur + step) % len(names)]
-                else:
-                    ids = sorted(self.tracker.devices)
-                    if ids:
-                        cur = ids.index(self.device) if self.device in ids else 0
-                        self.device = ids[(cur + step) % len(ids)]
-                        if self.view == "devices":
-                            self.view = "details"
-            self.scroll = 0
-        elif key in ("down", "j"):
-            self.scroll += 1
-        elif key in ("up", "k"):
-            self.scroll = max(0, self.scroll - 1)
-        elif key in ("pgdn", "space"):
-            self.scroll += 10
-        elif key == "pgup":
-            self.scroll = max(0, self.scroll - 10)
+        elif key in SCROLL_KEYS:
+            self.scroll = max(0, self.scroll + SCROLL_KEYS[key])
         elif key == "home":
             self.scroll = 0
+        else:
+            with self.lock:
+                if vs.navigate(self, key):
+                    self.scroll = 0
         return True
 
     # ------------------------------------------------------------------ running

@@ -1,17 +1,18 @@
-"""The bus monitor: turning Dynamixel traffic into device and bus state.
+"""Instruments that watch traffic: the generic monitor frame and the trackers registered per protocol.
 
-- :class:`~hilbench.monitor.tracker.BusTracker`: pure state machine, fed bytes
-  with times (no I/O), testable with bytes alone;
-- :class:`~hilbench.monitor.devices.DeviceState`: what is known about one device;
-- :class:`~hilbench.monitor.errorlog.ErrorLog`: bounded, timestamped error log;
-- :func:`~hilbench.monitor.summary.summary`: the JSON summary;
-- :class:`~hilbench.monitor.live.Monitor`: a source feeding a tracker in a thread.
+- :class:`~hilbench.monitor.live.Monitor`: a source feeding the tracker of its protocol in a thread;
+- :class:`~hilbench.monitor.instrument.Instrument`: what a protocol's instrument plug-in provides
+  (``hilbench.instruments`` entry points): options, tracker, summary, dashboard views;
+- :mod:`~hilbench.monitor.detect`: which instrument watches a source;
+- :class:`~hilbench.monitor.errorlog.ErrorLog`: a bounded, timestamped error log for trackers;
+- :mod:`hilbench.monitor.dynamixel`: the Dynamixel Protocol 2.0 bus tracker.
 """
 
-from hilbench.monitor.devices import DeviceState
+from hilbench import _compat
 from hilbench.monitor.errorlog import ErrorLog
+from hilbench.monitor.instrument import Instrument
 from hilbench.monitor.live import Monitor
-from hilbench.monitor.summary import summary
-from hilbench.monitor.tracker import BusTracker
 
-__all__ = ["BusTracker", "DeviceState", "ErrorLog", "Monitor", "summary"]
+__getattr__ = _compat.module_getattr(__name__)
+
+__all__ = ["ErrorLog", "Instrument", "Monitor"]

@@ -1,11 +1,13 @@
 """A monitor: a byte source feeding a tracker in a background thread.
 
 :class:`Monitor` reads a :class:`~hilbench.transports.sources.Source` chunk by
-chunk, feeds the :class:`~hilbench.monitor.tracker.BusTracker` under a lock
-(the dashboard reads the tracker under the same lock), optionally records
-every chunk to a capture file, and keeps the tracker's clock running while a
-live bus is quiet (reply timeouts, the silence rule, idle flushes of partial
-packets).
+chunk, feeds the tracker of the source's protocol (an
+:class:`~hilbench.monitor.instrument.Instrument` plug-in) under a lock (the
+dashboard reads the tracker under the same lock), optionally records every
+chunk to a capture file, and keeps the tracker's clock running while a live
+medium is quiet (reply timeouts, silence rules, idle flushes of partial
+packets). When nobody says what the source carries, the monitor reads its
+first bytes and asks every instrument (:func:`~hilbench.monitor.detect.choose`).
 
 ::
 
@@ -21,10 +23,11 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Callable
 from typing import Any
 
-from hilbench.monitor.summary import summary
-from hilbench.monitor.tracker import BusTracker
+from hilbench.monitor.detect import choose, detect
+from hilbench.monitor.instrument import Instrument, Tracker
 from hilbench.transports.capture_file import CaptureWriter
 from hilbench.transports.sources import Source
 
@@ -39,22 +42,38 @@ TICK_LAG = 0.5
 
 
 class Monitor:
-    """Feeds ``source`` into ``tracker`` (default: a new tracker for the source's baud and times)."""
+    """Feeds ``source`` into a tracker.
+
+    ``tracker``: one made already; else ``instrument`` (or ``protocol``, or the
+    source's own protocol) makes it, with ``tracker_options`` (and what
+    ``options(instrument)`` returns, for a command line that checked every
+    instrument's options before knowing which one it needs). If none of them
+    says what the source carries, the reading thread tells it from the first
+    bytes; until then :attr:`tracker` is None.
+    """
 
     def __init__(
         self,
         source: Source,
         *,
-        tracker: BusTracker | None = None,
+        tracker: Tracker | None = None,
+        instrument: Instrument | None = None,
+        protocol: str | None = None,
         record: CaptureWriter | None = None,
+        options: Callable[[Instrument], dict[str, Any]] | None = None,
         **tracker_options: Any,
     ) -> None:
         self.source = source
-        if tracker is None:
-            tracker = BusTracker(
-                baud=source.baud, timestamps=source.timestamps != "none", **tracker_options
-            )
+        self.tracker_options = tracker_options
+        self._options = options
+        if tracker is not None and instrument is None:
+            instrument = choose(getattr(tracker, "protocol", None), verb=None)
+        if instrument is None:
+            instrument = choose(protocol or source.protocol)
+        self.instrument = instrument
         self.tracker = tracker
+        if tracker is None and instrument is not None:
+            self.tracker = self._make_tracker(instrument)
         self.recorder = record
         self.lock = threading.Lock()
         self.ended = threading.Event()
@@ -62,6 +81,16 @@ class Monitor:
         self.chunks = 0
         self._thread: threading.Thread | None = None
         self._stopping = False
+
+    def _make_tracker(self, instrument: Instrument) -> Tracker:
+        src = self.source
+        opts = {**(self._options(instrument) if self._options else {}), **self.tracker_options}
+        return instrument.make_tracker(baud=src.baud, timestamps=src.timestamps != "none", **opts)
+
+    @property
+    def protocol(self) -> str | None:
+        """What the monitor decodes (None while it has not told it yet)."""
+        return self.instrument.protocol if self.instrument is not None else None
 
     # ------------------------------------------------------------------ running
 
@@ -77,10 +106,18 @@ class Monitor:
         self._run()
 
     def _run(self) -> None:
-        tracker, lock, source, rec = self.tracker, self.lock, self.source, self.recorder
+        lock, source, rec = self.lock, self.source, self.recorder
         idle = IDLE_TICK if source.live or source.clock() is not None or getattr(source, "speed", None) else None
         last_data = time.monotonic()
+        tracker = self.tracker
         try:
+            if tracker is None:
+                instrument, source = detect(source)
+                if instrument is None:
+                    return  # the source ended before saying anything: nothing to track
+                tracker = self._make_tracker(instrument)
+                with lock:
+                    self.source, self.instrument, self.tracker = source, instrument, tracker
             for chunk in source.chunks(idle):
                 if chunk is None:
                     now = source.clock()
@@ -110,8 +147,9 @@ class Monitor:
             if not self._stopping:
                 self.error = exc
         finally:
-            with lock:
-                tracker.finish()
+            if tracker is not None:
+                with lock:
+                    tracker.finish()
             if rec is not None:
                 rec.flush()
             self.ended.set()
@@ -141,12 +179,11 @@ class Monitor:
     # ------------------------------------------------------------------ results
 
     def summary(self, errors: int = 50) -> dict[str, Any]:
-        """The JSON summary of what was seen so far (see :mod:`hilbench.monitor.summary`)."""
+        """The JSON summary of what was seen so far (the instrument's; a stub while nothing was told)."""
         with self.lock:
-            return summary(
-                self.tracker,
-                source=self.source.name,
-                protocol=self.source.protocol or "dynamixel",
-                timestamps=self.source.timestamps,
-                errors=errors,
-            )
+            if self.tracker is None or self.instrument is None:
+                return {"source": self.source.name, "protocol": None, "baud": self.source.baud,
+                        "timestamps": self.source.timestamps, "bytes": 0,
+                        "note": "no traffic seen: the protocol is unknown"}
+            return self.instrument.summary(self.tracker, source=self.source.name,
+                                           timestamps=self.source.timestamps, errors=errors)

@@ -136,10 +136,10 @@ def build_header(
     baud: int | None = None,
     t0_wall: float = 0.0,
     t0_monotonic: float = 0.0,
-    protocol: str = "",
+    protocol: str | None = "",
     description: str = "",
 ) -> bytes:
-    """The file header (construct layout)."""
+    """The file header (construct layout); ``protocol`` None or "" means unknown."""
     return Header.build(
         {
             "version": VERSION,
@@ -148,7 +148,7 @@ def build_header(
                 "baud": baud or 0,
                 "t0_wall": t0_wall,
                 "t0_monotonic": t0_monotonic,
-                "protocol": protocol[:255],
+                "protocol": (protocol or "")[:255],
                 "description": description.encode()[:255].decode(errors="ignore"),
             },
         }

@@ -272,7 +272,7 @@ class CaptureWriter:
         target: str | os.PathLike[str] | BinaryIO,
         *,
         baud: int | None = None,
-        protocol: str = "dynamixel",
+        protocol: str | None = None,
         description: str = "",
         t0: float | None = None,
         t0_wall: float | None = None,

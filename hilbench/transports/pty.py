@@ -8,6 +8,11 @@ import os
 import termios
 import tty
 from pathlib import Path
+from typing import Any
+
+from hilbench.errors import OptionError
+from hilbench.transports.host_port import HostPort
+from hilbench.transports.line import LineState
 
 #: termios speed constants to bit/s, for reading the baud a client configured.
 _SPEEDS: dict[int, int] = {}
@@ -21,7 +26,7 @@ def speed_to_baud(speed: int) -> int | None:
     return _SPEEDS.get(speed)
 
 
-class PtyEndpoint:
+class PtyEndpoint(HostPort):
     """One pseudo-terminal pair; the client side is :attr:`path` (and :attr:`link` if given).
 
     The master and the endpoint's own slave descriptor stay open for the
@@ -30,10 +35,18 @@ class PtyEndpoint:
     a cooked pty would echo and rewrite bytes. Both descriptors are
     non-blocking; bytes a client does not read in time are dropped and
     counted, as a UART with a full receive buffer drops them.
+
+    A pty has no modem lines of its own: :attr:`lines` holds the ones a host
+    drives through ``hilbench run`` (or an RFC 2217 server) and the device drives.
+    Profile key: ``link`` (a stable symlink to the pty).
     """
+
+    kind = "pty"
+    profile_keys = {"link": None}
 
     def __init__(self, name: str = "pty", link: str | os.PathLike[str] | None = None) -> None:
         self.name = name
+        self.lines = LineState()
         self.master_fd, self.slave_fd = os.openpty()
         tty.setraw(self.slave_fd)
         os.set_blocking(self.master_fd, False)
@@ -54,6 +67,24 @@ class PtyEndpoint:
         link.parent.mkdir(parents=True, exist_ok=True)
         link.symlink_to(self.path)
         self.link = link
+
+    @classmethod
+    def check_options(cls, raw: dict[str, Any]) -> dict[str, Any]:
+        link = raw.get("link")
+        if link is not None and not isinstance(link, str):
+            raise OptionError("link", f"expected a path string on a pty endpoint, got {link!r}")
+        return {"link": link}
+
+    @classmethod
+    def open(cls, name: str, options: dict[str, Any], *, link_dir: str | os.PathLike[str] | None = None,
+             **_: Any) -> PtyEndpoint:
+        link = options.get("link")
+        if link_dir is not None:
+            link = str(Path(link_dir) / name)
+        return cls(name, link=os.path.expanduser(link) if link else None)
+
+    def describe(self) -> dict[str, Any]:
+        return {"path": self.client_path, "pty": self.path, "link": str(self.link) if self.link else None}
 
     @property
     def client_path(self) -> str:

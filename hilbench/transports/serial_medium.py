@@ -28,16 +28,17 @@ from dataclasses import dataclass, field
 from typing import Protocol
 
 from hilbench.transports.clock import SPIN_AFTER_ACTIVITY, reduce_timer_slack, wait
-from hilbench.transports.pty import PtyEndpoint
+from hilbench.transports.medium import DevicePort, Medium, Tap
 
 log = logging.getLogger(__name__)
 
-#: A tap sees ``(t, source, data)`` for every transmission on the line.
-Tap = Callable[[float, str, bytes], None]
-
 
 class Device(Protocol):
-    """An in-process party on the line, e.g. a group of emulated servos."""
+    """An in-process party on the line, e.g. a group of emulated servos.
+
+    It may also have ``on_line(event, t)`` to hear the host's modem lines, BREAK and
+    settings (:mod:`hilbench.transports.line`).
+    """
 
     name: str
 
@@ -55,40 +56,16 @@ class LineStats:
     callback_errors: int = 0
 
 
-class DevicePort:
-    """What a device holds to transmit on the line."""
-
-    def __init__(self, medium: SerialMedium, name: str) -> None:
-        self._medium = medium
-        self.name = name
-
-    @property
-    def paced(self) -> bool:
-        return self._medium.paced
-
-    def transmit(self, data: bytes, t: float | None = None, gap: float = 0.0, baud: int | None = None) -> float:
-        """Send ``data`` ``gap`` seconds after the line is free (and not before ``t``); returns its end time."""
-        return self._medium.transmit(self.name, data, t=t, gap=gap, baud=baud)
-
-    def call_at(self, t: float, fn: Callable[[], None]) -> None:
-        """Run ``fn`` in the line's thread at time ``t``."""
-        self._medium.call_at(t, fn)
-
-
-class SerialMedium:
+class SerialMedium(Medium):
     """One shared serial line. Add hosts, devices and taps, then :meth:`start` it."""
 
+    kind = "serial"
+
     def __init__(self, name: str, baud: int, *, paced: bool = False) -> None:
-        self.name = name
-        self.baud = baud
-        self.paced = paced
+        super().__init__(name, baud, paced=paced)
         self.stats = LineStats()
-        self._hosts: list[tuple[PtyEndpoint, bool]] = []
-        self._devices: list[Device] = []
-        self._taps: list[Tap] = []
         self._events: list[tuple[float, int, Callable[[], None]]] = []
         self._seq = itertools.count()
-        self._lock = threading.Lock()
         self._busy_until = 0.0
         self._last_activity = 0.0
         self._wake_r, self._wake_w = os.pipe()
@@ -99,31 +76,10 @@ class SerialMedium:
 
     # ------------------------------------------------------------------ wiring
 
-    def add_host(self, endpoint: PtyEndpoint, *, listen_only: bool = False) -> None:
-        """Attach a pty whose client is a host program; ``listen_only`` ignores what it sends."""
-        with self._lock:
-            self._hosts.append((endpoint, listen_only))
+    def add_host(self, endpoint, *, listen_only: bool = False) -> None:
+        """Attach a host port (pty, UDP, TCP, ...); ``listen_only`` ignores what it sends."""
+        super().add_host(endpoint, listen_only=listen_only)
         self._wake()
-
-    def add_device(self, device: Device) -> DevicePort:
-        """Attach an in-process device; it transmits through the returned port."""
-        with self._lock:
-            self._devices.append(device)
-        return DevicePort(self, device.name)
-
-    def add_tap(self, tap: Tap) -> None:
-        """Attach a tap that sees every transmission."""
-        with self._lock:
-            self._taps.append(tap)
-
-    def remove_tap(self, tap: Tap) -> None:
-        with self._lock:
-            if tap in self._taps:
-                self._taps.remove(tap)
-
-    @property
-    def hosts(self) -> list[PtyEndpoint]:
-        return [ep for ep, _ in self._hosts]
 
     # ------------------------------------------------------------------ sending
 
@@ -155,10 +111,10 @@ class SerialMedium:
             self._wake()
         return end
 
-    def call_at(self, t: float, fn: Callable[[], None]) -> None:
-        """Run ``fn`` in the line's thread at time ``t`` (thread-safe)."""
+    def call_at(self, t: float | None, fn: Callable[[], None]) -> None:
+        """Run ``fn`` in the line's thread at time ``t`` (None: at once; thread-safe)."""
         with self._lock:
-            self._push(t, fn)
+            self._push(time.monotonic() if t is None else t, fn)
         if threading.current_thread() is not self._thread:
             self._wake()
 
@@ -218,12 +174,12 @@ class SerialMedium:
             with self._lock:
                 deadline = self._events[0][0] if self._events else None
                 hosts = list(self._hosts)
-            fds = [ep.fileno() for ep, _ in hosts] + [self._wake_r]
+            fds = [fd for ep, _ in hosts for fd in ep.filenos()] + [self._wake_r]
             ready = wait(fds, deadline, precise=self.paced, spin_until=self._last_activity + SPIN_AFTER_ACTIVITY)
             if ready:
                 now = self._last_activity = time.monotonic()
                 for endpoint, listen_only in hosts:
-                    if endpoint.fileno() in ready:
+                    if any(fd in ready for fd in endpoint.filenos()):
                         data = endpoint.read()
                         if data and not listen_only:
                             self.transmit(endpoint.name, data, t=now, baud=endpoint.client_baud())
@@ -246,3 +202,6 @@ class SerialMedium:
         for fd in (self._wake_r, self._wake_w):
             with contextlib.suppress(OSError):
                 os.close(fd)
+
+
+__all__ = ["Device", "DevicePort", "LineStats", "SerialMedium", "Tap"]

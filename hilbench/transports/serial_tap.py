@@ -47,7 +47,6 @@ class SerialTap:
             raise
         self.baud = baud or self._ser.baudrate
         self.source = PushSource(f"tap {real_port}", baud=self.baud, max_bytes=max_buffer)
-        self.source.protocol = "dynamixel"
         self.bytes_to_device = 0
         self.bytes_to_app = 0
         self.baud_changes = 0

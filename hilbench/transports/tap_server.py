@@ -48,7 +48,7 @@ class TapServer:
         host: str = "127.0.0.1",
         port: int = 0,
         baud: int | None = None,
-        protocol: str = "dynamixel",
+        protocol: str | None = None,
         description: str = "",
         max_buffer: int = 8 << 20,
     ) -> None:

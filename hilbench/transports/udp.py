@@ -15,6 +15,10 @@ from __future__ import annotations
 import contextlib
 import socket
 from collections import OrderedDict
+from typing import Any
+
+from hilbench.errors import OptionError
+from hilbench.transports.host_port import HostPort, bind_address, port_number
 
 #: Largest payload sent in one datagram; longer writes are split.
 MAX_DATAGRAM = 8192
@@ -32,8 +36,38 @@ def parse_address(text: str) -> tuple[str, int]:
     return host.strip("[]"), int(port)
 
 
-class UdpEndpoint:
-    """A bound UDP socket acting as one host port; see the module docstring."""
+class UdpEndpoint(HostPort):
+    """A bound UDP socket acting as one host port; see the module docstring.
+
+    Profile keys: ``bind`` (default 127.0.0.1), ``port`` (0: any free port),
+    ``peer`` (``"host:port"`` that always receives the output).
+    """
+
+    kind = "udp"
+    carries = "datagrams"
+    profile_keys = {"bind": "127.0.0.1", "port": 0, "peer": None}
+
+    @classmethod
+    def check_options(cls, raw: dict[str, Any]) -> dict[str, Any]:
+        peer = raw.get("peer")
+        if peer is not None:
+            try:
+                if not isinstance(peer, str):
+                    raise ValueError
+                parse_address(peer)  # what the endpoint will parse: the rules live in one place
+            except ValueError:
+                raise OptionError("peer", f"expected \"host:port\", got {peer!r}") from None
+        return {"bind": bind_address(raw.get("bind", "127.0.0.1")), "port": port_number(raw.get("port", 0)),
+                "peer": peer}
+
+    @classmethod
+    def open(cls, name: str, options: dict[str, Any], **_: Any) -> UdpEndpoint:
+        return cls(name, options["bind"], options["port"], options["peer"])
+
+    def describe(self) -> dict[str, Any]:
+        host, port = self.address
+        # "pty" and "link" stay (as None) for manifest readers written before ports were plug-ins.
+        return {"path": self.url, "pty": None, "link": None, "address": [host, port], "host": host, "port": port}
 
     def __init__(self, name: str = "udp", bind: str = "127.0.0.1", port: int = 0, peer: str | None = None) -> None:
         self.name = name

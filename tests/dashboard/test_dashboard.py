@@ -9,9 +9,10 @@ import time
 import pytest
 from rich.console import Console
 
-from hilbench.dashboard import TITLES, VIEWS, Dashboard
+from hilbench.dashboard import Dashboard
+from hilbench.dashboard.dynamixel_views import TITLES, VIEWS
 from hilbench.dashboard.keys import split_keys
-from hilbench.monitor.tracker import BusTracker
+from hilbench.monitor.dynamixel.tracker import BusTracker
 from hilbench.protocols import dynamixel as dxl
 
 

@@ -25,10 +25,10 @@ import dynamixel_sdk as sdk
 from rich.console import Console
 
 from hilbench.bench import Bench
+from hilbench.bench.profile import DEFAULT_PROFILE, load_profile
+from hilbench.clients.dynamixel import open_port
 from hilbench.dashboard import Dashboard
-from hilbench.dxl_client import open_port
 from hilbench.monitor import Monitor
-from hilbench.profile import DEFAULT_PROFILE, load_profile
 from hilbench.transports.sources import MediumSource
 
 POSITION = 132

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import dynamixel_sdk as sdk
 
+from hilbench.errors import DeviceError
 from hilbench.protocols.dynamixel import describe_error
 from hilbench.protocols.dynamixel_models import MODEL_NAMES, MODELS_BY_NUMBER, Field, Model
 
@@ -20,8 +21,8 @@ from hilbench.protocols.dynamixel_models import MODEL_NAMES, MODELS_BY_NUMBER, F
 SCAN_BAUDS = (57_600, 115_200, 1_000_000, 2_000_000, 3_000_000, 4_000_000, 9_600)
 
 
-class DxlError(RuntimeError):
-    """A failed exchange; the message says what and why in one line."""
+class DxlError(DeviceError, RuntimeError):
+    """A failed exchange; the message says what and why in one line (exit status 1 on the command line)."""
 
 
 @dataclass(frozen=True)

@@ -14,8 +14,8 @@ from dataclasses import dataclass, field
 from rich.console import Group
 from rich.text import Text
 
-from hilbench.monitor.devices import CONNECTED, DISCONNECTED, UNKNOWN, DeviceState, FieldValue
-from hilbench.monitor.tracker import BusTracker
+from hilbench.monitor.dynamixel.devices import CONNECTED, DISCONNECTED, UNKNOWN, DeviceState, FieldValue
+from hilbench.monitor.dynamixel.tracker import BusTracker
 from hilbench.protocols.dynamixel import describe_error
 
 VIEWS = ("devices", "models", "details", "log")
@@ -340,3 +340,47 @@ def screen(fr: Frame, height: int = 24) -> Group:
     """The whole screen: header, the selected view, footer (exactly ``height`` lines)."""
     body = max(3, height - 4)
     return Group(*header(fr), RENDERERS[fr.view](fr, body), *footer(fr))
+
+
+class DynamixelViews:
+    """The Dynamixel bus monitor's view set for :class:`~hilbench.dashboard.app.Dashboard`.
+
+    Keys: ``1``/``d`` devices, ``2``/``m`` models, ``3``/``i``/Enter details,
+    ``4``/``e`` error log; Left/Right select the previous/next device (the
+    model in the model overview; from the device overview they open details).
+    """
+
+    views = VIEWS
+    titles = TITLES
+    letters = {"d": "devices", "m": "models", "i": "details", "enter": "details", "e": "log"}
+
+    def render(self, dash, width: int, height: int) -> Group:
+        tr = dash.tracker
+        fr = Frame(tr, dash.now(), dash.source, dash.status(), dash.view, dash.device, dash.model, dash.scroll,
+                   width, tr.models())
+        if dash.device is None or dash.device not in tr.devices:
+            ids = sorted(tr.devices)
+            dash.device = fr.device = ids[0] if ids else None
+        return screen(fr, height)
+
+    def navigate(self, dash, key: str) -> bool:
+        if key not in ("left", "right", ",", ".", "p", "n"):
+            return False
+        step = 1 if key in ("right", ".", "n") else -1
+        tr = dash.tracker
+        if dash.view == "models":
+            names = list(tr.models())
+            if names:
+                cur = names.index(dash.model) if dash.model in names else 0
+                dash.model = names[(cur + step) % len(names)]
+        else:
+            ids = sorted(tr.devices)
+            if ids:
+                cur = ids.index(dash.device) if dash.device in ids else 0
+                dash.device = ids[(cur + step) % len(ids)]
+                if dash.view == "devices":
+                    dash.view = "details"
+        return True
+
+
+VIEW_SET = DynamixelViews()

@@ -39,7 +39,7 @@ from __future__ import annotations
 import math
 from collections import deque
 
-from hilbench.monitor.devices import (
+from hilbench.monitor.dynamixel.devices import (
     CONNECTED,
     DISCONNECTED,
     OBS_LIMIT,
@@ -233,6 +233,8 @@ class BusTracker:
     ``silence`` (seconds, None or 0 to disable) and ``reply_timeout`` are the
     time rules described in the module docstring.
     """
+
+    protocol = "dynamixel"
 
     def __init__(
         self,

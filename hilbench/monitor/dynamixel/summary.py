@@ -27,7 +27,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from hilbench.monitor.tracker import BusTracker
+from hilbench.monitor.dynamixel.tracker import BusTracker
 
 
 def _r(x: float | None, nd: int = 3) -> float | None:
@@ -137,3 +137,43 @@ def summary(
         "bus": bus,
         "errors": {"counts": {k: v for k, v in tracker.log.counts.items() if v}, "last": tracker.log.lines(errors)},
     }
+
+
+def print_summary(report: dict, console) -> None:
+    """The summary as a person reads it: the bus, then one line per device."""
+    from rich import box
+    from rich.table import Table
+
+    bus = report["bus"]
+    packets = ", ".join(f"{k} {v}" for k, v in report["packets"].items() if v)
+    if report["timestamps"] == "none":
+        when = "no times (a raw dump: --baud gives it byte time)"
+    else:
+        when = f"{report['duration_s'] or 0:.3f} s ({report['timestamps']} times)"
+    console.print(f"[bold]{report['source']}[/]: {report['bytes']} bytes, {when}", highlight=False)
+    console.print(f"packets: {packets or 'none'}", highlight=False)
+    load = f", load {bus['load']:.1%}" if bus["load"] is not None else ""
+    rate = f"{bus['bytes_per_s'] / 1000:.1f} kB/s{load}; " if bus["bytes_per_s"] is not None else ""
+    console.print(f"bus: {rate}CRC errors {report['crc_errors']}, unanswered requests {bus['unanswered']}, "
+                  f"unexpected replies {bus['unexpected_replies']}", highlight=False)
+    cycle = bus["main_cycle"]
+    if cycle:
+        hz = f" at {cycle['rate_hz']} Hz, jitter {cycle['jitter_ms']} ms" if cycle["rate_hz"] else ""
+        console.print(f"main cycle: {cycle['instruction']} {cycle['address']}/{cycle['length']} of "
+                      f"{len(cycle['ids'])} IDs, {cycle['count']} times{hz}", highlight=False)
+    table = Table(box=box.SIMPLE_HEAD, padding=(0, 0), pad_edge=False, header_style="bold", show_edge=False)
+    for col in ("ID", "model", "fw", "state", "req", "replies", "missed", "CRC", "err", "lat ms"):
+        table.add_column(col, justify="left" if col in ("model", "state") else "right", no_wrap=True)
+    never = []
+    for dev_id, d in report["devices"].items():
+        lat = d["latency_ms"]
+        if d["never_answered"]:
+            never.append(dev_id)
+        table.add_row(dev_id, d["model_name"], "-" if d["firmware"] is None else str(d["firmware"]), d["state"],
+                      str(d["requests"]), str(d["replies"]), str(d["misses"]), str(d["crc_errors"]),
+                      str(d["error_statuses"]), f"{lat['mean']:.3f}" if lat else "-")
+    console.print(table)
+    if never:
+        console.print(f"never answered: ID {', '.join(never)}", highlight=False)
+    for line in report["errors"]["last"][:10]:
+        console.print(line, markup=False, highlight=False)

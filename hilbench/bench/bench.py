@@ -1,0 +1,255 @@
+"""A running bench: the endpoints and devices of a profile, wired together and started.
+
+``Bench(profile).start()`` opens each endpoint's host port (the registered
+class of its ``type``: a pseudo-terminal, a UDP or TCP socket on 127.0.0.1,
+...), puts a medium of the kind its device family needs behind it (a serial
+line, ...), lets the family build its devices on that medium, and starts
+everything. Taps (monitor, recorder) attach to the medium the same way for
+every family. The manifest (:meth:`Bench.manifest`) tells other programs where
+everything is. Nothing here knows a device family by name: see
+:mod:`hilbench.registry` and :class:`~hilbench.bench.family.DeviceFamily`.
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+import time
+from pathlib import Path
+from typing import Any
+
+from hilbench import registry
+from hilbench.bench.family import DeviceFamily
+from hilbench.bench.profile import EndpointSpec, Profile, load_profile
+from hilbench.transports.tap_server import TapServer
+
+
+class Endpoint:
+    """A started endpoint: its spec, its host port, the medium behind it and the devices on it.
+
+    ``port`` is the host port (what a host program opens, :attr:`path`);
+    ``medium`` carries the traffic (taps attach here); ``devices`` maps device
+    names to the objects the family built. Attributes a family declares
+    (``endpoint.bus`` of a Dynamixel endpoint) read as None on other endpoints,
+    and ``endpoint.pty``/``endpoint.udp`` give the port when it is of that type.
+    """
+
+    def __init__(self, spec: EndpointSpec, port: Any, medium: Any, family: DeviceFamily) -> None:
+        self.spec = spec
+        self.port = port
+        self.medium = medium
+        self.family = family
+        self.devices: dict[str, Any] = {}
+        self.tap: TapServer | None = None
+        self.attrs: dict[str, Any] = {}
+
+    @property
+    def name(self) -> str:
+        return self.spec.name
+
+    @property
+    def path(self) -> str:
+        """What a host program opens: the pty (or its stable link), or the socket's URL."""
+        return self.port.client_path
+
+    @property
+    def host_port(self) -> Any:
+        return self.port
+
+    def add_device(self, name: str, device: Any) -> None:
+        """Record a device the family built (the bench lists it under its profile name)."""
+        self.devices[name] = device
+
+    def __getattr__(self, key: str) -> Any:
+        attrs = self.__dict__.get("attrs", {})
+        if key in attrs:
+            return attrs[key]
+        if any(key in fam.endpoint_attrs for fam in registry.families.values()):
+            return None  # another family's attribute: this endpoint has none
+        if key in registry.host_ports:
+            port = self.__dict__.get("port")
+            return port if getattr(port, "kind", None) == key else None
+        raise AttributeError(f"endpoint has no attribute {key!r}")
+
+    def __repr__(self) -> str:
+        return f"Endpoint({self.name!r}, {self.spec.protocol}, {self.path})"
+
+
+class Bench:
+    """The devices of a profile behind real host ports.
+
+    ``paced`` overrides every endpoint's ``paced`` setting; ``link_dir`` puts a
+    stable symlink named after each pty endpoint into that directory. ``tap``
+    serves each medium's traffic on 127.0.0.1 (a TCP tap server, listed as
+    ``tap`` in the manifest) for monitors and recorders in other processes.
+    """
+
+    def __init__(
+        self,
+        profile: Profile | str | Path,
+        *,
+        paced: bool | None = None,
+        link_dir: str | Path | None = None,
+        tap: bool = False,
+    ) -> None:
+        self.profile = profile if isinstance(profile, Profile) else load_profile(profile)
+        self.paced = paced
+        self.tap = tap
+        self.link_dir = Path(link_dir) if link_dir else None
+        self.endpoints: dict[str, Endpoint] = {}
+        self.devices: dict[str, Any] = {}
+        self.started_at: float | None = None
+        self.control = None  # a ControlServer once serve_control() ran
+        self.services: dict[str, Any] = {}  # name -> object with close() and describe(): listed in the manifest
+
+    # ------------------------------------------------------------------ lifecycle
+
+    def start(self) -> Bench:
+        """Open the endpoints and start every medium and device; returns self."""
+        if self.started_at is not None:
+            return self
+        t = time.monotonic()
+        prof = self.profile
+        try:
+            for spec in prof.endpoints.values():
+                family = registry.family_for_protocol(spec.protocol)
+                port = registry.host_ports.get(spec.type).open(spec.name, spec.port_options, link_dir=self.link_dir)
+                paced = spec.paced if self.paced is None else self.paced
+                try:
+                    medium = registry.media.get(family.medium)(spec.name, spec.baud,
+                                                               paced=family.paced(spec, paced))
+                except Exception:
+                    port.close()
+                    raise
+                medium.protocol = spec.protocol
+                ep = Endpoint(spec, port, medium, family)
+                self.endpoints[spec.name] = ep
+                family.build(self, ep, prof.devices_on(spec.name), t)
+                self.devices.update(ep.devices)
+                medium.add_host(port)
+                if self.tap:
+                    ep.tap = TapServer(baud=spec.baud, protocol=spec.protocol,
+                                       description=f"bench {prof.name}, endpoint {spec.name}")
+                    medium.add_tap(ep.tap.feed)
+            for ep in self.endpoints.values():
+                ep.medium.start()
+            for ep in self.endpoints.values():
+                ep.family.start(ep, t)
+        except Exception:
+            self.stop()
+            raise
+        self.started_at = t
+        return self
+
+    def stop(self) -> None:
+        """Stop every device, medium and service; close every endpoint."""
+        if self.control is not None:
+            self.control.close()
+            self.control = None
+        for service in self.services.values():
+            service.close()
+        self.services.clear()
+        for ep in self.endpoints.values():
+            ep.family.stop(ep)
+            ep.medium.close()
+            ep.port.close()
+            if ep.tap is not None:
+                ep.tap.close()
+        self.started_at = None
+
+    def __enter__(self) -> Bench:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    # ------------------------------------------------------------------ access
+
+    def endpoint(self, name: str | None = None) -> Endpoint:
+        """An endpoint by name (or the only one)."""
+        if name is None:
+            if len(self.endpoints) != 1:
+                raise KeyError(f"bench has endpoints {list(self.endpoints)}; name one")
+            return next(iter(self.endpoints.values()))
+        return self.endpoints[name]
+
+    def device(self, name_or_address: str | int, endpoint: str | None = None) -> Any:
+        """A device by profile name, or by its address on an endpoint (a servo's current ID, a node id)."""
+        if isinstance(name_or_address, str):
+            return self.devices[name_or_address]
+        ep = self.endpoint(endpoint)
+        return ep.family.device_at(ep, name_or_address)
+
+    def family_of(self, device_name: str) -> DeviceFamily:
+        """The family that built a device."""
+        for ep in self.endpoints.values():
+            if device_name in ep.devices:
+                return ep.family
+        raise KeyError(device_name)
+
+    def serve_control(self, host: str = "127.0.0.1", port: int = 0):
+        """Start the control channel (family commands for other processes); listed in the manifest."""
+        from hilbench.bench.control import ControlServer
+
+        if self.control is None:
+            self.control = ControlServer(self, host, port)
+        return self.control
+
+    @property
+    def has_control_commands(self) -> bool:
+        """Whether any device on this bench answers control commands (``emulate`` then serves the channel)."""
+        return any(ep.family.control_commands and ep.devices for ep in self.endpoints.values())
+
+    def now(self) -> float:
+        """The bench's clock (the devices' ``t``)."""
+        return time.monotonic()
+
+    def __getattr__(self, key: str) -> Any:
+        for fam in registry.families.values():
+            if key in fam.bench_methods:
+                return functools.partial(fam.bench_methods[key], self)
+        raise AttributeError(f"{type(self).__name__!r} object has no attribute {key!r}")
+
+    # ------------------------------------------------------------------ manifest
+
+    def manifest(self) -> dict[str, Any]:
+        """Where everything is: ``{"endpoints": [...], "devices": [...]}``."""
+        eps = []
+        for ep in self.endpoints.values():
+            entry = {
+                "name": ep.name,
+                "type": ep.spec.type,
+                **ep.port.describe(),
+                "protocol": ep.spec.protocol,
+                "baud": ep.spec.baud,
+                "paced": ep.medium.paced,
+                "tap": ep.tap.url if ep.tap is not None else None,
+            }
+            entry.update(ep.family.describe_endpoint(ep))
+            eps.append(entry)
+        devs = []
+        for spec in self.profile.devices:
+            ep = self.endpoints.get(spec.endpoint)
+            family = registry.family_for_protocol(self.profile.endpoints[spec.endpoint].protocol)
+            devs.append(family.describe_device(spec, self.devices.get(spec.name), ep, self.profile))
+        out: dict[str, Any] = {
+            "name": self.profile.name,
+            "profile": self.profile.path,
+            "pid": os.getpid(),
+            "endpoints": eps,
+            "devices": devs,
+        }
+        if self.control is not None:
+            out["control"] = self.control.address_text
+        for name, service in self.services.items():
+            out[name] = service.describe()
+        return out
+
+    def write_manifest(self, path: str | Path) -> None:
+        """Write the manifest atomically (readers never see half a file)."""
+        from hilbench.bench.manifest import write_manifest
+
+        write_manifest(path, self.manifest())
+
+
+__all__ = ["Bench", "Endpoint"]

@@ -1,0 +1,206 @@
+"""The control channel: commands to a running bench's devices from another process.
+
+``hilbench emulate`` serves it on 127.0.0.1 (a free port, listed in the
+manifest as ``"control": "127.0.0.1:PORT"``). The protocol is one JSON object
+per line each way::
+
+    -> {"cmd": "button", "device": "rover"}
+    <- {"ok": true, "status": {...}}
+
+The bench answers ``devices`` (each device that takes commands, with them)
+and ``taps`` (each endpoint's traffic tap and how many clients it serves);
+every other command belongs to a device family
+(:attr:`~hilbench.bench.family.DeviceFamily.control_commands`), e.g. the rover
+board's ``status``, ``button``, ``reset``, ``fault``, ``log`` and
+``wait_report``. ``device`` may be left out when one device answers the
+command. Errors come back as ``{"ok": false, "error": "..."}``.
+:class:`ControlClient` is the Python side; ``hilbench board`` a command line.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import socket
+import socketserver
+import threading
+from pathlib import Path
+from typing import Any
+
+from hilbench.errors import BenchError
+
+MAX_LINE = 65536
+
+
+class ControlError(BenchError):
+    """The bench refused or failed a command (one line)."""
+
+
+class ControlServer:
+    """Serves the control channel of a running bench in a background thread.
+
+    ``devices`` and ``taps`` are the bench's own commands; every other command
+    goes to the family of the device it names (or of the only device whose
+    family answers it): :attr:`DeviceFamily.control_commands`.
+    """
+
+    def __init__(self, bench, host: str = "127.0.0.1", port: int = 0) -> None:
+        self.bench = bench
+        server = self
+
+        class Handler(socketserver.StreamRequestHandler):
+            def handle(self) -> None:
+                with contextlib.suppress(ConnectionError):  # a client that leaves early is no error
+                    while raw := self.rfile.readline(MAX_LINE + 1):  # bounded: a line never grows past this
+                        if len(raw) > MAX_LINE:
+                            self.wfile.write(b'{"ok": false, "error": "request too long"}\n')
+                            return  # the rest of that line is not worth reading
+                        reply = server.handle(raw)
+                        self.wfile.write((json.dumps(reply) + "\n").encode())
+                        self.wfile.flush()
+
+        class Server(socketserver.ThreadingTCPServer):
+            daemon_threads = True
+            allow_reuse_address = True
+
+        self._server = Server((host, port), Handler)
+        self._thread = threading.Thread(target=self._server.serve_forever, name="hilbench-control", daemon=True)
+        self._thread.start()
+
+    @property
+    def address(self) -> tuple[str, int]:
+        return self._server.server_address[:2]
+
+    @property
+    def address_text(self) -> str:
+        host, port = self.address
+        return f"{host}:{port}"
+
+    def close(self) -> None:
+        self._server.shutdown()
+        self._server.server_close()
+
+    # ------------------------------------------------------------------ commands
+
+    def handle(self, raw: bytes) -> dict[str, Any]:
+        try:
+            req = json.loads(raw)
+            if not isinstance(req, dict):
+                raise ControlError("expected a JSON object")
+            return {"ok": True, **self._dispatch(req)}
+        except ControlError as exc:
+            return {"ok": False, "error": str(exc)}
+        except RecursionError:
+            return {"ok": False, "error": "request nested too deeply"}
+        except (ValueError, KeyError, TypeError) as exc:
+            return {"ok": False, "error": f"{type(exc).__name__}: {exc}"}
+
+    def _commands(self) -> dict[str, list[str]]:
+        """Device name -> the control commands its family answers."""
+        out = {}
+        for ep in self.bench.endpoints.values():
+            for name in ep.devices:
+                if ep.family.control_commands:
+                    out[name] = list(ep.family.control_commands)
+        return out
+
+    def _device(self, cmd: str, req: dict[str, Any]):
+        commands = self._commands()
+        able = sorted(n for n, cmds in commands.items() if cmd in cmds)
+        name = req.get("device")
+        if name is None:
+            if len(able) != 1:
+                if not able:
+                    known = sorted({c for cmds in commands.values() for c in cmds} | {"devices", "taps"})
+                    raise ControlError(f"unknown command {cmd!r} (expected {', '.join(known)})")
+                raise ControlError(f"name a device: the bench has {', '.join(able)} answering {cmd!r}")
+            name = able[0]
+        if name not in able:
+            family = self.bench.family_of(name) if name in self.bench.devices else None
+            if family is not None and family.control_commands:
+                raise ControlError(f"{name} ({family.name}) has no command {cmd!r} "
+                                   f"(expected {', '.join(family.control_commands)})")
+            word = self._word(cmd)
+            raise ControlError(f"no {word} named {name!r} ({word}s: {', '.join(able) or 'none'})")
+        return name, self.bench.devices[name], self.bench.family_of(name)
+
+    def _word(self, cmd: str) -> str:
+        """How the devices answering ``cmd`` are called (a family's device word, e.g. "board")."""
+        words = {ep.family.device_word for ep in self.bench.endpoints.values() if cmd in ep.family.control_commands}
+        return words.pop() if len(words) == 1 else "device"
+
+    def _dispatch(self, req: dict[str, Any]) -> dict[str, Any]:
+        cmd = req.get("cmd")
+        if not isinstance(cmd, str):
+            raise ControlError("expected {\"cmd\": NAME, ...}")
+        if cmd == "devices":
+            return {"devices": self._commands()}
+        if cmd == "taps":
+            return {"taps": {ep.name: {"url": ep.tap.url, "clients": ep.tap.clients}
+                             for ep in self.bench.endpoints.values() if ep.tap is not None}}
+        _name, device, family = self._device(cmd, req)
+        return family.control(self.bench, device, cmd, req)
+
+
+class ControlClient:
+    """Talks to a bench's control channel (``host:port``, or the manifest that lists it).
+
+    :meth:`call` sends any command; families add clients with named methods
+    (:class:`hilbench.families.stm32_rover.BoardClient`: ``button()``, ``status()``, ...).
+    """
+
+    def __init__(self, address: str | tuple[str, int], timeout: float = 10.0) -> None:
+        if isinstance(address, str):
+            host, _, port = address.rpartition(":")
+            if not host or not port.isdigit():
+                raise ControlError(f"expected HOST:PORT, got {address!r}")
+            address = (host, int(port))
+        self.address = address
+        self.timeout = timeout
+
+    @classmethod
+    def from_manifest(cls, path: str | Path, timeout: float = 10.0) -> ControlClient:
+        try:
+            data = json.loads(Path(path).read_text())
+        except (OSError, ValueError) as exc:
+            raise ControlError(f"{path}: not a bench manifest ({exc})") from None
+        if not isinstance(data, dict) or "control" not in data:
+            raise ControlError(f"{path}: the bench serves no control channel (run it with hilbench emulate)")
+        return cls(data["control"], timeout)
+
+    def call(self, cmd: str, **args: Any) -> dict[str, Any]:
+        """Send one command; returns the reply or raises :class:`ControlError`."""
+        req = {"cmd": cmd, **{k: v for k, v in args.items() if v is not None}}
+        timeout = self.timeout + float(args.get("timeout") or 0)
+        where = f"{self.address[0]}:{self.address[1]}"
+        try:
+            with socket.create_connection(self.address, timeout=timeout) as sock:
+                sock.sendall((json.dumps(req) + "\n").encode())
+                buf = b""
+                while not buf.endswith(b"\n"):
+                    chunk = sock.recv(65536)
+                    if not chunk:
+                        raise ControlError(f"the bench at {where} closed the control connection")
+                    buf += chunk
+        except OSError as exc:
+            raise ControlError(f"no bench control channel at {where}: {exc.strerror or exc}") from None
+        try:
+            reply = json.loads(buf)
+        except ValueError:
+            raise ControlError(f"the bench at {where} sent something that is not JSON") from None
+        if not isinstance(reply, dict):
+            raise ControlError(f"the bench at {where} sent a reply that is not a JSON object")
+        if not reply.get("ok"):
+            raise ControlError(str(reply.get("error", "command failed")))
+        return reply
+
+    def devices(self) -> dict[str, list[str]]:
+        """Each device that takes commands, with the commands: ``{"rover": ["status", "button", ...]}``."""
+        return self.call("devices")["devices"]
+
+    def taps(self) -> dict[str, dict[str, Any]]:
+        """Each endpoint's traffic tap: ``{"rover": {"url": "tcp://...", "clients": 1}}``."""
+        return self.call("taps")["taps"]
+
+
+__all__ = ["MAX_LINE", "ControlClient", "ControlError", "ControlServer"]

@@ -1,0 +1,261 @@
+"""Bench profiles: TOML files describing endpoints (what a host opens) and devices (what answers).
+
+A profile is read with tomllib and checked completely before anything starts;
+every mistake becomes one :class:`ProfileError` line naming the file, the key
+and what was expected. Example::
+
+    schema = 1
+    description = "a small arm"
+
+    [endpoints.arm]
+    type = "pty"                 # the port a host program opens (a registered host port type)
+    protocol = "dynamixel"       # which device family answers behind it
+    baud = 1_000_000
+    paced = false
+
+    [[devices]]
+    model = "XM430-W350"
+    ids = [1, 2, 3]
+    endpoint = "arm"
+
+This module knows the frame only: ``schema``, ``description``,
+``[endpoints.NAME]`` with ``type``, ``protocol``, ``baud`` and ``paced``, and
+``[[devices]]`` with ``endpoint``. Everything else belongs to a plug-in found
+in :mod:`hilbench.registry`: the host port of the endpoint's ``type`` checks
+its keys (a pty's ``link``, a UDP port's ``bind``/``port``/``peer``), and the
+device family of its ``protocol`` checks the baud rate, its own endpoint keys,
+every device entry on the endpoint, ``[defaults]`` keys and top-level tables
+it declares. An endpoint without ``protocol`` gets the one of the family
+whose models its devices name.
+"""
+
+from __future__ import annotations
+
+import importlib.resources
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from hilbench import registry
+from hilbench.bench.checks import Checker, ProfileError
+from hilbench.bench.family import DeviceFamily, DeviceSpec
+
+SCHEMA = 1
+DEFAULT_PROFILE = "wolfgang"
+#: Keys of ``[endpoints.NAME]`` the core reads itself.
+CORE_ENDPOINT_KEYS = ("type", "protocol", "baud", "paced")
+#: Top-level keys the core reads itself.
+CORE_KEYS = ("schema", "description", "endpoints", "devices", "defaults")
+
+
+@dataclass
+class EndpointSpec:
+    """One endpoint of a profile: the core keys, the host port's options and the family's options.
+
+    Options read as attributes too (``spec.link``, ``spec.chain_policy``).
+    """
+
+    name: str
+    type: str
+    protocol: str
+    baud: int | None
+    paced: bool = False
+    port_options: dict[str, Any] = field(default_factory=dict)
+    options: dict[str, Any] = field(default_factory=dict)
+
+    def __getattr__(self, key: str) -> Any:
+        for table in (self.__dict__.get("port_options", {}), self.__dict__.get("options", {})):
+            if key in table:
+                return table[key]
+        raise AttributeError(f"endpoint {self.__dict__.get('name')!r} has no option {key!r}")
+
+    @property
+    def family(self) -> DeviceFamily:
+        """The device family serving this endpoint's protocol."""
+        return registry.family_for_protocol(self.protocol)
+
+
+@dataclass
+class Profile:
+    """A checked profile: endpoints, device specs (of any family), ``[defaults]`` and family tables."""
+
+    path: str
+    name: str
+    description: str
+    endpoints: dict[str, EndpointSpec]
+    devices: list[DeviceSpec]
+    defaults: dict[str, Any] = field(default_factory=dict)
+    tables: dict[str, Any] = field(default_factory=dict)
+
+    def devices_on(self, endpoint: str) -> list[DeviceSpec]:
+        """The device specs of one endpoint, in profile order."""
+        return [d for d in self.devices if d.endpoint == endpoint]
+
+    def devices_of(self, family: str) -> list[DeviceSpec]:
+        """The device specs of one family, in profile order."""
+        return [d for d in self.devices if d.family == family]
+
+    def __getattr__(self, key: str) -> Any:
+        defaults = self.__dict__.get("defaults", {})
+        if key in defaults:
+            return defaults[key]
+        for fam in registry.families.values():
+            if key in fam.profile_attrs:
+                return self.devices_of(fam.name)
+        raise AttributeError(f"profile has no attribute {key!r}")
+
+
+def bundled_profiles() -> dict[str, Path]:
+    """Profiles shipped with hilbench (the repository's ``profiles/``), by name."""
+    root = importlib.resources.files("hilbench.profiles")
+    return {Path(p.name).stem: Path(str(p)) for p in root.iterdir() if p.name.endswith(".toml")}
+
+
+def resolve(name_or_path: str | Path) -> Path:
+    """A profile path from a file path or the name of a bundled profile."""
+    p = Path(name_or_path)
+    if p.suffix == ".toml" or p.exists():
+        if not p.exists():
+            raise ProfileError(f"{p}: no such profile file")
+        return p
+    bundled = bundled_profiles()
+    if str(name_or_path) in bundled:
+        return bundled[str(name_or_path)]
+    raise ProfileError(f"{name_or_path}: no such profile (bundled: {', '.join(sorted(bundled))})")
+
+
+def load_profile(name_or_path: str | Path = DEFAULT_PROFILE) -> Profile:
+    """Read and check a profile; raises :class:`ProfileError` with one line on any mistake."""
+    path = resolve(name_or_path)
+    try:
+        with open(path, "rb") as fh:
+            data = tomllib.load(fh)
+    except tomllib.TOMLDecodeError as exc:
+        raise ProfileError(f"{path}: not valid TOML: {exc}") from None
+    except UnicodeDecodeError as exc:
+        raise ProfileError(f"{path}: not a UTF-8 text file (byte {exc.start}: {exc.reason}); "
+                           "TOML profiles are UTF-8") from None
+    except IsADirectoryError:
+        raise ProfileError(f"{path}: is a directory, not a profile file") from None
+    except OSError as exc:
+        raise ProfileError(f"{path}: cannot read: {exc.strerror}") from None
+    return parse_profile(data, str(path))
+
+
+def parse_profile(data: dict[str, Any], path: str = "<profile>") -> Profile:
+    """Check a profile already read into a dict."""
+    c = Checker(path)
+    families = registry.families.values()
+    schema = data.get("schema")
+    if schema != SCHEMA:
+        c.fail("schema", f"expected {SCHEMA}, got {schema!r}")
+    tables = {name: fam for fam in families for name in fam.profile_tables}
+    c.unknown(data, "", (*CORE_KEYS, *tables))
+    defaults = _defaults(c, c.table(data.get("defaults", {}), "defaults"), families)
+    raw_eps = c.table(data.get("endpoints"), "endpoints")
+    if not raw_eps:
+        c.fail("endpoints", "expected at least one [endpoints.NAME] table")
+    raw_devs = data.get("devices", [])
+    if not isinstance(raw_devs, list):
+        c.fail("devices", "expected an array of tables ([[devices]])")
+    raw_devs = [c.table(dev, f"devices[{i}]") for i, dev in enumerate(raw_devs)]
+    endpoints = {name: _endpoint(c, name, ep, raw_devs, len(raw_eps) == 1) for name, ep in raw_eps.items()}
+    profile = Profile(path=path, name=Path(path).stem, description=str(data.get("description", "")),
+                      endpoints=endpoints, devices=[], defaults=defaults)
+    for name, fam in tables.items():
+        if name in data:
+            profile.tables[name] = fam.check_table(c, name, data[name])
+    for i, dev in enumerate(raw_devs):
+        profile.devices.extend(_devices(c, f"devices[{i}]", dev, profile))
+    for fam in {registry.family_for_protocol(ep.protocol).name: registry.family_for_protocol(ep.protocol)
+                for ep in endpoints.values()}.values():
+        fam.check_profile(c, profile)
+    names: set[str] = set()
+    for spec in profile.devices:
+        if spec.name in names:
+            c.fail(f"{spec.where}.name", f"device name {spec.name!r} is used twice")
+        names.add(spec.name)
+    return profile
+
+
+def _defaults(c: Checker, raw: dict[str, Any], families: list[DeviceFamily]) -> dict[str, Any]:
+    known = {key: rng for fam in families for key, rng in fam.default_keys.items()}
+    c.unknown(raw, "defaults", tuple(known))
+    out = {}
+    for key, (lo, hi, default) in known.items():
+        out[key] = c.number(raw.get(key, default), f"defaults.{key}", lo, hi)
+    return out
+
+
+def _device_endpoint(dev: dict[str, Any], name: str, only: bool) -> bool:
+    """Whether a device entry sits on endpoint ``name`` (explicitly, or as the only endpoint)."""
+    return dev.get("endpoint") == name or ("endpoint" not in dev and only)
+
+
+def _endpoint(c: Checker, name: str, ep: Any, raw_devs: list[dict[str, Any]], only: bool) -> EndpointSpec:
+    key = f"endpoints.{name}"
+    ep = c.table(ep, key)
+    kind = c.choice(ep.get("type", "pty"), f"{key}.type", registry.host_ports.names())
+    port_cls = registry.host_ports.get(kind)
+    protocols = [p for fam in registry.families.values() for p in fam.protocols]
+    protocol = ep.get("protocol")
+    if protocol is None:
+        # No protocol: the family whose models the endpoint's devices name (a bare servo bus stays short).
+        models = [d.get("model") for d in raw_devs if _device_endpoint(d, name, only)]
+        found = {fam.name: fam for fam in registry.families.values() for m in models if fam.knows_model(m)}
+        for i, d in enumerate(raw_devs):
+            if _device_endpoint(d, name, only) and "model" in d and not any(
+                    f.knows_model(d["model"]) for f in registry.families.values()):
+                known = sorted({m for f in registry.families.values() for m in f.models})
+                c.fail(f"devices[{i}].model", f"unknown model {d['model']!r} (expected one of: {', '.join(known)})")
+        if len(found) != 1:
+            c.fail(f"{key}.protocol", f"missing (expected one of {', '.join(protocols)})")
+        protocol = next(iter(found.values())).protocols[0]
+    c.choice(protocol, f"{key}.protocol", protocols)
+    family = registry.family_for_protocol(protocol)
+    allowed = (*CORE_ENDPOINT_KEYS, *port_cls.profile_keys, *family.endpoint_keys)
+    for k in ep:
+        if k not in allowed:
+            owners = [n for n, cls in registry.host_ports.items() if k in cls.profile_keys]
+            if owners:
+                types = " or ".join(f'type = "{o}"' for o in owners)
+                c.fail(f"{key}.{k}", f"only for {types} endpoints")
+            c.fail(f"{key}.{k}", f"unknown key (expected one of: {', '.join(allowed)})")
+    if kind not in family.endpoint_types:
+        types = " or ".join(f'"{t}"' for t in family.endpoint_types)
+        c.fail(f"{key}.type", f'expected {types} for protocol "{protocol}", got "{kind}"')
+    baud = family.check_baud(c, f"{key}.baud", ep.get("baud"), kind)
+    port_options = c.options(port_cls.check_options, {k: ep[k] for k in port_cls.profile_keys if k in ep}, key)
+    options = family.check_endpoint(c, key, ep, kind)
+    return EndpointSpec(name=name, type=kind, protocol=protocol, baud=baud,
+                        paced=c.boolean(ep.get("paced", False), f"{key}.paced"),
+                        port_options=port_options, options=options)
+
+
+def _devices(c: Checker, where: str, dev: dict[str, Any], profile: Profile) -> list[DeviceSpec]:
+    endpoints = profile.endpoints
+    ep_name = dev.get("endpoint")
+    if ep_name is None and len(endpoints) == 1:
+        ep_name = next(iter(endpoints))
+    if ep_name not in endpoints:
+        c.fail(f"{where}.endpoint", f"expected one of the endpoints ({', '.join(endpoints)}), got {ep_name!r}")
+    spec = endpoints[ep_name]
+    family = registry.family_for_protocol(spec.protocol)
+    model = dev.get("model")
+    if not family.knows_model(model):
+        for other in registry.families.values():
+            if other is not family and other.knows_model(model):
+                protos = " or ".join(f'"{p}"' for p in other.protocols)
+                c.fail(f"{where}.endpoint", f"a {model} {other.device_word} needs an endpoint with "
+                                            f"protocol = {protos}")
+    c.unknown(dev, where, family.device_keys)
+    specs = family.check_devices(c, where, dev, spec, profile)
+    for s in specs:
+        s.family = family.name
+        s.where = where
+    return specs
+
+
+__all__ = ["DEFAULT_PROFILE", "SCHEMA", "Checker", "DeviceSpec", "EndpointSpec", "Profile", "ProfileError",
+           "bundled_profiles", "load_profile", "parse_profile", "resolve"]

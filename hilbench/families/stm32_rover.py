@@ -1,0 +1,310 @@
+"""The STM32 rover family: the mecanum rover's STM32F767 FreeRTOS board behind a UART (or UDP).
+
+Profile schema (endpoint ``protocol = "vel2d"``, a pty or UDP)::
+
+    [endpoints.rover]
+    type = "pty"                   # or "udp" (bind, port, peer)
+    protocol = "vel2d"
+    baud = 115_200                 # the UART's rate: paces the board's output and its receiver
+
+    [[devices]]
+    model = "stm32f767-rover"
+    name = "rover"
+    preset = "freertos-50-30"
+    caches = true
+    output = "v3"                  # v1, v2, v3, binary
+    dialect = "branch"             # "thesis" or "branch"
+    window_ms = 1000
+    flush_ms = 10
+    seed = 0
+    boot_banner = true
+    tasks = { wheel_ctrl = { mean_us = 12.0, sd_us = 1.0 } }
+    faults = { drop_rate = 0.0, corrupt_rate = 0.0, drop_next = 0, corrupt_next = 0 }
+
+An endpoint carries one board (a UART is point to point): ``endpoint.board``,
+``bench.board()``. The board paces its own UART, so its medium delivers at
+once. Control commands (``hilbench board``, :class:`BoardClient`): status,
+button, reset, fault, log, wait_report.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+from hilbench.bench.checks import Checker
+from hilbench.bench.control import ControlClient, ControlError
+from hilbench.bench.family import DeviceFamily, DeviceSpec
+
+#: Line rates a board endpoint accepts (bit/s); a pty does not care, the board paces its UART by it.
+BOARD_BAUD_RANGE = (1200, 12_500_000)
+BOARD_MODELS = ("stm32f767-rover", "mecarover", "stm32-rover")
+BOARD_KEYS = ("model", "name", "endpoint", "preset", "caches", "output", "dialect", "window_ms", "flush_ms", "seed",
+              "boot_banner", "faults", "tasks")
+BOARD_FAULT_KEYS = ("drop_rate", "corrupt_rate", "drop_next", "corrupt_next")
+TIMING_KEYS = ("mean_us", "sd_us", "min_us", "max_us", "dist")
+#: Fault knobs the control channel turns (``stall`` in seconds), with their ranges.
+LIVE_FAULT_RANGES = {"drop_rate": (0.0, 1.0), "corrupt_rate": (0.0, 1.0), "drop_next": (0, 2**31),
+                     "corrupt_next": (0, 2**31), "stall": (0.0, 3600.0)}
+
+
+@dataclass
+class BoardSpec(DeviceSpec):
+    """An emulated STM32 rover board on a ``vel2d`` endpoint."""
+
+    model: str = "stm32f767-rover"
+    preset: str = "freertos-100-50"
+    caches: bool = True
+    output: str = "v1"
+    dialect: str | None = None
+    window_ms: float | None = None
+    flush_ms: float = 10.0
+    seed: int = 0
+    boot_banner: bool = True
+    faults: dict[str, float] = field(default_factory=dict)
+    tasks: dict[str, dict[str, Any]] = field(default_factory=dict)
+
+
+def board_config(spec: BoardSpec, baud: int):
+    """The emulator configuration of a profile's board entry."""
+    from hilbench.fakes.stm32_board import BoardConfig, make_preset
+
+    preset = make_preset(spec.preset, spec.caches)
+    for name, timing in spec.tasks.items():
+        preset = preset.with_task_timing(name, **timing)
+    return BoardConfig(preset, output=spec.output, baud=baud, dialect=spec.dialect, window_ms=spec.window_ms,
+                       flush_ms=spec.flush_ms, seed=spec.seed, boot_banner=spec.boot_banner,
+                       faults=dict(spec.faults))
+
+
+def check_fault_knobs(knobs: dict[str, Any]) -> dict[str, float]:
+    """Fault knobs for a live board, checked against :data:`LIVE_FAULT_RANGES`; raises ControlError."""
+    out = {}
+    for key, value in knobs.items():
+        if key not in LIVE_FAULT_RANGES:
+            raise ControlError(f"unknown fault knob {key!r} (expected one of: {', '.join(LIVE_FAULT_RANGES)})")
+        lo, hi = LIVE_FAULT_RANGES[key]
+        if isinstance(value, bool) or not isinstance(value, int | float) or not lo <= value <= hi:
+            raise ControlError(f"fault knob {key}: expected a number {lo}..{hi}, got {value!r}")
+        out[key] = value
+    return out
+
+
+class Stm32RoverFamily(DeviceFamily):
+    """One emulated rover board per ``vel2d`` endpoint."""
+
+    name = "stm32-rover"
+    protocols = ("vel2d",)
+    endpoint_types = ("pty", "udp")
+    device_keys = BOARD_KEYS
+    models = BOARD_MODELS
+    endpoint_attrs = ("board",)
+    profile_attrs = ("boards",)
+    device_word = "board"
+    tap_reader = "profile"
+    control_commands = {
+        "status": "what the board is doing (preset, output, counters, recent log)",
+        "button": "press the user button (starts/stops a trace window)",
+        "reset": "reboot the board",
+        "fault": "turn fault knobs: drop_rate, corrupt_rate, drop_next, corrupt_next, stall",
+        "log": "the board's recent log lines",
+        "wait_report": "wait until the board printed another run-time report",
+    }
+
+    # ------------------------------------------------------------------ profile
+
+    def check_baud(self, c: Checker, key: str, value: Any, port_type: str) -> int:
+        return c.integer(115_200 if value is None else value, key, *BOARD_BAUD_RANGE)
+
+    def check_devices(self, c: Checker, key: str, dev: dict[str, Any], endpoint, profile) -> list[BoardSpec]:
+        from hilbench.fakes.stm32_board.presets import OUTPUTS, make_preset, preset_names
+
+        model = c.choice(dev.get("model", BOARD_MODELS[0]), f"{key}.model", BOARD_MODELS)
+        preset = dev.get("preset", "freertos-100-50")
+        if not isinstance(preset, str) or preset not in preset_names():
+            c.fail(f"{key}.preset", f"expected one of {', '.join(preset_names())}, got {preset!r}")
+        output = c.choice(dev.get("output", "v1"), f"{key}.output", OUTPUTS)
+        dialect = dev.get("dialect")
+        if dialect is not None:
+            c.choice(dialect, f"{key}.dialect", ("thesis", "branch"))
+        window = dev.get("window_ms")
+        if window is not None:
+            window = c.number(window, f"{key}.window_ms", 1, 3_600_000)
+        name = dev.get("name", endpoint.name)
+        if not isinstance(name, str) or not name:
+            c.fail(f"{key}.name", f"expected a string, got {name!r}")
+        faults = c.table(dev.get("faults", {}), f"{key}.faults")
+        c.unknown(faults, f"{key}.faults", BOARD_FAULT_KEYS)
+        for fk in ("drop_rate", "corrupt_rate"):
+            if fk in faults:
+                c.number(faults[fk], f"{key}.faults.{fk}", 0.0, 1.0)
+        for fk in ("drop_next", "corrupt_next"):
+            if fk in faults:
+                c.integer(faults[fk], f"{key}.faults.{fk}", 0, 2**31)
+        tasks = c.table(dev.get("tasks", {}), f"{key}.tasks")
+        base = make_preset(preset, dev.get("caches", True) is not False)
+        known = {t.name for t in base.tasks} | {f.name for f in base.functions} | {"line_cost"}
+        for tname, timing in tasks.items():
+            where = f"{key}.tasks.{tname}"
+            if tname not in known:
+                c.fail(where, f"no such task or function in preset {preset!r} (expected one of: "
+                              f"{', '.join(sorted(known))})")
+            timing = c.table(timing, where)
+            c.unknown(timing, where, TIMING_KEYS)
+            for tk in ("mean_us", "sd_us", "min_us", "max_us"):
+                if tk in timing:
+                    c.number(timing[tk], f"{where}.{tk}", 0.0, 1e6)
+            if "dist" in timing:
+                c.choice(timing["dist"], f"{where}.dist", ("normal", "fixed"))
+        return [BoardSpec(
+            name=name,
+            endpoint=endpoint.name,
+            model=model,
+            preset=preset,
+            caches=c.boolean(dev.get("caches", True), f"{key}.caches"),
+            output=output,
+            dialect=dialect,
+            window_ms=window,
+            flush_ms=c.number(dev.get("flush_ms", 10.0), f"{key}.flush_ms", 1, 10_000),
+            seed=c.integer(dev.get("seed", 0), f"{key}.seed", 0, 2**31),
+            boot_banner=c.boolean(dev.get("boot_banner", True), f"{key}.boot_banner"),
+            faults=dict(faults),
+            tasks={k: dict(v) for k, v in tasks.items()},
+        )]
+
+    def check_profile(self, c: Checker, profile) -> None:
+        seen: set[str] = set()
+        for spec in profile.devices_of(self.name):
+            if spec.endpoint in seen:
+                c.fail(f"{spec.where}.endpoint", f"endpoint {spec.endpoint!r} already has a board (a UART is "
+                                                 "point to point)")
+            seen.add(spec.endpoint)
+
+    # ------------------------------------------------------------------ bench
+
+    def paced(self, spec, requested: bool) -> bool:
+        return False  # the board paces its own UART (full duplex), so its line delivers at once
+
+    def build(self, bench, endpoint, devices: list[BoardSpec], t: float) -> None:
+        from hilbench.fakes.stm32_board import Board
+
+        for dev in devices:
+            board = Board(board_config(dev, endpoint.spec.baud), name=dev.name)
+            board.attach(endpoint.medium)
+            endpoint.add_device(dev.name, board)
+            endpoint.attrs["board"] = board
+
+    def start(self, endpoint, t: float) -> None:
+        for board in endpoint.devices.values():
+            board.start(t)
+
+    def stop(self, endpoint) -> None:
+        for board in endpoint.devices.values():
+            board.stop()
+
+    # ------------------------------------------------------------------ description
+
+    def describe_endpoint(self, endpoint) -> dict[str, Any]:
+        return {"paced": True}  # at the UART's rate, by the board itself
+
+    def describe_device(self, spec: BoardSpec, device, endpoint, profile) -> dict[str, Any]:
+        return {
+            "name": spec.name,
+            "model": spec.model,
+            "endpoint": spec.endpoint,
+            "protocol": profile.endpoints[spec.endpoint].protocol,
+            "preset": spec.preset,
+            "caches": spec.caches,
+            "output": spec.output,
+            "baud": profile.endpoints[spec.endpoint].baud,
+        }
+
+    def summary(self, endpoint) -> str:
+        board = endpoint.attrs.get("board")
+        if board is None:
+            return f"{endpoint.spec.protocol}, {endpoint.spec.baud} baud, no board"
+        b = board.config
+        return (f"{endpoint.spec.protocol}, {endpoint.spec.baud} baud, board {board.name!r}: "
+                f"{b.preset.name}{'' if b.preset.caches else ' no caches'}, output {b.output}")
+
+    # ------------------------------------------------------------------ control channel
+
+    def control(self, bench, board, cmd: str, req: dict[str, Any]) -> dict[str, Any]:
+        if cmd == "status":
+            return {"status": board.status()}
+        if cmd == "button":
+            board.press_button()
+            board.settle()  # the reply shows the press's effect (sampling on/off)
+            return {"status": board.status()}
+        if cmd == "reset":
+            board.reset()
+            board.settle()
+            return {"status": board.status()}
+        if cmd == "fault":
+            knobs = req.get("knobs", {})
+            if not isinstance(knobs, dict):
+                raise ControlError("knobs: expected an object")
+            return {"faults": board.set_faults(**check_fault_knobs(knobs))}
+        if cmd == "log":
+            return {"log": board.status()["log"]}
+        if cmd == "wait_report":
+            try:
+                timeout = float(req.get("timeout", 10.0))
+                start = req.get("after")
+                start = len(board.reports) if start is None else int(start)
+            except (TypeError, ValueError):
+                raise ControlError("wait_report: timeout and after must be numbers") from None
+            if not 0 <= timeout <= 3600:
+                raise ControlError(f"wait_report: timeout must be 0..3600 s, got {timeout}")
+            deadline = time.monotonic() + timeout
+            while len(board.reports) <= start:
+                if time.monotonic() > deadline:
+                    raise ControlError(f"no report within {timeout} s")
+                time.sleep(0.01)
+            rep = board.reports[-1]
+            return {"report": rep._asdict(), "status": board.status()}
+        raise ControlError(f"unknown command {cmd!r}")
+
+
+def _bench_board(bench, name: str | None = None):
+    """``bench.board(name=None)``: an emulated rover board by name (or the only one)."""
+    from hilbench.fakes.stm32_board import Board
+
+    boards = {n: d for n, d in bench.devices.items() if isinstance(d, Board)}
+    if name is None:
+        if len(boards) != 1:
+            raise KeyError(f"bench has boards {list(boards)}; name one")
+        return next(iter(boards.values()))
+    return boards[name]
+
+
+Stm32RoverFamily.bench_methods = {"board": _bench_board}
+
+
+class BoardClient(ControlClient):
+    """The rover board's control commands from another process (``hilbench board`` uses it)."""
+
+    def status(self, device: str | None = None) -> dict[str, Any]:
+        return self.call("status", device=device)["status"]
+
+    def button(self, device: str | None = None) -> dict[str, Any]:
+        return self.call("button", device=device)["status"]
+
+    def reset(self, device: str | None = None) -> dict[str, Any]:
+        return self.call("reset", device=device)["status"]
+
+    def fault(self, device: str | None = None, **knobs: float) -> dict[str, Any]:
+        return self.call("fault", device=device, knobs=knobs)["faults"]
+
+    def log(self, device: str | None = None) -> list[str]:
+        return self.call("log", device=device)["log"]
+
+    def wait_report(self, device: str | None = None, timeout: float = 10.0, after: int | None = None) -> dict:
+        return self.call("wait_report", device=device, timeout=timeout, after=after)
+
+
+FAMILY = Stm32RoverFamily()
+
+__all__ = ["BOARD_MODELS", "FAMILY", "BoardClient", "BoardSpec", "Stm32RoverFamily", "board_config",
+           "check_fault_knobs"]

@@ -1,0 +1,76 @@
+"""The Dynamixel bus monitor: turning Protocol 2.0 traffic into device and bus state.
+
+- :class:`~hilbench.monitor.dynamixel.tracker.BusTracker`: pure state machine, fed bytes
+  with times (no I/O), testable with bytes alone;
+- :class:`~hilbench.monitor.dynamixel.devices.DeviceState`: what is known about one device;
+- :func:`~hilbench.monitor.dynamixel.summary.summary`: the JSON summary;
+- :data:`INSTRUMENT`: the plug-in (``hilbench.instruments`` entry point ``dynamixel``):
+  options, tracker, summary and dashboard views for the generic monitor frames.
+"""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+from hilbench.errors import UsageError
+from hilbench.monitor.dynamixel.devices import DeviceState
+from hilbench.monitor.dynamixel.summary import summary
+from hilbench.monitor.dynamixel.tracker import BusTracker
+from hilbench.monitor.instrument import Instrument
+
+
+def _int(text: str) -> int:
+    try:
+        return int(text, 0)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+
+
+class DynamixelInstrument(Instrument):
+    """The Dynamixel Protocol 2.0 bus monitor as an instrument plug-in."""
+
+    protocol = "dynamixel"
+    title = "Dynamixel Protocol 2.0 bus"
+    views_path = "hilbench.dashboard.dynamixel_views:VIEW_SET"
+
+    def sniff(self, data: bytes) -> float:
+        from hilbench.protocols.dynamixel import DecodeProblem, Decoder
+
+        items = Decoder().feed(data[:8192])
+        packets = sum(1 for i in items if not isinstance(i, DecodeProblem))
+        problems = len(items) - packets
+        return packets / (packets + problems + 1) if packets else 0.0
+
+    def add_arguments(self, parser: argparse.ArgumentParser) -> None:
+        g = parser.add_argument_group("Dynamixel bus")
+        g.add_argument("--silence", type=float, default=1.0,
+                       help="disconnect a device owing a reply that said nothing for S seconds (0: off; default 1)")
+        g.add_argument("--miss-limit", type=int, default=4,
+                       help="disconnect after more than N consecutive missed replies (default 4, as the thesis "
+                            "monitor)")
+        g.add_argument("--max-length", type=_int, default=1024,
+                       help="largest LENGTH accepted (default 1024 like the SDK; 65535 counts like the spec sheet)")
+
+    def tracker_options(self, args: argparse.Namespace) -> dict[str, Any]:
+        if not 3 <= args.max_length <= 0xFFFF:
+            raise UsageError(f"--max-length must be 3..65535, got {args.max_length}")
+        if args.miss_limit < 0 or args.silence < 0:
+            raise UsageError("--miss-limit and --silence must not be negative")
+        return {"silence": args.silence, "max_length": args.max_length, "miss_limit": args.miss_limit}
+
+    def make_tracker(self, *, baud: int | None, timestamps: bool, **options: Any) -> BusTracker:
+        return BusTracker(baud=baud, timestamps=timestamps, **options)
+
+    def summary(self, tracker: BusTracker, *, source: str, timestamps: str | None, errors: int = 50) -> dict:
+        return summary(tracker, source=source, protocol=self.protocol, timestamps=timestamps, errors=errors)
+
+    def print_summary(self, report: dict[str, Any], console: Any) -> None:
+        from hilbench.monitor.dynamixel.summary import print_summary
+
+        print_summary(report, console)
+
+
+INSTRUMENT = DynamixelInstrument()
+
+__all__ = ["INSTRUMENT", "BusTracker", "DeviceState", "DynamixelInstrument", "summary"]

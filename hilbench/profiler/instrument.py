@@ -1,0 +1,36 @@
+"""The trace profiler as an instrument plug-in: a rover board's UART carries trace stamps, not a bus.
+
+``hilbench monitor`` points a user at ``hilbench profile`` for this protocol
+(:attr:`~hilbench.monitor.instrument.Instrument.verb`), and ``hilbench
+profile`` accepts only sources whose instrument it is. :meth:`sniff` tells
+trace output in a raw capture (text stamp lines, logs, reports, binary words).
+"""
+
+from __future__ import annotations
+
+from hilbench.monitor.instrument import Instrument
+
+
+class TraceInstrument(Instrument):
+    """Trace stamps (text and binary), logs and run-time reports of the rover board."""
+
+    protocol = "vel2d"
+    aliases = ("tracestamp",)
+    title = "a board's trace output"
+    verb = "profile"
+
+    def sniff(self, data: bytes) -> float:
+        from hilbench.protocols.tracestamp import BadLine
+        from hilbench.protocols.tracestamp_binary import WordProblem
+        from hilbench.protocols.tracestamp_stream import StreamDecoder
+
+        dec = StreamDecoder()
+        items = dec.feed(data[:8192]) + dec.flush()
+        bad = sum(1 for i in items if isinstance(i, BadLine | WordProblem))
+        good = len(items) - bad
+        return good / (good + bad + 1) if good else 0.0
+
+
+INSTRUMENT = TraceInstrument()
+
+__all__ = ["INSTRUMENT", "TraceInstrument"]

@@ -1,0 +1,102 @@
+"""Capture files and stdin: replayed as fast as possible or at their recorded speed."""
+
+from __future__ import annotations
+
+import os
+import stat
+import sys
+import threading
+import time
+from collections.abc import Iterator
+
+from hilbench.transports.capture_file import CaptureError, CaptureReader, Chunk
+from hilbench.transports.sources.base import Source, SourceError, SourceOpener
+
+
+class FileSource(Source):
+    """A capture file (hilbench format or raw dump), replayed fast or at recorded speed.
+
+    ``speed`` None replays as fast as possible; 1.0 at recorded speed, 2.0
+    twice as fast. A raw dump has times only with ``baud`` (byte time).
+    """
+
+    live = False
+
+    def __init__(self, target, *, baud: int | None = None, speed: float | None = None) -> None:
+        try:
+            self.reader = CaptureReader(target, raw_baud=baud)
+        except FileNotFoundError:
+            raise SourceError(f"{target}: no such file") from None
+        self.name = self.reader.name
+        self.baud = self.reader.baud or baud
+        info = self.reader.info
+        self.protocol = (info.protocol or None) if info else None
+        self.timestamps = self.reader.timestamps
+        if speed is not None and (speed <= 0 or self.timestamps == "none"):
+            self.reader.close()
+            if speed <= 0:
+                raise SourceError(f"replay speed must be positive, got {speed}")
+            raise SourceError(f"{self.name}: a raw capture has no times; give --baud to replay it at wire speed")
+        self.speed = speed
+        self._stop = threading.Event()
+        self._origin: tuple[float, float] | None = None  # (capture time, monotonic) at the start
+
+    def clock(self) -> float | None:
+        if self.speed is None or self._origin is None:
+            return None
+        t_cap, t_mono = self._origin
+        return t_cap + (time.monotonic() - t_mono) * self.speed
+
+    def chunks(self, idle: float | None = None) -> Iterator[Chunk | None]:
+        stop = self._stop
+        try:
+            for chunk in self.reader:
+                if stop.is_set():
+                    return
+                if self.speed is not None:
+                    if self._origin is None:
+                        self._origin = (chunk.t, time.monotonic())
+                    t_cap, t_mono = self._origin
+                    due = t_mono + (chunk.t - t_cap) / self.speed
+                    while True:
+                        wait = due - time.monotonic()
+                        if wait <= 0:
+                            break
+                        if idle is not None and wait > idle:
+                            if stop.wait(idle):
+                                return
+                            yield None
+                        elif stop.wait(wait):
+                            return
+                yield chunk
+        except OSError as exc:
+            raise CaptureError(f"{self.name}: {exc}") from None
+
+    def close(self) -> None:
+        self._stop.set()
+        self.reader.close()
+
+
+def open_stdin(spec: str, target: str, fragment: str, *, baud: int | None = None, speed: float | None = None,
+               **_: object) -> Source:
+    """stdin redirected from a file is replayed like that file; a pipe or terminal is live."""
+    fd = sys.stdin.buffer.fileno()
+    if stat.S_ISREG(os.fstat(fd).st_mode):  # `< file`: replay it like a named file
+        return FileSource("-", baud=baud, speed=speed)
+    from hilbench.transports.sources.stream import StreamSource
+
+    return StreamSource(fd, name="stdin", baud=baud, own=False)
+
+
+def open_file(spec: str, target: str, fragment: str, *, baud: int | None = None, speed: float | None = None,
+              **_: object) -> Source:
+    return FileSource(target, baud=baud, speed=speed)
+
+
+FILE = SourceOpener("file", open_file, kinds=("file",), usage="capture.hbcap, trace.bin, trace.txt",
+                    what="a file: a hilbench capture (times and directions kept) or raw bytes (a raw dump has no "
+                         "times unless --baud gives it byte time)")
+STDIN = SourceOpener("stdin", open_stdin, kinds=("stdin",), usage="-",
+                     what="stdin: live from a pipe, or read like a file when redirected from one")
+
+__all__ = ["FILE", "STDIN", "FileSource", "open_file", "open_stdin"]

@@ -1,0 +1,150 @@
+"""A TCP host port: a device reached over Ethernet (a laser scanner's TCP port, a bench service).
+
+:class:`TcpEndpoint` listens on 127.0.0.1 (unless told otherwise) and serves
+one client at a time, as an embedded device's single TCP server does: a
+second client while one is connected is accepted and closed at once (and
+counted), and when the client leaves the port listens again. To a medium it
+is a host port like a pty: bytes the client sends are read, the devices'
+bytes are written to the client (or dropped and counted while nobody is
+connected, as a device's output is lost without a peer).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import socket
+from typing import Any
+
+from hilbench.transports.host_port import HostPort, bind_address, port_number
+
+
+class TcpEndpoint(HostPort):
+    """A one-client TCP server acting as a host port; profile keys ``bind`` and ``port``."""
+
+    kind = "tcp"
+    profile_keys = {"bind": "127.0.0.1", "port": 0}
+
+    def __init__(self, name: str = "tcp", bind: str = "127.0.0.1", port: int = 0) -> None:
+        self.name = name
+        self.listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+        self.listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            self.listener.bind((bind, port))
+        except OSError:
+            self.listener.close()
+            raise
+        self.listener.listen(4)
+        self.listener.setblocking(False)
+        self.client: socket.socket | None = None
+        self.peer: tuple[str, int] | None = None
+        self.bytes_in = 0
+        self.bytes_out = 0
+        self.dropped = 0
+        self.connections = 0
+        self.refused = 0
+
+    @classmethod
+    def check_options(cls, raw: dict[str, Any]) -> dict[str, Any]:
+        return {"bind": bind_address(raw.get("bind", "127.0.0.1")), "port": port_number(raw.get("port", 0))}
+
+    @classmethod
+    def open(cls, name: str, options: dict[str, Any], **_: Any) -> TcpEndpoint:
+        return cls(name, options["bind"], options["port"])
+
+    @property
+    def address(self) -> tuple[str, int]:
+        return self.listener.getsockname()[:2]
+
+    @property
+    def url(self) -> str:
+        host, port = self.address
+        return f"tcp://{host}:{port}"
+
+    @property
+    def client_path(self) -> str:
+        return self.url
+
+    def describe(self) -> dict[str, Any]:
+        host, port = self.address
+        return {"path": self.url, "host": host, "port": port}
+
+    def fileno(self) -> int:
+        return self.client.fileno() if self.client is not None else self.listener.fileno()
+
+    def filenos(self) -> list[int]:
+        fds = [self.listener.fileno()]
+        if self.client is not None:
+            fds.append(self.client.fileno())
+        return fds
+
+    def _accept(self) -> None:
+        while True:
+            try:
+                sock, addr = self.listener.accept()
+            except (BlockingIOError, InterruptedError):
+                return
+            except OSError:
+                return
+            if self.client is not None:  # busy: a real single-connection device refuses the newcomer
+                self.refused += 1
+                with contextlib.suppress(OSError):
+                    sock.close()
+                continue
+            sock.setblocking(False)
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            self.client, self.peer = sock, addr[:2]
+            self.connections += 1
+
+    def _drop_client(self) -> None:
+        if self.client is not None:
+            with contextlib.suppress(OSError):
+                self.client.close()
+        self.client = self.peer = None
+
+    def read(self) -> bytes:
+        """What the client sent (b'' if nothing); accepts a waiting client first."""
+        self._accept()
+        if self.client is None:
+            return b""
+        try:
+            data = self.client.recv(65536)
+        except (BlockingIOError, InterruptedError):
+            return b""
+        except OSError:
+            self._drop_client()
+            return b""
+        if not data:  # the client closed: listen for the next one
+            self._drop_client()
+            return b""
+        self.bytes_in += len(data)
+        return data
+
+    def write(self, data: bytes) -> int:
+        """Send to the client; without one, or what its buffer refuses, is dropped and counted."""
+        if self.client is None:
+            self.dropped += len(data)
+            return 0
+        view = memoryview(data)
+        sent = 0
+        while sent < len(view):
+            try:
+                sent += self.client.send(view[sent:])
+            except (BlockingIOError, InterruptedError):
+                break
+            except OSError:
+                self._drop_client()
+                break
+        self.bytes_out += sent
+        self.dropped += len(view) - sent
+        return sent
+
+    def close(self) -> None:
+        self._drop_client()
+        with contextlib.suppress(OSError):
+            self.listener.close()
+
+    def __repr__(self) -> str:
+        return f"TcpEndpoint({self.name!r}, {self.url})"
+
+
+__all__ = ["TcpEndpoint"]
