@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from hilbench.fakes.stm32_board.presets import Timing
-from hilbench.fakes.stm32_board.scheduler import DELAY_UNTIL, RUN, WAIT, Durations, Kernel, Periodic, Task
+from hilbench.fakes.stm32_board.kernel import DELAY_UNTIL, RUN, WAIT, Durations, Kernel, Periodic, Task
 
 
 def make(tick_hz=1000):
