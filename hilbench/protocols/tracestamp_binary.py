@@ -34,7 +34,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from hilbench.protocols.tracestamp import NameRegistry, Stamp, StampBatch
+from hilbench.protocols.tracestamp import NameRegistry, StampBatch
 
 VERSION = 1
 MAX_STAMP_ID = 59
@@ -324,7 +324,7 @@ class WordDecoder:
     # ------------------------------------------------------------------ feeding
 
     def feed(self, data: bytes) -> list:
-        """Decode and return items with stamps as :class:`Stamp` tuples."""
+        """Decode and return items with stamps as :class:`~hilbench.protocols.tracestamp.Stamp` tuples."""
         out = []
         for item in self.feed_batch(data):
             if type(item) is StampBatch:
@@ -501,10 +501,15 @@ class WordDecoder:
         return t_word
 
 
-def decode_words(data: bytes) -> list[Stamp]:
-    """All stamps of a self-contained binary stream with its names (one-shot helper for tests and scripts)."""
-    from hilbench.protocols.tracestamp_stream import StreamDecoder
+def __getattr__(name: str):
+    # decode_words moved to tracestamp_stream (it needs the StreamDecoder, which imports this module);
+    # the old name still works, imported lazily so the two modules do not import each other.
+    if name == "decode_words":
+        import warnings
 
-    dec = StreamDecoder()
-    items = dec.feed(data) + dec.flush()
-    return [i for i in items if type(i) is Stamp]
+        from hilbench.protocols.tracestamp_stream import decode_words
+
+        warnings.warn("hilbench.protocols.tracestamp_binary.decode_words moved to "
+                      "hilbench.protocols.tracestamp_stream.decode_words", DeprecationWarning, stacklevel=2)
+        return decode_words
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -12,6 +12,10 @@ a word, still decodes.
 
 Stamps from text and binary share one name list (``names``), so the ids of
 every :class:`StampBatch` index the same table.
+
+One-shot helpers for a complete capture: :func:`decode_all` (every item) and
+:func:`decode_words` (its stamps only); :func:`stamps_of` picks the stamps
+out of decoded items.
 """
 
 from __future__ import annotations
@@ -106,6 +110,13 @@ def decode_all(data: bytes) -> list[StreamItem]:
     """Every item of a complete capture, stamps as :class:`Stamp` (a convenience for scripts and tests)."""
     dec = StreamDecoder()
     return dec.feed(data) + dec.flush()
+
+
+def decode_words(data: bytes) -> list[Stamp]:
+    """All stamps of a self-contained binary stream with its names (one-shot helper for tests and scripts)."""
+    dec = StreamDecoder()
+    items = dec.feed(data) + dec.flush()
+    return [i for i in items if type(i) is Stamp]
 
 
 def stamps_of(items) -> list[Stamp]:

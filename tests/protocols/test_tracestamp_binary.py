@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 from hilbench.protocols import tracestamp_binary as tb
 from hilbench.protocols.tracestamp import LogLine, NameEntry, RuntimeReport, Stamp, StampBatch, TableStart
 from hilbench.protocols.tracestamp_binary import Marker, Op, WordDecoder
-from hilbench.protocols.tracestamp_stream import StreamDecoder, decode_all, stamps_of
+from hilbench.protocols.tracestamp_stream import StreamDecoder, decode_all, decode_words, stamps_of
 
 DOC = Path(__file__).resolve().parents[2] / "docs" / "tracestamp-binary.md"
 
@@ -204,3 +204,15 @@ def test_decode_speed_is_vectorised():
     dec = StreamDecoder()
     batches = [dec.feed_batch(data[i : i + 65536]) for i in range(0, len(data), 65536)]
     assert sum(b.count for part in batches for b in part if type(b) is StampBatch) == 100_000
+
+
+def test_decode_words_lives_in_the_stream_module_and_the_old_name_warns():
+    ids, begin, t, names = random_window(7, 200)
+    data = build_stream(ids, begin, t, names)
+    stamps = decode_words(data)
+    assert len(stamps) == 200 and stamps == stamps_of(decode_all(data))
+    with pytest.warns(DeprecationWarning, match="tracestamp_stream.decode_words"):
+        old = tb.decode_words
+    assert old is decode_words
+    with pytest.raises(AttributeError):
+        tb.no_such_name  # noqa: B018

@@ -1,7 +1,8 @@
 """The STM32F767 mecanum rover board (FreeRTOS) as software: velocity frames in, trace stamps out.
 
 - :mod:`presets`: calibration data from the thesis tables (task sets, periods, execution times).
-- :mod:`scheduler`: a FreeRTOS-like kernel in virtual time with a vectorised fast path.
+- :mod:`kernel`: a FreeRTOS-like kernel in virtual time (the exact, discrete-event path).
+- :mod:`fast_path`: the kernel's vectorised fast path (whole runs of periodic ticks with numpy).
 - :mod:`firmware`: the firmware's tasks, output paths (V1/V2/V3/binary), recv_vel and the report.
 - :mod:`sink`: record buffers, the 2048-byte output ring, UART DMA, the wire, fault knobs.
 - :mod:`robot`: setpoint queue, ramp, kinematics and odometry.

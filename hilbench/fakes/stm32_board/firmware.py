@@ -1,7 +1,7 @@
 """The rover firmware as tasks on the emulated kernel: control loop, recv_vel, tsink, profiling, button.
 
 One :class:`Firmware` is one boot of the board. It builds the task set of its
-preset (spec §2.2) on a :class:`~hilbench.fakes.stm32_board.scheduler.Kernel`,
+preset (spec §2.2) on a :class:`~hilbench.fakes.stm32_board.kernel.Kernel`,
 wires the output path chosen by the configuration (§3.4), frames received
 bytes as the UART does (§1.4) and keeps the robot's control data flow
 (:mod:`~hilbench.fakes.stm32_board.robot`). Times are µs since boot.
@@ -33,16 +33,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from hilbench.fakes.stm32_board.presets import (
-    RUNTIME_UNIT_US,
-    SYSTEM_CLOCK_HZ,
-    BoardConfig,
-    Preset,
-    TaskSpec,
-    Timing,
-)
-from hilbench.fakes.stm32_board.robot import Robot
-from hilbench.fakes.stm32_board.scheduler import (
+from hilbench.fakes.stm32_board.kernel import (
     CALL,
     DELAY,
     DELAY_UNTIL,
@@ -55,6 +46,15 @@ from hilbench.fakes.stm32_board.scheduler import (
     Periodic,
     Task,
 )
+from hilbench.fakes.stm32_board.presets import (
+    RUNTIME_UNIT_US,
+    SYSTEM_CLOCK_HZ,
+    BoardConfig,
+    Preset,
+    TaskSpec,
+    Timing,
+)
+from hilbench.fakes.stm32_board.robot import Robot
 from hilbench.fakes.stm32_board.sink import BinaryWriter, OutputFaults, RecordBuffer, Ring, Truth, Wire
 from hilbench.protocols import tracestamp as ts
 from hilbench.protocols import tracestamp_binary as tb

@@ -2,11 +2,17 @@
 
 from __future__ import annotations
 
+import importlib
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 
+from hilbench.fakes.stm32_board import kernel as kernel_module
+from hilbench.fakes.stm32_board.fast_path import fast_run
+from hilbench.fakes.stm32_board.kernel import DELAY_UNTIL, RUN, WAIT, Durations, Kernel, Periodic, Task
 from hilbench.fakes.stm32_board.presets import Timing
-from hilbench.fakes.stm32_board.scheduler import DELAY_UNTIL, RUN, WAIT, Durations, Kernel, Periodic, Task
 
 
 def make(tick_hz=1000):
@@ -315,3 +321,25 @@ def test_fast_path_equals_exact_with_events_between_and_inside_bursts():
     assert np.array_equal(st[1], exact_st[1]) and np.array_equal(st[2], exact_st[2])
     assert [u for u, _ in rt] == [u for u, _ in exact_rt]
     assert [r for _, r in rt] == pytest.approx([r for _, r in exact_rt], abs=1e-6)
+
+
+def test_the_kernel_does_not_import_the_fast_path_at_import_time():
+    """fast_path builds on kernel's types; kernel imports fast_path only when a fast run starts."""
+    code = ("import sys; import hilbench.fakes.stm32_board.kernel; "
+            "assert 'hilbench.fakes.stm32_board.fast_path' not in sys.modules; "
+            "import hilbench.fakes.stm32_board.fast_path")
+    subprocess.run([sys.executable, "-W", "error::DeprecationWarning", "-c", code], check=True)
+
+
+def test_the_old_scheduler_module_still_works_and_warns():
+    name = "hilbench.fakes.stm32_board.scheduler"
+    sys.modules.pop(name, None)
+    try:
+        with pytest.warns(DeprecationWarning, match=r"stm32_board\.kernel"):
+            old = importlib.import_module(name)
+    finally:
+        sys.modules.pop(name, None)
+    for public in ("Kernel", "Task", "Durations", "Periodic", "ReadyList", "RUN", "DELAY_UNTIL", "DELAY", "WAIT",
+                   "NOTIFY", "FSTAMP", "CALL", "YIELD"):
+        assert getattr(old, public) is getattr(kernel_module, public)
+    assert old.fast_run is fast_run
