@@ -215,14 +215,24 @@ def parse_request(line: bytes) -> Request | None:
     return Request(body[:n], body[n:], string, line)
 
 
-def check_line(line: bytes) -> bytes | None:
-    """The payload of a summed line (None if the sum fails). Info lines may sum with or without ';'."""
+#: Replies made of ``KEY:VALUE;S`` lines.
+INFO_COMMANDS = ("VV", "PP", "II")
+
+
+def check_line(line: bytes, *, info: bool = False) -> bytes | None:
+    """The payload of a summed line (None if the sum fails).
+
+    ``info``: a ``KEY:VALUE;S`` line, whose sum may cover the ';' or not (urg_library accepts both);
+    the ';' is then not part of the payload. In data lines ';' is an ordinary 6-bit character.
+    """
     if len(line) < 2:
         return None
     payload, s = line[:-1], line[-1]
-    if scip_sum(payload) == s:
-        return payload[:-1] if payload.endswith(b";") else payload
-    if payload.endswith(b";") and scip_sum(payload[:-1]) == s:
+    if not info:
+        return payload if scip_sum(payload) == s else None
+    if not payload.endswith(b";"):
+        return None
+    if scip_sum(payload[:-1]) == s or scip_sum(payload) == s:
         return payload[:-1]
     return None
 
@@ -241,8 +251,9 @@ def parse_reply(raw: bytes) -> Reply:
         else:
             bad += 1
     payloads = []
+    info = echo[:2] in INFO_COMMANDS
     for ln in lines[2:]:
-        p = check_line(ln)
+        p = check_line(ln, info=info)
         if p is None:
             bad += 1
             continue
@@ -331,7 +342,7 @@ class ReplyDecoder:
 
 
 __all__ = [
-    "ENCODING", "LF", "LINE_PAYLOAD", "MAX_LINE", "PARAMS", "STATUS_TEXT", "TIMESTAMP_WRAP", "WITH_INTENSITY",
+    "ENCODING", "INFO_COMMANDS", "LF", "LINE_PAYLOAD", "MAX_LINE", "PARAMS", "STATUS_TEXT", "TIMESTAMP_WRAP", "WITH_INTENSITY",
     "ContinuousParams", "Problem", "Reply", "ReplyDecoder", "Request", "RequestDecoder", "ScanParams",
     "check_line", "data_lines", "decode", "decode_values", "encode", "encode_values", "info_line",
     "parse_reply", "parse_request", "reply", "request", "status_line", "sum_char", "timestamp_line",

@@ -15,7 +15,9 @@ def test_sums_and_status_lines():
     assert scip.info_line("DMIN", "20") == b"DMIN:20;4\n"
     assert scip.info_line("DMAX", "5600") == b"DMAX:5600;_\n"
     assert scip.info_line("SERI", "H0614967") == b"SERI:H0614967;V\n"
-    assert scip.check_line(b"DMIN:20;4") == b"DMIN:20"
+    assert scip.check_line(b"DMIN:20;4", info=True) == b"DMIN:20"
+    assert scip.check_line(b"DMIN:20;o", info=True) == b"DMIN:20"  # summed with the ';' (urg_library)
+    assert scip.check_line(b"0?;" + scip.sum_char(b"0?;")) == b"0?;"  # ';' is data in data lines
     assert scip.check_line(b"00P") == b"00"
     assert scip.check_line(b"00Q") is None
 

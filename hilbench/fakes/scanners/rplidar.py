@@ -124,6 +124,7 @@ class RplidarA1(Scanner):
         self._rev_t = 0.0
         self._capsule_first = True
         self._waiting_motor = False
+        self._force = False
         self.baud_mismatch = 0
         if self.config.motor == "always":
             self.motor_since = self.t0 - self.config.spin_up
@@ -292,6 +293,7 @@ class RplidarA1(Scanner):
 
     def _start_scan(self, t: float, *, express: bool, force: bool) -> None:
         self.state = "express" if express else "scanning"
+        self._force = force
         self.scan_epoch += 1
         self._new_rev = True
         self._capsule_first = True
@@ -299,6 +301,8 @@ class RplidarA1(Scanner):
         self._angle = float(self.frng.uniform(0.0, 360.0))  # a random phase, as a real unit's
         self._draw_speed()
         start = t + 0.001
+        if force and self.motor_stable_at() is None:
+            self._freq = 0.0
         if not force:
             stable = self.motor_stable_at()
             if stable is None:
@@ -335,7 +339,10 @@ class RplidarA1(Scanner):
         ts = (self.config.express_us if express else self.config.sample_us) * 1e-6
         t0 = self._next_sample_t
         stable = self.motor_stable_at()
-        if stable is None or stable > t0:
+        turning = stable is not None and stable <= t0
+        if self._force and not turning:
+            self._freq = 0.0  # FORCE_SCAN does not check the rotation: samples at a standing angle
+        elif stable is None or stable > t0:
             # The motor stopped (or slowed): nodes stop until it turns again at a stable speed.
             self._waiting_motor = True
             self._new_rev = True
@@ -355,7 +362,8 @@ class RplidarA1(Scanner):
             k = int(wraps[0])
             starts[k] = True
             angles[k:] -= 360.0
-            self._draw_speed()  # a new revolution, a slightly different speed
+            if self._freq:
+                self._draw_speed()  # a new revolution, a slightly different speed
         self._angle = float(angles[-1] + step)  # >= 360: the next batch's first sample starts a revolution
         rng_true, meas, power = self.measure(angles, float(times[n // 2]))
         self._record(angles, rng_true, meas, starts, times)
