@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 import serial
 
-from hilbench.pytest_plugin import wait_until
 from hilbench.protocols import rplidar as rp
+from hilbench.pytest_plugin import wait_until
 from tests.fakes.scanners.conftest import fraction_within
 
 H = bytes.fromhex
