@@ -26,7 +26,7 @@ Profile schema::
                bad_flags_rate = 0.0, drop_byte_rate = 0.0, burst = false, out_of_range_angle = false }
 
 The A1 paces its own UART, so the endpoint's medium delivers at once.
-Control commands: ``status``, ``fault`` (knobs as above), ``dtr`` (set the
+Control commands: ``scanner_status``, ``scanner_fault`` (knobs as above), ``dtr`` (set the
 adapter's DTR as a host would: ``{"dtr": false}`` runs the motor).
 """
 
@@ -70,8 +70,8 @@ class RplidarFamily(ScannerFamily):
     endpoint_attrs = ("lidar",)
     fault_knobs = FAULTS
     control_commands = {
-        "status": "what the unit is doing (state, motor, health, revolutions)",
-        "fault": "turn fault knobs: stall, health_status, health_code, sticky, corrupt_rate, bad_flags_rate, "
+        "scanner_status": "what the unit is doing (state, motor, health, revolutions)",
+        "scanner_fault": "turn fault knobs: stall, health_status, health_code, sticky, corrupt_rate, bad_flags_rate, "
                  "drop_byte_rate, burst, out_of_range_angle",
         "dtr": "set the adapter's DTR as a host would (false runs the motor)",
     }
@@ -142,7 +142,7 @@ class RplidarFamily(ScannerFamily):
     # ------------------------------------------------------------------ control channel
 
     def control(self, bench, device, cmd: str, req: dict[str, Any]) -> dict[str, Any]:
-        if cmd == "status":
+        if cmd == "scanner_status":
             return {"status": device.status()}
         if cmd == "dtr":
             value = req.get("dtr")
@@ -155,7 +155,7 @@ class RplidarFamily(ScannerFamily):
             for host in ports:
                 host.lines.host_sets(dtr=value)
             return {"ok": True, "dtr": value}
-        if cmd == "fault":
+        if cmd == "scanner_fault":
             knobs = req.get("knobs", {})
             if not isinstance(knobs, dict):
                 raise ControlError("knobs: expected an object")

@@ -18,7 +18,7 @@ Profile schema::
     faults = { bad_sum_next = 0, truncate_next = 0, unstable_next = 0, burst = false }
 
 Each reply goes out whole (one write), scans every 60000/rpm ms. Control
-commands: ``status``, ``fault``.
+commands: ``scanner_status``, ``scanner_fault``.
 """
 
 from __future__ import annotations
@@ -47,8 +47,8 @@ class Scip2Family(ScannerFamily):
     profile_attrs = ("scip_units",)
     endpoint_attrs = ("scip",)
     fault_knobs = FAULTS
-    control_commands = {"status": "what the unit is doing (laser, continuous scans, clock)",
-                        "fault": "turn fault knobs: " + ", ".join(FAULTS)}
+    control_commands = {"scanner_status": "what the unit is doing (laser, continuous scans, clock)",
+                        "scanner_fault": "turn fault knobs: " + ", ".join(FAULTS)}
 
     def check_baud(self, c: Checker, key: str, value: Any, port_type: str) -> int | None:
         if value is None:
@@ -96,9 +96,9 @@ class Scip2Family(ScannerFamily):
         return f"scip2, {dev.unit.name if dev else '?'}"
 
     def control(self, bench, device, cmd: str, req: dict[str, Any]) -> dict[str, Any]:
-        if cmd == "status":
+        if cmd == "scanner_status":
             return {"status": device.status()}
-        if cmd == "fault":
+        if cmd == "scanner_fault":
             knobs = req.get("knobs", {})
             if not isinstance(knobs, dict):
                 raise ControlError("knobs: expected an object")

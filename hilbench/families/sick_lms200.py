@@ -18,7 +18,7 @@ Profile schema::
                truncate_next = 0, ignore_stop_once = false }
 
 The LMS paces its own UART at the current link speed. Control commands:
-``status``, ``fault``.
+``scanner_status``, ``scanner_fault``.
 """
 
 from __future__ import annotations
@@ -53,8 +53,8 @@ class SickLms200Family(ScannerFamily):
     profile_attrs = ("lms_units",)
     endpoint_attrs = ("lms",)
     fault_knobs = FAULTS
-    control_commands = {"status": "what the unit is doing (link speed, mode, variant, units)",
-                        "fault": "turn fault knobs: " + ", ".join(FAULTS)}
+    control_commands = {"scanner_status": "what the unit is doing (link speed, mode, variant, units)",
+                        "scanner_fault": "turn fault knobs: " + ", ".join(FAULTS)}
 
     def check_baud(self, c: Checker, key: str, value: Any, port_type: str) -> int:
         baud = 9600 if value is None else value
@@ -107,9 +107,9 @@ class SickLms200Family(ScannerFamily):
         return f"sick-lms200, {baud} baud now (9600 at power-up)"
 
     def control(self, bench, device, cmd: str, req: dict[str, Any]) -> dict[str, Any]:
-        if cmd == "status":
+        if cmd == "scanner_status":
             return {"status": device.status()}
-        if cmd == "fault":
+        if cmd == "scanner_fault":
             knobs = req.get("knobs", {})
             if not isinstance(knobs, dict):
                 raise ControlError("knobs: expected an object")

@@ -161,8 +161,9 @@ class Scene:
             rng = tc[np.arange(n), k]
             closer = rng < best
             if closer.any():
-                px = ox + dx * rng - circ[k, 0]
-                py = oy + dy * rng - circ[k, 1]
+                hit_r = np.where(closer, rng, 0.0)  # no inf * 0 for beams that miss every circle
+                px = ox + dx * hit_r - circ[k, 0]
+                py = oy + dy * hit_r - circ[k, 1]
                 with np.errstate(invalid="ignore", divide="ignore"):
                     ci = np.abs(dx * px + dy * py) / circ[k, 2]
                 best = np.where(closer, rng, best)
