@@ -178,3 +178,41 @@ def test_paced_nodes_and_own_decoder_agree_with_truth(scanners):
     match = [tr for tr in truths if np.allclose(np.round(tr.angles * 64) % 23040 / 64, angles)]
     assert match, "decoded revolution not found in the emulator's truth"
     assert np.allclose(match[0].measured * 1000.0, np.array([p[1] for p in rev]), atol=0.13)
+
+
+def test_stalled_motor_gives_descriptor_then_silence(a1):
+    bench, dev, port = a1
+    dev.faults.stall = True
+    _motor(bench, dtr=False)  # DTR says run, the motor is stuck
+    port.write(rp.request(rp.Cmd.SCAN))
+    assert _read(port, 7) == rp.descriptor(5, 1, 0x81)
+    port.timeout = dev.config.spin_up + 0.3
+    assert port.read(5) == b""
+    assert dev.status()["motor"] == {"policy": "dtr", "dtr": False, "commanded": False, "running": False,
+                                     "stall": True}
+    port.write(rp.request(rp.Cmd.STOP))
+
+
+def test_fault_knobs_reach_the_decoders(scanners):
+    from hilbench.monitor.scanners.tracker import RplidarTracker
+
+    dev = scanners.device("lidar")
+    dev.config.motor = "always"
+    dev.motor_since = 0.0
+    dev.faults.drop_byte_rate = 0.05
+    dev.faults.bad_flags_rate = 0.05
+    tr = RplidarTracker()
+    with serial.Serial(scanners.endpoint("lidar").path, 115200, timeout=0.05) as port:
+        port.write(rp.request(rp.Cmd.SCAN))
+        deadline = time.monotonic() + 5
+        while tr.scans < 3 and time.monotonic() < deadline:
+            tr.feed(time.monotonic(), "device", port.read(4096))
+        port.write(rp.request(rp.Cmd.EXPRESS_SCAN, bytes(5)))
+        dev.faults.corrupt_rate = 0.2
+        deadline = time.monotonic() + 5
+        while tr.checksum_failures == 0 and time.monotonic() < deadline:
+            tr.feed(time.monotonic(), "device", port.read(4096))
+        port.write(rp.request(rp.Cmd.STOP))
+    assert tr.scans >= 3  # the decoder resynchronised after every damaged node
+    assert tr.dropped_bytes > 0 and dev.counters["dropped_bytes"] > 0 and dev.counters["bad_flag_nodes"] > 0
+    assert tr.checksum_failures > 0 and dev.counters["corrupted_capsules"] > 0
