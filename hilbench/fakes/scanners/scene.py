@@ -63,6 +63,8 @@ class Scene:
     circles: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     circle_reflectivity: np.ndarray = field(default_factory=lambda: np.zeros(0))
     movers: tuple[Mover, ...] = ()
+    #: Visibility maps of the static segments by origin (a scanner's pose rarely moves): see :meth:`cast`.
+    _visibility: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     @classmethod
     def build(
@@ -115,6 +117,46 @@ class Scene:
                 crefl.append(np.asarray([m.reflectivity]))
         return np.vstack(segs), np.concatenate(refl), np.vstack(circ), np.concatenate(crefl)
 
+    def _static_hits(self, ox: float, oy: float, angles, dx, dy) -> tuple[np.ndarray, np.ndarray]:
+        segs = self.segments
+        if not len(segs):
+            return np.full(len(angles), np.inf), np.zeros(len(angles), np.int64)
+        key = (float(ox), float(oy))
+        vis = self._visibility.get(key)
+        if vis is None and len(segs) <= VISIBILITY_MAX_EDGES:
+            if key in self._seen_origins:
+                vis = _visibility_map(ox, oy, segs)
+                if len(self._visibility) >= VISIBILITY_CACHE:
+                    self._visibility.pop(next(iter(self._visibility)))
+                self._visibility[key] = vis
+            else:
+                self._seen_origins.add(key)  # build the map on the second cast from this origin
+                if len(self._seen_origins) > 4 * VISIBILITY_CACHE:
+                    self._seen_origins.clear()
+        if vis is None:
+            return _segments_culled(ox, oy, angles, dx, dy, segs)
+        return _segments_visible(ox, oy, angles, dx, dy, segs, vis)
+
+    def _normals(self, segs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Unit normals of ``segs`` (the static ones computed once)."""
+        static = segs is self.segments
+        if static and "_static_normals" in self.__dict__:
+            return self.__dict__["_static_normals"]
+        ex, ey = segs[:, 2] - segs[:, 0], segs[:, 3] - segs[:, 1]
+        elen = np.hypot(ex, ey)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            out = (-ey / elen, ex / elen)
+        if static:
+            self.__dict__["_static_normals"] = out
+        return out
+
+    @property
+    def _seen_origins(self) -> set:
+        seen = self.__dict__.get("_seen")
+        if seen is None:
+            seen = self.__dict__["_seen"] = set()
+        return seen
+
     @property
     def edge_count(self) -> int:
         return len(self.segments) + sum(4 if m.size else 0 for m in self.movers)
@@ -129,7 +171,14 @@ class Scene:
         Each edge is tested only against the beams inside the angle it subtends
         from the origin (sorted beams, two binary searches per edge), so the work
         grows with beams x edges *seen per beam*, not beams x all edges;
-        ``dense`` tests every pair instead (the reference the tests compare with)."""
+        ``dense`` tests every pair instead (the reference the tests compare with).
+
+        For the static segments seen from an origin used before (a scanner whose
+        pose does not move) a visibility map is kept: the angles at which the
+        nearest edge can change (edge ends and crossings) cut the circle into
+        intervals with one nearest edge each, so a beam costs one binary search
+        and one intersection. It is exact: a beam whose intersection with its
+        interval's edge fails falls back to the culled caster."""
         angles = np.asarray(angles, dtype=float)
         dx, dy = np.cos(angles), np.sin(angles)
         n = len(angles)
@@ -138,15 +187,23 @@ class Scene:
         refl = np.zeros(n)
         segs, srefl, circ, crefl = self.geometry(t)
         if len(segs):
-            hit_t, k = (_segments_dense if dense else _segments_culled)(ox, oy, angles, dx, dy, segs)
-            hit = np.isfinite(hit_t)
-            best = np.where(hit, hit_t, best)
-            ex, ey = segs[:, 2] - segs[:, 0], segs[:, 3] - segs[:, 1]
-            elen = np.hypot(ex, ey)
-            with np.errstate(divide="ignore", invalid="ignore"):
-                nx, ny = -ey / elen, ex / elen
-            cos_inc = np.where(hit, np.abs(dx * nx[k] + dy * ny[k]), cos_inc)
-            refl = np.where(hit, srefl[k], refl)
+            if dense:
+                hit_t, k = _segments_dense(ox, oy, angles, dx, dy, segs)
+            else:
+                hit_t, k = self._static_hits(ox, oy, angles, dx, dy)
+                n_static = len(self.segments)
+                if len(segs) > n_static:  # moving boxes: few edges, cast every time
+                    mt, mk = _segments_culled(ox, oy, angles, dx, dy, segs[n_static:])
+                    closer = mt < hit_t
+                    hit_t = np.where(closer, mt, hit_t)
+                    k = np.where(closer, mk + n_static, k)
+            hit = hit_t < np.inf
+            best = hit_t  # inf where nothing was hit
+            nx, ny = self._normals(segs)
+            cos_inc = np.abs(dx * nx[k] + dy * ny[k])
+            cos_inc[~hit] = 0.0
+            refl = srefl[k]
+            refl[~hit] = 0.0
         if len(circ):
             fx, fy = ox - circ[:, 0], oy - circ[:, 1]
             b = dx[:, None] * fx[None, :] + dy[:, None] * fy[None, :]
@@ -169,8 +226,11 @@ class Scene:
                 best = np.where(closer, rng, best)
                 cos_inc = np.where(closer, ci, cos_inc)
                 refl = np.where(closer, crefl[k], refl)
-        best = np.where(best <= max_range, best, np.inf)
-        return best, np.clip(np.nan_to_num(cos_inc), 0.0, 1.0), refl
+        if max_range < math.inf:
+            best = np.where(best <= max_range, best, np.inf)
+        np.clip(cos_inc, 0.0, 1.0, out=cos_inc)  # (a zero-length edge has no normal: NaN clips to NaN)
+        cos_inc[np.isnan(cos_inc)] = 0.0
+        return best, cos_inc, refl
 
 
 def _segments_dense(ox, oy, angles, dx, dy, segs):
@@ -190,6 +250,64 @@ def _segments_dense(ox, oy, angles, dx, dy, segs):
 
 
 _TWO_PI = 2 * math.pi
+#: Scenes with more static edges than this are not given visibility maps (their crossings cost E^2).
+VISIBILITY_MAX_EDGES = 1500
+#: Visibility maps kept per scene (one per scanner origin).
+VISIBILITY_CACHE = 16
+
+
+def _visibility_map(ox: float, oy: float, segs: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Interval bounds (sorted angles in [0, 2 pi]), the nearest edge of each interval (-1: none), and
+    that edge's geometry relative to the origin per interval (so a cast gathers from short arrays)."""
+    ends = np.concatenate([np.arctan2(segs[:, 1] - oy, segs[:, 0] - ox), np.arctan2(segs[:, 3] - oy,
+                                                                                      segs[:, 2] - ox)])
+    # Where two edges cross, the nearer one can change: those angles bound intervals too.
+    ax, ay = segs[:, 0], segs[:, 1]
+    ex, ey = segs[:, 2] - ax, segs[:, 3] - ay
+    den = ex[:, None] * ey[None, :] - ey[:, None] * ex[None, :]
+    wx, wy = ax[None, :] - ax[:, None], ay[None, :] - ay[:, None]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = (wx * ey[None, :] - wy * ex[None, :]) / den
+        v = (wx * ey[:, None] - wy * ex[:, None]) / den
+    cross = (np.abs(den) > 1e-12) & (u > 0) & (u < 1) & (v > 0) & (v < 1)
+    i, _j = np.nonzero(cross)
+    px, py = ax[i] + u[cross] * ex[i], ay[i] + u[cross] * ey[i]
+    crit = np.mod(np.concatenate([ends, np.arctan2(py - oy, px - ox)]), _TWO_PI)
+    crit = np.unique(np.concatenate([crit, [0.0, _TWO_PI]]))
+    mids = (crit[:-1] + crit[1:]) / 2
+    t, k = _segments_culled(ox, oy, mids, np.cos(mids), np.sin(mids), segs)
+    edge = np.where(np.isfinite(t), k, -1)
+    kk = np.maximum(edge, 0)
+    rax, ray = segs[kk, 0] - ox, segs[kk, 1] - oy
+    rex, rey = segs[kk, 2] - segs[kk, 0], segs[kk, 3] - segs[kk, 1]
+    return crit, edge, rax, ray, rex, rey, rax * rey - ray * rex
+
+
+def _segments_visible(ox, oy, angles, dx, dy, segs, vis) -> tuple[np.ndarray, np.ndarray]:
+    """Nearest static hits through a visibility map; beams it cannot settle go to the culled caster."""
+    crit, edge_of, rax, ray, rex, rey, num = vis
+    theta = np.mod(angles, _TWO_PI)
+    idx = np.searchsorted(crit, theta, side="right") - 1
+    np.clip(idx, 0, len(edge_of) - 1, out=idx)
+    k = edge_of[idx]
+    ax, ay, ex, ey = rax[idx], ray[idx], rex[idx], rey[idx]
+    den = dx * ey - dy * ex
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = 1.0 / den
+        tt = num[idx] * inv
+        ss = (ax * dy - ay * dx) * inv
+    ok = (k >= 0) & (tt > 1e-9) & (ss >= -1e-9) & (ss <= 1.0 + 1e-9) & (np.abs(den) > 1e-12)
+    # On an interval bound the neighbour's edge may be the one hit: settle those beams the slow way.
+    lo, hi = crit[idx], crit[np.minimum(idx + 1, len(crit) - 1)]
+    unsure = ((k >= 0) & ~ok) | (theta - lo < 1e-9) | (hi - theta < 1e-9)
+    best = np.where(ok, tt, np.inf)
+    which = np.maximum(k, 0)
+    if unsure.any():
+        sub = np.nonzero(unsure)[0]
+        st, sk = _segments_culled(ox, oy, angles[sub], dx[sub], dy[sub], segs)
+        best[sub] = st
+        which[sub] = sk
+    return best, which
 
 
 def _segments_culled(ox, oy, angles, dx, dy, segs):

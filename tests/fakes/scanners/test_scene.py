@@ -18,16 +18,20 @@ def test_room_matches_the_hand_computed_truth():
     assert np.allclose(scene.cast(0.5, 0.3, np.radians([0, 90, 180, 270]))[0], [2.5, 1.7, 3.5, 2.3])
 
 
-def test_culled_casting_agrees_with_every_pair():
+def test_culled_and_visibility_casting_agree_with_every_pair():
     rng = np.random.default_rng(5)
-    for _ in range(20):
-        segs = rng.uniform(-4, 4, (80, 4))
-        scene = Scene(segs, np.ones(80), np.array([[0.7, -0.4, 0.3]]), np.ones(1))
+    for trial in range(20):
+        segs = rng.uniform(-4, 4, (80, 4))  # crossing segments: the visibility map must cut at crossings
+        movers = (Mover(((0.0, 0.0), (1.0, 1.0)), 0.4, size=(0.3, 0.2)),) if trial % 2 else ()
+        scene = Scene(segs, np.ones(80), np.array([[0.7, -0.4, 0.3]]), np.ones(1), movers=movers)
         ox, oy = rng.uniform(-1, 1, 2)
-        beams = rng.uniform(-7, 7, 700)
-        fast, slow = scene.cast(ox, oy, beams), scene.cast(ox, oy, beams, dense=True)
-        for a, b in zip(fast, slow, strict=True):
-            assert np.allclose(a, b)
+        for rep in range(3):  # the first cast from an origin is culled, later ones use its visibility map
+            beams = rng.uniform(-7, 7, 700)
+            fast = scene.cast(ox, oy, beams, t=rep * 0.5)
+            slow = scene.cast(ox, oy, beams, t=rep * 0.5, dense=True)
+            for a, b in zip(fast, slow, strict=True):
+                assert np.allclose(a, b)
+        assert (float(ox), float(oy)) in scene._visibility
 
 
 def test_movers_boxes_circles_and_max_range():
