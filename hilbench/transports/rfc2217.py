@@ -427,6 +427,12 @@ class Rfc2217Port(HostPort):
                 held, self._held = bytes(self._held), bytearray()
                 self._send(p.escape(held), droppable=len(held))
             return
+        if cmd == p.Command.NOTIFY_MODEMSTATE:  # a poll (pyserial's poll_modem sends no value)
+            self._notify_modem(force=True)
+            return
+        if cmd == p.Command.NOTIFY_LINESTATE:
+            self._reply(cmd, p.build_value(cmd, p.LINE_TRANSMITTER_EMPTY))
+            return
         value = p.parse_value(cmd, raw)
         if value is None:
             self.problems += 1
@@ -452,10 +458,6 @@ class Rfc2217Port(HostPort):
             answer = self._control(value)
             if answer is not None:
                 self._reply(cmd, p.build_value(cmd, answer))
-        elif cmd == p.Command.NOTIFY_LINESTATE:
-            self._reply(cmd, p.build_value(cmd, p.LINE_TRANSMITTER_EMPTY))
-        elif cmd == p.Command.NOTIFY_MODEMSTATE:
-            self._notify_modem(force=True)
         elif cmd == p.Command.SET_LINESTATE_MASK:
             self.line_mask = value
             self._reply(cmd, p.build_value(cmd, value))
