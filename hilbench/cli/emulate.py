@@ -26,7 +26,7 @@ def cmd_emulate(args: argparse.Namespace) -> int:
     bench.start()
     manifest = Path(args.manifest) if args.manifest else None
     try:
-        if bench.has_control_commands:
+        if bench.has_control_commands or serve:  # a served bench is found remotely through its control channel
             bench.serve_control()
         if manifest:
             bench.write_manifest(manifest)
@@ -51,7 +51,7 @@ def cmd_emulate(args: argparse.Namespace) -> int:
             takers = "; ".join(f"{name}: {', '.join(ep.family.control_commands)}"
                                for ep in bench.endpoints.values() if ep.family.control_commands
                                for name in ep.devices)
-            print(f"  control: {bench.control.address_text}  ({takers})")
+            print(f"  control: {bench.control.address_text}  ({takers or 'devices, manifest, taps'})")
         if manifest:
             print(f"  manifest: {manifest}")
         sys.stdout.flush()
