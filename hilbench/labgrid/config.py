@@ -136,8 +136,12 @@ def environment(manifest: dict[str, Any], host: str | None = None, target: str =
 
 
 def dump(data: dict[str, Any], comment: str = "") -> str:
-    """YAML text (JSON if PyYAML is missing, which YAML readers take as well), with a leading comment."""
-    head = "".join(f"# {line}\n" for line in comment.splitlines())
+    """YAML text (JSON if PyYAML is missing, which YAML readers take as well), with a leading comment.
+
+    Comments start with ``##``: labgrid renders an exporter configuration with jinja2, where a line
+    starting with a single ``#`` is a template statement.
+    """
+    head = "".join(f"## {line}\n" for line in comment.splitlines())
     try:
         import yaml
     except ImportError:
