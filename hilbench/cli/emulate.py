@@ -51,7 +51,7 @@ def cmd_emulate(args: argparse.Namespace) -> int:
             takers = "; ".join(f"{name}: {', '.join(ep.family.control_commands)}"
                                for ep in bench.endpoints.values() if ep.family.control_commands
                                for name in ep.devices)
-            print(f"  control: {bench.control.address_text}  ({takers or 'devices, manifest, taps'})")
+            print(f"  control: {bench.control.address_text}  ({takers or 'devices, manifest, servers, taps'})")
         if manifest:
             print(f"  manifest: {manifest}")
         sys.stdout.flush()
