@@ -14,6 +14,7 @@ from hilbench.bench.profile import DEFAULT_PROFILE, load_profile
 
 def cmd_emulate(args: argparse.Namespace) -> int:
     from hilbench.bench import Bench
+    from hilbench.bench.line_server import serve_lines
 
     profile = load_profile(args.profile)
     paced = True if args.paced else (False if args.unpaced else None)
@@ -26,6 +27,7 @@ def cmd_emulate(args: argparse.Namespace) -> int:
     try:
         if bench.has_control_commands:
             bench.serve_control()
+        lines = serve_lines(bench)  # modem lines, BREAK and flushes for clients under `hilbench run`
         if manifest:
             bench.write_manifest(manifest)
         print(f"hilbench: bench {profile.name!r} running ({len(bench.devices)} devices); Ctrl-C stops it")
@@ -44,6 +46,8 @@ def cmd_emulate(args: argparse.Namespace) -> int:
                                for ep in bench.endpoints.values() if ep.family.control_commands
                                for name in ep.devices)
             print(f"  control: {bench.control.address_text}  ({takers})")
+        if lines is not None and manifest:
+            print(f"  modem lines: hilbench run --manifest {manifest} -- COMMAND")
         if manifest:
             print(f"  manifest: {manifest}")
         sys.stdout.flush()
