@@ -46,6 +46,10 @@ def termios_settings(fd: int, framing: int | None = None) -> LineSettings:
     ``framing`` is that request's ``c_cflag`` (``hilbench run`` reports it).
     """
     _, _, cflag, _, _, ospeed, _ = termios.tcgetattr(fd)
+    return _decode_settings(fd, cflag, ospeed, framing)
+
+
+def _decode_settings(fd: int, cflag: int, ospeed: int, framing: int | None) -> LineSettings:
     baud = speed_to_baud(ospeed)
     if baud is None and ospeed == _BOTHER:
         with contextlib.suppress(OSError):
@@ -93,6 +97,8 @@ class PtyEndpoint(HostPort):
         self.bytes_out = 0
         self.dropped = 0
         self.framing: int | None = None  # c_cflag of the client's last tcsetattr, if reported
+        self._settings_key: tuple | None = None
+        self._settings = self.lines.settings
         if link is not None:
             self._make_link(Path(link))
 
@@ -140,9 +146,16 @@ class PtyEndpoint(HostPort):
     def client_settings(self) -> LineSettings:
         """Baud rate and framing the client set with termios; a change becomes a LineSettings event."""
         try:
-            settings = termios_settings(self.slave_fd, self.framing)
+            _, _, cflag, _, _, ospeed, _ = termios.tcgetattr(self.slave_fd)
         except termios.error:
             return self.lines.settings
+        key = (cflag, ospeed, self.framing)
+        # The medium asks on every read: skip decoding when nothing changed (a custom rate, BOTHER,
+        # hides its number from tcgetattr, so that one is always read again).
+        if key == self._settings_key and ospeed != _BOTHER:
+            return self._settings
+        settings = _decode_settings(self.slave_fd, cflag, ospeed, self.framing)
+        self._settings_key, self._settings = key, settings
         self.lines.host_settings(settings)  # emits only if something changed
         return settings
 
