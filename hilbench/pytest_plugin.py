@@ -18,9 +18,9 @@ Fixtures
     run``) against a fixture bench or an emulator: ``hilbench_run.command(bench,
     "python", "client.py")`` or ``env=hilbench_run.env(bench)``.
 
-Benches started by these fixtures serve modem lines, BREAK and flushes: their
-line server runs, and pyserial in the test's own process talks to it for their
-ptys (``ser.dtr = False`` reaches the devices' ``on_line``, ``ser.cts`` reads
+Benches started by these fixtures (emulators too) serve modem lines, BREAK and
+flushes: their line server runs, and pyserial in the test's own process talks
+to it for their ptys (``ser.dtr = False`` reaches the devices' ``on_line``, ``ser.cts`` reads
 what they drive, ``reset_output_buffer()`` delivers instead of discarding), as
 it would under ``hilbench run``. ``hilbench_bench(profile, lines=False)`` opts out.
 """
@@ -139,9 +139,17 @@ def hilbench_emulator() -> Iterator[Callable[..., dict[str, Any]]]:
         data = json.loads(manifest.read_text())
         data["process"] = proc
         data["manifest_path"] = str(manifest)
+        lines = data.get("lines") or {}
+        for port in (lines.get("ports") or {}).values():  # pyserial in this process: as under hilbench run
+            pyserial_shim.register(int(port["rdev"]), lines["socket"])
+            registered.append(int(port["rdev"]))
+        if registered:
+            pyserial_shim.install()
         return data
 
+    registered: list[int] = []
     yield start
+    stop_lines_in_process(registered)
     for proc in procs:
         if proc.poll() is None:
             proc.terminate()

@@ -75,3 +75,14 @@ def test_python_fallback_keeps_an_existing_sitecustomize(hilbench_bench, hilbenc
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.split() == ["ran", "False"]
     assert bench.endpoint().port.lines.dtr is False
+
+
+def test_in_process_pyserial_against_an_emulator(hilbench_emulator):
+    import serial
+
+    path = hilbench_emulator("arm")["endpoints"][0]["path"]
+    with serial.Serial(path, 1_000_000) as ser:
+        ser.dtr = False  # ENOTTY on a plain pty; the emulator's line server takes it
+        assert ser.cts is False
+        ser.write(b"x" * 100)
+        ser.reset_output_buffer()
