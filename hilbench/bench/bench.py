@@ -21,7 +21,7 @@ from typing import Any
 from hilbench import registry
 from hilbench.bench.family import DeviceFamily
 from hilbench.bench.profile import EndpointSpec, Profile, load_profile
-from hilbench.errors import UsageError
+from hilbench.errors import BenchError, UsageError
 from hilbench.transports.tap_server import TapServer
 
 
