@@ -65,6 +65,19 @@ def _control_motor(address: str | None, device: str | None):
     return motor
 
 
+def _carry_lines(manifest: dict) -> None:
+    """pyserial's DTR on the bench's ptys goes to its line server, as under ``hilbench run``."""
+    lines = manifest.get("lines") or {}
+    if not isinstance(lines, dict) or not isinstance(lines.get("socket"), str):
+        return  # an older bench: the control channel's dtr command is the way (see _control_motor)
+    from hilbench.run import pyserial_shim
+
+    for port in (lines.get("ports") or {}).values():
+        with contextlib.suppress(KeyError, TypeError, ValueError):
+            pyserial_shim.register(int(port["rdev"]), lines["socket"])
+    pyserial_shim.install()
+
+
 def resolve(source: str) -> Target:
     """A :class:`Target` from the command line's SOURCE."""
     if source.startswith("bench:"):
@@ -96,6 +109,7 @@ def resolve(source: str) -> Target:
 
                 scene = load_profile(manifest["profile"]).tables.get("scene")
         link = f"{ep['host']}:{ep['port']}" if ep.get("type") == "tcp" else ep["path"]
+        _carry_lines(manifest)
         return Target(link, ep.get("protocol"), scene=scene, pose=dev.get("pose"),
                       motor=_control_motor(manifest.get("control"), dev.get("name")), label=f"{path}#{ep['name']}")
     return Target(source, None)

@@ -22,8 +22,6 @@ import pytest
 
 HERE = Path(__file__).parent
 CLIENTS = HERE / "clients"
-#: Stand-in for `hilbench run`'s pyserial fallback: carries pyserial's DTR to the bench's LineState.
-LINES_SHIM = HERE / "pyserial_lines"
 X0, Y0 = 0.5, 0.3
 
 
@@ -51,20 +49,18 @@ def need(module: str) -> None:
         pytest.skip(f"{module} is not installed (pip install -e '.[scanners]'; make install does it)")
 
 
-def run_client(script: str, *args: str, bench=None, lines_device: str | None = None,
+def run_client(script: str, *args: str, run=None, bench=None, shim: str | None = None,
                timeout: float = 60.0) -> dict:
     """Run ``clients/SCRIPT`` (an unmodified published library doing the work) in its own process.
 
-    With ``lines_device``, pyserial's DTR changes reach that device's host port (LineState) through
-    the bench's control channel, the path `hilbench run` takes. Returns the JSON the script printed last.
+    With ``run`` (the ``hilbench_run`` fixture) and ``bench``, it runs under ``hilbench run``: the
+    client's modem-line ioctls on the bench's ptys (pyserial's ``.dtr``, the SDK's TIOCMBIC) reach the
+    emulated devices. Returns the JSON object the script printed last.
     """
-    env = {**os.environ}
-    if lines_device is not None:
-        env["PYTHONPATH"] = os.pathsep.join([str(LINES_SHIM), env.get("PYTHONPATH", "")])
-        env["HILBENCH_CONTROL"] = bench.serve_control().address_text
-        env["HILBENCH_LINES_DEVICE"] = lines_device
-    proc = subprocess.run([sys.executable, str(CLIENTS / script), *args], capture_output=True, text=True,
-                          timeout=timeout, env=env)
+    argv = [sys.executable, str(CLIENTS / script), *args]
+    if run is not None:
+        argv = run.command(bench, *argv, shim=shim)
+    proc = subprocess.run(argv, capture_output=True, text=True, timeout=timeout, env={**os.environ})
     if proc.returncode != 0:
         raise AssertionError(f"{script} failed ({proc.returncode}):\n{proc.stderr[-3000:]}")
     last = [ln for ln in proc.stdout.splitlines() if ln.startswith("{")]

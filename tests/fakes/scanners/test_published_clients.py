@@ -7,11 +7,11 @@ front step. A mirrored or rotated scan fails (each test also checks that the
 mirrored reading of the same data does). Revolution and scan rates must be
 those of the real units.
 
-DTR: the RPLIDAR A1's motor follows DTR (profile motor = "dtr"). pyserial's
-DTR changes reach the bench's LineState through tests/fakes/scanners/pyserial_lines
-(the path `hilbench run` takes; see the README); Slamtec's SDK sets DTR from C,
-which only `hilbench run`'s LD_PRELOAD shim can carry, so its test runs the
-unit with motor = "always".
+DTR: the RPLIDAR A1's motor follows DTR (profile motor = "dtr"), and every
+RPLIDAR client runs under ``hilbench run`` (the ``hilbench_run`` fixture): its
+modem-line ioctls on the bench's pty (pyserial's ``.dtr``; the SDK's TIOCMBIC
+from C through the LD_PRELOAD shim) reach the emulated unit, whose motor then
+turns; without them the unit answers SCAN with a descriptor and silence.
 """
 
 from __future__ import annotations
@@ -39,12 +39,13 @@ def _check_rplidar_scan(scan: list, *, shift_deg: float = 0.0) -> None:
     assert fraction_within(phi + np.radians(5), ranges, **A1) < 0.6  # and a rotated one
 
 
-def test_rplidar_roboticia_standard_scan_motor_follows_dtr(scanners):
+@pytest.mark.parametrize("shim", ["c", "python"])
+def test_rplidar_roboticia_standard_scan_motor_follows_dtr(scanners, hilbench_run, shim):
     need("rplidar")
     lidar = scanners.device("lidar")
     assert not lidar.motor_commanded()  # DTR asserted by default: the dev kit's motor stands
     out = run_client("rplidar_roboticia.py", scanners.endpoint("lidar").path, "normal", "8",
-                     bench=scanners, lines_device="lidar")
+                     run=hilbench_run, bench=scanners, shim=shim)
     assert out["info"] == {"model": 24, "firmware": [1, 29], "hardware": 7,
                            "serialnumber": "D8E0EDF9C7E29BD1A7E39EF24833431B"}
     assert out["health"] == ["Good", 0]
@@ -56,10 +57,10 @@ def test_rplidar_roboticia_standard_scan_motor_follows_dtr(scanners):
     assert "SET_MOTOR_PWM" in lidar.requests and lidar.requests[-2:] == ["STOP", "SET_MOTOR_PWM"]
 
 
-def test_rplidar_roboticia_express_scan(scanners):
+def test_rplidar_roboticia_express_scan(scanners, hilbench_run):
     need("rplidar")
     out = run_client("rplidar_roboticia.py", scanners.endpoint("lidar").path, "express", "6",
-                     bench=scanners, lines_device="lidar")
+                     run=hilbench_run, bench=scanners)
     assert 5.0 < _rates(out["times"][1:]) < 6.0
     assert all(660 <= n <= 780 for n in out["counts"][1:]), out["counts"]  # ~716 at 254 us
     # rplidar-roboticia places sample k one sample later than the SDK (k+1)/32: correct that quirk.
@@ -68,10 +69,10 @@ def test_rplidar_roboticia_express_scan(scanners):
 
 
 @pytest.mark.parametrize("mode", ["standard", "express"])
-def test_pyrplidar(scanners, mode):
+def test_pyrplidar(scanners, hilbench_run, mode):
     need("pyrplidar")
     out = run_client("pyrplidar_client.py", scanners.endpoint("lidar").path, mode, "6",
-                     bench=scanners, lines_device="lidar")
+                     run=hilbench_run, bench=scanners)
     assert out["info"] == [24, 1, 29, 7, "D8E0EDF9C7E29BD1A7E39EF24833431B"]
     assert out["health"] == [0, 0]
     assert out["rate"] == [508, 254]
@@ -84,12 +85,13 @@ def test_pyrplidar(scanners, mode):
     assert scanners.device("lidar").dtr is False  # pyrplidar never sets DTR again: the motor keeps running
 
 
-def test_slamtec_sdk_typical_scan(scanners):
+def test_slamtec_sdk_typical_scan(scanners, hilbench_run):
     need("pyrplidarsdk")
     lidar = scanners.device("lidar")
-    lidar.config.motor = "always"  # the SDK sets DTR from C: only `hilbench run`'s shim carries that
-    lidar.motor_since = 0.0
-    out = run_client("slamtec_sdk.py", scanners.endpoint("lidar").path, "8", bench=scanners)
+    assert lidar.config.motor == "dtr" and not lidar.motor_commanded()
+    # The SDK clears DTR from C (raw_serial::open, setMotorSpeed): the LD_PRELOAD shim carries it.
+    out = run_client("slamtec_sdk.py", scanners.endpoint("lidar").path, "8", run=hilbench_run, bench=scanners,
+                     shim="c")
     assert out["connected"] and out["started"]
     assert out["info"] == [24, 0x011D, 7, "d8e0edf9c7e29bd1a7e39ef24833431b"]
     assert out["health"] == [0, 0]
@@ -102,6 +104,26 @@ def test_slamtec_sdk_typical_scan(scanners):
     phi = -np.radians(angles)
     assert fraction_within(phi, ranges, **A1) > 0.97
     assert fraction_within(-phi, ranges, **A1) < 0.5
+    # The SDK's stop() only stops PWM-driven motors (A2/A3); pyrplidarsdk never calls stopMotor(), so DTR stays
+    # cleared and the A1 keeps turning, as on the real dev kit.
+    assert lidar.dtr is False and lidar.motor_commanded()
+    assert "SCAN" not in lidar.requests and lidar.revolutions >= 8
+
+
+def test_rplidar_client_without_hilbench_run_gets_silence(scanners):
+    """Without `hilbench run` the SDK's DTR never reaches the pty: descriptor, then no nodes (as a dev kit
+    whose motor does not turn) -- the motor really follows DTR, not the client's requests."""
+    need("pyrplidarsdk")
+    import subprocess
+    import sys
+
+    from tests.fakes.scanners.conftest import CLIENTS
+
+    proc = subprocess.run([sys.executable, str(CLIENTS / "slamtec_sdk.py"), scanners.endpoint("lidar").path, "1",
+                           "3"], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    assert '"counts": []' in proc.stdout  # no revolution within the client's wait
+    assert scanners.device("lidar").revolutions == 0
 
 
 def test_hokuyolx_over_tcp(scanners):

@@ -1,6 +1,6 @@
 """Slamtec's RPLIDAR SDK through pyrplidarsdk (nanobind wrapper of the C++ SDK), unmodified.
 
-usage: slamtec_sdk.py PORT REVOLUTIONS
+usage: slamtec_sdk.py PORT REVOLUTIONS [WAIT_S]
 connect (GET_INFO, motor-control probe, GET_HEALTH), start_scan (the SDK's typical scan mode via
 GET_LIDAR_CONF), grab N revolutions (grabScanDataHq + ascendScanData), stop, disconnect.
 """
@@ -12,6 +12,7 @@ import time
 import pyrplidarsdk
 
 port, revs = sys.argv[1], int(sys.argv[2])
+wait = float(sys.argv[3]) if len(sys.argv) > 3 else 30.0
 drv = pyrplidarsdk.RplidarDriver(port=port, baudrate=115200)
 ok = drv.connect()
 info = drv.get_device_info()
@@ -19,7 +20,7 @@ health = drv.get_health()
 started = drv.start_scan()
 times, counts, last = [], [], None
 t0 = time.monotonic()
-while len(times) < revs and time.monotonic() - t0 < 30:
+while len(times) < revs and time.monotonic() - t0 < wait:
     data = drv.get_scan_data()
     if data:
         times.append(time.monotonic())
