@@ -47,3 +47,4 @@ bench: $(VENV)/.installed
 	$(PY) tools/bench_profiler.py
 	$(PY) tools/bench_remote.py
 	$(PY) tools/bench_run.py
+	$(PY) tools/bench_lidar.py
