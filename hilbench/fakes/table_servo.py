@@ -326,11 +326,11 @@ class TableServo:
             if f is None:
                 pos += 1  # a reserved byte: stored, as the classic firmwares do
                 continue
+            if not f.writable or (locked and f.address < eeprom_end):
+                return ErrorNumber.ACCESS_ERROR
             if f.address < address or f.address + f.size > end:
                 pos = f.address + f.size  # a partial write of a field (Protocol 1.0 allows it): no range check
                 continue
-            if not f.writable or (locked and f.address < eeprom_end):
-                return ErrorNumber.ACCESS_ERROR
             value = f.decode(bytes(data[f.address - address : f.address - address + f.size]))
             if not f.in_range(value):
                 return ErrorNumber.DATA_RANGE_ERROR
