@@ -8,8 +8,8 @@ from pathlib import Path
 import dynamixel_sdk as sdk
 import pytest
 
-from hilbench.pytest_plugin import wait_until
 from hilbench.protocols import dynamixel_protocol1 as p1
+from hilbench.pytest_plugin import wait_until
 
 PROFILE = str(Path(__file__).resolve().parents[1] / "data" / "protocol1_bus.toml")
 pytestmark = pytest.mark.hilbench_profile(PROFILE)

@@ -301,10 +301,10 @@ class Bus1Tracker:
             elif code in (d.write, d.reg_write):
                 if len(p) < 2:
                     raise ValueError("no data")
+                self._expect_status(code, pid, t)  # at the level before the write (it may change it)
                 if code == d.write:
-                    for dev in (self.devices.values() if broadcast else [self.device(pid, t)]):
+                    for dev in (list(self.devices.values()) if broadcast else [self.device(pid, t)]):
                         self._store(dev, p[0], p[1:], t, WRITTEN)
-                self._expect_status(code, pid, t)
             elif code in (d.action, d.reset):
                 self._expect_status(code, pid, t)
                 if code == d.reset:
