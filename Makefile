@@ -4,7 +4,9 @@ VENV ?= .venv
 PYTHON ?= python3
 PY := $(VENV)/bin/python
 
-.PHONY: demo test lint bench install install-robots
+LGVENV ?= .venv-labgrid
+
+.PHONY: demo test test-labgrid lint bench install install-robots
 
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -25,6 +27,16 @@ $(VENV)/.robots: $(VENV)/.installed
 	$(PY) -m pip install -q --no-deps 'lerobot==0.4.4'
 	touch $@
 
+# labgrid pulls pyserial-labgrid, which installs its own `serial` package over pyserial's; it gets a
+# venv of its own, where pyserial-labgrid's files are made the installed ones, so the serial tests
+# run once with each `serial`.
+$(LGVENV)/.installed: pyproject.toml
+	$(PYTHON) -m venv $(LGVENV)
+	$(LGVENV)/bin/python -m pip install -q --upgrade pip
+	$(LGVENV)/bin/python -m pip install -q -e '.[test,labgrid]'
+	$(LGVENV)/bin/python -m pip install -q --no-deps --force-reinstall pyserial-labgrid
+	touch $@
+
 demo: $(VENV)/.installed
 	$(VENV)/bin/hilbench demo
 
@@ -32,8 +44,16 @@ test: $(VENV)/.installed
 	$(PY) -m ruff check hilbench tests tools
 	$(PY) -m pytest -q
 
+# The slow labgrid set (real labgrid-coordinator/-exporter/-client) and the serial tests again, under
+# pyserial-labgrid's `serial`. .ci/run runs it after `make test`.
+test-labgrid: $(LGVENV)/.installed
+	$(LGVENV)/bin/python -c "import serial.rfc2217 as r, inspect; assert 'skipped' in inspect.getsource(r), 'serial is not pyserial-labgrid'"
+	$(LGVENV)/bin/python -m pytest -q -p no:cacheprovider tests/labgrid tests/transports/test_rfc2217.py \
+		tests/fakes/test_dynamixel_sdk.py tests/test_cli.py
+
 bench: $(VENV)/.installed
 	$(PY) tools/bench_dynamixel.py
 	$(PY) tools/bench_monitor.py
 	$(PY) tools/bench_board.py
 	$(PY) tools/bench_profiler.py
+	$(PY) tools/bench_remote.py

@@ -13,6 +13,13 @@ Fixtures
 ``hilbench_emulator``
     A factory that runs ``hilbench emulate`` in a separate process, as a user
     would, and returns its manifest once every endpoint is ready.
+
+Remote benches: ``pytest --lg-env ENV.yaml --hilbench-labgrid`` takes ``bench``
+from the labgrid target of that environment (a ``RemotePlace`` acquired
+through a coordinator, or a file from ``hilbench labgrid env``) instead of
+starting one (:mod:`hilbench.labgrid.remote`): the same test runs unchanged,
+``bench.endpoint().path`` being a local pty bridged to the remote RFC 2217
+port. A test whose ``hilbench_profile`` marker names another bench is skipped.
 """
 
 from __future__ import annotations
@@ -45,6 +52,15 @@ def wait_until(predicate: Callable[[], Any], timeout: float = 5.0, interval: flo
         time.sleep(interval)
 
 
+def pytest_addoption(parser: pytest.Parser) -> None:
+    group = parser.getgroup("hilbench")
+    group.addoption("--hilbench-labgrid", action="store_true", default=False,
+                    help="take the `bench` fixture from the labgrid target of --lg-env (a RemotePlace or a "
+                         "`hilbench labgrid env` file) instead of starting a bench here")
+    group.addoption("--hilbench-lg-role", default="main", metavar="TARGET",
+                    help="the labgrid target holding the bench (default: main)")
+
+
 def pytest_configure(config: pytest.Config) -> None:
     config.addinivalue_line(
         "markers",
@@ -68,13 +84,34 @@ def hilbench_bench() -> Iterator[Callable[..., Bench]]:
 
 
 @pytest.fixture
-def bench(request: pytest.FixtureRequest, hilbench_bench: Callable[..., Bench]) -> Bench:
-    """A bench from the test's ``hilbench_profile`` marker (default profile otherwise)."""
+def bench(request: pytest.FixtureRequest, hilbench_bench: Callable[..., Bench]) -> Iterator[Any]:
+    """A bench from the test's ``hilbench_profile`` marker (default profile otherwise), or with
+    ``--hilbench-labgrid`` the bench of the labgrid target."""
     marker = request.node.get_closest_marker("hilbench_profile")
-    if marker is None:
-        return hilbench_bench(DEFAULT_PROFILE)
-    profile = marker.args[0] if marker.args else DEFAULT_PROFILE
-    return hilbench_bench(profile, **marker.kwargs)
+    profile = (marker.args[0] if marker and marker.args else DEFAULT_PROFILE)
+    if request.config.getoption("hilbench_labgrid"):
+        remote = _labgrid_bench(request)
+        wanted = Path(str(profile)).stem
+        if marker is not None and wanted != remote.profile.name:
+            remote.stop()
+            pytest.skip(f"test wants bench {wanted!r}; the labgrid target has {remote.profile.name!r}")
+        yield remote
+        remote.stop()
+        return
+    yield hilbench_bench(profile, **(marker.kwargs if marker else {}))
+
+
+def _labgrid_bench(request: pytest.FixtureRequest) -> Any:
+    try:
+        from hilbench.labgrid.remote import bench_from_target
+    except ImportError as exc:
+        pytest.fail(f"--hilbench-labgrid needs labgrid (pip install 'hilbench[labgrid]'): {exc}")
+    env = request.getfixturevalue("env")  # labgrid's own fixture (--lg-env)
+    role = request.config.getoption("hilbench_lg_role")
+    target = env.get_target(role)
+    if target is None:
+        pytest.fail(f"the labgrid environment has no target {role!r}")
+    return bench_from_target(target)
 
 
 @pytest.fixture

@@ -20,6 +20,7 @@ kind                   entry-point group         the object an entry point names
 :data:`sources`        ``hilbench.sources``      a :class:`~hilbench.transports.sources.SourceOpener`
 :data:`instruments`    ``hilbench.instruments``  an :class:`~hilbench.monitor.instrument.Instrument`
 :data:`verbs`          ``hilbench.verbs``        a module with ``register(subparsers)``
+:data:`servers`        ``hilbench.servers``      a :class:`~hilbench.bench.server.Server` (``emulate --serve``)
 =====================  ========================  =============================================
 
 Entry points load on first use of their kind. A plug-in that fails to load
@@ -167,8 +168,9 @@ media = Kind("media", "hilbench.media", what="medium")
 sources = Kind("sources", "hilbench.sources", what="source kind")
 instruments = Kind("instruments", "hilbench.instruments", what="instrument")
 verbs = Kind("verbs", "hilbench.verbs", what="verb module")
+servers = Kind("servers", "hilbench.servers", what="server")
 
-KINDS: tuple[Kind, ...] = (families, host_ports, media, sources, instruments, verbs)
+KINDS: tuple[Kind, ...] = (families, host_ports, media, sources, instruments, verbs, servers)
 
 
 def reload() -> None:
@@ -196,4 +198,4 @@ def instrument_for(protocol: str) -> Any | None:
 
 
 __all__ = ["KINDS", "Kind", "PluginWarning", "families", "family_for_protocol", "host_ports", "instrument_for",
-           "instruments", "media", "reload", "sources", "verbs"]
+           "instruments", "media", "reload", "servers", "sources", "verbs"]
