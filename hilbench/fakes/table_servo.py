@@ -47,6 +47,9 @@ MAX_ACCELERATION_REVS = 200
 INPUT_VOLTAGE_BIT = 0x01
 OVERHEAT_BIT = 0x04
 
+#: Roles whose change makes the horn go somewhere else (one retarget per write, however many change).
+_MOTION_ROLES = frozenset({"goal_position", "goal_speed", "goal_acceleration", "min_position", "max_position",
+                           "operating_mode"})
 _DYNAMIC_ROLES = ("present_position", "present_speed", "present_load", "present_voltage", "present_temperature",
                   "moving", "present_current", "realtime_tick")
 
@@ -92,6 +95,13 @@ class TableServo:
         self.eeprom_needs_torque_off = (model.protocol == 2) if eeprom_needs_torque_off is None \
             else eeprom_needs_torque_off
         self._fields = [model.covering(a) for a in range(model.table_size)]
+        # per address, the roles whose bytes it holds (a write looks up only what it touches)
+        self._roles_at: list[tuple[tuple[str, Field], ...]] = [() for _ in range(model.table_size)]
+        for key, f in self._f.items():
+            for a in range(f.address, f.address + f.size):
+                self._roles_at[a] += ((key, f),)
+        self._baud_address = roles.get("baud")
+        self._srl_address = roles.get("status_return_level")
         spans = [(f.address, f.address + f.size) for k in _DYNAMIC_ROLES if (f := self._f.get(k)) is not None]
         self._dyn_lo = min((a for a, _ in spans), default=0)
         self._dyn_hi = max((b for _, b in spans), default=0)
@@ -163,11 +173,13 @@ class TableServo:
 
     @property
     def baud(self) -> int | None:
-        return self.model.baud_codes.get(self._role("baud")) if "baud" in self._f else None
+        a = self._baud_address
+        return None if a is None else self.model.baud_codes.get(self.mem[a])
 
     @property
     def status_return_level(self) -> int:
-        return self._role("status_return_level") if "status_return_level" in self._f else 2
+        a = self._srl_address
+        return 2 if a is None else self.mem[a]
 
     @property
     def return_delay(self) -> float:
@@ -362,21 +374,38 @@ class TableServo:
         end = address + len(data)
         old = bytes(self.mem[address:end])
         self.mem[address:end] = data
-        goal = self._f.get("goal_position")
-        touched = []
-        for key, f in self._f.items():
-            if f.address < end and f.address + f.size > address:
-                touched.append((key, f))
-        if goal is not None and any(f is goal for _, f in touched) and not self.wheel:
+        touched: dict[str, Field] = {}
+        roles_at = self._roles_at
+        for a in range(address, end):
+            for key, f in roles_at[a]:
+                touched[key] = f
+        if not touched:
+            return
+        goal = touched.get("goal_position")
+        if goal is not None and not self.wheel:
             lo, hi = self._role("min_position"), self._role("max_position")
             g = self._role("goal_position")
             if not lo <= g <= hi:
                 self._set_role("goal_position", max(lo, min(hi, g)))
-        for key, f in touched:
-            changed = old[max(0, f.address - address) : f.address + f.size - address] != \
-                bytes(data[max(0, f.address - address) : f.address + f.size - address])
-            if changed or key in ("goal_position", "goal_speed", "torque_enable"):
+        motion = False
+        for key, f in touched.items():
+            lo, hi = max(0, f.address - address), f.address + f.size - address
+            if old[lo:hi] == bytes(data[lo:hi]):
+                # the same value again (a sync loop repeating its goals): nothing changes, but a goal
+                # still switches a Protocol 1.0 servo's torque on
+                if key == "goal_position" and self.auto_torque and not self.torque:
+                    motion = True
+                continue
+            if key in _MOTION_ROLES:
+                motion = True
+            else:
                 self._after_write(f, t, key)
+        if motion:
+            if goal is not None and self.auto_torque and not self.torque:
+                self._set_role("torque_enable", 1)
+                self._set_torque(True, t)
+            else:
+                self._retarget(t)
 
     def _after_write(self, f: Field, t: float, key: str | None = None) -> None:
         """Side effects of a changed item."""
