@@ -57,3 +57,4 @@ bench: $(VENV)/.installed
 	$(PY) tools/bench_board.py
 	$(PY) tools/bench_profiler.py
 	$(PY) tools/bench_remote.py
+	$(PY) tools/bench_run.py

@@ -21,7 +21,7 @@ from typing import Any
 from hilbench import registry
 from hilbench.bench.family import DeviceFamily
 from hilbench.bench.profile import EndpointSpec, Profile, load_profile
-from hilbench.errors import UsageError
+from hilbench.errors import BenchError, UsageError
 from hilbench.transports.tap_server import TapServer
 
 
@@ -109,6 +109,7 @@ class Bench:
         self.endpoints: dict[str, Endpoint] = {}
         self.devices: dict[str, Any] = {}
         self.started_at: float | None = None
+        self._stopped = False
         self.control = None  # a ControlServer once serve_control() ran
         self.services: dict[str, Any] = {}  # name -> object with close() and describe(): listed in the manifest
 
@@ -118,6 +119,8 @@ class Bench:
         """Open the endpoints and start every medium and device; returns self."""
         if self.started_at is not None:
             return self
+        if self._stopped:
+            raise BenchError("this bench was stopped and its ports are closed: start a new Bench")
         t = time.monotonic()
         prof = self.profile
         try:
@@ -165,7 +168,10 @@ class Bench:
                 ep.services[name] = server.start(self, ep, self.bind)
 
     def stop(self) -> None:
-        """Stop every device, medium and service; close every endpoint."""
+        """Stop every device, medium and service; close every endpoint (once: stopping again does nothing)."""
+        if self._stopped:
+            return
+        self._stopped = True
         if self.control is not None:
             self.control.close()
             self.control = None

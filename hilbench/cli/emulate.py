@@ -15,6 +15,7 @@ from hilbench.transports.host_port import DEFAULT_BIND, bind_address, is_loopbac
 
 def cmd_emulate(args: argparse.Namespace) -> int:
     from hilbench.bench import Bench
+    from hilbench.bench.line_server import serve_lines
 
     profile = load_profile(args.profile)
     paced = True if args.paced else (False if args.unpaced else None)
@@ -28,6 +29,7 @@ def cmd_emulate(args: argparse.Namespace) -> int:
     try:
         if bench.has_control_commands or serve:  # a served bench is found remotely through its control channel
             bench.serve_control()
+        lines = serve_lines(bench)  # modem lines, BREAK and flushes for clients under `hilbench run`
         if manifest:
             bench.write_manifest(manifest)
         print(f"hilbench: bench {profile.name!r} running ({len(bench.devices)} devices); Ctrl-C stops it")
@@ -52,6 +54,8 @@ def cmd_emulate(args: argparse.Namespace) -> int:
                                for ep in bench.endpoints.values() if ep.family.control_commands
                                for name in ep.devices)
             print(f"  control: {bench.control.address_text}  ({takers or 'devices, manifest, servers, taps'})")
+        if lines is not None and manifest:
+            print(f"  modem lines: hilbench run --manifest {manifest} -- COMMAND")
         if manifest:
             print(f"  manifest: {manifest}")
         sys.stdout.flush()
