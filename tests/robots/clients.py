@@ -20,10 +20,16 @@ def need(module: str, what: str) -> None:
         pytest.skip(f"{what} is not installed (make install-robots installs it)")
 
 
-def run_client(script: str, *args: str, timeout: float = 120) -> dict:
-    """Run a client script with this interpreter; its last stdout line is JSON."""
+def run_client(script: str, *args: str, run=None, bench=None, timeout: float = 120) -> dict:
+    """Run a client script with this interpreter; its last stdout line is JSON.
+
+    With ``run`` (the ``hilbench_run`` fixture) and ``bench``, the client runs under ``hilbench run``:
+    its output flushes wait for the bench instead of discarding bytes, as on a USB adapter.
+    """
+    argv = [sys.executable, str(HERE / script), *args]
+    if run is not None:
+        argv = run.command(bench, *argv)
     env = {**os.environ, "PYTHONUNBUFFERED": "1", "MPLBACKEND": "Agg"}
-    proc = subprocess.run([sys.executable, str(HERE / script), *args], capture_output=True, text=True,
-                          timeout=timeout, env=env)
+    proc = subprocess.run(argv, capture_output=True, text=True, timeout=timeout, env=env)
     assert proc.returncode == 0, f"{script} failed:\n{proc.stdout[-2000:]}\n{proc.stderr[-4000:]}"
     return json.loads(proc.stdout.strip().splitlines()[-1])

@@ -2,7 +2,8 @@
 
 The arms connect as ``lerobot-teleoperate`` connects them (handshake, calibration check against the
 shipped calibration file, configure), run their control loop at 60 Hz, move (followers), and
-disconnect. LeRobot comes from `make install-robots` without its ML stack (see lerobot_client.py).
+disconnect, under `hilbench run` (Feetech's SDK drains its output with tcdrain before each packet).
+LeRobot comes from `make install-robots` without its ML stack (see lerobot_client.py).
 """
 
 from __future__ import annotations
@@ -25,14 +26,15 @@ ARMS = {  # profile -> (LeRobot class, calibration directory, model names LeRobo
 
 
 @pytest.mark.parametrize("profile", list(ARMS))
-def test_lerobot_arm(profile, hilbench_bench, watch):
+def test_lerobot_arm(profile, hilbench_bench, hilbench_run, watch):
     need("lerobot", "LeRobot")
     need("draccus", "LeRobot's configuration library (draccus)")
     kind, cal_dir, models = ARMS[profile]
     bench = hilbench_bench(profile)
     monitors = watch(bench)
     eeprom = {s.name: (s.get("homing_offset"), s.get("min_position_limit")) for s in bench.devices.values()}
-    out = run_client("lerobot_client.py", kind, bench.endpoint().path, str(PROFILES / "lerobot" / cal_dir), "90")
+    out = run_client("lerobot_client.py", kind, bench.endpoint().path, str(PROFILES / "lerobot" / cal_dir), "90",
+                     run=hilbench_run, bench=bench)
     assert out["calibrated"] and not out["asked_to_calibrate"]
     assert list(out["models"].values()) == models
     assert out["warnings"] == []

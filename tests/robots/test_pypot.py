@@ -1,33 +1,32 @@
-"""pypot runs the Poppy robots' own configuration against the bundled profiles, unmodified but for port names."""
+"""pypot runs the Poppy robots' own configuration against the bundled profiles, unmodified but for port names.
+
+The bench runs as users run it (``hilbench emulate`` in a process of its own), the robot's software in
+another, under ``hilbench run``: pypot calls tcflush(TCOFLUSH) before every packet, which on a plain pty
+discards a SYNC_WRITE the bench has not read yet (its one Torque Enable packet, say); under `hilbench
+run` the flush waits for the bench, as on a USB adapter. A monitor on each bus's tap watches.
+"""
 
 from __future__ import annotations
 
+import dynamixel_sdk as sdk
 import pytest
 
-from hilbench import registry
+from hilbench.bench.profile import load_profile
+from hilbench.pytest_plugin import wait_until
 from tests.robots.clients import need, run_client
 
 pytestmark = [pytest.mark.robots, pytest.mark.slow]
 
-#: pypot calls tcflush(TCOFLUSH) before every packet; on a pty that discards a SYNC_WRITE the bench has
-#: not read yet. pypot sends Torque Enable once, when a motor stops being compliant: if that packet is
-#: lost, the motor never moves. `hilbench run` (output flushes wait for the bench) is the cure.
-FLUSH_RACE = ("pypot's tcflush(TCOFLUSH) discarded its Torque Enable SYNC_WRITE before the bench read it; "
-              "this needs the client run under `hilbench run`")
 
-
-def _check_run(out: dict, bench, monitors, expected_models: dict[int, str]) -> None:
+def _check_run(out: dict, monitors, expected_models: dict[int, str]) -> None:
     assert out["warnings"] == []  # no EEPROM rewrite, no missing motor, no timeout
     assert {m["id"]: m["model"] for m in out["motors"].values()} == expected_models
-    names = {s.name: s for s in bench.devices.values()}
     for joint, goal in out["goals"].items():
-        if abs(out["after"][joint] - goal) >= 1.0 and names[joint].get("torque_enable") == 0 \
-                and "run" not in registry.verbs.names():
-            pytest.xfail(FLUSH_RACE)
         assert abs(out["after"][joint] - goal) < 1.0, (joint, out["after"][joint], goal)
     assert all(20 <= t <= 40 for t in out["temperatures"].values())
     seen = {}
     for mon in monitors.values():
+        wait_until(lambda m=mon: m.summary()["bus"]["main_cycle"] is not None, timeout=5)
         report = mon.summary()
         cycle = report["bus"]["main_cycle"]
         # PosSpeedLoadDxlController: Present Position/Speed/Load of every motor at 50 Hz
@@ -39,28 +38,43 @@ def _check_run(out: dict, bench, monitors, expected_models: dict[int, str]) -> N
     assert sorted(seen) == sorted(expected_models)  # the monitor saw every motor
 
 
-def test_poppy_humanoid(hilbench_bench, watch, tmp_path):
+def _eeprom_after(manifest: dict, profile: str, protocol: float) -> None:
+    """After pypot closed its ports: a client opening them again reads the profile's EEPROM, untouched."""
+    ph = sdk.PacketHandler(protocol)
+    specs = load_profile(profile).devices
+    for ep in manifest["endpoints"]:
+        port = sdk.PortHandler(ep["path"])
+        assert port.openPort() and port.setBaudRate(1_000_000)
+        try:
+            for spec in (s for s in specs if s.endpoint == ep["name"]):
+                init = spec.init
+                assert ph.read2ByteTxRx(port, spec.id, 6) == (init["cw_angle_limit"], 0, 0)
+                assert ph.read2ByteTxRx(port, spec.id, 8) == (init["ccw_angle_limit"], 0, 0)
+                assert ph.read1ByteTxRx(port, spec.id, 5) == (0, 0, 0)
+        finally:
+            port.closePort()
+
+
+def test_poppy_humanoid(hilbench_emulator, hilbench_run, watch):
     need("poppy_humanoid", "poppy-humanoid (with pypot)")
-    bench = hilbench_bench("poppy-humanoid")
-    monitors = watch(bench)
-    limits = {s.id: (s.get("cw_angle_limit"), s.get("ccw_angle_limit")) for s in bench.devices.values()}
-    manifest = tmp_path / "bench.json"
-    bench.write_manifest(manifest)
-    out = run_client("pypot_client.py", "humanoid", str(manifest), "2")
-    expected = {s.id: {12: "AX-12", 29: "MX-28", 310: "MX-64"}[s.model.number] for s in bench.devices.values()}
-    _check_run(out, bench, monitors, expected)
-    assert {s.id: (s.get("cw_angle_limit"), s.get("ccw_angle_limit")) for s in bench.devices.values()} == limits
-    assert all(s.get("return_delay_time") == 0 for s in bench.devices.values())
+    manifest = hilbench_emulator("poppy-humanoid")
+    monitors = watch(manifest)
+    out = run_client("pypot_client.py", "humanoid", manifest["manifest_path"], "2", run=hilbench_run,
+                     bench=manifest)
+    specs = load_profile("poppy-humanoid").devices
+    expected = {s.id: {"AX-12A": "AX-12", "MX-28(1.0)": "MX-28", "MX-64(1.0)": "MX-64"}[s.model] for s in specs}
+    _check_run(out, monitors, expected)
     report = monitors["upper"].summary()
     assert report["protocol"] == "dynamixel1" and report["devices"]["36"]["model_name"] == "AX-12A"
+    _eeprom_after(manifest, "poppy-humanoid", 1.0)
 
 
-def test_poppy_ergo_jr(hilbench_bench, watch, tmp_path):
+def test_poppy_ergo_jr(hilbench_emulator, hilbench_run, watch):
     need("poppy_ergo_jr", "poppy-ergo-jr (with pypot)")
-    bench = hilbench_bench("poppy-ergo-jr")
-    monitors = watch(bench)
-    manifest = tmp_path / "bench.json"
-    bench.write_manifest(manifest)
-    out = run_client("pypot_client.py", "ergo_jr", str(manifest), "2")
-    _check_run(out, bench, monitors, dict.fromkeys(range(1, 7), "XL-320"))
+    manifest = hilbench_emulator("poppy-ergo-jr")
+    monitors = watch(manifest)
+    out = run_client("pypot_client.py", "ergo_jr", manifest["manifest_path"], "2", run=hilbench_run,
+                     bench=manifest)
+    _check_run(out, monitors, dict.fromkeys(range(1, 7), "XL-320"))
     assert monitors["bus"].summary()["protocol"] == "dynamixel"
+    _eeprom_after(manifest, "poppy-ergo-jr", 2.0)
