@@ -108,3 +108,37 @@ def test_garbage_never_raises(blob, cuts):
         tr.feed(t + 0.01, "x", blob[pos:])
         tr.finish()
         inst.summary(tr, source="x", timestamps="measured")
+
+
+def test_dashboard_and_recorder_replay_on_a_protocol1_bus(tmp_path):
+    from rich.console import Console
+
+    from hilbench.dashboard.app import Dashboard
+    from hilbench.monitor import Monitor
+    from hilbench.transports.capture_file import CaptureWriter
+    from hilbench.transports.sources import open_source
+
+    tr = DXL1.make_tracker(baud=1_000_000, timestamps=True)
+    t = feed(tr, [("host", p1.frame(11, 2, bytes((0, 2)))), ("bus", p1.frame(11, 0, (29).to_bytes(2, "little")))])
+    for _ in range(5):
+        t = feed(tr, usb2ax_cycle([11, 12], 36, 6, {11: bytes(6)}), t, 0.02)
+    console = Console(width=100, record=True)
+    dash = Dashboard(tr, source="test")
+    for view in ("devices", "models", "details", "log"):
+        dash.view = view
+        console.print(dash.render(100, 24))
+    screen = console.export_text()
+    assert "MX-28(1.0)" in screen  # the model overview names the 1.0 table
+    assert "DISC" in screen and "ID 12 disconnected" in screen  # a servo the USB2AX filled with 0xFF
+    assert "cycle 25 Hz" in screen  # the USB2AX SYNC_READ every 40 ms is the main cycle
+    # a capture recorded with the protocol's name replays through the same instrument
+    path = tmp_path / "p1.hbcap"
+    with CaptureWriter(path, protocol="dynamixel1", baud=1_000_000) as rec:
+        tt = 0.0
+        for source, raw in usb2ax_cycle([11, 12], 36, 6, {11: bytes(6), 12: bytes(6)}) * 3:
+            tt += 0.01
+            rec.write(tt, source, raw)
+    with Monitor(open_source(str(path))) as mon:
+        mon.wait(5)
+        report = mon.summary()
+    assert report["protocol"] == "dynamixel1" and sorted(report["devices"]) == ["11", "12"]
