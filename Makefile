@@ -6,7 +6,7 @@ PY := $(VENV)/bin/python
 
 LGVENV ?= .venv-labgrid
 
-.PHONY: demo test test-labgrid lint bench install
+.PHONY: demo test test-labgrid lint bench install install-robots
 
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -15,6 +15,17 @@ $(VENV)/.installed: pyproject.toml
 	touch $@
 
 install: $(VENV)/.installed
+
+# The robots' own software for the real-client tests (pytest -m robots; skipped without it): pypot and
+# the Poppy creatures from the `robots` extra, and LeRobot's motor buses and robot classes. LeRobot is
+# installed without its dependencies: they are a machine-learning stack (torch, datasets, ...) of
+# several GB that its servo code does not use (tests/robots/lerobot_client.py says how it is loaded).
+install-robots: $(VENV)/.robots
+
+$(VENV)/.robots: $(VENV)/.installed
+	$(PY) -m pip install -q -e '.[test,robots]'
+	$(PY) -m pip install -q --no-deps 'lerobot==0.4.4'
+	touch $@
 
 # labgrid pulls pyserial-labgrid, which installs its own `serial` package over pyserial's; it gets a
 # venv of its own, where pyserial-labgrid's files are made the installed ones, so the serial tests

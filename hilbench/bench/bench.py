@@ -141,7 +141,9 @@ class Bench:
                 self.devices.update(ep.devices)
                 medium.add_host(port)
                 if self.tap:
-                    ep.tap = TapServer(host=self.bind, baud=spec.baud, protocol=spec.protocol,
+                    # the medium's protocol: what its traffic is, as the family may have refined it
+                    # (a Protocol 1.0 Dynamixel bus carries "dynamixel1")
+                    ep.tap = TapServer(host=self.bind, baud=spec.baud, protocol=medium.protocol or spec.protocol,
                                        description=f"bench {prof.name}, endpoint {spec.name}")
                     medium.add_tap(ep.tap.feed)
             self._start_servers()
