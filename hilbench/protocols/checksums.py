@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import crcmod
 import crcmod.predefined
 
 #: CRC-16/BUYPASS (poly 0x8005, init 0, not reflected): Dynamixel Protocol 2.0.
@@ -28,3 +29,9 @@ def raw_crc_routine(crcfun):
     """
     _init, table, routine = crcfun.__defaults__
     return routine, table
+
+
+#: CRC-8/SAE-J1850 (poly 0x1D, init 0xFF, xorout 0xFF, not reflected; check "123456789" = 0x4B): the
+#: AUTOSAR E2E profile 1 CRC, protecting the rover board's CAN velocity setpoint. crcmod's ``initCrc`` is
+#: the initial register XORed with ``xorOut``, hence 0x00 for init 0xFF.
+crc8_sae_j1850 = crcmod.mkCrcFun(0x11D, initCrc=0x00, rev=False, xorOut=0xFF)
