@@ -207,8 +207,9 @@ class CanopenBoardFamily(DeviceFamily):
         endpoint.attrs["nodes"] = nodes
 
     def start(self, endpoint, t: float) -> None:
+        now = time.monotonic()  # power-up happens now: the boot-up and the heartbeat phase count from here
         for node in endpoint.devices.values():
-            node.start(t)
+            node.start(now)
 
     def stop(self, endpoint) -> None:
         for node in endpoint.devices.values():
