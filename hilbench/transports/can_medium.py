@@ -260,7 +260,7 @@ class CanMedium(Medium):
             self._arbitrating = True
             start = max(now, self._busy_until)
             with self._lock:
-                self._push(start, self._arbitrate)
+                self._push(start, lambda: self._arbitrate(start))
 
     def _fails(self) -> bool:
         """Whether the fault knobs destroy this transmission attempt (called in the bus thread)."""
@@ -283,9 +283,9 @@ class CanMedium(Medium):
         self._success(source)
         self._deliver(source, frame, now)
 
-    def _arbitrate(self) -> None:
-        now = time.monotonic()
-        start = max(now, self._busy_until)
+    def _arbitrate(self, t: float) -> None:
+        """Contention at bus time ``t`` (the end of the previous frame, or when a frame found the bus idle)."""
+        start = max(t, self._busy_until)
         best = None
         for src, queue in self._queues.items():
             if queue and src not in self._bus_off:
@@ -307,7 +307,7 @@ class CanMedium(Medium):
 
             def failed() -> None:
                 self._error(source, end)
-                self._arbitrate()
+                self._arbitrate(end)
 
             with self._lock:
                 self._push(end, failed)
@@ -320,7 +320,7 @@ class CanMedium(Medium):
         def done() -> None:
             self._success(source)
             self._deliver(source, frame, end)
-            self._arbitrate()
+            self._arbitrate(end)
 
         with self._lock:
             self._push(end, done)

@@ -30,6 +30,7 @@ count it discarded).
 
 from __future__ import annotations
 
+import threading
 import time
 from typing import Any
 
@@ -59,6 +60,8 @@ class RoverNode(CanopenNode):
         self.faults.update({"motor_fault": False, "battery_v": battery_v, "stuck_odometry": False,
                             "dlc_mismatch": False})
         self._t0 = 0.0
+        # The robot model advances in the bus thread; pose() and status() may be called from others.
+        self._robot_lock = threading.RLock()
         self.robot = Robot(CONTROL_PERIOD_US, CONTROL_PERIOD_US)
         self.mode = bc.MODE_IDLE
         self.counters = {p.key: 0 for p in bc.PDOS if p.kind == "tpdo"}
@@ -167,7 +170,8 @@ class RoverNode(CanopenNode):
 
     def _command(self, vx: float, vy: float, omega: float, t: float) -> None:
         self.setpoint = (vx, vy, omega)
-        self.robot.push_setpoint(self._t_us(t), vx * 1000, vy * 1000, omega)
+        with self._robot_lock:
+            self.robot.push_setpoint(max(0.0, self._t_us(t)), vx * 1000, vy * 1000, omega)
 
     def _watchdog(self, since: float) -> None:
         if self._last_valid != since or self.state != co.OPERATIONAL or self.mode != bc.MODE_DRIVING:
@@ -212,7 +216,8 @@ class RoverNode(CanopenNode):
     def _write_odometry_reset(self, index: int, subindex: int, value: Any) -> int | None:
         if value == 1:
             self._refresh(self._now())
-            self.robot.x = self.robot.y = self.robot.theta = 0.0
+            with self._robot_lock:
+                self.robot.x = self.robot.y = self.robot.theta = 0.0
             self._refresh(self._now())
         elif value != 0:
             return 0x06090030
@@ -224,7 +229,8 @@ class RoverNode(CanopenNode):
 
     def _refresh(self, t: float) -> None:
         """Bring the object dictionary's live values up to time ``t``."""
-        state = self.robot.state(max(0.0, self._t_us(t)))
+        with self._robot_lock:
+            state = self.robot.state(max(0.0, self._t_us(t)))
         x, y, theta = state.pose
         for i, count in enumerate(self._counts(), 1):
             self.od[(0x2011, i)] = count
@@ -305,7 +311,8 @@ class RoverNode(CanopenNode):
 
     def pose(self, t: float | None = None) -> tuple[float, float, float]:
         """The odometry pose (m, m, rad) now."""
-        state = self.robot.state(max(0.0, self._t_us(self._now() if t is None else t)))
+        with self._robot_lock:
+            state = self.robot.state(max(0.0, self._t_us(self._now() if t is None else t)))
         x, y, theta = state.pose
         return x / 1000, y / 1000, theta
 
