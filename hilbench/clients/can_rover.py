@@ -43,6 +43,7 @@ class RoverCanClient:
         self.times: dict[str, float] = {}
         self.nmt_state: int | None = None
         self.heartbeats = 0
+        self.bootups = 0
         self.emcy: list[tuple[int, int]] = []
         self.sent = 0
         self._setpoint: tuple[float, float, float] | None = None
@@ -121,7 +122,10 @@ class RoverCanClient:
                     self._cond.notify_all()
                 elif cid == 0x700 + self.node_id and msg.data:
                     self.nmt_state = msg.data[0] & 0x7F
-                    self.heartbeats += 1
+                    if self.nmt_state == co.BOOTUP:
+                        self.bootups += 1
+                    else:
+                        self.heartbeats += 1
                     self._cond.notify_all()
                 elif cid == 0x080 + self.node_id and len(msg.data) >= 3:
                     self.emcy.append((int.from_bytes(msg.data[:2], "little"), msg.data[2]))

@@ -72,9 +72,10 @@ def _ms(x: float | None, nd: int = 2) -> str:
 
 def ids_view(tr: CanTracker, selected, width: int, height: int, scroll: int) -> Group:
     lines = [_line(Text(TITLES["ids"], style="bold underline"), width=width)]
-    w = (10, 20, 7, 7, 8, 7, 2, max(8, width - 10 - 20 - 7 - 7 - 8 - 7 - 2 - 7))
+    fixed = (10, 17, 6, 6, 7, 6)
+    w = (*fixed, max(8, width - sum(fixed) - len(fixed)))
     lines.append(_row([("ID", w[0], "<"), ("what", w[1], "<"), ("count", w[2], ">"), ("Hz", w[3], ">"),
-                       ("period", w[4], ">"), ("jitter", w[5], ">"), ("n", w[6], ">"), ("data / signals", w[7], "<")],
+                       ("period", w[4], ">"), ("jitter", w[5], ">"), ("data / signals", w[6], "<")],
                       width, "bold"))
     keys = _keys(tr)
     rows = keys[scroll:]
@@ -82,13 +83,12 @@ def ids_view(tr: CanTracker, selected, width: int, height: int, scroll: int) -> 
         s = tr.ids[key]
         rate = s.rate() if tr.timestamps else None
         iv = s.intervals
-        signals = "  ".join(f"{k}={_fmt(v)}" for k, v in s.signals.items()) or s.data.hex(" ").upper()
+        signals = " ".join(f"{k}={_fmt(v)}" for k, v in s.signals.items()) or s.data.hex(" ").upper()
         style = "reverse" if key == selected else ("yellow" if s.decode_errors or s.dlc_changes else "")
         lines.append(_row([(s.key, w[0], "<"), (s.name or s.label or "", w[1], "<"), (str(s.count), w[2], ">"),
                            (f"{rate:.1f}" if rate else "-", w[3], ">"),
                            (_ms(iv.mean if iv.n else None), w[4], ">"),
-                           (_ms(iv.std if iv.n > 1 else None, 3), w[5], ">"), (str(s.dlc), w[6], ">"),
-                           (signals, w[7], "<")], width, style))
+                           (_ms(iv.std if iv.n > 1 else None, 3), w[5], ">"), (signals, w[6], "<")], width, style))
     if not keys:
         lines.append(_line("no frames yet", "dim", width))
     return _pad(lines, height)

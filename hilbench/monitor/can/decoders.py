@@ -158,7 +158,8 @@ class EdsDecoder(Decoder):
                 raise ValueError(f"{pdo[0]} is {len(frame.data)} bytes, its mapping needs more")
             raw = var.decode_raw(chunk)
             value = raw * var.factor if isinstance(raw, int | float) and var.factor not in (None, 1) else raw
-            out[var.name] = value
+            parent = getattr(var, "parent", None)
+            out[f"{parent.name}.{var.name}" if parent is not None else var.name] = value
             offset += size
         return out
 
