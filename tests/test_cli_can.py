@@ -11,8 +11,8 @@ import sys
 import time
 
 import can
-import cantools
 import canopen
+import cantools
 import pytest
 
 from hilbench.bench.profile import load_profile, parse_profile

@@ -375,11 +375,26 @@ def cmd_control(args: argparse.Namespace) -> int:
 
 ORDER = 45
 
+HELP = """\
+The CAN side of a bench (the rover board as CANopen node) and small CAN tools:
+
+  hilbench can dbc PROFILE [-o FILE]                  the DBC of the profile's CANopen boards
+  hilbench can eds PROFILE [--device NAME] [-o FILE]  a board's EDS
+  hilbench can dump SOURCE [--dbc F] [--eds F:N]      frames as candump -L lines, decoded
+  hilbench can send TARGET ID#DATA ...                send frames (cansend syntax, ID#R for remote)
+  hilbench can nmt TARGET start|stop|preop|reset|reset-comm [--node N]
+  hilbench can sdo TARGET read|write INDEX[:SUB] [VALUE] --node N [--type T]
+  hilbench can drive TARGET [--node N] --vx V [--vy V] [--omega W] [--seconds S]
+  hilbench can status|fault|emcy|bus|reset|state --manifest FILE ...   control channel
+
+TARGET is a bench manifest (hilbench emulate --manifest; its socketcand server)
+or a CAN bus URL: socketcand://127.0.0.1:PORT/can0, slcan:///dev/pts/N,
+socketcan://vcan0."""
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("can", help="CAN: the board's DBC/EDS, dump/send/nmt/sdo/drive, a CAN bench's control channel",
-                       description=__doc__.split("\n\n", 1)[1] if __doc__ else None,
-                       formatter_class=argparse.RawDescriptionHelpFormatter)
+                       description=HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
     cs = p.add_subparsers(dest="can_cmd", required=True, metavar="COMMAND")
 
     d = cs.add_parser("dbc", help="export the DBC of a profile's CANopen boards (cantools, SavvyCAN, CANoe read it)")

@@ -48,6 +48,8 @@ MAX_PENDING = 4 << 20
 #: Frames held for a client between rawmode and the end of the handshake delay.
 MAX_HELD = 100_000
 BEACON_INTERVAL = 2.0
+#: Largest write to a client (python-can's socketcand client reads 1024 bytes at a time).
+SEND_CHUNK = 1024
 
 
 @dataclass
@@ -222,14 +224,24 @@ class SocketcandServer:
                 self._send(client)
 
     def _send(self, client: _Client) -> None:
-        try:
-            sent = client.sock.send(client.out)
-        except (BlockingIOError, InterruptedError):
-            return
-        except OSError:
-            self._drop(client)
-            return
-        del client.out[:sent]
+        # Whole messages in writes of at most SEND_CHUNK bytes: python-can reads 1024 bytes at a time and logs a
+        # warning (to stderr, over a curses screen) for every read that ends inside a message. A client that
+        # keeps up then reads our writes whole; one that falls behind splits them, as with the real daemon.
+        out = client.out
+        while out:
+            cut = len(out) if len(out) <= SEND_CHUNK else out.rfind(b">", 0, SEND_CHUNK) + 1
+            if cut <= 0:
+                cut = min(len(out), SEND_CHUNK)
+            try:
+                sent = client.sock.send(out[:cut])
+            except (BlockingIOError, InterruptedError):
+                return
+            except OSError:
+                self._drop(client)
+                return
+            del out[:sent]
+            if sent < cut:
+                return
 
     def _reply(self, client: _Client, text: str) -> None:
         """A handshake or command reply in a write of its own (python-can reads replies whole)."""

@@ -10,8 +10,8 @@ import sys
 
 import pytest
 
-from tests.dashboard.test_tmux import Terminal, hilbench, terminal  # noqa: F401 (the fixture)
 from tests.conftest import REPO
+from tests.dashboard.test_tmux import Terminal, hilbench, terminal  # noqa: F401 (the fixture)
 
 pytestmark = pytest.mark.skipif(shutil.which("tmux") is None,
                                 reason="tmux is not installed: the real-terminal tests need it")

@@ -216,7 +216,10 @@ def test_node_guarding_answers_remote_frames_when_the_heartbeat_is_off(rover):
 def test_canopen_in_another_process_over_socketcand(tmp_path):
     eds = tmp_path / "rover.eds"
     eds.write_text(bc.eds(bc.BoardCanConfig()), newline="")
-    with Bench("mecarover-can") as bench:
+    toml = tmp_path / "can.toml"  # the bundled profile with a 300 ms heartbeat (a quicker test)
+    toml.write_text((REPO / "profiles" / "mecarover-can.toml").read_text().replace("heartbeat_ms = 1000",
+                                                                                   "heartbeat_ms = 300"))
+    with Bench(str(toml)) as bench:
         s = bench.manifest()["endpoints"][0]["socketcand"]
         proc = subprocess.run([sys.executable, str(REPO / "tests" / "canopen_client.py"), s["host"], str(s["port"]),
                                s["channel"], str(eds)], capture_output=True, text=True, timeout=60, cwd=REPO)
@@ -224,7 +227,7 @@ def test_canopen_in_another_process_over_socketcand(tmp_path):
         res = json.loads(proc.stdout.strip().splitlines()[-1])
         assert res["first_state"] == "PRE-OPERATIONAL"
         assert res["vendor_id"] == bc.BoardCanConfig().vendor_id and res["device_name"].startswith("hilbench")
-        assert res["period_before"] == pytest.approx(1.0, abs=0.1)
+        assert res["period_before"] == pytest.approx(0.3, abs=0.05)
         assert res["period_after"] == pytest.approx(0.1, abs=0.03)
         assert res["odometry_x"] > 0.1 and abs(res["odometry_y"]) < 0.01
         assert bench.node(2).heartbeat_ms == 100
