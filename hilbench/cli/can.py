@@ -39,7 +39,7 @@ NMT = {"start": 0x01, "stop": 0x02, "preop": 0x80, "pre-operational": 0x80, "res
 
 def _boards(profile_name: str) -> list[tuple[str, Any]]:
     from hilbench.bench.profile import load_profile
-    from hilbench.monitor.can.decoders import profile_boards
+    from hilbench.families.canopen_board import profile_boards
 
     boards = profile_boards(load_profile(profile_name))
     if not boards:

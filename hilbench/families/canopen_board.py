@@ -249,6 +249,20 @@ class CanopenBoardFamily(DeviceFamily):
         extra = f"; {'; '.join(doors)}" if doors else ""
         return f"CAN {endpoint.medium.bitrate} bit/s {paced}, {nodes or 'no nodes'}{extra}"
 
+    # ------------------------------------------------------------------ artefacts
+
+    def dbc_for_profile(self, spec: str) -> str | None:
+        """The DBC of a profile's boards (``--dbc PROFILE`` of the CAN monitor); None if it has none."""
+        from hilbench.bench.checks import ProfileError
+        from hilbench.bench.profile import load_profile
+        from hilbench.protocols import board_can
+
+        try:
+            boards = profile_boards(load_profile(spec))
+        except ProfileError:
+            return None
+        return board_can.dbc(boards) if boards else None
+
     # ------------------------------------------------------------------ control channel
 
     def control(self, bench, node, cmd: str, req: dict[str, Any]) -> dict[str, Any]:
@@ -317,6 +331,12 @@ class CanopenBoardFamily(DeviceFamily):
         raise ControlError(f"unknown command {cmd!r}")
 
 
+def profile_boards(profile) -> list[tuple[str, Any]]:
+    """``(device name, BoardCanConfig)`` of every CANopen board of a profile."""
+    return [(spec.name, board_config(spec, profile.endpoints[spec.endpoint].baud or 500_000))
+            for spec in profile.devices_of(CanopenBoardFamily.name)]
+
+
 def _bench_node(bench, name_or_id: str | int | None = None):
     """``bench.node(2)`` or ``bench.node("rover")``: an emulated CANopen node (or the only one)."""
     from hilbench.fakes.canopen import CanopenNode
@@ -372,4 +392,5 @@ class CanClient(ControlClient):
 
 FAMILY = CanopenBoardFamily()
 
-__all__ = ["FAMILY", "MODELS", "CanClient", "CanopenBoardFamily", "NodeSpec", "board_config", "check_knobs"]
+__all__ = ["FAMILY", "MODELS", "CanClient", "CanopenBoardFamily", "NodeSpec", "board_config", "check_knobs",
+           "profile_boards"]

@@ -4,7 +4,8 @@ A decoder names frames and turns their bytes into signal values; the
 tracker asks every decoder it has, first answer wins. :func:`load_dbc`
 also takes the name of a bench profile with CANopen boards (the DBC
 ``hilbench can dbc PROFILE`` exports), so ``--dbc mecarover-can`` decodes
-an emulated bench without a file.
+an emulated bench without a file (the profile is read by the device family that
+describes its boards, not here).
 
 Both libraries are the optional ``can`` extra (``pip install 'hilbench[can]'``);
 without them these decoders say so in one line.
@@ -73,7 +74,11 @@ def _cantools():
 
 
 def load_dbc(spec: str) -> DbcDecoder:
-    """A DBC/KCD/SYM/ARXML file, or a bench profile with CANopen boards; UsageError in one line."""
+    """A DBC/KCD/SYM/ARXML file, or a bench profile whose boards a family describes; UsageError in one line.
+
+    A profile is resolved through the device families (a family with CAN boards offers
+    ``dbc_for_profile(spec) -> DBC text or None``), so the monitor knows no family.
+    """
     cantools = _cantools()
     path = Path(spec)
     if path.suffix.lower() in (".dbc", ".kcd", ".sym", ".arxml", ".json") or (path.exists() and path.suffix != ".toml"):
@@ -83,23 +88,14 @@ def load_dbc(spec: str) -> DbcDecoder:
             raise UsageError(f"{spec}: no such database file") from None
         except Exception as exc:
             raise UsageError(f"{spec}: cannot load it as a CAN database: {str(exc).splitlines()[0]}") from None
-    from hilbench.bench.profile import load_profile
-    from hilbench.protocols import board_can
+    from hilbench import registry
 
-    profile = load_profile(spec)
-    boards = profile_boards(profile)
-    if not boards:
-        raise UsageError(f"{spec}: the profile has no CANopen boards to describe")
-    text = board_can.dbc(boards)
-    return DbcDecoder(cantools.database.load_string(text, "dbc", strict=False), f"{spec} (profile)")
-
-
-def profile_boards(profile: Any) -> list[tuple[str, Any]]:
-    """``(device name, BoardCanConfig)`` of every CANopen board of a profile."""
-    from hilbench.families.canopen_board import FAMILY, board_config
-
-    return [(spec.name, board_config(spec, profile.endpoints[spec.endpoint].baud or 500_000))
-            for spec in profile.devices_of(FAMILY.name)]
+    for family in registry.families.values():
+        describe = getattr(family, "dbc_for_profile", None)
+        text = describe(spec) if describe is not None else None
+        if text:
+            return DbcDecoder(cantools.database.load_string(text, "dbc", strict=False), f"{spec} (profile)")
+    raise UsageError(f"{spec}: neither a CAN database file nor a profile with CAN boards")
 
 
 class EdsDecoder(Decoder):
@@ -199,4 +195,4 @@ def load_eds(spec: str) -> EdsDecoder:
     return EdsDecoder(od, node, path)
 
 
-__all__ = ["DbcDecoder", "Decoder", "EdsDecoder", "load_dbc", "load_eds", "profile_boards"]
+__all__ = ["DbcDecoder", "Decoder", "EdsDecoder", "load_dbc", "load_eds"]
