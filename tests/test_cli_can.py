@@ -195,3 +195,18 @@ def test_send_and_dump(can_bench):
                == "OPERATIONAL", timeout=10)
     bad = hb("can", "send", manifest, "12#00")
     assert bad.returncode == 2 and "cansend" in bad.stderr
+
+
+def test_record_a_live_bus_to_a_capture_and_convert_it(can_bench, tmp_path):
+    manifest, url, data = can_bench
+    cap = tmp_path / "bus.hbcap"
+    out = hb("record", f"{url}?bitrate=500000", str(cap), "--seconds", "2.5")
+    assert out.returncode == 0, out.stderr
+    report = json.loads(hb("monitor", str(cap), "--summary", "--json").stdout)
+    assert report["protocol"] == "can" and report["bitrate"] == 500_000
+    assert report["ids"]["0x702"]["count"] >= 2 and report["nodes"]["2"]["nmt_state"] == "PRE-OPERATIONAL"
+    log = tmp_path / "bus.log"
+    assert hb("record", str(cap), str(log)).returncode == 0  # capture -> candump log, times kept as Unix time
+    messages = list(can.LogReader(str(log)))
+    assert [m.arbitration_id for m in messages] == [0x702] * len(messages) and len(messages) >= 2
+    assert abs(messages[-1].timestamp - time.time()) < 60

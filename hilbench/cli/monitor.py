@@ -71,7 +71,8 @@ def _writer(path: str | None, source, description: str | None = None):
     info = getattr(getattr(source, "reader", None), "info", None)
     return CaptureWriter(path, baud=source.baud, protocol=source.protocol or "",
                          description=description or source.name, timestamps=source.timestamps,
-                         t0_wall=info.t0_wall if info is not None and info.measured else None)
+                         t0_wall=info.t0_wall if info is not None and info.measured else None,
+                         wall_offset=getattr(source, "wall_offset", None))
 
 
 def _watch(monitor, args: argparse.Namespace, label: str, status: Callable[[], str],

@@ -445,6 +445,10 @@ class CanMedium(Medium):
             self._thread.join(timeout=5)
             self._thread = None
 
+    def wake(self) -> None:
+        """Make the bus thread look at its host ports again (a port opened a door)."""
+        self._wake()
+
     def _wake(self) -> None:
         with contextlib.suppress(BlockingIOError, OSError):
             os.write(self._wake_w, b"x")

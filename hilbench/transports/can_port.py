@@ -171,7 +171,9 @@ class CanHostPort(HostPort):
             if self._medium is not None:
                 door.attach(self._medium)
             self.virtual = door
-            self.doors = [*self.doors, door]
+            self.doors = [*self.doors, door]  # a new list: the bus thread may be iterating the old one
+        if self._medium is not None:
+            self._medium.wake()  # the bus thread waits on the new door's descriptor from its next round
         return door.channel
 
     def attach(self, medium: Any) -> None:
@@ -179,8 +181,6 @@ class CanHostPort(HostPort):
         self._medium = medium
         for door in self.doors:
             door.attach(medium)
-        if self._medium is not None and self.virtual is not None:
-            medium._wake()
 
     # ------------------------------------------------------------------ the medium's side
 
