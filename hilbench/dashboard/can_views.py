@@ -59,6 +59,7 @@ def _keys(tr: CanTracker) -> list[tuple[int, bool]]:
 
 
 def header(tr: CanTracker, source: str, width: int, now: float | None) -> list[Text]:
+    """Two lines: source and counts (red when a node is lost or error frames were seen), then the bus."""
     lost = [n for n in tr.nodes.values() if n.lost]
     bad = bool(lost) or tr.error_frames > 0
     bar = Text(style="bold white on red" if bad else "bold white on dark_green")
@@ -85,6 +86,7 @@ def header(tr: CanTracker, source: str, width: int, now: float | None) -> list[T
 
 
 def footer(tr: CanTracker, status: str, width: int) -> list[Text]:
+    """Two lines: the newest problem, then the keys and the source's status."""
     problems = [e for e in tr.events if e.level != "info"]
     if problems:
         e = problems[-1]
@@ -103,6 +105,7 @@ def _ms(x: float | None, nd: int = 2) -> str:
 
 
 def ids_view(tr: CanTracker, selected, width: int, height: int, scroll: int) -> Group:
+    """Every identifier: name, count, rate, period, jitter, latest signals (or data)."""
     lines = [_line(Text(TITLES["ids"], style="bold underline"), width=width)]
     fixed = (10, 17, 6, 6, 7, 6)
     w = (*fixed, max(8, width - sum(fixed) - len(fixed)))
@@ -133,6 +136,7 @@ def _fmt(v) -> str:
 
 
 def nodes_view(tr: CanTracker, selected_node: int | None, width: int, height: int, now: float | None) -> Group:
+    """CANopen nodes (state, heartbeat, misses, EMCY, SDO counts) and the latest SDO transfers."""
     lines = [_line(Text(TITLES["nodes"], style="bold underline"), width=width)]
     w = (5, 16, 9, 9, 7, 6, 6, max(10, width - 5 - 16 - 9 - 9 - 7 - 6 - 6 - 7))
     lines.append(_row([("node", w[0], ">"), ("NMT state", w[1], "<"), ("heartb.", w[2], ">"),
@@ -163,6 +167,7 @@ def nodes_view(tr: CanTracker, selected_node: int | None, width: int, height: in
 
 
 def signals_view(tr: CanTracker, selected, width: int, height: int, scroll: int) -> Group:
+    """One identifier in detail: timing, data, decoded signals."""
     lines = [_line(Text(TITLES["signals"], style="bold underline"), width=width)]
     if selected is None or selected not in tr.ids:
         lines.append(_line("no frames yet", "dim", width))
@@ -189,6 +194,7 @@ def signals_view(tr: CanTracker, selected, width: int, height: int, scroll: int)
 
 
 def log_view(tr: CanTracker, width: int, height: int, scroll: int) -> Group:
+    """The event log, newest at the bottom."""
     lines = [_line(Text(TITLES["log"], style="bold underline"), width=width)]
     events = list(tr.events)
     room = max(0, height - 1)

@@ -200,14 +200,17 @@ class CanMedium(Medium):
         return bits / (self.bitrate * window)
 
     def status(self) -> dict[str, Any]:
-        """The bus's figures for the manifest and the control channel."""
+        """The bus's figures for the manifest and the control channel (safe from any thread)."""
         s = self.stats
+        tec, off = dict(self.tec), set(self._bus_off)  # copies: the bus thread changes them
         return {"bitrate": self.bitrate, "paced": self.paced, "frames": s.frames, "error_frames": s.error_frames,
                 "failed_attempts": s.attempts_failed, "dropped_bus_off": s.dropped_bus_off,
                 "dropped_queue_full": s.dropped_queue_full, "load": round(self.load(), 4),
                 "faults": dict(self.faults),
-                "controllers": {src: {"tec": self.tec.get(src, 0), "state": self.controller_state(src)}
-                                for src in sorted(set(self.tec) | self._bus_off)}}
+                "controllers": {src: {"tec": tec.get(src, 0),
+                                      "state": "bus-off" if src in off else
+                                      "passive" if tec.get(src, 0) >= ERROR_PASSIVE else "active"}
+                                for src in sorted(set(tec) | off)}}
 
     # ------------------------------------------------------------------ sending
 

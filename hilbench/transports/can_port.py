@@ -43,7 +43,7 @@ import os
 import threading
 import uuid
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 from hilbench.errors import OptionError
 from hilbench.protocols import socketcand as sc
@@ -89,6 +89,37 @@ def _name_option(value: Any, key: str, *, allow_true: bool) -> Any:
         return value
     extra = "true, " if allow_true else ""
     raise OptionError(key, f"expected {extra}a name string or false, got {value!r}")
+
+
+class CanDoor(Protocol):
+    """What a door of a CAN host port does; the :class:`~hilbench.transports.can_medium.CanMedium` drives it
+    from its own thread, through :class:`CanHostPort` (which fans out to every door)."""
+
+    kind: str
+
+    def attach(self, medium: Any) -> None:
+        """The bus it serves (its bitrate, its clock's Unix time offset)."""
+
+    def filenos(self) -> list[int]:
+        """Descriptors the bus thread waits on for this door."""
+
+    def read_frames(self, now: float) -> list[tuple[str, CanFrame]]:
+        """Frames the door's clients sent, each with its sender's name (called when a descriptor is ready)."""
+
+    def write_frame(self, t: float, source: str, frame: CanFrame) -> None:
+        """A frame (or error frame) on the bus at ``t``: queue it for every client but ``source``."""
+
+    def flush(self) -> None:
+        """Send what :meth:`write_frame` queued (once per round of the bus thread)."""
+
+    def deadline(self) -> float | None:
+        """When the door next needs :meth:`poll` (a handshake delay, a cyclic job), or None."""
+
+    def poll(self, now: float) -> list[tuple[str, CanFrame]]:
+        """Timed work; returns frames it sends (cyclic jobs)."""
+
+    def close(self) -> None:
+        """Release the door's sockets or pty."""
 
 
 class CanHostPort(HostPort):

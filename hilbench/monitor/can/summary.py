@@ -59,6 +59,7 @@ def _value(v: Any) -> Any:
 
 
 def id_summary(tracker: CanTracker, stats) -> dict[str, Any]:
+    """One identifier's entry of the summary."""
     iv = stats.intervals
     timed = tracker.timestamps and iv.n > 0
     return {
@@ -81,6 +82,7 @@ def id_summary(tracker: CanTracker, stats) -> dict[str, Any]:
 
 
 def node_summary(tracker: CanTracker, node) -> dict[str, Any]:
+    """One CANopen node's entry of the summary."""
     period = node.period()
     return {
         "nmt_state": node.state_name,
@@ -103,6 +105,7 @@ def node_summary(tracker: CanTracker, node) -> dict[str, Any]:
 
 
 def transfer_summary(tracker: CanTracker, tr) -> dict[str, Any]:
+    """One SDO transfer's entry of the summary."""
     value = tr.value()
     return {
         "node": tr.node,

@@ -191,6 +191,7 @@ class CanTracker:
     # ------------------------------------------------------------------ feeding
 
     def feed(self, t: float, source: str, data: bytes) -> None:
+        """SocketCAN frame records ``source`` put on the bus at ``t`` (a torn tail is counted, not fatal)."""
         frames, rest = cf.split(data)
         self.bytes += len(data)
         if rest:
@@ -200,6 +201,7 @@ class CanTracker:
             self.frame(t, source, frame)
 
     def gap(self, t: float, source: str, nbytes: int) -> None:
+        """``nbytes`` of ``source``'s records were lost before the monitor."""
         n = max(1, nbytes // cf.FRAME_SIZE)
         self.lost_frames += n
         self._event(t, "dropped", None, f"{n} frames from {source} lost before the monitor", "warn")
@@ -208,6 +210,7 @@ class CanTracker:
         """Frames are whole: nothing is ever partial."""
 
     def finish(self) -> None:
+        """The source ended: judge the silence up to its last frame."""
         if self.t_last is not None:
             self.tick(self.t_last)
 
@@ -230,6 +233,7 @@ class CanTracker:
     # ------------------------------------------------------------------ one frame
 
     def frame(self, t: float, source: str, frame: CanFrame) -> None:
+        """One frame (or error frame) at ``t``."""
         if self.t0 is None:
             self.t0 = t
         if self.t_last is None or t > self.t_last:
