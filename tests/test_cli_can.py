@@ -151,6 +151,15 @@ def test_a_whole_session_decodes_with_the_exported_dbc(can_bench, tmp_path):
     assert {0x000, 0x082, 0x182, 0x202, 0x282, 0x382, 0x482, 0x582, 0x602, 0x702} <= ids
     for m in messages:  # every frame of the session, strictly
         db.decode_message(m.arbitration_id, bytes(m.data))
+    # cantools' own command line reads the candump log and decodes every line with the exported DBC.
+    dbc = tmp_path / "rover.dbc"
+    dbc.write_text(hb("can", "dbc", "mecarover-can").stdout)
+    decoded = subprocess.run([sys.executable, "-m", "cantools", "decode", "--single-line", str(dbc)],
+                             input=log.read_text(), capture_output=True, text=True, timeout=60)
+    lines = decoded.stdout.splitlines()
+    assert decoded.returncode == 0 and len(lines) == len(messages)
+    assert all(" :: " in line and "Unknown frame id" not in line for line in lines)
+    assert any(":: OdometryPose_02(x: " in line for line in lines)
     report = json.loads(hb("monitor", str(log), "--summary", "--json", "--dbc", "mecarover-can").stdout)
     node = report["nodes"]["2"]
     assert node["nmt_state"] == "OPERATIONAL" and node["heartbeat_period_ms"] == 500.0
