@@ -112,6 +112,10 @@ class SlcanAdapter:
         elif op == "C":
             self.open = False
             self.listen_only = False
+            # Frames an earlier client left unread in the pty must not greet the next one (every
+            # client's opening sequence starts with C; the adapter's own queue empties on close too).
+            self.out.clear()
+            self.pty.discard_client_input()
             self.out += ok
         elif op == "S":
             rate = slcan.BITRATES.get(cmd.value)

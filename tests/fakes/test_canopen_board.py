@@ -231,3 +231,26 @@ def test_canopen_in_another_process_over_socketcand(tmp_path):
         assert res["period_after"] == pytest.approx(0.1, abs=0.03)
         assert res["odometry_x"] > 0.1 and abs(res["odometry_y"]) < 0.01
         assert bench.node(2).heartbeat_ms == 100
+
+
+def test_bus_off_and_recovery_raise_emcy(rover):
+    bench, net, node = rover()
+    board = bench.node(2)
+    family = bench.endpoint().family
+    states = []
+    original = board.on_bus_state
+
+    def spy(state, t):
+        states.append(state)
+        original(state, t)
+
+    board.on_bus_state = spy
+    reply = family.control(bench, board, "bus", {"knobs": {"bus_off": "rover"}})
+    assert reply["bus"]["bitrate"] == 500_000
+    wait_until(lambda: "recovered" in states, timeout=2)  # 128 x 11 bits later
+    assert states[0] == "bus-off"
+    emcy = wait_until(lambda: next((e for e in node.emcy.log if e.code == co.ERR_BUS_OFF_RECOVERED), None))
+    assert emcy.register & co.REG_COMMUNICATION
+    wait_until(lambda: any(e.code == 0 for e in node.emcy.log))  # and the error reset after it
+    with pytest.raises(Exception, match="bus fault error_rate"):
+        family.control(bench, board, "bus", {"knobs": {"error_rate": 5}})

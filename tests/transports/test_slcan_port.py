@@ -130,3 +130,19 @@ def test_python_can_slcan_in_another_process(slcan_bus):
     wait_until(lambda: sum(f.can_id == 0x18FF50E5 for f in dev.frames) == 5)
     assert all(f.extended for f in dev.frames if f.can_id == 0x18FF50E5)
     assert not adapter.open  # python-can's shutdown sends C
+
+
+def test_close_discards_what_an_earlier_client_left_unread(slcan_bus):
+    adapter, dev, dport = slcan_bus()
+    tty = Tty(adapter.path)
+    assert tty.cmd("O") == b"\r"
+    for i in range(5):
+        dport.send(data_frame(0x100 + i, b""))
+    wait_until(lambda: adapter.received == 5)
+    tty.close()  # gone without reading or closing the channel
+    tty = Tty(adapter.path)
+    os.write(tty.fd, b"C\r")  # the next client's first command; it reads only later (as python-can does)
+    wait_until(lambda: not adapter.open)
+    assert tty.line() == b"\r"  # the reply, and none of the stale frames
+    assert tty.quiet()
+    tty.close()
