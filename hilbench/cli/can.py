@@ -397,7 +397,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                        description=HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
     cs = p.add_subparsers(dest="can_cmd", required=True, metavar="COMMAND")
 
-    d = cs.add_parser("dbc", help="export the DBC of a profile's CANopen boards (cantools, SavvyCAN, CANoe read it)")
+    d = cs.add_parser("dbc", help="export the DBC of a profile's CANopen boards (cantools reads it)")
     d.add_argument("profile", help="profile file or bundled profile name (e.g. mecarover-can)")
     d.add_argument("-o", "--output", metavar="FILE", help="write to FILE instead of stdout")
     d.set_defaults(func=cmd_dbc)

@@ -1,4 +1,4 @@
-"""CAN message descriptions and their DBC text (what cantools, SavvyCAN and CANoe read).
+"""CAN message descriptions and their DBC text (the database format cantools and CAN tools read).
 
 A :class:`Message` lists its :class:`Signal` s in byte order; this module
 turns a list of them into a DBC database. Only what hilbench's layouts use is

@@ -9,9 +9,9 @@ profile key          door                                                    who
 ===================  ======================================================  =====================================
 ``socketcand``       socketcand server on 127.0.0.1 (default: on, port 0,    python-can ``socketcand``, can.viewer,
                      channel ``can0``): :mod:`~hilbench.transports.           can.logger, cantools monitor, canopen,
-                     socketcand_server`                                      SavvyCAN
-``slcan``            LAWICEL adapter on a pty (default: on; a path makes a   python-can ``slcan``, slcand,
-                     stable link): :mod:`~hilbench.transports.slcan_port`    SavvyCAN's LAWICEL connection
+                     socketcand_server`                                      (SavvyCAN: untested)
+``slcan``            LAWICEL adapter on a pty (default: on; a path makes a   python-can ``slcan``, cantools monitor
+                     stable link): :mod:`~hilbench.transports.slcan_port`    (slcand, SavvyCAN: untested)
 ``virtual``          python-can ``virtual`` channel (default: off; also      code in the bench's own process
                      opened on demand by ``bench.can_bus()``)
 ``socketcan``        a kernel interface such as ``vcan0`` (default: off);    can-utils, Wireshark, everything

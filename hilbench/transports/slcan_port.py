@@ -2,8 +2,8 @@
 
 The pty behaves like a USB-CAN adapter speaking LAWICEL ASCII
 (:mod:`hilbench.protocols.slcan`): python-can's ``slcan`` interface,
-``cantools monitor -i slcan``, SavvyCAN's LAWICEL connection or Linux
-``slcand`` open it as ``/dev/pts/N`` (or the stable link). Like the real
+``cantools monitor -i slcan`` (and, untested here, SavvyCAN's LAWICEL connection or
+Linux ``slcand``) open it as ``/dev/pts/N`` (or the stable link). Like the real
 adapter it starts closed: frames flow after ``O`` (normal) or ``L``
 (listen-only, sending refused with BEL), stop after ``C``; ``Sn``/``sXXYY``
 set the bitrate while closed (BEL when open); ``Z1`` adds millisecond time

@@ -1,8 +1,8 @@
 """A socketcand server on 127.0.0.1: other processes join an emulated CAN bus over TCP.
 
 Unmodified python-can (``interface="socketcand"``), ``can.viewer``,
-``can.logger``, ``cantools monitor``, the ``canopen`` package and SavvyCAN
-(Kayak connection) connect here as they would to the linux-can daemon
+``can.logger``, ``cantools monitor`` and the ``canopen`` package connect here (SavvyCAN's
+Kayak connection speaks the same protocol; not tested) as they would to the linux-can daemon
 (:mod:`hilbench.protocols.socketcand` has the message syntax). Each client is
 a party of its own on the bus: it receives every frame but its own.
 
