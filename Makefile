@@ -59,3 +59,4 @@ bench: $(VENV)/.installed
 	$(PY) tools/bench_remote.py
 	$(PY) tools/bench_run.py
 	$(PY) tools/bench_lidar.py
+	$(PY) tools/bench_can.py

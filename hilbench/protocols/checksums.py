@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import crcmod
 import crcmod.predefined
 
 #: CRC-16/BUYPASS (poly 0x8005, init 0, not reflected): Dynamixel Protocol 2.0.
@@ -53,3 +54,9 @@ def scip_sum(data: bytes) -> int:
     """Hokuyo SCIP 2.0 line checksum character: low 6 bits of the byte sum, plus 0x30."""
     # Too small for a library: a sum and a mask.
     return (sum(data) & 0x3F) + 0x30
+
+
+#: CRC-8/SAE-J1850 (poly 0x1D, init 0xFF, xorout 0xFF, not reflected; check "123456789" = 0x4B): the
+#: AUTOSAR E2E profile 1 CRC, protecting the rover board's CAN velocity setpoint. crcmod's ``initCrc`` is
+#: the initial register XORed with ``xorOut``, hence 0x00 for init 0xFF.
+crc8_sae_j1850 = crcmod.mkCrcFun(0x11D, initCrc=0x00, rev=False, xorOut=0xFF)
