@@ -47,7 +47,6 @@ from construct import (
     Int64ul,
     Padding,
     Struct,
-    this,
 )
 
 #: RTPS encapsulation identifiers (2 octets, always big-endian on the wire), §2.6.

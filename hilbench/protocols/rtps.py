@@ -459,10 +459,7 @@ def parse_locator(value: bytes, le: bool = True) -> tuple[int, str, int] | None:
         return None
     kind, port = struct.unpack_from("<iI" if le else ">iI", value, 0)
     addr = value[8:24]
-    if kind == LOCATOR_KIND_UDPV4:
-        text = ".".join(str(b) for b in addr[12:])
-    else:
-        text = addr.hex()
+    text = ".".join(str(b) for b in addr[12:]) if kind == LOCATOR_KIND_UDPV4 else addr.hex()
     return kind, text, port
 
 
