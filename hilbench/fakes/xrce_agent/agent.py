@@ -203,7 +203,7 @@ class XrceAgent:
     def _heartbeats(self) -> None:
         if not self._running:
             return
-        for s in list(self.sessions.values()):
+        for s in list(self.by_key.values()):
             for stream_id, out in s.rel_out.items():
                 hb = out.heartbeat()
                 if hb is not None:
@@ -243,8 +243,11 @@ class XrceAgent:
             self._unknown_client(data, hs, src)
             return
         s.last_seen = t
-        if sid < 0x80 and s.address != src:
-            s.address = src  # a keyed client may move
+        if sid < 0x80 and s.address != src:  # a keyed client may move
+            if self.sessions.get(s.address) is s:
+                del self.sessions[s.address]
+            s.address = src
+            self.sessions[src] = s
         if stream == x.STREAM_NONE:
             self._process(s, data, hs, t)
         elif stream < 0x80:
@@ -383,6 +386,8 @@ class XrceAgent:
             existing = self.by_key.get(key)
             if existing is not None and existing.session_id == fields.session_id:
                 existing.reset_streams()
+                if self.sessions.get(existing.address) is existing:
+                    del self.sessions[existing.address]  # the client moved (a new socket after a restart)
                 existing.address = src
                 existing.mtu = fields.mtu
                 self.sessions[src] = existing
@@ -514,7 +519,7 @@ class XrceAgent:
     def route(self, topic: str | None, type_name: str | None, cdr: bytes, *, reliable: bool = True) -> int:
         """Hand a sample to every matching reader of every client (as the agent's DDS participants do)."""
         n = 0
-        for s in list(self.sessions.values()):
+        for s in list(self.by_key.values()):
             for ent in list(s.entities.values()):
                 if ent.kind != K.DATAREADER:
                     continue
