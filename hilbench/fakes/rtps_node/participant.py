@@ -172,6 +172,7 @@ class RtpsParticipant:
                                        "heartbeats_sent", "retransmissions", "non_loopback_locators",
                                        "foreign"), 0)
         self._running = False
+        self._vendor = b""
 
     # ------------------------------------------------------------------ set-up
 
@@ -417,6 +418,7 @@ class RtpsParticipant:
         if msg.guid_prefix == self.prefix:
             return  # our own message (a receiver drops those, §2.3)
         src_prefix = msg.guid_prefix
+        self._vendor = msg.vendor_id
         dest = None
         ts: float | None = None
         for sub in msg.submessages:
@@ -497,7 +499,7 @@ class RtpsParticipant:
             remote = self.remotes[prefix] = Remote(prefix, meta, user)
         remote.meta, remote.user = meta, user
         remote.lease_s = p.get("lease_s", remote.lease_s) or remote.lease_s
-        remote.vendor_id = p.get("vendor_id", b"")
+        remote.vendor_id = self._vendor  # the header's (FreeRTPS's PL vendor id differs, §2.3)
         remote.name = p.get("name")
         remote.last_spdp = time.monotonic()
         remote.spdp_count += 1

@@ -1,0 +1,100 @@
+"""The FreeRTPS nodes against a standard DDS participant: Eclipse Cyclone DDS (``cyclonedds``), unmodified,
+in a separate process, multicast off, 127.0.0.1 its peer. It discovers the nodes, receives their samples at
+the stated rate, and gets its own samples echoed back."""
+
+from __future__ import annotations
+
+import json
+import socket
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from hilbench.bench import Bench
+from hilbench.bench.profile import parse_profile
+from hilbench.protocols import rtps
+
+pytest.importorskip("cyclonedds", reason="the cyclonedds package (a standard DDS participant) is not installed")
+PEER = Path(__file__).resolve().parents[1] / "helpers" / "cyclone_peer.py"
+
+
+def free_domain(indices: int = 4) -> int:
+    """A domain whose standard unicast ports of the first ``indices`` participants are free on 127.0.0.1."""
+    for domain in range(180, 233):
+        socks = []
+        try:
+            for i in range(indices + 2):
+                for kind in ("metatraffic_unicast", "user_unicast"):
+                    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+                    socks.append(s)
+                    s.bind(("127.0.0.1", rtps.ports(domain, i)[kind]))
+            return domain
+        except OSError:
+            continue
+        finally:
+            for s in socks:
+                s.close()
+    pytest.skip("no RTPS domain with free ports on 127.0.0.1")
+
+
+def profile(domain: int) -> dict:
+    return {"schema": 1, "endpoints": {"nodes": {"type": "udp", "protocol": "rtps", "domain_id": domain}},
+            "devices": [
+                {"name": "talker", "participant_index": 0, "topics": [
+                    {"name": "chatter", "type": "std_msgs/String", "direction": "pub", "rate_hz": 20,
+                     "value": "Hello {n}"}]},
+                {"name": "setpoint", "participant_index": 1, "topics": [
+                    {"name": "desiredVolt", "type": "std_msgs/UInt32", "direction": "pub", "rate_hz": 10,
+                     "value": 1638}]},
+                {"name": "echo", "participant_index": 2, "topics": [
+                    {"name": "echo_in", "type": "std_msgs/String", "direction": "sub"},
+                    {"name": "echo_out", "type": "std_msgs/String", "direction": "pub", "echo_of": "echo_in"}]},
+            ]}
+
+
+def peer(cfg: dict, timeout: float = 40) -> dict:
+    r = subprocess.run([sys.executable, str(PEER), json.dumps(cfg)], capture_output=True, text=True, timeout=timeout)
+    assert r.returncode == 0, r.stderr[-2000:]
+    return json.loads(r.stdout.strip().splitlines()[-1])
+
+
+@pytest.fixture
+def nodes():
+    domain = free_domain()
+    bench = Bench(parse_profile(profile(domain), "nodes.toml")).start()
+    yield bench, domain
+    bench.stop()
+
+
+def test_cyclone_receives_the_talker_at_its_rate(nodes) -> None:
+    bench, domain = nodes
+    got = peer({"mode": "listen", "domain": domain, "topic": "rt/chatter", "seconds": 3.0})
+    values, times = got["values"], got["times"]
+    assert len(values) >= 20, got
+    assert all(v.startswith("Hello ") for v in values)
+    numbers = [int(v.split()[1]) for v in values]
+    assert numbers == sorted(numbers) and len(set(numbers)) == len(numbers)
+    # The stated 20 Hz, measured over the samples received (first to last).
+    rate = (len(times) - 1) / (times[-1] - times[0])
+    assert 15 <= rate <= 25, rate
+    talker = bench.device("talker").participant
+    assert any(r.vendor_id == b"\x01\x10" for r in talker.remotes.values())  # Cyclone's own vendor id
+
+
+def test_cyclone_decodes_the_uint32_setpoint(nodes) -> None:
+    _, domain = nodes
+    got = peer({"mode": "listen", "domain": domain, "topic": "rt/desiredVolt", "type": "std_msgs/UInt32",
+                "seconds": 2.0})
+    assert got["values"] and set(got["values"]) == {1638}
+
+
+def test_the_echo_node_returns_cyclones_samples(nodes) -> None:
+    bench, domain = nodes
+    got = peer({"mode": "echo", "domain": domain, "topic": "rt/echo_in", "reply_topic": "rt/echo_out", "count": 10})
+    assert got["matched"] >= 1
+    assert got["back"] == got["sent"]
+    echo = bench.device("echo")
+    assert echo.received["echo_in"] == 10 and echo.published["echo_out"] == 10
+    assert [s["data"] for s in echo.samples["echo_in"]] == got["sent"]
