@@ -456,6 +456,74 @@ def binary_blob(name: str, value: dict[str, Any], le: bool = True) -> bytes:
     return payload_layout(name, le).build(value)
 
 
+# --------------------------------------------------------------------------- entity representations
+
+
+def _xml_text(root: Any, *path: str) -> str | None:
+    node = root
+    for tag in path:
+        if node is None:
+            return None
+        node = next((c for c in node.iter() if c.tag.split("}")[-1] == tag), None)
+    return node.text.strip() if node is not None and node.text else None
+
+
+def representation_info(kind: int, rep: Any, le: bool = True) -> dict[str, Any]:
+    """What a CREATE's representation says (``rep`` = the kind's parsed body): ``format`` and, as far as
+    the representation tells, ``topic``, ``type``, ``reliable``, ``depth``, ``name``, ``topic_id``,
+    ``parent``, ``domain_id``; ``error`` for XML or binary that cannot be read. Never raises."""
+    import xml.etree.ElementTree as ET
+
+    out: dict[str, Any] = {}
+    if rep is None or "representation" not in rep:
+        return out
+    for key in ("participant_id", "publisher_id", "subscriber_id"):
+        if key in rep:
+            out["parent"] = bytes(rep[key])
+    if kind == ObjectKind.PARTICIPANT:
+        out["domain_id"] = rep.domain_id
+    fmt, value = rep.representation.format, rep.representation.value
+    out["format"] = {REPRESENTATION_BY_REFERENCE: "ref", REPRESENTATION_AS_XML: "xml",
+                     REPRESENTATION_IN_BINARY: "binary"}.get(fmt, str(fmt))
+    try:
+        if fmt == REPRESENTATION_BY_REFERENCE:
+            out["name"] = str(value)
+        elif fmt == REPRESENTATION_AS_XML:
+            root = ET.fromstring(str(value).strip() or "<dds/>")
+            if kind == ObjectKind.PARTICIPANT:
+                out["name"] = _xml_text(root, "name")
+            else:
+                out["topic"] = _xml_text(root, "topic", "name") or _xml_text(root, "name")
+                out["type"] = _xml_text(root, "topic", "dataType") or _xml_text(root, "dataType")
+                depth = _xml_text(root, "historyQos", "depth") or _xml_text(root, "history", "depth")
+                if depth and depth.isdigit():
+                    out["depth"] = int(depth)
+                rel = _xml_text(root, "reliability", "kind")
+                if rel is not None:
+                    out["reliable"] = rel.upper().startswith("RELIABLE")
+        elif fmt == REPRESENTATION_IN_BINARY:
+            blob = bytes(value)
+            if kind == ObjectKind.PARTICIPANT:
+                b = payload_layout("participant_binary", le).parse(blob)
+                out["name"] = b.qos_profile_reference or b.domain_reference
+            elif kind == ObjectKind.TOPIC:
+                b = payload_layout("topic_binary", le).parse(blob)
+                out["topic"], out["type"] = b.topic_name, b.type_name or b.type_reference
+            elif kind in (ObjectKind.PUBLISHER, ObjectKind.SUBSCRIBER):
+                out["name"] = payload_layout("publisher_binary", le).parse(blob).name
+            elif kind in (ObjectKind.DATAWRITER, ObjectKind.DATAREADER):
+                name = "datawriter_binary" if kind == ObjectKind.DATAWRITER else "datareader_binary"
+                b = payload_layout(name, le).parse(blob)
+                out["topic_id"] = bytes(b.topic_id)
+                if b.optional_qos:
+                    out["reliable"] = bool(b.qos.base.qos_flags & QOS_RELIABLE)
+                    if b.qos.base.optional_history_depth:
+                        out["depth"] = b.qos.base.history_depth
+    except Exception as exc:  # noqa: BLE001 (bad XML or a short blob: reported, not raised)
+        out["error"] = f"{type(exc).__name__}"
+    return out
+
+
 # --------------------------------------------------------------------------- parsing
 
 
@@ -641,6 +709,6 @@ __all__ = [
     "align4", "binary_blob", "build_header", "build_message", "build_payload", "build_submessage",
     "client_representation", "create", "data", "decode_payload", "delete", "get_info", "header_size", "heartbeat",
     "info_agent", "is_zero_fill", "looks_like_xrce", "object_id", "object_text", "parse_message",
-    "payload_layout", "read_data", "scan", "seq_newer", "split_object_id", "status", "status_agent", "timestamp",
+    "payload_layout", "read_data", "representation_info", "scan", "seq_newer", "split_object_id", "status", "status_agent", "timestamp",
     "timestamp_reply",
 ]

@@ -362,9 +362,7 @@ class XrceAgent:
             self.counters["invalid_create_client"] += 1
             return
         key = bytes(fields.client_key)
-        if key == b"\x00\x00\x00\x00":
-            result = x.Status.ERR_INVALID_DATA
-        elif bytes(fields.xrce_cookie) != x.COOKIE:
+        if key == b"\x00\x00\x00\x00" or bytes(fields.xrce_cookie) != x.COOKIE:
             result = x.Status.ERR_INVALID_DATA
         elif fields.xrce_version[0] != 1:
             result = x.Status.ERR_INCOMPATIBLE

@@ -12,7 +12,6 @@ representations.
 
 from __future__ import annotations
 
-import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -62,29 +61,6 @@ class EntityError(ValueError):
         self.status = status
 
 
-def _xml_find(root: ET.Element, *path: str) -> str | None:
-    node: ET.Element | None = root
-    for tag in path:
-        if node is None:
-            return None
-        node = next((c for c in node.iter() if c.tag.split("}")[-1] == tag), None)
-    return node.text.strip() if node is not None and node.text else None
-
-
-def _parse_xml(text: str) -> ET.Element:
-    try:
-        return ET.fromstring(text.strip() or "<dds/>")
-    except ET.ParseError as exc:
-        raise EntityError(x.Status.ERR_INVALID_DATA, f"invalid XML: {exc}") from None
-
-
-def _reliability(root: ET.Element, default: bool) -> bool:
-    kind = _xml_find(root, "reliability", "kind")
-    if kind is None:
-        return default
-    return kind.upper().startswith("RELIABLE")
-
-
 def entity_from_create(object_id: bytes, rep: Any, le: bool, refs: dict[str, dict[str, Any]]) -> Entity:
     """An :class:`Entity` from a CREATE's ``object_representation`` (construct container); raises EntityError."""
     kind = rep.kind
@@ -95,79 +71,34 @@ def entity_from_create(object_id: bytes, rep: Any, le: bool, refs: dict[str, dic
     if kind in (K.AGENT, K.CLIENT):
         raise EntityError(x.Status.ERR_INVALID_DATA, "agent and client objects are not created by CREATE")
     representation = body.representation
-    fmt, value = representation.format, representation.value
-    ent.representation = (fmt, value)
-    for key in ("participant_id", "publisher_id", "subscriber_id"):
-        if key in body:
-            ent.parent = bytes(body[key])
-    if kind == K.PARTICIPANT:
-        ent.domain_id = body.domain_id
-    if fmt == x.REPRESENTATION_BY_REFERENCE:
-        ref = refs.get(str(value))
+    ent.representation = (representation.format, representation.value)
+    info = x.representation_info(kind, body, le)
+    if "error" in info:
+        raise EntityError(x.Status.ERR_INVALID_DATA, f"unreadable {info.get('format')} representation: "
+                                                    f"{info['error']}")
+    ent.parent = info.get("parent")
+    ent.domain_id = info.get("domain_id", 0)
+    ent.topic_id = info.get("topic_id")
+    ent.name = info.get("name")
+    if info.get("format") == "ref":
+        ref = refs.get(str(representation.value))
         if ref is None and kind != K.PARTICIPANT:
-            raise EntityError(x.Status.ERR_UNKNOWN_REFERENCE, f"unknown reference {value!r}")
+            raise EntityError(x.Status.ERR_UNKNOWN_REFERENCE, f"unknown reference {representation.value!r}")
         ref = ref or {}
-        ent.name = str(value)
-        ent.topic = ref.get("topic")
-        ent.type_name = ref.get("type")
-        ent.reliable = ref.get("reliable")
+        ent.topic, ent.type_name, ent.reliable = ref.get("topic"), ref.get("type"), ref.get("reliable")
         ent.depth = int(ref.get("depth", 1))
-    elif fmt == x.REPRESENTATION_AS_XML:
-        _from_xml(ent, str(value))
-    elif fmt == x.REPRESENTATION_IN_BINARY:
-        _from_binary(ent, bytes(value), le)
+    elif info.get("format") in ("xml", "binary"):
+        ent.topic, ent.type_name = info.get("topic"), info.get("type")
+        ent.reliable = info.get("reliable")
+        ent.depth = max(1, int(info.get("depth", 1)))
+        if kind == K.TOPIC and not ent.topic:
+            raise EntityError(x.Status.ERR_INVALID_DATA, "topic without a name")
     else:
-        raise EntityError(x.Status.ERR_INVALID_DATA, f"unknown representation format {fmt}")
+        raise EntityError(x.Status.ERR_INVALID_DATA, f"unknown representation format {representation.format}")
     if ent.reliable is None and kind in (K.DATAWRITER, K.DATAREADER):
         # Fast DDS defaults: writers reliable, readers best-effort.
         ent.reliable = kind == K.DATAWRITER
     return ent
-
-
-def _from_xml(ent: Entity, text: str) -> None:
-    root = _parse_xml(text)
-    if ent.kind == K.PARTICIPANT:
-        ent.name = _xml_find(root, "name")
-    elif ent.kind in (K.TOPIC, K.DATAWRITER, K.DATAREADER, K.REQUESTER, K.REPLIER):
-        ent.topic = _xml_find(root, "topic", "name") or _xml_find(root, "name")
-        ent.type_name = _xml_find(root, "topic", "dataType") or _xml_find(root, "dataType")
-        depth = _xml_find(root, "historyQos", "depth") or _xml_find(root, "history", "depth")
-        if depth and depth.isdigit():
-            ent.depth = max(1, int(depth))
-        if ent.kind in (K.DATAWRITER, K.DATAREADER):
-            ent.reliable = _reliability(root, ent.kind == K.DATAWRITER)
-        if ent.kind == K.TOPIC and not ent.topic:
-            raise EntityError(x.Status.ERR_INVALID_DATA, "topic XML without a name")
-
-
-def _from_binary(ent: Entity, blob: bytes, le: bool) -> None:
-    kind = ent.kind
-    try:
-        if kind == K.PARTICIPANT:
-            b = x.payload_layout("participant_binary", le).parse(blob)
-            ent.name = b.qos_profile_reference or b.domain_reference
-        elif kind == K.TOPIC:
-            b = x.payload_layout("topic_binary", le).parse(blob)
-            ent.topic, ent.type_name = b.topic_name, b.type_name or b.type_reference
-        elif kind in (K.PUBLISHER, K.SUBSCRIBER):
-            b = x.payload_layout("publisher_binary", le).parse(blob)
-            ent.name = b.name
-        elif kind in (K.DATAWRITER, K.DATAREADER):
-            b = x.payload_layout("datawriter_binary" if kind == K.DATAWRITER else "datareader_binary",
-                                 le).parse(blob)
-            ent.topic_id = bytes(b.topic_id)
-            if b.optional_qos:
-                ent.reliable = bool(b.qos.base.qos_flags & x.QOS_RELIABLE)
-                if b.qos.base.optional_history_depth:
-                    ent.depth = max(1, b.qos.base.history_depth)
-            else:
-                ent.reliable = kind == K.DATAWRITER
-        else:
-            raise EntityError(x.Status.ERR_INVALID_DATA, f"no binary representation for kind {kind}")
-    except EntityError:
-        raise
-    except Exception as exc:  # noqa: BLE001 (construct errors on a short or odd blob)
-        raise EntityError(x.Status.ERR_INVALID_DATA, f"bad binary representation: {type(exc).__name__}") from None
 
 
 def same(a: Entity, b: Entity) -> bool:
