@@ -124,6 +124,7 @@ class XrceClient:
         self._request = 10
         self._pending_status: dict[bytes, int | None] = {}
         self._zeroed_after = False
+        self._fragments = bytearray()
 
     # ------------------------------------------------------------------ running
 
@@ -466,7 +467,17 @@ class XrceClient:
             payload = data[off:off + length]
             if len(payload) < length:
                 return
-            if sub_id == S.STATUS and length >= 6:
+            if sub_id == S.FRAGMENT:
+                if not self._fragments:
+                    self._fragments += data[:4 if data[0] >= 0x80 else 8]
+                self._fragments += payload
+                if len(self._fragments) > 1 << 20:
+                    self._fragments.clear()
+                elif flags & x.FLAG_LAST_FRAGMENT:
+                    whole = bytes(self._fragments)
+                    self._fragments.clear()
+                    self._process(whole)
+            elif sub_id == S.STATUS and length >= 6:
                 req, status = payload[0:2], payload[4]
                 if req in self._pending_status:
                     self._pending_status[req] = status

@@ -79,6 +79,8 @@ class UdpEndpoint(HostPort):
         self.sock.bind((bind, port))
         self.sock.setblocking(False)
         self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, 1 << 20)
+        # Room for bursts while the medium's thread is busy (the kernel drops what does not fit).
+        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 21)
         self.fixed_peer = parse_address(peer) if peer else None
         self.peers: OrderedDict[tuple[str, int], None] = OrderedDict()
         self.bytes_in = 0

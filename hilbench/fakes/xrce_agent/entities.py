@@ -82,9 +82,9 @@ def entity_from_create(object_id: bytes, rep: Any, le: bool, refs: dict[str, dic
     ent.name = info.get("name")
     if info.get("format") == "ref":
         ref = refs.get(str(representation.value))
-        if ref is None and kind != K.PARTICIPANT:
-            raise EntityError(x.Status.ERR_UNKNOWN_REFERENCE, f"unknown reference {representation.value!r}")
-        ref = ref or {}
+        if ref is None:
+            # The agent's middleware finds no such profile: the creation fails (ERR_DDS_ERROR).
+            raise EntityError(x.Status.ERR_DDS_ERROR, f"unknown reference {representation.value!r}")
         ent.topic, ent.type_name, ent.reliable = ref.get("topic"), ref.get("type"), ref.get("reliable")
         ent.depth = int(ref.get("depth", 1))
     elif info.get("format") in ("xml", "binary"):
