@@ -5,7 +5,6 @@ the stated rate, and gets its own samples echoed back."""
 from __future__ import annotations
 
 import json
-import socket
 import subprocess
 import sys
 from pathlib import Path
@@ -14,29 +13,19 @@ import pytest
 
 from hilbench.bench import Bench
 from hilbench.bench.profile import parse_profile
-from hilbench.protocols import rtps
 
 pytest.importorskip("cyclonedds", reason="the cyclonedds package (a standard DDS participant) is not installed")
 PEER = Path(__file__).resolve().parents[1] / "helpers" / "cyclone_peer.py"
 
 
-def free_domain(indices: int = 4) -> int:
-    """A domain whose standard unicast ports of the first ``indices`` participants are free on 127.0.0.1."""
-    for domain in range(180, 233):
-        socks = []
-        try:
-            for i in range(indices + 2):
-                for kind in ("metatraffic_unicast", "user_unicast"):
-                    s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-                    socks.append(s)
-                    s.bind(("127.0.0.1", rtps.ports(domain, i)[kind]))
-            return domain
-        except OSError:
-            continue
-        finally:
-            for s in socks:
-                s.close()
-    pytest.skip("no RTPS domain with free ports on 127.0.0.1")
+def free_domain() -> int:
+    import importlib.util
+
+    path = Path(__file__).resolve().parents[1] / "helpers" / "domains.py"
+    spec = importlib.util.spec_from_file_location("domains", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod.free_domain()
 
 
 def profile(domain: int) -> dict:
@@ -98,3 +87,46 @@ def test_the_echo_node_returns_cyclones_samples(nodes) -> None:
     echo = bench.device("echo")
     assert echo.received["echo_in"] == 10 and echo.published["echo_out"] == 10
     assert [s["data"] for s in echo.samples["echo_in"]] == got["sent"]
+
+
+def test_agent_bridge_a_micro_ros_client_and_cyclone_see_each_other() -> None:
+    from hilbench.fakes.xrce_client import XrceClient
+    from hilbench.protocols import cdr
+    from hilbench.pytest_plugin import wait_until
+
+    domain = free_domain()
+    prof = {"schema": 1, "endpoints": {"agent": {"type": "udp", "protocol": "xrce-dds", "port": 0}},
+            "devices": [{"model": "micro-ros-agent", "name": "agent",
+                         "bridge": {"domain_id": domain, "participant_index": 0}}]}
+    bench = Bench(parse_profile(prof, "agent.toml")).start()
+    string = cdr.ros_type("std_msgs/String")
+    got: list[str] = []
+    client = XrceClient(tuple(bench.endpoint().port.address), name="uros")
+    pub = client.publish_on("rt/chatter", string.dds_name)
+    client.subscribe("rt/from_ros", string.dds_name, lambda d, le: got.append(string.decode(d).data))
+    try:
+        client.start()
+        wait_until(lambda: client.state == "running", 5)
+        listener = subprocess.Popen([sys.executable, str(PEER), json.dumps(
+            {"mode": "listen", "domain": domain, "topic": "rt/chatter", "seconds": 4.0})], stdout=subprocess.PIPE,
+            text=True)
+        try:
+            for i in range(70):
+                client.write(pub, string.encode({"data": f"uros {i}"}))
+                if listener.poll() is not None:
+                    break
+                import time
+
+                time.sleep(0.05)
+            heard = json.loads(listener.communicate(timeout=30)[0].strip().splitlines()[-1])["values"]
+        finally:
+            if listener.poll() is None:
+                listener.kill()
+        assert heard and all(v.startswith("uros ") for v in heard)
+        back = peer({"mode": "publish", "domain": domain, "topic": "rt/from_ros", "count": 5, "prefix": "ros"})
+        assert back["matched"] >= 1
+        wait_until(lambda: got == back["sent"], 5)
+        assert bench.manifest()["endpoints"][0]["bridge"]["domain_id"] == domain
+    finally:
+        client.close()
+        bench.stop()
