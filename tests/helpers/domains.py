@@ -9,9 +9,14 @@ import pytest
 from hilbench.protocols import rtps
 
 
-def free_domain(indices: int = 4, start: int = 180) -> int:
-    """A domain (from ``start`` up) whose first ``indices`` + 2 participants' unicast ports are all free."""
-    for domain in range(start, 233):
+def free_domain(indices: int = 4) -> int:
+    """A domain whose first ``indices`` + 2 participants' unicast ports are all free; tried in random order
+    among 100-232, so concurrent test runs on one machine rarely share one (and never domain 0)."""
+    import random
+
+    domains = list(range(100, 233))
+    random.shuffle(domains)
+    for domain in domains:
         socks = []
         try:
             for i in range(indices + 2):

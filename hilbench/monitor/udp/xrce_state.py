@@ -110,8 +110,9 @@ class XrceState:
             self._flag("xrce.zero_fill", t, src, f"zeroed {n}-byte datagram from {src}", s)
         if trailing > 3:
             self._flag("xrce.bad_length", t, src, f"{trailing} bytes after the last submessage", s)
-        if sid >= 0x81 and s.state not in ("established",) and direction == C2A and stream != 0:
-            self._flag("xrce.orphan_traffic", t, src, f"session 0x{sid:02X} traffic without an established session",
+        if sid >= 0x81 and direction == C2A and s.state in ("torn down", "closed", "rejected"):
+            # (A session never seen established may have started before the capture: no alarm for it.)
+            self._flag("xrce.orphan_traffic", t, src, f"session 0x{sid:02X} traffic after the session {s.state}",
                        s)
         if stream:
             key = (direction, stream)
@@ -227,7 +228,8 @@ class XrceState:
                 s.latency("create_client", t - s.create_client_t)
                 s.create_client_t = None
             if status >= 0x80:
-                s.state = "rejected"
+                if s.state != "torn down":  # after a takeover the rejection is of the zeroed request
+                    s.state = "rejected"
                 self._flag("xrce.agent_error", t, src, f"STATUS_AGENT {_status_name(status)}", s)
             elif s.session_id is not None and hdr_session != s.session_id:
                 self._event(t, "xrce", f"{s.client}: STATUS_AGENT with header 0x{hdr_session:02X}, the client "
