@@ -46,6 +46,7 @@ class UdpTracker:
         self.bytes = 0
         self.lost_bytes = 0
         self.senders: dict[str, list[int]] = {}
+        self._names: dict[tuple[str, int], str] = {}  # "host:port" texts, made once per address
         self.xrce = XrceState(self._event, self._flag, self.agent_ports)
         self.rtps = RtpsState(self._event, self._flag)
 
@@ -72,7 +73,15 @@ class UdpTracker:
         self.datagrams += 1
         self.bytes += n
         if addr is not None:
-            src, dst = f"{addr[0]}:{addr[1]}", f"{addr[2]}:{addr[3]}"
+            names = self._names
+            src = names.get((addr[0], addr[1]))
+            if src is None:
+                src = names[(addr[0], addr[1])] = f"{addr[0]}:{addr[1]}"
+            dst = names.get((addr[2], addr[3]))
+            if dst is None:
+                dst = names[(addr[2], addr[3])] = f"{addr[2]}:{addr[3]}"
+            if len(names) > 8192:
+                names.clear()
             sport, dport = addr[1], addr[3]
         else:
             src, dst, sport, dport = source, "?", None, None
