@@ -26,3 +26,4 @@ bench: $(VENV)/.installed
 	$(PY) tools/bench_monitor.py
 	$(PY) tools/bench_board.py
 	$(PY) tools/bench_profiler.py
+	$(PY) tools/bench_udp.py

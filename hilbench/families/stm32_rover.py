@@ -376,6 +376,10 @@ class BoardClient(ControlClient):
     def log(self, device: str | None = None) -> list[str]:
         return self.call("log", device=device)["log"]
 
+    def micro_ros(self, device: str | None = None, **knobs: int) -> dict[str, Any]:
+        """The micro-ROS link's status (``zeroed_next=N``: zero its next N datagrams first)."""
+        return self.call("micro_ros", device=device, **knobs)["micro_ros"]
+
     def wait_report(self, device: str | None = None, timeout: float = 10.0, after: int | None = None) -> dict:
         return self.call("wait_report", device=device, timeout=timeout, after=after)
 
