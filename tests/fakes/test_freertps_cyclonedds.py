@@ -37,6 +37,9 @@ def profile(domain: int) -> dict:
                 {"name": "setpoint", "participant_index": 1, "topics": [
                     {"name": "desiredVolt", "type": "std_msgs/UInt32", "direction": "pub", "rate_hz": 10,
                      "value": 1638}]},
+                {"name": "reliable", "participant_index": 3, "topics": [
+                    {"name": "status", "type": "std_msgs/String", "direction": "pub", "rate_hz": 20,
+                     "value": "ok {n}", "reliable": True}]},
                 {"name": "echo", "participant_index": 2, "topics": [
                     {"name": "echo_in", "type": "std_msgs/String", "direction": "sub"},
                     {"name": "echo_out", "type": "std_msgs/String", "direction": "pub", "echo_of": "echo_in"}]},
@@ -77,6 +80,16 @@ def test_cyclone_decodes_the_uint32_setpoint(nodes) -> None:
     got = peer({"mode": "listen", "domain": domain, "topic": "rt/desiredVolt", "type": "std_msgs/UInt32",
                 "seconds": 2.0})
     assert got["values"] and set(got["values"]) == {1638}
+
+
+def test_a_reliable_reader_gets_a_reliable_writer_in_order(nodes) -> None:
+    bench, domain = nodes
+    got = peer({"mode": "listen", "domain": domain, "topic": "rt/status", "reliable": True, "seconds": 3.0})
+    numbers = [int(v.split()[1]) for v in got["values"]]
+    assert len(numbers) >= 20 and numbers == list(range(numbers[0], numbers[0] + len(numbers)))  # no gap
+    writer = bench.device("reliable").writers["status"]
+    assert writer.reliable and writer.matched  # Cyclone's ACKNACKs reached the writer
+    assert bench.device("reliable").participant.counters["heartbeats_sent"] > 0
 
 
 def test_the_echo_node_returns_cyclones_samples(nodes) -> None:

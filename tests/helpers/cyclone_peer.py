@@ -3,7 +3,8 @@
 Run as a separate process: ``python cyclone_peer.py CONFIG_JSON``; prints one JSON object.
 Multicast off, 127.0.0.1 its only interface and peer. ``mode``:
 
-- ``listen``: subscribe to ``topic`` (std_msgs/String or UInt32) for ``seconds``; report arrival times and values;
+- ``listen``: subscribe to ``topic`` (std_msgs/String or UInt32; ``reliable`` for a RELIABLE reader) for
+  ``seconds``; report arrival times and values;
 - ``echo``: publish ``count`` Strings on ``topic`` and collect what comes back on ``reply_topic``;
 - ``publish``: publish ``count`` samples on ``topic`` at ``rate_hz`` (reliable).
 """
@@ -37,6 +38,7 @@ def main() -> None:
         "<MaxAutoParticipantIndex>20</MaxAutoParticipantIndex><Peers><Peer address='127.0.0.1'/></Peers>"
         "</Discovery></Domain></CycloneDDS>")
     from cyclonedds.core import Policy, Qos
+    from cyclonedds.util import duration
     from cyclonedds.domain import DomainParticipant
     from cyclonedds.pub import DataWriter
     from cyclonedds.sub import DataReader
@@ -46,8 +48,10 @@ def main() -> None:
     dp = DomainParticipant(cfg["domain"])
     best_effort = Qos(Policy.Reliability.BestEffort, Policy.History.KeepLast(1000))
     out: dict = {}
+    reliable = Qos(Policy.Reliability.Reliable(duration(milliseconds=100)), Policy.History.KeepLast(1000))
     if cfg["mode"] == "listen":
-        rd = DataReader(dp, Topic(dp, cfg["topic"], types[cfg.get("type", "std_msgs/String")]), qos=best_effort)
+        qos = reliable if cfg.get("reliable") else best_effort
+        rd = DataReader(dp, Topic(dp, cfg["topic"], types[cfg.get("type", "std_msgs/String")]), qos=qos)
         got = []
         t_end = time.monotonic() + cfg["seconds"]
         while time.monotonic() < t_end:

@@ -105,6 +105,15 @@ def test_xrce_sessions_topics_and_gaps_without_addresses() -> None:
     assert s.samples[("c2a", b"\x00\x15")].count == 6 and s.key == key
 
 
+def test_endianness_flip_is_flagged() -> None:
+    tr = UdpTracker()
+    addr = ("127.0.0.1", 40000, "127.0.0.1", 8888)
+    tr.feed_datagram(0.0, "c", V.X["X3"], addr)
+    big_endian_hb = bytes.fromhex("81 00 00 00 0B 00 05 00 00 00 00 00 80")  # E = 0
+    tr.feed_datagram(0.1, "c", big_endian_hb, addr)
+    assert tr.flags == {"xrce.endianness_flip": 1}
+
+
 def test_rtps_vectors_give_participants_and_data() -> None:
     tr = UdpTracker()
     for i, name in enumerate(("R3", "R4", "R5", "R1", "R2")):
