@@ -38,11 +38,11 @@ def main() -> None:
         "<MaxAutoParticipantIndex>20</MaxAutoParticipantIndex><Peers><Peer address='127.0.0.1'/></Peers>"
         "</Discovery></Domain></CycloneDDS>")
     from cyclonedds.core import Policy, Qos
-    from cyclonedds.util import duration
     from cyclonedds.domain import DomainParticipant
     from cyclonedds.pub import DataWriter
     from cyclonedds.sub import DataReader
     from cyclonedds.topic import Topic
+    from cyclonedds.util import duration
 
     types = {"std_msgs/String": String_, "std_msgs/UInt32": UInt32_}
     dp = DomainParticipant(cfg["domain"])
