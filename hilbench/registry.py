@@ -20,6 +20,9 @@ kind                   entry-point group         the object an entry point names
 :data:`sources`        ``hilbench.sources``      a :class:`~hilbench.transports.sources.SourceOpener`
 :data:`instruments`    ``hilbench.instruments``  an :class:`~hilbench.monitor.instrument.Instrument`
 :data:`verbs`          ``hilbench.verbs``        a module with ``register(subparsers)``
+:data:`servers`        ``hilbench.servers``      a :class:`~hilbench.bench.server.Server` (``emulate --serve``)
+:data:`recorders`      ``hilbench.recorders``    a recording format: ``accepts(path, protocol)``,
+                                                 ``open(path, source=..., description=...)``
 =====================  ========================  =============================================
 
 Entry points load on first use of their kind. A plug-in that fails to load
@@ -167,8 +170,10 @@ media = Kind("media", "hilbench.media", what="medium")
 sources = Kind("sources", "hilbench.sources", what="source kind")
 instruments = Kind("instruments", "hilbench.instruments", what="instrument")
 verbs = Kind("verbs", "hilbench.verbs", what="verb module")
+servers = Kind("servers", "hilbench.servers", what="server")
+recorders = Kind("recorders", "hilbench.recorders", what="recording format")
 
-KINDS: tuple[Kind, ...] = (families, host_ports, media, sources, instruments, verbs)
+KINDS: tuple[Kind, ...] = (families, host_ports, media, sources, instruments, verbs, servers, recorders)
 
 
 def reload() -> None:
@@ -196,4 +201,4 @@ def instrument_for(protocol: str) -> Any | None:
 
 
 __all__ = ["KINDS", "Kind", "PluginWarning", "families", "family_for_protocol", "host_ports", "instrument_for",
-           "instruments", "media", "reload", "sources", "verbs"]
+           "instruments", "media", "recorders", "reload", "servers", "sources", "verbs"]

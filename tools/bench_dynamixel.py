@@ -10,8 +10,22 @@
      is the cycle rate the 2 Mbaud wire allows;
    - paced at 2 Mbaud: measured cycle time against the wire-time model of the
      cycle (target: within 10%, i.e. ratio 0.9..1.1).
+3. The same 20-servo cycle on the other servo buses, each driven by its own
+   client (emulator CPU per cycle, cycles/s unpaced, cycle time paced against
+   the wire model):
+   - a Protocol 1.0 bus of MX-28 behind a USB2AX, driven by pypot's DxlIO as
+     Poppy's sync loop does (USB2AX SYNC_READ of Present Position/Speed/Load,
+     SYNC_WRITE of Goal Position/Speed/Torque Limit), paced at 1 Mbaud (pypot's
+     rate) and 3 Mbaud (the MX's fastest code); the wire model counts the
+     request, the adapter's READ and reply for each servo on the Dynamixel bus,
+     its combined reply and the write;
+   - a Feetech bus of STS3215 driven by Feetech's SDK as LeRobot does
+     (GroupSyncRead of Present Position, one status per servo; GroupSyncWrite
+     of Goal Position), paced at 1 Mbaud (the STS's fastest) and 500 kbaud.
+   Skipped with a note when pypot or scservo_sdk is not installed.
 
-Usage: tools/bench_dynamixel.py [--capture PATH] [--seconds S] [--only decoder|unpaced|paced]
+Usage: tools/bench_dynamixel.py [--capture PATH] [--seconds S]
+                                [--only decoder|unpaced|paced|protocol1|feetech]
 """
 
 from __future__ import annotations
@@ -63,10 +77,14 @@ def bench_decoder(capture: Path, repeats: int = 9) -> None:
              cpu_ratio=round(len(data) / statistics.median(cpu) / LINE_RATE_4M5, 3), packets=dec.packets)
 
 
-def start_emulator(paced: bool) -> tuple[subprocess.Popen, str, tempfile.TemporaryDirectory]:
+def start_emulator(paced: bool, profile: str = "wolfgang") -> tuple[subprocess.Popen, str,
+                                                                   tempfile.TemporaryDirectory]:
     tmp = tempfile.TemporaryDirectory(prefix="hilbench-bench-")
     manifest = Path(tmp.name) / "manifest.json"
-    cmd = [sys.executable, "-m", "hilbench.cli", "emulate", "wolfgang", "--manifest", str(manifest),
+    if profile.startswith("schema"):  # a profile's text
+        (Path(tmp.name) / "bench.toml").write_text(profile)
+        profile = str(Path(tmp.name) / "bench.toml")
+    cmd = [sys.executable, "-m", "hilbench.cli", "emulate", profile, "--manifest", str(manifest),
            "--paced" if paced else "--unpaced"]
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, cwd=REPO)
     deadline = time.monotonic() + 20
@@ -142,11 +160,108 @@ def bench_cycle(paced: bool, seconds: float) -> None:
              note="emulator process CPU per 20-servo cycle, against the cycle's wire time")
 
 
+SERVOS20 = list(range(1, 21))
+
+
+def _profile(protocol: str, baud: int) -> str:
+    if protocol == "protocol1":
+        head = f'[endpoints.bus]\nprotocol = "dynamixel"\nprotocol_version = 1\nbaud = {baud}\n'
+        dev = '[[devices]]\nmodel = "MX-28"\nids = {ids}\ninit = {{ return_delay_time = 0 }}\n'
+    else:
+        head = f'[defaults]\nsupply_voltage = 7.4\n[endpoints.bus]\nprotocol = "feetech"\nbaud = {baud}\n'
+        dev = '[[devices]]\nmodel = "STS3215"\nids = {ids}\n'
+    return "schema = 1\n" + head + dev.format(ids=SERVOS20)
+
+
+def _cycle_pypot(path: str, baud: int):
+    from pypot.dynamixel.io import DxlIO
+
+    io = DxlIO(path, baudrate=baud, use_sync_read=True)
+    goals = {i: (0.0, 0.0, 100.0) for i in SERVOS20}
+
+    def cycle() -> bool:
+        ok = len(io.get_present_position_speed_load(SERVOS20)) == len(SERVOS20)
+        io.set_goal_position_speed_load(goals)
+        return ok
+
+    return cycle, io.close
+
+
+def _cycle_feetech(path: str, baud: int):
+    import scservo_sdk as scs
+
+    port = scs.PortHandler(path)
+    port.openPort()
+    port.setBaudRate(baud)
+    ph = scs.PacketHandler(0)
+    reader = scs.GroupSyncRead(port, ph, 56, 2)
+    writer = scs.GroupSyncWrite(port, ph, 42, 2)
+    for i in SERVOS20:
+        reader.addParam(i)
+        writer.addParam(i, [0x00, 0x08])
+
+    def cycle() -> bool:
+        ok = reader.txRxPacket() == scs.COMM_SUCCESS
+        writer.txPacket()
+        return ok
+
+    return cycle, port.closePort
+
+
+#: Bytes on the servo bus per 20-servo cycle (see the module docstring).
+WIRE_BYTES = {
+    # USB2AX SYNC_READ (8 + N) + the adapter's READ (8) and each reply (6 + 6) + its reply (6 + 6N)
+    # + SYNC_WRITE (8 + 7N)
+    "protocol1": (8 + 20) + 20 * (8 + 12) + (6 + 6 * 20) + (8 + 7 * 20),
+    # SYNC_READ (8 + N) + 20 statuses (6 + 2) + SYNC_WRITE (8 + 3N)
+    "feetech": (8 + 20) + 20 * 8 + (8 + 3 * 20),
+}
+
+
+def bench_bus(kind: str, seconds: float, paced_bauds: tuple[int, ...]) -> None:
+    """The 20-servo cycle of pypot (Protocol 1.0, USB2AX) or Feetech's SDK (LeRobot's loop)."""
+    module = "pypot" if kind == "protocol1" else "scservo_sdk"
+    try:
+        __import__(module)
+    except ImportError:
+        print(json.dumps({"name": f"{kind}_cycle", "skipped": f"{module} is not installed (make install-robots)"}))
+        return
+    make = _cycle_pypot if kind == "protocol1" else _cycle_feetech
+    client = "pypot" if kind == "protocol1" else "feetech_sdk"
+    for paced, baud in ((False, 1_000_000), *((True, b) for b in paced_bauds)):
+        proc, path, tmp = start_emulator(paced, _profile(kind, baud))
+        try:
+            cycle, close = make(path, baud)
+            warm_end = time.perf_counter() + min(0.5, seconds / 4)
+            while time.perf_counter() < warm_end:
+                cycle()
+            n, failed, cpu0, t0 = 0, 0, process_cpu_s(proc.pid), time.perf_counter()
+            while time.perf_counter() < t0 + seconds:
+                failed += not cycle()  # a reply timeout (the client's own) on a loaded machine
+                n += 1
+            dt = time.perf_counter() - t0
+            cpu = process_cpu_s(proc.pid) - cpu0
+            close()
+        finally:
+            proc.terminate()
+            proc.wait(timeout=5)
+            tmp.cleanup()
+        wire = WIRE_BYTES[kind] * 10 / baud
+        if paced:
+            emit(f"{kind}_{client}_cycle_paced_{baud // 1000}k", dt / n * 1e3, "ms/cycle", wire * 1e3,
+                 dt / n / wire, target="ratio within 0.9..1.1", cycles=n, failed_reads=failed)
+        else:
+            emit(f"{kind}_{client}_cycle_unpaced", n / dt, "cycles/s", 1 / wire, n / dt * wire, cycles=n,
+                 failed_reads=failed)
+            emit(f"{kind}_emulator_cpu_per_cycle", cpu / n * 1e6, "us", wire * 1e6, cpu / n / wire,
+                 note="emulator process CPU per 20-servo cycle, against the cycle's wire time at 1 Mbaud")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--capture", type=Path, default=REPO.parent / "shared/data/dynamixel/wolfgang_trace.bin")
     ap.add_argument("--seconds", type=float, default=3.0, help="measuring time per cycle benchmark")
-    ap.add_argument("--only", choices=("decoder", "unpaced", "paced"))
+    ap.add_argument("--only", choices=("decoder", "unpaced", "paced", "protocol1", "feetech"))
     args = ap.parse_args()
     if args.only in (None, "decoder"):
         bench_decoder(args.capture)
@@ -154,6 +269,10 @@ def main() -> None:
         bench_cycle(False, args.seconds)
     if args.only in (None, "paced"):
         bench_cycle(True, args.seconds)
+    if args.only in (None, "protocol1"):
+        bench_bus("protocol1", args.seconds, (1_000_000, 3_000_000))
+    if args.only in (None, "feetech"):
+        bench_bus("feetech", args.seconds, (1_000_000, 500_000))
 
 
 if __name__ == "__main__":

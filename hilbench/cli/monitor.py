@@ -60,26 +60,19 @@ def _view(text: str) -> str:
 def _writer(path: str | None, source, description: str | None = None):
     if not path:
         return None
+    from hilbench import registry
     from hilbench.transports.capture_file import CaptureWriter
 
+    if path != "-":  # a recording format of a plug-in (python-can logs for CAN), else the hilbench capture
+        for fmt in registry.recorders.values():
+            if fmt.accepts(path, source.protocol):
+                return fmt.open(path, source=source, description=description or source.name)
+
     info = getattr(getattr(source, "reader", None), "info", None)
-    wall = getattr(source, "wall_clock", False)  # chunk times are Unix times (a pcap's)
-    if path.lower().endswith((".pcap", ".pcapng", ".cap")):
-        import time as _time
-
-        from hilbench.transports.pcap import PcapWriter
-
-        if wall:
-            offset = 0.0
-        elif info is not None and info.measured:
-            offset = info.t0_wall - info.t0_monotonic
-        else:
-            offset = _time.time() - _time.monotonic()  # live chunk times are this machine's monotonic clock
-        return PcapWriter(path, offset=offset, description=description or source.name)
     return CaptureWriter(path, baud=source.baud, protocol=source.protocol or "",
                          description=description or source.name, timestamps=source.timestamps,
-                         t0=0.0 if wall else None,
-                         t0_wall=0.0 if wall else (info.t0_wall if info is not None and info.measured else None))
+                         t0_wall=info.t0_wall if info is not None and info.measured else None,
+                         wall_offset=getattr(source, "wall_offset", None))
 
 
 def _watch(monitor, args: argparse.Namespace, label: str, status: Callable[[], str],
@@ -268,6 +261,14 @@ def _kinds() -> str:
 
 
 
+def _formats() -> str:
+    """The recording formats plug-ins add, for help texts (``; for can sources also .log .asc ...``)."""
+    from hilbench import registry
+
+    extra = [f"for {fmt.name} sources also {' '.join(fmt.suffixes)}" for fmt in registry.recorders.values()]
+    return "; " + "; ".join(extra) if extra else ""
+
+
 def _watch_args(p: argparse.ArgumentParser) -> None:
     protocols = [i.protocol for i in _monitor_instruments()]
     p.add_argument("--protocol", choices=protocols,
@@ -283,7 +284,8 @@ def _watch_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--device", type=int_arg, help="device ID the details view shows first (keys: left/right)")
     p.add_argument("--once", action="store_true",
                    help="leave the dashboard when the source ends, even in a terminal")
-    p.add_argument("--record", metavar="FILE", help="also record everything to FILE (hilbench capture format)")
+    p.add_argument("--record", metavar="FILE", help="also record everything to FILE (hilbench capture format"
+                                                    f"{_formats()})")
     for inst in _monitor_instruments():
         inst.add_arguments(p)
 
@@ -310,8 +312,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     r = sub.add_parser(
         "record", help="record a bus to a capture file",
         description="Store every byte from SOURCE (as for `hilbench monitor`) with its time and direction in FILE "
-                    "(hilbench capture format, see docs/capture-format.md; '-' for stdout). Stops when the source "
-                    "ends, on Ctrl-C / SIGTERM, or after --seconds. Converts raw dumps too.")
+                    "(hilbench capture format, see docs/capture-format.md; '-' for stdout" + _formats() + "). Stops "
+                    "when the source ends, on Ctrl-C / SIGTERM, or after --seconds. Converts raw dumps too.")
     r.add_argument("source", help="what to record")
     r.add_argument("file", help="capture file to write ('-': stdout)")
     r.add_argument("--baud", type=int_arg, help="line rate in bit/s (a serial port's rate; a raw dump's byte time)")

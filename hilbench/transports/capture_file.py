@@ -269,7 +269,9 @@ class CaptureWriter:
     time of the first chunk), so a recording of a live source replays with the
     original times. ``timestamps`` is ``measured``, ``synthetic`` or ``none``
     (then every time is stored as 0). ``t0_wall`` is the Unix time of ``t0``
-    (default: derived from the clocks now, right for live sources). Sources
+    (default: ``t0 + wall_offset`` when the source says how its times map to
+    Unix time, e.g. 0 for a CAN bus stamped in Unix time; else derived from
+    the clocks now, right for sources stamped with ``time.monotonic()``). Sources
     get ids in order of appearance (at most 256).
     """
 
@@ -283,6 +285,7 @@ class CaptureWriter:
         t0: float | None = None,
         t0_wall: float | None = None,
         timestamps: str = "measured",
+        wall_offset: float | None = None,
     ) -> None:
         if timestamps not in ("measured", "synthetic", "none"):
             raise ValueError(f"timestamps must be measured, synthetic or none, not {timestamps!r}")
@@ -296,7 +299,8 @@ class CaptureWriter:
         self.t0 = t0
         self.timed = timestamps != "none"
         self._flags = {"measured": Flags.MEASURED, "synthetic": Flags.SYNTHETIC, "none": 0}[timestamps]
-        self._head = {"baud": baud, "protocol": protocol, "description": description, "t0_wall": t0_wall}
+        self._head = {"baud": baud, "protocol": protocol, "description": description, "t0_wall": t0_wall,
+                      "wall_offset": wall_offset}
         self._ids: dict[str, int] = {}
         self.bytes = 0
         self.records = 0
@@ -309,6 +313,8 @@ class CaptureWriter:
         if self.t0 is None:
             self.t0 = t if (t is not None and self.timed) else now_mono
         wall = self._head["t0_wall"]
+        if wall is None and self._head["wall_offset"] is not None:
+            wall = self.t0 + self._head["wall_offset"]
         if wall is None:
             wall = now_wall - (now_mono - self.t0)
         self._f.write(

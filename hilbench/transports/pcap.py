@@ -20,7 +20,7 @@ import ipaddress
 import os
 import sys
 from collections.abc import Iterator
-from typing import BinaryIO
+from typing import Any, BinaryIO
 
 import dpkt
 
@@ -236,4 +236,30 @@ class PcapWriter:
         self.close()
 
 
-__all__ = ["PCAPNG_MAGIC", "PCAP_MAGICS", "SUFFIXES", "PcapReader", "PcapWriter", "frame", "is_pcap"]
+class PcapFormat:
+    """The recorder plug-in (``hilbench.recorders`` entry point ``pcap``): ``hilbench record SOURCE x.pcapng``."""
+
+    name = "pcap"
+    suffixes = SUFFIXES
+
+    def accepts(self, path: str, protocol: str | None) -> bool:
+        return str(path).lower().endswith(self.suffixes)
+
+    def open(self, path: str, *, source: Any, description: str = "") -> PcapWriter:
+        import time
+
+        offset = getattr(source, "wall_offset", None)  # 0.0 for sources stamped in Unix time (a pcap's)
+        if offset is None:
+            info = getattr(getattr(source, "reader", None), "info", None) or \
+                getattr(getattr(source, "parser", None), "info", None)
+            if info is not None and info.measured and info.t0_wall:
+                offset = info.t0_wall - info.t0_monotonic  # a hilbench capture or tap: its clock's Unix time
+            else:
+                offset = time.time() - time.monotonic()  # live sources stamp with the monotonic clock
+        return PcapWriter(path, offset=offset, description=description)
+
+
+RECORDER = PcapFormat()
+
+__all__ = ["PCAPNG_MAGIC", "PCAP_MAGICS", "RECORDER", "SUFFIXES", "PcapFormat", "PcapReader", "PcapWriter", "frame",
+           "is_pcap"]

@@ -67,6 +67,7 @@ class SerialMedium(Medium):
         self._events: list[tuple[float, int, Callable[[], None]]] = []
         self._seq = itertools.count()
         self._busy_until = 0.0
+        self._last_end: dict[str, float] = {}  # by sender: when its latest transmission is delivered
         self._last_activity = 0.0
         self._wake_r, self._wake_w = os.pipe()
         os.set_blocking(self._wake_r, False)
@@ -106,6 +107,7 @@ class SerialMedium(Medium):
                 self._busy_until = end
             else:
                 end = t + gap
+            self._last_end[source] = end
             self._push(end, lambda: self._deliver(source, data, end, baud))
         if threading.current_thread() is not self._thread:
             self._wake()
@@ -166,6 +168,8 @@ class SerialMedium(Medium):
             os.write(self._wake_w, b"x")
         except BlockingIOError:
             pass  # already pending
+        except OSError:
+            pass  # closed: the line has stopped, nobody is waiting
 
     def _run(self) -> None:
         if self.paced:
@@ -180,13 +184,40 @@ class SerialMedium(Medium):
                 now = self._last_activity = time.monotonic()
                 for endpoint, listen_only in hosts:
                     if any(fd in ready for fd in endpoint.filenos()):
-                        data = endpoint.read()
-                        if data and not listen_only:
-                            self.transmit(endpoint.name, data, t=now, baud=endpoint.client_baud())
+                        self._take(endpoint, listen_only, now)
                 if self._wake_r in ready:
                     with contextlib.suppress(BlockingIOError):
                         os.read(self._wake_r, 4096)
             self._run_due()
+
+    def _take(self, endpoint, listen_only: bool, now: float) -> tuple[int, float]:
+        """Read what a host port has and put it on the line; returns (bytes, delivery time)."""
+        data = endpoint.read()
+        if data and not listen_only:
+            return len(data), self.transmit(endpoint.name, data, t=now, baud=endpoint.client_baud())
+        return len(data), now
+
+    def drain_host(self, port) -> tuple[int, float]:
+        """Take everything ``port`` already sent, in the line's thread; returns (bytes taken, when the
+        last byte it ever sent is delivered: later than now on a paced line still sending them).
+
+        A pty master's non-blocking read first runs the tty layer's pending buffer
+        work, so "nothing to read" means every byte a client's write() returned for
+        has been taken.
+        """
+        with self._lock:
+            end = max(time.monotonic(), self._last_end.get(port.name, 0.0))  # bytes taken before, on the wire
+        taken = 0
+        for endpoint, listen_only in list(self._hosts):
+            if endpoint is not port:
+                continue
+            while True:
+                n, t = self._take(endpoint, listen_only, time.monotonic())
+                if not n:
+                    break
+                taken += n
+                end = max(end, t)
+        return taken, end
 
     def _run_due(self) -> None:
         while True:

@@ -119,7 +119,7 @@ class Servo:
         """After power-on or a reboot Goal Position holds where the horn is, not 0, so switching the
         torque on does not swing the servo (ROBOTIS servos keep their position at torque-on)."""
         if self.is_servo:
-            self._poke(m.GOAL_POSITION, 4, round(position), signed=True)
+            self._poke(m.GOAL_POSITION, 4, self._present(round(position)), signed=True)
 
     # ------------------------------------------------------------------ raw access
 
@@ -408,6 +408,9 @@ class Servo:
         elif a in (m.GOAL_POSITION, m.PROFILE_VELOCITY, m.PROFILE_ACCELERATION, m.GOAL_VELOCITY, m.GOAL_PWM,
                    m.GOAL_CURRENT):
             self._retarget(t)
+        elif a in (m.HOMING_OFFSET, m.DRIVE_MODE):
+            # the horn stays where it is: hold that place in the new frame (torque is off: EEPROM)
+            self._goal_at_power_on(self.profile.at(t).position)
         elif a == m.BUS_WATCHDOG and self.mem[a] == 0:
             pass  # writing 0 clears a tripped watchdog
 
@@ -421,6 +424,17 @@ class Servo:
         else:
             self._torque_since = None
             self.profile.stop(t)
+
+    def _present(self, actual: int) -> int:
+        """Present Position of the horn's actual position: Drive Mode bit 0 reverses the direction and
+        the Homing Offset is added (e-Manual: Present Position = Actual Position + Homing Offset)."""
+        sign = -1 if self.mem[m.DRIVE_MODE] & 1 else 1
+        return sign * actual + self._peek(m.HOMING_OFFSET, 4, signed=True)
+
+    def _actual(self, present: int) -> int:
+        """The actual position a Goal Position (in Present Position terms) asks for."""
+        sign = -1 if self.mem[m.DRIVE_MODE] & 1 else 1
+        return sign * (present - self._peek(m.HOMING_OFFSET, 4, signed=True))
 
     def _limits(self) -> tuple[float, float]:
         """Velocity and acceleration limits of the profile in pulses/s and pulses/s^2."""
@@ -438,7 +452,7 @@ class Servo:
         vmax, amax = self._limits()
         if mode in (3, 4, 5):
             goal = self._peek(m.GOAL_POSITION, 4, signed=True)
-            self.profile.move_to(t, float(goal), vmax, amax)
+            self.profile.move_to(t, float(self._actual(goal)), vmax, amax)
         elif mode == 1:
             self.profile.run_at(t, self._peek(m.GOAL_VELOCITY, 4, signed=True) * VEL_UNIT, amax)
         elif mode == 16:
@@ -513,7 +527,7 @@ class Servo:
             self._poke(m.PRESENT_CURRENT, 2, int(load), signed=True)
             self._poke(m.PRESENT_VELOCITY, 4, int(vel_units), signed=True)
         if hi > 132 and lo < 144:
-            pos = int(round(s.position))
+            pos = self._present(int(round(s.position)))
             self._poke(m.PRESENT_POSITION, 4, pos, signed=True)
             self._poke(m.VELOCITY_TRAJECTORY, 4, int(vel_units), signed=True)
             self._poke(m.POSITION_TRAJECTORY, 4, pos, signed=True)

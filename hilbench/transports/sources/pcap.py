@@ -13,14 +13,14 @@ from hilbench.transports.sources.base import Source, SourceError, SourceOpener
 class PcapSource(Source):
     """The UDP datagrams of a pcap/pcapng file, replayed fast or at ``speed`` times the recorded pace.
 
-    Times are the packets' Unix times (:attr:`wall_clock`); the protocol is ``udp``.
+    Times are the packets' Unix times (:attr:`wall_offset` 0); the protocol is ``udp``.
     """
 
     live = False
     timestamps = "measured"
     protocol = "udp"
-    #: Chunk times are Unix times (a recorder keeps them as they are).
-    wall_clock = True
+    #: Chunk times are Unix times: add 0 to get Unix time (a recorder keeps them as they are).
+    wall_offset = 0.0
 
     def __init__(self, target: str, *, speed: float | None = None) -> None:
         from hilbench.transports.pcap import PcapReader
