@@ -60,3 +60,4 @@ bench: $(VENV)/.installed
 	$(PY) tools/bench_run.py
 	$(PY) tools/bench_lidar.py
 	$(PY) tools/bench_can.py
+	$(PY) tools/bench_udp.py

@@ -38,13 +38,15 @@ class Chunk(NamedTuple):
     """Bytes ``data`` that ``source`` put on the bus, complete at time ``t`` (seconds).
 
     ``lost`` > 0 (with empty ``data``) reports that many bytes of ``source``
-    lost before they reached the reader.
+    lost before they reached the reader. ``addr`` is set for a datagram:
+    ``(source host, source port, destination host, destination port)``.
     """
 
     t: float
     source: str
     data: bytes
     lost: int = 0
+    addr: tuple[str, int, str, int] | None = None
 
 
 class CaptureError(ValueError):
@@ -82,6 +84,7 @@ class CaptureParser:
         self.records = 0
         self._buf = b""
         self._names: dict[int, str] = {}
+        self._addr: dict[int, tuple[str, int, str, int]] = {}  # ADDRESS records waiting for their DATA
         self._offset = 0  # raw: bytes emitted so far
 
     @property
@@ -163,7 +166,10 @@ class CaptureParser:
             pos = end
             self.records += 1
             if kind == RecordKind.DATA:
-                append(Chunk(t0 + t_ns * 1e-9, names.get(source) or f"source{source}", payload))
+                addr = self._addr.pop(source, None) if self._addr else None
+                append(Chunk(t0 + t_ns * 1e-9, names.get(source) or f"source{source}", payload, 0, addr))
+            elif kind == RecordKind.ADDRESS:
+                self._addr[source] = cap.parse_address(payload)
             elif kind == RecordKind.SOURCE:
                 names[source] = payload.decode("utf-8", errors="replace")
             elif kind == RecordKind.GAP and (lost := cap.gap_lost(payload)) is not None:
@@ -334,13 +340,18 @@ class CaptureWriter:
     def _t_ns(self, t: float) -> int:
         return round((t - self.t0) * 1e9) if self.timed else 0
 
-    def write(self, t: float, source: str, data: bytes) -> None:
-        """Store ``data`` from ``source`` at time ``t`` (split into records of at most 65535 bytes)."""
+    def write(self, t: float, source: str, data: bytes, addr: tuple[str, int, str, int] | None = None) -> None:
+        """Store ``data`` from ``source`` at time ``t`` (split into records of at most 65535 bytes).
+
+        ``addr`` (a datagram's source and destination) is stored in an ADDRESS record before the data.
+        """
         if not self._started:
             self._start(t)
         sid = self._source_id(source)
         t_ns = self._t_ns(t)
         write = self._f.write
+        if addr is not None:
+            write(cap.address_record(sid, t_ns, addr))
         for i in range(0, len(data), MAX_PAYLOAD):
             write(cap.pack_record(RecordKind.DATA, sid, t_ns, data[i : i + MAX_PAYLOAD]))
             self.records += 1
@@ -358,7 +369,7 @@ class CaptureWriter:
         if chunk.lost:
             self.gap(chunk.t, chunk.source, chunk.lost)
         else:
-            self.write(chunk.t, chunk.source, chunk.data)
+            self.write(chunk.t, chunk.source, chunk.data, chunk.addr)
 
     def flush(self) -> None:
         with contextlib.suppress(ValueError, OSError):
