@@ -10,18 +10,25 @@ fallback), against an unpaced ``arm`` bench in this process, times each call (me
 - ``run_flush_<shim>``: ``ser.write(16 bytes); ser.reset_output_buffer()`` (the flush takes them);
 - ``run_drain_<shim>``: ``ser.write(16 bytes); ser.flush()`` (tcdrain: returns once delivered);
 - ``run_untouched_ioctl_c``: ``ser.in_waiting`` (an ioctl the shim passes through), with the
-  shim loaded; its reference is the same call without it, measured in the same run.
+  shim loaded; its reference is the same call without it, measured in the same run;
+- ``run_idle_drain_<shim>``: ``ser.flush()`` with everything written already delivered (what
+  dynamixel-sdk 3.x does before every packet); reference: the same call on the plain pty;
+- ``run_sdk_ping_<shim>``: the official SDK's ``ping`` (dynamixel-sdk 3.x from ``make install``'s
+  ``.venv/dynamixel-sdk-3`` if there, whose ``clearPort()`` drains before every packet; else the
+  installed one), median of ``--pings``; reference: the same client on the plain pty, same run
+  (the ``min_*`` fields: fastest ping of each).
 
-The reference of the others is 1 ms: one full-speed USB frame, what a modem-line change or a
+The reference of the first four is 1 ms: one full-speed USB frame, what a modem-line change or a
 flush costs at least on a real USB serial adapter. Prints one JSON object per figure.
 
-Usage: tools/bench_run.py [--samples N]
+Usage: tools/bench_run.py [--samples N] [--pings N]
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -51,7 +58,8 @@ def flush():
     ser.write(b"0123456789abcdef"); ser.reset_output_buffer()
 def drain():
     ser.write(b"0123456789abcdef"); ser.flush()
-out = {"untouched_ioctl": timed(lambda: ser.in_waiting)}
+ser.write(b"0123456789abcdef"); ser.flush()
+out = {"untouched_ioctl": timed(lambda: ser.in_waiting), "idle_drain": timed(ser.flush)}
 try:
     out.update(tiocmget=timed(lambda: ser.cts), set_dtr=timed(toggle), flush=timed(flush), drain=timed(drain))
 except OSError:
@@ -60,14 +68,32 @@ print(json.dumps(out))
 """
 
 
+SDK_WORKER = r"""
+import json, statistics, sys, time
+import dynamixel_sdk as sdk
+port = sdk.PortHandler(sys.argv[1])
+assert port.openPort()
+ph = sdk.PacketHandler(2.0)
+times = []
+for _ in range(int(sys.argv[2])):
+    t0 = time.perf_counter(); _, result, _ = ph.ping(port, 1); times.append(time.perf_counter() - t0)
+    assert result == sdk.COMM_SUCCESS, result
+times.sort()
+print(json.dumps({"median": statistics.median(times), "min": times[0], "sdk": sdk.__file__}))
+"""
+
+#: dynamixel-sdk 3.x beside the venv's packages (the Makefile installs it there).
+SDK3 = os.path.join(sys.prefix, "dynamixel-sdk-3")
+
+
 def emit(name: str, value: float, unit: str, reference: float, ratio: float, **extra) -> None:
     print(json.dumps({"name": name, "value": round(value, 6), "unit": unit, "reference": round(reference, 6),
                       "ratio": round(ratio, 3), **extra}), flush=True)
 
 
-def worker(path: str, samples: int, prefix: list[str]) -> dict:
-    proc = subprocess.run([*prefix, sys.executable, "-c", WORKER, path, str(samples)], capture_output=True,
-                          text=True, timeout=600)
+def worker(path: str, samples: int, prefix: list[str], code: str = WORKER, env: dict | None = None) -> dict:
+    proc = subprocess.run([*prefix, sys.executable, "-c", code, path, str(samples)], capture_output=True,
+                          text=True, timeout=600, env=env)
     if proc.returncode != 0:
         raise SystemExit(f"worker failed: {proc.stderr.strip()}")
     return json.loads(proc.stdout)
@@ -76,13 +102,19 @@ def worker(path: str, samples: int, prefix: list[str]) -> dict:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--samples", type=int, default=2000, help="calls timed per figure (default 2000)")
+    parser.add_argument("--pings", type=int, default=1000, help="SDK pings timed per client (default 1000)")
     args = parser.parse_args()
+    sdk_env = dict(os.environ)
+    if os.path.isdir(os.path.join(SDK3, "dynamixel_sdk")):
+        sdk_env["PYTHONPATH"] = os.pathsep.join(p for p in (SDK3, os.environ.get("PYTHONPATH")) if p)
     with Bench("arm", paced=False) as bench, tempfile.TemporaryDirectory() as tmp:
         serve_lines(bench)
         manifest = str(Path(tmp) / "arm.json")
         bench.write_manifest(manifest)
         path = bench.endpoint().path
         plain = worker(path, args.samples, [])
+        plain_ping = worker(path, args.pings, [], SDK_WORKER, sdk_env)
+        sdk = "3.x" if "dynamixel-sdk-3" in plain_ping["sdk"] else "installed"
         shims = ["c", "python"] if shutil.which("cc") else ["python"]
         for shim in shims:
             prefix = [sys.executable, "-m", "hilbench.cli", "run", "--shim", shim, "--manifest", manifest, "--"]
@@ -91,6 +123,13 @@ def main() -> None:
                 median, p90 = got[key]
                 emit(f"run_{key}_{shim}", median * 1e6, "us", USB_FRAME * 1e6, median / USB_FRAME,
                      p90_us=round(p90 * 1e6, 1))
+            median, p90 = got["idle_drain"]
+            ref = plain["idle_drain"][0]
+            emit(f"run_idle_drain_{shim}", median * 1e6, "us", ref * 1e6, median / ref, p90_us=round(p90 * 1e6, 2))
+            ping = worker(path, args.pings, prefix, SDK_WORKER, sdk_env)
+            emit(f"run_sdk_ping_{shim}", ping["median"] * 1e6, "us", plain_ping["median"] * 1e6,
+                 ping["median"] / plain_ping["median"], sdk=sdk, min_us=round(ping["min"] * 1e6, 1),
+                 min_reference_us=round(plain_ping["min"] * 1e6, 1))
             if shim == "c":
                 median, p90 = got["untouched_ioctl"]
                 ref = plain["untouched_ioctl"][0]

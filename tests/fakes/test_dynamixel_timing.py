@@ -1,12 +1,26 @@
-"""Paced benches: what the official SDK measures matches wire time plus Return Delay Time."""
+"""Paced benches: what the official SDK measures matches wire time plus Return Delay Time.
+
+Both SDK generations, through the pytest plugin's pyserial patch (fixture benches serve modem lines):
+4.x flushes input before every packet, 3.x (``make install`` puts it beside) drains output, a tcdrain,
+which must cost nothing when nothing is pending.
+"""
 
 from __future__ import annotations
 
 import time
 
-import dynamixel_sdk as sdk
+import dynamixel_sdk
+import pytest
 
-OK = sdk.COMM_SUCCESS
+from tests import dynamixel_sdk3
+
+OK = dynamixel_sdk.COMM_SUCCESS
+
+
+@pytest.fixture(params=["sdk4", pytest.param("sdk3", marks=pytest.mark.skipif(
+    not dynamixel_sdk3.available(), reason=dynamixel_sdk3.MISSING))])
+def sdk(request):
+    return dynamixel_sdk if request.param == "sdk4" else dynamixel_sdk3.load()
 
 
 def timed(fn, n: int = 30) -> float:
@@ -20,15 +34,15 @@ def timed(fn, n: int = 30) -> float:
     return min(times)
 
 
-def open_sdk(bench, baud):
+def open_sdk(sdk, bench, baud):
     port = sdk.PortHandler(bench.endpoint().path)
     assert port.openPort() and port.setBaudRate(baud)
     return port, sdk.PacketHandler(2.0)
 
 
-def test_return_delay_time_and_wire_time_as_the_sdk_sees_them(hilbench_bench):
+def test_return_delay_time_and_wire_time_as_the_sdk_sees_them(hilbench_bench, sdk):
     bench = hilbench_bench("arm", paced=True)  # 1 Mbaud, factory Return Delay Time 250 (500 us)
-    port, ph = open_sdk(bench, 1_000_000)
+    port, ph = open_sdk(sdk, bench, 1_000_000)
     # Ping: 10 bytes out, 500 us delay, 14 bytes back at 10 us per byte = 740 us
     ping = timed(lambda: ph.ping(port, 1))
     assert 0.00074 <= ping < 0.00074 + 0.0015
@@ -39,9 +53,9 @@ def test_return_delay_time_and_wire_time_as_the_sdk_sees_them(hilbench_bench):
     port.closePort()
 
 
-def test_sync_read_chain_adds_every_device_delay(hilbench_bench):
+def test_sync_read_chain_adds_every_device_delay(hilbench_bench, sdk):
     bench = hilbench_bench("arm", paced=True)
-    port, ph = open_sdk(bench, 1_000_000)
+    port, ph = open_sdk(sdk, bench, 1_000_000)
     reader = sdk.GroupSyncRead(port, ph, 132, 4)
     for i in (1, 2, 3, 4, 5):
         reader.addParam(i)
@@ -51,8 +65,8 @@ def test_sync_read_chain_adds_every_device_delay(hilbench_bench):
     port.closePort()
 
 
-def test_unpaced_bench_ignores_wire_time(hilbench_bench):
+def test_unpaced_bench_ignores_wire_time(hilbench_bench, sdk):
     bench = hilbench_bench("arm", paced=False)
-    port, ph = open_sdk(bench, 1_000_000)
+    port, ph = open_sdk(sdk, bench, 1_000_000)
     assert timed(lambda: ph.ping(port, 1)) < 0.00074
     port.closePort()
