@@ -15,13 +15,14 @@ fallback), against an unpaced ``arm`` bench in this process, times each call (me
   dynamixel-sdk 3.x does before every packet); reference: the same call on the plain pty;
 - ``run_sdk_ping_<shim>``: the official SDK's ``ping`` (dynamixel-sdk 3.x from ``make install``'s
   ``.venv/dynamixel-sdk-3`` if there, whose ``clearPort()`` drains before every packet; else the
-  installed one), median of ``--pings``; reference: the same client on the plain pty, same run
-  (the ``min_*`` fields: fastest ping of each).
+  installed one); reference: the same client on the plain pty. ``--rounds`` rounds of ``--pings``
+  pings alternate plain and shim; value and reference are the medians of the rounds' medians, the
+  ratio the median of the rounds' ratios (``ratios``: each round's; ``min_*``: fastest pings).
 
 The reference of the first four is 1 ms: one full-speed USB frame, what a modem-line change or a
 flush costs at least on a real USB serial adapter. Prints one JSON object per figure.
 
-Usage: tools/bench_run.py [--samples N] [--pings N]
+Usage: tools/bench_run.py [--samples N] [--pings N] [--rounds N]
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ import argparse
 import json
 import os
 import shutil
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -102,7 +104,8 @@ def worker(path: str, samples: int, prefix: list[str], code: str = WORKER, env: 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--samples", type=int, default=2000, help="calls timed per figure (default 2000)")
-    parser.add_argument("--pings", type=int, default=1000, help="SDK pings timed per client (default 1000)")
+    parser.add_argument("--pings", type=int, default=300, help="SDK pings timed per round (default 300)")
+    parser.add_argument("--rounds", type=int, default=5, help="rounds of plain and shim SDK pings (default 5)")
     args = parser.parse_args()
     sdk_env = dict(os.environ)
     if os.path.isdir(os.path.join(SDK3, "dynamixel_sdk")):
@@ -113,8 +116,6 @@ def main() -> None:
         bench.write_manifest(manifest)
         path = bench.endpoint().path
         plain = worker(path, args.samples, [])
-        plain_ping = worker(path, args.pings, [], SDK_WORKER, sdk_env)
-        sdk = "3.x" if "dynamixel-sdk-3" in plain_ping["sdk"] else "installed"
         shims = ["c", "python"] if shutil.which("cc") else ["python"]
         for shim in shims:
             prefix = [sys.executable, "-m", "hilbench.cli", "run", "--shim", shim, "--manifest", manifest, "--"]
@@ -126,10 +127,15 @@ def main() -> None:
             median, p90 = got["idle_drain"]
             ref = plain["idle_drain"][0]
             emit(f"run_idle_drain_{shim}", median * 1e6, "us", ref * 1e6, median / ref, p90_us=round(p90 * 1e6, 2))
-            ping = worker(path, args.pings, prefix, SDK_WORKER, sdk_env)
-            emit(f"run_sdk_ping_{shim}", ping["median"] * 1e6, "us", plain_ping["median"] * 1e6,
-                 ping["median"] / plain_ping["median"], sdk=sdk, min_us=round(ping["min"] * 1e6, 1),
-                 min_reference_us=round(plain_ping["min"] * 1e6, 1))
+            # The load of a shared machine moves a whole run: alternate the two, compare each pair.
+            pairs = [(worker(path, args.pings, [], SDK_WORKER, sdk_env),
+                      worker(path, args.pings, prefix, SDK_WORKER, sdk_env)) for _ in range(args.rounds)]
+            ratios = [got["median"] / ref["median"] for ref, got in pairs]
+            emit(f"run_sdk_ping_{shim}", statistics.median(got["median"] for _, got in pairs) * 1e6, "us",
+                 statistics.median(ref["median"] for ref, _ in pairs) * 1e6, statistics.median(ratios),
+                 sdk="3.x" if "dynamixel-sdk-3" in pairs[0][0]["sdk"] else "installed",
+                 ratios=[round(r, 2) for r in ratios], min_us=round(min(g["min"] for _, g in pairs) * 1e6, 1),
+                 min_reference_us=round(min(r["min"] for r, _ in pairs) * 1e6, 1))
             if shim == "c":
                 median, p90 = got["untouched_ioctl"]
                 ref = plain["untouched_ioctl"][0]

@@ -18,14 +18,17 @@ can tell that everything it wrote is already delivered. This board lets it:
   before ``t0`` was either counted (no store) or had returned, so its bytes were
   taken, and they were delivered. "Everything stamped before ``idle_ns`` is
   delivered" never stops being true: one writer, no lock;
-- a drain with ``max(dirty_ns, dirty_py_ns) < idle_ns`` needs no round trip.
+- a drain with ``max(dirty_ns, dirty_py_ns) < idle_ns`` needs no round trip. Each drain
+  or output flush stores the clock in ``drain_ns``: the bench looks again when a write was
+  under way only if its client drained just before it (dynamixel-sdk 3.x drains before
+  every packet; 4.x never does, and its writes should not cost the bench wake-ups).
 
 A file of ``64 + 64 * slots`` bytes beside the line socket (``lines.board`` in
 the same 0700 directory, so only this user's programs map it), native byte
 order, 8-byte aligned words::
 
     header  magic "HBBOARD1" | version 1 | slots | slot size 64 | 4 reserved words
-    slot    rdev | idle_ns | dirty_ns | dirty_py_ns | writing | writing_py | 2 reserved words
+    slot    rdev | idle_ns | dirty_ns | dirty_py_ns | writing | writing_py | drain_ns | 1 reserved word
 
 Readers of this layout: ``hilbench/run/shim.c`` and
 :mod:`hilbench.run.pyserial_shim` (which may not import hilbench, so it has
@@ -44,7 +47,9 @@ VERSION = 1
 HEADER_SIZE = 64
 SLOT_SIZE = 64
 #: Word offsets in a slot.
-RDEV, IDLE_NS, DIRTY_NS, DIRTY_PY_NS, WRITING, WRITING_PY = 0, 1, 2, 3, 4, 5
+RDEV, IDLE_NS, DIRTY_NS, DIRTY_PY_NS, WRITING, WRITING_PY, DRAIN_NS = 0, 1, 2, 3, 4, 5, 6
+#: A drain at most this long before the latest write makes the bench look again while it is under way.
+DRAINING = 10_000_000
 #: The board's file name beside the line server's socket.
 FILE_NAME = "lines.board"
 
@@ -88,6 +93,14 @@ class DeliveryBoard:
                 return False
             return not self._words[self._index(rdev, WRITING)] and not self._words[self._index(rdev, WRITING_PY)]
 
+    def draining(self, rdev: int) -> bool:
+        """A client drained pty ``rdev`` shortly before its latest write: it will drain again."""
+        with self._lock:
+            if self._words is None or rdev not in self._slot:
+                return False
+            wrote = max(self._words[self._index(rdev, DIRTY_NS)], self._words[self._index(rdev, DIRTY_PY_NS)])
+            return 0 <= wrote - self._words[self._index(rdev, DRAIN_NS)] < DRAINING
+
     def read(self, rdev: int) -> dict[str, int]:
         """The slot's words (for tests and diagnostics)."""
         with self._lock:
@@ -95,7 +108,7 @@ class DeliveryBoard:
                 return {}
             return {name: self._words[self._index(rdev, word)]
                     for name, word in (("idle_ns", IDLE_NS), ("dirty_ns", DIRTY_NS), ("dirty_py_ns", DIRTY_PY_NS),
-                                       ("writing", WRITING), ("writing_py", WRITING_PY))}
+                                       ("writing", WRITING), ("writing_py", WRITING_PY), ("drain_ns", DRAIN_NS))}
 
     def close(self) -> None:
         """Unmap and remove the file (clients that mapped it keep their copy of the page: harmless)."""
@@ -110,5 +123,5 @@ class DeliveryBoard:
             os.unlink(self.path)
 
 
-__all__ = ["DIRTY_NS", "DIRTY_PY_NS", "FILE_NAME", "HEADER_SIZE", "IDLE_NS", "MAGIC", "RDEV", "SLOT_SIZE",
+__all__ = ["DIRTY_NS", "DIRTY_PY_NS", "DRAINING", "DRAIN_NS", "FILE_NAME", "HEADER_SIZE", "IDLE_NS", "MAGIC", "RDEV", "SLOT_SIZE",
            "VERSION", "WRITING", "WRITING_PY", "DeliveryBoard"]

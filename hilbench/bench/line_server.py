@@ -112,7 +112,8 @@ class LineServer:
             watch = getattr(p.medium, "watch_quiet", None)
             if watch is not None:
                 watch(p.port, lambda ns, _rdev=rdev: self.board.delivered(_rdev, ns),
-                      lambda _rdev=rdev: self.board.writers_idle(_rdev))
+                      lambda _rdev=rdev: self.board.writers_idle(_rdev),
+                      lambda _rdev=rdev: self.board.draining(_rdev))
         self._conns: set[socket.socket] = set()
         self._conns_lock = threading.Lock()
         self._wake_r, self._wake_w = os.pipe()

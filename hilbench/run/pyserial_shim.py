@@ -57,7 +57,7 @@ BOARD_MAGIC = b"HBBOARD1"
 BOARD_VERSION = 1
 BOARD_HEADER = 64
 BOARD_SLOT = 64
-BOARD_RDEV, BOARD_IDLE_NS, BOARD_DIRTY_NS, BOARD_DIRTY_PY_NS, BOARD_WRITING, BOARD_WRITING_PY = 0, 1, 2, 3, 4, 5
+BOARD_RDEV, BOARD_IDLE_NS, BOARD_DIRTY_NS, BOARD_DIRTY_PY_NS, BOARD_WRITING, BOARD_WRITING_PY, BOARD_DRAIN_NS = range(7)
 BOARD_FILE = "lines.board"
 
 _T = _termios
@@ -242,6 +242,7 @@ class _Slot:
         self._i = index
 
     def idle_ns(self) -> int:
+        self._words[self._i + BOARD_DRAIN_NS] = time.monotonic_ns()  # someone drains: keep it fresh
         return self._words[self._i + BOARD_IDLE_NS]
 
     def dirty_ns(self) -> int:

@@ -72,7 +72,8 @@ struct board_slot {
     uint64_t dirty_py_ns;  /* the same for the Python fallback's writers */
     uint64_t writing;      /* C writers: write() calls under way (the bench waits for none) */
     uint64_t writing_py;   /* the Python fallback's: 1 while one is under way */
-    uint64_t reserved[2];
+    uint64_t drain_ns;     /* clients: the clock at their last drain (the bench then looks again for them) */
+    uint64_t reserved[1];
 };
 
 struct bench_socket {
@@ -505,7 +506,10 @@ static void write_ends(struct bench_port *p)
 static int delivered(struct bench_port *p)
 {
     uint64_t idle, dirty, dirty_py;
-    if (!p->slot || __atomic_load_n(&p->unseen, __ATOMIC_SEQ_CST))
+    if (!p->slot)
+        return 0;
+    __atomic_store_n(&p->slot->drain_ns, now_ns(), __ATOMIC_RELAXED);  /* someone drains: keep it fresh */
+    if (__atomic_load_n(&p->unseen, __ATOMIC_SEQ_CST))
         return 0;
     dirty = __atomic_load_n(&p->slot->dirty_ns, __ATOMIC_SEQ_CST);
     dirty_py = __atomic_load_n(&p->slot->dirty_py_ns, __ATOMIC_SEQ_CST);

@@ -233,19 +233,19 @@ class SerialMedium(Medium):
                 end = max(end, t)
         return taken, end
 
-    def watch_quiet(self, port, watcher: Callable[[int], None] | None,
-                    ready: Callable[[], bool] | None = None) -> bool:
+    def watch_quiet(self, port, watcher: Callable[[int], None] | None, ready: Callable[[], bool] | None = None,
+                    keen: Callable[[], bool] | None = None) -> bool:
         """Tell ``watcher(ns)``, in the line's thread, each time everything host ``port`` wrote before
         ``CLOCK_MONOTONIC`` ``ns`` has been delivered (checked after each of its transmissions is
         delivered, and once now); None stops watching. ``ready()``, read after the clock, says whether
-        no write to the port is under way (else the check is repeated a little later).
-        ``hilbench run``'s delivery board uses it.
+        no write to the port is under way; if one is and ``keen()`` (someone waits for the news), the
+        check is repeated a little later. ``hilbench run``'s delivery board uses it.
         """
         with self._lock:
             if watcher is None:
                 self._quiet.pop(port.name, None)
                 return True
-            self._quiet[port.name] = (port, watcher, ready)
+            self._quiet[port.name] = (port, watcher, ready, keen)
         if not self.paced:  # paced lines already wake precisely; the retries need it too
             self.call_at(None, reduce_timer_slack)
         self.call_at(None, lambda: self.check_quiet(port))
@@ -262,13 +262,15 @@ class SerialMedium(Medium):
             if watched is None or self._pending.get(port.name, 0):
                 return False
             hosts = [(ep, listen_only) for ep, listen_only in self._hosts if ep is port]
-        _, watcher, ready = watched
+        _, watcher, ready, keen = watched
         # The clock before the rest: a write stamped earlier is counted in ready() or has returned, and then
         # its bytes are there for the read to find (a pty master's read first runs the tty layer's work).
         t0 = time.monotonic_ns()
         if ready is not None and not ready():
             # A client is inside write() (often preempted by this very thread on return): look again soon,
             # less and less often, and give up (every drain then asks) if it never ends.
+            if keen is not None and not keen():
+                return False
             with self._lock:
                 if _retry < QUIET_RETRIES and port.name not in self._quiet_retrying:  # one series at a time
                     self._quiet_retrying.add(port.name)

@@ -63,13 +63,13 @@ def test_board_layout_is_the_same_for_every_reader():
     board, shim = delivery_board, pyserial_shim
     assert (board.MAGIC, board.VERSION, board.HEADER_SIZE, board.SLOT_SIZE, board.FILE_NAME) == (
         shim.BOARD_MAGIC, shim.BOARD_VERSION, shim.BOARD_HEADER, shim.BOARD_SLOT, shim.BOARD_FILE)
-    assert (board.RDEV, board.IDLE_NS, board.DIRTY_NS, board.DIRTY_PY_NS, board.WRITING, board.WRITING_PY) == (
-        shim.BOARD_RDEV, shim.BOARD_IDLE_NS, shim.BOARD_DIRTY_NS, shim.BOARD_DIRTY_PY_NS, shim.BOARD_WRITING,
-        shim.BOARD_WRITING_PY)
+    assert (board.RDEV, board.IDLE_NS, board.DIRTY_NS, board.DIRTY_PY_NS, board.WRITING, board.WRITING_PY,
+            board.DRAIN_NS) == (shim.BOARD_RDEV, shim.BOARD_IDLE_NS, shim.BOARD_DIRTY_NS, shim.BOARD_DIRTY_PY_NS,
+                                shim.BOARD_WRITING, shim.BOARD_WRITING_PY, shim.BOARD_DRAIN_NS)
     source = (Path(pyserial_shim.__file__).parent / "shim.c").read_text()
     fields = re.search(r"struct board_slot \{(.*?)\};", source, re.S).group(1)
     assert re.findall(r"uint64_t (\w+)", fields) == ["rdev", "idle_ns", "dirty_ns", "dirty_py_ns", "writing",
-                                                     "writing_py", "reserved"]
+                                                     "writing_py", "drain_ns", "reserved"]
     assert f'#define BOARD_MAGIC "{board.MAGIC.decode()}"' in source
     assert f"#define BOARD_VERSION {board.VERSION}" in source
     assert f"#define BOARD_HEADER {board.HEADER_SIZE}" in source
