@@ -76,12 +76,15 @@ import dynamixel_sdk as sdk
 port = sdk.PortHandler(sys.argv[1])
 assert port.openPort()
 ph = sdk.PacketHandler(2.0)
-times = []
+times, failed = [], 0
 for _ in range(int(sys.argv[2])):
-    t0 = time.perf_counter(); _, result, _ = ph.ping(port, 1); times.append(time.perf_counter() - t0)
-    assert result == sdk.COMM_SUCCESS, result
+    t0 = time.perf_counter(); _, result, _ = ph.ping(port, 1); dt = time.perf_counter() - t0
+    if result == sdk.COMM_SUCCESS:
+        times.append(dt)
+    else:
+        failed += 1  # the SDK's ~35 ms reply timeout, hit when a loaded machine stalls either side
 times.sort()
-print(json.dumps({"median": statistics.median(times), "min": times[0], "sdk": sdk.__file__}))
+print(json.dumps({"median": statistics.median(times), "min": times[0], "failed": failed, "sdk": sdk.__file__}))
 """
 
 #: dynamixel-sdk 3.x beside the venv's packages (the Makefile installs it there).
@@ -135,7 +138,8 @@ def main() -> None:
                  statistics.median(ref["median"] for ref, _ in pairs) * 1e6, statistics.median(ratios),
                  sdk="3.x" if "dynamixel-sdk-3" in pairs[0][0]["sdk"] else "installed",
                  ratios=[round(r, 2) for r in ratios], min_us=round(min(g["min"] for _, g in pairs) * 1e6, 1),
-                 min_reference_us=round(min(r["min"] for r, _ in pairs) * 1e6, 1))
+                 min_reference_us=round(min(r["min"] for r, _ in pairs) * 1e6, 1),
+                 failed=sum(g["failed"] for _, g in pairs), failed_reference=sum(r["failed"] for r, _ in pairs))
             if shim == "c":
                 median, p90 = got["untouched_ioctl"]
                 ref = plain["untouched_ioctl"][0]
