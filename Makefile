@@ -14,7 +14,14 @@ $(VENV)/.installed: pyproject.toml
 	$(PY) -m pip install -q -e '.[test]'
 	touch $@
 
-install: $(VENV)/.installed
+# dynamixel-sdk 3.x (what ROS packages and most robots run; 4.x is our dependency) beside it, for the
+# tests and benchmarks of what its clearPort() does before every packet: ser.flush(), a tcdrain.
+SDK3 := $(VENV)/dynamixel-sdk-3
+$(SDK3)/.installed: $(VENV)/.installed
+	$(PY) -m pip install -q --no-deps --upgrade --target $(SDK3) 'dynamixel-sdk==3.8.4'
+	touch $@
+
+install: $(VENV)/.installed $(SDK3)/.installed
 
 # The robots' own software for the real-client tests (pytest -m robots; skipped without it): pypot and
 # the Poppy creatures from the `robots` extra, and LeRobot's motor buses and robot classes. LeRobot is
@@ -40,7 +47,7 @@ $(LGVENV)/.installed: pyproject.toml
 demo: $(VENV)/.installed
 	$(VENV)/bin/hilbench demo
 
-test: $(VENV)/.installed
+test: $(VENV)/.installed $(SDK3)/.installed
 	$(PY) -m ruff check hilbench tests tools
 	$(PY) -m pytest -q
 
@@ -51,7 +58,7 @@ test-labgrid: $(LGVENV)/.installed
 	$(LGVENV)/bin/python -m pytest -q -p no:cacheprovider tests/labgrid tests/transports/test_rfc2217.py \
 		tests/fakes/test_dynamixel_sdk.py tests/test_cli.py
 
-bench: $(VENV)/.installed
+bench: $(VENV)/.installed $(SDK3)/.installed
 	$(PY) tools/bench_dynamixel.py
 	$(PY) tools/bench_monitor.py
 	$(PY) tools/bench_board.py

@@ -89,7 +89,7 @@ def serve_lines_in_process(bench: Bench) -> list[int]:
     if server is None:
         return []
     for rdev in server.rdevs:
-        pyserial_shim.register(rdev, server.handle)
+        pyserial_shim.register(rdev, server.handle, server.board.path)
     pyserial_shim.install()
     return server.rdevs
 

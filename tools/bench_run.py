@@ -10,19 +10,28 @@ fallback), against an unpaced ``arm`` bench in this process, times each call (me
 - ``run_flush_<shim>``: ``ser.write(16 bytes); ser.reset_output_buffer()`` (the flush takes them);
 - ``run_drain_<shim>``: ``ser.write(16 bytes); ser.flush()`` (tcdrain: returns once delivered);
 - ``run_untouched_ioctl_c``: ``ser.in_waiting`` (an ioctl the shim passes through), with the
-  shim loaded; its reference is the same call without it, measured in the same run.
+  shim loaded; its reference is the same call without it, measured in the same run;
+- ``run_idle_drain_<shim>``: ``ser.flush()`` with everything written already delivered (what
+  dynamixel-sdk 3.x does before every packet); reference: the same call on the plain pty;
+- ``run_sdk_ping_<shim>``: the official SDK's ``ping`` (dynamixel-sdk 3.x from ``make install``'s
+  ``.venv/dynamixel-sdk-3`` if there, whose ``clearPort()`` drains before every packet; else the
+  installed one); reference: the same client on the plain pty. ``--rounds`` rounds of ``--pings``
+  pings alternate plain and shim; value and reference are the medians of the rounds' medians, the
+  ratio the median of the rounds' ratios (``ratios``: each round's; ``min_*``: fastest pings).
 
-The reference of the others is 1 ms: one full-speed USB frame, what a modem-line change or a
+The reference of the first four is 1 ms: one full-speed USB frame, what a modem-line change or a
 flush costs at least on a real USB serial adapter. Prints one JSON object per figure.
 
-Usage: tools/bench_run.py [--samples N]
+Usage: tools/bench_run.py [--samples N] [--pings N] [--rounds N]
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import shutil
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -51,7 +60,8 @@ def flush():
     ser.write(b"0123456789abcdef"); ser.reset_output_buffer()
 def drain():
     ser.write(b"0123456789abcdef"); ser.flush()
-out = {"untouched_ioctl": timed(lambda: ser.in_waiting)}
+ser.write(b"0123456789abcdef"); ser.flush()
+out = {"untouched_ioctl": timed(lambda: ser.in_waiting), "idle_drain": timed(ser.flush)}
 try:
     out.update(tiocmget=timed(lambda: ser.cts), set_dtr=timed(toggle), flush=timed(flush), drain=timed(drain))
 except OSError:
@@ -60,14 +70,35 @@ print(json.dumps(out))
 """
 
 
+SDK_WORKER = r"""
+import json, statistics, sys, time
+import dynamixel_sdk as sdk
+port = sdk.PortHandler(sys.argv[1])
+assert port.openPort()
+ph = sdk.PacketHandler(2.0)
+times, failed = [], 0
+for _ in range(int(sys.argv[2])):
+    t0 = time.perf_counter(); _, result, _ = ph.ping(port, 1); dt = time.perf_counter() - t0
+    if result == sdk.COMM_SUCCESS:
+        times.append(dt)
+    else:
+        failed += 1  # the SDK's ~35 ms reply timeout, hit when a loaded machine stalls either side
+times.sort()
+print(json.dumps({"median": statistics.median(times), "min": times[0], "failed": failed, "sdk": sdk.__file__}))
+"""
+
+#: dynamixel-sdk 3.x beside the venv's packages (the Makefile installs it there).
+SDK3 = os.path.join(sys.prefix, "dynamixel-sdk-3")
+
+
 def emit(name: str, value: float, unit: str, reference: float, ratio: float, **extra) -> None:
     print(json.dumps({"name": name, "value": round(value, 6), "unit": unit, "reference": round(reference, 6),
                       "ratio": round(ratio, 3), **extra}), flush=True)
 
 
-def worker(path: str, samples: int, prefix: list[str]) -> dict:
-    proc = subprocess.run([*prefix, sys.executable, "-c", WORKER, path, str(samples)], capture_output=True,
-                          text=True, timeout=600)
+def worker(path: str, samples: int, prefix: list[str], code: str = WORKER, env: dict | None = None) -> dict:
+    proc = subprocess.run([*prefix, sys.executable, "-c", code, path, str(samples)], capture_output=True,
+                          text=True, timeout=600, env=env)
     if proc.returncode != 0:
         raise SystemExit(f"worker failed: {proc.stderr.strip()}")
     return json.loads(proc.stdout)
@@ -76,7 +107,12 @@ def worker(path: str, samples: int, prefix: list[str]) -> dict:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--samples", type=int, default=2000, help="calls timed per figure (default 2000)")
+    parser.add_argument("--pings", type=int, default=300, help="SDK pings timed per round (default 300)")
+    parser.add_argument("--rounds", type=int, default=5, help="rounds of plain and shim SDK pings (default 5)")
     args = parser.parse_args()
+    sdk_env = dict(os.environ)
+    if os.path.isdir(os.path.join(SDK3, "dynamixel_sdk")):
+        sdk_env["PYTHONPATH"] = os.pathsep.join(p for p in (SDK3, os.environ.get("PYTHONPATH")) if p)
     with Bench("arm", paced=False) as bench, tempfile.TemporaryDirectory() as tmp:
         serve_lines(bench)
         manifest = str(Path(tmp) / "arm.json")
@@ -91,6 +127,19 @@ def main() -> None:
                 median, p90 = got[key]
                 emit(f"run_{key}_{shim}", median * 1e6, "us", USB_FRAME * 1e6, median / USB_FRAME,
                      p90_us=round(p90 * 1e6, 1))
+            median, p90 = got["idle_drain"]
+            ref = plain["idle_drain"][0]
+            emit(f"run_idle_drain_{shim}", median * 1e6, "us", ref * 1e6, median / ref, p90_us=round(p90 * 1e6, 2))
+            # The load of a shared machine moves a whole run: alternate the two, compare each pair.
+            pairs = [(worker(path, args.pings, [], SDK_WORKER, sdk_env),
+                      worker(path, args.pings, prefix, SDK_WORKER, sdk_env)) for _ in range(args.rounds)]
+            ratios = [got["median"] / ref["median"] for ref, got in pairs]
+            emit(f"run_sdk_ping_{shim}", statistics.median(got["median"] for _, got in pairs) * 1e6, "us",
+                 statistics.median(ref["median"] for ref, _ in pairs) * 1e6, statistics.median(ratios),
+                 sdk="3.x" if "dynamixel-sdk-3" in pairs[0][0]["sdk"] else "installed",
+                 ratios=[round(r, 2) for r in ratios], min_us=round(min(g["min"] for _, g in pairs) * 1e6, 1),
+                 min_reference_us=round(min(r["min"] for r, _ in pairs) * 1e6, 1),
+                 failed=sum(g["failed"] for _, g in pairs), failed_reference=sum(r["failed"] for r, _ in pairs))
             if shim == "c":
                 median, p90 = got["untouched_ioctl"]
                 ref = plain["untouched_ioctl"][0]

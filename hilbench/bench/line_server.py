@@ -8,8 +8,8 @@ instead, through an LD_PRELOAD shim or a pyserial patch (:mod:`hilbench.run`).
 One server per bench, a :attr:`Bench.services` entry named ``lines``: a Unix
 socket in a private directory (mode 0700, so only this user's programs reach
 it), listed in the manifest with the device number (``st_rdev``) of every pty
-it serves. A client opens one connection per call (no state to share between
-threads or across fork()) and sends one line, answered by one line::
+it serves. A client sends one line per request and reads one line back, on a
+connection it may keep for further requests (one request at a time on each)::
 
     RDEV VERB [ARG]\\n   ->   ok N\\n  |  err MESSAGE\\n
 
@@ -25,6 +25,10 @@ request                 what the bench does                                 ``ok
 ``sync [CFLAG]``        re-read baud rate; CFLAG: the client's framing      baud (0: unknown)
 ``framing``             the framing the client last set (a pty forgets it)  c_cflag bits, -1: none
 ======================  ==================================================  =======================
+
+Beside the socket, ``lines.board`` (:mod:`hilbench.bench.delivery_board`) tells
+clients when everything they wrote is delivered, so a drain or an output flush
+with nothing pending needs no request at all.
 
 Every change first takes what the client already wrote from the pty, in the
 medium's thread, so a line change or flush never overtakes the bytes written
@@ -49,6 +53,9 @@ import threading
 import time
 from collections.abc import Callable
 from typing import Any
+
+from hilbench.bench.delivery_board import FILE_NAME as BOARD_FILE
+from hilbench.bench.delivery_board import DeliveryBoard
 
 #: How long a request may wait for the medium's thread before the client is told to give up.
 MEDIUM_TIMEOUT = 5.0
@@ -100,6 +107,15 @@ class LineServer:
             self._sock.close()
             os.rmdir(self.directory)
             raise
+        self.board = DeliveryBoard(os.path.join(self.directory, BOARD_FILE), list(self._ports))
+        for rdev, p in self._ports.items():
+            watch = getattr(p.medium, "watch_quiet", None)
+            if watch is not None:
+                watch(p.port, lambda ns, _rdev=rdev: self.board.delivered(_rdev, ns),
+                      lambda _rdev=rdev: self.board.writers_idle(_rdev),
+                      lambda _rdev=rdev: self.board.draining(_rdev))
+        self._conns: set[socket.socket] = set()
+        self._conns_lock = threading.Lock()
         self._wake_r, self._wake_w = os.pipe()
         self._thread = threading.Thread(target=self._accept, name="line-server", daemon=True)
         self._thread.start()
@@ -113,7 +129,7 @@ class LineServer:
 
     def describe(self) -> dict[str, Any]:
         """The manifest's ``lines`` entry: the socket and the served ptys by endpoint name."""
-        return {"socket": self.path,
+        return {"socket": self.path, "board": self.board.path,
                 "ports": {p.name: {"rdev": rdev, "path": p.port.client_path} for rdev, p in self._ports.items()}}
 
     # ------------------------------------------------------------------ requests
@@ -146,9 +162,9 @@ class LineServer:
         if verb == "break":
             return self._break(port, args)
         if verb == "flush":
-            return self._after_taking(port, lambda: port.lines.host_flushed_output(), taken=True)
+            return self._after_taking(port, lambda: self._flushed(port), taken=True)
         if verb == "drain":
-            return self._after_taking(port, lambda: None, taken=True, delivered=True)
+            return self._after_taking(port, lambda: self._quiet(port), taken=True, delivered=True)
         if verb == "framing":
             framing = getattr(port.port, "framing", None)
             return -1 if framing is None else framing
@@ -156,6 +172,18 @@ class LineServer:
             framing = _int_arg(args) if args else None
             return self._after_taking(port, lambda: self._sync(port, framing))
         raise LineRequestError(f"unknown request {verb!r}")
+
+    @staticmethod
+    def _quiet(port: _Port) -> None:
+        """Tell the board if everything is delivered now: a client whose write() returned just after
+        the medium's last check must not have to ask again and again."""
+        check = getattr(port.medium, "check_quiet", None)
+        if check is not None:
+            check(port.port)
+
+    def _flushed(self, port: _Port) -> None:
+        port.lines.host_flushed_output()
+        self._quiet(port)
 
     @staticmethod
     def _mask(port: _Port) -> int:
@@ -255,22 +283,31 @@ class LineServer:
             threading.Thread(target=self._serve, args=(conn,), name="line-request", daemon=True).start()
 
     def _serve(self, conn: socket.socket) -> None:
-        with conn:
-            conn.settimeout(MEDIUM_TIMEOUT)
-            data = b""
-            try:
+        """Answer requests on one connection, one line each, until the client closes it."""
+        with self._conns_lock:
+            if self._closed.is_set():
+                conn.close()
+                return
+            self._conns.add(conn)
+        data = b""
+        try:
+            while not self._closed.is_set():
                 while b"\n" not in data and len(data) <= MAX_REQUEST:
                     chunk = conn.recv(MAX_REQUEST)
                     if not chunk:
-                        break
+                        return  # the client is done (or went away)
                     data += chunk
-                if len(data) > MAX_REQUEST:
-                    reply = "err request too long"
-                else:
-                    reply = self.handle(data.decode("ascii", "replace"))
-                conn.sendall(reply.encode() + b"\n")
-            except OSError:
-                pass  # the client went away or timed out: it fails open on its side
+                line, sep, data = data.partition(b"\n")
+                if not sep or len(line) > MAX_REQUEST:
+                    conn.sendall(b"err request too long\n")
+                    return
+                conn.sendall(self.handle(line.decode("ascii", "replace")).encode() + b"\n")
+        except OSError:
+            pass  # the client went away: it fails open on its side
+        finally:
+            with self._conns_lock:
+                self._conns.discard(conn)
+            conn.close()
 
     def close(self) -> None:
         """Stop serving and remove the socket and its directory."""
@@ -281,6 +318,16 @@ class LineServer:
             os.write(self._wake_w, b"x")
         self._thread.join(timeout=5)
         self._sock.close()
+        with self._conns_lock:
+            conns = list(self._conns)
+        for conn in conns:  # wakes their threads (recv returns nothing)
+            with contextlib.suppress(OSError):
+                conn.shutdown(socket.SHUT_RDWR)
+        for p in self._ports.values():
+            watch = getattr(p.medium, "watch_quiet", None)
+            if watch is not None:
+                watch(p.port, None)
+        self.board.close()
         for fd in (self._wake_r, self._wake_w):
             with contextlib.suppress(OSError):
                 os.close(fd)

@@ -15,8 +15,9 @@ adapter does besides bytes reaches the emulated devices: DTR/RTS changes
 TIOCMGET (pyserial's .cts/.dsr/.ri/.cd) reads what the devices drive, BREAK
 (TIOCSBRK/TIOCCBRK, tcsendbreak) arrives as an event, tcflush(TCOFLUSH)
 delivers the bytes already written instead of discarding them, tcdrain
-returns once they are delivered, and baud rate and framing changes are
-reported. Every other file and call is untouched.
+returns once they are delivered (at once, asking the bench nothing, when they
+already are), and baud rate and framing changes are reported. Every other
+file and call is untouched.
 
 Compiled and Python programs alike get this from a small LD_PRELOAD library,
 built with the system's C compiler on first use and cached in

@@ -12,6 +12,16 @@ module globals rather than Serial's methods keeps it working on pyserial forks
 that keep serialposix's structure (labgrid's ``pyserial-labgrid``); a
 ``serial.serialposix`` without them is left alone.
 
+A drain (``ser.flush()``, and the drain before a settings change) or an output
+flush (``reset_output_buffer()``) with nothing pending costs no request: the
+module's ``os`` is proxied too, so pyserial's writes to bench ports are
+stamped on the bench's delivery board (:mod:`hilbench.bench.delivery_board`),
+and when the bench has delivered everything written before the last stamp,
+a drain returns at once, as on an adapter with an empty queue; so does an
+output flush when this process wrote nothing since its last drain or flush
+(otherwise it asks, and the devices hear ``OutputFlushed``). Requests to a
+bench in another process reuse connections from a small pool.
+
 Standard library only, and no hilbench import: the ``sitecustomize`` that loads
 it may run in any Python 3 on the machine (a ROS node's system interpreter), not
 only in hilbench's own. The request protocol is the line server's
@@ -23,6 +33,7 @@ from __future__ import annotations
 
 import errno
 import importlib.abc
+import mmap
 import os
 import socket
 import stat
@@ -30,13 +41,24 @@ import struct
 import sys
 import termios as _termios
 import threading
+import time
 from collections.abc import Callable
 from typing import Any
 
 #: rdev -> the bench's line socket path, or (in-process) a callable answering one request line.
 PORTS: dict[int, str | Callable[[str], str]] = {}
+#: rdev -> the bench's delivery board file (None: the bench has none; every drain asks).
+BOARDS: dict[int, str | None] = {}
 _lock = threading.Lock()
 TIMEOUT = 30.0
+
+# The delivery board's layout (hilbench/bench/delivery_board.py has the same numbers; a test compares).
+BOARD_MAGIC = b"HBBOARD1"
+BOARD_VERSION = 1
+BOARD_HEADER = 64
+BOARD_SLOT = 64
+BOARD_RDEV, BOARD_IDLE_NS, BOARD_DIRTY_NS, BOARD_DIRTY_PY_NS, BOARD_WRITING, BOARD_WRITING_PY, BOARD_DRAIN_NS = range(7)
+BOARD_FILE = "lines.board"
 
 _T = _termios
 TIOCMGET = getattr(_T, "TIOCMGET", 0x5415)
@@ -68,15 +90,31 @@ def load_env(value: str | None = None) -> int:
     return n
 
 
-def register(rdev: int, target: str | Callable[[str], str]) -> None:
-    """Treat the pty with device number ``rdev`` as a bench port reached through ``target``."""
-    with _lock:
+def register(rdev: int, target: str | Callable[[str], str], board: str | None = None) -> None:
+    """Treat the pty with device number ``rdev`` as a bench port reached through ``target``.
+
+    ``board``: the bench's delivery board; by default the one beside a socket ``target``.
+    """
+    if board is None and isinstance(target, str):
+        board = os.path.join(os.path.dirname(target), BOARD_FILE)
+    with _lock, _state_lock:
         PORTS[rdev] = target
+        BOARDS[rdev] = board
+        _slots.pop(rdev, None)
 
 
 def unregister(rdev: int) -> None:
-    with _lock:
+    """Forget a port (and unmap its bench's board once no registered port uses it)."""
+    with _lock, _state_lock:
         PORTS.pop(rdev, None)
+        board = BOARDS.pop(rdev, None)
+        _slots.pop(rdev, None)
+        _locals.pop(rdev, None)
+        words = _maps.pop(board, None) if board and board not in BOARDS.values() else None
+        if words is not None:
+            mapped = words.obj
+            words.release()
+            mapped.close()
 
 
 # ---------------------------------------------------------------------- asking the bench
@@ -99,23 +137,15 @@ def ask(port: tuple[int, str | Callable[[str], str]], request: str, timeout: flo
     """One request to the bench; the ``ok`` value, or None if it refused or did not answer."""
     rdev, target = port
     line = f"{rdev} {request}"
-    try:
-        if callable(target):
+    if callable(target):
+        try:
             reply = target(line)
-        else:
-            with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as s:
-                s.settimeout(timeout)
-                s.connect(target)
-                s.sendall(line.encode("ascii") + b"\n")
-                data = b""
-                while not data.endswith(b"\n") and len(data) < 256:
-                    chunk = s.recv(256)
-                    if not chunk:
-                        break
-                    data += chunk
-            reply = data.decode("ascii", "replace")
-    except (OSError, ValueError):
-        return None
+        except (OSError, ValueError):
+            return None
+    else:
+        reply = _request(target, line, timeout)
+        if reply is None:
+            return None
     words = reply.split()
     if len(words) >= 2 and words[0] == "ok":
         try:
@@ -125,13 +155,218 @@ def ask(port: tuple[int, str | Callable[[str], str]], request: str, timeout: flo
     return None
 
 
+# Connections to line servers, kept for the next request (a connect and a server thread per request
+# cost more than the request): a few per socket, one request at a time on each.
+POOL_SIZE = 4
+_pool: dict[str, list[socket.socket]] = {}
+_pool_lock = threading.Lock()
+
+
+def _request(path: str, line: str, timeout: float) -> str | None:
+    """Send one request line on a pooled (or new) connection; the answer line, or None."""
+    for _attempt in range(2):
+        with _pool_lock:
+            idle = _pool.get(path)
+            conn = idle.pop() if idle else None
+        reused = conn is not None
+        data = b""
+        stale = False  # a kept connection the server closed before it read the request
+        try:
+            if conn is None:
+                conn = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+                conn.settimeout(timeout)
+                conn.connect(path)
+            else:
+                conn.settimeout(timeout)
+            conn.sendall(line.encode("ascii") + b"\n")
+            while not data.endswith(b"\n") and len(data) < 256:
+                chunk = conn.recv(256)
+                if not chunk:
+                    stale = not data
+                    break
+                data += chunk
+        except (BrokenPipeError, ConnectionResetError):
+            stale = not data
+        except (OSError, ValueError):
+            pass  # a timeout is no reason to send it again
+        if data.endswith(b"\n"):
+            with _pool_lock:
+                idle = _pool.setdefault(path, [])
+                if len(idle) < POOL_SIZE:
+                    idle.append(conn)
+                    conn = None
+            if conn is not None:
+                conn.close()
+            return data.decode("ascii", "replace")
+        if conn is not None:
+            conn.close()
+        if not (reused and stale):
+            return None  # a new connection failed, or the answer broke off: the bench is not answering
+        # The server had closed the kept connection (it stopped, or restarted): once more, on a new one.
+    return None
+
+
+def _forget_pool_after_fork() -> None:
+    """In a forked child: the parent's connections and locks are not ours to use."""
+    global _pool_lock, _state_lock, _lock
+    for conns in _pool.values():
+        for conn in conns:
+            conn.close()  # the child's copy only; the parent keeps its connection
+    _pool.clear()
+    _pool_lock, _state_lock, _lock = threading.Lock(), threading.Lock(), threading.Lock()
+
+
+# ---------------------------------------------------------------------- what needs no request
+
+class _Local:
+    """This process's writes to one bench port."""
+
+    __slots__ = ("dirty_ns", "in_flight", "wrote")
+
+    def __init__(self) -> None:
+        self.dirty_ns = 0  # CLOCK_MONOTONIC after the last write() returned
+        self.in_flight = 0  # write() calls not returned yet
+        self.wrote = False  # written since the last drain or output flush
+
+
+class _Slot:
+    """A port's slot on a bench's delivery board (words read and stored whole: 8 aligned bytes).
+
+    Python has no atomic read-modify-write: the Python words are stored under ``_state_lock``, so one
+    process's own stores only grow; two Python processes writing to one pty at the same moment could
+    undo each other's, which each one's :class:`_Local` covers for its own bytes.
+    """
+
+    def __init__(self, words: memoryview, index: int) -> None:
+        self._words = words
+        self._i = index
+
+    def idle_ns(self) -> int:
+        self._words[self._i + BOARD_DRAIN_NS] = time.monotonic_ns()  # someone drains: keep it fresh
+        return self._words[self._i + BOARD_IDLE_NS]
+
+    def dirty_ns(self) -> int:
+        return max(self._words[self._i + BOARD_DIRTY_NS], self._words[self._i + BOARD_DIRTY_PY_NS])
+
+    def begin(self, ns: int) -> None:
+        """A write begins (counted, then stamped: see hilbench/bench/delivery_board.py)."""
+        self._words[self._i + BOARD_WRITING_PY] = 1
+        i = self._i + BOARD_DIRTY_PY_NS
+        if ns > self._words[i]:
+            self._words[i] = ns
+
+    def end(self) -> None:
+        self._words[self._i + BOARD_WRITING_PY] = 0
+
+
+_locals: dict[int, _Local] = {}
+_slots: dict[int, _Slot | None] = {}
+_maps: dict[str, memoryview | None] = {}
+_state_lock = threading.Lock()
+#: Whether this process's pyserial writes are seen (its ``serial.serialposix`` has an ``os`` to proxy).
+_writes_seen = False
+
+
+def _board_words(path: str) -> memoryview | None:
+    if path not in _maps:
+        words = None
+        try:
+            fd = os.open(path, os.O_RDWR | getattr(os, "O_CLOEXEC", 0))
+            try:
+                size = os.fstat(fd).st_size
+                if size >= BOARD_HEADER:
+                    words = memoryview(mmap.mmap(fd, size)).cast("Q")
+            finally:
+                os.close(fd)
+        except (OSError, ValueError):
+            words = None
+        if words is not None and (words.obj[:8] != BOARD_MAGIC or words[1] != BOARD_VERSION  # type: ignore[index]
+                                  or words[3] != BOARD_SLOT or BOARD_HEADER + BOARD_SLOT * words[2] > len(words) * 8):
+            words = None
+        _maps[path] = words
+    return _maps[path]
+
+
+def _slot(rdev: int) -> _Slot | None:
+    """The port's slot on its bench's board (mapped on first use), or None."""
+    if rdev not in _slots:
+        path = BOARDS.get(rdev)
+        words = _board_words(path) if path else None
+        slot = None
+        if words is not None:
+            for n in range(words[2]):
+                i = (BOARD_HEADER + BOARD_SLOT * n) // 8
+                if words[i + BOARD_RDEV] == rdev:
+                    slot = _Slot(words, i)
+                    break
+        _slots[rdev] = slot
+    return _slots[rdev]
+
+
+def _local(rdev: int) -> _Local:
+    local = _locals.get(rdev)
+    if local is None:
+        local = _locals[rdev] = _Local()
+    return local
+
+
+def _delivered(rdev: int) -> bool:
+    """Whether everything this process (and, as far as the board knows, any other) wrote to the port
+    is delivered: then a drain has nothing to wait for. Call with ``_state_lock`` held."""
+    if not _writes_seen:
+        return False
+    slot = _slot(rdev)
+    local = _local(rdev)
+    if slot is None or local.in_flight:
+        return False
+    return slot.idle_ns() > max(local.dirty_ns, slot.dirty_ns())
+
+
+def _drain(port: tuple[int, Any]) -> None:
+    """tcdrain on a bench port: nothing to ask when everything written is delivered."""
+    with _state_lock:
+        _local(port[0]).wrote = False
+        if _delivered(port[0]):
+            return
+    ask(port, "drain")
+
+
+def _write(real: Callable[[int, Any], int], fd: Any, data: Any) -> int:
+    port = _port(fd)
+    if port is None:
+        return real(fd, data)
+    with _state_lock:
+        local = _local(port[0])
+        local.in_flight += 1
+        local.wrote = True
+        slot = _slot(port[0])
+        if slot is not None:
+            slot.begin(time.monotonic_ns())
+    try:
+        return real(fd, data)
+    finally:
+        now = time.monotonic_ns()  # after write() returned: what this process's own drains go by
+        with _state_lock:
+            local.in_flight -= 1
+            local.dirty_ns = max(local.dirty_ns, now)
+            if slot is not None and not local.in_flight:
+                slot.end()
+
+
 def _break(port: tuple[int, Any], seconds: float) -> bool:
     return ask(port, f"break {seconds:.3f}", TIMEOUT + seconds) is not None
 
 
 def _flush(port: tuple[int, Any], fd: Any, queue: int, real_tcflush: Callable[[Any, int], None]) -> bool:
-    """TCOFLUSH / TCIOFLUSH through the bench; False: not handled (do the real call)."""
-    if queue not in (_termios.TCOFLUSH, _termios.TCIOFLUSH) or ask(port, "flush") is None:
+    """TCOFLUSH / TCIOFLUSH through the bench; False: not handled (do the real call). Nothing written
+    since the last drain or flush and everything delivered: nothing to flush, nothing to ask."""
+    if queue not in (_termios.TCOFLUSH, _termios.TCIOFLUSH):
+        return False
+    with _state_lock:
+        local = _local(port[0])
+        wrote, local.wrote = local.wrote, False
+        idle = not wrote and _delivered(port[0])
+    if not idle and ask(port, "flush") is None:
         return False
     if queue == _termios.TCIOFLUSH:
         real_tcflush(fd, _termios.TCIFLUSH)
@@ -147,7 +382,10 @@ class _Proxy:
         self._real = real
 
     def __getattr__(self, name: str) -> Any:
-        return getattr(self._real, name)
+        value = getattr(self._real, name)
+        if callable(value):  # kept: serialposix calls os.read, select... in its read loop
+            setattr(self, name, value)
+        return value
 
     def __repr__(self) -> str:
         return f"<hilbench run proxy of {self._real!r}>"
@@ -184,7 +422,7 @@ class FcntlProxy(_Proxy):
                 if _break(port, 0.25):
                     return 0
             else:
-                ask(port, "drain")
+                _drain(port)
         elif request == TCSBRKP and isinstance(arg, int):
             if _break(port, arg / 10.0 if arg > 0 else 0.25):
                 return 0
@@ -203,7 +441,7 @@ class FcntlProxy(_Proxy):
             view[8:12] = struct.pack("I", (_cflag(view) or 0) & ~_FRAMING | framing)
             return result
         elif request in TCSETS_ALL and not isinstance(arg, int):
-            ask(port, "drain")
+            _drain(port)
             result = real(fd, request, arg, mutate_flag)
             cflag = _cflag(arg)
             if cflag is not None:
@@ -247,7 +485,7 @@ class TermiosProxy(_Proxy):
     def tcdrain(self, fd: Any) -> None:
         port = _port(fd)
         if port is not None:
-            ask(port, "drain")
+            _drain(port)
         self._real.tcdrain(fd)
 
     def tcsendbreak(self, fd: Any, duration: int) -> None:
@@ -271,7 +509,7 @@ class TermiosProxy(_Proxy):
         if port is None:
             self._real.tcsetattr(fd, when, attributes)
             return
-        ask(port, "drain")
+        _drain(port)
         try:
             self._real.tcsetattr(fd, when, attributes)
         except self._real.error as exc:
@@ -280,6 +518,13 @@ class TermiosProxy(_Proxy):
             if exc.args[0] != errno.EINVAL or not _pty_took_the_rest(fd, attributes):
                 raise
         ask(port, f"sync {int(attributes[2])}")
+
+
+class OsProxy(_Proxy):
+    """``os`` with ``write`` stamping writes to bench ports on the delivery board."""
+
+    def write(self, fd: Any, data: Any) -> int:
+        return _write(self._real.write, fd, data)
 
 
 def _pty_took_the_rest(fd: Any, wanted: list) -> bool:
@@ -295,19 +540,24 @@ def _pty_took_the_rest(fd: Any, wanted: list) -> bool:
 
 def patch(module: Any) -> bool:
     """Give a loaded ``serial.serialposix`` the proxies; False if it does not look like one."""
-    fc, te = getattr(module, "fcntl", None), getattr(module, "termios", None)
+    global _writes_seen
+    fc, te, os_ = getattr(module, "fcntl", None), getattr(module, "termios", None), getattr(module, "os", None)
     if fc is None or te is None:
         return False
     if not isinstance(fc, FcntlProxy):
         module.fcntl = FcntlProxy(fc)
     if not isinstance(te, TermiosProxy):
         module.termios = TermiosProxy(te)
+    if os_ is not None and hasattr(os_, "write"):
+        if not isinstance(os_, OsProxy):
+            module.os = OsProxy(os_)
+        _writes_seen = True  # else writes go unseen, and every drain asks
     return True
 
 
 def unpatch(module: Any) -> None:
     """Put the real modules back."""
-    for name in ("fcntl", "termios"):
+    for name in ("fcntl", "termios", "os"):
         value = getattr(module, name, None)
         if isinstance(value, _Proxy):
             setattr(module, name, value._real)
@@ -366,5 +616,9 @@ def uninstall() -> None:
         unpatch(module)
 
 
-__all__ = ["PORTS", "FcntlProxy", "TermiosProxy", "ask", "install", "load_env", "patch", "register",
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_forget_pool_after_fork)
+
+
+__all__ = ["BOARDS", "PORTS", "FcntlProxy", "OsProxy", "TermiosProxy", "ask", "install", "load_env", "patch", "register",
            "uninstall", "unpatch"]

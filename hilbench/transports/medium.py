@@ -136,6 +136,15 @@ class Medium:
         """
         raise NotImplementedError
 
+    def watch_quiet(self, port: Any, watcher: Callable[[int], None] | None) -> bool:
+        """Call ``watcher(ns)`` whenever everything host ``port`` wrote before ``CLOCK_MONOTONIC`` ``ns``
+        is delivered; False: this medium cannot tell (``hilbench run`` clients then always ask)."""
+        return False
+
+    def check_quiet(self, port: Any) -> bool:
+        """Check now, in the medium's thread, what :meth:`watch_quiet` watches; False if not quiet."""
+        return False
+
     def call_at(self, t: float | None, fn: Callable[[], None]) -> None:
         """Run ``fn`` in the medium's thread at time ``t`` (None: as soon as possible)."""
         raise NotImplementedError

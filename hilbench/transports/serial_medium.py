@@ -32,6 +32,11 @@ from hilbench.transports.medium import DevicePort, Medium, Tap
 
 log = logging.getLogger(__name__)
 
+#: check_quiet looks again after 10 us, 20 us, ... while a client is inside write(), 10 times (~10 ms):
+#: soon enough to beat the client's next drain when this thread had preempted it.
+QUIET_RETRY = 10e-6
+QUIET_RETRIES = 10
+
 
 class Device(Protocol):
     """An in-process party on the line, e.g. a group of emulated servos.
@@ -68,6 +73,9 @@ class SerialMedium(Medium):
         self._seq = itertools.count()
         self._busy_until = 0.0
         self._last_end: dict[str, float] = {}  # by sender: when its latest transmission is delivered
+        self._pending: dict[str, int] = {}  # by sender: transmissions not delivered yet
+        self._quiet: dict[str, tuple] = {}  # host name -> (port, watcher, ready): see watch_quiet
+        self._quiet_retrying: set[str] = set()
         self._last_activity = 0.0
         self._wake_r, self._wake_w = os.pipe()
         os.set_blocking(self._wake_r, False)
@@ -108,6 +116,7 @@ class SerialMedium(Medium):
             else:
                 end = t + gap
             self._last_end[source] = end
+            self._pending[source] = self._pending.get(source, 0) + 1
             self._push(end, lambda: self._deliver(source, data, end, baud))
         if threading.current_thread() is not self._thread:
             self._wake()
@@ -144,6 +153,11 @@ class SerialMedium(Medium):
             except Exception:
                 stats.callback_errors += 1
                 log.exception("tap failed")
+        with self._lock:
+            left = self._pending[source] = self._pending[source] - 1
+            watched = self._quiet.get(source) if not left else None
+        if watched is not None:  # after the devices heard it, before anything they answer reaches the host
+            self.check_quiet(watched[0])
 
     # ------------------------------------------------------------------ running
 
@@ -218,6 +232,60 @@ class SerialMedium(Medium):
                 taken += n
                 end = max(end, t)
         return taken, end
+
+    def watch_quiet(self, port, watcher: Callable[[int], None] | None, ready: Callable[[], bool] | None = None,
+                    keen: Callable[[], bool] | None = None) -> bool:
+        """Tell ``watcher(ns)``, in the line's thread, each time everything host ``port`` wrote before
+        ``CLOCK_MONOTONIC`` ``ns`` has been delivered (checked after each of its transmissions is
+        delivered, and once now); None stops watching. ``ready()``, read after the clock, says whether
+        no write to the port is under way; if one is and ``keen()`` (someone waits for the news), the
+        check is repeated a little later. ``hilbench run``'s delivery board uses it.
+        """
+        with self._lock:
+            if watcher is None:
+                self._quiet.pop(port.name, None)
+                return True
+            self._quiet[port.name] = (port, watcher, ready, keen)
+        if not self.paced:  # paced lines already wake precisely; the retries need it too
+            self.call_at(None, reduce_timer_slack)
+        self.call_at(None, lambda: self.check_quiet(port))
+        return True
+
+    def check_quiet(self, port, _retry: int = 0) -> bool:
+        """In the line's thread: if nothing ``port`` sent awaits delivery, no write to it is under way
+        and a non-blocking read finds nothing more, tell its watcher (see :meth:`watch_quiet`). What the
+        read finds goes on the line."""
+        with self._lock:
+            if _retry:
+                self._quiet_retrying.discard(port.name)
+            watched = self._quiet.get(port.name)
+            if watched is None or self._pending.get(port.name, 0):
+                return False
+            hosts = [(ep, listen_only) for ep, listen_only in self._hosts if ep is port]
+        _, watcher, ready, keen = watched
+        # The clock before the rest: a write stamped earlier is counted in ready() or has returned, and then
+        # its bytes are there for the read to find (a pty master's read first runs the tty layer's work).
+        t0 = time.monotonic_ns()
+        if ready is not None and not ready():
+            # A client is inside write() (often preempted by this very thread on return): look again soon,
+            # less and less often, and give up (every drain then asks) if it never ends.
+            if keen is not None and not keen():
+                return False
+            with self._lock:
+                if _retry < QUIET_RETRIES and port.name not in self._quiet_retrying:  # one series at a time
+                    self._quiet_retrying.add(port.name)
+                    self._push(time.monotonic() + QUIET_RETRY * 2 ** _retry,
+                               lambda: self.check_quiet(port, _retry + 1))
+            return False
+        for endpoint, listen_only in hosts:
+            if listen_only or self._take(endpoint, listen_only, time.monotonic())[0]:
+                return False  # new bytes (or a port whose bytes are never delivered): not quiet yet
+        try:
+            watcher(t0)
+        except Exception:
+            self.stats.callback_errors += 1
+            log.exception("quiet watcher of %s failed", port.name)
+        return True
 
     def _run_due(self) -> None:
         while True:
