@@ -48,6 +48,7 @@ from hilbench import __version__
 from hilbench.protocols import rfc2217 as p
 from hilbench.transports.host_port import DEFAULT_BIND, HostPort, url_host
 from hilbench.transports.line import LineSettings, LineState
+from hilbench.transports.listener import accepted, listen, serve
 
 log = logging.getLogger(__name__)
 
@@ -75,16 +76,7 @@ class Rfc2217Port(HostPort):
         self.line_state = line_state
         self.medium = medium
         self.signature = signature or f"hilbench {__version__}"
-        family = socket.AF_INET6 if ":" in bind else socket.AF_INET
-        self.listener = socket.socket(family, socket.SOCK_STREAM)
-        self.listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        try:
-            self.listener.bind((bind, port))
-        except OSError:
-            self.listener.close()
-            raise
-        self.listener.listen(4)
-        self.listener.setblocking(False)
+        self.listener = listen(bind, port, 4, socket.AF_INET6 if ":" in bind else socket.AF_INET)
         self.bind = bind
         self._ready_r, self._ready_w = os.pipe()  # readable while parsed input waits for the next read()
         os.set_blocking(self._ready_r, False)
@@ -214,18 +206,11 @@ class Rfc2217Port(HostPort):
         self._eof = False
 
     def _accept(self) -> None:
-        while True:
-            try:
-                sock, addr = self.listener.accept()
-            except (BlockingIOError, InterruptedError):
-                return
-            except OSError:
-                return
+        for sock, addr in accepted(self.listener):
             if self.client is not None:
                 self._refuse(sock, addr)
                 continue
-            sock.setblocking(False)
-            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            serve(sock)
             with self._lock:
                 self._reset_session()
                 self.client, self.peer, self.since = sock, addr[:2], time.time()

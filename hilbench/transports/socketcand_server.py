@@ -40,6 +40,7 @@ from typing import Any
 
 from hilbench.protocols import socketcand as sc
 from hilbench.protocols.can_frame import CanFrame
+from hilbench.transports.listener import accepted, listen, serve
 
 log = logging.getLogger(__name__)
 
@@ -100,15 +101,7 @@ class SocketcandServer:
         self.name = name
         self.channel = channel
         self.rawmode_delay = rawmode_delay
-        self.listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-        self.listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        try:
-            self.listener.bind((bind, port))
-        except OSError:
-            self.listener.close()
-            raise
-        self.listener.listen(16)
-        self.listener.setblocking(False)
+        self.listener = listen(bind, port, 16)
         self.clients: list[_Client] = []
         self.connections = 0
         self.malformed = 0
@@ -141,17 +134,9 @@ class SocketcandServer:
         return [self.listener.fileno()] + [c.sock.fileno() for c in self.clients]
 
     def _accept(self) -> None:
-        while True:
-            try:
-                sock, addr = self.listener.accept()
-            except (BlockingIOError, InterruptedError):
-                return
-            except OSError:
-                return
-            sock.setblocking(False)
-            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        for sock, addr in accepted(self.listener):
             self.connections += 1
-            client = _Client(sock, f"socketcand {addr[0]}:{addr[1]}")
+            client = _Client(serve(sock), f"socketcand {addr[0]}:{addr[1]}")
             self.clients.append(client)
             self._reply(client, sc.HI)
 

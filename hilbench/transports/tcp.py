@@ -16,6 +16,7 @@ import socket
 from typing import Any
 
 from hilbench.transports.host_port import HostPort, bind_address, port_number
+from hilbench.transports.listener import accepted, listen, serve
 
 
 class TcpEndpoint(HostPort):
@@ -26,15 +27,7 @@ class TcpEndpoint(HostPort):
 
     def __init__(self, name: str = "tcp", bind: str = "127.0.0.1", port: int = 0) -> None:
         self.name = name
-        self.listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-        self.listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        try:
-            self.listener.bind((bind, port))
-        except OSError:
-            self.listener.close()
-            raise
-        self.listener.listen(4)
-        self.listener.setblocking(False)
+        self.listener = listen(bind, port, 4)
         self.client: socket.socket | None = None
         self.peer: tuple[str, int] | None = None
         self.bytes_in = 0
@@ -78,21 +71,13 @@ class TcpEndpoint(HostPort):
         return fds
 
     def _accept(self) -> None:
-        while True:
-            try:
-                sock, addr = self.listener.accept()
-            except (BlockingIOError, InterruptedError):
-                return
-            except OSError:
-                return
+        for sock, addr in accepted(self.listener):
             if self.client is not None:  # busy: a real single-connection device refuses the newcomer
                 self.refused += 1
                 with contextlib.suppress(OSError):
                     sock.close()
                 continue
-            sock.setblocking(False)
-            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-            self.client, self.peer = sock, addr[:2]
+            self.client, self.peer = serve(sock), addr[:2]
             self.connections += 1
 
     def _drop_client(self) -> None:
