@@ -14,16 +14,16 @@ import contextlib
 import os
 import threading
 import time
-from typing import Any
 
 from hilbench.protocols.can_frame import CanFrame
 from hilbench.transports.can_messages import to_frame, to_message
+from hilbench.transports.can_port import CanDoor
 
 #: Frames held between the receiving thread and the bus before new ones are dropped.
 MAX_INBOX = 100_000
 
 
-class VirtualChannel:
+class VirtualChannel(CanDoor):
     """The virtual door of a CAN host port, on python-can virtual channel ``channel``."""
 
     kind = "virtual"
@@ -87,18 +87,6 @@ class VirtualChannel:
             self.sent += 1
         except Exception:
             self.dropped += 1
-
-    def flush(self) -> None:
-        pass
-
-    def deadline(self) -> float | None:
-        return None
-
-    def poll(self, now: float) -> list[tuple[str, CanFrame]]:
-        return []
-
-    def attach(self, medium: Any) -> None:
-        pass
 
     def close(self) -> None:
         self._stop.set()

@@ -24,6 +24,7 @@ from typing import Any
 
 from hilbench.protocols import slcan
 from hilbench.protocols.can_frame import CanFrame
+from hilbench.transports.can_port import CanDoor
 from hilbench.transports.pty import PtyEndpoint
 
 log = logging.getLogger(__name__)
@@ -33,7 +34,7 @@ VERSION = "1013"
 SERIAL = "HB01"
 
 
-class SlcanAdapter:
+class SlcanAdapter(CanDoor):
     """The SLCAN door of a CAN host port: one emulated adapter behind a pty."""
 
     kind = "slcan"
@@ -190,12 +191,6 @@ class SlcanAdapter:
         if self.out:
             self.pty.write(bytes(self.out))  # a full pty buffer drops (and counts) like a UART FIFO
             self.out.clear()
-
-    def deadline(self) -> float | None:
-        return None
-
-    def poll(self, now: float) -> list[tuple[str, CanFrame]]:
-        return []
 
     def close(self) -> None:
         self.pty.close()

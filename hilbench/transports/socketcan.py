@@ -14,10 +14,10 @@ from __future__ import annotations
 import contextlib
 import functools
 import socket
-from typing import Any
 
 from hilbench.protocols import can_frame as cf
 from hilbench.protocols.can_frame import CanFrame
+from hilbench.transports.can_port import CanDoor
 
 #: Frames read per call at most (the rest wait for the next round).
 READ_BATCH = 256
@@ -52,7 +52,7 @@ def open_raw_socket(channel: str) -> socket.socket:
     return sock
 
 
-class SocketCanLink:
+class SocketCanLink(CanDoor):
     """The SocketCAN door of a CAN host port: frames both ways between the emulated bus and ``sock``."""
 
     kind = "socketcan"
@@ -107,18 +107,6 @@ class SocketCanLink:
             self.dropped += 1  # the interface's queue is full (txqueuelen): the kernel drops as well
         except OSError:
             self.dropped += 1
-
-    def flush(self) -> None:
-        pass
-
-    def deadline(self) -> float | None:
-        return None
-
-    def poll(self, now: float) -> list[tuple[str, CanFrame]]:
-        return []
-
-    def attach(self, medium: Any) -> None:
-        pass
 
     def close(self) -> None:
         with contextlib.suppress(OSError):

@@ -40,6 +40,7 @@ from typing import Any
 
 from hilbench.protocols import socketcand as sc
 from hilbench.protocols.can_frame import CanFrame
+from hilbench.transports.can_port import CanDoor
 from hilbench.transports.listener import accepted, listen, serve
 
 log = logging.getLogger(__name__)
@@ -89,7 +90,7 @@ class _Client:
     closing: bool = False
 
 
-class SocketcandServer:
+class SocketcandServer(CanDoor):
     """The socketcand door of a CAN host port; see the module docstring."""
 
     kind = "socketcand"
