@@ -22,7 +22,6 @@ from __future__ import annotations
 import contextlib
 import ipaddress
 import logging
-import os
 import random
 import select
 import socket
@@ -33,6 +32,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from hilbench.protocols import xrce_dds as x
+from hilbench.transports.medium_loop import WakePipe
 
 log = logging.getLogger(__name__)
 K = x.ObjectKind
@@ -99,7 +99,7 @@ class XrceClient:
         self._sock: socket.socket | None = None
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
-        self._wake_r, self._wake_w = os.pipe()
+        self._waker = WakePipe()  # ends the thread's wait when it stops
         self._reset_session()
 
     # ------------------------------------------------------------------ set-up
@@ -150,8 +150,7 @@ class XrceClient:
                 self._send_raw(x.build_message(self.session_id, 0, 0, [(S.DELETE, x.FLAG_E,
                                                                          x.delete(b"\x00\x02", x.OBJECT_CLIENT))]))
         self._stop.set()
-        with contextlib.suppress(OSError):
-            os.write(self._wake_w, b"x")
+        self._waker.wake()
         if self._thread is not None:
             self._thread.join(timeout=5)
             self._thread = None
@@ -162,9 +161,7 @@ class XrceClient:
 
     def close(self) -> None:
         self.stop()
-        for fd in (self._wake_r, self._wake_w):
-            with contextlib.suppress(OSError):
-                os.close(fd)
+        self._waker.close()
 
     @property
     def local_address(self) -> tuple[str, int] | None:
@@ -249,7 +246,7 @@ class XrceClient:
         if sock is None:
             return None
         try:
-            ready = select.select([sock, self._wake_r], [], [], max(0.0, timeout))[0]
+            ready = select.select([sock, self._waker.fd], [], [], max(0.0, timeout))[0]
         except (OSError, ValueError):
             return None
         if sock in ready:

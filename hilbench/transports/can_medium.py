@@ -33,22 +33,18 @@ their own controller's state changes (``active``, ``passive``, ``bus-off``,
 from __future__ import annotations
 
 import collections
-import contextlib
-import heapq
-import itertools
 import logging
-import os
 import random
 import threading
 import time
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 from hilbench.protocols import can_frame as cf
 from hilbench.protocols.can_frame import CanFrame
 from hilbench.transports.clock import SPIN_AFTER_ACTIVITY, reduce_timer_slack, wait
-from hilbench.transports.medium import DevicePort, Medium
+from hilbench.transports.medium import DevicePort
+from hilbench.transports.medium_loop import LoopMedium
 
 log = logging.getLogger(__name__)
 
@@ -109,10 +105,11 @@ class BusStats:
     by_source: dict[str, int] = field(default_factory=dict)
 
 
-class CanMedium(Medium):
+class CanMedium(LoopMedium):
     """One CAN bus at ``baud`` bit/s (default 500 kbit/s); see the module docstring."""
 
     kind = "can"
+    thread_prefix = "can"
 
     def __init__(self, name: str, baud: int | None = None, *, paced: bool = False, seed: int | None = None) -> None:
         super().__init__(name, baud or DEFAULT_BITRATE, paced=paced)
@@ -126,16 +123,9 @@ class CanMedium(Medium):
         self._arbitrating = False
         self._load: collections.deque[tuple[float, int]] = collections.deque()
         self._load_bits = 0
-        self._events: list[tuple[float, int, Callable[[], None]]] = []
-        self._seq = itertools.count()
         self._last_activity = 0.0
         # One mapping from the bus clock (time.monotonic) to Unix time, so wire stamps never jump.
         self.wall_offset = time.time() - time.monotonic()
-        self._wake_r, self._wake_w = os.pipe()
-        os.set_blocking(self._wake_r, False)
-        os.set_blocking(self._wake_w, False)
-        self._thread: threading.Thread | None = None
-        self._stop = threading.Event()
 
     @property
     def bitrate(self) -> int:
@@ -234,16 +224,6 @@ class CanMedium(Medium):
         for frame in frames:
             self.send(source, frame, at)
         return time.monotonic() if at is None else at
-
-    def call_at(self, t: float | None, fn: Callable[[], None]) -> None:
-        """Run ``fn`` in the bus thread at time ``t`` (None: at once); thread-safe."""
-        with self._lock:
-            self._push(time.monotonic() if t is None else t, fn)
-        if threading.current_thread() is not self._thread:
-            self._wake()
-
-    def _push(self, t: float, fn: Callable[[], None]) -> None:
-        heapq.heappush(self._events, (t, next(self._seq), fn))
 
     def _submit(self, source: str, frame: CanFrame, now: float) -> None:
         if source in self._bus_off:
@@ -430,40 +410,21 @@ class CanMedium(Medium):
                     stats.callback_errors += 1
                     log.exception("tap failed")
 
-    # ------------------------------------------------------------------ running
-
-    def start(self) -> None:
-        """Run the bus in a background thread."""
-        if self._thread is not None:
-            return
-        self._stop.clear()
-        self._thread = threading.Thread(target=self._run, name=f"can-{self.name}", daemon=True)
-        self._thread.start()
-
-    def stop(self) -> None:
-        """Stop the bus thread (host ports stay open; close them separately)."""
-        self._stop.set()
-        self._wake()
-        if self._thread is not None:
-            self._thread.join(timeout=5)
-            self._thread = None
+    # ------------------------------------------------------------------ running (timers, thread: LoopMedium)
 
     def wake(self) -> None:
         """Make the bus thread look at its host ports again (a port opened a door)."""
         self._wake()
 
-    def _wake(self) -> None:
-        with contextlib.suppress(BlockingIOError, OSError):
-            os.write(self._wake_w, b"x")
-
     def _run(self) -> None:
         if self.paced:
             reduce_timer_slack()
+        waker = self._waker
         while not self._stop.is_set():
             with self._lock:
                 deadline = self._events[0][0] if self._events else None
                 hosts = list(self._hosts)
-            fds = [self._wake_r]
+            fds = [waker.fd]
             for port, _ in hosts:
                 fds.extend(port.filenos())
                 d = port.deadline()
@@ -473,9 +434,8 @@ class CanMedium(Medium):
             now = time.monotonic()
             if ready:
                 self._last_activity = now
-                if self._wake_r in ready:
-                    with contextlib.suppress(BlockingIOError):
-                        os.read(self._wake_r, 4096)
+                if waker.fd in ready:
+                    waker.drain()
             for port, listen_only in hosts:
                 try:
                     if ready and any(fd in ready for fd in port.filenos()):
@@ -497,25 +457,6 @@ class CanMedium(Medium):
                 except Exception:
                     self.stats.callback_errors += 1
                     log.exception("host port %s failed to flush", getattr(port, "name", port))
-
-    def _run_due(self) -> None:
-        while True:
-            with self._lock:
-                if not self._events or self._events[0][0] > time.monotonic():
-                    return
-                _, _, fn = heapq.heappop(self._events)
-            try:
-                fn()
-            except Exception:
-                self.stats.callback_errors += 1
-                log.exception("bus event failed")
-
-    def close(self) -> None:
-        """Stop the bus and release its wake-up pipe."""
-        self.stop()
-        for fd in (self._wake_r, self._wake_w):
-            with contextlib.suppress(OSError):
-                os.close(fd)
 
 
 __all__ = ["DEFAULT_BITRATE", "BusStats", "CanDevice", "CanDevicePort", "CanMedium"]

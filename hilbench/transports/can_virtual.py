@@ -11,13 +11,13 @@ from __future__ import annotations
 
 import collections
 import contextlib
-import os
 import threading
 import time
 
 from hilbench.protocols.can_frame import CanFrame
 from hilbench.transports.can_messages import to_frame, to_message
 from hilbench.transports.can_port import CanDoor
+from hilbench.transports.medium_loop import WakePipe
 
 #: Frames held between the receiving thread and the bus before new ones are dropped.
 MAX_INBOX = 100_000
@@ -35,9 +35,7 @@ class VirtualChannel(CanDoor):
         self.source = f"virtual {channel}"
         self.bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
         self._inbox: collections.deque[CanFrame] = collections.deque()
-        self._wake_r, self._wake_w = os.pipe()
-        os.set_blocking(self._wake_r, False)
-        os.set_blocking(self._wake_w, False)
+        self._waker = WakePipe()
         self._stop = threading.Event()
         self.received = 0
         self.sent = 0
@@ -60,18 +58,16 @@ class VirtualChannel(CanDoor):
                 self.dropped += 1
                 continue
             self._inbox.append(frame)
-            with contextlib.suppress(BlockingIOError, OSError):
-                os.write(self._wake_w, b"x")
+            self._waker.wake()
 
     def describe(self) -> str:
         return self.channel
 
     def filenos(self) -> list[int]:
-        return [self._wake_r]
+        return [self._waker.fd]
 
     def read_frames(self, now: float) -> list[tuple[str, CanFrame]]:
-        with contextlib.suppress(BlockingIOError, OSError):
-            os.read(self._wake_r, 65536)
+        self._waker.drain(65536)
         out = []
         while self._inbox:
             out.append((self.source, self._inbox.popleft()))
@@ -93,9 +89,7 @@ class VirtualChannel(CanDoor):
         self._thread.join(timeout=2)
         with contextlib.suppress(Exception):
             self.bus.shutdown()
-        for fd in (self._wake_r, self._wake_w):
-            with contextlib.suppress(OSError):
-                os.close(fd)
+        self._waker.close()
 
 
 __all__ = ["VirtualChannel"]

@@ -25,12 +25,8 @@ datagram leaves when it is sent (``t`` delays it).
 
 from __future__ import annotations
 
-import contextlib
-import heapq
 import inspect
-import itertools
 import logging
-import os
 import threading
 import time
 from collections.abc import Callable
@@ -38,7 +34,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from hilbench.transports.clock import wait
-from hilbench.transports.medium import DevicePort, Medium
+from hilbench.transports.medium import DevicePort
+from hilbench.transports.medium_loop import LoopMedium
 from hilbench.transports.udp import UdpEndpoint
 
 log = logging.getLogger(__name__)
@@ -61,10 +58,11 @@ class NetStats:
     by_source: dict[str, int] = field(default_factory=dict)
 
 
-class DatagramMedium(Medium):
+class DatagramMedium(LoopMedium):
     """A datagram net; see the module docstring. ``baud`` and ``paced`` are accepted and ignored."""
 
     kind = "datagram"
+    thread_prefix = "net"
 
     def __init__(self, name: str, baud: int | None = None, *, paced: bool = False) -> None:
         super().__init__(name, baud, paced=False)
@@ -73,13 +71,6 @@ class DatagramMedium(Medium):
         self._sockets: list[UdpEndpoint] = []
         self._own_addresses: set[Address] = set()
         self._tap_kinds: dict[int, bool] = {}  # id(tap) -> takes addresses
-        self._events: list[tuple[float, int, Callable[[], None]]] = []
-        self._seq = itertools.count()
-        self._wake_r, self._wake_w = os.pipe()
-        os.set_blocking(self._wake_r, False)
-        os.set_blocking(self._wake_w, False)
-        self._thread: threading.Thread | None = None
-        self._stop = threading.Event()
         self._opened: list[UdpEndpoint] = []
 
     # ------------------------------------------------------------------ wiring
@@ -197,39 +188,15 @@ class DatagramMedium(Medium):
                     self.stats.callback_errors += 1
                     log.exception("device %s failed on a %d-byte datagram", device.name, len(data))
 
-    # ------------------------------------------------------------------ timers and thread
-
-    def call_at(self, t: float | None, fn: Callable[[], None]) -> None:
-        """Run ``fn`` in the net's thread at time ``t`` (None: at once; thread-safe)."""
-        with self._lock:
-            heapq.heappush(self._events, (time.monotonic() if t is None else t, next(self._seq), fn))
-        if threading.current_thread() is not self._thread:
-            self._wake()
-
-    def start(self) -> None:
-        if self._thread is not None:
-            return
-        self._stop.clear()
-        self._thread = threading.Thread(target=self._run, name=f"net-{self.name}", daemon=True)
-        self._thread.start()
-
-    def stop(self) -> None:
-        self._stop.set()
-        self._wake()
-        if self._thread is not None:
-            self._thread.join(timeout=5)
-            self._thread = None
-
-    def _wake(self) -> None:
-        with contextlib.suppress(BlockingIOError, OSError):
-            os.write(self._wake_w, b"x")
+    # ------------------------------------------------------------------ thread (timers: LoopMedium)
 
     def _run(self) -> None:
+        waker = self._waker
         while not self._stop.is_set():
             with self._lock:
                 deadline = self._events[0][0] if self._events else None
                 hosts = list(self._hosts)
-            fds = [p.fileno() for p, _ in hosts] + [self._wake_r]
+            fds = [p.fileno() for p, _ in hosts] + [waker.fd]
             try:
                 ready = wait(fds, deadline, precise=False, spin_until=0.0)
             except (OSError, ValueError):
@@ -240,31 +207,15 @@ class DatagramMedium(Medium):
                 for port, listen_only in hosts:
                     if port.fileno() in ready:
                         self._receive(port, listen_only)
-                if self._wake_r in ready:
-                    with contextlib.suppress(BlockingIOError):
-                        os.read(self._wake_r, 4096)
+                if waker.fd in ready:
+                    waker.drain()
             self._run_due()
 
-    def _run_due(self) -> None:
-        while True:
-            with self._lock:
-                if not self._events or self._events[0][0] > time.monotonic():
-                    return
-                _, _, fn = heapq.heappop(self._events)
-            try:
-                fn()
-            except Exception:
-                self.stats.callback_errors += 1
-                log.exception("timer failed on datagram net %s", self.name)
-
     def close(self) -> None:
-        """Stop the net, close the sockets it opened for devices, release its wake-up pipe."""
-        self.stop()
+        """Stop the net, release its wake-up pipe, close the sockets it opened for devices."""
+        super().close()
         for sock in self._opened:
             sock.close()
-        for fd in (self._wake_r, self._wake_w):
-            with contextlib.suppress(OSError):
-                os.close(fd)
 
 
 class DatagramPort(DevicePort):

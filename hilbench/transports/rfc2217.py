@@ -36,7 +36,6 @@ from __future__ import annotations
 
 import contextlib
 import logging
-import os
 import socket
 import threading
 import time
@@ -49,6 +48,7 @@ from hilbench.protocols import rfc2217 as p
 from hilbench.transports.host_port import DEFAULT_BIND, HostPort, url_host
 from hilbench.transports.line import LineSettings, LineState
 from hilbench.transports.listener import accepted, listen, serve
+from hilbench.transports.medium_loop import WakePipe
 
 log = logging.getLogger(__name__)
 
@@ -78,9 +78,7 @@ class Rfc2217Port(HostPort):
         self.signature = signature or f"hilbench {__version__}"
         self.listener = listen(bind, port, 4, socket.AF_INET6 if ":" in bind else socket.AF_INET)
         self.bind = bind
-        self._ready_r, self._ready_w = os.pipe()  # readable while parsed input waits for the next read()
-        os.set_blocking(self._ready_r, False)
-        os.set_blocking(self._ready_w, False)
+        self._ready = WakePipe()  # readable while parsed input waits for the next read()
         self._lock = threading.RLock()  # socket output: the medium's thread and line watchers
         self.client: socket.socket | None = None
         self.peer: tuple[str, int] | None = None
@@ -135,7 +133,7 @@ class Rfc2217Port(HostPort):
         return self.listener.fileno()
 
     def filenos(self) -> list[int]:
-        fds = [self.listener.fileno(), self._ready_r]
+        fds = [self.listener.fileno(), self._ready.fd]
         if self.client is not None and not self._eof:
             fds.append(self.client.fileno())
         return fds
@@ -146,8 +144,7 @@ class Rfc2217Port(HostPort):
 
     def read(self) -> bytes:
         """The client's next data bytes, after running the commands that came before them."""
-        with contextlib.suppress(BlockingIOError):
-            os.read(self._ready_r, 64)
+        self._ready.drain(64)
         if not self._inbox:  # a new client only once the last one's input (and hang-up) is done
             self._accept()
         if self.client is not None and not self._eof:
@@ -161,8 +158,7 @@ class Rfc2217Port(HostPort):
                 break
             item()
         if self._inbox:
-            with contextlib.suppress(BlockingIOError):
-                os.write(self._ready_w, b"x")
+            self._ready.wake()
         return out
 
     def write(self, data: bytes) -> int:
@@ -179,9 +175,7 @@ class Rfc2217Port(HostPort):
         self._hang_up(notify=False)
         with contextlib.suppress(OSError):
             self.listener.close()
-        for fd in (self._ready_r, self._ready_w):
-            with contextlib.suppress(OSError):
-                os.close(fd)
+        self._ready.close()
 
     # ------------------------------------------------------------------ connections
 
