@@ -254,6 +254,58 @@ def test_replay_at_recorded_speed_takes_the_recorded_time(tmp_path):
     assert time.monotonic() - fast < 0.15
 
 
+def _recording(kind: str, tmp_path) -> str:
+    """Two records 0.3 s apart, as a hilbench capture, a pcap or a candump log."""
+    if kind == "capture":
+        from hilbench.transports.capture_file import CaptureWriter
+
+        path = tmp_path / "two.hbcap"
+        with CaptureWriter(path) as w:
+            w.write(10.0, "host", b"a")
+            w.write(10.3, "host", b"b")
+    elif kind == "pcap":
+        from hilbench.transports.pcap import PcapWriter
+
+        path = tmp_path / "two.pcap"
+        with PcapWriter(path) as w:
+            w.write(1436564565.0, b"a", ("127.0.0.1", 1, "127.0.0.1", 2))
+            w.write(1436564565.3, b"b", ("127.0.0.1", 1, "127.0.0.1", 2))
+    else:
+        path = tmp_path / "two.log"
+        path.write_text("(1436564565.000000) can0 123#01\n(1436564565.300000) can0 123#02\n")
+    return str(path)
+
+
+@pytest.mark.parametrize("kind", ["capture", "pcap", "candump"])
+def test_every_replay_source_keeps_the_recorded_pace_and_ticks_while_it_waits(kind, tmp_path):
+    path = _recording(kind, tmp_path)
+    src = open_source(path, speed=1.0)
+    t0 = time.monotonic()
+    items = list(src.chunks(0.05))
+    elapsed = time.monotonic() - t0
+    src.close()
+    assert len([c for c in items if c is not None]) == 2
+    assert 0.28 <= elapsed < 2.0
+    assert items.count(None) >= 3  # idle ticks while the second record was not due
+    fast = open_source(path)
+    assert len(list(fast)) == 2 and fast.clock() is None
+    fast.close()
+    with pytest.raises(SourceError, match="replay speed must be positive"):
+        open_source(path, speed=0)
+
+
+@pytest.mark.parametrize("kind", ["capture", "pcap", "candump"])
+def test_closing_a_replay_source_ends_its_wait(kind, tmp_path):
+    src = open_source(_recording(kind, tmp_path), speed=0.01)  # the second record is 30 s away
+    col = Collector(src)
+    wait_until(lambda: len(col.chunks) == 1)
+    t0 = time.monotonic()
+    src.close()
+    col.thread.join(timeout=5)
+    assert not col.thread.is_alive() and time.monotonic() - t0 < 2.0
+    assert len(col.chunks) == 1
+
+
 def test_a_udp_burst_is_taken_in_bounded_bites_and_in_order():
     src = UdpSource()
     sender = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)

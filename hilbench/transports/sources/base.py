@@ -14,7 +14,7 @@ from __future__ import annotations
 import collections
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Generator, Iterator
 from dataclasses import dataclass
 from typing import Any
 
@@ -61,6 +61,53 @@ class Source:
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}({self.name!r})"
+
+
+class ReplaySource(Source):
+    """A recording replayed as fast as possible (``speed`` None) or at ``speed`` times its recorded pace.
+
+    Subclasses call :meth:`_start_replay` in ``__init__`` and, in ``chunks()``, wait for each record with
+    ``stopped = yield from self._pace(t, idle)`` (only when ``self.speed`` is set); :meth:`close` ends a wait.
+    """
+
+    live = False
+
+    def _start_replay(self, speed: float | None) -> None:
+        self.speed = speed
+        self._stop = threading.Event()
+        self._origin: tuple[float, float] | None = None  # (recording time, monotonic) at the first record
+
+    @staticmethod
+    def check_speed(speed: float | None) -> None:
+        """Raise :class:`SourceError` unless ``speed`` is None or positive."""
+        if speed is not None and speed <= 0:
+            raise SourceError(f"replay speed must be positive, got {speed}")
+
+    def clock(self) -> float | None:
+        if self.speed is None or self._origin is None:
+            return None
+        t_rec, t_mono = self._origin
+        return t_rec + (time.monotonic() - t_mono) * self.speed
+
+    def _pace(self, t: float, idle: float | None) -> Generator[None, None, bool]:
+        """Wait until recording time ``t`` is due, yielding None every ``idle`` s meanwhile; returns whether
+        the source was closed during the wait."""
+        if self._origin is None:
+            self._origin = (t, time.monotonic())
+        t_rec, t_mono = self._origin
+        due = t_mono + (t - t_rec) / self.speed
+        stop = self._stop
+        while (wait := due - time.monotonic()) > 0:
+            if idle is not None and wait > idle:
+                if stop.wait(idle):
+                    return True
+                yield None
+            elif stop.wait(wait):
+                return True
+        return False
+
+    def close(self) -> None:
+        self._stop.set()
 
 
 class PushSource(Source):
@@ -248,4 +295,5 @@ class SourceOpener:
     what: str = ""
 
 
-__all__ = ["Chunk", "MediumSource", "PeekedSource", "PushSource", "Source", "SourceError", "SourceOpener", "peek"]
+__all__ = ["Chunk", "MediumSource", "PeekedSource", "PushSource", "ReplaySource", "Source", "SourceError",
+           "SourceOpener", "peek"]

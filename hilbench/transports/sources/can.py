@@ -32,7 +32,7 @@ from urllib.parse import parse_qs, urlparse
 
 from hilbench.protocols import can_frame as cf
 from hilbench.transports.capture_file import Chunk
-from hilbench.transports.sources.base import PushSource, Source, SourceError, SourceOpener
+from hilbench.transports.sources.base import PushSource, ReplaySource, Source, SourceError, SourceOpener
 
 #: python-can log formats read by suffix.
 LOG_SUFFIXES = (".asc", ".blf", ".trc", ".log")
@@ -152,11 +152,10 @@ class CanBusSource(PushSource):
         super().close()
 
 
-class CanLogSource(Source):
+class CanLogSource(ReplaySource):
     """A python-can log file (ASC, BLF, TRC, candump ``.log``), replayed fast or at recorded speed."""
 
     protocol = "can"
-    live = False
     timestamps = "measured"
 
     def __init__(self, path: str, *, baud: int | None = None, speed: float | None = None) -> None:
@@ -164,24 +163,15 @@ class CanLogSource(Source):
 
         if not Path(path).exists():
             raise SourceError(f"{path}: no such file")
-        if speed is not None and speed <= 0:
-            raise SourceError(f"replay speed must be positive, got {speed}")
+        self.check_speed(speed)
         self.name = path
         self.baud = baud
-        self.speed = speed
         self.wall_offset = 0.0
         try:
             self.reader = can.LogReader(path)
         except Exception as exc:
             raise SourceError(f"{path}: python-can cannot read it: {exc}") from None
-        self._stop = threading.Event()
-        self._origin: tuple[float, float] | None = None
-
-    def clock(self) -> float | None:
-        if self.speed is None or self._origin is None:
-            return None
-        t_log, t_mono = self._origin
-        return t_log + (time.monotonic() - t_mono) * self.speed
+        self._start_replay(speed)
 
     def chunks(self, idle: float | None = None) -> Iterator[Chunk | None]:
         from hilbench.transports.can_messages import to_frame
@@ -195,24 +185,15 @@ class CanLogSource(Source):
                 if frame is None:
                     continue
                 t = float(msg.timestamp)
-                if self.speed is not None:
-                    if self._origin is None:
-                        self._origin = (t, time.monotonic())
-                    due = self._origin[1] + (t - self._origin[0]) / self.speed
-                    while (wait := due - time.monotonic()) > 0:
-                        if idle is not None and wait > idle:
-                            if stop.wait(idle):
-                                return
-                            yield None
-                        elif stop.wait(wait):
-                            return
+                if self.speed is not None and (yield from self._pace(t, idle)):
+                    return
                 channel = msg.channel if msg.channel is not None else "can"
                 yield Chunk(t, f"{channel}" if msg.is_rx else f"{channel} tx", cf.pack(frame))
         except (ValueError, OSError, EOFError, IndexError, KeyError) as exc:  # a corrupt or truncated log
             raise SourceError(f"{self.name}: {type(exc).__name__}: {exc}") from None
 
     def close(self) -> None:
-        self._stop.set()
+        super().close()
         stop = getattr(self.reader, "stop", None)
         if stop is not None:
             try:

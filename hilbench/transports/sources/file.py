@@ -5,22 +5,18 @@ from __future__ import annotations
 import os
 import stat
 import sys
-import threading
-import time
 from collections.abc import Iterator
 
 from hilbench.transports.capture_file import CaptureError, CaptureReader, Chunk
-from hilbench.transports.sources.base import Source, SourceError, SourceOpener
+from hilbench.transports.sources.base import ReplaySource, Source, SourceError, SourceOpener
 
 
-class FileSource(Source):
+class FileSource(ReplaySource):
     """A capture file (hilbench format or raw dump), replayed fast or at recorded speed.
 
     ``speed`` None replays as fast as possible; 1.0 at recorded speed, 2.0
     twice as fast. A raw dump has times only with ``baud`` (byte time).
     """
-
-    live = False
 
     def __init__(self, target, *, baud: int | None = None, speed: float | None = None) -> None:
         try:
@@ -34,18 +30,9 @@ class FileSource(Source):
         self.timestamps = self.reader.timestamps
         if speed is not None and (speed <= 0 or self.timestamps == "none"):
             self.reader.close()
-            if speed <= 0:
-                raise SourceError(f"replay speed must be positive, got {speed}")
+            self.check_speed(speed)
             raise SourceError(f"{self.name}: a raw capture has no times; give --baud to replay it at wire speed")
-        self.speed = speed
-        self._stop = threading.Event()
-        self._origin: tuple[float, float] | None = None  # (capture time, monotonic) at the start
-
-    def clock(self) -> float | None:
-        if self.speed is None or self._origin is None:
-            return None
-        t_cap, t_mono = self._origin
-        return t_cap + (time.monotonic() - t_mono) * self.speed
+        self._start_replay(speed)
 
     def chunks(self, idle: float | None = None) -> Iterator[Chunk | None]:
         stop = self._stop
@@ -53,27 +40,14 @@ class FileSource(Source):
             for chunk in self.reader:
                 if stop.is_set():
                     return
-                if self.speed is not None:
-                    if self._origin is None:
-                        self._origin = (chunk.t, time.monotonic())
-                    t_cap, t_mono = self._origin
-                    due = t_mono + (chunk.t - t_cap) / self.speed
-                    while True:
-                        wait = due - time.monotonic()
-                        if wait <= 0:
-                            break
-                        if idle is not None and wait > idle:
-                            if stop.wait(idle):
-                                return
-                            yield None
-                        elif stop.wait(wait):
-                            return
+                if self.speed is not None and (yield from self._pace(chunk.t, idle)):
+                    return
                 yield chunk
         except OSError as exc:
             raise CaptureError(f"{self.name}: {exc}") from None
 
     def close(self) -> None:
-        self._stop.set()
+        super().close()
         self.reader.close()
 
 
