@@ -50,9 +50,9 @@ RPLIDAR_KEYS = ("motor", "spin_up", "rpm", "speed_wander", "firmware", "typical_
 #: The A1's measurement model (datasheet: 0.15-12 m, < 1 % of the distance beyond 1.5 m).
 A1_RANGE = {"min_range": 0.15, "max_range": 12.0, "sigma0": 0.0005, "sigma_k": 0.005}
 FAULTS = {
-    "stall": ("bool", 0, 1), "health_status": ("int", 0, 2), "health_code": ("int", 0, 0xFFFF),
-    "sticky": ("bool", 0, 1), "corrupt_rate": ("rate", 0.0, 1.0), "bad_flags_rate": ("rate", 0.0, 1.0),
-    "drop_byte_rate": ("rate", 0.0, 1.0), "burst": ("bool", 0, 1), "out_of_range_angle": ("bool", 0, 1),
+    "stall": (False, True), "health_status": (0, 2), "health_code": (0, 0xFFFF), "sticky": (False, True),
+    "corrupt_rate": (0.0, 1.0), "bad_flags_rate": (0.0, 1.0), "drop_byte_rate": (0.0, 1.0), "burst": (False, True),
+    "out_of_range_angle": (False, True),
 }
 
 
@@ -82,15 +82,15 @@ class RplidarFamily(ScannerFamily):
     def check_baud(self, c: Checker, key: str, value: Any, port_type: str) -> int:
         return c.integer(115_200 if value is None else value, key, 1200, 4_000_000)
 
-    def check_devices(self, c: Checker, key: str, dev: dict[str, Any], endpoint, profile) -> list[ScannerSpec]:
+    def check_options(self, c: Checker, key: str, dev: dict[str, Any], endpoint,
+                      common: dict[str, Any]) -> dict[str, Any]:
         from hilbench.fakes.scanners.rplidar import MOTOR_POLICIES
 
-        common = self.check_common(c, key, dev, endpoint)
         firmware = dev.get("firmware", [1, 29])
         if (not isinstance(firmware, list) or len(firmware) != 2
                 or not all(isinstance(v, int) and not isinstance(v, bool) and 0 <= v <= 255 for v in firmware)):
             c.fail(f"{key}.firmware", f"expected [major, minor] (e.g. [1, 29]), got {firmware!r}")
-        options = {
+        return {
             "motor": c.choice(dev.get("motor", "dtr"), f"{key}.motor", MOTOR_POLICIES),
             "spin_up": c.number(dev.get("spin_up", 0.5), f"{key}.spin_up", 0.0, 10.0),
             "rpm": c.number(dev.get("rpm", 330.0), f"{key}.rpm", 60.0, 600.0),
@@ -98,30 +98,23 @@ class RplidarFamily(ScannerFamily):
             "firmware": tuple(firmware),
             "typical_mode": c.integer(dev.get("typical_mode", 1), f"{key}.typical_mode", 0, 1),
         }
-        return [ScannerSpec(name=common.pop("name"), endpoint=endpoint.name, options=options, **common)]
 
-    # ------------------------------------------------------------------ bench
+    # ------------------------------------------------------------------ bench (the A1 paces its own UART)
 
-    def paced(self, spec, requested: bool) -> bool:
-        return False  # the A1 paces its own UART (full duplex)
-
-    def build(self, bench, endpoint, devices: list[ScannerSpec], t: float) -> None:
+    def make_scanner(self, bench, endpoint, spec: ScannerSpec, t: float):
         from hilbench.fakes.scanners.rplidar import RplidarA1, RplidarConfig, RplidarFaults
 
-        for spec in devices:
-            o = spec.options
-            config = RplidarConfig(rpm=o["rpm"], motor=o["motor"], spin_up=o["spin_up"],
-                                   speed_wander=o["speed_wander"], firmware=o["firmware"],
-                                   typical_mode=o["typical_mode"], baud=endpoint.spec.baud,
-                                   faults=RplidarFaults(seed=spec.seed, **spec.faults))
-            dev = RplidarA1(spec.name, scene_of(bench.profile), pose_of(spec), self.range_model(spec, A1_RANGE),
-                            config, t0=t)
-            lines = getattr(endpoint.port, "lines", None)
-            if lines is not None:
-                dev.dtr = lines.dtr  # the line's level now; changes arrive as on_line events
-            dev.attach(endpoint.medium)
-            endpoint.add_device(spec.name, dev)
-            endpoint.attrs["lidar"] = dev
+        o = spec.options
+        config = RplidarConfig(rpm=o["rpm"], motor=o["motor"], spin_up=o["spin_up"],
+                               speed_wander=o["speed_wander"], firmware=o["firmware"],
+                               typical_mode=o["typical_mode"], baud=endpoint.spec.baud,
+                               faults=RplidarFaults(seed=spec.seed, **spec.faults))
+        dev = RplidarA1(spec.name, scene_of(bench.profile), pose_of(spec), self.range_model(spec, A1_RANGE),
+                        config, t0=t)
+        lines = getattr(endpoint.port, "lines", None)
+        if lines is not None:
+            dev.dtr = lines.dtr  # the line's level now; changes arrive as on_line events
+        return dev
 
     # ------------------------------------------------------------------ description
 
@@ -142,8 +135,6 @@ class RplidarFamily(ScannerFamily):
     # ------------------------------------------------------------------ control channel
 
     def control(self, bench, device, cmd: str, req: dict[str, Any]) -> dict[str, Any]:
-        if cmd == "scanner_status":
-            return {"status": device.status()}
         if cmd == "dtr":
             value = req.get("dtr")
             if not isinstance(value, bool):
@@ -155,28 +146,12 @@ class RplidarFamily(ScannerFamily):
             for host in ports:
                 host.lines.host_sets(dtr=value)
             return {"ok": True, "dtr": value}
-        if cmd == "scanner_fault":
-            knobs = req.get("knobs", {})
-            if not isinstance(knobs, dict):
-                raise ControlError("knobs: expected an object")
-            for k, v in knobs.items():
-                if k not in FAULTS:
-                    raise ControlError(f"unknown fault knob {k!r} (expected one of: {', '.join(FAULTS)})")
-                kind, lo, hi = FAULTS[k]
-                if kind == "bool" and not isinstance(v, bool):
-                    raise ControlError(f"fault knob {k}: expected true or false, got {v!r}")
-                if kind != "bool" and (isinstance(v, bool) or not isinstance(v, int | float) or not lo <= v <= hi):
-                    raise ControlError(f"fault knob {k}: expected a number {lo}..{hi}, got {v!r}")
+        return super().control(bench, device, cmd, req)
 
-            def apply() -> None:
-                for k, v in knobs.items():
-                    setattr(device.faults, k, v)
-                if "health_status" in knobs or "health_code" in knobs:
-                    device.set_health(device.faults.health_status, device.faults.health_code)
-
-            device.port.call_at(None, apply)
-            return {"faults": {k: getattr(device.faults, k) for k in FAULTS}}
-        raise ControlError(f"unknown command {cmd!r}")
+    def apply_faults(self, device, knobs: dict[str, Any]) -> None:
+        super().apply_faults(device, knobs)
+        if "health_status" in knobs or "health_code" in knobs:
+            device.set_health(device.faults.health_status, device.faults.health_code)
 
 
 FAMILY = RplidarFamily()

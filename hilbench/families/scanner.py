@@ -25,7 +25,9 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from hilbench.bench.checks import Checker
+from hilbench.bench.control import ControlError
 from hilbench.bench.family import DeviceFamily, DeviceSpec
+from hilbench.bench.knobs import KnobRanges, check_knobs, is_count, is_switch, requested_knobs
 
 SCENE_KEYS = ("walls", "wall_reflectivity", "boxes", "circles", "moving")
 COMMON_DEVICE_KEYS = ("model", "name", "endpoint", "pose", "seed", "noise", "max_range", "faults")
@@ -129,13 +131,13 @@ class ScannerSpec(DeviceSpec):
 
 
 class ScannerFamily(DeviceFamily):
-    """Shared profile checks of scanner families; subclasses add their options and build devices."""
+    """What scanner families share: the common device keys, building, the manifest entry and the control
+    commands ``scanner_status`` and ``scanner_fault``; subclasses check their options
+    (:meth:`check_options`) and make their devices (:meth:`make_scanner`)."""
 
     device_word = "scanner"
-    #: Family-specific device keys (besides :data:`COMMON_DEVICE_KEYS`).
-    extra_keys: tuple[str, ...] = ()
-    #: Fault knobs: name -> ("bool" | "rate" | "int" | "float", lo, hi).
-    fault_knobs: dict[str, tuple[str, float, float]] = {}
+    #: Fault knobs and their ranges (:mod:`hilbench.bench.knobs`: (False, True) a switch, int bounds a count).
+    fault_knobs: KnobRanges = {}
     #: The family's default model name.
     default_model: str = ""
 
@@ -155,12 +157,12 @@ class ScannerFamily(DeviceFamily):
         faults = c.table(dev.get("faults", {}), f"{key}.faults")
         c.unknown(faults, f"{key}.faults", tuple(self.fault_knobs))
         for fk, value in faults.items():
-            kind, lo, hi = self.fault_knobs[fk]
+            lo, hi = self.fault_knobs[fk]
             where = f"{key}.faults.{fk}"
-            if kind == "bool":
+            if is_switch(lo):
                 c.boolean(value, where)
-            elif kind == "int":
-                c.integer(value, where, int(lo), int(hi))
+            elif is_count(lo):
+                c.integer(value, where, lo, hi)
             else:
                 c.number(value, where, lo, hi)
         return {
@@ -174,6 +176,16 @@ class ScannerFamily(DeviceFamily):
             else None,
             "faults": dict(faults),
         }
+
+    def check_devices(self, c: Checker, key: str, dev: dict[str, Any], endpoint, profile) -> list[ScannerSpec]:
+        common = self.check_common(c, key, dev, endpoint)
+        options = self.check_options(c, key, dev, endpoint, common)
+        return [ScannerSpec(name=common.pop("name"), endpoint=endpoint.name, options=options, **common)]
+
+    def check_options(self, c: Checker, key: str, dev: dict[str, Any], endpoint,
+                      common: dict[str, Any]) -> dict[str, Any]:
+        """The family's own keys of a scanner entry (``common``, already checked, may be amended)."""
+        return {}
 
     def check_profile(self, c: Checker, profile) -> None:
         seen: set[str] = set()
@@ -197,15 +209,48 @@ class ScannerFamily(DeviceFamily):
             seed=spec.seed,
         )
 
+    # ------------------------------------------------------------------ bench
+
+    def paced(self, spec, requested: bool) -> bool:
+        return False  # a scanner paces its own link (its UART, or whole replies at the times it decides)
+
+    def build(self, bench, endpoint, devices: list[ScannerSpec], t: float) -> None:
+        for spec in devices:
+            dev = self.make_scanner(bench, endpoint, spec, t)
+            dev.attach(endpoint.medium)
+            endpoint.add_device(spec.name, dev)
+            endpoint.attrs[self.endpoint_attrs[0]] = dev
+
+    def make_scanner(self, bench, endpoint, spec: ScannerSpec, t: float):
+        """The emulated unit of ``spec`` (not yet attached to the endpoint's medium)."""
+        raise NotImplementedError
+
+    # ------------------------------------------------------------------ description
+
     def describe_device(self, spec: ScannerSpec, device, endpoint, profile) -> dict[str, Any]:
-        return {"name": spec.name, "model": spec.model, "endpoint": spec.endpoint,
-                "protocol": profile.endpoints[spec.endpoint].protocol,
+        return {**super().describe_device(spec, device, endpoint, profile),
                 "pose": {"x": spec.x, "y": spec.y, "heading": spec.heading}}
 
     def device_at(self, endpoint, address: int):
         if not endpoint.devices:
             raise KeyError(f"endpoint {endpoint.name!r} has no scanner")
         return next(iter(endpoint.devices.values()))
+
+    # ------------------------------------------------------------------ control channel
+
+    def control(self, bench, device, cmd: str, req: dict[str, Any]) -> dict[str, Any]:
+        if cmd == "scanner_status":
+            return {"status": device.status()}
+        if cmd == "scanner_fault":
+            knobs = check_knobs(requested_knobs(req), self.fault_knobs, whole_counts=False)
+            device.port.call_at(None, lambda: self.apply_faults(device, knobs))
+            return {"faults": {**{k: getattr(device.faults, k) for k in self.fault_knobs}, **knobs}}
+        raise ControlError(f"unknown command {cmd!r}")
+
+    def apply_faults(self, device, knobs: dict[str, Any]) -> None:
+        """Turn checked fault knobs of ``device`` (in its medium's thread)."""
+        for k, v in knobs.items():
+            setattr(device.faults, k, v)
 
 
 def pose_of(spec: ScannerSpec):
