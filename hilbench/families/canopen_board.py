@@ -43,6 +43,7 @@ from typing import Any
 from hilbench.bench.checks import Checker
 from hilbench.bench.control import ControlClient, ControlError
 from hilbench.bench.family import DeviceFamily, DeviceSpec
+from hilbench.bench.knobs import check_knobs, requested_knobs
 
 MODELS = ("stm32f767-rover-canopen", "mecarover-canopen")
 DEVICE_KEYS = ("model", "name", "endpoint", "node_id", "heartbeat_ms", "setpoint_timeout_ms", "autostart",
@@ -84,31 +85,6 @@ def board_config(spec: NodeSpec, bitrate: int):
     return BoardCanConfig(node_id=spec.node_id, heartbeat_ms=spec.heartbeat_ms,
                           setpoint_timeout_ms=spec.setpoint_timeout_ms, periods_ms=periods, bitrate=bitrate,
                           **{IDENTITY_KEYS[k]: v for k, v in spec.identity.items()})
-
-
-def check_knobs(knobs: dict[str, Any], ranges: dict[str, tuple[Any, Any]], what: str = "fault knob",
-                fail=None) -> dict[str, Any]:
-    """Knob values checked against their ranges; ``fail(key, message)`` reports (default: ControlError)."""
-
-    def bad(key: str, message: str) -> None:
-        if fail is not None:
-            fail(key, message)
-        raise ControlError(f"{what} {key}: {message}")
-
-    out = {}
-    for key, value in knobs.items():
-        if key not in ranges:
-            bad(key, f"unknown (expected one of: {', '.join(ranges)})")
-        lo, hi = ranges[key]
-        if lo is False:
-            if not isinstance(value, bool):
-                bad(key, f"expected true or false, got {value!r}")
-        elif isinstance(value, bool) or not isinstance(value, int | float) or not lo <= value <= hi:
-            bad(key, f"expected a number {lo}..{hi}, got {value!r}")
-        elif isinstance(lo, int) and not isinstance(lo, bool) and not isinstance(value, int):
-            bad(key, f"expected an integer {lo}..{hi}, got {value!r}")
-        out[key] = value
-    return out
 
 
 class CanopenBoardFamily(DeviceFamily):
@@ -301,10 +277,7 @@ class CanopenBoardFamily(DeviceFamily):
             in_bus_thread(lambda: node.reset())
             return {"status": in_bus_thread(node.status)}
         if cmd == "fault":
-            knobs = req.get("knobs", {})
-            if not isinstance(knobs, dict):
-                raise ControlError("knobs: expected an object")
-            checked = check_knobs(knobs, FAULT_RANGES)
+            checked = check_knobs(requested_knobs(req), FAULT_RANGES)
             return {"faults": in_bus_thread(lambda: node.set_faults(**checked))}
         if cmd == "emcy":
             try:
@@ -392,5 +365,5 @@ class CanClient(ControlClient):
 
 FAMILY = CanopenBoardFamily()
 
-__all__ = ["FAMILY", "MODELS", "CanClient", "CanopenBoardFamily", "NodeSpec", "board_config", "check_knobs",
+__all__ = ["FAMILY", "MODELS", "CanClient", "CanopenBoardFamily", "NodeSpec", "board_config",
            "profile_boards"]

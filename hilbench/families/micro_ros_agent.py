@@ -30,6 +30,7 @@ from typing import Any
 from hilbench.bench.checks import Checker
 from hilbench.bench.control import ControlError
 from hilbench.bench.family import DeviceFamily, DeviceSpec
+from hilbench.bench.knobs import requested_knobs
 
 AGENT_MODELS = ("micro-ros-agent", "micro-xrce-dds-agent")
 AGENT_KEYS = ("model", "name", "endpoint", "zeroed", "refs", "bridge", "faults")
@@ -176,9 +177,7 @@ class MicroRosAgentFamily(DeviceFamily):
         if cmd == "status":
             return {"status": agent.status()}
         if cmd == "fault":
-            knobs = req.get("knobs", {})
-            if not isinstance(knobs, dict):
-                raise ControlError("knobs: expected an object")
+            knobs = requested_knobs(req)
             try:
                 return {"faults": agent.set_faults(**{k: int(v) for k, v in knobs.items()})}
             except (KeyError, TypeError, ValueError) as exc:

@@ -39,6 +39,7 @@ from typing import Any
 from hilbench.bench.checks import Checker
 from hilbench.bench.control import ControlClient, ControlError
 from hilbench.bench.family import DeviceFamily, DeviceSpec
+from hilbench.bench.knobs import check_knobs, requested_knobs
 
 #: Line rates a board endpoint accepts (bit/s); a pty does not care, the board paces its UART by it.
 BOARD_BAUD_RANGE = (1200, 12_500_000)
@@ -82,19 +83,6 @@ def board_config(spec: BoardSpec, baud: int):
     return BoardConfig(preset, output=spec.output, baud=baud, dialect=spec.dialect, window_ms=spec.window_ms,
                        flush_ms=spec.flush_ms, seed=spec.seed, boot_banner=spec.boot_banner,
                        faults=dict(spec.faults))
-
-
-def check_fault_knobs(knobs: dict[str, Any]) -> dict[str, float]:
-    """Fault knobs for a live board, checked against :data:`LIVE_FAULT_RANGES`; raises ControlError."""
-    out = {}
-    for key, value in knobs.items():
-        if key not in LIVE_FAULT_RANGES:
-            raise ControlError(f"unknown fault knob {key!r} (expected one of: {', '.join(LIVE_FAULT_RANGES)})")
-        lo, hi = LIVE_FAULT_RANGES[key]
-        if isinstance(value, bool) or not isinstance(value, int | float) or not lo <= value <= hi:
-            raise ControlError(f"fault knob {key}: expected a number {lo}..{hi}, got {value!r}")
-        out[key] = value
-    return out
 
 
 class Stm32RoverFamily(DeviceFamily):
@@ -260,10 +248,8 @@ class Stm32RoverFamily(DeviceFamily):
             board.settle()
             return {"status": board.status()}
         if cmd == "fault":
-            knobs = req.get("knobs", {})
-            if not isinstance(knobs, dict):
-                raise ControlError("knobs: expected an object")
-            return {"faults": board.set_faults(**check_fault_knobs(knobs))}
+            knobs = check_knobs(requested_knobs(req), LIVE_FAULT_RANGES, whole_counts=False)
+            return {"faults": board.set_faults(**knobs)}
         if cmd == "log":
             return {"log": board.status()["log"]}
         if cmd == "micro_ros":
@@ -386,5 +372,4 @@ class BoardClient(ControlClient):
 
 FAMILY = Stm32RoverFamily()
 
-__all__ = ["BOARD_MODELS", "FAMILY", "BoardClient", "BoardSpec", "Stm32RoverFamily", "board_config",
-           "check_fault_knobs"]
+__all__ = ["BOARD_MODELS", "FAMILY", "BoardClient", "BoardSpec", "Stm32RoverFamily", "board_config"]
