@@ -165,4 +165,15 @@ class DeviceFamily:
         raise NotImplementedError
 
 
-__all__ = ["DeviceFamily", "DeviceSpec"]
+def bench_device(bench: Bench, kind: type, word: str, name: str | None = None) -> Any:
+    """A bench's device of class ``kind`` named ``name``, or its only one (for :attr:`DeviceFamily.bench_methods`
+    such as ``bench.board()``); KeyError naming them (as ``word``, e.g. ``"boards"``) when it cannot tell."""
+    devices = {n: d for n, d in bench.devices.items() if isinstance(d, kind)}
+    if name is None:
+        if len(devices) != 1:
+            raise KeyError(f"bench has {word} {list(devices)}; name one")
+        return next(iter(devices.values()))
+    return devices[name]
+
+
+__all__ = ["DeviceFamily", "DeviceSpec", "bench_device"]

@@ -32,7 +32,7 @@ from typing import Any
 
 from hilbench.bench.checks import Checker
 from hilbench.bench.control import ControlError
-from hilbench.bench.family import DeviceFamily, DeviceSpec
+from hilbench.bench.family import DeviceFamily, DeviceSpec, bench_device
 
 #: The default domain: non-zero, so the nodes do not meet a real DDS on the machine (domain 0).
 DEFAULT_DOMAIN = 42
@@ -261,12 +261,7 @@ def _bench_node(bench, name: str | None = None):
     """``bench.node(name=None)``: an emulated FreeRTPS node by name (or the only one)."""
     from hilbench.fakes.rtps_node import FreeRtpsNode
 
-    nodes = {n: d for n, d in bench.devices.items() if isinstance(d, FreeRtpsNode)}
-    if name is None:
-        if len(nodes) != 1:
-            raise KeyError(f"bench has nodes {list(nodes)}; name one")
-        return next(iter(nodes.values()))
-    return nodes[name]
+    return bench_device(bench, FreeRtpsNode, "nodes", name)
 
 
 FreeRtpsFamily.bench_methods = {"node": _bench_node}

@@ -29,7 +29,7 @@ from typing import Any
 
 from hilbench.bench.checks import Checker
 from hilbench.bench.control import ControlError
-from hilbench.bench.family import DeviceFamily, DeviceSpec
+from hilbench.bench.family import DeviceFamily, DeviceSpec, bench_device
 from hilbench.bench.knobs import requested_knobs
 
 AGENT_MODELS = ("micro-ros-agent", "micro-xrce-dds-agent")
@@ -189,12 +189,7 @@ def _bench_agent(bench, name: str | None = None):
     """``bench.agent(name=None)``: an emulated XRCE agent by name (or the only one)."""
     from hilbench.fakes.xrce_agent import XrceAgent
 
-    agents = {n: d for n, d in bench.devices.items() if isinstance(d, XrceAgent)}
-    if name is None:
-        if len(agents) != 1:
-            raise KeyError(f"bench has agents {list(agents)}; name one")
-        return next(iter(agents.values()))
-    return agents[name]
+    return bench_device(bench, XrceAgent, "agents", name)
 
 
 MicroRosAgentFamily.bench_methods = {"agent": _bench_agent}

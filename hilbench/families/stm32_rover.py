@@ -38,7 +38,7 @@ from typing import Any
 
 from hilbench.bench.checks import Checker
 from hilbench.bench.control import ControlClient, ControlError
-from hilbench.bench.family import DeviceFamily, DeviceSpec
+from hilbench.bench.family import DeviceFamily, DeviceSpec, bench_device
 from hilbench.bench.knobs import check_knobs, requested_knobs
 
 #: Line rates a board endpoint accepts (bit/s); a pty does not care, the board paces its UART by it.
@@ -333,12 +333,7 @@ def _bench_board(bench, name: str | None = None):
     """``bench.board(name=None)``: an emulated rover board by name (or the only one)."""
     from hilbench.fakes.stm32_board import Board
 
-    boards = {n: d for n, d in bench.devices.items() if isinstance(d, Board)}
-    if name is None:
-        if len(boards) != 1:
-            raise KeyError(f"bench has boards {list(boards)}; name one")
-        return next(iter(boards.values()))
-    return boards[name]
+    return bench_device(bench, Board, "boards", name)
 
 
 Stm32RoverFamily.bench_methods = {"board": _bench_board}
