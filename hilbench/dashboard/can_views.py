@@ -12,41 +12,12 @@ from __future__ import annotations
 from rich.console import Group
 from rich.text import Text
 
+from hilbench.dashboard.widgets import line as _line
+from hilbench.dashboard.widgets import ms as _ms
+from hilbench.dashboard.widgets import pad as _pad
+from hilbench.dashboard.widgets import row as _row
 from hilbench.monitor.can.summary import stamp
 from hilbench.monitor.can.tracker import CanTracker
-
-Cell = tuple[str | Text, int, str]  # (content, width, "<" or ">")
-
-
-def _line(text: str | Text, style: str = "", width: int = 80) -> Text:
-    t = text if isinstance(text, Text) else Text(text, style=style)
-    t.no_wrap = True
-    t.overflow = "ellipsis"
-    t.truncate(width, overflow="ellipsis")
-    return t
-
-
-def _pad(lines: list[Text], height: int) -> Group:
-    lines = lines[:height]
-    return Group(*lines, *[Text("")] * (height - len(lines)))
-
-
-def _row(cells: list[Cell], width: int, style: str = "") -> Text:
-    """One table line of fixed-width cells, one space apart."""
-    out = Text(style=style)
-    for k, (content, w, align) in enumerate(cells):
-        t = content.copy() if isinstance(content, Text) else Text(str(content))
-        t.truncate(w, overflow="ellipsis")
-        pad = " " * (w - t.cell_len)
-        if k:
-            out.append(" ")
-        if align == ">":
-            out.append(pad)
-        out.append(t)
-        if align != ">":
-            out.append(pad)
-    return _line(out, width=width)
-
 
 VIEWS = ("ids", "nodes", "signals", "log")
 TITLES = {"ids": "Identifiers", "nodes": "CANopen nodes", "signals": "Signals", "log": "Event log"}
@@ -98,10 +69,6 @@ def footer(tr: CanTracker, status: str, width: int) -> list[Text]:
     keys.truncate(max(10, width - len(tail)), overflow="ellipsis")
     keys.append(tail, style="bold")
     return [first, _line(keys, width=width)]
-
-
-def _ms(x: float | None, nd: int = 2) -> str:
-    return "-" if x is None else f"{x * 1000:.{nd}f}"
 
 
 def ids_view(tr: CanTracker, selected, width: int, height: int, scroll: int) -> Group:

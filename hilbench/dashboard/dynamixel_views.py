@@ -14,6 +14,10 @@ from dataclasses import dataclass, field
 from rich.console import Group
 from rich.text import Text
 
+from hilbench.dashboard.widgets import line as _line
+from hilbench.dashboard.widgets import ms as _ms
+from hilbench.dashboard.widgets import pad as _pad
+from hilbench.dashboard.widgets import row as _row
 from hilbench.monitor.dynamixel.devices import CONNECTED, DISCONNECTED, UNKNOWN, DeviceState, FieldValue
 from hilbench.monitor.dynamixel.tracker import BusTracker
 from hilbench.protocols.dynamixel import describe_error
@@ -45,20 +49,6 @@ class Frame:
     models: dict[str, list[DeviceState]] = field(default_factory=dict)
 
 
-def _line(text: str | Text, style: str = "", width: int = 80) -> Text:
-    t = text if isinstance(text, Text) else Text(text, style=style)
-    t.no_wrap = True
-    t.overflow = "ellipsis"
-    t.truncate(width, overflow="ellipsis")
-    return t
-
-
-def _pad(lines: list[Text], height: int) -> Group:
-    lines = lines[:height]
-    lines += [Text("")] * (height - len(lines))
-    return Group(*lines)
-
-
 def _ago(now: float | None, t: float | None, timed: bool) -> str:
     if t is None:
         return "never"
@@ -70,10 +60,6 @@ def _ago(now: float | None, t: float | None, timed: bool) -> str:
     if dt < 120:
         return f"{dt:.1f} s ago"
     return f"{dt / 60:.0f} min ago"
-
-
-def _ms(x: float | None) -> str:
-    return "-" if x is None else f"{x * 1000:.2f}"
 
 
 def short_model(name: str) -> str:
@@ -136,27 +122,6 @@ def footer(fr: Frame) -> list[Text]:
 
 
 # --------------------------------------------------------------------------- views
-
-Cell = tuple[str | Text, int, str]  # (content, width, "<" or ">")
-
-
-def _row(cells: list[Cell], width: int, style: str = "") -> Text:
-    """One table line from fixed-width cells (one space between them)."""
-    out = Text(style=style)
-    for k, (content, w, align) in enumerate(cells):
-        t = content.copy() if isinstance(content, Text) else Text(str(content))
-        t.truncate(w, overflow="ellipsis")
-        pad = " " * (w - t.cell_len)
-        if k:
-            out.append(" ")
-        if align == ">":
-            out.append(pad)
-            out.append(t)
-        else:
-            out.append(t)
-            out.append(pad)
-    return _line(out, width=width)
-
 
 def device_overview(fr: Frame, height: int) -> Group:
     """The start screen: one line per model with its counts, then every device as a tile."""

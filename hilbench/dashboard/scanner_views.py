@@ -10,6 +10,9 @@ import numpy as np
 from rich.console import Group
 from rich.text import Text
 
+from hilbench.dashboard.widgets import line as _line
+from hilbench.dashboard.widgets import pad as _pad
+
 VIEWS = ("scan", "log", "errors")
 TITLES = {"scan": "Scan", "log": "Requests and replies", "errors": "Errors"}
 
@@ -39,19 +42,6 @@ def polar_lines(angles: np.ndarray, ranges: np.ndarray, width: int, height: int,
             grid[y][x] = "*"
     grid[int(round(cy))][int(round(cx))] = "+"
     return ["".join(row) for row in grid]
-
-
-def _pad(lines: list[Text], height: int) -> Group:
-    lines = lines[:height]
-    lines += [Text("")] * (height - len(lines))
-    return Group(*lines)
-
-
-def _line(text: str, style: str = "", width: int = 80) -> Text:
-    t = Text(text, style=style)
-    t.no_wrap = True
-    t.truncate(width, overflow="ellipsis")
-    return t
 
 
 class ScannerViews:

@@ -12,6 +12,7 @@ from __future__ import annotations
 from rich.console import Group
 from rich.text import Text
 
+from hilbench.dashboard.widgets import line as _line
 from hilbench.monitor.udp.flows import Rate
 from hilbench.monitor.udp.tracker import UdpTracker
 from hilbench.protocols import rtps as r
@@ -19,13 +20,6 @@ from hilbench.protocols import xrce_dds as x
 
 VIEWS = ("overview", "xrce", "rtps", "events")
 TITLES = {"overview": "UDP traffic", "xrce": "XRCE sessions", "rtps": "RTPS discovery", "events": "Events"}
-
-
-def _line(text: str | Text, style: str = "", width: int = 80) -> Text:
-    t = text if isinstance(text, Text) else Text(text, style=style)
-    t.no_wrap = True
-    t.truncate(width, overflow="ellipsis")
-    return t
 
 
 def _rate(rate: Rate | None, timed: bool) -> str:
