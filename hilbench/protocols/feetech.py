@@ -18,7 +18,7 @@ from __future__ import annotations
 
 from enum import IntEnum
 
-from construct import GreedyRange, Int8ul, Struct
+from construct import Struct
 
 from hilbench.protocols.dynamixel_protocol1 import (
     BROADCAST_ID,
@@ -29,6 +29,7 @@ from hilbench.protocols.dynamixel_protocol1 import (
     Packet,
     Packet1,
     ReadParams,
+    SyncReadParams,
     SyncWriteParams,
     WriteParams,
     build,
@@ -63,8 +64,6 @@ ERROR_BITS: dict[int, str] = {
     0x08: "overcurrent",
     0x20: "overload",
 }
-
-SyncReadParams = Struct("address" / Int8ul, "length" / Int8ul, "ids" / GreedyRange(Int8ul))
 
 PARAMS: dict[int, Struct] = {
     Instruction.PING: NoParams,
