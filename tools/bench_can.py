@@ -22,19 +22,20 @@ Usage: tools/bench_can.py [--frames N] [--only socketcand|unpaced|paced]
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import subprocess
 import sys
 import threading
 import time
-from pathlib import Path
+
+import benchlib
+from benchlib import REPO
 
 from hilbench.protocols import can_frame as cf
 from hilbench.protocols.can_frame import data_frame
 from hilbench.transports.can_medium import CanMedium
 from hilbench.transports.can_port import CanHostPort
-
-REPO = Path(__file__).resolve().parents[1]
 
 CLIENT = r"""
 import json, logging, sys, time, can
@@ -65,13 +66,20 @@ print(json.dumps({"frames": got, "seconds": (last - first) if first else 0.0, "s
 """
 
 
-def emit(name: str, value: float, unit: str, reference: float, ratio: float, **extra) -> None:
-    print(json.dumps({"name": name, "value": round(value, 1), "unit": unit, "reference": round(reference, 1),
-                      "ratio": round(ratio, 3), **extra}), flush=True)
+emit = functools.partial(benchlib.emit, digits=1)
 
 
 FRAME = data_frame(0x555, bytes(range(8)))
 SATURATED_1M = 1_000_000 / cf.frame_bits(FRAME)
+
+
+class Source:
+    """The flooding device (it hears nothing it cares about)."""
+
+    name = "flood"
+
+    def on_frame(self, frame, t) -> None:
+        pass
 
 
 class Sink:
@@ -113,15 +121,7 @@ def flood(medium: CanMedium, port, n: int, batch: int = 500, backlog: int | None
 def bench_socketcand(n: int) -> None:
     port = CanHostPort.open("can", CanHostPort.check_options({"slcan": False, "socketcand": {"rawmode_delay_ms": 0}}))
     medium = CanMedium("can", 1_000_000, paced=False)
-
-    class Source:
-        name = "flood"
-
-        def on_frame(self, frame, t):
-            pass
-
-    dev = Source()
-    dport = medium.add_device(dev)
+    dport = medium.add_device(Source())
     medium.add_host(port)
     medium.start()
     host, tcp = port.socketcand.address
@@ -146,52 +146,31 @@ def bench_socketcand(n: int) -> None:
          condition="unpaced bus flooded by one device; python-can socketcand client in another process")
 
 
-def bench_unpaced(n: int) -> None:
-    medium = CanMedium("can", 1_000_000, paced=False)
+def bench_bus(n: int, paced: bool) -> None:
+    """One device floods the bus, another receives every frame (unpaced: a tap sees them too)."""
+    medium = CanMedium("can", 1_000_000, paced=paced)
     tapped = [0]
-    medium.add_tap(lambda t, s, d: tapped.__setitem__(0, tapped[0] + 1))
-
-    class Source:
-        name = "flood"
-
-        def on_frame(self, frame, t):
-            pass
-
+    if not paced:
+        medium.add_tap(lambda t, s, d: tapped.__setitem__(0, tapped[0] + 1))
     sink = Sink("sink", n)
     dport = medium.add_device(Source())
     medium.add_device(sink)
     medium.start()
     t0 = time.perf_counter()
-    flood(medium, dport, n)
+    if paced:
+        flood(medium, dport, n, batch=200, backlog=400)
+    else:
+        flood(medium, dport, n)
     if not sink.done.wait(120):
-        raise RuntimeError(f"the bus delivered {sink.count} of {n} frames in 120 s")
+        raise RuntimeError(f"the {'paced ' if paced else ''}bus delivered {sink.count} of {n} frames in 120 s")
     rate = n / (sink.t_last - t0)
     medium.close()
-    emit("bus_unpaced", rate, "frames/s", SATURATED_1M, rate / SATURATED_1M, tapped=tapped[0],
-         condition="one sender, one receiving device, one tap")
-
-
-def bench_paced(n: int) -> None:
-    medium = CanMedium("can", 1_000_000, paced=True)
-
-    class Source:
-        name = "flood"
-
-        def on_frame(self, frame, t):
-            pass
-
-    sink = Sink("sink", n)
-    dport = medium.add_device(Source())
-    medium.add_device(sink)
-    medium.start()
-    t0 = time.perf_counter()
-    flood(medium, dport, n, batch=200, backlog=400)
-    if not sink.done.wait(120):
-        raise RuntimeError(f"the paced bus delivered {sink.count} of {n} frames in 120 s")
-    rate = n / (sink.t_last - t0)
-    medium.close()
-    emit("bus_paced_1m", rate, "frames/s", SATURATED_1M, rate / SATURATED_1M,
-         condition="1 Mbit/s, one sender flooding 8-byte frames, exact bit stuffing")
+    if paced:
+        emit("bus_paced_1m", rate, "frames/s", SATURATED_1M, rate / SATURATED_1M,
+             condition="1 Mbit/s, one sender flooding 8-byte frames, exact bit stuffing")
+    else:
+        emit("bus_unpaced", rate, "frames/s", SATURATED_1M, rate / SATURATED_1M, tapped=tapped[0],
+             condition="one sender, one receiving device, one tap")
 
 
 def main() -> None:
@@ -202,9 +181,9 @@ def main() -> None:
     if args.only in (None, "socketcand"):
         bench_socketcand(args.frames)
     if args.only in (None, "unpaced"):
-        bench_unpaced(args.frames)
+        bench_bus(args.frames, paced=False)
     if args.only in (None, "paced"):
-        bench_paced(min(args.frames, 20_000))
+        bench_bus(min(args.frames, 20_000), paced=True)
 
 
 if __name__ == "__main__":

@@ -30,24 +30,18 @@ Usage: tools/bench_lidar.py [--seconds S] [--repeats N] [--only delivery|raycast
 from __future__ import annotations
 
 import argparse
-import json
+import functools
 import statistics
-import subprocess
-import sys
-import tempfile
 import time
-from pathlib import Path
 
+import benchlib
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[1]
 NOMINAL_HZ = 5.5
 NEEDED_BEAMS = 1e6 / 254 + 75 * 181 + 1081 * 40
 
 
-def emit(name: str, value: float, unit: str, reference: float, ratio: float, **extra) -> None:
-    print(json.dumps({"name": name, "value": round(value, 4), "unit": unit, "reference": round(reference, 4),
-                      "ratio": round(ratio, 4), **extra}), flush=True)
+emit = functools.partial(benchlib.emit, digits=4, ratio_digits=4)
 
 
 def _read_revolutions(path: str, request: bytes, seconds: float) -> tuple[list[float], list[int], int, float]:
@@ -91,17 +85,7 @@ def _read_revolutions(path: str, request: bytes, seconds: float) -> tuple[list[f
 def bench_delivery(seconds: float) -> None:
     from hilbench.bench.control import ControlClient
 
-    tmp = tempfile.TemporaryDirectory(prefix="hilbench-lidar-")
-    manifest = Path(tmp.name) / "bench.json"
-    proc = subprocess.Popen([sys.executable, "-m", "hilbench.cli", "emulate", "scanners", "--manifest",
-                             str(manifest)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, cwd=REPO)
-    try:
-        deadline = time.monotonic() + 30
-        while not manifest.exists():
-            if proc.poll() is not None or time.monotonic() > deadline:
-                raise SystemExit(f"emulator did not start: {proc.stderr.read().decode()}")
-            time.sleep(0.01)
-        m = json.loads(manifest.read_text())
+    with benchlib.emulator("scanners", timeout=30) as m:
         path = next(e["path"] for e in m["endpoints"] if e["name"] == "lidar")
         ControlClient(m["control"]).call("dtr", device="lidar", dtr=False)  # the motor runs, as a client's DTR
         time.sleep(1.0)  # spin-up, so the revolution count starts at speed
@@ -124,10 +108,6 @@ def bench_delivery(seconds: float) -> None:
         nominal_spr = 1e6 / 254 / NOMINAL_HZ
         emit("a1_express_samples_per_revolution", spr, "samples", nominal_spr, spr / nominal_spr,
              min=min(counts), max=max(counts), seconds=seconds, revolutions=len(starts))
-    finally:
-        proc.terminate()
-        proc.wait(timeout=10)
-        tmp.cleanup()
 
 
 def bench_raycast(repeats: int) -> None:

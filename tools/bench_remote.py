@@ -17,41 +17,16 @@ Usage: tools/bench_remote.py [--seconds S] [--rounds N] [--only unpaced|paced]
 from __future__ import annotations
 
 import argparse
-import json
 import statistics
-import subprocess
-import sys
-import tempfile
 import time
-from pathlib import Path
 
 import dynamixel_sdk as sdk
+from benchlib import emit, emulator
 
 from hilbench.clients.dynamixel import port_handler
 
-REPO = Path(__file__).resolve().parents[1]
 BAUD = 2_000_000
 IDS = list(range(1, 21))
-
-
-def emit(name: str, value: float, unit: str, reference: float, ratio: float, **extra) -> None:
-    print(json.dumps({"name": name, "value": round(value, 3), "unit": unit, "reference": round(reference, 3),
-                      "ratio": round(ratio, 3), **extra}), flush=True)
-
-
-def start_emulator(paced: bool) -> tuple[subprocess.Popen, dict, tempfile.TemporaryDirectory]:
-    tmp = tempfile.TemporaryDirectory(prefix="hilbench-bench-")
-    manifest = Path(tmp.name) / "manifest.json"
-    cmd = [sys.executable, "-m", "hilbench.cli", "emulate", "wolfgang", "--manifest", str(manifest),
-           "--paced" if paced else "--unpaced", "--serve", "rfc2217", "--no-tap"]
-    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, cwd=REPO)
-    deadline = time.monotonic() + 20
-    while not manifest.exists():
-        if proc.poll() is not None or time.monotonic() > deadline:
-            proc.kill()
-            raise SystemExit(f"emulator did not start: {proc.stderr.read().decode()}")
-        time.sleep(0.01)
-    return proc, json.loads(manifest.read_text())["endpoints"][0], tmp
 
 
 def cycles_per_second(path: str, seconds: float) -> float:
@@ -89,16 +64,12 @@ def cycles_per_second(path: str, seconds: float) -> float:
 
 
 def bench(paced: bool, seconds: float, rounds: int) -> None:
-    proc, endpoint, tmp = start_emulator(paced)
     local, remote = [], []
-    try:
+    with emulator("wolfgang", "--paced" if paced else "--unpaced", "--serve", "rfc2217", "--no-tap") as manifest:
+        endpoint = manifest["endpoints"][0]
         for _ in range(rounds):
             local.append(cycles_per_second(endpoint["path"], seconds))
             remote.append(cycles_per_second(endpoint["rfc2217"], seconds))
-    finally:
-        proc.terminate()
-        proc.wait(timeout=5)
-        tmp.cleanup()
     ref, value = statistics.median(local), statistics.median(remote)
     emit(f"rfc2217_sdk_cycle_{'paced_2M' if paced else 'unpaced'}", value, "cycles/s", ref, value / ref,
          target_ratio=0.5, reference_is="the same cycle over the bench's pty",

@@ -28,6 +28,7 @@ Usage: tools/bench_run.py [--samples N] [--pings N] [--rounds N]
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import os
 import shutil
@@ -36,6 +37,8 @@ import subprocess
 import sys
 import tempfile
 from pathlib import Path
+
+import benchlib
 
 from hilbench.bench import Bench
 from hilbench.bench.line_server import serve_lines
@@ -91,9 +94,7 @@ print(json.dumps({"median": statistics.median(times), "min": times[0], "failed":
 SDK3 = os.path.join(sys.prefix, "dynamixel-sdk-3")
 
 
-def emit(name: str, value: float, unit: str, reference: float, ratio: float, **extra) -> None:
-    print(json.dumps({"name": name, "value": round(value, 6), "unit": unit, "reference": round(reference, 6),
-                      "ratio": round(ratio, 3), **extra}), flush=True)
+emit = functools.partial(benchlib.emit, digits=6)
 
 
 def worker(path: str, samples: int, prefix: list[str], code: str = WORKER, env: dict | None = None) -> dict:

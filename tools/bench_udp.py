@@ -23,11 +23,12 @@ Usage: tools/bench_udp.py [--repeats N] [--datagrams N] [--seconds S]
 from __future__ import annotations
 
 import argparse
-import json
 import socket
 import statistics
 import threading
 import time
+
+from benchlib import emit
 
 from hilbench.bench import Bench
 from hilbench.bench.profile import parse_profile
@@ -39,9 +40,6 @@ from hilbench.protocols import xrce_dds as x
 LINK_DATAGRAMS = 100e6 / (8 * (100 + 8 + 20 + 14 + 4 + 8 + 12))
 
 
-def emit(name: str, value: float, unit: str, reference: float, ratio: float, **extra) -> None:
-    print(json.dumps({"name": name, "value": round(value, 3), "unit": unit, "reference": round(reference, 3),
-                      "ratio": round(ratio, 3), **extra}), flush=True)
 
 
 def traffic(n: int) -> list[tuple[float, bytes, tuple[str, int, str, int]]]:

@@ -1,0 +1,54 @@
+"""What the benchmark scripts share: printing a figure, and a bench running in another process.
+
+Each script prints one JSON object per figure (DESIGN.md §10):
+``{"name", "value", "unit", "reference", "ratio", ...}``; :func:`emit` is that
+line. :func:`emulator` runs ``hilbench emulate`` in its own process, as a user
+would, and yields its manifest. The scripts run as ``tools/bench_*.py``, so
+this module is imported from the scripts' folder.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def emit(name: str, value: float, unit: str, reference: float, ratio: float, *, digits: int = 3,
+         ratio_digits: int = 3, **extra: Any) -> None:
+    """Print one figure: ``value`` and ``reference`` rounded to ``digits``, ``ratio`` to ``ratio_digits``."""
+    print(json.dumps({"name": name, "value": round(value, digits), "unit": unit,
+                      "reference": round(reference, digits), "ratio": round(ratio, ratio_digits), **extra}),
+          flush=True)
+
+
+@contextlib.contextmanager
+def emulator(*args: str, timeout: float = 20.0) -> Iterator[dict[str, Any]]:
+    """``hilbench emulate ARGS --manifest M`` in another process: yields the manifest once written (SystemExit
+    with its stderr if it does not start within ``timeout`` s), and stops the bench afterwards."""
+    with tempfile.TemporaryDirectory(prefix="hilbench-bench-") as tmp:
+        manifest = Path(tmp) / "manifest.json"
+        proc = subprocess.Popen([sys.executable, "-m", "hilbench.cli", "emulate", *args, "--manifest", str(manifest)],
+                                stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, cwd=REPO)
+        try:
+            deadline = time.monotonic() + timeout
+            while not manifest.exists():
+                if proc.poll() is not None or time.monotonic() > deadline:
+                    proc.kill()
+                    raise SystemExit(f"emulator did not start: {proc.stderr.read().decode()}")
+                time.sleep(0.01)
+            yield json.loads(manifest.read_text())
+        finally:
+            proc.terminate()
+            proc.wait(timeout=10)
+
+
+__all__ = ["REPO", "emit", "emulator"]
