@@ -94,48 +94,84 @@ def test_run_time_counters_use_tim13_units():
 
 
 def test_fast_path_matches_the_exact_path_and_is_used():
-    results = []
-    for fast in (True, False):
-        k = control_kernel((("hal", 1, 6.6), ("wheel", 1, 10.7), ("pose", 2, 9.9), ("odo", 2, 6.8),
-                            ("poll", 10, 3.0)), prio={"poll": 32})
-        k.fast_enabled = fast
-        k.start()
-        k.sampling = True
-        k.run_until(300_000)
-        results.append((k.take_stamps(), [(t.runtime_units, t.runtime_us) for t in k.tasks], k.fast_ticks))
-    (fast_st, fast_rt, fast_ticks), (exact_st, exact_rt, exact_ticks) = results
-    assert fast_ticks > 2900 and exact_ticks == 0
-    # Times agree to float rounding (cumulative sums against step-by-step sums); ids and edges exactly.
-    assert np.allclose(fast_st[0], exact_st[0], rtol=0, atol=1e-6)
-    assert np.array_equal(fast_st[1], exact_st[1]) and np.array_equal(fast_st[2], exact_st[2])
-    assert [u for u, _ in fast_rt] == [u for u, _ in exact_rt]
-    assert [r for _, r in fast_rt] == pytest.approx([r for _, r in exact_rt], abs=1e-6)
+    (fast_st, fast_k), (exact_st, exact_k) = run_fast_and_exact(
+        lambda: control_kernel((("hal", 1, 6.6), ("wheel", 1, 10.7), ("pose", 2, 9.9), ("odo", 2, 6.8),
+                                ("poll", 10, 3.0)), prio={"poll": 32}), 300_000)
+    assert fast_k.fast_ticks > 2900 and exact_k.fast_ticks == 0
+    assert_same_stamps(fast_st, exact_st)
+    assert units(fast_k) == units(exact_k)
+    assert runtimes(fast_k) == pytest.approx(runtimes(exact_k), abs=1e-6)
 
 
 def test_fast_path_with_a_long_computation_in_the_background():
     """A prio-24 task formatting for milliseconds interleaves with the control ticks (time slicing)."""
-    results = []
-    for fast in (True, False):
+
+    def build():
         k = control_kernel((("hal", 1, 6.6), ("wheel", 1, 10.7), ("pose", 2, 9.9)))
-        worker = Task("profile", 24, 7, 7)
-        worker.durations = Durations(Timing(1500.0, sd_us=300.0), seed=7)
+        add_background(k, Timing(1500.0, sd_us=300.0), every=50)  # e.g. formatting a batch of lines
+        return k
 
-        def work(task=worker):
-            while True:
-                yield (RUN, task.durations.draw())  # e.g. formatting a batch of lines
-                yield (DELAY_UNTIL, task.wake_tick + 50)
+    (fast_st, fast_k), (exact_st, exact_k) = run_fast_and_exact(build, 200_000)
+    assert fast_k.fast_ticks > 1000, (fast_k.fast_ticks, fast_k.exact_ticks)  # background phases ran fast too
+    assert_same_stamps(fast_st, exact_st)
+    assert units(fast_k) == units(exact_k)
 
-        k.add_task(worker, work())
+
+def add_background(k: Kernel, timing: Timing, every: int) -> Task:
+    """The prio-24 ``profile`` task (id 7): a drawn computation, then a delay of ``every`` ticks, forever."""
+    worker = Task("profile", 24, 7, 7)
+    worker.durations = Durations(timing, seed=7)
+
+    def work(task=worker):
+        while True:
+            yield (RUN, task.durations.draw())
+            yield (DELAY_UNTIL, task.wake_tick + every)
+
+    k.add_task(worker, work())
+    return worker
+
+
+def add_waiter(k: Kernel, task: Task, run_us: float | None = None) -> Task:
+    """``task`` waits for a notification, then computes ``run_us`` (None: a draw of its durations), forever."""
+
+    def waiter():
+        while True:
+            yield (WAIT,)
+            yield (RUN, task.durations.draw() if run_us is None else run_us)
+
+    k.add_task(task, waiter())
+    return task
+
+
+def run_fast_and_exact(build, until: int) -> list[tuple[tuple, Kernel]]:
+    """Run a kernel ``build()`` makes to tick time ``until`` on the fast path, then one on the exact path
+    only; ``[(stamps, kernel) fast, (stamps, kernel) exact]``."""
+    runs = []
+    for fast in (True, False):
+        k = build()
         k.fast_enabled = fast
         k.start()
         k.sampling = True
-        k.run_until(200_000)
-        results.append((k.take_stamps(), [t.runtime_units for t in k.tasks], k.fast_ticks, k.exact_ticks))
-    (fast_st, fast_rt, fast_ticks, fast_exact), (exact_st, exact_rt, _, _) = results
-    assert fast_ticks > 1000, (fast_ticks, fast_exact)  # background phases ran on the fast path too
-    assert np.allclose(fast_st[0], exact_st[0], rtol=0, atol=1e-6)
-    assert np.array_equal(fast_st[1], exact_st[1]) and np.array_equal(fast_st[2], exact_st[2])
-    assert fast_rt == exact_rt
+        k.run_until(until)
+        runs.append((k.take_stamps(), k))
+    return runs
+
+
+def assert_same_stamps(stamps, exact) -> None:
+    """Times agree to float rounding (cumulative sums against step-by-step sums); ids and edges exactly."""
+    assert len(stamps[0]) == len(exact[0])
+    assert np.allclose(stamps[0], exact[0], rtol=0, atol=1e-6)
+    assert np.array_equal(stamps[1], exact[1]) and np.array_equal(stamps[2], exact[2])
+
+
+def units(k: Kernel) -> list[int]:
+    """Each task's run time in TIM13 units."""
+    return [t.runtime_units for t in k.tasks]
+
+
+def runtimes(k: Kernel) -> list[float]:
+    """Each task's run time in µs."""
+    return [t.runtime_us for t in k.tasks]
 
 
 def periodic_drawn(task, period):
@@ -220,64 +256,40 @@ def test_fast_path_equals_exact_with_short_jobs_and_a_switch_that_ends_after_the
     """Jobs shorter than a context switch (down to 0 µs), and ISR-woken tasks that leave the idle task's
     switch-in unfinished when the next tick comes (possible when the tick ISR is shorter than a switch):
     the fast path gives the exact path's stamps and run times, and both keep slices in order."""
-    results = []
-    for fast in (True, False):
+
+    def build():
         k = control_kernel((("zero", 1, Timing(0.0, dist="fixed")), ("short", 2, Timing(0.2, dist="fixed")),
                             ("wheel", 1, Timing(10.7))), isr_us=isr_us)
-        high = Task("isr_task", 32, 4, 4)
-
-        def waiter(task=high):
-            while True:
-                yield (WAIT,)
-                yield (RUN, 0.0)
-
-        k.add_task(high, waiter())
+        high = add_waiter(k, Task("isr_task", 32, 4, 4), 0.0)
         for ms in range(1, 50):  # woken 0.5 µs before a tick: idle's switch-in ends 0.3 µs after it
             k.at(ms * 1000 - 0.5, lambda kk, high=high: kk.notify_from_isr(high))
-        k.fast_enabled = fast
-        k.start()
-        k.sampling = True
-        k.run_until(50_000)
-        results.append((k.take_stamps(), [(t.runtime_units, t.runtime_us) for t in k.tasks], k.fast_ticks))
-    (st, rt, ticks), (exact_st, exact_rt, _) = results
+        return k
+
+    (st, k), (exact_st, exact_k) = run_fast_and_exact(build, 50_000)
     assert_slices_in_order(exact_st)
     assert_slices_in_order(st)
-    assert ticks > 400
-    assert np.allclose(st[0], exact_st[0], rtol=0, atol=1e-6)
-    assert np.array_equal(st[1], exact_st[1]) and np.array_equal(st[2], exact_st[2])
-    assert [u for u, _ in rt] == [u for u, _ in exact_rt]
-    assert [r for _, r in rt] == pytest.approx([r for _, r in exact_rt], abs=1e-6)
+    assert k.fast_ticks > 400
+    assert_same_stamps(st, exact_st)
+    assert units(k) == units(exact_k)
+    assert runtimes(k) == pytest.approx(runtimes(exact_k), abs=1e-6)
 
 
 def test_fast_path_equals_exact_when_the_background_resumes_after_a_tick():
     """An overloaded tick's burst (exact path) ends 0.3 µs before the next tick, so the background task's
     switch-in completes after it; the fast run that starts there must not credit the background with
     negative computing time before its first burst."""
-    results = []
-    for fast in (True, False):
+
+    def build():
         # Every 10th tick: a (90 µs) and b (8.3 µs) end at T + 99.7, the background is back in at T + 100.1.
         k = control_kernel((("a", 10, Timing(90.0, dist="fixed")), ("b", 1, Timing(8.3, dist="fixed"))))
-        worker = Task("profile", 24, 7, 7)
-        worker.durations = Durations(Timing(3000.0, sd_us=300.0), seed=7)
+        add_background(k, Timing(3000.0, sd_us=300.0), every=100)
+        return k
 
-        def work(task=worker):
-            while True:
-                yield (RUN, task.durations.draw())
-                yield (DELAY_UNTIL, task.wake_tick + 100)
-
-        k.add_task(worker, work())
-        k.fast_enabled = fast
-        k.start()
-        k.sampling = True
-        k.run_until(100_000)
-        results.append((k.take_stamps(), [(t.runtime_units, t.runtime_us) for t in k.tasks], k.fast_ticks))
-    (st, rt, fast_ticks), (exact_st, exact_rt, _) = results
-    assert fast_ticks > 200, fast_ticks
+    (st, k), (exact_st, exact_k) = run_fast_and_exact(build, 100_000)
+    assert k.fast_ticks > 200, k.fast_ticks
     assert_slices_in_order(st)
-    assert len(st[0]) == len(exact_st[0])
-    assert np.allclose(st[0], exact_st[0], rtol=0, atol=1e-6)
-    assert np.array_equal(st[1], exact_st[1]) and np.array_equal(st[2], exact_st[2])
-    assert [r for _, r in rt] == pytest.approx([r for _, r in exact_rt], abs=1e-6)
+    assert_same_stamps(st, exact_st)
+    assert runtimes(k) == pytest.approx(runtimes(exact_k), abs=1e-6)
 
 
 def test_fast_path_equals_exact_with_events_between_and_inside_bursts():
@@ -285,42 +297,23 @@ def test_fast_path_equals_exact_with_events_between_and_inside_bursts():
     in the background: a run takes the event's tick when its burst is over before the event."""
     rng = np.random.default_rng(5)
     times = np.sort(rng.uniform(1_000, 199_000, 300))
-    results = []
-    for fast in (True, False):
+
+    def build():
         k = control_kernel((("hal", 1, 6.6), ("wheel", 1, 10.7), ("pose", 2, 9.9)))
         sink = Task("tsink", 32, 4, 4)
         sink.durations = Durations(Timing(3.0), seed=4)
-
-        def serve(task=sink):
-            while True:
-                yield (WAIT,)
-                yield (RUN, task.durations.draw())
-
-        k.add_task(sink, serve())
-        worker = Task("profile", 24, 7, 7)
-        worker.durations = Durations(Timing(700.0, sd_us=200.0), seed=7)
-
-        def work(task=worker):
-            while True:
-                yield (RUN, task.durations.draw())
-                yield (DELAY_UNTIL, task.wake_tick + 30)
-
-        k.add_task(worker, work())
+        add_waiter(k, sink)
+        add_background(k, Timing(700.0, sd_us=200.0), every=30)
         for t_ev in times:
             k.at(float(t_ev), lambda kk, sink=sink: kk.notify_from_isr(sink))
-        k.fast_enabled = fast
-        k.start()
-        k.sampling = True
-        k.run_until(200_000)
-        results.append((k.take_stamps(), [(t.runtime_units, t.runtime_us) for t in k.tasks], k.fast_ticks))
-    (st, rt, fast_ticks), (exact_st, exact_rt, _) = results
-    assert fast_ticks > 1000, fast_ticks
+        return k
+
+    (st, k), (exact_st, exact_k) = run_fast_and_exact(build, 200_000)
+    assert k.fast_ticks > 1000, k.fast_ticks
     assert_slices_in_order(st)
-    assert len(st[0]) == len(exact_st[0])
-    assert np.allclose(st[0], exact_st[0], rtol=0, atol=1e-6)
-    assert np.array_equal(st[1], exact_st[1]) and np.array_equal(st[2], exact_st[2])
-    assert [u for u, _ in rt] == [u for u, _ in exact_rt]
-    assert [r for _, r in rt] == pytest.approx([r for _, r in exact_rt], abs=1e-6)
+    assert_same_stamps(st, exact_st)
+    assert units(k) == units(exact_k)
+    assert runtimes(k) == pytest.approx(runtimes(exact_k), abs=1e-6)
 
 
 def test_the_kernel_does_not_import_the_fast_path_at_import_time():
