@@ -35,6 +35,8 @@ class Scanner:
 
     #: How many recent scans :attr:`truth` keeps.
     TRUTH_SCANS = 64
+    #: :attr:`requests` keeps at most this many names (the older half is dropped when it is full).
+    MAX_REQUESTS = 256
 
     def __init__(self, name: str, scene: Scene, pose: Pose, model: RangeModel, *, t0: float | None = None) -> None:
         self.name = name
@@ -45,6 +47,7 @@ class Scanner:
         self.port = None
         self.truth: collections.deque[TruthScan] = collections.deque(maxlen=self.TRUTH_SCANS)
         self.counters: dict[str, int] = collections.Counter()
+        self.requests: list[str] = []  # names of the latest requests, oldest first (for status reports)
 
     def attach(self, medium) -> None:
         """Join a medium as ``<name>-device`` (the host port keeps the endpoint's name, so taps and
@@ -69,6 +72,12 @@ class Scanner:
         p = self.pose
         r, _, _ = self.scene.cast(p.x, p.y, self.world_angles(np.asarray([sensor_deg], float)), t=t - self.t0)
         return float(r[0])
+
+    def note_request(self, name: str) -> None:
+        """Keep the name of a request the unit heard (bounded: see :attr:`MAX_REQUESTS`)."""
+        self.requests.append(name)
+        if len(self.requests) > self.MAX_REQUESTS:
+            del self.requests[:self.MAX_REQUESTS // 2]
 
     def remember(self, t: float, angles: np.ndarray, ranges: np.ndarray, measured: np.ndarray) -> None:
         self.truth.append(TruthScan(t, np.asarray(angles), np.asarray(ranges), np.asarray(measured)))

@@ -113,7 +113,6 @@ class RplidarA1(Scanner):
             self.state = "protection"
         self.revolutions = 0
         self.samples_sent = 0
-        self.requests: list[str] = []
         self._angle = 0.0
         self._freq = self.config.rpm / 60.0
         self._next_sample_t = 0.0
@@ -184,9 +183,7 @@ class RplidarA1(Scanner):
         self.last_rx = t
         for item in self.decoder.feed(data):
             if isinstance(item, rp.Request):
-                self.requests.append(item.name)
-                if len(self.requests) > 256:
-                    del self.requests[:128]
+                self.note_request(item.name)
                 self.handle(item, t)
             else:
                 self.counters[f"rx_{item.kind}"] += 1

@@ -99,7 +99,6 @@ class ScipScanner(Scanner):
         self.md: dict | None = None  # continuous measurement in progress
         self.md_epoch = 0
         self.scans_sent = 0
-        self.requests: list[str] = []
         self.connected = connected or (lambda: True)
         self._held: bytes = b""
 
@@ -130,9 +129,7 @@ class ScipScanner(Scanner):
     def on_bytes(self, data: bytes, t: float, baud: int | None) -> None:
         for item in self.decoder.feed(data):
             if isinstance(item, scip.Request):
-                self.requests.append(item.cmd)
-                if len(self.requests) > 256:
-                    del self.requests[:128]
+                self.note_request(item.cmd)
                 self.handle(item, t)
             else:
                 self.counters[f"rx_{item.kind}"] += 1

@@ -88,7 +88,6 @@ class SickLms200(Scanner):
         self.stream_epoch = 0
         self.telegram_index = 0
         self.scans_sent = 0
-        self.requests: list[str] = []
         self.baud_mismatch = 0
         self.ready_at = 0.0
 
@@ -117,9 +116,7 @@ class SickLms200(Scanner):
             if isinstance(item, lms.Frame):
                 if item.is_reply or item.address != self.config.address:
                     continue
-                self.requests.append(item.name)
-                if len(self.requests) > 256:
-                    del self.requests[:128]
+                self.note_request(item.name)
                 self.handle(item, t)
             elif item.kind == "crc":
                 self.counters["bad_crc"] += 1
