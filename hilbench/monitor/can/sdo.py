@@ -67,12 +67,18 @@ class SdoFollower:
         self._last_segment = False
         self.unexpected = 0
 
-    def request(self, data: bytes, t: float) -> SdoTransfer | None:
-        """A client frame (0x600+n); returns a transfer it ended (a client abort), if any."""
+    def _padded(self, data: bytes) -> bytes | None:
+        """An SDO frame's data as 8 bytes (None, counted as unexpected, for an empty frame)."""
         if not data:
             self.unexpected += 1
             return None
-        data = bytes(data[:8]).ljust(8, b"\0")
+        return bytes(data[:8]).ljust(8, b"\0")
+
+    def request(self, data: bytes, t: float) -> SdoTransfer | None:
+        """A client frame (0x600+n); returns a transfer it ended (a client abort), if any."""
+        data = self._padded(data)
+        if data is None:
+            return None
         cs = co.specifier(data[0])
         if cs in (co.CCS_INITIATE_DOWNLOAD, co.CCS_INITIATE_UPLOAD, co.CCS_BLOCK_UPLOAD, co.CCS_BLOCK_DOWNLOAD):
             command, index, subindex, payload = co.parse_initiate(data)
@@ -80,13 +86,7 @@ class SdoFollower:
             tr = SdoTransfer(self.node, index, subindex, upload, t, block=cs in (co.CCS_BLOCK_UPLOAD,
                                                                                  co.CCS_BLOCK_DOWNLOAD))
             if cs == co.CCS_INITIATE_DOWNLOAD:
-                if command & 0x02:
-                    tr.data += payload[: co.expedited_size(command)]
-                    tr.size = len(tr.data)
-                else:
-                    tr.segmented = True
-                    if command & 0x01:
-                        tr.size = struct.unpack("<I", payload)[0]
+                self._initiated(tr, command, payload)
             self.current = tr
             self._last_segment = False
             return None
@@ -95,8 +95,7 @@ class SdoFollower:
             if tr is None or tr.upload:
                 self.unexpected += 1
                 return None
-            n = (data[0] >> 1) & 7
-            self._keep(tr, data[1 : 8 - n])
+            self._keep_segment(tr, data)
             self._last_segment = bool(data[0] & 1)
             return None
         if cs == co.CCS_UPLOAD_SEGMENT:
@@ -104,31 +103,19 @@ class SdoFollower:
                 self.unexpected += 1
             return None
         if cs == co.CCS_ABORT:
-            tr = self.current
-            _cmd, index, subindex, payload = co.parse_initiate(data)
-            if tr is None:
-                tr = SdoTransfer(self.node, index, subindex, False, t)
-            tr.abort = struct.unpack("<I", payload)[0]
-            tr.aborted_by = "client"
-            return self._finish(tr, t)
+            return self._aborted(data, t, "client")
         self.unexpected += 1
         return None
 
     def response(self, data: bytes, t: float) -> SdoTransfer | None:
         """A server frame (0x580+n); returns the transfer it completed, if any."""
-        if not data:
-            self.unexpected += 1
+        data = self._padded(data)
+        if data is None:
             return None
-        data = bytes(data[:8]).ljust(8, b"\0")
         cs = co.specifier(data[0])
         tr = self.current
         if cs == co.SCS_ABORT:
-            _cmd, index, subindex, payload = co.parse_initiate(data)
-            if tr is None:
-                tr = SdoTransfer(self.node, index, subindex, False, t)
-            tr.abort = struct.unpack("<I", payload)[0]
-            tr.aborted_by = "server"
-            return self._finish(tr, t)
+            return self._aborted(data, t, "server")
         if tr is None:
             self.unexpected += 1
             return None
@@ -138,22 +125,41 @@ class SdoFollower:
             return self._finish(tr, t) if self._last_segment else None
         if cs == co.SCS_INITIATE_UPLOAD and tr.upload:
             command, _index, _sub, payload = co.parse_initiate(data)
-            if command & 0x02:
-                tr.data += payload[: co.expedited_size(command)]
-                tr.size = len(tr.data)
-                return self._finish(tr, t)
-            tr.segmented = True
-            if command & 0x01:
-                tr.size = struct.unpack("<I", payload)[0]
-            return None
+            return self._finish(tr, t) if self._initiated(tr, command, payload) else None
         if cs == co.SCS_UPLOAD_SEGMENT and tr.upload and tr.segmented:
-            n = (data[0] >> 1) & 7
-            self._keep(tr, data[1 : 8 - n])
+            self._keep_segment(tr, data)
             return self._finish(tr, t) if data[0] & 1 else None
         if cs in (co.SCS_BLOCK_DOWNLOAD, co.SCS_BLOCK_UPLOAD) and tr.block:
             return None  # block sub-protocols are not followed further
         self.unexpected += 1
         return None
+
+    @staticmethod
+    def _initiated(tr: SdoTransfer, command: int, payload: bytes) -> bool:
+        """An initiate's expedited data (True: the transfer is complete) or its segmented size, if given."""
+        if command & 0x02:
+            tr.data += payload[: co.expedited_size(command)]
+            tr.size = len(tr.data)
+            return True
+        tr.segmented = True
+        if command & 0x01:
+            tr.size = struct.unpack("<I", payload)[0]
+        return False
+
+    def _aborted(self, data: bytes, t: float, by: str) -> SdoTransfer:
+        """An abort from the client or the server: it ends the current transfer (or one of its own)."""
+        _cmd, index, subindex, payload = co.parse_initiate(data)
+        tr = self.current
+        if tr is None:
+            tr = SdoTransfer(self.node, index, subindex, False, t)
+        tr.abort = struct.unpack("<I", payload)[0]
+        tr.aborted_by = by
+        return self._finish(tr, t)
+
+    @staticmethod
+    def _keep_segment(tr: SdoTransfer, data: bytes) -> None:
+        """A segment's data: 7 bytes less the n unused ones its command byte gives (bits 1-3)."""
+        SdoFollower._keep(tr, data[1 : 8 - ((data[0] >> 1) & 7)])
 
     @staticmethod
     def _keep(tr: SdoTransfer, chunk: bytes) -> None:
