@@ -316,14 +316,12 @@ class XrceClient:
         return True
 
     def _create_entities(self) -> bool:
-        le = True
         with self._lock:
             reqs: list[bytes] = []
             part = x.object_id(1, K.PARTICIPANT)
-            reqs.append(self._create(part, K.PARTICIPANT, {"representation": {
-                "format": x.REPRESENTATION_IN_BINARY, "value": x.binary_blob("participant_binary", {
-                    "optional_domain_reference": False, "domain_reference": None,
-                    "optional_qos_profile_reference": False, "qos_profile_reference": None}, le)},
+            reqs.append(self._create(part, K.PARTICIPANT, {"representation": _binary("participant_binary", {
+                "optional_domain_reference": False, "domain_reference": None,
+                "optional_qos_profile_reference": False, "qos_profile_reference": None}),
                 "domain_id": self.domain_id}))
             topics: dict[tuple[str, str], bytes] = {}
             n = 0
@@ -332,31 +330,23 @@ class XrceClient:
                 if key not in topics:
                     n += 1
                     topics[key] = x.object_id(n, K.TOPIC)
-                    reqs.append(self._create(topics[key], K.TOPIC, {"representation": {
-                        "format": x.REPRESENTATION_IN_BINARY, "value": x.binary_blob("topic_binary", {
-                            "topic_name": ep.topic, "optional_type_reference": False, "type_reference": None,
-                            "optional_type_name": True, "type_name": ep.type_name}, le)}, "participant_id": part}))
+                    reqs.append(self._create(topics[key], K.TOPIC, {"representation": _binary("topic_binary", {
+                        "topic_name": ep.topic, "optional_type_reference": False, "type_reference": None,
+                        "optional_type_name": True, "type_name": ep.type_name}), "participant_id": part}))
             group = {"optional_name": False, "name": None, "optional_qos": False, "qos": None}
-            for i, pub in enumerate(self.publications, start=1):
-                p = x.object_id(i, K.PUBLISHER)
-                reqs.append(self._create(p, K.PUBLISHER, {"representation": {
-                    "format": x.REPRESENTATION_IN_BINARY, "value": x.binary_blob("publisher_binary", group, le)},
-                    "participant_id": part}))
-                pub.writer = x.object_id(i, K.DATAWRITER)
-                reqs.append(self._create(pub.writer, K.DATAWRITER, {"representation": {
-                    "format": x.REPRESENTATION_IN_BINARY, "value": x.binary_blob("datawriter_binary", {
-                        "topic_id": topics[(pub.topic, pub.type_name)], "optional_qos": True,
-                        "qos": _qos(pub.reliable, writer=True)}, le)}, "publisher_id": p}))
-            for i, sub in enumerate(self.subscriptions, start=1):
-                s = x.object_id(i, K.SUBSCRIBER)
-                reqs.append(self._create(s, K.SUBSCRIBER, {"representation": {
-                    "format": x.REPRESENTATION_IN_BINARY, "value": x.binary_blob("subscriber_binary", group, le)},
-                    "participant_id": part}))
-                sub.reader = x.object_id(i, K.DATAREADER)
-                reqs.append(self._create(sub.reader, K.DATAREADER, {"representation": {
-                    "format": x.REPRESENTATION_IN_BINARY, "value": x.binary_blob("datareader_binary", {
-                        "topic_id": topics[(sub.topic, sub.type_name)], "optional_qos": True,
-                        "qos": _qos(sub.reliable, writer=False)}, le)}, "subscriber_id": s}))
+            # Each publication gets a publisher and a datawriter, each subscription a subscriber and a datareader.
+            for eps, writer, group_kind, group_name, kind, name in (
+                    (self.publications, True, K.PUBLISHER, "publisher", K.DATAWRITER, "datawriter"),
+                    (self.subscriptions, False, K.SUBSCRIBER, "subscriber", K.DATAREADER, "datareader")):
+                for i, ep in enumerate(eps, start=1):
+                    g = x.object_id(i, group_kind)
+                    reqs.append(self._create(g, group_kind, {"representation": _binary(f"{group_name}_binary", group),
+                                                             "participant_id": part}))
+                    oid = x.object_id(i, kind)
+                    setattr(ep, "writer" if writer else "reader", oid)
+                    reqs.append(self._create(oid, kind, {"representation": _binary(f"{name}_binary", {
+                        "topic_id": topics[(ep.topic, ep.type_name)], "optional_qos": True,
+                        "qos": _qos(ep.reliable, writer=writer)}), f"{group_name}_id": g}))
         deadline = time.monotonic() + CREATION_TIMEOUT_S * max(1, len(reqs) // 4)
         while time.monotonic() < deadline and not self._stop.is_set():
             if all(self._pending_status.get(r) is not None for r in reqs):
@@ -527,6 +517,11 @@ class XrceClient:
                 "publications": [{"topic": p.topic, "type": p.type_name, "sent": p.sent} for p in self.publications],
                 "subscriptions": [{"topic": s.topic, "type": s.type_name, "received": s.received}
                                   for s in self.subscriptions]}
+
+
+def _binary(blob: str, fields: dict[str, Any]) -> dict[str, Any]:
+    """An entity's representation in binary (little-endian, as the micro-ROS client writes it)."""
+    return {"format": x.REPRESENTATION_IN_BINARY, "value": x.binary_blob(blob, fields, True)}
 
 
 def _qos(reliable: bool, writer: bool) -> dict[str, Any]:
