@@ -15,6 +15,7 @@ import math
 import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -68,10 +69,28 @@ def run_client(script: str, *args: str, run=None, bench=None, shim: str | None =
     return json.loads(last[-1])
 
 
+class SerialHost:
+    """A host on a scanner's pty (pyserial, short reads) that decodes what the unit sends with ``decoder``."""
+
+    def __init__(self, path: str, baud: int, decoder) -> None:
+        import serial
+
+        self.port = serial.Serial(path, baud, timeout=0.05)
+        self.dec = decoder
+
+    def read_items(self, n: int = 1, kind: type = object, timeout: float = 3.0) -> list:
+        """Decoded items read until ``n`` of them are ``kind`` (or ``timeout`` s passed)."""
+        items: list = []
+        deadline = time.monotonic() + timeout
+        while sum(isinstance(i, kind) for i in items) < n and time.monotonic() < deadline:
+            items += self.dec.feed(self.port.read(4096))
+        return items
+
+
 @pytest.fixture
 def scanners(hilbench_bench):
     """The bundled ``scanners`` bench, started in this process."""
     return hilbench_bench("scanners")
 
 
-__all__ = ["fraction_within", "math", "need", "room_range", "run_client"]
+__all__ = ["SerialHost", "fraction_within", "math", "need", "room_range", "run_client"]

@@ -6,24 +6,18 @@ import time
 
 import numpy as np
 import pytest
-import serial
 
 from hilbench.protocols import scip
-from tests.fakes.scanners.conftest import fraction_within
+from tests.fakes.scanners.conftest import SerialHost, fraction_within
 
 
-class Urg:
+class Urg(SerialHost):
     def __init__(self, path: str) -> None:
-        self.port = serial.Serial(path, 115200, timeout=0.05)
-        self.dec = scip.ReplyDecoder()
+        super().__init__(path, 115200, scip.ReplyDecoder())
 
     def ask(self, line: bytes, n: int = 1, timeout: float = 3.0) -> list[scip.Reply]:
         self.port.write(line)
-        out: list = []
-        deadline = time.monotonic() + timeout
-        while len(out) < n and time.monotonic() < deadline:
-            out += [r for r in self.dec.feed(self.port.read(4096)) if isinstance(r, scip.Reply)]
-        return out
+        return [r for r in self.read_items(n, scip.Reply, timeout) if isinstance(r, scip.Reply)]
 
 
 @pytest.fixture

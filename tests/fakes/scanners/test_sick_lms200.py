@@ -6,32 +6,23 @@ import time
 
 import numpy as np
 import pytest
-import serial
 
 from hilbench.protocols import sick_lms200 as lms
 from hilbench.pytest_plugin import wait_until
-from tests.fakes.scanners.conftest import fraction_within
+from tests.fakes.scanners.conftest import SerialHost, fraction_within
 
 H = bytes.fromhex
 
 
-class Host:
+class Host(SerialHost):
     """A minimal LMS host (as sicktoolbox does it): telegrams out, ACK + reply telegrams in."""
 
     def __init__(self, path: str) -> None:
-        self.port = serial.Serial(path, 9600, timeout=0.05)
-        self.dec = lms.Decoder()
-
-    def read_items(self, n: int = 1, timeout: float = 3.0) -> list:
-        items: list = []
-        deadline = time.monotonic() + timeout
-        while sum(isinstance(i, lms.Frame) for i in items) < n and time.monotonic() < deadline:
-            items += self.dec.feed(self.port.read(4096))
-        return items
+        super().__init__(path, 9600, lms.Decoder())
 
     def ask(self, telegram: bytes, n: int = 1, timeout: float = 3.0) -> list:
         self.port.write(telegram)
-        return self.read_items(n, timeout)
+        return self.read_items(n, lms.Frame, timeout)
 
 
 @pytest.fixture
