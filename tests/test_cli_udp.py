@@ -18,6 +18,7 @@ from hilbench.fakes.xrce_client import XrceClient
 from hilbench.protocols import cdr
 from hilbench.pytest_plugin import wait_until
 from hilbench.transports.capture_file import CaptureReader
+from tests.helpers.domains import free_domain
 
 AGENT_TOML = """schema = 1
 [endpoints.agent]
@@ -31,15 +32,6 @@ STRING = cdr.ros_type("std_msgs/String")
 def hb(*args: str, timeout: float = 60) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "hilbench.cli", *args], capture_output=True, text=True,
                           timeout=timeout)
-
-
-def _domain() -> int:
-    import importlib.util
-
-    spec = importlib.util.spec_from_file_location("domains", Path(__file__).parent / "helpers" / "domains.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod.free_domain()
 
 
 def test_bundled_profiles_load() -> None:
@@ -109,7 +101,7 @@ def test_tap_of_a_serial_port_refuses_extra_arguments() -> None:
 
 
 def test_record_a_freertps_bench_with_addresses_then_pcapng(tmp_path: Path, hilbench_emulator) -> None:
-    domain = _domain()
+    domain = free_domain()
     prof = tmp_path / "nodes.toml"
     prof.write_text(f"""schema = 1
 [endpoints.nodes]

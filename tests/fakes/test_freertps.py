@@ -13,6 +13,7 @@ from hilbench.bench.profile import ProfileError, load_profile, parse_profile
 from hilbench.errors import BenchError
 from hilbench.protocols import rtps
 from hilbench.pytest_plugin import wait_until
+from tests.helpers.domains import free_domain
 
 
 def _profile(domain: int, naming: str = "ros2") -> dict:
@@ -30,23 +31,12 @@ def _profile(domain: int, naming: str = "ros2") -> dict:
             ]}
 
 
-def _free_domain() -> int:
-    import importlib.util
-    from pathlib import Path
-
-    path = Path(__file__).resolve().parents[1] / "helpers" / "domains.py"
-    spec = importlib.util.spec_from_file_location("domains", path)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod.free_domain()
-
-
 @pytest.fixture
 def nodes():
     benches = []
 
     def start(naming: str = "ros2") -> Bench:
-        b = Bench(parse_profile(_profile(_free_domain(), naming), "n.toml"), tap=False).start()
+        b = Bench(parse_profile(_profile(free_domain(), naming), "n.toml"), tap=False).start()
         benches.append(b)
         return b
 
@@ -108,7 +98,7 @@ def test_legacy_naming_uses_bare_names(nodes) -> None:
 
 
 def test_a_taken_port_is_a_one_line_bench_error() -> None:
-    domain = _free_domain()
+    domain = free_domain()
     blocker = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     blocker.bind(("127.0.0.1", rtps.ports(domain, 0)["metatraffic_unicast"]))
     try:

@@ -13,19 +13,10 @@ import pytest
 
 from hilbench.bench import Bench
 from hilbench.bench.profile import parse_profile
+from tests.helpers.domains import free_domain
 
 pytest.importorskip("cyclonedds", reason="the cyclonedds package (a standard DDS participant) is not installed")
 PEER = Path(__file__).resolve().parents[1] / "helpers" / "cyclone_peer.py"
-
-
-def free_domain() -> int:
-    import importlib.util
-
-    path = Path(__file__).resolve().parents[1] / "helpers" / "domains.py"
-    spec = importlib.util.spec_from_file_location("domains", path)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod.free_domain()
 
 
 def profile(domain: int) -> dict:

@@ -19,6 +19,7 @@ from hilbench.protocols import vel2d
 from hilbench.protocols import xrce_dds as x
 from hilbench.transports.capture_file import CaptureWriter
 from hilbench.transports.sources import open_source
+from tests.helpers.domains import free_domain
 
 TESTS = Path(__file__).resolve().parents[1]
 
@@ -136,7 +137,7 @@ def test_live_freertps_bench_rates(tmp_path: Path) -> None:
     from hilbench.pytest_plugin import wait_until
     from hilbench.transports.sources import MediumSource
 
-    domain = _load("helpers/domains.py").free_domain()
+    domain = free_domain()
     prof = {"schema": 1, "endpoints": {"n": {"type": "udp", "protocol": "rtps", "domain_id": domain}},
             "devices": [{"name": "talker", "participant_index": 0, "topics": [
                 {"name": "chatter", "type": "std_msgs/String", "direction": "pub", "rate_hz": 20}]},
