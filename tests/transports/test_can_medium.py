@@ -51,6 +51,15 @@ def bus():
         m.close()
 
 
+def sender_and_receiver(m: CanMedium) -> tuple[Recorder, Recorder, object]:
+    """Devices ``a`` (with its port) and ``rx`` on bus ``m``, which is started."""
+    a, rx = Recorder("a"), Recorder("rx")
+    port = m.add_device(a)
+    m.add_device(rx)
+    m.start()
+    return a, rx, port
+
+
 def test_every_party_but_the_sender_gets_the_frame(bus):
     m = bus()
     a, b, c = Recorder("a"), Recorder("b"), Recorder("c")
@@ -107,10 +116,7 @@ def test_paced_arbitration_and_bit_times(bus):
 
 def test_one_sender_keeps_its_order(bus):
     m = bus(paced=True)
-    a, rx = Recorder("a"), Recorder("rx")
-    port = m.add_device(a)
-    m.add_device(rx)
-    m.start()
+    a, rx, port = sender_and_receiver(m)
     frames = [data_frame(0x300 - i, bytes([i])) for i in range(5)]  # falling IDs from one FIFO
     m.call_at(None, lambda: [port.send(f) for f in frames])
     wait_until(lambda: len(rx.data()) == 5)
@@ -119,10 +125,7 @@ def test_one_sender_keeps_its_order(bus):
 
 def test_bus_load_follows_the_traffic(bus):
     m = bus(paced=True, bitrate=125_000)
-    a, rx = Recorder("a"), Recorder("rx")
-    port = m.add_device(a)
-    m.add_device(rx)
-    m.start()
+    a, rx, port = sender_and_receiver(m)
     frame = data_frame(0x555, bytes(8))
     n = 200
     m.call_at(None, lambda: [port.send(frame) for _ in range(n)])
@@ -136,10 +139,7 @@ def test_bus_load_follows_the_traffic(bus):
 @pytest.mark.parametrize("paced", [False, True])
 def test_error_frames_and_retransmission(bus, paced):
     m = bus(paced=paced, error_next=3)
-    a, rx = Recorder("a"), Recorder("rx")
-    port = m.add_device(a)
-    m.add_device(rx)
-    m.start()
+    a, rx, port = sender_and_receiver(m)
     frame = data_frame(0x123, b"\x42")
     port.send(frame)
     wait_until(lambda: rx.data())
@@ -152,10 +152,7 @@ def test_error_frames_and_retransmission(bus, paced):
 
 def test_bus_off_and_recovery(bus):
     m = bus(paced=True, bitrate=10_000, error_rate=1.0)  # slow: recovery takes 141 ms, time to look
-    a, rx = Recorder("a"), Recorder("rx")
-    port = m.add_device(a)
-    m.add_device(rx)
-    m.start()
+    a, rx, port = sender_and_receiver(m)
     port.send(data_frame(0x123, b"\x01"))
     wait_until(lambda: "bus-off" in a.states)
     assert a.states[:2] == ["passive", "bus-off"]
@@ -177,10 +174,7 @@ def test_bus_off_and_recovery(bus):
 
 def test_forced_bus_off_without_recovery(bus):
     m = bus(auto_recover=False)
-    a, rx = Recorder("a"), Recorder("rx")
-    port = m.add_device(a)
-    m.add_device(rx)
-    m.start()
+    a, rx, port = sender_and_receiver(m)
     m.force_bus_off("a")
     wait_until(lambda: a.states == ["bus-off"])
     port.send(data_frame(0x1, b""))
