@@ -32,17 +32,10 @@ def _profile(domain: int, naming: str = "ros2") -> dict:
 
 
 @pytest.fixture
-def nodes():
-    benches = []
-
-    def start(naming: str = "ros2") -> Bench:
-        b = Bench(parse_profile(_profile(free_domain(), naming), "n.toml"), tap=False).start()
-        benches.append(b)
-        return b
-
-    yield start
-    for b in benches:
-        b.stop()
+def nodes(hilbench_bench):
+    """Factory: the three nodes on a started bench in a free domain (``nodes(naming)``), stopped after."""
+    return lambda naming="ros2": hilbench_bench(parse_profile(_profile(free_domain(), naming), "n.toml"),
+                                                lines=False, tap=False)
 
 
 def test_nodes_discover_each_other_and_echo(nodes) -> None:

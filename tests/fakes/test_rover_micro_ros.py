@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import pytest
 
-from hilbench.bench import Bench
 from hilbench.bench.profile import load_profile, parse_profile
 from hilbench.fakes.xrce_client import XrceClient
 from hilbench.monitor import Monitor
@@ -17,7 +16,7 @@ TWIST = cdr.ros_type("geometry_msgs/Twist")
 POSE2D = cdr.ros_type("geometry_msgs/Pose2D")
 
 
-def rover(zero: bool = False) -> Bench:
+def rover_profile(zero: bool = False):
     prof = load_profile("mecarover-micro-ros")
     raw = {"schema": 1, "endpoints": {"agent": {"type": "udp", "protocol": "xrce-dds", "port": 0},
                                       "rover": {"type": "pty", "protocol": "vel2d", "baud": 2_000_000}},
@@ -25,21 +24,13 @@ def rover(zero: bool = False) -> Bench:
                        {"model": "stm32f767-rover", "name": "rover", "endpoint": "rover", "preset": prof.devices[1].preset,
                         "output": "v2", "agent": "agent",
                         "micro_ros": {"client_key": 0x60C93570, "zero_after_session": zero}}]}
-    return Bench(parse_profile(raw, "rover.toml")).start()
+    return parse_profile(raw, "rover.toml")
 
 
 @pytest.fixture
-def bench():
-    benches: list[Bench] = []
-
-    def start(zero: bool = False) -> Bench:
-        b = rover(zero)
-        benches.append(b)
-        return b
-
-    yield start
-    for b in benches:
-        b.stop()
+def bench(hilbench_bench):
+    """Factory: the agent and the rover board on one started bench (``bench(zero=True)``), stopped after."""
+    return lambda zero=False: hilbench_bench(rover_profile(zero), lines=False)
 
 
 def test_board_session_entities_and_cmd_vel(bench) -> None:

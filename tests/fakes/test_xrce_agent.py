@@ -31,17 +31,9 @@ def agent_profile(**device) -> dict:
 
 
 @pytest.fixture
-def agent_bench():
-    benches = []
-
-    def start(**device) -> Bench:
-        b = Bench(parse_profile(agent_profile(**device), "agent.toml")).start()
-        benches.append(b)
-        return b
-
-    yield start
-    for b in benches:
-        b.stop()
+def agent_bench(hilbench_bench):
+    """Factory: a started bench of one agent (``agent_bench(refs=...)``), stopped after the test."""
+    return lambda **device: hilbench_bench(parse_profile(agent_profile(**device), "agent.toml"), lines=False)
 
 
 class Raw:
