@@ -13,30 +13,18 @@ import pytest
 
 from hilbench.protocols.can_frame import data_frame
 from hilbench.pytest_plugin import wait_until
-from hilbench.transports.can_medium import CanMedium
-from hilbench.transports.can_port import CanHostPort
 from tests.conftest import REPO
-from tests.transports.test_socketcand_server import Recorder
 
 
 @pytest.fixture
-def slcan_bus():
-    made = []
+def slcan_bus(door_bus):
+    """A CAN medium with only an SLCAN door: ``(adapter, device, device port)``."""
 
     def make(bitrate=500_000):
-        port = CanHostPort.open("can", CanHostPort.check_options({"socketcand": False, "slcan": True}))
-        medium = CanMedium("can", bitrate)
-        dev = Recorder()
-        dport = medium.add_device(dev)
-        medium.add_host(port)
-        medium.start()
-        made.append((medium, port))
+        _, port, dev, dport = door_bus({"socketcand": False, "slcan": True}, bitrate)
         return port.slcan, dev, dport
 
-    yield make
-    for medium, port in made:
-        medium.close()
-        port.close()
+    return make
 
 
 class Tty:

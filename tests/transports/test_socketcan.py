@@ -14,7 +14,7 @@ from hilbench.protocols.can_frame import data_frame, error_frame
 from hilbench.pytest_plugin import wait_until
 from hilbench.transports.can_medium import CanMedium
 from hilbench.transports.socketcan import SocketCanLink, af_can_status
-from tests.transports.test_socketcand_server import Recorder
+from tests.transports.conftest import Recorder
 
 AF_CAN_OK, AF_CAN_WHY = af_can_status()
 

@@ -15,42 +15,18 @@ import pytest
 from hilbench.protocols import socketcand as sc
 from hilbench.protocols.can_frame import data_frame
 from hilbench.pytest_plugin import wait_until
-from hilbench.transports.can_medium import CanMedium
-from hilbench.transports.can_port import CanHostPort
 from tests.conftest import REPO
 
 
-class Recorder:
-    def __init__(self, name="dev"):
-        self.name = name
-        self.frames = []
-        self.lock = threading.Lock()
-
-    def on_frame(self, frame, t):
-        with self.lock:
-            self.frames.append(frame)
-
-
 @pytest.fixture
-def can_bus():
+def can_bus(door_bus):
     """A CAN medium with only a socketcand door, a device on it, and the server's address."""
-    made = []
 
     def make(paced=False, **socketcand):
-        opts = CanHostPort.check_options({"socketcand": socketcand, "slcan": False})
-        port = CanHostPort.open("can", opts)
-        medium = CanMedium("can", 500_000, paced=paced)
-        dev = Recorder()
-        dport = medium.add_device(dev)
-        medium.add_host(port)
-        medium.start()
-        made.append((medium, port))
+        medium, port, dev, dport = door_bus({"socketcand": socketcand, "slcan": False}, paced=paced)
         return medium, port, dev, dport, port.socketcand.address
 
-    yield make
-    for medium, port in made:
-        medium.close()
-        port.close()
+    return make
 
 
 class Raw:
