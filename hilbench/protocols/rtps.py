@@ -37,6 +37,8 @@ from construct import (
     Struct,
 )
 
+from hilbench.protocols import cdr
+
 MAGIC = b"RTPS"
 VERSION = (2, 1)
 #: FreeRTPS's unregistered vendor id as it appears in the header (0x2C2F written little-endian, §2.3).
@@ -170,9 +172,10 @@ RELIABILITY_BEST_EFFORT = 1
 RELIABILITY_RELIABLE = 2
 DURABILITY_VOLATILE = 0
 DURABILITY_TRANSIENT_LOCAL = 1
-#: ENCAPSULATION ids (big-endian octets).
-CDR_LE = b"\x00\x01"
-PL_CDR_LE = b"\x00\x03"
+#: ENCAPSULATION ids as the octets that start a serialized payload (the ids are cdr's, big-endian on the wire).
+CDR_LE = cdr.CDR_LE.to_bytes(2, "big")
+PL_CDR_LE = cdr.PL_CDR_LE.to_bytes(2, "big")
+_PARAMETER_LISTS = (cdr.PL_CDR_BE.to_bytes(2, "big"), PL_CDR_LE)
 #: The time FreeRTPS counts its fake epoch from (§2.6).
 FREERTPS_EPOCH = 1436564555
 
@@ -634,7 +637,7 @@ def _decode_data(msg: Message, sub: Submessage, le: bool) -> dict[str, Any]:
         out["payload"] = payload
         if len(payload) >= 4:
             out["encapsulation"] = payload[:2]
-            if payload[:2] in (b"\x00\x02", b"\x00\x03"):  # SPDP/SEDP and other parameter lists
+            if payload[:2] in _PARAMETER_LISTS:  # SPDP/SEDP and other parameter lists
                 params, _, problem = parse_parameters(payload[4:], payload[1] == 3)
                 if problem:
                     _flag(msg, "rtps.no_sentinel")
