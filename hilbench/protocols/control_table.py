@@ -180,4 +180,12 @@ class Model:
         return mem
 
 
-__all__ = ["Field", "Model", "Motion"]
+def model_named(models: dict[str, Model], name: str, asked: str | int) -> Model:
+    """The model of ``models`` whose name is ``name`` in any case; KeyError(``asked``, what was looked up)."""
+    for model_name, model in models.items():
+        if model_name.lower() == name.lower():
+            return model
+    raise KeyError(asked)
+
+
+__all__ = ["Field", "Model", "Motion", "model_named"]

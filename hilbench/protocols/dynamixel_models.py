@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 
-from hilbench.protocols.control_table import Field, Model
+from hilbench.protocols.control_table import Field, Model, model_named
 from hilbench.protocols.dynamixel_classic_models import CLASSIC_MODELS
 
 #: Baud Rate item (address 8) codes to bit/s.
@@ -367,11 +367,7 @@ def find_model(name_or_number: str | int, protocol: int | None = None) -> Model:
     if isinstance(name_or_number, int):
         return MODELS_BY_NUMBER[name_or_number]
     key = ALIASES_P1.get(name_or_number) if protocol == 1 else None
-    key = key or ALIASES.get(name_or_number, name_or_number)
-    for name, model in MODELS.items():
-        if name.lower() == key.lower():
-            return model
-    raise KeyError(name_or_number)
+    return model_named(MODELS, key or ALIASES.get(name_or_number, name_or_number), name_or_number)
 
 
 def model_names() -> list[str]:

@@ -12,7 +12,7 @@ the one LeRobot configures or a plausible one (noted in the sheet's §10).
 
 from __future__ import annotations
 
-from hilbench.protocols.control_table import Field, Model, Motion
+from hilbench.protocols.control_table import Field, Model, Motion, model_named
 
 #: Baud Rate register codes (address 6) to bit/s, as Feetech's own SDK and memory table give them.
 STS_BAUD_CODES: dict[int, int] = {0: 1_000_000, 1: 500_000, 2: 250_000, 3: 128_000, 4: 115_200, 5: 76_800,
@@ -148,11 +148,7 @@ def find_model(name_or_number: str | int) -> Model:
     """Look a model up by name (any case), LeRobot's name, or model number; KeyError if unknown."""
     if isinstance(name_or_number, int):
         return MODELS_BY_NUMBER[name_or_number]
-    key = ALIASES.get(name_or_number.lower(), name_or_number)
-    for name, model in MODELS.items():
-        if name.lower() == key.lower():
-            return model
-    raise KeyError(name_or_number)
+    return model_named(MODELS, ALIASES.get(name_or_number.lower(), name_or_number), name_or_number)
 
 
 def model_names() -> list[str]:
