@@ -243,6 +243,14 @@ def capsule(start_angle_q6: int, distances_mm: list[int] | np.ndarray, new_scan:
 # ----------------------------------------------------------------------------- parsed items
 
 
+def _code_name(codes: type[IntEnum], code: int) -> str:
+    """A code's enum name, or its hex for a code the enum does not know."""
+    try:
+        return codes(code).name
+    except ValueError:
+        return f"0x{code:02X}"
+
+
 class Request(NamedTuple):
     """A host request the device would act on."""
 
@@ -252,10 +260,7 @@ class Request(NamedTuple):
 
     @property
     def name(self) -> str:
-        try:
-            return Cmd(self.cmd).name
-        except ValueError:
-            return f"0x{self.cmd:02X}"
+        return _code_name(Cmd, self.cmd)
 
 
 class Response(NamedTuple):
@@ -270,10 +275,7 @@ class Response(NamedTuple):
 
     @property
     def name(self) -> str:
-        try:
-            return AnsType(self.ans_type).name
-        except ValueError:
-            return f"0x{self.ans_type:02X}"
+        return _code_name(AnsType, self.ans_type)
 
 
 class Node(NamedTuple):
