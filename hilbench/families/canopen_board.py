@@ -43,7 +43,7 @@ from typing import Any
 from hilbench.bench.checks import Checker
 from hilbench.bench.control import ControlClient, ControlError
 from hilbench.bench.family import DeviceFamily, DeviceSpec
-from hilbench.bench.knobs import check_knobs, requested_knobs
+from hilbench.bench.knobs import check_fault_table, check_knobs, requested_knobs
 
 MODELS = ("stm32f767-rover-canopen", "mecarover-canopen")
 DEVICE_KEYS = ("model", "name", "endpoint", "node_id", "heartbeat_ms", "setpoint_timeout_ms", "autostart",
@@ -117,8 +117,7 @@ class CanopenBoardFamily(DeviceFamily):
         return c.integer(500_000 if value is None else value, key, 10_000, 1_000_000)
 
     def check_endpoint(self, c: Checker, key: str, raw: dict[str, Any], port_type: str) -> dict[str, Any]:
-        faults = c.table(raw.get("bus_faults", {}), f"{key}.bus_faults")
-        faults = check_knobs(faults, BUS_FAULT_RANGES, fail=lambda k, m: c.fail(f"{key}.bus_faults.{k}", m))
+        faults = check_fault_table(c, f"{key}.bus_faults", raw.get("bus_faults", {}), BUS_FAULT_RANGES)
         seed = raw.get("seed")
         if seed is not None:
             seed = c.integer(seed, f"{key}.seed", 0, 2**31)
@@ -140,8 +139,7 @@ class CanopenBoardFamily(DeviceFamily):
         c.unknown(identity, f"{key}.identity", tuple(IDENTITY_KEYS))
         for k, v in identity.items():
             c.integer(v, f"{key}.identity.{k}", 0, 0xFFFFFFFF)
-        faults = c.table(dev.get("faults", {}), f"{key}.faults")
-        faults = check_knobs(faults, FAULT_RANGES, fail=lambda k, m: c.fail(f"{key}.faults.{k}", m))
+        faults = check_fault_table(c, f"{key}.faults", dev.get("faults", {}), FAULT_RANGES)
         return [NodeSpec(
             name=name, endpoint=endpoint.name, model=model,
             node_id=c.integer(dev.get("node_id", 2), f"{key}.node_id", 1, 127),

@@ -25,10 +25,12 @@ from typing import Any
 
 from hilbench.bench.checks import Checker
 from hilbench.bench.family import DeviceFamily, DeviceSpec
+from hilbench.bench.knobs import check_fault_table
 from hilbench.protocols.feetech_models import STS_BAUD_CODES, find_model, model_names
 
 FEETECH_BAUDS = tuple(sorted(set(STS_BAUD_CODES.values())))
-FAULT_KEYS = ("drop_rate", "drop_next", "corrupt_rate", "corrupt_next", "delay", "vanished", "seed")
+FAULT_RANGES = {"drop_rate": (0.0, 1.0), "drop_next": (0, 2**31), "corrupt_rate": (0.0, 1.0), "corrupt_next": (0, 2**31),
+                "delay": (0.0, 10.0), "vanished": (False, True), "seed": (0, 2**31)}
 DEVICE_KEYS = ("model", "id", "ids", "name", "endpoint", "firmware", "init", "faults", "position",
                "supply_voltage", "ambient_temperature")
 
@@ -91,18 +93,7 @@ class FeetechFamily(DeviceFamily):
                 c.fail(f"{key}.init.{field_key}", f"{model.name} has no such control-table item")
             if not isinstance(value, int) or isinstance(value, bool) or not f.in_range(value):
                 c.fail(f"{key}.init.{field_key}", f"expected an integer {f.min}..{f.max}, got {value!r}")
-        faults = c.table(dev.get("faults", {}), f"{key}.faults")
-        c.unknown(faults, f"{key}.faults", FAULT_KEYS)
-        for fk in ("drop_rate", "corrupt_rate"):
-            if fk in faults:
-                c.number(faults[fk], f"{key}.faults.{fk}", 0.0, 1.0)
-        for fk in ("drop_next", "corrupt_next", "seed"):
-            if fk in faults:
-                c.integer(faults[fk], f"{key}.faults.{fk}", 0, 2**31)
-        if "delay" in faults:
-            c.number(faults["delay"], f"{key}.faults.delay", 0.0, 10.0)
-        if "vanished" in faults:
-            c.boolean(faults["vanished"], f"{key}.faults.vanished")
+        faults = check_fault_table(c, f"{key}.faults", dev.get("faults", {}), FAULT_RANGES)
         name = dev.get("name")
         if name is not None and (not isinstance(name, str) or len(ids) > 1):
             c.fail(f"{key}.name", "expected a string, and only with a single id")
@@ -115,7 +106,7 @@ class FeetechFamily(DeviceFamily):
                 endpoint=endpoint.name,
                 firmware=c.integer(dev["firmware"], f"{key}.firmware", 0, 255) if "firmware" in dev else None,
                 init=dict(init),
-                faults=dict(faults),
+                faults=faults,
                 position=c.number(dev["position"], f"{key}.position", 0, top) if "position" in dev else None,
                 supply_voltage=c.number(dev["supply_voltage"], f"{key}.supply_voltage", 0, 30)
                 if "supply_voltage" in dev else None,

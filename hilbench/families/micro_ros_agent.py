@@ -30,12 +30,12 @@ from typing import Any
 from hilbench.bench.checks import Checker
 from hilbench.bench.control import ControlError
 from hilbench.bench.family import DeviceFamily, DeviceSpec, bench_device
-from hilbench.bench.knobs import requested_knobs
+from hilbench.bench.knobs import check_fault_table, requested_knobs
 
 AGENT_MODELS = ("micro-ros-agent", "micro-xrce-dds-agent")
 AGENT_KEYS = ("model", "name", "endpoint", "zeroed", "refs", "bridge", "faults")
 REF_KEYS = ("topic", "type", "reliable", "depth")
-FAULT_KEYS = ("drop_next", "corrupt_status_agent")
+FAULT_RANGES = {"drop_next": (0, 2**31), "corrupt_status_agent": (0, 2**31)}
 BRIDGE_KEYS = ("domain_id", "participant_index", "peers")
 
 
@@ -102,9 +102,7 @@ class MicroRosAgentFamily(DeviceFamily):
             refs[ref] = {"topic": body.get("topic") or None, "type": body.get("type") or None,
                          "reliable": c.boolean(body.get("reliable", True), f"{where}.reliable"),
                          "depth": c.integer(body.get("depth", 1), f"{where}.depth", 1, 1000)}
-        faults = c.table(dev.get("faults", {}), f"{key}.faults")
-        c.unknown(faults, f"{key}.faults", FAULT_KEYS)
-        faults = {k: c.integer(v, f"{key}.faults.{k}", 0, 2**31) for k, v in faults.items()}
+        faults = check_fault_table(c, f"{key}.faults", dev.get("faults", {}), FAULT_RANGES)
         return [AgentSpec(name=name, endpoint=endpoint.name, model=model, zeroed=zeroed, refs=refs,
                           bridge=check_bridge(c, f"{key}.bridge", dev.get("bridge")), faults=faults)]
 

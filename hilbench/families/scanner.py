@@ -27,7 +27,7 @@ from typing import Any
 from hilbench.bench.checks import Checker
 from hilbench.bench.control import ControlError
 from hilbench.bench.family import DeviceFamily, DeviceSpec
-from hilbench.bench.knobs import KnobRanges, check_knobs, is_count, is_switch, requested_knobs
+from hilbench.bench.knobs import KnobRanges, check_fault_table, check_knobs, requested_knobs
 
 SCENE_KEYS = ("walls", "wall_reflectivity", "boxes", "circles", "moving")
 COMMON_DEVICE_KEYS = ("model", "name", "endpoint", "pose", "seed", "noise", "max_range", "faults")
@@ -154,17 +154,7 @@ class ScannerFamily(DeviceFamily):
         for nk, hi in (("sigma0_mm", 1000.0), ("sigma_k", 1.0), ("dropout", 1.0)):
             if nk in noise:
                 c.number(noise[nk], f"{key}.noise.{nk}", 0.0, hi)
-        faults = c.table(dev.get("faults", {}), f"{key}.faults")
-        c.unknown(faults, f"{key}.faults", tuple(self.fault_knobs))
-        for fk, value in faults.items():
-            lo, hi = self.fault_knobs[fk]
-            where = f"{key}.faults.{fk}"
-            if is_switch(lo):
-                c.boolean(value, where)
-            elif is_count(lo):
-                c.integer(value, where, lo, hi)
-            else:
-                c.number(value, where, lo, hi)
+        faults = check_fault_table(c, f"{key}.faults", dev.get("faults", {}), self.fault_knobs)
         return {
             "model": model, "name": name,
             "x": c.number(pose.get("x", 0.0), f"{key}.pose.x", -1e4, 1e4),
@@ -174,7 +164,7 @@ class ScannerFamily(DeviceFamily):
             "noise": dict(noise),
             "max_range": c.number(dev["max_range"], f"{key}.max_range", 0.01, 1000.0) if "max_range" in dev
             else None,
-            "faults": dict(faults),
+            "faults": faults,
         }
 
     def check_devices(self, c: Checker, key: str, dev: dict[str, Any], endpoint, profile) -> list[ScannerSpec]:

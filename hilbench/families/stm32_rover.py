@@ -39,7 +39,7 @@ from typing import Any
 from hilbench.bench.checks import Checker
 from hilbench.bench.control import ControlClient, ControlError
 from hilbench.bench.family import DeviceFamily, DeviceSpec, bench_device
-from hilbench.bench.knobs import check_knobs, requested_knobs
+from hilbench.bench.knobs import check_fault_table, check_knobs, requested_knobs
 
 #: Line rates a board endpoint accepts (bit/s); a pty does not care, the board paces its UART by it.
 BOARD_BAUD_RANGE = (1200, 12_500_000)
@@ -47,11 +47,12 @@ BOARD_MODELS = ("stm32f767-rover", "mecarover", "stm32-rover")
 BOARD_KEYS = ("model", "name", "endpoint", "preset", "caches", "output", "dialect", "window_ms", "flush_ms", "seed",
               "boot_banner", "faults", "tasks", "agent", "micro_ros")
 MICRO_ROS_KEYS = ("client_key", "domain_id", "zero_after_session")
-BOARD_FAULT_KEYS = ("drop_rate", "corrupt_rate", "drop_next", "corrupt_next")
 TIMING_KEYS = ("mean_us", "sd_us", "min_us", "max_us", "dist")
 #: Fault knobs the control channel turns (``stall`` in seconds), with their ranges.
 LIVE_FAULT_RANGES = {"drop_rate": (0.0, 1.0), "corrupt_rate": (0.0, 1.0), "drop_next": (0, 2**31),
                      "corrupt_next": (0, 2**31), "stall": (0.0, 3600.0)}
+#: Fault knobs a profile sets (the live ones but ``stall``).
+BOARD_FAULT_RANGES = {k: v for k, v in LIVE_FAULT_RANGES.items() if k != "stall"}
 
 
 @dataclass
@@ -129,14 +130,7 @@ class Stm32RoverFamily(DeviceFamily):
         name = dev.get("name", endpoint.name)
         if not isinstance(name, str) or not name:
             c.fail(f"{key}.name", f"expected a string, got {name!r}")
-        faults = c.table(dev.get("faults", {}), f"{key}.faults")
-        c.unknown(faults, f"{key}.faults", BOARD_FAULT_KEYS)
-        for fk in ("drop_rate", "corrupt_rate"):
-            if fk in faults:
-                c.number(faults[fk], f"{key}.faults.{fk}", 0.0, 1.0)
-        for fk in ("drop_next", "corrupt_next"):
-            if fk in faults:
-                c.integer(faults[fk], f"{key}.faults.{fk}", 0, 2**31)
+        faults = check_fault_table(c, f"{key}.faults", dev.get("faults", {}), BOARD_FAULT_RANGES)
         tasks = c.table(dev.get("tasks", {}), f"{key}.tasks")
         base = make_preset(preset, dev.get("caches", True) is not False)
         known = {t.name for t in base.tasks} | {f.name for f in base.functions} | {"line_cost"}
