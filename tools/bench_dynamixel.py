@@ -144,7 +144,7 @@ def bench_cycle(paced: bool, seconds: float) -> None:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--capture", type=Path, default=REPO.parent / "shared/data/dynamixel/wolfgang_trace.bin")
+    ap.add_argument("--capture", type=Path, default=REPO / "tests/data/dynamixel/wolfgang_trace.bin")
     ap.add_argument("--seconds", type=float, default=3.0, help="measuring time per cycle benchmark")
     ap.add_argument("--only", choices=("decoder", "unpaced", "paced"))
     args = ap.parse_args()

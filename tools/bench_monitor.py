@@ -251,7 +251,7 @@ def bench_lag(samples: int) -> None:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--capture", type=Path, default=REPO.parent / "shared/data/dynamixel/wolfgang_trace.bin")
+    ap.add_argument("--capture", type=Path, default=REPO / "tests/data/dynamixel/wolfgang_trace.bin")
     ap.add_argument("--repeats", type=int, default=11, help="runs per throughput figure")
     ap.add_argument("--samples", type=int, default=300, help="marked packets per lag figure")
     ap.add_argument("--only", choices=("throughput", "lag"))

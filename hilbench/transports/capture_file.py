@@ -3,7 +3,7 @@
 :class:`CaptureWriter` stores every chunk with its time and source in the
 format of :mod:`hilbench.protocols.capture`; :class:`CaptureReader` reads it
 back, or, when the file does not start with the format's magic, reads it as a
-raw headerless dump (like the shared Wolfgang trace): one source named
+raw headerless dump (like the Wolfgang trace in tests/data): one source named
 ``bus``, no times, unless a baud rate is given, in which case each chunk is
 stamped with the time its last byte would have taken on the wire ("byte
 time", starting at 0).
