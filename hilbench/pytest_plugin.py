@@ -17,7 +17,6 @@ Fixtures
 
 from __future__ import annotations
 
-import json
 import os
 import subprocess
 import sys
@@ -30,6 +29,7 @@ from typing import Any
 import pytest
 
 from hilbench.bench import Bench
+from hilbench.bench.manifest import read_manifest
 from hilbench.bench.profile import DEFAULT_PROFILE
 
 
@@ -99,7 +99,7 @@ def hilbench_emulator() -> Iterator[Callable[..., dict[str, Any]]]:
             if time.monotonic() > deadline:
                 raise RuntimeError(f"hilbench emulate wrote no manifest within {timeout} s")
             time.sleep(0.01)
-        data = json.loads(manifest.read_text())
+        data = read_manifest(manifest)
         data["process"] = proc
         return data
 

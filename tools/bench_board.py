@@ -30,6 +30,7 @@ from pathlib import Path
 
 import serial
 
+from hilbench.bench.manifest import read_manifest
 from hilbench.fakes.stm32_board import Board, BoardConfig, make_preset
 from hilbench.protocols import vel2d
 
@@ -86,7 +87,7 @@ def bench_roundtrip(seconds: float) -> None:
             if proc.poll() is not None or time.monotonic() > deadline:
                 raise SystemExit(f"emulator did not start: {proc.stderr.read().decode()}")
             time.sleep(0.01)
-        ep = json.loads(manifest.read_text())["endpoints"][0]
+        ep = read_manifest(manifest)["endpoints"][0]
         baud = ep["baud"]
         port = serial.Serial(ep["path"], baud, timeout=1)
         frame = vel2d.build(0.1, -0.2, 0.3)

@@ -28,6 +28,7 @@ from pathlib import Path
 
 import dynamixel_sdk as sdk
 
+from hilbench.bench.manifest import read_manifest
 from hilbench.protocols.dynamixel import Decoder
 
 REPO = Path(__file__).resolve().parents[1]
@@ -75,7 +76,7 @@ def start_emulator(paced: bool) -> tuple[subprocess.Popen, str, tempfile.Tempora
             proc.kill()
             raise SystemExit(f"emulator did not start: {proc.stderr.read().decode()}")
         time.sleep(0.01)
-    path = json.loads(manifest.read_text())["endpoints"][0]["path"]
+    path = read_manifest(manifest)["endpoints"][0]["path"]
     return proc, path, tmp
 
 

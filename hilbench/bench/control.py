@@ -160,11 +160,15 @@ class ControlClient:
 
     @classmethod
     def from_manifest(cls, path: str | Path, timeout: float = 10.0) -> ControlClient:
+        """The client of the bench whose manifest is ``path`` (:func:`~hilbench.bench.manifest.read_manifest`:
+        a bench that is gone raises :class:`~hilbench.bench.manifest.BenchNotRunning`)."""
+        from hilbench.bench.manifest import ManifestError, read_manifest
+
         try:
-            data = json.loads(Path(path).read_text())
-        except (OSError, ValueError) as exc:
-            raise ControlError(f"{path}: not a bench manifest ({exc})") from None
-        if not isinstance(data, dict) or "control" not in data:
+            data = read_manifest(path)
+        except ManifestError as exc:
+            raise ControlError(str(exc)) from None
+        if not isinstance(data.get("control"), str):
             raise ControlError(f"{path}: the bench serves no control channel (run it with hilbench emulate)")
         return cls(data["control"], timeout)
 

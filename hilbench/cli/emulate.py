@@ -18,16 +18,21 @@ def cmd_emulate(args: argparse.Namespace) -> int:
     profile = load_profile(args.profile)
     paced = True if args.paced else (False if args.unpaced else None)
     bench = Bench(profile, paced=paced, link_dir=args.link_dir, tap=not args.no_tap)
+    manifest = Path(args.manifest) if args.manifest else None
+    if manifest:
+        bench.check_manifest_path(manifest)  # refuse a user's file or a live bench's manifest before starting
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
     bench.start()
-    manifest = Path(args.manifest) if args.manifest else None
     try:
         if bench.has_control_commands:
             bench.serve_control()
         if manifest:
-            bench.write_manifest(manifest)
+            claim = bench.write_manifest(manifest)
+            if claim.took_over is not None:
+                print(f"hilbench: {manifest}: took over a stale manifest (pid {claim.took_over} gone)",
+                      file=sys.stderr)
         print(f"hilbench: bench {profile.name!r} running ({len(bench.devices)} devices); Ctrl-C stops it")
         for ep in bench.endpoints.values():
             address = getattr(ep.port, "address", None)
@@ -50,8 +55,7 @@ def cmd_emulate(args: argparse.Namespace) -> int:
         stop.wait()
     finally:
         bench.stop()
-        if manifest:
-            manifest.unlink(missing_ok=True)
+        bench.remove_manifest()  # only our own, and only while it is still ours
     return 0
 
 
