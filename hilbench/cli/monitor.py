@@ -21,6 +21,7 @@ import time
 from collections.abc import Callable
 
 from hilbench.cli.common import CliError, int_arg, open_cli_source, terminate_on_sigterm
+from hilbench.rules import LINE_BAUD, SECONDS, SPEED
 
 
 def _monitor_instruments() -> list:
@@ -71,7 +72,7 @@ def _writer(path: str | None, source, description: str | None = None):
 def _watch(monitor, args: argparse.Namespace, label: str, status: Callable[[], str],
            stop: Callable[[], bool] | None = None) -> None:
     """Show the dashboard (or, with --summary/--json, just wait), then print the summary."""
-    from rich.console import Console
+    from hilbench.console import Console
 
     deadline = time.monotonic() + args.seconds if args.seconds else None
 
@@ -210,7 +211,7 @@ def _watch_args(p: argparse.ArgumentParser) -> None:
                    help="no dashboard: print a summary when the source ends (or on Ctrl-C / --seconds)")
     p.add_argument("--json", action="store_true", help="print the summary as one JSON document (implies --summary)")
     p.add_argument("--compact", action="store_true", help="JSON on one line")
-    p.add_argument("--seconds", type=float, help="stop after this many seconds")
+    p.add_argument("--seconds", type=SECONDS, help="stop after this many seconds")
     p.add_argument("--view", type=_view, help="dashboard view to start with (the instrument's, e.g. devices, models, details, "
                                   "log; keys 1-9)")
     p.add_argument("--device", type=int_arg, help="device ID the details view shows first (keys: left/right)")
@@ -232,11 +233,11 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "tcp://127.0.0.1:PORT or a manifest.json of `hilbench emulate` (its traffic tap), or "
                     "bench:PROFILE (start that bench here); every kind: " + _kinds() + ".")
     m.add_argument("source", help="what to watch (see above)")
-    m.add_argument("--baud", type=int_arg,
+    m.add_argument("--baud", type=LINE_BAUD,
                    help="line rate in bit/s (for the bus load; a serial port's rate; the byte time of a raw dump)")
     speed = m.add_mutually_exclusive_group()
     speed.add_argument("--realtime", action="store_true", help="replay a capture at its recorded speed")
-    speed.add_argument("--speed", type=float, help="replay a capture at this multiple of its recorded speed")
+    speed.add_argument("--speed", type=SPEED, help="replay a capture at this multiple of its recorded speed")
     _watch_args(m)
     m.set_defaults(func=cmd_monitor)
 
@@ -247,9 +248,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "ends, on Ctrl-C / SIGTERM, or after --seconds. Converts raw dumps too.")
     r.add_argument("source", help="what to record")
     r.add_argument("file", help="capture file to write ('-': stdout)")
-    r.add_argument("--baud", type=int_arg, help="line rate in bit/s (a serial port's rate; a raw dump's byte time)")
-    r.add_argument("--seconds", type=float, help="stop after this many seconds")
-    r.add_argument("--speed", type=float, help="read a capture at this multiple of its recorded speed")
+    r.add_argument("--baud", type=LINE_BAUD, help="line rate in bit/s (a serial port's rate; a raw dump's byte time)")
+    r.add_argument("--seconds", type=SECONDS, help="stop after this many seconds")
+    r.add_argument("--speed", type=SPEED, help="read a capture at this multiple of its recorded speed")
     r.set_defaults(func=cmd_record)
 
     t = sub.add_parser(
@@ -258,7 +259,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "read, and decode both directions: dashboard (in a terminal), --summary/--json at the end "
                     "(Ctrl-C, SIGTERM or --seconds), --record FILE.")
     t.add_argument("port", help="the real port (e.g. /dev/ttyUSB0, or an emulated bench's pty)")
-    t.add_argument("--baud", type=int_arg,
+    t.add_argument("--baud", type=LINE_BAUD,
                    help="fixed baud rate for PORT (default: follow the rate the application sets)")
     t.add_argument("--link", metavar="PATH", help="also make PATH a symlink to the application's pty")
     _watch_args(t)

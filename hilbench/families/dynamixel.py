@@ -34,10 +34,13 @@ from typing import Any
 from hilbench.bench.checks import Checker
 from hilbench.bench.family import DeviceFamily, DeviceSpec
 from hilbench.fakes.dynamixel.bus import CHAIN_POLICIES, FAST_MISSING_POLICIES
-from hilbench.protocols.dynamixel_models import BAUD_CODES, find_model, model_names
+from hilbench.protocols.dynamixel_models import BAUD_CODES, SDK_BAUDS, find_model, model_names
+from hilbench.rules import FAULT_COUNT, PROBABILITY, Rule
 
 #: Rates the official SDK can open (spec §7.1) that are also Dynamixel baud codes.
-DYNAMIXEL_BAUDS = tuple(sorted(set(BAUD_CODES.values()) - {4_500_000}))
+DYNAMIXEL_BAUDS = tuple(sorted(set(BAUD_CODES.values()) & set(SDK_BAUDS)))
+#: An emulated bus's line rate (``endpoints.NAME.baud``): the servos need a baud code, the host the SDK.
+BUS_BAUD = Rule(int, choices=DYNAMIXEL_BAUDS, what="a Dynamixel baud rate the SDK can open")
 FAULT_KEYS = ("drop_rate", "drop_next", "corrupt_rate", "corrupt_next", "delay", "vanished", "hardware_error",
               "seed")
 DEVICE_KEYS = ("model", "id", "ids", "name", "endpoint", "firmware", "init", "faults", "position",
@@ -82,11 +85,7 @@ class DynamixelFamily(DeviceFamily):
         return True
 
     def check_baud(self, c: Checker, key: str, value: Any, port_type: str) -> int:
-        baud = 57_600 if value is None else value
-        if baud not in DYNAMIXEL_BAUDS or isinstance(baud, bool):
-            c.fail(key, f"expected a Dynamixel baud rate the SDK can open ({', '.join(map(str, DYNAMIXEL_BAUDS))}), "
-                        f"got {baud!r}")
-        return baud
+        return c.rule(57_600 if value is None else value, key, BUS_BAUD)
 
     def check_endpoint(self, c: Checker, key: str, raw: dict[str, Any], port_type: str) -> dict[str, Any]:
         return {
@@ -122,10 +121,10 @@ class DynamixelFamily(DeviceFamily):
         c.unknown(faults, f"{key}.faults", FAULT_KEYS)
         for fk in ("drop_rate", "corrupt_rate"):
             if fk in faults:
-                c.number(faults[fk], f"{key}.faults.{fk}", 0.0, 1.0)
+                c.rule(faults[fk], f"{key}.faults.{fk}", PROBABILITY)
         for fk in ("drop_next", "corrupt_next", "seed"):
             if fk in faults:
-                c.integer(faults[fk], f"{key}.faults.{fk}", 0, 2**31)
+                c.rule(faults[fk], f"{key}.faults.{fk}", FAULT_COUNT)
         if "delay" in faults:
             c.number(faults["delay"], f"{key}.faults.delay", 0.0, 10.0)
         if "vanished" in faults:
