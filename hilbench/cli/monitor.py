@@ -69,9 +69,13 @@ def _writer(path: str | None, source, description: str | None = None):
                          t0_wall=info.t0_wall if info is not None and info.measured else None)
 
 
+#: Exit status of ``--strict`` when the input is damaged (as ``hilbench profile --strict``).
+STRICT_EXIT = 3
+
+
 def _watch(monitor, args: argparse.Namespace, label: str, status: Callable[[], str],
-           stop: Callable[[], bool] | None = None) -> None:
-    """Show the dashboard (or, with --summary/--json, just wait), then print the summary."""
+           stop: Callable[[], bool] | None = None) -> int:
+    """Show the dashboard (or, with --summary/--json, just wait), then print the summary; the exit status."""
     from hilbench.console import Console
 
     deadline = time.monotonic() + args.seconds if args.seconds else None
@@ -98,14 +102,26 @@ def _watch(monitor, args: argparse.Namespace, label: str, status: Callable[[], s
     monitor.stop()
     if monitor.error is not None:
         raise CliError(f"{label}: {monitor.error}")
+    report = monitor.summary()
+    findings = report["data_quality"]["findings"]
     if quiet:
-        report = monitor.summary()
         if args.json:
             print(json.dumps(report, indent=None if args.compact else 2))
         elif monitor.instrument is None or monitor.tracker is None:
             console.print(f"[bold]{report['source']}[/]: {report['note']}", highlight=False)
         else:
             monitor.instrument.print_summary(report, console)
+        if not args.json:
+            for line in findings:
+                console.print(f"data quality: {line}", markup=False, highlight=False)
+    elif findings:  # the dashboard is gone: say what was wrong with the input
+        for line in findings:
+            print(f"hilbench: data quality: {line}", file=sys.stderr)
+    if args.strict and findings:
+        print(f"hilbench: error: {label}: the input is damaged ({len(findings)} data-quality finding(s)); "
+              "--strict", file=sys.stderr)
+        return STRICT_EXIT
+    return 0
 
 
 # --------------------------------------------------------------------------- verbs
@@ -131,8 +147,7 @@ def cmd_monitor(args: argparse.Namespace) -> int:
                 return "live"
             return f"replay {speed:g}x" if speed else "replay"
 
-        _watch(mon, args, source.name, status)
-    return 0
+        return _watch(mon, args, source.name, status)
 
 
 def cmd_record(args: argparse.Namespace) -> int:
@@ -181,15 +196,15 @@ def cmd_tap(args: argparse.Namespace) -> int:
         mon.start()
         tap.start()
         print(f"hilbench tap: application port {tap.app_path} <-> {args.port}", flush=True)
-        _watch(mon, args, label, lambda: "tapping" if not mon.ended.is_set() else "device gone",
-               stop=lambda: tap.error is not None)
+        code = _watch(mon, args, label, lambda: "tapping" if not mon.ended.is_set() else "device gone",
+                      stop=lambda: tap.error is not None)
     finally:
         tap.close()
     if tap.error is not None:
         raise CliError(f"{args.port}: {tap.error}")
     print(f"hilbench tap: forwarded {tap.bytes_to_device} bytes to the device, {tap.bytes_to_app} to the application",
           file=sys.stderr)
-    return 0
+    return code
 
 
 # --------------------------------------------------------------------------- parsers
@@ -211,6 +226,9 @@ def _watch_args(p: argparse.ArgumentParser) -> None:
                    help="no dashboard: print a summary when the source ends (or on Ctrl-C / --seconds)")
     p.add_argument("--json", action="store_true", help="print the summary as one JSON document (implies --summary)")
     p.add_argument("--compact", action="store_true", help="JSON on one line")
+    p.add_argument("--strict", action="store_true",
+                   help=f"exit {STRICT_EXIT} when the input is damaged (a capture cut short or corrupted, times out "
+                        "of order: the data-quality findings)")
     p.add_argument("--seconds", type=SECONDS, help="stop after this many seconds")
     p.add_argument("--view", type=_view, help="dashboard view to start with (the instrument's, e.g. devices, models, details, "
                                   "log; keys 1-9)")

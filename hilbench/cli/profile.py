@@ -199,7 +199,17 @@ def cmd_profile(args: argparse.Namespace) -> int:
         profiler = Profiler(settings.with_(joined_mid_stream=source.live))
         lost = _read(args, profiler, source, console)
         source_name = source.name
+        damage = source.quality()
     a = profiler.analyse()
+    q = a.quality
+    if lost:  # bytes the transport lost (a slow tap client): the board's own counters cannot know
+        q["source_bytes_lost"] = lost
+        q["untrustworthy"] = True
+        q["reasons"].append(f"{lost} bytes lost between the board and the profiler")
+    if damage["findings"]:  # the capture file itself is damaged (cut short, corrupted, times out of order)
+        q["capture"] = damage
+        q["untrustworthy"] = True
+        q["reasons"].extend(f"capture {line}" for line in damage["findings"])
     if args.compare and base is None:
         other = Profiler(settings)
         with open_cli_source(args.compare, baud=args.baud, default_baud=DEFAULT_BAUD) as s2:
@@ -211,10 +221,6 @@ def cmd_profile(args: argparse.Namespace) -> int:
 
     doc = a.to_json()
     doc["source"] = source_name
-    if lost:  # bytes the transport lost (a slow tap client): the board's own counters cannot know
-        doc["quality"]["source_bytes_lost"] = lost
-        doc["quality"]["untrustworthy"] = True
-        doc["quality"]["reasons"].append(f"{lost} bytes lost between the board and the profiler")
     cmp = None
     if base is not None:
         cmp = compare(base, a)

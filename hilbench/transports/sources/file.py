@@ -9,7 +9,7 @@ import threading
 import time
 from collections.abc import Iterator
 
-from hilbench.transports.capture_file import CaptureError, CaptureReader, Chunk
+from hilbench.transports.capture_file import CaptureError, CaptureReader, Chunk, sound_quality
 from hilbench.transports.sources.base import Source, SourceError, SourceOpener
 
 
@@ -40,6 +40,9 @@ class FileSource(Source):
         self.speed = speed
         self._stop = threading.Event()
         self._origin: tuple[float, float] | None = None  # (capture time, monotonic) at the start
+
+    def quality(self) -> dict:
+        return self.reader.parser.quality() if not self.reader.is_raw else sound_quality()
 
     def clock(self) -> float | None:
         if self.speed is None or self._origin is None:
