@@ -20,6 +20,8 @@ kind                   entry-point group         the object an entry point names
 :data:`sources`        ``hilbench.sources``      a :class:`~hilbench.transports.sources.SourceOpener`
 :data:`instruments`    ``hilbench.instruments``  an :class:`~hilbench.monitor.instrument.Instrument`
 :data:`verbs`          ``hilbench.verbs``        a module with ``register(subparsers)``
+:data:`decoders`       ``hilbench.decoders``     a :class:`~hilbench.decoders.DecoderTarget` (fuzzing,
+                                                 rough-input benchmarks)
 =====================  ========================  =============================================
 
 Entry points load on first use of their kind. A plug-in that fails to load
@@ -167,8 +169,9 @@ media = Kind("media", "hilbench.media", what="medium")
 sources = Kind("sources", "hilbench.sources", what="source kind")
 instruments = Kind("instruments", "hilbench.instruments", what="instrument")
 verbs = Kind("verbs", "hilbench.verbs", what="verb module")
+decoders = Kind("decoders", "hilbench.decoders", what="decoder target")
 
-KINDS: tuple[Kind, ...] = (families, host_ports, media, sources, instruments, verbs)
+KINDS: tuple[Kind, ...] = (families, host_ports, media, sources, instruments, verbs, decoders)
 
 
 def reload() -> None:
@@ -195,5 +198,5 @@ def instrument_for(protocol: str) -> Any | None:
     return None
 
 
-__all__ = ["KINDS", "Kind", "PluginWarning", "families", "family_for_protocol", "host_ports", "instrument_for",
+__all__ = ["KINDS", "Kind", "PluginWarning", "decoders", "families", "family_for_protocol", "host_ports", "instrument_for",
            "instruments", "media", "reload", "sources", "verbs"]

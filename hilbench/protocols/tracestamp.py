@@ -57,6 +57,10 @@ _RT_HEADER = re.compile(rb"Task\t+Time\t+(%%?)")
 _TASK_HEADER = re.compile(rb"Task\t+State\t+Prio\t+Stack\t+Num")
 _RT_ROW = re.compile(rb"([^\t]+)\t+(\d+)\t+(<1|\d+)%")
 _TASK_ROW = re.compile(rb"([^\t]+)\t+([XRBSD])\t+(\d+)\t+(\d+)\t+(\d+)")
+#: Last bytes a stamp line can end with (its edge token: 0, 1, in, out): a cheap test before the regex.
+_STAMP_LAST = frozenset(b"01nt")
+#: Last bytes a report row, header or key line can end with (a digit, ``%``, or ``Num``).
+_REPORT_LAST = frozenset(b"0123456789%m")
 
 
 # --------------------------------------------------------------------------- items
@@ -310,6 +314,8 @@ def _kind(line: bytes) -> str:
 def _report_row(line: bytes) -> tuple[str, object] | None:
     """A TAB-bearing report line: ('free_heap', n) / ('ctx', n) / ('rt_header', pct) / ('task_header', None)
     / ('rt_row', RuntimeRow) / ('task_row', TaskRow); None if it is none of them."""
+    if not line or line[-1] not in _REPORT_LAST:
+        return None  # every report line ends with a digit, % or "Num": garbage is turned away at once
     m = _RT_ROW.fullmatch(line)
     if m:
         name = m[1].decode("latin-1").rstrip(" ")
@@ -509,7 +515,10 @@ class TextDecoder:
 
     def _batched(self, items: list) -> list:
         """Merge runs of :class:`Stamp` and :class:`StampBatch` items into single batches."""
-        if not any(type(i) is Stamp for i in items) and sum(type(i) is StampBatch for i in items) <= 1:
+        if len(items) < 2:
+            if not items or type(items[0]) is not Stamp:
+                return items
+        elif not any(type(i) is Stamp for i in items) and sum(type(i) is StampBatch for i in items) <= 1:
             return items
         out: list = []
         run: list = []
@@ -556,7 +565,7 @@ class TextDecoder:
 
     def _lines_into(self, chunk: bytes, out: list) -> None:
         """Decode complete lines (``chunk`` ends with LF)."""
-        fast = _vector_parse(chunk)
+        fast = _vector_parse(chunk) if chunk.count(b"\n") >= _MIN_VECTOR_LINES else None
         if fast is None:  # too few lines for numpy to pay off
             for line in chunk[:-1].split(b"\n"):
                 self._slow_line(line, out)
@@ -637,7 +646,7 @@ class TextDecoder:
         self.lines += 1
         if line.endswith(b"\r"):
             line = line[:-1]
-        if line and line[0] != 0x40 and b"\t" not in line and not _LOG.match(line):
+        if line and line[-1] in _STAMP_LAST and line[0] != 0x40 and b"\t" not in line and not _LOG.match(line):
             m = _STAMP.fullmatch(line)
             if m is not None:
                 self.stamp_lines += 1
@@ -652,7 +661,7 @@ class TextDecoder:
         """A line the vectorised path did not take as a stamp (no LF; already counted in ``lines``)."""
         if line.endswith(b"\r"):
             line = line[:-1]
-        if line and line[0] != 0x40 and b"\t" not in line and not _LOG.match(line):
+        if line and line[-1] in _STAMP_LAST and line[0] != 0x40 and b"\t" not in line and not _LOG.match(line):
             m = _STAMP.fullmatch(line)
             if m is not None:  # e.g. a time with more digits than the fast path reads
                 self.stamp_lines += 1
@@ -706,7 +715,7 @@ class TextDecoder:
             else:
                 rep.tasks.append(value)
             return
-        m = _CLOSING.fullmatch(line)
+        m = _CLOSING.fullmatch(line) if line.endswith(b" us") else None
         if m:
             self.report_lines += 1
             rep = self._report or self._open(out, implicit=True)
@@ -715,7 +724,7 @@ class TextDecoder:
             if rep.has_content:  # (if the end separator was lost, the report is marked incomplete)
                 out.append(self._emit_report())
             return
-        m = _LOG.fullmatch(line)
+        m = _LOG.fullmatch(line) if 0x30 <= c <= 0x39 else None
         if m:
             self.log_lines += 1
             out.append(LogLine(m[1].decode(), m[2].decode(), m[3].decode("latin-1")))

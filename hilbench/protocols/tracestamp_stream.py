@@ -76,14 +76,54 @@ class StreamDecoder:
             return self._text(bytes(data))
         if nhi == len(a):
             return self.words.feed_batch(a)
+        return self._mixed(a, hi)
+
+    def _mixed(self, a: np.ndarray, hi: np.ndarray) -> list:
+        """A chunk of both: its text lines are the segments items are ordered by.
+
+        A text item is complete at its line's LF, so the words of each line's segment (from the byte
+        after the previous LF to this LF) come before the line's items: what a byte-by-byte decoder
+        would give. The text decoder reads each segment's text; the word decoder reads the words of
+        many segments in one pass (:meth:`WordDecoder.feed_segments`), cut only after a name-table
+        line, whose names hold for the words after it. Linear time: a chunk of noise (a line every
+        few hundred bytes) costs one numpy pass, not one per run of text or words.
+        """
+        n = len(a)
+        ends = np.flatnonzero(a == 10) + 1  # each segment ends with its LF
+        if not len(ends) or ends[-1] != n:
+            ends = np.append(ends, n)
+        hi_cum = np.concatenate(([0], np.cumsum(hi)))  # word bytes before each offset
+        # Lines without words among them keep their order by themselves: only a segment with words
+        # needs a cut before it, so runs of text lines stay one call (the text decoder's fast path).
+        has_words = hi_cum[ends] > hi_cum[np.concatenate(([0], ends[:-1]))]
+        ends = ends[np.append(has_words[1:], True)]
+        bounds = np.concatenate(([0], ends))  # group k is bytes bounds[k]:bounds[k + 1]
+        hi_at = hi_cum[bounds].tolist()  # word bytes before each bound
+        lo_at = (bounds - hi_cum[bounds]).tolist()  # text bytes before each bound
+        text = a[~hi].tobytes()
+        words = a[hi]
+        feed_text = self.text.feed_batch
+        texts = [feed_text(text[lo_at[k] : lo_at[k + 1]]) if lo_at[k + 1] > lo_at[k] else []
+                 for k in range(len(bounds) - 1)]
         out: list = []
-        change = np.flatnonzero(hi[1:] != hi[:-1]) + 1
-        bounds = [0, *change.tolist(), len(a)]
-        for s, e in zip(bounds[:-1], bounds[1:], strict=True):
-            if hi[s]:
-                out.extend(self.words.feed_batch(a[s:e]))
-            else:
-                out.extend(self._text(bytes(data[s:e])))
+        first = 0  # the first group whose words are not decoded yet
+        last = len(texts) - 1
+        for k, items in enumerate(texts):
+            if k < last:
+                for i in items:
+                    if type(i) is TableStart or type(i) is NameEntry:
+                        break
+                else:
+                    continue  # no name-table line here: the words go on in the same pass
+            base = hi_at[first]
+            seg_starts = np.asarray(hi_at[first + 1 : k + 1], dtype=np.int64) - base
+            word_items = self.words.feed_segments(words[base : hi_at[k + 1]], seg_starts)
+            for j in range(first, k + 1):
+                out.extend(word_items[j - first])
+                out.extend(texts[j])
+                for item in texts[j]:
+                    self._apply_meta(item)
+            first = k + 1
         return out
 
     def flush(self) -> list[StreamItem]:
