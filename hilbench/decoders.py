@@ -51,7 +51,8 @@ class DecoderTarget:
     second of the fastest line it reads (``line`` says which: the target is ten
     times that on noise and mutated input); ``sample(rng, size)`` makes about
     ``size`` bytes of clean traffic (the seed of mutated inputs); ``kind`` is
-    ``decoder`` or ``instrument``.
+    ``decoder`` or ``instrument``; ``frame(noise)`` puts noise where the reader
+    would meet it (a capture's after a sound header; default: as it is).
     """
 
     name: str
@@ -61,6 +62,12 @@ class DecoderTarget:
     line: str
     sample: Callable[[random.Random, int], bytes]
     kind: str = "decoder"
+    frame: Callable[[bytes], bytes] | None = None
+
+    def noise(self, rng: random.Random, size: int) -> bytes:
+        """``size`` random bytes, framed as the reader meets them."""
+        data = rng.randbytes(size)
+        return self.frame(data) if self.frame is not None else data
 
 
 def targets() -> list[DecoderTarget]:
@@ -109,9 +116,10 @@ def run(reader: Reader, data: bytes, chunk: int | Callable[[], int] = 65536) -> 
 
 class Counting:
     """A :class:`Reader` from callables: ``feed(data)`` and ``finish()`` return item lists, ``is_good(item)``
-    tells packets from problems, ``dropped()`` reads the decoder's own counter."""
+    tells packets from problems (or counts the good units in an item: the stamps of a batch), ``dropped()``
+    reads the decoder's own counter."""
 
-    def __init__(self, feed: Callable[[bytes], Any], finish: Callable[[], Any], is_good: Callable[[Any], bool],
+    def __init__(self, feed: Callable[[bytes], Any], finish: Callable[[], Any], is_good: Callable[[Any], int],
                  dropped: Callable[[], int]) -> None:
         self._feed = feed
         self._finish = finish
@@ -124,8 +132,7 @@ class Counting:
         if items:
             for item in items:
                 self.items += 1
-                if self._is_good(item):
-                    self.good_items += 1
+                self.good_items += int(self._is_good(item))
 
     def feed(self, data: bytes) -> None:
         self._count(self._feed(data))

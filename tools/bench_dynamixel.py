@@ -143,14 +143,27 @@ def bench_cycle(paced: bool, seconds: float) -> None:
              note="emulator process CPU per 20-servo cycle, against the cycle's wire time")
 
 
+def bench_rough(capture: Path) -> None:
+    """Both decoders on 1 MB of noise and on damaged input (the Wolfgang capture with 1 % of its bytes
+    damaged; Protocol 1.0 traffic of its own), against the 4.5 Mbaud line (tools/rough.py)."""
+    from rough import measure
+
+    from hilbench.protocols.targets import DYNAMIXEL, DYNAMIXEL1
+
+    measure(DYNAMIXEL, seed=capture.read_bytes(), seed_name="the Wolfgang capture", prefix="dxl_rough_")
+    measure(DYNAMIXEL1, prefix="dxl_rough_")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--capture", type=Path, default=REPO / "tests/data/dynamixel/wolfgang_trace.bin")
     ap.add_argument("--seconds", type=float, default=3.0, help="measuring time per cycle benchmark")
-    ap.add_argument("--only", choices=("decoder", "unpaced", "paced"))
+    ap.add_argument("--only", choices=("decoder", "rough", "unpaced", "paced"))
     args = ap.parse_args()
     if args.only in (None, "decoder"):
         bench_decoder(args.capture)
+    if args.only in (None, "rough"):
+        bench_rough(args.capture)
     if args.only in (None, "unpaced"):
         bench_cycle(False, args.seconds)
     if args.only in (None, "paced"):

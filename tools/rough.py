@@ -60,7 +60,8 @@ def measure(target: DecoderTarget, *, seed: bytes | None = None, seed_name: str 
     clean = seed if seed is not None else target.sample(rng, size)
     inputs = {
         "clean": (clean, seed_name or "its clean traffic"),
-        "noise": (rng.randbytes(size), f"{size} random bytes"),
+        "noise": (target.noise(rng, size), f"{size} random bytes" + (" after a sound header" if target.frame
+                                                                     else "")),
         "mutated": (mutate(rng, clean, rate=rate), f"{seed_name or 'its clean traffic'} with {rate:.0%} of the "
                                                    "bytes damaged"),
     }

@@ -136,22 +136,47 @@ VEL2D = DecoderTarget("vel2d", "Vel2d velocity frames (idle-line framing, CRC-32
 NAMES = ["IDLE", "hal_fetch", "wheel_ctrl", "odometry", "pose_control", "tsink", "pid"]
 
 
+def schedule(rng: random.Random, t: int = 0):
+    """Stamps of a plausible FreeRTOS schedule, endlessly: ``(name index, µs, begin)``. IDLE runs between
+    task slices; now and then a function scope inside a slice, or tsink preempting it."""
+    while True:
+        task = rng.randrange(1, 5)
+        t += rng.randrange(20, 400)
+        yield 0, t, False
+        yield task, t, True
+        k = rng.random()
+        if k < 0.3:
+            t += rng.randrange(1, 10)
+            yield 6, t, True  # a function scope ("pid") inside the slice
+            t += rng.randrange(1, 20)
+            yield 6, t, False
+        elif k < 0.4:
+            t += rng.randrange(1, 10)
+            yield task, t, False  # tsink preempts the slice
+            yield 5, t, True
+            t += rng.randrange(1, 10)
+            yield 5, t, False
+            yield task, t, True
+        t += rng.randrange(5, 30)
+        yield task, t, False
+        yield 0, t, True
+
+
 def text_traffic(rng: random.Random, size: int) -> bytes:
-    """A board's text output: stamp lines in both dialects, logs, a run-time report now and then."""
+    """A board's text output: stamp lines in either dialect, a log line now and then, a run-time report."""
     out = bytearray()
-    t = rng.randrange(1 << 20)
     dialect = rng.choice(["branch", "thesis"])
+    stamps = schedule(rng, rng.randrange(1 << 20))
+    t = 0
     while len(out) < size:
         k = rng.random()
-        if k < 0.9:
-            t += rng.randrange(1, 400)
-            out += ts.format_stamp(rng.choice(NAMES), t, rng.random() < 0.5, dialect)
-        elif k < 0.98:
+        if k < 0.989:
+            name, t, begin = next(stamps)
+            out += ts.format_stamp(NAMES[name], t, begin, dialect)
+        elif k < 0.999:
             out += ts.format_log(t / 1e6, rng.choice(["INFO", "ERROR"]), f"[recv vel] [{rng.random():f}]")
         else:
-            rows = tuple(ts.RuntimeRow(n, rng.randrange(1, 10_000), 0) for n in NAMES[:6])
-            tasks = tuple(ts.TaskRow(n, "B", 24, 400, k + 1) for k, n in enumerate(NAMES[:6]))
-            out += ts.format_report(ts.RuntimeReport(195_696, t // 50, rows, tasks, "output took", t, "%%", True))
+            out += _report(rng, t)
     return bytes(out)
 
 
@@ -161,15 +186,17 @@ def binary_traffic(rng: random.Random, size: int, *, table: bool = True) -> byte
     ins = tb.CheckInserter()
     payloads = [tb.control_payload(tb.Op.WINDOW_START, 1)]
     ins.restart()
-    t = 0
+    stamps = schedule(rng)
+    hi = -1
     while len(out) + 4 * len(payloads) < size:
-        t += rng.randrange(1, 400)
-        if t >> tb.HI_SHIFT != (t - 400) >> tb.HI_SHIFT:
+        name, t, begin = next(stamps)
+        if t >> tb.HI_SHIFT != hi:
+            hi = t >> tb.HI_SHIFT
             payloads.append(tb.time_payload(t))
         if rng.random() < 0.001:  # an overflow now and then: DROPS, then TIME to unwrap again
             payloads.append(tb.control_payload(tb.Op.DROPS, rng.randrange(1, 100)))
             payloads.append(tb.time_payload(t))
-        payloads.append(tb.stamp_payload(rng.randrange(len(NAMES)), rng.random() < 0.5, t))
+        payloads.append(tb.stamp_payload(name, begin, t))
     body = ins.add_list(payloads) + ins.close() + [tb.control_payload(tb.Op.WINDOW_STOP, 1)]
     return bytes(out + tb.encode_payloads(body))
 
@@ -179,7 +206,7 @@ def stream_traffic(rng: random.Random, size: int) -> bytes:
     their name table, log lines between the words, a run-time report after each window."""
     out = bytearray()
     while len(out) < size:
-        window = rng.randrange(16_384, 131_072)
+        window = rng.randrange(min(16_384, max(64, size // 8)), min(131_072, max(128, size // 2)))
         out += tb.name_table(dict(enumerate(NAMES)))
         words = binary_traffic(rng, window, table=False)
         pos = 0
@@ -189,25 +216,37 @@ def stream_traffic(rng: random.Random, size: int) -> bytes:
             pos += n
             if rng.random() < 0.2:
                 out += ts.format_log(pos / 1e6, "INFO", f"[recv vel] [{rng.random():f} 0.0 0.0]")
-        out += text_traffic(rng, 600)
-    return bytes(out[:size])
+        out += _report(rng, pos)
+    return bytes(out)
+
+
+def _report(rng: random.Random, t: int) -> bytes:
+    """The run-time statistics block a board prints after a window."""
+    rows = tuple(ts.RuntimeRow(n, rng.randrange(1, 10_000), 0) for n in NAMES[:6])
+    tasks = tuple(ts.TaskRow(n, "B", 24, 400, k + 1) for k, n in enumerate(NAMES[:6]))
+    return ts.format_report(ts.RuntimeReport(195_696, t // 50, rows, tasks, "output took", t, "%%", True))
+
+
+def _units(item) -> int:
+    """Good units of a decoded item: the stamps of a batch, one for any other good item, none for damage."""
+    if type(item) is ts.StampBatch:
+        return item.count
+    return 0 if isinstance(item, ts.BadLine | tb.WordProblem) else 1
 
 
 def _text() -> Counting:
     dec = ts.TextDecoder()
-    return Counting(dec.feed_batch, dec.flush, lambda i: not isinstance(i, ts.BadLine), lambda: dec.parse_errors)
+    return Counting(dec.feed_batch, dec.flush, _units, lambda: dec.parse_errors)
 
 
 def _binary() -> Counting:
     dec = tb.WordDecoder()
-    return Counting(dec.feed_batch, dec.flush, lambda i: not isinstance(i, tb.WordProblem),
-                    lambda: dec.broken_words)
+    return Counting(dec.feed_batch, dec.flush, _units, lambda: dec.broken_words)
 
 
 def _stream() -> Counting:
     dec = StreamDecoder()
-    return Counting(dec.feed_batch, dec.flush, lambda i: not isinstance(i, ts.BadLine | tb.WordProblem),
-                    lambda: dec.text.parse_errors + dec.words.broken_words)
+    return Counting(dec.feed_batch, dec.flush, _units, lambda: dec.text.parse_errors + dec.words.broken_words)
 
 
 TRACESTAMP_TEXT = DecoderTarget("tracestamp-text", "trace stamps as text (stamp lines, logs, reports)", _text,

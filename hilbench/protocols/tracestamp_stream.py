@@ -109,19 +109,21 @@ class StreamDecoder:
         first = 0  # the first group whose words are not decoded yet
         last = len(texts) - 1
         for k, items in enumerate(texts):
-            if k < last:
-                for i in items:
-                    if type(i) is TableStart or type(i) is NameEntry:
-                        break
-                else:
-                    continue  # no name-table line here: the words go on in the same pass
+            meta = False
+            for i in items:
+                if type(i) is TableStart or type(i) is NameEntry:
+                    meta = True
+                    break
+            if not meta and k < last:
+                continue  # no name-table line here: the words go on in the same pass
             base = hi_at[first]
             seg_starts = np.asarray(hi_at[first + 1 : k + 1], dtype=np.int64) - base
             word_items = self.words.feed_segments(words[base : hi_at[k + 1]], seg_starts)
             for j in range(first, k + 1):
-                out.extend(word_items[j - first])
-                out.extend(texts[j])
-                for item in texts[j]:
+                out += word_items[j - first]
+                out += texts[j]
+            if meta:  # names for the words after this line
+                for item in items:
                     self._apply_meta(item)
             first = k + 1
         return out

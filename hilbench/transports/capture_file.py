@@ -15,6 +15,7 @@ a live stream is decoded as it arrives.
 
 from __future__ import annotations
 
+import bisect
 import contextlib
 import os
 import sys
@@ -170,8 +171,11 @@ class CaptureParser:
         self._resyncing = False  # a search for a place to resume waits for more input
         self._memo: tuple | None = None  # (search context, where it goes on)
         self._epoch = 0  # counts source names (plausibility depends on them)
+        self._cand: tuple | None = None  # (buffer, epoch, candidate offsets) of the last prefilter
         self._names: dict[int, str] = {}
-        self._declared = np.zeros(256, dtype=bool)  # source ids a SOURCE record named
+        self._declared = bytearray(256)  # source ids a SOURCE record named (1)
+        self._declared_np = np.zeros(256, dtype=bool)  # the same, for the numpy prefilter
+        self._named = False  # any source named yet
         self._offset = 0  # raw: bytes emitted so far
         self._base = 0  # records: stream offset of the first byte of _buf
         self._t0 = 0.0
@@ -353,7 +357,7 @@ class CaptureParser:
         and the last two records of ``buf``, go the general way). Nine records in ten of a capture."""
         n = len(buf) - _HEAD
         unpack = cap.unpack_record_header
-        declared = self._declared.tolist()
+        declared = self._declared
         names = self._names
         append = out.append
         t0 = self._t0
@@ -468,7 +472,7 @@ class CaptureParser:
                 walk.append(h)
             if state == "chain" and (
                     (walk[1][5] == 2 and walk[2][5] == 2) if walk[0][5] == 0
-                    else (walk[0][5] == 2 or walk[1][5] == 2 or walk[2][5] == 2 or not self._declared.any())):
+                    else (walk[0][5] == 2 or walk[1][5] == 2 or walk[2][5] == 2 or not self._named)):
                 self._take(buf, walk, out)
                 pos = walk[0][0] + _HEAD + walk[0][3]
                 del walk[0]
@@ -563,7 +567,9 @@ class CaptureParser:
             return
         self._names[source] = name
         if not self._declared[source]:
-            self._declared[source] = True
+            self._declared[source] = 1
+            self._declared_np[source] = True
+            self._named = True
             self._verdicts.clear()  # plausibility depends on which sources are named
             self._epoch += 1
 
@@ -622,7 +628,7 @@ class CaptureParser:
         verdict, stamps = hit
         if verdict is False or not self._timed or not stamps:
             return verdict
-        if self._declared.any():
+        if self._named:
             ref = self._t_prev_ns
             if ref is not None and (max(stamps) - ref > _MAX_STEP_NS or ref - min(stamps) > _MAX_STEP_NS):
                 return False
@@ -634,7 +640,7 @@ class CaptureParser:
         """:meth:`_chain` without the times: the verdict on structure and the stamps of the chain's records."""
         n = len(buf)
         h = self._level(buf, q)
-        named = self._declared.any()
+        named = self._named
         if h[5] < (2 if named else 1):
             return False, ()
         if h[1] == _SOURCE:
@@ -663,17 +669,32 @@ class CaptureParser:
         return True, tuple(stamps)
 
     def _candidates(self, buf: bytes, start: int, stop: int) -> list[int]:
-        """Offsets in ``[start, stop)`` where a plausible record header could begin (a numpy prefilter)."""
-        stop = min(stop, len(buf) - _HEAD + 1)
-        if stop <= start:
-            return []
-        a = np.frombuffer(buf, dtype=np.uint8)
-        kind = a[start:stop]
-        length = a[start + 2 : stop + 2].astype(np.int32) | (a[start + 3 : stop + 3].astype(np.int32) << 8)
-        mask = (((kind == _DATA) & (length > 0))
-                | ((kind == _SOURCE) & (length > 0) & (length <= MAX_SOURCE_NAME))
-                | ((kind == _GAP) & (length == 4)))
-        return (np.flatnonzero(mask) + start).tolist()
+        """Offsets in ``[start, stop)`` where a plausible record header could begin.
+
+        A numpy prefilter from the first offset asked for to the end of the buffer, made once per
+        buffer and naming of sources (a damaged stretch makes hundreds of searches, each a record or
+        two long: one pass, not hundreds).
+        """
+        cache = self._cand
+        if cache is None or cache[0] is not buf or cache[1] != self._epoch or start < cache[2]:
+            n = len(buf)
+            count = n - _HEAD + 1 - start
+            if count <= 0:
+                found: list[int] = []
+            else:
+                kind = np.frombuffer(buf, dtype=np.uint8, count=count, offset=start)
+                length = np.ndarray((count,), "<u2", buf, start + 2, (1,))  # unaligned view: no copy
+                data, gap = kind == _DATA, kind == _GAP
+                if self._named:  # where reading resumes, a data record must be of a named source
+                    named = self._declared_np[np.frombuffer(buf, dtype=np.uint8, count=count, offset=start + 1)]
+                    data &= named
+                    gap &= named
+                mask = ((data & (length > 0)) | ((kind == _SOURCE) & (length > 0) & (length <= MAX_SOURCE_NAME))
+                        | (gap & (length == 4)))
+                found = (np.flatnonzero(mask) + start).tolist()
+            cache = self._cand = (buf, self._epoch, start, found)
+        found = cache[3]
+        return found[bisect.bisect_left(found, start) : bisect.bisect_left(found, stop)]
 
     def _search(self, buf: bytes, start: int, final: bool) -> tuple[int, bool]:
         """Where reading can resume, from ``start`` on: ``(offset, True)``, ``len(buf)`` if nowhere; or

@@ -46,8 +46,15 @@ class _CaptureReader:
         return self.parser.corrupt_bytes + self.parser.truncated_bytes
 
 
+def after_header(noise: bytes) -> bytes:
+    """Noise where a capture's records should be (raw noise is a raw dump: nothing to resynchronise)."""
+    from hilbench.protocols import capture as cap
+
+    return cap.build_header(baud=2_000_000, protocol="dynamixel") + noise
+
+
 #: A capture of the fastest line hilbench records (its bytes plus 12 per record).
 CAPTURE = DecoderTarget("capture", "hilbench capture format (.hbcap, the TCP tap stream)", _CaptureReader,
-                        BOARD_LINE, "capture of a 12.5 Mbit/s line", capture_traffic)
+                        BOARD_LINE, "capture of a 12.5 Mbit/s line", capture_traffic, frame=after_header)
 
 __all__ = ["CAPTURE", "capture_traffic"]
