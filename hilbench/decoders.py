@@ -52,7 +52,10 @@ class DecoderTarget:
     times that on noise and mutated input); ``sample(rng, size)`` makes about
     ``size`` bytes of clean traffic (the seed of mutated inputs); ``kind`` is
     ``decoder`` or ``instrument``; ``frame(noise)`` puts noise where the reader
-    would meet it (a capture's after a sound header; default: as it is).
+    would meet it (a capture's after a sound header; default: as it is);
+    ``refuses`` are the exception types it raises by design, in one line, for
+    input it must not read (a capture of a newer format version): counted as
+    refusals, not as failures.
     """
 
     name: str
@@ -63,6 +66,7 @@ class DecoderTarget:
     sample: Callable[[random.Random, int], bytes]
     kind: str = "decoder"
     frame: Callable[[bytes], bytes] | None = None
+    refuses: tuple[type[Exception], ...] = ()
 
     def noise(self, rng: random.Random, size: int) -> bytes:
         """``size`` random bytes, framed as the reader meets them."""

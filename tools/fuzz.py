@@ -12,7 +12,8 @@ and whatever a family registers later (one entry-point line). Each target gets t
    ``--engine random``), a seeded loop of random, damaged (bits flipped, bytes replaced,
    lost, added, cut) and spliced inputs. Every input is fed in random pieces; any
    exception is counted, its first traceback printed and the input saved under
-   ``fuzz-findings/``.
+   ``fuzz-findings/`` (a target's one-line refusals by design, such as a capture
+   header of a newer format version, are counted apart as ``refusals``).
 2. **Figures** (``--measure`` inputs per kind): throughput on noise and on damaged
    traffic against the target's fastest line, and the resync cost: good items (packets,
    frames, stamps, records) lost per damaged byte, and bytes dropped per damaged byte.
@@ -93,6 +94,7 @@ class Stats:
         self.inputs = 0
         self.bytes = 0
         self.exceptions = 0
+        self.refusals = 0
         self.first: str | None = None
         self.seconds = 0.0
 
@@ -103,6 +105,10 @@ class Stats:
         self.bytes += len(data)
         try:
             run(target.make(), data, chunker(rng))
+        except target.refuses as exc:  # by design: a one-line refusal (a capture of a newer version)
+            self.refusals += 1
+            if "\n" in str(exc):
+                raise
         except Exception:  # noqa: BLE001 (what the fuzzer is for)
             self.exceptions += 1
             FINDINGS.mkdir(exist_ok=True)
@@ -114,7 +120,7 @@ class Stats:
 
     def doc(self) -> dict:
         return {"inputs": self.inputs, "bytes": self.bytes, "exceptions": self.exceptions,
-                "seconds": round(self.seconds, 1), "first_exception": self.first}
+                "refusals": self.refusals, "seconds": round(self.seconds, 1), "first_exception": self.first}
 
 
 def fuzz_random(target, inputs: int, max_len: int, seed: int) -> Stats:
@@ -172,6 +178,7 @@ def fuzz_atheris(name: str, inputs: int, max_len: int, seed: int) -> Stats:
         if out.exists():
             doc = json.loads(out.read_text())
             stats.inputs, stats.bytes, stats.exceptions = doc["inputs"], doc["bytes"], doc["exceptions"]
+            stats.refusals = doc["refusals"]
             stats.seconds, stats.first = doc["seconds"], doc["first_exception"]
         if proc.returncode != 0 and stats.exceptions == 0:
             stats.exceptions = 1  # the worker itself died (a crash libFuzzer caught, an abort)
@@ -268,10 +275,10 @@ def main() -> int:
     exceptions = sum(r["exceptions"] for r in results.values())
     doc = {"engine": engine, "inputs": total, "exceptions": exceptions, "seconds": round(time.monotonic() - t0),
            "max_len": args.max_len, "seed": args.seed, "targets": results}
-    print(f"{'target':20s} {'inputs':>9s} {'MB':>7s} {'exc':>4s} {'noise x':>8s} {'damaged x':>9s} "
+    print(f"{'target':20s} {'inputs':>9s} {'MB':>7s} {'exc':>4s} {'ref':>5s} {'noise x':>8s} {'damaged x':>9s} "
           f"{'lost/dmg':>8s} {'drop/dmg':>8s}")
     for name, r in results.items():
-        print(f"{name:20s} {r['inputs']:9d} {r['bytes'] / 1e6:7.1f} {r['exceptions']:4d} "
+        print(f"{name:20s} {r['inputs']:9d} {r['bytes'] / 1e6:7.1f} {r['exceptions']:4d} {r['refusals']:5d} "
               f"{r.get('noise_ratio', float('nan')):8.1f} {r.get('damaged_ratio', float('nan')):9.1f} "
               f"{r.get('items_lost_per_damaged_byte', float('nan')):8.2f} "
               f"{r.get('bytes_dropped_per_damaged_byte', float('nan')):8.1f}")

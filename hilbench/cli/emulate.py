@@ -40,7 +40,7 @@ def cmd_emulate(args: argparse.Namespace) -> int:
                 print(f"hilbench: warning: endpoint {ep.name!r} listens on {address[0]}, beyond this machine "
                       "(the profile's bind; the default is 127.0.0.1)", file=sys.stderr)
         for ep in bench.endpoints.values():
-            print(f"  {ep.name}: {ep.path}  ({ep.family.summary(ep)})")
+            print(f"  {ep.name}: {_where(ep)}  ({ep.family.summary(ep)})")
             if ep.tap is not None:
                 where = f"{manifest}#{ep.name}" if manifest else ep.tap.url
                 print(f"    traffic tap: {ep.tap.url}  (hilbench {ep.family.tap_reader} {where})")
@@ -57,6 +57,14 @@ def cmd_emulate(args: argparse.Namespace) -> int:
         bench.stop()
         bench.remove_manifest()  # only our own, and only while it is still ours
     return 0
+
+
+def _where(ep) -> str:
+    """What a program opens: the pty, or the stable link and the pty it points to, or a socket's URL."""
+    d = ep.port.describe()
+    if d.get("link") and d.get("pty") and d["pty"] != ep.path:
+        return f"{ep.path} -> {d['pty']}"
+    return ep.path
 
 
 def _is_loopback(host: str) -> bool:

@@ -7,7 +7,7 @@ import random
 
 from hilbench.decoders import DecoderTarget
 from hilbench.protocols.targets import BOARD_LINE, dynamixel_traffic
-from hilbench.transports.capture_file import CaptureParser, CaptureWriter
+from hilbench.transports.capture_file import CaptureError, CaptureParser, CaptureWriter
 
 
 def capture_traffic(rng: random.Random, size: int) -> bytes:
@@ -55,6 +55,7 @@ def after_header(noise: bytes) -> bytes:
 
 #: A capture of the fastest line hilbench records (its bytes plus 12 per record).
 CAPTURE = DecoderTarget("capture", "hilbench capture format (.hbcap, the TCP tap stream)", _CaptureReader,
-                        BOARD_LINE, "capture of a 12.5 Mbit/s line", capture_traffic, frame=after_header)
+                        BOARD_LINE, "capture of a 12.5 Mbit/s line", capture_traffic, frame=after_header,
+                        refuses=(CaptureError,))  # a header of a newer format version (2..16): one line
 
 __all__ = ["CAPTURE", "capture_traffic"]
