@@ -40,7 +40,7 @@ def test_clean_traffic_decodes_and_garbage_is_survived(name):
 
 def test_the_fuzz_script_runs_every_target():
     proc = subprocess.run([sys.executable, str(REPO / "tools/fuzz.py"), "--engine", "random", "--inputs", "30",
-                           "--measure", "3"], capture_output=True, text=True, timeout=300, cwd=REPO)
+                           "--measure", "3", "--size", "65536"], capture_output=True, text=True, timeout=300, cwd=REPO)
     assert proc.returncode == 0, proc.stderr
     doc = json.loads(proc.stdout.strip().splitlines()[-1])
     assert doc["exceptions"] == 0 and set(doc["targets"]) >= BUILT_IN

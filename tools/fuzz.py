@@ -189,15 +189,15 @@ def fuzz_atheris(name: str, inputs: int, max_len: int, seed: int) -> Stats:
 # --------------------------------------------------------------------------- figures
 
 
-def measure(target, count: int, seed: int) -> dict:
-    """Throughput on 1 MB of noise and of damaged traffic (1 % of the bytes), and the resync cost over
-    ``count`` 16 KiB samples with 1-7 damaged bytes each."""
+def measure(target, count: int, seed: int, size: int = 1 << 20) -> dict:
+    """Throughput on ``size`` bytes of noise and of damaged traffic (1 % of the bytes), and the resync cost
+    over ``count`` 16 KiB samples with 1-7 damaged bytes each."""
     from hilbench.decoders import mutate, run
 
     rng = random.Random(seed)
     ratios = {}
     for kind in ("noise", "damaged"):
-        data = target.noise(rng, 1 << 20) if kind == "noise" else mutate(rng, target.sample(rng, 1 << 20))
+        data = target.noise(rng, size) if kind == "noise" else mutate(rng, target.sample(rng, size))
         t0 = time.process_time()
         run(target.make(), data, 65536)
         ratios[kind] = len(data) / max(time.process_time() - t0, 1e-9) / target.line_rate
@@ -230,7 +230,9 @@ def main() -> int:
     ap.add_argument("--engine", choices=("atheris", "random"), help="default: atheris if installed")
     ap.add_argument("--jobs", type=int, default=1, help="targets fuzzed at once (atheris workers)")
     ap.add_argument("--max-len", type=int, default=4096, help="largest input in bytes")
-    ap.add_argument("--measure", type=int, default=200, help="inputs per kind for the figures (0: none)")
+    ap.add_argument("--measure", type=int, default=200, help="samples for the resync cost (0: no figures)")
+    ap.add_argument("--size", type=int, default=1 << 20, help="bytes of noise and of damaged traffic for the "
+                                                            "throughput figures (default 1 MiB)")
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--json", metavar="FILE", help="also write the JSON document to FILE")
     ap.add_argument("--worker", help=argparse.SUPPRESS)
@@ -270,7 +272,7 @@ def main() -> int:
     for t in chosen:
         results[t.name] = {"kind": t.kind, **found[t.name].doc()}
         if args.measure:
-            results[t.name].update(measure(t, args.measure, args.seed))
+            results[t.name].update(measure(t, args.measure, args.seed, args.size))
     total = sum(r["inputs"] for r in results.values())
     exceptions = sum(r["exceptions"] for r in results.values())
     doc = {"engine": engine, "inputs": total, "exceptions": exceptions, "seconds": round(time.monotonic() - t0),
