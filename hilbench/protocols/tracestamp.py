@@ -494,7 +494,19 @@ class TextDecoder:
             expanded.extend(item.stamps() if type(item) is StampBatch else [item])
         return expanded
 
-    def _decode(self, data: bytes) -> list:
+    def feed_lines(self, data: bytes) -> tuple[list, list]:
+        """:meth:`feed` for a caller that interleaves the items with other input: returns the items
+        (stamps as :class:`Stamp` or unmerged :class:`StampBatch` runs; merge with :meth:`merge`) and,
+        for each, the index of the line that completed it among the lines this call completed (an int,
+        or for a batch the range of its lines, ``(first, last + 1)``; one stamp per line)."""
+        pos: list = []
+        return self._decode(data, pos), pos
+
+    def merge(self, items: list) -> list[StampBatch | Item]:
+        """Runs of stamps among ``items`` (from :meth:`feed_lines`) merged into batches."""
+        return self._batched(items)
+
+    def _decode(self, data: bytes, pos: list | None = None) -> list:
         self.bytes_in += len(data)
         out: list = []
         buf = self._buf + bytes(data) if self._buf else bytes(data)
@@ -508,9 +520,13 @@ class TextDecoder:
         last = buf.rfind(b"\n")
         if last < 0:
             self._buf = self._cap(buf, out)
+            if pos is not None:
+                pos.extend([0] * len(out))
             return out
         self._buf = self._cap(buf[last + 1 :], out)
-        self._lines_into(buf[: last + 1], out)
+        if pos is not None:
+            pos.extend([0] * len(out))
+        self._lines_into(buf[: last + 1], out, pos)
         return out
 
     def _batched(self, items: list) -> list:
@@ -563,12 +579,17 @@ class TextDecoder:
         self._skipping = True
         return b""
 
-    def _lines_into(self, chunk: bytes, out: list) -> None:
-        """Decode complete lines (``chunk`` ends with LF)."""
+    def _lines_into(self, chunk: bytes, out: list, pos: list | None = None) -> None:
+        """Decode complete lines (``chunk`` ends with LF); with ``pos``, note each item's line index."""
         fast = _vector_parse(chunk) if chunk.count(b"\n") >= _MIN_VECTOR_LINES else None
         if fast is None:  # too few lines for numpy to pay off
-            for line in chunk[:-1].split(b"\n"):
+            if pos is None:
+                for line in chunk[:-1].split(b"\n"):
+                    self._slow_line(line, out)
+                return
+            for i, line in enumerate(chunk[:-1].split(b"\n")):
                 self._slow_line(line, out)
+                pos.extend([i] * (len(out) - len(pos)))
             return
         starts, ends, ok, t_us, begin, name_start, name_end, word_edges = fast
         n = len(starts)
@@ -576,6 +597,8 @@ class TextDecoder:
         if not ok.any():
             for i in range(n):
                 self._other_line(chunk[starts[i] : ends[i]], out)
+                if pos is not None:
+                    pos.extend([i] * (len(out) - len(pos)))
             return
         ids = self._name_ids_for(chunk, name_start, name_end, ok)
         nwords = int(word_edges[ok].sum())
@@ -586,16 +609,24 @@ class TextDecoder:
         bad = np.flatnonzero(~ok)
         if len(bad) == 0:
             out.append(StampBatch(self.registry.snapshot(), ids, t_us, begin))
+            if pos is not None:
+                pos.append((0, n))
             return
         # Interleave: runs of stamp lines between the other lines, in arrival order.
         prev = 0
         for i in bad.tolist():
             if i > prev:
                 out.append(StampBatch(self.registry.snapshot(), ids[prev:i], t_us[prev:i], begin[prev:i]))
+                if pos is not None:
+                    pos.append((prev, i))
             self._other_line(chunk[starts[i] : ends[i]], out)
+            if pos is not None:
+                pos.extend([i] * (len(out) - len(pos)))
             prev = i + 1
         if prev < n:
             out.append(StampBatch(self.registry.snapshot(), ids[prev:], t_us[prev:], begin[prev:]))
+            if pos is not None:
+                pos.append((prev, n))
 
     def _name_ids_for(self, chunk: bytes, ns: np.ndarray, ne: np.ndarray, ok: np.ndarray) -> np.ndarray:
         """Decoder-wide name ids for the stamp lines (``ok``); other rows get 0 (unused)."""
