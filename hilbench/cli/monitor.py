@@ -169,8 +169,11 @@ def cmd_record(args: argparse.Namespace) -> int:
             pass
         finally:
             writer.close()
+        findings = source.quality()["findings"]
     out = sys.stderr if args.file == "-" else sys.stdout
     print(f"recorded {writer.bytes} bytes in {writer.records} records from {source.name} to {args.file}", file=out)
+    for line in findings:  # what a damaged input lost on the way (the copy holds what could be read)
+        print(f"hilbench record: data quality: {line}", file=sys.stderr)
     return 0
 
 

@@ -179,6 +179,8 @@ def test_monitor_reports_the_damage_and_strict_fails(clean, tmp_path):
     assert strict.stderr.splitlines() == [f"hilbench: error: {cut}: the input is damaged (1 data-quality "
                                           "finding(s)); --strict"]
     doc = json.loads(hb("monitor", str(cut), "--json").stdout)
+    copy = hb("record", str(cut), str(tmp_path / "copy.hbcap"))
+    assert copy.returncode == 0 and "data quality: truncated" in copy.stderr  # a copy says what it lost
     last = struct.unpack_from("<H", clean, offs[-1] + 2)[0]
     assert doc["data_quality"]["truncated_bytes"] == 20 and doc["bytes"] == 528_509 - last
     bad = bytearray(clean)
