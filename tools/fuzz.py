@@ -137,7 +137,12 @@ def fuzz_random(target, inputs: int, max_len: int, seed: int) -> Stats:
 # --------------------------------------------------------------------------- atheris worker
 
 
-def atheris_worker(name: str, inputs: int, max_len: int, seed: int, out: Path) -> None:
+#: Inputs per atheris worker process: libFuzzer's memory grows with its run (coverage features of the
+#: instrumented Python code), so a long run is made of workers that share one corpus directory.
+SEGMENT = 10_000
+
+
+def atheris_worker(name: str, inputs: int, max_len: int, seed: int, out: Path, corpus: Path) -> None:
     """One target under libFuzzer (coverage-guided), in this process; stats written to ``out``."""
     import atheris
 
@@ -146,10 +151,6 @@ def atheris_worker(name: str, inputs: int, max_len: int, seed: int, out: Path) -
 
         target = next(t for t in targets() if t.name == name)
         target.make()  # import everything it uses while instrumenting
-    rng = random.Random(seed)
-    corpus = Path(tempfile.mkdtemp(prefix=f"fuzz-{name}-"))
-    for i, data in enumerate(seeds(target, rng) + [target.noise(rng, 512)]):
-        (corpus / f"seed{i}").write_bytes(data[:max_len])
     stats = Stats(name)
     t0 = time.monotonic()
 
@@ -158,8 +159,8 @@ def atheris_worker(name: str, inputs: int, max_len: int, seed: int, out: Path) -
         out.write_text(json.dumps(stats.doc()))
 
     def one_input(data: bytes) -> None:
-        stats.run(target, data, random.Random(stats.inputs))
-        if stats.inputs % 5000 == 0 or stats.inputs >= inputs:
+        stats.run(target, data, random.Random(seed * 1_000_003 + stats.inputs))
+        if stats.inputs % 1000 == 0 or stats.inputs >= inputs:
             save()
 
     save()
@@ -169,21 +170,47 @@ def atheris_worker(name: str, inputs: int, max_len: int, seed: int, out: Path) -
 
 
 def fuzz_atheris(name: str, inputs: int, max_len: int, seed: int) -> Stats:
+    """``inputs`` coverage-guided inputs for one target, in workers of :data:`SEGMENT` inputs sharing a
+    corpus (seeded with the target's own traffic, damaged copies and noise)."""
+    from hilbench.decoders import mutate, targets
+
+    target = next(t for t in targets() if t.name == name)
+    stats = Stats(name)
     with tempfile.TemporaryDirectory() as tmp:
+        corpus = Path(tmp) / "corpus"
+        corpus.mkdir()
+        rng = random.Random(seed)
+        for i, data in enumerate(seeds(target, rng)):
+            (corpus / f"seed{i}").write_bytes(data[:max_len])
+            (corpus / f"damaged{i}").write_bytes(mutate(rng, data[:max_len], rate=0.02))
+        (corpus / "noise").write_bytes(target.noise(rng, 512))
         out = Path(tmp) / "stats.json"
-        cmd = [sys.executable, __file__, "--worker", name, "--inputs", str(inputs), "--max-len", str(max_len),
-               "--seed", str(seed), "--stats", str(out)]
-        proc = subprocess.run(cmd, capture_output=True, text=True)
-        stats = Stats(name)
-        if out.exists():
-            doc = json.loads(out.read_text())
-            stats.inputs, stats.bytes, stats.exceptions = doc["inputs"], doc["bytes"], doc["exceptions"]
-            stats.refusals = doc["refusals"]
-            stats.seconds, stats.first = doc["seconds"], doc["first_exception"]
-        if proc.returncode != 0 and stats.exceptions == 0:
-            stats.exceptions = 1  # the worker itself died (a crash libFuzzer caught, an abort)
-            stats.first = (proc.stderr or proc.stdout)[-3000:]
-        return stats
+        segment = 0
+        while stats.inputs < inputs:
+            runs = min(SEGMENT, inputs - stats.inputs)
+            cmd = [sys.executable, __file__, "--worker", name, "--inputs", str(runs), "--max-len", str(max_len),
+                   "--seed", str(seed + segment), "--stats", str(out), "--corpus", str(corpus)]
+            proc = subprocess.run(cmd, capture_output=True, text=True)
+            doc = json.loads(out.read_text()) if out.exists() else {"inputs": 0, "bytes": 0, "exceptions": 0,
+                                                                     "refusals": 0, "seconds": 0,
+                                                                     "first_exception": None}
+            out.unlink(missing_ok=True)
+            stats.inputs += doc["inputs"]
+            stats.bytes += doc["bytes"]
+            stats.exceptions += doc["exceptions"]
+            stats.refusals += doc["refusals"]
+            stats.seconds += doc["seconds"]
+            stats.first = stats.first or doc["first_exception"]
+            if proc.returncode != 0 and doc["inputs"] < runs:
+                # the worker itself died (libFuzzer caught a crash, a time-out or memory running out)
+                stats.exceptions += 1
+                stats.first = stats.first or (proc.stderr or proc.stdout)[-3000:]
+                print(f"{name}: worker died after {doc['inputs']} of {runs} inputs:\n{(proc.stderr or '')[-1500:]}",
+                      file=sys.stderr, flush=True)
+                if doc["inputs"] == 0:
+                    break
+            segment += 1
+    return stats
 
 
 # --------------------------------------------------------------------------- figures
@@ -237,9 +264,10 @@ def main() -> int:
     ap.add_argument("--json", metavar="FILE", help="also write the JSON document to FILE")
     ap.add_argument("--worker", help=argparse.SUPPRESS)
     ap.add_argument("--stats", type=Path, help=argparse.SUPPRESS)
+    ap.add_argument("--corpus", type=Path, help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.worker:
-        atheris_worker(args.worker, args.inputs, args.max_len, args.seed, args.stats)
+        atheris_worker(args.worker, args.inputs, args.max_len, args.seed, args.stats, args.corpus)
         return 0
 
     from hilbench.decoders import targets
