@@ -124,9 +124,7 @@ class DynamixelBus:
 
     def _hearing(self, t: float, baud: int | None) -> list[Servo]:
         """Devices that receive this transmission: awake, and at the sender's baud."""
-        if baud is None:
-            return [s for s in self.servos if not s.silent(t)]
-        return [s for s in self.servos if not s.silent(t) and ((b := s.baud) is None or b == baud)]
+        return [s for s in self.servos if s.listens(t, baud)]
 
     def _dispatch(self, pkt: InstructionPacket, t: float, baud: int | None) -> None:
         self.stats.requests[pkt.name] += 1

@@ -35,6 +35,7 @@ INDIRECT_AREAS = ((224, 252, 168), (634, 662, 578))
 _U16, _U32, _I32 = struct.Struct("<H"), struct.Struct("<I"), struct.Struct("<i")
 _PWM_CUR_VEL = struct.Struct("<hhi")  # Present PWM, Present Current, Present Velocity (124..131)
 _POS_VEL_POS = struct.Struct("<iii")  # Present Position, Velocity Trajectory, Position Trajectory (132..143)
+assert (m.PRESENT_POSITION, m.VELOCITY_TRAJECTORY, m.POSITION_TRAJECTORY, m.PRESENT_INPUT_VOLTAGE) == (132, 136, 140, 144)
 _BAUD_CODES = m.BAUD_CODES
 _BAUD_RATE, _RETURN_DELAY_TIME, _DRIVE_MODE, _OPERATING_MODE = m.BAUD_RATE, m.RETURN_DELAY_TIME, m.DRIVE_MODE, \
     m.OPERATING_MODE
@@ -210,6 +211,16 @@ class Servo:
     def silent(self, t: float) -> bool:
         """True while rebooting or vanished: the device hears nothing."""
         return t < self._rebooting_until or t < self.faults.vanished_until
+
+    def listens(self, t: float, baud: int | None) -> bool:
+        """Whether it hears a transmission at ``t`` sent at ``baud`` (None: any): not :meth:`silent`, and at its
+        :attr:`baud` (one call per device and packet where there were two)."""
+        if t < self._rebooting_until or t < self.faults.vanished_until:
+            return False
+        if baud is None:
+            return True
+        b = _BAUD_CODES.get(self.mem[_BAUD_RATE]) if self.is_servo else self.board_baud
+        return b is None or b == baud
 
     # ------------------------------------------------------------------ fault knobs
 
@@ -581,11 +592,11 @@ class Servo:
         if not self.is_servo or hi <= DYNAMIC_LO or lo >= DYNAMIC_HI:
             return
         mem = self.mem
-        if lo >= m.PRESENT_POSITION and hi <= m.PRESENT_INPUT_VOLTAGE:
+        if lo >= 132 and hi <= 144:  # (PRESENT_POSITION .. PRESENT_INPUT_VOLTAGE, as literals: a hot path)
             # Present Position and the trajectories only: what a control loop reads every cycle
             p, v = self.profile.position_velocity(t)
             pos = (-1 if mem[_DRIVE_MODE] & 1 else 1) * int(round(p)) + _I32.unpack_from(mem, _HOMING_OFFSET)[0]
-            _POS_VEL_POS.pack_into(mem, m.PRESENT_POSITION, pos, int(v / VEL_UNIT), pos)
+            _POS_VEL_POS.pack_into(mem, 132, pos, int(v / VEL_UNIT), pos)
             return
         s = self.profile.at(t)
         vel_units = s.velocity / VEL_UNIT
