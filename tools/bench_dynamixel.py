@@ -165,15 +165,17 @@ def run_cycles(path: str, seconds: float, emulator_pid: int, baud: int = BAUD) -
         reader.addParam(i)
         writer.addParam(i, [0x00, 0x08, 0, 0])
 
+    failed = [0]
+
     def cycle() -> None:
-        if reader.txRxPacket() != sdk.COMM_SUCCESS:
-            raise SystemExit("sync read failed")
+        # a reply the SDK gave up on (34 ms): counted, as a loaded machine can stall either process that long
+        failed[0] += reader.txRxPacket() != sdk.COMM_SUCCESS
         writer.txPacket()
 
     warm_end = time.perf_counter() + min(0.5, seconds / 4)
     while time.perf_counter() < warm_end:
         cycle()
-    n = 0
+    n = failed[0] = 0
     cpu0, own0 = process_cpu_s(emulator_pid), time.process_time()
     t0 = time.perf_counter()
     end = t0 + seconds
@@ -183,6 +185,7 @@ def run_cycles(path: str, seconds: float, emulator_pid: int, baud: int = BAUD) -
     dt = time.perf_counter() - t0
     cpu, own = process_cpu_s(emulator_pid) - cpu0, time.process_time() - own0
     port.closePort()
+    CONDITION["failed_reads"] = failed[0]
     return n, dt, cpu, own
 
 
@@ -201,7 +204,7 @@ def bench_cycle(paced: bool, seconds: float, baud: int = BAUD) -> None:
         tmp.cleanup()
     wire_cycle = CYCLE_BYTES * 10 / baud  # seconds per cycle on the wire, Return Delay Time 0
     cond = {"load": CONDITION["load"], "loadavg": avg, "sdk_cpu_us": round(own_cpu / n * 1e6, 1),
-            "emulator_cpu_us": round(emulator_cpu / n * 1e6, 1)}
+            "emulator_cpu_us": round(emulator_cpu / n * 1e6, 1), "failed_reads": CONDITION["failed_reads"]}
     if paced:
         measured = dt / n
         label = f"{baud / 1e6:g}M".replace(".5M", "M5")

@@ -9,7 +9,10 @@ alone needs 995.6 us of each millisecond at 4.5 Mbaud, so the schedule is
 the bus's limit as much as the client's; ``overruns`` counts the cycles that
 took longer than a period). It counts every reply that did not
 come (a failed Sync Read costs the replies it lacked) and samples both
-processes' resident memory over time.
+processes' resident memory over time. For each failed read it notes how long
+this process waited for a CPU meanwhile (/proc schedstat): the SDK checks its
+34 ms timeout after each read, so a client kept off the CPU that long fails
+although the replies came.
 
 Prints one JSON object per sample (``"sample"``) and a summary
 (``"name": "dxl_soak_..."``): cycles, achieved rate, missed replies, cycle
@@ -45,6 +48,11 @@ def percentile(hist: list[int], q: float) -> float:
         if seen >= q * total:
             return round((i + 1) * HIST_BIN * 1e3, 3)
     return float("inf")
+
+
+def runqueue_wait_s(fd: int) -> float:
+    """Seconds this thread has spent runnable but waiting for a CPU (/proc/thread-self/schedstat, field 2)."""
+    return int(os.pread(fd, 128, 0).split()[1]) / 1e9
 
 
 def rss_kb(pid: int) -> int:
@@ -84,6 +92,8 @@ def soak(minutes: float, rate: float, baud: int, sample_every: float) -> dict:
         longest = 0.0
         emu_rss: list[tuple[float, int]] = []
         own_rss: list[tuple[float, int]] = []
+        failures: list[dict] = []  # what each failed read looked like (the first 50)
+        sched = os.open("/proc/thread-self/schedstat", os.O_RDONLY)
         cpu0 = process_cpu_s(proc.pid)
         t0 = time.perf_counter()
         end = t0 + minutes * 60
@@ -105,8 +115,16 @@ def soak(minutes: float, rate: float, baud: int, sample_every: float) -> dict:
                 time.sleep(next_slot - now)  # (the SDK busy-polls anyway; this only waits for the slot)
             started = time.perf_counter()
             next_slot = max(next_slot, started) + period  # behind schedule: no burst to catch up
+            waited = runqueue_wait_s(sched)
             if reader.txRxPacket() != sdk.COMM_SUCCESS:
                 failed_reads += 1
+                if len(failures) < 50:
+                    # the SDK gives up after 34 ms; if this process waited that long for a CPU meanwhile, the
+                    # replies may have come while it was not running (it checks its timeout after a read)
+                    failures.append({"at_s": round(started - t0, 1),
+                                     "took_ms": round((time.perf_counter() - started) * 1e3, 1),
+                                     "client_waited_for_cpu_ms": round((runqueue_wait_s(sched) - waited) * 1e3, 1),
+                                     "bytes_waiting_after": port.getBytesAvailable()})
             missed += sum(not reader.isAvailable(i, 132, 4) for i in IDS)
             writer.txPacket()
             took = time.perf_counter() - started
@@ -116,6 +134,7 @@ def soak(minutes: float, rate: float, baud: int, sample_every: float) -> dict:
             cycles += 1
         elapsed = time.perf_counter() - t0
         cpu = process_cpu_s(proc.pid) - cpu0
+        os.close(sched)
         port.closePort()
     finally:
         proc.terminate()
@@ -133,6 +152,7 @@ def soak(minutes: float, rate: float, baud: int, sample_every: float) -> dict:
         "rss_emulator_kb": {"first": emu_rss[0][1], "last": emu_rss[-1][1], "max": max(v for _, v in emu_rss),
                             "slope_second_half_kb_per_min": round(slope_kb_per_min(half), 2)},
         "rss_client_kb": {"first": own_rss[0][1], "last": own_rss[-1][1], "max": max(v for _, v in own_rss)},
+        "failures": failures,
     }
 
 

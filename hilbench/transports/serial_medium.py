@@ -16,11 +16,14 @@ on top. Clients then see the timing of the real bus.
 How a paced line keeps that timing on a busy machine (:mod:`hilbench.transports.clock`):
 every delivery time is computed when the transmission is queued (from the
 previous one's end, so a late wake-up never shifts the ones after it); the
-thread sleeps until input or the next delivery and spins only the last few
-tens of microseconds; and it asks for SCHED_FIFO where the OS allows it
+thread sleeps until input or the next delivery, never spinning; deliveries
+due within :data:`DELIVERY_GRANULE` of each other share one wake-up and one
+write to each host (late by at most that, never early; taps still get each
+transmission's exact time); and it asks for SCHED_FIFO where the OS allows it
 (``realtime``; :attr:`SerialMedium.scheduling` says what it got), so its
 wake-ups preempt CPU-bound neighbours. ``HILBENCH_REALTIME=0`` in the
-environment keeps every line under the normal scheduler.
+environment keeps every line under the normal scheduler. :attr:`SerialMedium.stats`
+counts how late deliveries were against the model.
 """
 
 from __future__ import annotations
@@ -69,6 +72,12 @@ class LineStats:
     bytes: int = 0
     by_source: dict[str, int] = field(default_factory=dict)
     callback_errors: int = 0
+    #: How late the line handed transmissions over against its own wire model (paced lines): their
+    #: number, the sum and the largest lateness in seconds, and how many were over a millisecond late.
+    late_count: int = 0
+    late_total: float = 0.0
+    late_max: float = 0.0
+    late_over_1ms: int = 0
 
 
 class SerialMedium(Medium):
@@ -226,7 +235,7 @@ class SerialMedium(Medium):
                 by_fd = {fd: (ep, listen_only) for ep, listen_only in hosts for fd in ep.filenos()}
                 fds = [*by_fd, wake_r]
                 fixed = all(type(ep).filenos is HostPort.filenos for ep, _ in hosts)
-            deadline = self._next_wake(events) if events else None  # (stale is fine: pushes from elsewhere wake us)
+            deadline = self._next_wake() if events else None  # (stale is fine: pushes from elsewhere wake us)
             ready = wait(fds, deadline, precise=paced)
             if ready:
                 now = time.monotonic()
@@ -242,20 +251,22 @@ class SerialMedium(Medium):
                         self._take(host[0], host[1], now)
             self._run_due()
 
-    def _next_wake(self, events: list) -> float:
+    def _next_wake(self) -> float:
         """When to wake for the pending events: the first one's time, or on a paced line the last delivery
         due within :data:`DELIVERY_GRANULE` of it, so that a burst (a Sync Read's twenty replies, 33-75 us
         apart) costs a few wake-ups instead of one each (a timed sleep costs 15-20 us of CPU on a VM).
         Deliveries are then up to a granule late, never early; nothing else waits."""
-        first = events[0]
-        granule = DELIVERY_GRANULE
-        if not (granule and self.paced and first[3]):
-            return first[0]
-        limit = first[0] + granule
-        for t, _, _, joinable in events:
-            if t < limit and not joinable:
-                limit = t  # a timer or line event is never kept waiting
-        return max(t for t, _, _, joinable in events if t <= limit and joinable)
+        with self._lock:
+            events = self._events
+            first = events[0]
+            granule = DELIVERY_GRANULE
+            if not (granule and self.paced and first[3]):
+                return first[0]
+            limit = first[0] + granule
+            for t, _, _, joinable in events:
+                if t < limit and not joinable:
+                    limit = t  # a timer or line event is never kept waiting
+            return max((t for t, _, _, joinable in events if t <= limit and joinable), default=first[0])
 
     def _take(self, endpoint, listen_only: bool, now: float) -> tuple[int, float]:
         """Read what a host port has and put it on the line; returns (bytes, delivery time)."""
@@ -290,16 +301,25 @@ class SerialMedium(Medium):
         """Run what is due. Deliveries due together reach each host port in one write (a pty write costs
         about as much as a reply's emulation); anything else first flushes what is pending, so the order
         the host sees stays the order of the line."""
-        events, lock = self._events, self._lock
+        events, lock, paced = self._events, self._lock, self.paced
         self._out = {}
         try:
             while True:
                 with lock:
-                    if not events or events[0][0] > time.monotonic():
+                    if not events or events[0][0] > (now := time.monotonic()):
                         return
-                    _, _, fn, joinable = heapq.heappop(events)
+                    t, _, fn, joinable = heapq.heappop(events)
                 if not joinable:
                     self._flush_out()
+                elif paced:
+                    stats = self.stats
+                    late = now - t
+                    stats.late_count += 1
+                    stats.late_total += late
+                    if late > stats.late_max:
+                        stats.late_max = late
+                    if late > 1e-3:
+                        stats.late_over_1ms += 1
                 fn()
         finally:
             self._flush_out()
