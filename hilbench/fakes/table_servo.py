@@ -277,6 +277,10 @@ class TableServo:
         self._apply_write(address, data, t)
         return err
 
+    def write_unanswered(self, address: int, data: bytes, t: float) -> None:
+        """A write whose status nobody hears (Sync/Bulk Write on a Protocol 2.0 bus)."""
+        self.write(address, data, t)
+
     def reg_write(self, address: int, data: bytes, t: float) -> int:
         """Reg Write: checks now, applies on Action."""
         err = self._check_write(address, data)

@@ -353,33 +353,27 @@ class DynamixelBus:
             self.stats.replies += 1
 
     def _multi_write(self, pkt: InstructionPacket, t: float, baud: int | None, hearing: list[Servo]) -> None:
-        by_id: dict[int, list[Servo]] = {}
+        by_id: dict[int, list] = {}  # id -> the bound write_unanswered of each device answering to it
         for s in hearing:
-            by_id.setdefault(s.id, []).append(s)
-            if s.secondary_id is not None and s.secondary_id != s.id:
-                by_id.setdefault(s.secondary_id, []).append(s)
+            write = s.write_unanswered
+            sid = s.id
+            by_id.setdefault(sid, []).append(write)
+            second = s.secondary_id
+            if second is not None and second != sid:
+                by_id.setdefault(second, []).append(write)
         p = pkt.params
         if pkt.instruction == I.SYNC_WRITE:
             address, length = _u16s(p)
             for k in range(4, len(p), length + 1):
-                for s in by_id.get(p[k], ()):
-                    _write_unanswered(s, address, p[k + 1 : k + 1 + length], t)
+                for write in by_id.get(p[k], ()):
+                    write(address, p[k + 1 : k + 1 + length], t)
         else:
             k = 0
             while k < len(p):
                 length = p[k + 3] | p[k + 4] << 8
-                for s in by_id.get(p[k], ()):
-                    _write_unanswered(s, p[k + 1] | p[k + 2] << 8, p[k + 5 : k + 5 + length], t)
+                for write in by_id.get(p[k], ()):
+                    write(p[k + 1] | p[k + 2] << 8, p[k + 5 : k + 5 + length], t)
                 k += 5 + length
-
-
-def _write_unanswered(s, address: int, data: bytes, t: float) -> None:
-    """A Sync/Bulk Write entry: the device's shortcut for writes nobody answers, where it has one."""
-    quiet = getattr(s, "write_unanswered", None)
-    if quiet is not None:
-        quiet(address, data, t)
-    else:
-        s.write(address, data, t)
 
 
 def _u16s(p: bytes) -> tuple[int, int]:
