@@ -266,7 +266,12 @@ class SerialMedium(Medium):
             for t, _, _, joinable in events:
                 if t < limit and not joinable:
                     limit = t  # a timer or line event is never kept waiting
-            return max((t for t, _, _, joinable in events if t <= limit and joinable), default=first[0])
+            joined = sorted(t for t, _, _, joinable in events if t <= limit and joinable)
+            if len(joined) > 1 and len(joined) == len(events):
+                # the group ends the burst: its last delivery gets a wake-up of its own, so the client has
+                # only that one left to take in when the wire model says the burst is over
+                return joined[-2]
+            return joined[-1] if joined else first[0]
 
     def _take(self, endpoint, listen_only: bool, now: float) -> tuple[int, float]:
         """Read what a host port has and put it on the line; returns (bytes, delivery time)."""
