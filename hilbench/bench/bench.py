@@ -256,6 +256,8 @@ class Bench:
                 "protocol": ep.spec.protocol,
                 "baud": ep.spec.baud,
                 "paced": ep.medium.paced,
+                # what the medium's thread runs under (SCHED_FIFO where allowed), for media that say
+                **({"scheduling": sched} if (sched := getattr(ep.medium, "scheduling", None)) else {}),
                 "tap": ep.tap.url if ep.tap is not None else None,
             }
             entry.update(ep.family.describe_endpoint(ep))
