@@ -47,7 +47,7 @@ from typing import Any, Protocol
 
 from hilbench.protocols import can_frame as cf
 from hilbench.protocols.can_frame import CanFrame
-from hilbench.transports.clock import SPIN_AFTER_ACTIVITY, reduce_timer_slack, wait
+from hilbench.transports.clock import reduce_timer_slack, wait
 from hilbench.transports.medium import DevicePort, Medium
 
 log = logging.getLogger(__name__)
@@ -128,7 +128,6 @@ class CanMedium(Medium):
         self._load_bits = 0
         self._events: list[tuple[float, int, Callable[[], None]]] = []
         self._seq = itertools.count()
-        self._last_activity = 0.0
         # One mapping from the bus clock (time.monotonic) to Unix time, so wire stamps never jump.
         self.wall_offset = time.time() - time.monotonic()
         self._wake_r, self._wake_w = os.pipe()
@@ -469,10 +468,9 @@ class CanMedium(Medium):
                 d = port.deadline()
                 if d is not None and (deadline is None or d < deadline):
                     deadline = d
-            ready = wait(fds, deadline, precise=self.paced, spin_until=self._last_activity + SPIN_AFTER_ACTIVITY)
+            ready = wait(fds, deadline, precise=self.paced)
             now = time.monotonic()
             if ready:
-                self._last_activity = now
                 if self._wake_r in ready:
                     with contextlib.suppress(BlockingIOError):
                         os.read(self._wake_r, 4096)

@@ -231,7 +231,7 @@ class DatagramMedium(Medium):
                 hosts = list(self._hosts)
             fds = [p.fileno() for p, _ in hosts] + [self._wake_r]
             try:
-                ready = wait(fds, deadline, precise=False, spin_until=0.0)
+                ready = wait(fds, deadline, precise=False)
             except (OSError, ValueError):
                 if self._stop.is_set():
                     return
