@@ -13,6 +13,23 @@ Fixtures
 ``hilbench_emulator``
     A factory that runs ``hilbench emulate`` in a separate process, as a user
     would, and returns its manifest once every endpoint is ready.
+``hilbench_run``
+    Clients in other processes with a serial adapter's semantics (``hilbench
+    run``) against a fixture bench or an emulator: ``hilbench_run.command(bench,
+    "python", "client.py")`` or ``env=hilbench_run.env(bench)``.
+
+Benches started by these fixtures (emulators too) serve modem lines, BREAK and
+flushes: their line server runs, and pyserial in the test's own process talks
+to it for their ptys (``ser.dtr = False`` reaches the devices' ``on_line``, ``ser.cts`` reads
+what they drive, ``reset_output_buffer()`` delivers instead of discarding), as
+it would under ``hilbench run``. ``hilbench_bench(profile, lines=False)`` opts out.
+
+Remote benches: ``pytest --lg-env ENV.yaml --hilbench-labgrid`` takes ``bench``
+from the labgrid target of that environment (a ``RemotePlace`` acquired
+through a coordinator, or a file from ``hilbench labgrid env``) instead of
+starting one (:mod:`hilbench.labgrid.remote`): the same test runs unchanged,
+``bench.endpoint().path`` being a local pty bridged to the remote RFC 2217
+port. A test whose ``hilbench_profile`` marker names another bench is skipped.
 """
 
 from __future__ import annotations
@@ -29,8 +46,10 @@ from typing import Any
 import pytest
 
 from hilbench.bench import Bench
+from hilbench.bench.line_server import serve_lines
 from hilbench.bench.manifest import read_manifest
 from hilbench.bench.profile import DEFAULT_PROFILE
+from hilbench.run import pyserial_shim
 
 
 def wait_until(predicate: Callable[[], Any], timeout: float = 5.0, interval: float = 0.005) -> Any:
@@ -45,6 +64,15 @@ def wait_until(predicate: Callable[[], Any], timeout: float = 5.0, interval: flo
         time.sleep(interval)
 
 
+def pytest_addoption(parser: pytest.Parser) -> None:
+    group = parser.getgroup("hilbench")
+    group.addoption("--hilbench-labgrid", action="store_true", default=False,
+                    help="take the `bench` fixture from the labgrid target of --lg-env (a RemotePlace or a "
+                         "`hilbench labgrid env` file) instead of starting a bench here")
+    group.addoption("--hilbench-lg-role", default="main", metavar="TARGET",
+                    help="the labgrid target holding the bench (default: main)")
+
+
 def pytest_configure(config: pytest.Config) -> None:
     config.addinivalue_line(
         "markers",
@@ -52,36 +80,82 @@ def pytest_configure(config: pytest.Config) -> None:
     )
 
 
+def serve_lines_in_process(bench: Bench) -> list[int]:
+    """Start ``bench``'s line server and let pyserial in this process use it for the bench's ptys.
+
+    Returns the ptys' device numbers, for :func:`stop_lines_in_process`.
+    """
+    server = serve_lines(bench)
+    if server is None:
+        return []
+    for rdev in server.rdevs:
+        pyserial_shim.register(rdev, server.handle, server.board.path)
+    pyserial_shim.install()
+    return server.rdevs
+
+
+def stop_lines_in_process(rdevs: list[int]) -> None:
+    """Undo :func:`serve_lines_in_process` (pyserial is unpatched once no bench is left)."""
+    for rdev in rdevs:
+        pyserial_shim.unregister(rdev)
+    if not pyserial_shim.PORTS:
+        pyserial_shim.uninstall()
+
+
 @pytest.fixture
 def hilbench_bench() -> Iterator[Callable[..., Bench]]:
-    """Factory: ``hilbench_bench(profile, paced=None, link_dir=None)`` starts a bench, stopped after the test."""
-    benches: list[Bench] = []
+    """Factory: ``hilbench_bench(profile, paced=None, link_dir=None, lines=True)`` starts a bench, stopped
+    after the test; ``lines`` serves its modem lines, BREAK and flushes (see the module's docstring)."""
+    benches: list[tuple[Bench, list[int]]] = []
 
-    def start(profile: str | Path = DEFAULT_PROFILE, **kwargs: Any) -> Bench:
+    def start(profile: str | Path = DEFAULT_PROFILE, *, lines: bool = True, **kwargs: Any) -> Bench:
         b = Bench(profile, **kwargs).start()
-        benches.append(b)
+        benches.append((b, serve_lines_in_process(b) if lines else []))
         return b
 
     yield start
-    for b in benches:
+    for b, rdevs in benches:
+        stop_lines_in_process(rdevs)
         b.stop()
 
 
 @pytest.fixture
-def bench(request: pytest.FixtureRequest, hilbench_bench: Callable[..., Bench]) -> Bench:
-    """A bench from the test's ``hilbench_profile`` marker (default profile otherwise)."""
+def bench(request: pytest.FixtureRequest, hilbench_bench: Callable[..., Bench]) -> Iterator[Any]:
+    """A bench from the test's ``hilbench_profile`` marker (default profile otherwise), or with
+    ``--hilbench-labgrid`` the bench of the labgrid target."""
     marker = request.node.get_closest_marker("hilbench_profile")
-    if marker is None:
-        return hilbench_bench(DEFAULT_PROFILE)
-    profile = marker.args[0] if marker.args else DEFAULT_PROFILE
-    return hilbench_bench(profile, **marker.kwargs)
+    profile = (marker.args[0] if marker and marker.args else DEFAULT_PROFILE)
+    if request.config.getoption("hilbench_labgrid"):
+        remote = _labgrid_bench(request)
+        wanted = Path(str(profile)).stem
+        if marker is not None and wanted != remote.profile.name:
+            remote.stop()
+            pytest.skip(f"test wants bench {wanted!r}; the labgrid target has {remote.profile.name!r}")
+        yield remote
+        remote.stop()
+        return
+    yield hilbench_bench(profile, **(marker.kwargs if marker else {}))
+
+
+def _labgrid_bench(request: pytest.FixtureRequest) -> Any:
+    try:
+        from hilbench.labgrid.remote import bench_from_target
+    except ImportError as exc:
+        pytest.fail(f"--hilbench-labgrid needs labgrid (pip install 'hilbench[labgrid]'): {exc}")
+    env = request.getfixturevalue("env")  # labgrid's own fixture (--lg-env)
+    role = request.config.getoption("hilbench_lg_role")
+    target = env.get_target(role)
+    if target is None:
+        pytest.fail(f"the labgrid environment has no target {role!r}")
+    return bench_from_target(target)
 
 
 @pytest.fixture
 def hilbench_emulator() -> Iterator[Callable[..., dict[str, Any]]]:
     """Factory: run ``hilbench emulate PROFILE [ARGS]`` in a subprocess; returns its manifest.
 
-    The manifest also carries ``"process"``: the :class:`subprocess.Popen`.
+    The manifest also carries ``"process"`` (the :class:`subprocess.Popen`) and
+    ``"manifest_path"`` (the file, for ``hilbench run --manifest``).
     """
     procs: list[subprocess.Popen] = []
     tmp = tempfile.TemporaryDirectory(prefix="hilbench-")
@@ -101,9 +175,18 @@ def hilbench_emulator() -> Iterator[Callable[..., dict[str, Any]]]:
             time.sleep(0.01)
         data = read_manifest(manifest)
         data["process"] = proc
+        data["manifest_path"] = str(manifest)
+        lines = data.get("lines") or {}
+        for port in (lines.get("ports") or {}).values():  # pyserial in this process: as under hilbench run
+            pyserial_shim.register(int(port["rdev"]), lines["socket"])
+            registered.append(int(port["rdev"]))
+        if registered:
+            pyserial_shim.install()
         return data
 
+    registered: list[int] = []
     yield start
+    stop_lines_in_process(registered)
     for proc in procs:
         if proc.poll() is None:
             proc.terminate()
@@ -116,3 +199,46 @@ def hilbench_emulator() -> Iterator[Callable[..., dict[str, Any]]]:
             if stream:
                 stream.close()
     tmp.cleanup()
+
+
+class RunHelper:
+    """What the ``hilbench_run`` fixture gives: ``hilbench run`` for clients of a test's benches.
+
+    ``bench`` below is a fixture :class:`Bench`, a manifest from ``hilbench_emulator``,
+    or a manifest file.
+    """
+
+    def __init__(self, directory: Path) -> None:
+        self._dir = directory
+        self._written: dict[int, Path] = {}
+
+    def manifest(self, bench: Bench | dict[str, Any] | str | os.PathLike[str]) -> str:
+        """The manifest file of ``bench`` (written for an in-process bench, its line server started)."""
+        if isinstance(bench, Bench):
+            serve_lines(bench)
+            path = self._written.get(id(bench)) or self._dir / f"manifest-{len(self._written)}.json"
+            bench.write_manifest(path)
+            self._written[id(bench)] = path
+            return str(path)
+        if isinstance(bench, dict):
+            return str(bench["manifest_path"])
+        return str(bench)
+
+    def command(self, bench: Any, *argv: str, shim: str | None = None) -> list[str]:
+        """``[python, -m, hilbench.cli, run, --manifest, FILE, (--shim, S,) --, *argv]``."""
+        extra = ["--shim", shim] if shim else []
+        return [sys.executable, "-m", "hilbench.cli", "run", "--manifest", self.manifest(bench), *extra, "--",
+                *argv]
+
+    def env(self, bench: Any, shim: str = "auto") -> dict[str, str]:
+        """``os.environ`` plus what ``hilbench run`` adds (for ``subprocess.Popen(..., env=...)``)."""
+        from hilbench.run.environment import read_bench, run_environment
+
+        env, _notes = run_environment([read_bench(self.manifest(bench))], shim)
+        return env
+
+
+@pytest.fixture
+def hilbench_run(tmp_path_factory: pytest.TempPathFactory) -> RunHelper:
+    """``hilbench run`` for subprocess clients of the test's benches (see :class:`RunHelper`)."""
+    return RunHelper(tmp_path_factory.mktemp("hilbench-run"))

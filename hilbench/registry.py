@@ -22,6 +22,9 @@ kind                   entry-point group         the object an entry point names
 :data:`verbs`          ``hilbench.verbs``        a module with ``register(subparsers)``
 :data:`decoders`       ``hilbench.decoders``     a :class:`~hilbench.decoders.DecoderTarget` (fuzzing,
                                                  rough-input benchmarks)
+:data:`servers`        ``hilbench.servers``      a :class:`~hilbench.bench.server.Server` (``emulate --serve``)
+:data:`recorders`      ``hilbench.recorders``    a recording format: ``accepts(path, protocol)``,
+                                                 ``open(path, source=..., description=...)``
 =====================  ========================  =============================================
 
 Entry points load on first use of their kind. A plug-in that fails to load
@@ -170,8 +173,10 @@ sources = Kind("sources", "hilbench.sources", what="source kind")
 instruments = Kind("instruments", "hilbench.instruments", what="instrument")
 verbs = Kind("verbs", "hilbench.verbs", what="verb module")
 decoders = Kind("decoders", "hilbench.decoders", what="decoder target")
+servers = Kind("servers", "hilbench.servers", what="server")
+recorders = Kind("recorders", "hilbench.recorders", what="recording format")
 
-KINDS: tuple[Kind, ...] = (families, host_ports, media, sources, instruments, verbs, decoders)
+KINDS: tuple[Kind, ...] = (families, host_ports, media, sources, instruments, verbs, decoders, servers, recorders)
 
 
 def reload() -> None:
@@ -198,5 +203,5 @@ def instrument_for(protocol: str) -> Any | None:
     return None
 
 
-__all__ = ["KINDS", "Kind", "PluginWarning", "decoders", "families", "family_for_protocol", "host_ports", "instrument_for",
-           "instruments", "media", "reload", "sources", "verbs"]
+__all__ = ["KINDS", "Kind", "PluginWarning", "decoders", "families", "family_for_protocol", "host_ports",
+           "instrument_for", "instruments", "media", "recorders", "reload", "servers", "sources", "verbs"]

@@ -51,9 +51,9 @@ def status(rover) -> dict:
 
 
 def test_manifest_lists_the_board_and_its_control_channel(rover):
-    (ep,) = rover["endpoints"]
+    (ep,) = [e for e in rover["endpoints"] if e["protocol"] == "vel2d"]  # (the rover's RPLIDAR is the other)
     assert (ep["protocol"], ep["baud"], ep["type"]) == ("vel2d", 115_200, "pty") and os.path.exists(ep["path"])
-    (dev,) = rover["devices"]
+    (dev,) = [d for d in rover["devices"] if d["protocol"] == "vel2d"]
     assert (dev["model"], dev["preset"], dev["output"], dev["endpoint"]) == ("stm32f767-rover", "freertos-50-30",
                                                                            "v3", "rover")
     assert rover["control"].startswith("127.0.0.1:")
@@ -120,7 +120,7 @@ def test_teleop_in_a_real_terminal(hilbench_bench):
     board = bench.board()
     sock = f"hilbench-test-{uuid.uuid4().hex[:8]}"
     tmux = ["tmux", "-L", sock]
-    cmd = f"{sys.executable} -m hilbench.cli teleop {bench.endpoint().path}"
+    cmd = f"{sys.executable} -m hilbench.cli teleop {bench.endpoint('rover').path}"
     subprocess.run([*tmux, "new-session", "-d", "-x", "100", "-y", "40", cmd], check=True)
 
     def frames() -> list[str]:

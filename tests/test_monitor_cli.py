@@ -188,5 +188,8 @@ def test_monitor_refuses_a_line_that_is_not_dynamixel(hilbench_emulator, tmp_pat
     mfile.write_text(json.dumps({k: v for k, v in manifest.items() if k != "process"}))
     proc = hb("monitor", f"{mfile}#rover", "--json")
     assert proc.returncode == 2
-    assert proc.stderr.strip() == (f"hilbench: error: {mfile}#rover carries vel2d, not dynamixel "
+    from hilbench import registry
+
+    mine = "/".join(i.protocol for i in registry.instruments.values() if i.verb == "monitor")
+    assert proc.stderr.strip() == (f"hilbench: error: {mfile}#rover carries vel2d, not {mine} "
                                    "(a board's trace output: use `hilbench profile`)")

@@ -21,6 +21,7 @@ from typing import Any
 from hilbench import registry
 from hilbench.bench.family import DeviceFamily
 from hilbench.bench.profile import EndpointSpec, Profile, load_profile
+from hilbench.errors import BenchError, UsageError
 from hilbench.transports.tap_server import TapServer
 
 
@@ -42,6 +43,8 @@ class Endpoint:
         self.devices: dict[str, Any] = {}
         self.tap: TapServer | None = None
         self.attrs: dict[str, Any] = {}
+        #: Running servers of this endpoint by server name (``--serve``), listed in its manifest entry.
+        self.services: dict[str, Any] = {}
 
     @property
     def name(self) -> str:
@@ -82,6 +85,9 @@ class Bench:
     stable symlink named after each pty endpoint into that directory. ``tap``
     serves each medium's traffic on 127.0.0.1 (a TCP tap server, listed as
     ``tap`` in the manifest) for monitors and recorders in other processes.
+    ``serve`` names servers (:mod:`hilbench.bench.server`, e.g. ``"rfc2217"``)
+    that make every endpoint they can serve reachable over the network; they,
+    the taps and the control channel listen on ``bind`` (default 127.0.0.1).
     """
 
     def __init__(
@@ -91,14 +97,19 @@ class Bench:
         paced: bool | None = None,
         link_dir: str | Path | None = None,
         tap: bool = False,
+        serve: tuple[str, ...] | list[str] = (),
+        bind: str = "127.0.0.1",
     ) -> None:
         self.profile = profile if isinstance(profile, Profile) else load_profile(profile)
         self.paced = paced
         self.tap = tap
+        self.serve = tuple(serve)
+        self.bind = bind
         self.link_dir = Path(link_dir) if link_dir else None
         self.endpoints: dict[str, Endpoint] = {}
         self.devices: dict[str, Any] = {}
         self.started_at: float | None = None
+        self._stopped = False
         self.control = None  # a ControlServer once serve_control() ran
         self.services: dict[str, Any] = {}  # name -> object with close() and describe(): listed in the manifest
         self._manifest_token: str | None = None  # names this bench's manifests (see hilbench.bench.manifest)
@@ -110,6 +121,8 @@ class Bench:
         """Open the endpoints and start every medium and device; returns self."""
         if self.started_at is not None:
             return self
+        if self._stopped:
+            raise BenchError("this bench was stopped and its ports are closed: start a new Bench")
         t = time.monotonic()
         prof = self.profile
         try:
@@ -130,9 +143,12 @@ class Bench:
                 self.devices.update(ep.devices)
                 medium.add_host(port)
                 if self.tap:
-                    ep.tap = TapServer(baud=spec.baud, protocol=spec.protocol,
+                    # the medium's protocol: what its traffic is, as the family may have refined it
+                    # (a Protocol 1.0 Dynamixel bus carries "dynamixel1")
+                    ep.tap = TapServer(host=self.bind, baud=spec.baud, protocol=medium.protocol or spec.protocol,
                                        description=f"bench {prof.name}, endpoint {spec.name}")
                     medium.add_tap(ep.tap.feed)
+            self._start_servers()
             for ep in self.endpoints.values():
                 ep.medium.start()
             for ep in self.endpoints.values():
@@ -143,8 +159,21 @@ class Bench:
         self.started_at = t
         return self
 
+    def _start_servers(self) -> None:
+        for name in self.serve:
+            server = registry.servers.get(name)
+            served = [ep for ep in self.endpoints.values() if server.serves(ep)]
+            if not served:
+                raise UsageError(f"bench {self.profile.name!r} has no endpoint {name} can serve "
+                                 f"({server.help or name})")
+            for ep in served:
+                ep.services[name] = server.start(self, ep, self.bind)
+
     def stop(self) -> None:
-        """Stop every device, medium and service; close every endpoint."""
+        """Stop every device, medium and service; close every endpoint (once: stopping again does nothing)."""
+        if self._stopped:
+            return
+        self._stopped = True
         if self.control is not None:
             self.control.close()
             self.control = None
@@ -154,6 +183,9 @@ class Bench:
         for ep in self.endpoints.values():
             ep.family.stop(ep)
             ep.medium.close()
+            for service in ep.services.values():  # after the medium: its thread waits on their sockets
+                service.close()
+            ep.services.clear()
             ep.port.close()
             if ep.tap is not None:
                 ep.tap.close()
@@ -189,12 +221,13 @@ class Bench:
                 return ep.family
         raise KeyError(device_name)
 
-    def serve_control(self, host: str = "127.0.0.1", port: int = 0):
-        """Start the control channel (family commands for other processes); listed in the manifest."""
+    def serve_control(self, host: str | None = None, port: int = 0):
+        """Start the control channel (family commands for other processes) on ``host`` (default: the
+        bench's ``bind``); listed in the manifest."""
         from hilbench.bench.control import ControlServer
 
         if self.control is None:
-            self.control = ControlServer(self, host, port)
+            self.control = ControlServer(self, host or self.bind, port)
         return self.control
 
     @property
@@ -225,9 +258,13 @@ class Bench:
                 "protocol": ep.spec.protocol,
                 "baud": ep.spec.baud,
                 "paced": ep.medium.paced,
+                # what the medium's thread runs under (SCHED_FIFO where allowed), for media that say
+                **({"scheduling": sched} if (sched := getattr(ep.medium, "scheduling", None)) else {}),
                 "tap": ep.tap.url if ep.tap is not None else None,
             }
             entry.update(ep.family.describe_endpoint(ep))
+            for service in ep.services.values():
+                entry.update(service.describe())
             eps.append(entry)
         devs = []
         for spec in self.profile.devices:

@@ -7,8 +7,11 @@ per line each way::
     -> {"cmd": "button", "device": "rover"}
     <- {"ok": true, "status": {...}}
 
-The bench answers ``devices`` (each device that takes commands, with them)
-and ``taps`` (each endpoint's traffic tap and how many clients it serves);
+The bench answers ``devices`` (each device that takes commands, with them),
+``taps`` (each endpoint's traffic tap and how many clients it serves),
+``servers`` (each endpoint's network servers, e.g. RFC 2217, with their
+client and counters) and ``manifest`` (the bench's manifest, for programs that reach the bench only
+through this channel, e.g. over labgrid);
 every other command belongs to a device family
 (:attr:`~hilbench.bench.family.DeviceFamily.control_commands`), e.g. the rover
 board's ``status``, ``button``, ``reset``, ``fault``, ``log`` and
@@ -166,7 +169,7 @@ class ControlServer:
         if name is None:
             if len(able) != 1:
                 if not able:
-                    known = sorted({c for cmds in commands.values() for c in cmds} | {"devices", "taps"})
+                    known = sorted({c for cmds in commands.values() for c in cmds} | {"devices", "manifest", "servers", "taps"})
                     raise ControlError(f"unknown command {cmd!r} (expected {', '.join(known)})")
                 raise ControlError(f"name a device: the bench has {', '.join(able)} answering {cmd!r}")
             name = able[0]
@@ -190,6 +193,12 @@ class ControlServer:
             raise ControlError("expected {\"cmd\": NAME, ...}")
         if cmd == "devices":
             return {"devices": self._commands()}
+        if cmd == "servers":
+            return {"servers": {ep.name: {name: service.status() if hasattr(service, "status") else service.describe()
+                                          for name, service in ep.services.items()}
+                                for ep in self.bench.endpoints.values() if ep.services}}
+        if cmd == "manifest":
+            return {"manifest": self.bench.manifest()}
         if cmd == "taps":
             return {"taps": {ep.name: {"url": ep.tap.url, "clients": ep.tap.clients}
                              for ep in self.bench.endpoints.values() if ep.tap is not None}}
@@ -258,6 +267,14 @@ class ControlClient:
     def devices(self) -> dict[str, list[str]]:
         """Each device that takes commands, with the commands: ``{"rover": ["status", "button", ...]}``."""
         return self.call("devices")["devices"]
+
+    def manifest(self) -> dict[str, Any]:
+        """The bench's manifest, as ``hilbench emulate --manifest`` writes it."""
+        return self.call("manifest")["manifest"]
+
+    def servers(self) -> dict[str, dict[str, Any]]:
+        """Each served endpoint's servers: ``{"arm": {"rfc2217": {"url": ..., "client": ..., ...}}}``."""
+        return self.call("servers")["servers"]
 
     def taps(self) -> dict[str, dict[str, Any]]:
         """Each endpoint's traffic tap: ``{"rover": {"url": "tcp://...", "clients": 1}}``."""

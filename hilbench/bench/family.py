@@ -68,6 +68,9 @@ class DeviceFamily:
     endpoint_types: ClassVar[tuple[str, ...]] = ("pty",)
     #: The medium kind its endpoints need (``hilbench.media``).
     medium: ClassVar[str] = "serial"
+    #: The profile key its endpoints give their line rate by (``baud``, or ``bitrate`` on a CAN bus); either
+    #: name is accepted and lands in ``EndpointSpec.baud``.
+    rate_key: ClassVar[str] = "baud"
     #: Endpoint keys of its own (besides type, protocol, baud, paced and the host port's keys).
     endpoint_keys: ClassVar[tuple[str, ...]] = ()
     #: Keys of a ``[[devices]]`` entry (for unknown-key errors).

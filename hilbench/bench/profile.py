@@ -214,7 +214,9 @@ def _endpoint(c: Checker, name: str, ep: Any, raw_devs: list[dict[str, Any]], on
         protocol = next(iter(found.values())).protocols[0]
     c.choice(protocol, f"{key}.protocol", protocols)
     family = registry.family_for_protocol(protocol)
-    allowed = (*CORE_ENDPOINT_KEYS, *port_cls.profile_keys, *family.endpoint_keys)
+    rate_key = family.rate_key  # "baud", or what the family's users call the line rate ("bitrate" on CAN)
+    allowed = (*CORE_ENDPOINT_KEYS, *((rate_key,) if rate_key != "baud" else ()), *port_cls.profile_keys,
+               *family.endpoint_keys)
     for k in ep:
         if k not in allowed:
             owners = [n for n, cls in registry.host_ports.items() if k in cls.profile_keys]
@@ -225,7 +227,10 @@ def _endpoint(c: Checker, name: str, ep: Any, raw_devs: list[dict[str, Any]], on
     if kind not in family.endpoint_types:
         types = " or ".join(f'"{t}"' for t in family.endpoint_types)
         c.fail(f"{key}.type", f'expected {types} for protocol "{protocol}", got "{kind}"')
-    baud = family.check_baud(c, f"{key}.baud", ep.get("baud"), kind)
+    if rate_key != "baud" and rate_key in ep and "baud" in ep:
+        c.fail(f"{key}.baud", f"give the line rate once: {rate_key} or baud")
+    rate_name = rate_key if rate_key in ep else "baud"
+    baud = family.check_baud(c, f"{key}.{rate_name}", ep.get(rate_name), kind)
     port_options = c.options(port_cls.check_options, {k: ep[k] for k in port_cls.profile_keys if k in ep}, key)
     options = family.check_endpoint(c, key, ep, kind)
     return EndpointSpec(name=name, type=kind, protocol=protocol, baud=baud,

@@ -58,8 +58,8 @@ def cmd_board(args: argparse.Namespace) -> int:
         if not args.knobs:
             raise CliError(f"fault: give KEY=VALUE knobs ({', '.join(FAULT_RULES)})")
         knobs = check_fault_knobs(dict(args.knobs))  # the bench's own rules, before anything is sent
-    elif args.knobs:
-        raise CliError(f"{args.action}: takes no KEY=VALUE knobs (only fault does)")
+    elif args.knobs and args.action != "micro-ros":
+        raise CliError(f"{args.action}: takes no KEY=VALUE knobs (only fault and micro-ros do)")
     client = _client(args)
     try:
         if args.action == "button":
@@ -74,6 +74,20 @@ def cmd_board(args: argparse.Namespace) -> int:
         elif args.action == "log":
             for line in client.log(args.device):
                 print(line)
+        elif args.action == "micro-ros":
+            knobs = dict(args.knobs)
+            unknown = set(knobs) - {"zeroed_next"}
+            if unknown:
+                raise CliError(f"micro-ros: unknown knob {sorted(unknown)[0]!r} (expected zeroed_next=N)")
+            st = client.micro_ros(args.device, **{k: int(v) for k, v in knobs.items()})
+            if args.json:
+                print(json.dumps(st))
+            else:
+                c = st["counters"]
+                print(f"micro-ROS link to {st['agent']}: {st['state']}, key {st['client_key']}, from {st['local']}")
+                print(f"  sessions {c['sessions']}, samples out {c['samples_out']} in {c['samples_in']}, "
+                      f"cmd_vel {st['cmd_vel_received']}, zeroed {c['zeroed']}, creation failures "
+                      f"{c['creation_failures']}")
         elif args.action == "wait-report":
             reply = client.wait_report(args.device, timeout=args.timeout, after=args.after)
             rep = reply["report"]
@@ -115,10 +129,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     where.add_argument("--control", metavar="HOST:PORT", help="the control address (printed by hilbench emulate)")
     b.add_argument("--device", help="board name (default: the only board)")
     b.add_argument("--json", action="store_true", help="print JSON")
-    b.add_argument("action", choices=("status", "button", "reset", "fault", "log", "wait-report"),
-                   help="what to do")
+    b.add_argument("action", choices=("status", "button", "reset", "fault", "log", "wait-report", "micro-ros"),
+                   help="what to do (micro-ros: the micro-ROS link of a micro-ros-* preset)")
     b.add_argument("knobs", nargs="*", type=_knob, metavar="KEY=VALUE",
-                   help="fault knobs: drop_rate, corrupt_rate (per byte), drop_next, corrupt_next (bytes), stall (s)")
+                   help="fault knobs: drop_rate, corrupt_rate (per byte), drop_next, corrupt_next (bytes), stall (s); "
+                        "micro-ros: zeroed_next (datagrams sent zeroed)")
     b.add_argument("--timeout", type=_rule("WAIT_TIMEOUT"), default=30.0,
                    help="wait-report: seconds to wait (default: 30)")
     b.add_argument("--after", type=_rule("REPORT_COUNT"), help="wait-report: return once more than N reports exist")

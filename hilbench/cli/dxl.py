@@ -91,7 +91,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     dsub = d.add_subparsers(dest="dxl_verb", required=True, metavar="TOOL")
 
     def port_args(q: argparse.ArgumentParser, baud: bool = True) -> None:
-        q.add_argument("port", help="serial port, e.g. /dev/ttyUSB0 or an emulated pty")
+        q.add_argument("port", help="serial port, e.g. /dev/ttyUSB0, an emulated pty or a remote rfc2217://HOST:PORT")
         if baud:
             q.add_argument("--baud", type=SDK_BAUD, default=57_600, help="baud rate (default: 57600)")
 

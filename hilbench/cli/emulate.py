@@ -3,21 +3,24 @@
 from __future__ import annotations
 
 import argparse
-import ipaddress
 import signal
 import sys
 import threading
 from pathlib import Path
 
+from hilbench import registry
 from hilbench.bench.profile import DEFAULT_PROFILE, load_profile
+from hilbench.transports.host_port import DEFAULT_BIND, bind_address, is_loopback
 
 
 def cmd_emulate(args: argparse.Namespace) -> int:
     from hilbench.bench import Bench
+    from hilbench.bench.line_server import serve_lines
 
     profile = load_profile(args.profile)
     paced = True if args.paced else (False if args.unpaced else None)
-    bench = Bench(profile, paced=paced, link_dir=args.link_dir, tap=not args.no_tap)
+    serve = _server_names(args.serve)
+    bench = Bench(profile, paced=paced, link_dir=args.link_dir, tap=not args.no_tap, serve=serve, bind=args.bind)
     manifest = Path(args.manifest) if args.manifest else None
     if manifest:
         bench.check_manifest_path(manifest)  # refuse a user's file or a live bench's manifest before starting
@@ -26,8 +29,9 @@ def cmd_emulate(args: argparse.Namespace) -> int:
         signal.signal(sig, lambda *_: stop.set())
     bench.start()
     try:
-        if bench.has_control_commands:
+        if bench.has_control_commands or serve:  # a served bench is found remotely through its control channel
             bench.serve_control()
+        lines = serve_lines(bench)  # modem lines, BREAK and flushes for clients under `hilbench run`
         if manifest:
             claim = bench.write_manifest(manifest)
             if claim.took_over is not None:
@@ -36,11 +40,17 @@ def cmd_emulate(args: argparse.Namespace) -> int:
         print(f"hilbench: bench {profile.name!r} running ({len(bench.devices)} devices); Ctrl-C stops it")
         for ep in bench.endpoints.values():
             address = getattr(ep.port, "address", None)
-            if address is not None and not _is_loopback(address[0]):
+            if address is not None and not is_loopback(address[0]):
                 print(f"hilbench: warning: endpoint {ep.name!r} listens on {address[0]}, beyond this machine "
                       "(the profile's bind; the default is 127.0.0.1)", file=sys.stderr)
+        if not is_loopback(args.bind):
+            print(f"hilbench: warning: --bind {args.bind}: the servers, traffic taps and control channel listen "
+                  "beyond this machine, without authentication (labgrid's SSH proxying reaches a bench bound to "
+                  "127.0.0.1)", file=sys.stderr)
         for ep in bench.endpoints.values():
             print(f"  {ep.name}: {_where(ep)}  ({ep.family.summary(ep)})")
+            for name, service in ep.services.items():
+                print(f"    {name}: {service.describe().get(registry.servers.get(name).manifest_key, service)}")
             if ep.tap is not None:
                 where = f"{manifest}#{ep.name}" if manifest else ep.tap.url
                 print(f"    traffic tap: {ep.tap.url}  (hilbench {ep.family.tap_reader} {where})")
@@ -48,7 +58,9 @@ def cmd_emulate(args: argparse.Namespace) -> int:
             takers = "; ".join(f"{name}: {', '.join(ep.family.control_commands)}"
                                for ep in bench.endpoints.values() if ep.family.control_commands
                                for name in ep.devices)
-            print(f"  control: {bench.control.address_text}  ({takers})")
+            print(f"  control: {bench.control.address_text}  ({takers or 'devices, manifest, servers, taps'})")
+        if lines is not None and manifest:
+            print(f"  modem lines: hilbench run --manifest {manifest} -- COMMAND")
         if manifest:
             print(f"  manifest: {manifest}")
         sys.stdout.flush()
@@ -67,11 +79,22 @@ def _where(ep) -> str:
     return ep.path
 
 
-def _is_loopback(host: str) -> bool:
-    try:
-        return ipaddress.ip_address(host).is_loopback
-    except ValueError:
-        return host == "localhost"
+def _server_names(values: list[str] | None) -> tuple[str, ...]:
+    """``--serve a --serve b,c`` -> ("a", "b", "c"), each a registered server (one-line error otherwise)."""
+    names: list[str] = []
+    for value in values or ():
+        for name in filter(None, (n.strip() for n in value.split(","))):
+            registry.servers.get(name)  # raises UsageError naming the known ones
+            if name not in names:
+                names.append(name)
+    return tuple(names)
+
+
+def _serve_help() -> str:
+    servers = registry.servers.items()
+    known = "; ".join(f"{name}: {getattr(s, 'help', '')}" for name, s in servers) or "none installed"
+    return (f"serve the endpoints over the network as NAME (repeatable or comma-separated; "
+            f"listed in the manifest). Installed: {known}")
 
 
 ORDER = 10
@@ -90,4 +113,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     e.add_argument("--link-dir", metavar="DIR", help="also make a stable symlink DIR/<endpoint> to each pty")
     e.add_argument("--no-tap", action="store_true",
                    help="do not serve each line's traffic on 127.0.0.1 for `hilbench monitor` / `record`")
+    e.add_argument("--serve", metavar="NAME", action="append", help=_serve_help())
+    e.add_argument("--bind", metavar="ADDR", default=DEFAULT_BIND, type=_bind_arg,
+                   help="address the servers, traffic taps and control channel listen on (default: 127.0.0.1; "
+                        "anything else is reachable from other machines and warned about)")
     e.set_defaults(func=cmd_emulate)
+
+
+def _bind_arg(text: str) -> str:
+    try:
+        return bind_address(text, "--bind")
+    except Exception as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None

@@ -61,12 +61,19 @@ def _view(text: str) -> str:
 def _writer(path: str | None, source, description: str | None = None):
     if not path:
         return None
+    from hilbench import registry
     from hilbench.transports.capture_file import CaptureWriter
+
+    if path != "-":  # a recording format of a plug-in (python-can logs for CAN), else the hilbench capture
+        for fmt in registry.recorders.values():
+            if fmt.accepts(path, source.protocol):
+                return fmt.open(path, source=source, description=description or source.name)
 
     info = getattr(getattr(source, "reader", None), "info", None)
     return CaptureWriter(path, baud=source.baud, protocol=source.protocol or "",
                          description=description or source.name, timestamps=source.timestamps,
-                         t0_wall=info.t0_wall if info is not None and info.measured else None)
+                         t0_wall=info.t0_wall if info is not None and info.measured else None,
+                         wall_offset=getattr(source, "wall_offset", None))
 
 
 #: Exit status of ``--strict`` when the input is damaged (as ``hilbench profile --strict``).
@@ -151,6 +158,8 @@ def cmd_monitor(args: argparse.Namespace) -> int:
 
 
 def cmd_record(args: argparse.Namespace) -> int:
+    from hilbench.transports.capture_file import CaptureError
+
     terminate_on_sigterm()
     speed = args.speed if args.speed is not None else None
     deadline = time.monotonic() + args.seconds if args.seconds else None
@@ -160,7 +169,10 @@ def cmd_record(args: argparse.Namespace) -> int:
         try:
             for chunk in source.chunks(0.1 if source.live else None):
                 if chunk is not None:
-                    writer.chunk(chunk)
+                    try:
+                        writer.chunk(chunk)
+                    except CaptureError as exc:
+                        raise CliError(str(exc)) from None
                 if deadline is not None and time.monotonic() >= deadline:
                     break
                 if stop.is_set():
@@ -177,7 +189,55 @@ def cmd_record(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_tap_udp(args: argparse.Namespace) -> int:
+    """``hilbench tap udp LISTEN TARGET``: a UDP relay between clients and a target, decoding both ways."""
+    from hilbench.monitor import Monitor
+    from hilbench.transports.udp import parse_address
+    from hilbench.transports.udp_relay import UdpRelay
+
+    if len(args.more) != 2:
+        raise CliError("usage: hilbench tap udp LISTEN TARGET (LISTEN: PORT or HOST:PORT, TARGET: HOST:PORT)")
+    listen_text, target_text = args.more
+    try:
+        host, _, port_text = listen_text.rpartition(":")
+        if not port_text.isdigit() or int(port_text) > 65535:
+            raise ValueError(f"LISTEN: expected PORT or HOST:PORT, got {listen_text!r}")
+        listen = (host.strip("[]") or "127.0.0.1", int(port_text))
+        target = parse_address(target_text)
+    except ValueError as exc:
+        raise CliError(f"tap udp: {exc}") from None
+    terminate_on_sigterm()
+    options = _options(args)
+    try:
+        relay = UdpRelay(listen, target)
+    except OSError as exc:
+        raise CliError(f"tap udp: cannot bind {listen[0]}:{listen[1]}: {exc.strerror or exc}") from None
+    try:
+        label = f"udp relay {relay.listen[0]}:{relay.listen[1]} -> {target[0]}:{target[1]}"
+        instrument = _instrument(args, relay.source)
+        mon = Monitor(relay.source, instrument=instrument, record=_writer(args.record, relay.source, label),
+                      options=options)
+        mon.start()
+        relay.start()
+        print(f"hilbench tap: clients send to udp://{relay.listen[0]}:{relay.listen[1]}, relayed to "
+              f"{target[0]}:{target[1]}", flush=True)
+        _watch(mon, args, label, lambda: "relaying" if relay.error is None else "failed",
+               stop=lambda: relay.error is not None)
+    finally:
+        relay.close()
+    if relay.error is not None:
+        raise CliError(f"tap udp: {relay.error}")
+    print(f"hilbench tap: relayed {relay.datagrams_up} datagrams to the target, {relay.datagrams_down} back",
+          file=sys.stderr)
+    return 0
+
+
 def cmd_tap(args: argparse.Namespace) -> int:
+    if args.port == "udp" and args.more:
+        return cmd_tap_udp(args)
+    if args.more:
+        raise CliError(f"unexpected arguments after the port: {' '.join(args.more)} (the UDP relay is "
+                       "`hilbench tap udp LISTEN TARGET`)")
     from hilbench.monitor import Monitor
     from hilbench.transports.serial_tap import SerialTap
     from hilbench.transports.sources import SourceError
@@ -220,6 +280,14 @@ def _kinds() -> str:
 
 
 
+def _formats() -> str:
+    """The recording formats plug-ins add, for help texts (``; for can sources also .log .asc ...``)."""
+    from hilbench import registry
+
+    extra = [f"for {fmt.name} sources also {' '.join(fmt.suffixes)}" for fmt in registry.recorders.values()]
+    return "; " + "; ".join(extra) if extra else ""
+
+
 def _watch_args(p: argparse.ArgumentParser) -> None:
     protocols = [i.protocol for i in _monitor_instruments()]
     p.add_argument("--protocol", choices=protocols,
@@ -238,7 +306,8 @@ def _watch_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--device", type=int_arg, help="device ID the details view shows first (keys: left/right)")
     p.add_argument("--once", action="store_true",
                    help="leave the dashboard when the source ends, even in a terminal")
-    p.add_argument("--record", metavar="FILE", help="also record everything to FILE (hilbench capture format)")
+    p.add_argument("--record", metavar="FILE", help="also record everything to FILE (hilbench capture format"
+                                                    f"{_formats()})")
     for inst in _monitor_instruments():
         inst.add_arguments(p)
 
@@ -265,8 +334,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     r = sub.add_parser(
         "record", help="record a bus to a capture file",
         description="Store every byte from SOURCE (as for `hilbench monitor`) with its time and direction in FILE "
-                    "(hilbench capture format, see docs/capture-format.md; '-' for stdout). Stops when the source "
-                    "ends, on Ctrl-C / SIGTERM, or after --seconds. Converts raw dumps too.")
+                    "(hilbench capture format, see docs/capture-format.md; '-' for stdout" + _formats() + "). Stops "
+                    "when the source ends, on Ctrl-C / SIGTERM, or after --seconds. Converts raw dumps too.")
     r.add_argument("source", help="what to record")
     r.add_argument("file", help="capture file to write ('-': stdout)")
     r.add_argument("--baud", type=LINE_BAUD, help="line rate in bit/s (a serial port's rate; a raw dump's byte time)")
@@ -275,11 +344,17 @@ def register(sub: argparse._SubParsersAction) -> None:
     r.set_defaults(func=cmd_record)
 
     t = sub.add_parser(
-        "tap", help="sit between an application and a serial port, forwarding and decoding both ways",
+        "tap", help="sit between an application and a serial port (or UDP clients and a target), forwarding and "
+                    "decoding both ways",
+        usage="%(prog)s [options] PORT | %(prog)s [options] udp LISTEN TARGET",
         description="Create a pty for the application, forward every byte between it and PORT as soon as it is "
                     "read, and decode both directions: dashboard (in a terminal), --summary/--json at the end "
-                    "(Ctrl-C, SIGTERM or --seconds), --record FILE.")
-    t.add_argument("port", help="the real port (e.g. /dev/ttyUSB0, or an emulated bench's pty)")
+                    "(Ctrl-C, SIGTERM or --seconds), --record FILE. `hilbench tap udp LISTEN TARGET` is a UDP "
+                    "relay instead: clients send to LISTEN (PORT or HOST:PORT, 127.0.0.1 by default), each is "
+                    "relayed to TARGET (e.g. a micro-ROS agent at 127.0.0.1:8888) from a socket of its own, "
+                    "and both directions are decoded with their addresses.")
+    t.add_argument("port", help="the real port (e.g. /dev/ttyUSB0, or an emulated bench's pty), or udp")
+    t.add_argument("more", nargs="*", metavar="LISTEN TARGET", help="after udp: where clients send, and the target")
     t.add_argument("--baud", type=LINE_BAUD,
                    help="fixed baud rate for PORT (default: follow the rate the application sets)")
     t.add_argument("--link", metavar="PATH", help="also make PATH a symlink to the application's pty")

@@ -12,6 +12,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 
 import dynamixel_sdk as sdk
+import serial
 
 from hilbench.errors import DeviceError, UsageError
 from hilbench.protocols.dynamixel import describe_error
@@ -43,10 +44,53 @@ class Found:
         return MODEL_NAMES.get(self.model_number, f"unknown ({self.model_number})")
 
 
+#: How long a URL port's read waits for bytes (s); see :class:`UrlPortHandler`.
+URL_READ_WAIT = 0.002
+
+
+class UrlPortHandler(sdk.PortHandler):
+    """The official SDK's PortHandler that also opens pyserial URLs (``rfc2217://HOST:PORT``, ``socket://``).
+
+    The SDK opens ports with ``serial.Serial(path)``, which takes device paths only; this subclass
+    changes that one step (``serial.serial_for_url``) and keeps everything else, so the SDK's
+    packet handler and group reads/writes run unchanged over a remote bench. A baud change on an
+    open URL port changes the rate on the same connection instead of reopening it.
+
+    Reads wait up to :data:`URL_READ_WAIT` for bytes instead of returning at once: the SDK polls in a
+    loop that never sleeps, and a URL port's bytes arrive through a reader thread (pyserial's
+    rfc2217 client) that needs the interpreter lock the polling loop holds; a short blocking wait
+    hands it over (without it a 20-servo cycle runs at a fifth of the rate).
+    ``clearPort`` (the SDK calls it before every packet) drops the bytes that have arrived instead of
+    asking the server to purge: over RFC 2217 a purge is a round trip whose acknowledgement
+    pyserial's client polls for in 50 ms steps, which would cap the SDK at a few packets per second.
+    """
+
+    def clearPort(self) -> None:  # noqa: N802 (the SDK's name)
+        waiting = self.ser.in_waiting
+        if waiting:
+            self.ser.read(waiting)
+
+    def setupPort(self, cflag_baud: int) -> bool:  # noqa: N802 (the SDK's name)
+        if self.is_open and self.ser is not None:
+            self.ser.baudrate = self.baudrate
+        else:
+            self.ser = serial.serial_for_url(self.port_name, baudrate=self.baudrate, bytesize=serial.EIGHTBITS,
+                                             timeout=URL_READ_WAIT)
+            self.is_open = True
+        self.ser.reset_input_buffer()
+        self.tx_time_per_byte = (1000.0 / self.baudrate) * 10.0
+        return True
+
+
+def port_handler(path: str) -> sdk.PortHandler:
+    """The SDK's PortHandler for a device path, :class:`UrlPortHandler` for a URL (``rfc2217://...``)."""
+    return UrlPortHandler(path) if "://" in path else sdk.PortHandler(path)
+
+
 @contextlib.contextmanager
 def open_port(path: str, baud: int) -> Iterator[sdk.PortHandler]:
-    """Open ``path`` at ``baud`` with the SDK's PortHandler, closing it afterwards."""
-    port = sdk.PortHandler(path)
+    """Open ``path`` (a device or an ``rfc2217://`` URL) at ``baud`` with the SDK, closing it afterwards."""
+    port = port_handler(path)
     try:
         opened = port.openPort()
     except Exception as exc:  # pyserial raises SerialException with the OS reason

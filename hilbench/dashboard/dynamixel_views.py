@@ -283,7 +283,8 @@ def device_details(fr: Frame, height: int) -> Group:
         Text(f"requests {dev.requests}  replies {tr.replies(dev)}  missed {dev.misses} ({dev.consecutive} in a row)"
              f"  CRC {dev.crc_errors}  drops {dev.disconnects}"),
     ]
-    err = Text(f"ERR 0x{dev.last_error:02x} {describe_error(dev.last_error)}  errors {dev.error_statuses}  ",
+    describe = getattr(tr, "describe_error", describe_error)  # a Protocol 1.0 or Feetech bus has its own bits
+    err = Text(f"ERR 0x{dev.last_error:02x} {describe(dev.last_error)}  errors {dev.error_statuses}  ",
                style="red" if dev.last_error else "")
     if dev.alert or dev.hardware_error:
         bits = ", ".join(dev.hardware_error_bits) or "read address 70 for the cause"

@@ -1,4 +1,4 @@
-"""The Dynamixel family: emulated servos and boards on a multi-drop RS-485 bus (Protocol 2.0).
+"""The Dynamixel family: emulated servos and boards on a multi-drop RS-485 bus (Protocol 2.0 or 1.0).
 
 Profile schema (endpoint ``protocol = "dynamixel"``, a pty)::
 
@@ -8,10 +8,17 @@ Profile schema (endpoint ``protocol = "dynamixel"``, a pty)::
 
     [endpoints.dxl]
     protocol = "dynamixel"
+    protocol_version = 2           # 2 (default) or 1: one bus carries one protocol
     baud = 2_000_000               # a rate the SDK can open
     chain_policy = "continue"      # Sync/Bulk read after a silent device: "continue" or "stall"
     fast_missing = "truncate"      # Fast read lacking a device: "truncate", "drop" or "silent"
     strict_stuffing = false
+    usb2ax = true                  # Protocol 1.0 only: a USB2AX adapter (ID 0xFD) answers SYNC_READ 0x84
+
+A Protocol 1.0 bus hosts the AX-12A/AX-18A and MX-28/64/106 with 1.0 firmware
+(``model = "MX-28"`` means the 1.0 table there); a Protocol 2.0 bus the X
+series, the MX(2.0), the XL-320 and the custom boards. Its traffic is
+``dynamixel1`` to taps and monitors.
 
     [[devices]]
     model = "MX-106"               # see hilbench/protocols/dynamixel_models.py
@@ -34,13 +41,20 @@ from typing import Any
 from hilbench.bench.checks import Checker
 from hilbench.bench.family import DeviceFamily, DeviceSpec
 from hilbench.fakes.dynamixel.bus import CHAIN_POLICIES, FAST_MISSING_POLICIES
-from hilbench.protocols.dynamixel_models import BAUD_CODES, SDK_BAUDS, find_model, model_names
+from hilbench.protocols.dynamixel_classic_models import P1_NOMINAL_BAUDS
+from hilbench.protocols.dynamixel_models import BAUD_CODES, find_model, model_names
 from hilbench.rules import FAULT_COUNT, PROBABILITY, Rule
 
-#: Rates the official SDK can open (spec §7.1) that are also Dynamixel baud codes.
-DYNAMIXEL_BAUDS = tuple(sorted(set(BAUD_CODES.values()) & set(SDK_BAUDS)))
-#: An emulated bus's line rate (``endpoints.NAME.baud``): the servos need a baud code, the host the SDK.
-BUS_BAUD = Rule(int, choices=DYNAMIXEL_BAUDS, what="a Dynamixel baud rate the SDK can open")
+#: Protocol 2.0 baud codes. The official SDK's list (spec §7.1) lacks 4.5 Mbaud, which pyserial opens on
+#: Linux all the same (BOTHER): the README shows the one-method PortHandler subclass that lifts the list.
+DYNAMIXEL_BAUDS = tuple(sorted(set(BAUD_CODES.values())))
+#: Rates of the Protocol 1.0 baud codes hosts open (1 Mbaud is code 1, 57 600 code 34, ...).
+PROTOCOL1_BAUDS = tuple(sorted(set(P1_NOMINAL_BAUDS.values())))
+#: What a Protocol 1.0 bus's traffic is called to taps and monitors.
+PROTOCOL1_TRAFFIC = "dynamixel1"
+#: An emulated bus's line rate (``endpoints.NAME.baud``): a baud code of either protocol (the endpoint
+#: check then holds it to its protocol's list).
+BUS_BAUD = Rule(int, choices=tuple(sorted(set(DYNAMIXEL_BAUDS + PROTOCOL1_BAUDS))), what="a Dynamixel baud rate")
 FAULT_KEYS = ("drop_rate", "drop_next", "corrupt_rate", "corrupt_next", "delay", "vanished", "hardware_error",
               "seed")
 DEVICE_KEYS = ("model", "id", "ids", "name", "endpoint", "firmware", "init", "faults", "position",
@@ -67,7 +81,7 @@ class DynamixelFamily(DeviceFamily):
     name = "dynamixel"
     protocols = ("dynamixel",)
     endpoint_types = ("pty",)
-    endpoint_keys = ("chain_policy", "fast_missing", "strict_stuffing")
+    endpoint_keys = ("protocol_version", "chain_policy", "fast_missing", "strict_stuffing", "usb2ax")
     device_keys = DEVICE_KEYS
     models = tuple(model_names())
     default_keys = {"supply_voltage": (0, 50, 12.0), "ambient_temperature": (-40, 100, 30.0)}
@@ -88,7 +102,19 @@ class DynamixelFamily(DeviceFamily):
         return c.rule(57_600 if value is None else value, key, BUS_BAUD)
 
     def check_endpoint(self, c: Checker, key: str, raw: dict[str, Any], port_type: str) -> dict[str, Any]:
+        version = raw.get("protocol_version", 2)
+        if version not in (1, 2) or isinstance(version, bool):
+            c.fail(f"{key}.protocol_version", f"expected 1 or 2, got {version!r}")
+        baud = raw.get("baud", 57_600)
+        bauds = PROTOCOL1_BAUDS if version == 1 else DYNAMIXEL_BAUDS
+        if baud not in bauds:
+            c.fail(f"{key}.baud", f"expected a Protocol {version}.0 baud rate ({', '.join(map(str, bauds))}), "
+                                  f"got {baud!r}")
+        if "usb2ax" in raw and version != 1:
+            c.fail(f"{key}.usb2ax", "only on protocol_version = 1 buses (the USB2AX speaks Protocol 1.0)")
         return {
+            "protocol_version": version,
+            "usb2ax": c.boolean(raw.get("usb2ax", True), f"{key}.usb2ax") if version == 1 else False,
             "chain_policy": c.choice(raw.get("chain_policy", "continue"), f"{key}.chain_policy", CHAIN_POLICIES),
             "fast_missing": c.choice(raw.get("fast_missing", "truncate"), f"{key}.fast_missing",
                                      FAST_MISSING_POLICIES),
@@ -98,10 +124,14 @@ class DynamixelFamily(DeviceFamily):
     def check_devices(self, c: Checker, key: str, dev: dict[str, Any], endpoint, profile) -> list[ServoSpec]:
         if "model" not in dev:
             c.fail(f"{key}.model", "missing (expected a model name such as 'XM430-W350')")
+        version = endpoint.options.get("protocol_version", 2)
         try:
-            model = find_model(dev["model"])
+            model = find_model(dev["model"], protocol=version)
         except (KeyError, TypeError, AttributeError):
             c.fail(f"{key}.model", f"unknown model {dev['model']!r} (expected one of: {', '.join(model_names())})")
+        if model.protocol != version:
+            c.fail(f"{key}.model", f"{model.name} speaks Protocol {model.protocol}.0 but endpoint "
+                                   f"{endpoint.name!r} is a Protocol {version}.0 bus (protocol_version)")
         if ("id" in dev) == ("ids" in dev):
             c.fail(f"{key}.id", "expected exactly one of id = N or ids = [N, ...]")
         ids = [dev["id"]] if "id" in dev else dev["ids"]
@@ -169,6 +199,7 @@ class DynamixelFamily(DeviceFamily):
 
     def build(self, bench, endpoint, devices: list[ServoSpec], t: float) -> None:
         from hilbench.fakes.dynamixel.bus import DynamixelBus
+        from hilbench.fakes.dynamixel.bus1 import Protocol1Bus
 
         spec = endpoint.spec
         servos = []
@@ -179,6 +210,12 @@ class DynamixelFamily(DeviceFamily):
             endpoint.add_device(dev.name, servo)
             if dev.fast_read is not None:
                 fast_read[dev.id] = dev.fast_read
+        if spec.options.get("protocol_version", 2) == 1:
+            bus1 = Protocol1Bus(servos, name=f"{spec.name}-devices", usb2ax=spec.options["usb2ax"])
+            bus1.attach(endpoint.medium)
+            endpoint.attrs["bus"] = bus1
+            endpoint.medium.protocol = PROTOCOL1_TRAFFIC
+            return
         bus = DynamixelBus(
             servos,
             name=f"{spec.name}-devices",
@@ -193,13 +230,18 @@ class DynamixelFamily(DeviceFamily):
     @staticmethod
     def _make_servo(dev: ServoSpec, spec, profile, t: float):
         from hilbench.fakes.dynamixel.servo import Servo
-        from hilbench.protocols.dynamixel_models import BAUD_TO_CODE
+        from hilbench.fakes.table_servo import TableServo
+        from hilbench.protocols.dynamixel_classic_models import P1_NOMINAL_BAUDS
 
         model = find_model(dev.model)
         init = dict(dev.init)
         if model.kind == "servo":
-            init.setdefault("baud_rate", BAUD_TO_CODE[spec.baud])
-        servo = Servo(
+            codes = P1_NOMINAL_BAUDS if model.protocol == 1 else model.baud_codes
+            code = {baud: code for code, baud in codes.items()}.get(spec.baud)
+            if code is not None:
+                init.setdefault("baud_rate", code)
+        cls = TableServo if model.motion is not None else Servo  # the classic tables (AX, MX 1.0, XL-320)
+        servo = cls(
             model,
             dev.id,
             name=dev.name,
@@ -227,7 +269,15 @@ class DynamixelFamily(DeviceFamily):
 
     # ------------------------------------------------------------------ description
 
+    def describe_endpoint(self, endpoint) -> dict[str, Any]:
+        opts = endpoint.spec.options
+        out: dict[str, Any] = {"protocol_version": opts.get("protocol_version", 2)}
+        if out["protocol_version"] == 1:
+            out["usb2ax"] = opts["usb2ax"]
+        return out
+
     def describe_device(self, spec: ServoSpec, device, endpoint, profile) -> dict[str, Any]:
+        ep = profile.endpoints[spec.endpoint]
         return {
             "name": spec.name,
             "model": spec.model,
@@ -235,14 +285,19 @@ class DynamixelFamily(DeviceFamily):
             "firmware": device.firmware if device else spec.firmware,
             "endpoint": spec.endpoint,
             "id": spec.id,
-            "protocol": profile.endpoints[spec.endpoint].protocol,
+            "protocol": ep.protocol,
+            "protocol_version": ep.options.get("protocol_version", 2),
         }
 
     def summary(self, endpoint) -> str:
         timing = "paced" if endpoint.medium.paced else "unpaced"
         bus = endpoint.attrs.get("bus")
         n = len(bus.servos) if bus else 0
-        return f"{endpoint.spec.protocol}, {endpoint.spec.baud} baud, {timing}, {n} devices"
+        opts = endpoint.spec.options
+        version = f"Protocol {opts.get('protocol_version', 2)}.0"
+        if opts.get("usb2ax"):
+            version += " with a USB2AX"
+        return f"{endpoint.spec.protocol} ({version}), {endpoint.spec.baud} baud, {timing}, {n} devices"
 
 
 FAMILY = DynamixelFamily()

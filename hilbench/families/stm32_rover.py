@@ -20,6 +20,9 @@ Profile schema (endpoint ``protocol = "vel2d"``, a pty or UDP)::
     boot_banner = true
     tasks = { wheel_ctrl = { mean_us = 12.0, sd_us = 1.0 } }
     faults = { drop_rate = 0.0, corrupt_rate = 0.0, drop_next = 0, corrupt_next = 0 }
+    agent = "127.0.0.1:8888"       # micro-ros presets: the XRCE client's agent ("HOST:PORT" or an
+                                   # xrce-dds endpoint of this profile); see fakes/stm32_board/micro_ros.py
+    micro_ros = { client_key = 0x60C93570, domain_id = 0, zero_after_session = false }
 
 An endpoint carries one board (a UART is point to point): ``endpoint.board``,
 ``bench.board()``. The board paces its own UART, so its medium delivers at
@@ -44,7 +47,8 @@ BOARD_BAUD_RANGE = (1200, 12_500_000)
 BOARD_BAUD = Rule(int, *BOARD_BAUD_RANGE)
 BOARD_MODELS = ("stm32f767-rover", "mecarover", "stm32-rover")
 BOARD_KEYS = ("model", "name", "endpoint", "preset", "caches", "output", "dialect", "window_ms", "flush_ms", "seed",
-              "boot_banner", "faults", "tasks")
+              "boot_banner", "faults", "tasks", "agent", "micro_ros")
+MICRO_ROS_KEYS = ("client_key", "domain_id", "zero_after_session")
 BOARD_FAULT_KEYS = ("drop_rate", "corrupt_rate", "drop_next", "corrupt_next")
 TIMING_KEYS = ("mean_us", "sd_us", "min_us", "max_us", "dist")
 #: ``wait_report``: how long to wait (s), and after how many reports (``hilbench board wait-report`` too).
@@ -71,6 +75,8 @@ class BoardSpec(DeviceSpec):
     boot_banner: bool = True
     faults: dict[str, float] = field(default_factory=dict)
     tasks: dict[str, dict[str, Any]] = field(default_factory=dict)
+    agent: str | None = None
+    micro_ros: dict[str, Any] = field(default_factory=dict)
 
 
 def board_config(spec: BoardSpec, baud: int):
@@ -119,6 +125,7 @@ class Stm32RoverFamily(DeviceFamily):
         "fault": "turn fault knobs: drop_rate, corrupt_rate, drop_next, corrupt_next, stall",
         "log": "the board's recent log lines",
         "wait_report": "wait until the board printed another run-time report",
+        "micro_ros": "the micro-ROS link's session, topics and counters; zeroed_next=N zeroes its next N datagrams",
     }
 
     # ------------------------------------------------------------------ profile
@@ -177,11 +184,15 @@ class Stm32RoverFamily(DeviceFamily):
             boot_banner=c.boolean(dev.get("boot_banner", True), f"{key}.boot_banner"),
             faults=dict(faults),
             tasks={k: dict(v) for k, v in tasks.items()},
+            **_check_micro_ros(c, key, dev, preset),
         )]
 
     def check_profile(self, c: Checker, profile) -> None:
         seen: set[str] = set()
         for spec in profile.devices_of(self.name):
+            if spec.agent is not None and ":" not in spec.agent and spec.agent not in profile.endpoints:
+                c.fail(f"{spec.where}.agent", f"no endpoint named {spec.agent!r} (expected \"HOST:PORT\" or an "
+                                              "xrce-dds endpoint of this profile)")
             if spec.endpoint in seen:
                 c.fail(f"{spec.where}.endpoint", f"endpoint {spec.endpoint!r} already has a board (a UART is "
                                                  "point to point)")
@@ -197,6 +208,10 @@ class Stm32RoverFamily(DeviceFamily):
 
         for dev in devices:
             board = Board(board_config(dev, endpoint.spec.baud), name=dev.name)
+            if dev.agent is not None:
+                from hilbench.fakes.stm32_board.micro_ros import MicroRosLink
+
+                board.attach_link(MicroRosLink(_agent_address(bench, dev.agent), **dev.micro_ros))
             board.attach(endpoint.medium)
             endpoint.add_device(dev.name, board)
             endpoint.attrs["board"] = board
@@ -215,6 +230,9 @@ class Stm32RoverFamily(DeviceFamily):
         return {"paced": True}  # at the UART's rate, by the board itself
 
     def describe_device(self, spec: BoardSpec, device, endpoint, profile) -> dict[str, Any]:
+        extra: dict[str, Any] = {}
+        if spec.agent is not None:
+            extra["micro_ros"] = {"agent": spec.agent, **spec.micro_ros}
         return {
             "name": spec.name,
             "model": spec.model,
@@ -224,7 +242,7 @@ class Stm32RoverFamily(DeviceFamily):
             "caches": spec.caches,
             "output": spec.output,
             "baud": profile.endpoints[spec.endpoint].baud,
-        }
+        } | extra
 
     def summary(self, endpoint) -> str:
         board = endpoint.attrs.get("board")
@@ -257,6 +275,16 @@ class Stm32RoverFamily(DeviceFamily):
                 raise ControlError(str(exc)) from None
         if cmd == "log":
             return {"log": board.status()["log"]}
+        if cmd == "micro_ros":
+            links = [link for link in board.links if hasattr(link, "client")]
+            if not links:
+                raise ControlError(f"board {board.name!r} has no micro-ROS link (set agent = \"HOST:PORT\")")
+            zeroed = req.get("zeroed_next")
+            if zeroed is not None:
+                if isinstance(zeroed, bool) or not isinstance(zeroed, int) or not 0 <= zeroed <= 1000:
+                    raise ControlError(f"zeroed_next: expected an integer 0..1000, got {zeroed!r}")
+                links[0].client.zero_next(zeroed)
+            return {"micro_ros": links[0].status()}
         if cmd == "wait_report":
             timeout, start = req.get("timeout", 10.0), req.get("after")
             if not WAIT_TIMEOUT.ok(timeout):
@@ -272,6 +300,54 @@ class Stm32RoverFamily(DeviceFamily):
             rep = board.reports[-1]
             return {"report": rep._asdict(), "status": board.status()}
         raise ControlError(f"unknown command {cmd!r}")
+
+
+def _check_micro_ros(c: Checker, key: str, dev: dict[str, Any], preset: str) -> dict[str, Any]:
+    """``agent`` and ``micro_ros`` of a board entry (the XRCE client of the micro-ROS presets)."""
+    agent = dev.get("agent")
+    raw = c.table(dev.get("micro_ros", {}), f"{key}.micro_ros")
+    if agent is None:
+        if raw:
+            c.fail(f"{key}.micro_ros", "only with agent = \"HOST:PORT\" (the micro-ROS link's agent)")
+        return {}
+    if not preset.startswith("micro-ros-"):
+        c.fail(f"{key}.agent", f"only for the micro-ros-* presets (the micro-ROS firmware), not {preset!r}")
+    if not isinstance(agent, str) or not agent:
+        c.fail(f"{key}.agent", f"expected \"HOST:PORT\" or the name of an xrce-dds endpoint, got {agent!r}")
+    if ":" in agent:
+        from hilbench.transports.udp import parse_address
+
+        try:
+            parse_address(agent)
+        except ValueError:
+            c.fail(f"{key}.agent", f"expected \"HOST:PORT\", got {agent!r}")
+    c.unknown(raw, f"{key}.micro_ros", MICRO_ROS_KEYS)
+    opts: dict[str, Any] = {}
+    if "client_key" in raw:
+        opts["client_key"] = c.integer(raw["client_key"], f"{key}.micro_ros.client_key", 1, 0xFFFFFFFF)
+    if "domain_id" in raw:
+        opts["domain_id"] = c.integer(raw["domain_id"], f"{key}.micro_ros.domain_id", 0, 232)
+    if "zero_after_session" in raw:
+        opts["zero_after_session"] = c.boolean(raw["zero_after_session"], f"{key}.micro_ros.zero_after_session")
+    return {"agent": agent, "micro_ros": opts}
+
+
+def _agent_address(bench, agent: str):
+    """``(host, port)`` of ``agent``: a HOST:PORT, or a callable finding an endpoint of the bench when it starts."""
+    if ":" in agent:
+        from hilbench.transports.udp import parse_address
+
+        return parse_address(agent)
+
+    def find() -> tuple[str, int]:
+        ep = bench.endpoints.get(agent)
+        if ep is None or getattr(ep.port, "address", None) is None:
+            from hilbench.errors import BenchError
+
+            raise BenchError(f"agent {agent!r}: no UDP endpoint of that name in this bench")
+        return tuple(ep.port.address)
+
+    return find
 
 
 def _bench_board(bench, name: str | None = None):
@@ -306,6 +382,10 @@ class BoardClient(ControlClient):
 
     def log(self, device: str | None = None) -> list[str]:
         return self.call("log", device=device)["log"]
+
+    def micro_ros(self, device: str | None = None, **knobs: int) -> dict[str, Any]:
+        """The micro-ROS link's status (``zeroed_next=N``: zero its next N datagrams first)."""
+        return self.call("micro_ros", device=device, **knobs)["micro_ros"]
 
     def wait_report(self, device: str | None = None, timeout: float = 10.0, after: int | None = None) -> dict:
         return self.call("wait_report", device=device, timeout=timeout, after=after)

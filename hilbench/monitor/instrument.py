@@ -30,6 +30,9 @@ class Tracker(Protocol):
     def feed(self, t: float, source: str, data: bytes) -> None:
         """Bytes ``source`` put on the medium, complete at time ``t``."""
 
+    # Optional: ``feed_datagram(t, source, data, addr)`` takes a datagram with its addresses
+    # ``(source host, source port, destination host, destination port)`` instead of :meth:`feed`.
+
     def gap(self, t: float, source: str, nbytes: int) -> None:
         """``nbytes`` from ``source`` were lost before reaching the monitor."""
 

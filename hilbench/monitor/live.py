@@ -118,6 +118,8 @@ class Monitor:
                 tracker = self._make_tracker(instrument)
                 with lock:
                     self.source, self.instrument, self.tracker = source, instrument, tracker
+            # A tracker of datagram protocols takes each datagram with its addresses.
+            datagrams = getattr(tracker, "feed_datagram", None)
             for chunk in source.chunks(idle):
                 if chunk is None:
                     now = source.clock()
@@ -138,6 +140,8 @@ class Monitor:
                 with lock:
                     if chunk.lost:
                         tracker.gap(chunk.t, chunk.source, chunk.lost)
+                    elif chunk.addr is not None and datagrams is not None:
+                        datagrams(chunk.t, chunk.source, chunk.data, chunk.addr)
                     else:
                         tracker.feed(chunk.t, chunk.source, chunk.data)
                     self.chunks += 1

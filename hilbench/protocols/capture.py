@@ -20,6 +20,9 @@ description: ``docs/capture-format.md``. All integers little-endian::
              kind 0 DATA    payload = bytes `source` put on the bus, complete at t0 + t_ns
              kind 1 SOURCE  payload = UTF-8 name of source id `source` (before its first DATA)
              kind 2 GAP     payload = u32: bytes of `source` lost before reaching the recorder
+             kind 3 ADDRESS payload = family u8 (4 or 6), source address (4|16), source port u16,
+                            destination address (4|16), destination port u16: the addresses
+                            of the datagram in the next DATA record of `source`
              (readers skip records of unknown kinds)
 
 The magic is built like PNG's (0x89, CR LF, ^Z, LF), so text-mode
@@ -64,6 +67,7 @@ class RecordKind(IntEnum):
     DATA = 0
     SOURCE = 1
     GAP = 2
+    ADDRESS = 3
 
 
 class Flags(IntFlag):
@@ -194,3 +198,51 @@ def gap_record(source: int, t_ns: int, lost: int) -> bytes:
 def gap_lost(payload: bytes) -> int | None:
     """The byte count of a GAP record's payload, or None if it is too short."""
     return GapPayload.parse(payload).lost if len(payload) >= GapPayload.sizeof() else None
+
+
+#: The payload of an ADDRESS record (a datagram's addresses; ports little-endian like every integer here).
+AddressPayload = Struct(
+    "family" / Int8ul,
+    "src" / Bytes(lambda ctx: 4 if ctx.family == 4 else 16),
+    "src_port" / Int16ul,
+    "dst" / Bytes(lambda ctx: 4 if ctx.family == 4 else 16),
+    "dst_port" / Int16ul,
+)
+
+
+def _ip_bytes(host: str) -> tuple[int, bytes]:
+    import ipaddress
+
+    try:
+        ip = ipaddress.ip_address(host)
+    except ValueError:
+        ip = ipaddress.ip_address("0.0.0.0")  # a host name: unknown address (the port is still kept)
+    return (4, ip.packed) if ip.version == 4 else (6, ip.packed)
+
+
+def build_address(addr: tuple[str, int, str, int]) -> bytes:
+    """The ADDRESS payload of ``(source host, source port, destination host, destination port)``."""
+    fam_s, src = _ip_bytes(addr[0])
+    fam_d, dst = _ip_bytes(addr[2])
+    if fam_s != fam_d:  # mixed families cannot share one record: store both as IPv6 (IPv4-mapped)
+        import ipaddress
+
+        src = ipaddress.IPv6Address(b"\x00" * 10 + b"\xff\xff" + src).packed if fam_s == 4 else src
+        dst = ipaddress.IPv6Address(b"\x00" * 10 + b"\xff\xff" + dst).packed if fam_d == 4 else dst
+        fam_s = 6
+    return AddressPayload.build({"family": fam_s, "src": src, "src_port": addr[1], "dst": dst, "dst_port": addr[3]})
+
+
+def parse_address(payload: bytes) -> tuple[str, int, str, int] | None:
+    """An ADDRESS payload back to its tuple (None if it is cut short or of an unknown family)."""
+    import ipaddress
+
+    if not payload or payload[0] not in (4, 6) or len(payload) < (13 if payload[0] == 4 else 37):
+        return None
+    a = AddressPayload.parse(payload)
+    return str(ipaddress.ip_address(a.src)), a.src_port, str(ipaddress.ip_address(a.dst)), a.dst_port
+
+
+def address_record(source: int, t_ns: int, addr: tuple[str, int, str, int]) -> bytes:
+    """An ADDRESS record for the DATA record of ``source`` that follows it."""
+    return pack_record(RecordKind.ADDRESS, source, t_ns, build_address(addr))

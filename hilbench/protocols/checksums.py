@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import crcmod
 import crcmod.predefined
 
 #: CRC-16/BUYPASS (poly 0x8005, init 0, not reflected): Dynamixel Protocol 2.0.
@@ -28,3 +29,34 @@ def raw_crc_routine(crcfun):
     """
     _init, table, routine = crcfun.__defaults__
     return routine, table
+
+
+def sick_crc16(data: bytes) -> int:
+    """SICK LMS 2xx telegram CRC-16 (generator 0x8005), over STX .. the byte before the CRC.
+
+    Hand-written because no catalogue CRC matches: the register is shifted
+    before the byte is mixed in, and the mixed-in word carries the previous
+    byte in its high half (spec sheet laser_scanners.md §2.3), so crcmod's
+    table-driven CRCs cannot reproduce it.
+    """
+    crc = prev = 0
+    for b in data:
+        carry = crc & 0x8000
+        crc = (crc << 1) & 0xFFFF
+        if carry:
+            crc ^= 0x8005
+        crc ^= (prev << 8) | b
+        prev = b
+    return crc
+
+
+def scip_sum(data: bytes) -> int:
+    """Hokuyo SCIP 2.0 line checksum character: low 6 bits of the byte sum, plus 0x30."""
+    # Too small for a library: a sum and a mask.
+    return (sum(data) & 0x3F) + 0x30
+
+
+#: CRC-8/SAE-J1850 (poly 0x1D, init 0xFF, xorout 0xFF, not reflected; check "123456789" = 0x4B): the
+#: AUTOSAR E2E profile 1 CRC, protecting the rover board's CAN velocity setpoint. crcmod's ``initCrc`` is
+#: the initial register XORed with ``xorOut``, hence 0x00 for init 0xFF.
+crc8_sae_j1850 = crcmod.mkCrcFun(0x11D, initCrc=0x00, rev=False, xorOut=0xFF)

@@ -10,9 +10,10 @@ knows about packets or does I/O.
 
 from __future__ import annotations
 
-import re
-import struct
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
+
+from hilbench.protocols.control_table import Field, Model
+from hilbench.protocols.dynamixel_classic_models import CLASSIC_MODELS
 
 #: Baud Rate item (address 8) codes to bit/s.
 BAUD_CODES: dict[int, int] = {
@@ -36,6 +37,7 @@ FIRMWARE = 6
 ID = 7
 BAUD_RATE = 8
 RETURN_DELAY_TIME = 9
+DRIVE_MODE = 10
 OPERATING_MODE = 11
 HOMING_OFFSET = 20
 TEMPERATURE_LIMIT = 31
@@ -73,113 +75,6 @@ PRESENT_TEMPERATURE = 146
 EEPROM_END = 64  # EEPROM is 0..63
 
 
-@dataclass(frozen=True)
-class Field:
-    """One control-table item.
-
-    ``scale``/``unit`` turn raw values into physical ones (``raw * scale`` in
-    ``unit``, e.g. 0.1 V); ``allowed`` lists the only valid values where the
-    e-Manual gives a set rather than a range.
-    """
-
-    address: int
-    size: int
-    name: str
-    access: str = "RW"
-    default: int | float = 0
-    min: int | None = None
-    max: int | None = None
-    unit: str = ""
-    scale: float = 1.0
-    signed: bool = False
-    is_float: bool = False
-    allowed: tuple[int, ...] | None = None
-
-    @property
-    def key(self) -> str:
-        """snake_case name, e.g. ``present_position``."""
-        return re.sub(r"[^a-z0-9]+", "_", self.name.lower()).strip("_")
-
-    @property
-    def writable(self) -> bool:
-        return self.access == "RW"
-
-    @property
-    def eeprom(self) -> bool:
-        return self.address < EEPROM_END
-
-    def decode(self, raw: bytes) -> int | float:
-        """Raw little-endian bytes to the stored integer (or float)."""
-        if self.is_float:
-            return struct.unpack("<f", raw)[0]
-        return int.from_bytes(raw, "little", signed=self.signed)
-
-    def encode(self, value: int | float) -> bytes:
-        if self.is_float:
-            return struct.pack("<f", value)
-        return int(value).to_bytes(self.size, "little", signed=self.signed)
-
-    def in_range(self, value: int | float) -> bool:
-        if self.allowed is not None:
-            return value in self.allowed
-        if self.min is not None and value < self.min:
-            return False
-        return not (self.max is not None and value > self.max)
-
-    def physical(self, value: int | float) -> float:
-        """The value in :attr:`unit` (``raw * scale``)."""
-        return value * self.scale
-
-
-@dataclass(frozen=True)
-class Model:
-    """A device model: its number, its control table and what it supports."""
-
-    name: str
-    number: int
-    firmware: int
-    fields: tuple[Field, ...]
-    table_size: int
-    kind: str = "servo"  # "servo" or "board"
-    firmware_address: int = FIRMWARE
-    id_address: int = ID
-    fast_read: bool = False
-    current_unit_ma: float | None = None
-    notes: str = ""
-    _by_address: dict[int, Field] = field(default_factory=dict, compare=False, repr=False)
-    _by_key: dict[str, Field] = field(default_factory=dict, compare=False, repr=False)
-
-    def __post_init__(self) -> None:
-        for f in self.fields:
-            self._by_address[f.address] = f
-            self._by_key[f.key] = f
-
-    def field_at(self, address: int) -> Field | None:
-        return self._by_address.get(address)
-
-    def field_named(self, key: str) -> Field:
-        """Field by snake_case key or e-Manual name."""
-        k = re.sub(r"[^a-z0-9]+", "_", key.lower()).strip("_")
-        try:
-            return self._by_key[k]
-        except KeyError:
-            raise KeyError(f"{self.name} has no field {key!r}") from None
-
-    def covering(self, address: int) -> Field | None:
-        """The field whose bytes include ``address``."""
-        for f in self.fields:
-            if f.address <= address < f.address + f.size:
-                return f
-        return None
-
-    def defaults(self) -> bytearray:
-        """A fresh control table filled with the defaults."""
-        mem = bytearray(self.table_size)
-        for f in self.fields:
-            mem[f.address : f.address + f.size] = f.encode(f.default)
-        return mem
-
-
 # ---------------------------------------------------------------- X / MX(2.0) table
 
 _POS = 360.0 / 4096  # degrees per pulse
@@ -204,6 +99,7 @@ def _x_mx_fields(
     load_instead_of_current: bool = False,
     operating_modes: tuple[int, ...] = (0, 1, 3, 4, 5, 16),
     x_series: bool = True,
+    shutdown: int = 52,
 ) -> tuple[Field, ...]:
     fs = [
         Field(0, 2, "Model Number", "R", model_number),
@@ -235,7 +131,7 @@ def _x_mx_fields(
     if x_series:
         fs.append(Field(60, 1, "Startup Configuration", "RW", 0, 0, 3))
     fs += [
-        Field(63, 1, "Shutdown", "RW", 52, 0, 255),
+        Field(63, 1, "Shutdown", "RW", shutdown, 0, 255),
         Field(64, 1, "Torque Enable", "RW", 0, 0, 1),
         Field(65, 1, "LED", "RW", 0, 0, 1),
         Field(68, 1, "Status Return Level", "RW", 2, 0, 2),
@@ -296,6 +192,7 @@ def _servo(name: str, number: int, firmware: int, *, fast_read: bool, **kw) -> M
         table_size=662,
         fast_read=fast_read,
         current_unit_ma=kw.get("current_ma"),
+        baud_codes=BAUD_CODES,
     )
 
 
@@ -312,6 +209,16 @@ XL430_W250 = _servo(
     temperature_limit=72, voltage=(140, 60), voltage_range=(60, 140), vel_pi=(1000, 100), pos_dip=(4000, 0, 640),
     goal_current=False, load_instead_of_current=True, operating_modes=(1, 3, 4, 16),
 )
+# XL330 / XC330 (spec sheet servo_buses.md §3.5): the X-series map; current in 1 mA units, 3.7-7 V.
+# XL330-M288 defaults are the e-Manual's; the M077 and the XC330 share them where the sheet has none.
+_XL330 = dict(current_ma=1.0, current_limit=1750, velocity_limit=445, temperature_limit=70, voltage=(70, 35),
+              voltage_range=(31, 70), vel_pi=(1600, 180), pos_dip=(0, 0, 400), shutdown=53)
+XL330_M288 = _servo("XL330-M288", 1200, 46, fast_read=True, **_XL330)
+XL330_M077 = _servo("XL330-M077", 1190, 46, fast_read=True, **_XL330)
+XC330_T288 = _servo("XC330-T288", 1220, 46, fast_read=True, **{**_XL330, "current_limit": 1193,
+                                                            "voltage": (140, 60), "voltage_range": (60, 140)})
+XC330_T181 = _servo("XC330-T181", 1210, 46, fast_read=True, **{**_XL330, "current_limit": 1193,
+                                                            "voltage": (140, 60), "voltage_range": (60, 140)})
 MX28_2 = _servo(
     "MX-28(2.0)", 30, 41, fast_read=False, current_ma=None, current_limit=None, velocity_limit=230,
     acceleration_limit=True, goal_current=False, load_instead_of_current=True, operating_modes=(1, 3, 4, 16),
@@ -421,9 +328,14 @@ MODELS: dict[str, Model] = {
         XM430_W350,
         XH430_W350,
         XL430_W250,
+        XL330_M288,
+        XL330_M077,
+        XC330_T288,
+        XC330_T181,
         MX28_2,
         MX64_2,
         MX106_2,
+        *CLASSIC_MODELS,
         WOLFGANG_CORE,
         WOLFGANG_FOOT,
         WOLFGANG_IMU,
@@ -440,14 +352,25 @@ ALIASES: dict[str, str] = {
     "core": "Wolfgang Core",
     "foot": "Wolfgang Foot",
     "imu": "Wolfgang IMU",
+    "AX-12": "AX-12A",
+    "AX-12+": "AX-12A",
+    "AX-18": "AX-18A",
+    "AX-18F": "AX-18A",
+    "XL320": "XL-320",
 }
+#: On a Protocol 1.0 bus the short MX names mean the Protocol 1.0 firmware (pypot's "MX-28").
+ALIASES_P1: dict[str, str] = {"MX-28": "MX-28(1.0)", "MX-64": "MX-64(1.0)", "MX-106": "MX-106(1.0)"}
 
 
-def find_model(name_or_number: str | int) -> Model:
-    """Look a model up by name, alias or model number; KeyError if unknown."""
+def find_model(name_or_number: str | int, protocol: int | None = None) -> Model:
+    """Look a model up by name, alias or model number; KeyError if unknown.
+
+    ``protocol`` (1 or 2) resolves the short MX names to that firmware's table.
+    """
     if isinstance(name_or_number, int):
         return MODELS_BY_NUMBER[name_or_number]
-    key = ALIASES.get(name_or_number, name_or_number)
+    key = ALIASES_P1.get(name_or_number) if protocol == 1 else None
+    key = key or ALIASES.get(name_or_number, name_or_number)
     for name, model in MODELS.items():
         if name.lower() == key.lower():
             return model
@@ -463,7 +386,5 @@ def model_names() -> list[str]:
 MODEL_NAMES: dict[int, str] = {
     **{number: model.name for number, model in MODELS_BY_NUMBER.items()},
     1030: "XM430-W210",
-    29: "MX-28 (Protocol 1.0)",
-    310: "MX-64 (Protocol 1.0)",
-    320: "MX-106 (Protocol 1.0)",
+    16897: "USB2AX",
 }

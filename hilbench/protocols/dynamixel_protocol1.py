@@ -9,6 +9,12 @@ There is no reserved byte, no CRC and no stuffing. Instruction and status
 packets share one layout (the byte after LEN is the instruction or the error),
 so only the direction tells them apart; the decoder reports a neutral
 :class:`Packet1` and callers interpret ``code`` by who sent it.
+
+Besides the servos' instructions, the USB2AX adapter (device ID 0xFD)
+answers its own SYNC_READ (0x84, spec sheet ``servo_buses.md`` §2): one status
+from ID 0xFD carrying every listed servo's bytes in a row, all-0xFF for a
+servo that did not answer. Feetech's servos use the same framing
+(:mod:`hilbench.protocols.feetech` adds their instruction set).
 """
 
 from __future__ import annotations
@@ -49,8 +55,18 @@ class Instruction1(IntEnum):
     RESET = 0x06
     REBOOT = 0x08
     SYNC_WRITE = 0x83
+    SYNC_READ = 0x84  # the USB2AX adapter's, answered by ID 0xFD
     BULK_READ = 0x92
 
+
+#: The USB2AX adapter's own ID, model number and SYNC_READ limits (its firmware's constants, §2.1).
+USB2AX_ID = 0xFD
+USB2AX_MODEL = 16897
+USB2AX_MAX_DEVICES = 119
+USB2AX_MAX_LENGTH = 122
+USB2AX_MAX_DATA = 229
+#: What a USB2AX SYNC_READ reply holds for a servo that did not answer.
+USB2AX_MISSING = 0xFF
 
 INSTRUCTION_NAMES: dict[int, str] = {i.value: i.name.lower() for i in Instruction1}
 
@@ -93,6 +109,7 @@ BulkReadParams = Struct(
     "entries" / GreedyRange(Struct("length" / Int8ul, "id" / Int8ul, "address" / Int8ul)),
     Terminated,
 )
+SyncReadParams = Struct("address" / Int8ul, "length" / Int8ul, "ids" / GreedyRange(Int8ul))
 NoParams = Struct(Terminated)
 
 PARAMS: dict[int, Struct] = {
@@ -104,6 +121,7 @@ PARAMS: dict[int, Struct] = {
     Instruction1.RESET: NoParams,
     Instruction1.REBOOT: NoParams,
     Instruction1.SYNC_WRITE: SyncWriteParams,
+    Instruction1.SYNC_READ: SyncReadParams,
     Instruction1.BULK_READ: BulkReadParams,
 }
 
@@ -135,6 +153,12 @@ def build(packet_id: int, code: int, params: bytes = b"") -> bytes:
     return Packet.build({"frame": {"value": {"id": packet_id, "code": code, "params": params}}})
 
 
+def frame(packet_id: int, code: int, params: bytes = b"") -> bytes:
+    """Fast path of :func:`build` for the emulators' replies (tests prove both agree on every vector)."""
+    body = bytes((packet_id, len(params) + 2, code)) + params
+    return HEADER + body + bytes((~sum(body) & 0xFF,))
+
+
 def build_instruction(packet_id: int, instruction: int, **fields) -> bytes:
     """Build an instruction from its named parameter fields."""
     return build(packet_id, instruction, PARAMS[instruction].build(fields))
@@ -161,6 +185,18 @@ class Decoder1:
         buf = self._buf + bytes(data)
         self._buf = buf[self._scan(buf, out, t, final=False) :]
         return out
+
+    @property
+    def pending(self) -> int:
+        """Bytes held back as the start of a packet not yet complete."""
+        return len(self._buf)
+
+    def reset(self) -> int:
+        """Drop a partial packet (the line went quiet mid-packet); returns how many bytes were dropped."""
+        n = len(self._buf)
+        self.bytes_skipped += n
+        self._buf = b""
+        return n
 
     def flush(self, t: float = 0.0) -> list[Packet1 | DecodeProblem1]:
         """End of stream: report a pending partial packet as truncated and decode the rest."""

@@ -41,13 +41,15 @@ class Chunk(NamedTuple):
     """Bytes ``data`` that ``source`` put on the bus, complete at time ``t`` (seconds).
 
     ``lost`` > 0 (with empty ``data``) reports that many bytes of ``source``
-    lost before they reached the reader.
+    lost before they reached the reader. ``addr`` is set for a datagram:
+    ``(source host, source port, destination host, destination port)``.
     """
 
     t: float
     source: str
     data: bytes
     lost: int = 0
+    addr: tuple[str, int, str, int] | None = None
 
 
 class CaptureError(ValueError):
@@ -82,6 +84,9 @@ MAX_PLAUSIBLE_VERSION = 16
 MAX_SOURCE_NAME = 1024
 
 _DATA, _SOURCE, _GAP = int(RecordKind.DATA), int(RecordKind.SOURCE), int(RecordKind.GAP)
+_ADDRESS = int(RecordKind.ADDRESS)
+#: An ADDRESS payload's sizes: family byte, two IPv4 (or IPv6) addresses and two ports.
+_ADDRESS_SIZES = (13, 37)
 _HEAD = RECORD_HEADER_SIZE
 _MAX_STEP_NS = int(MAX_TIME_STEP * 1e9)
 
@@ -176,6 +181,7 @@ class CaptureParser:
         self._declared = bytearray(256)  # source ids a SOURCE record named (1)
         self._declared_np = np.zeros(256, dtype=bool)  # the same, for the numpy prefilter
         self._named = False  # any source named yet
+        self._addr: dict[int, tuple[str, int, str, int] | None] = {}  # ADDRESS records waiting for their DATA
         self._offset = 0  # raw: bytes emitted so far
         self._base = 0  # records: stream offset of the first byte of _buf
         self._t0 = 0.0
@@ -345,6 +351,8 @@ class CaptureParser:
             level = 2 if 0 < length <= MAX_SOURCE_NAME else -1
         elif kind == _GAP:
             level = (2 if self._declared[source] else 1) if length == 4 else -1
+        elif kind == _ADDRESS:
+            level = (2 if self._declared[source] else 1) if length in _ADDRESS_SIZES else -1
         else:
             level = 0
         if level == 1 and after is not None and after[1] == _SOURCE and after[2] == source:
@@ -433,7 +441,7 @@ class CaptureParser:
                     # that waited for more input goes on)
                     q, sure = self._search(buf, pos if self._resyncing else pos + 1, final)
                     if not sure:
-                        if not self._resyncing and h[1] in (_DATA, _SOURCE, _GAP) and q < pos + _HEAD + h[3]:
+                        if not self._resyncing and h[1] in (_DATA, _SOURCE, _GAP, _ADDRESS) and q < pos + _HEAD + h[3]:
                             self._need_rel = self._wait_at - pos  # its length may yet be mended: keep it
                             break
                         self._resyncing = True
@@ -547,11 +555,14 @@ class CaptureParser:
             if name is None:
                 name = self._unnamed(source, off)
             if kind == _DATA:
-                out.append(Chunk(t, name, payload))
+                addr = self._addr.pop(source, None) if self._addr else None
+                out.append(Chunk(t, name, payload, 0, addr))
             else:
                 out.append(Chunk(t, name, b"", cap.gap_lost(payload) or 0))
         elif kind == _SOURCE:
             self._name(source, payload, off)
+        elif kind == _ADDRESS:
+            self._addr[source] = cap.parse_address(payload)
         else:
             self.unknown_records += 1
             if self.unknown_records == 1:
@@ -593,6 +604,8 @@ class CaptureParser:
             ok = 0 < size <= MAX_SOURCE_NAME and _utf8(payload)
         elif kind == _GAP:
             ok = size == 4
+        elif kind == _ADDRESS:
+            ok = size in _ADDRESS_SIZES
         else:
             ok = False
         if not ok:
@@ -684,13 +697,14 @@ class CaptureParser:
             else:
                 kind = np.frombuffer(buf, dtype=np.uint8, count=count, offset=start)
                 length = np.ndarray((count,), "<u2", buf, start + 2, (1,))  # unaligned view: no copy
-                data, gap = kind == _DATA, kind == _GAP
+                data, gap, addr = kind == _DATA, kind == _GAP, kind == _ADDRESS
                 if self._named:  # where reading resumes, a data record must be of a named source
                     named = self._declared_np[np.frombuffer(buf, dtype=np.uint8, count=count, offset=start + 1)]
                     data &= named
                     gap &= named
+                    addr &= named
                 mask = ((data & (length > 0)) | ((kind == _SOURCE) & (length > 0) & (length <= MAX_SOURCE_NAME))
-                        | (gap & (length == 4)))
+                        | (gap & (length == 4)) | (addr & ((length == 13) | (length == 37))))
                 found = (np.flatnonzero(mask) + start).tolist()
             cache = self._cand = (buf, self._epoch, start, found)
         found = cache[3]
@@ -905,7 +919,9 @@ class CaptureWriter:
     time of the first chunk), so a recording of a live source replays with the
     original times. ``timestamps`` is ``measured``, ``synthetic`` or ``none``
     (then every time is stored as 0). ``t0_wall`` is the Unix time of ``t0``
-    (default: derived from the clocks now, right for live sources). Sources
+    (default: ``t0 + wall_offset`` when the source says how its times map to
+    Unix time, e.g. 0 for a CAN bus stamped in Unix time; else derived from
+    the clocks now, right for sources stamped with ``time.monotonic()``). Sources
     get ids in order of appearance (at most 256).
     """
 
@@ -919,6 +935,7 @@ class CaptureWriter:
         t0: float | None = None,
         t0_wall: float | None = None,
         timestamps: str = "measured",
+        wall_offset: float | None = None,
     ) -> None:
         if timestamps not in ("measured", "synthetic", "none"):
             raise ValueError(f"timestamps must be measured, synthetic or none, not {timestamps!r}")
@@ -932,7 +949,8 @@ class CaptureWriter:
         self.t0 = t0
         self.timed = timestamps != "none"
         self._flags = {"measured": Flags.MEASURED, "synthetic": Flags.SYNTHETIC, "none": 0}[timestamps]
-        self._head = {"baud": baud, "protocol": protocol, "description": description, "t0_wall": t0_wall}
+        self._head = {"baud": baud, "protocol": protocol, "description": description, "t0_wall": t0_wall,
+                      "wall_offset": wall_offset}
         self._ids: dict[str, int] = {}
         self.bytes = 0
         self.records = 0
@@ -945,6 +963,8 @@ class CaptureWriter:
         if self.t0 is None:
             self.t0 = t if (t is not None and self.timed) else now_mono
         wall = self._head["t0_wall"]
+        if wall is None and self._head["wall_offset"] is not None:
+            wall = self.t0 + self._head["wall_offset"]
         if wall is None:
             wall = now_wall - (now_mono - self.t0)
         self._f.write(
@@ -970,13 +990,18 @@ class CaptureWriter:
     def _t_ns(self, t: float) -> int:
         return round((t - self.t0) * 1e9) if self.timed else 0
 
-    def write(self, t: float, source: str, data: bytes) -> None:
-        """Store ``data`` from ``source`` at time ``t`` (split into records of at most 65535 bytes)."""
+    def write(self, t: float, source: str, data: bytes, addr: tuple[str, int, str, int] | None = None) -> None:
+        """Store ``data`` from ``source`` at time ``t`` (split into records of at most 65535 bytes).
+
+        ``addr`` (a datagram's source and destination) is stored in an ADDRESS record before the data.
+        """
         if not self._started:
             self._start(t)
         sid = self._source_id(source)
         t_ns = self._t_ns(t)
         write = self._f.write
+        if addr is not None:
+            write(cap.address_record(sid, t_ns, addr))
         for i in range(0, len(data), MAX_PAYLOAD):
             write(cap.pack_record(RecordKind.DATA, sid, t_ns, data[i : i + MAX_PAYLOAD]))
             self.records += 1
@@ -994,7 +1019,7 @@ class CaptureWriter:
         if chunk.lost:
             self.gap(chunk.t, chunk.source, chunk.lost)
         else:
-            self.write(chunk.t, chunk.source, chunk.data)
+            self.write(chunk.t, chunk.source, chunk.data, chunk.addr)
 
     def flush(self) -> None:
         with contextlib.suppress(ValueError, OSError):

@@ -14,6 +14,7 @@ Serial-like ports also carry a :class:`~hilbench.transports.line.LineState`
 
 from __future__ import annotations
 
+import ipaddress
 import re
 from typing import Any, ClassVar
 
@@ -103,5 +104,27 @@ def bind_address(value: Any, key: str = "bind") -> str:
 
 _HOST = re.compile(r"[0-9A-Za-z.:_-]+")
 
+#: Where network ports and servers listen unless the user widens it.
+DEFAULT_BIND = "127.0.0.1"
 
-__all__ = ["HostPort", "bind_address", "port_number"]
+
+def url_host(bind: str) -> str:
+    """The host to put in a URL for a socket bound to ``bind`` (a wildcard bind is reached on loopback here)."""
+    try:
+        addr = ipaddress.ip_address(bind)
+    except ValueError:
+        return bind
+    if addr.is_unspecified:
+        return "127.0.0.1" if addr.version == 4 else "[::1]"
+    return f"[{bind}]" if addr.version == 6 else bind
+
+
+def is_loopback(host: str) -> bool:
+    """Whether ``host`` is a loopback address (or ``localhost``)."""
+    try:
+        return ipaddress.ip_address(host.strip("[]")).is_loopback
+    except ValueError:
+        return host == "localhost"
+
+
+__all__ = ["DEFAULT_BIND", "HostPort", "bind_address", "is_loopback", "port_number", "url_host"]

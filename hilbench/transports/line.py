@@ -75,10 +75,20 @@ class LineState:
         self.cd = False
         self.events = 0
         self._listener: Callable[[LineEvent], None] | None = None
+        self._watchers: list[Callable[[dict[str, bool]], None]] = []
 
     def set_listener(self, listener: Callable[[LineEvent], None] | None) -> None:
         """Who hears the host's changes (a medium, which passes them to its devices)."""
         self._listener = listener
+
+    def add_watcher(self, watcher: Callable[[dict[str, bool]], None]) -> None:
+        """Also tell ``watcher`` the device-driven lines after each :meth:`device_sets` (an RFC 2217
+        server reports them to its client as a real adapter's driver does)."""
+        self._watchers.append(watcher)
+
+    def remove_watcher(self, watcher: Callable[[dict[str, bool]], None]) -> None:
+        if watcher in self._watchers:
+            self._watchers.remove(watcher)
 
     def _emit(self, event: LineEvent) -> None:
         self.events += 1
@@ -127,6 +137,9 @@ class LineState:
         with self._lock:
             for key, value in lines.items():
                 setattr(self, key, bool(value))
+            now = {k: getattr(self, k) for k in DEVICE_LINES}
+        for watcher in list(self._watchers):
+            watcher(now)
 
     def device_lines(self) -> dict[str, bool]:
         """CTS, DSR, RI, CD as the host reads them."""

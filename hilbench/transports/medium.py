@@ -87,8 +87,17 @@ class Medium:
     # ------------------------------------------------------------------ line events
 
     def line_event(self, source: str, event: LineEvent) -> None:
-        """A host port's modem lines, BREAK or settings changed: tell the devices in the medium's thread."""
-        self.call_at(None, lambda: self._deliver_line_event(source, event))
+        """A host port's modem lines, BREAK or settings changed: tell the devices in the medium's thread.
+
+        Called in the medium's own thread (a settings change found while reading the
+        port, a change ``hilbench run``'s line server applies there) the devices hear it
+        at once, so it comes before anything the medium delivers afterwards; from any
+        other thread it is queued.
+        """
+        if self.in_medium_thread():
+            self._deliver_line_event(source, event)
+        else:
+            self.call_at(None, lambda: self._deliver_line_event(source, event))
 
     def _deliver_line_event(self, source: str, event: LineEvent) -> None:
         import time
@@ -111,7 +120,30 @@ class Medium:
             if state is not None:
                 state.device_sets(**lines)
 
+    def in_medium_thread(self) -> bool:
+        """Whether the caller runs in the medium's own thread (device callbacks, ``call_at`` functions)."""
+        thread = getattr(self, "_thread", None)
+        return thread is not None and thread is threading.current_thread()
+
     # ------------------------------------------------------------------ subclass duties
+
+    def drain_host(self, port: Any) -> tuple[int, float]:
+        """Take at once everything host ``port`` already sent (call in the medium's thread).
+
+        Returns how many bytes were taken and when the last of them is delivered.
+        ``hilbench run`` uses it so an output flush or a modem-line change never
+        overtakes the bytes a client wrote before it.
+        """
+        raise NotImplementedError
+
+    def watch_quiet(self, port: Any, watcher: Callable[[int], None] | None) -> bool:
+        """Call ``watcher(ns)`` whenever everything host ``port`` wrote before ``CLOCK_MONOTONIC`` ``ns``
+        is delivered; False: this medium cannot tell (``hilbench run`` clients then always ask)."""
+        return False
+
+    def check_quiet(self, port: Any) -> bool:
+        """Check now, in the medium's thread, what :meth:`watch_quiet` watches; False if not quiet."""
+        return False
 
     def call_at(self, t: float | None, fn: Callable[[], None]) -> None:
         """Run ``fn`` in the medium's thread at time ``t`` (None: as soon as possible)."""

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import fcntl
 import os
+import struct
 import termios
 import tty
 from pathlib import Path
@@ -12,7 +14,7 @@ from typing import Any
 
 from hilbench.errors import OptionError
 from hilbench.transports.host_port import HostPort
-from hilbench.transports.line import LineState
+from hilbench.transports.line import LineSettings, LineState
 
 #: termios speed constants to bit/s, for reading the baud a client configured.
 _SPEEDS: dict[int, int] = {}
@@ -24,6 +26,45 @@ for _name in dir(termios):
 def speed_to_baud(speed: int) -> int | None:
     """Map a termios speed constant to bit/s; None for BOTHER or unknown codes."""
     return _SPEEDS.get(speed)
+
+
+# Linux only: a rate that is no B constant (pyserial's 4.5 Mbaud) is set as BOTHER with the number in
+# struct termios2, which Python's termios module cannot read; the request number is pyserial's.
+_BOTHER = 0o010000
+_TCGETS2 = getattr(termios, "TCGETS2", 0x802C542A)
+_TERMIOS2 = struct.Struct("4I B 19s 2I")
+_CMSPAR = getattr(termios, "CMSPAR", 0o10000000000)
+_BYTESIZE = {termios.CS5: 5, termios.CS6: 6, termios.CS7: 7, termios.CS8: 8}
+_FRAMING = termios.CSIZE | termios.PARENB | termios.PARODD | _CMSPAR | termios.CSTOPB
+
+
+def termios_settings(fd: int, framing: int | None = None) -> LineSettings:
+    """Baud rate and framing a tty is set to (raises termios.error if ``fd`` is none).
+
+    A pty keeps the rate and CSTOPB but forces CS8 and clears PARENB, so the data
+    bits and parity a client asked for are only known from its own request:
+    ``framing`` is that request's ``c_cflag`` (``hilbench run`` reports it).
+    """
+    _, _, cflag, _, _, ospeed, _ = termios.tcgetattr(fd)
+    return _decode_settings(fd, cflag, ospeed, framing)
+
+
+def _decode_settings(fd: int, cflag: int, ospeed: int, framing: int | None) -> LineSettings:
+    baud = speed_to_baud(ospeed)
+    if baud is None and ospeed == _BOTHER:
+        with contextlib.suppress(OSError):
+            baud = _TERMIOS2.unpack(fcntl.ioctl(fd, _TCGETS2, bytes(_TERMIOS2.size)))[-1] or None
+    if framing is not None:
+        cflag = (cflag & ~_FRAMING) | (framing & _FRAMING)
+    bytesize = _BYTESIZE.get(cflag & termios.CSIZE, 8)
+    if not cflag & termios.PARENB:
+        parity = "N"
+    elif cflag & _CMSPAR:
+        parity = "M" if cflag & termios.PARODD else "S"
+    else:
+        parity = "O" if cflag & termios.PARODD else "E"
+    stopbits = (1.5 if bytesize == 5 else 2.0) if cflag & termios.CSTOPB else 1.0
+    return LineSettings(baud, bytesize, parity, stopbits)
 
 
 class PtyEndpoint(HostPort):
@@ -55,6 +96,9 @@ class PtyEndpoint(HostPort):
         self.bytes_in = 0
         self.bytes_out = 0
         self.dropped = 0
+        self.framing: int | None = None  # c_cflag of the client's last tcsetattr, if reported
+        self._settings_key: tuple | None = None
+        self._settings = self.lines.settings
         if link is not None:
             self._make_link(Path(link))
 
@@ -94,12 +138,35 @@ class PtyEndpoint(HostPort):
     def fileno(self) -> int:
         return self.master_fd
 
-    def client_baud(self) -> int | None:
-        """The baud the client set with termios (None if non-standard)."""
+    @property
+    def rdev(self) -> int:
+        """The pty's device number (``st_rdev``): how ``hilbench run`` recognises it in a client."""
+        return os.fstat(self.slave_fd).st_rdev
+
+    def client_settings(self) -> LineSettings:
+        """Baud rate and framing the client set with termios; a change becomes a LineSettings event."""
         try:
-            return speed_to_baud(termios.tcgetattr(self.slave_fd)[5])
+            _, _, cflag, _, _, ospeed, _ = termios.tcgetattr(self.slave_fd)
         except termios.error:
-            return None
+            return self.lines.settings
+        key = (cflag, ospeed, self.framing)
+        # The medium asks on every read: skip decoding when nothing changed (a custom rate, BOTHER,
+        # hides its number from tcgetattr, so that one is always read again).
+        if key == self._settings_key and ospeed != _BOTHER:
+            return self._settings
+        settings = _decode_settings(self.slave_fd, cflag, ospeed, self.framing)
+        self._settings_key, self._settings = key, settings
+        self.lines.host_settings(settings)  # emits only if something changed
+        return settings
+
+    def report_framing(self, cflag: int) -> LineSettings:
+        """The client's own ``c_cflag`` from its tcsetattr (the pty forgets data bits and parity)."""
+        self.framing = cflag & _FRAMING
+        return self.client_settings()
+
+    def client_baud(self) -> int | None:
+        """The baud the client set with termios (None if unknown); the medium asks on every read."""
+        return self.client_settings().baud
 
     def read(self) -> bytes:
         """Bytes the client wrote, or b'' if none are waiting."""

@@ -12,6 +12,18 @@ transmission of n bytes occupies the bus for 10 n / baud seconds, starts no
 earlier than the end of the previous one, and reaches the other parties when
 its last byte would have; devices add their reply delays (Return Delay Time)
 on top. Clients then see the timing of the real bus.
+
+How a paced line keeps that timing on a busy machine (:mod:`hilbench.transports.clock`):
+every delivery time is computed when the transmission is queued (from the
+previous one's end, so a late wake-up never shifts the ones after it); the
+thread sleeps until input or the next delivery, never spinning; deliveries
+due within :data:`DELIVERY_GRANULE` of each other share one wake-up and one
+write to each host (late by at most that, never early; taps still get each
+transmission's exact time); and it asks for SCHED_FIFO where the OS allows it
+(``realtime``; :attr:`SerialMedium.scheduling` says what it got), so its
+wake-ups preempt CPU-bound neighbours. ``HILBENCH_REALTIME=0`` in the
+environment keeps every line under the normal scheduler. :attr:`SerialMedium.stats`
+counts how late deliveries were against the model.
 """
 
 from __future__ import annotations
@@ -27,10 +39,20 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Protocol
 
-from hilbench.transports.clock import SPIN_AFTER_ACTIVITY, reduce_timer_slack, wait
+from hilbench.transports.clock import reduce_timer_slack, try_realtime, wait
+from hilbench.transports.host_port import HostPort
 from hilbench.transports.medium import DevicePort, Medium, Tap
 
 log = logging.getLogger(__name__)
+
+#: check_quiet looks again after 10 us, 20 us, ... while a client is inside write(), 10 times (~10 ms):
+#: soon enough to beat the client's next drain when this thread had preempted it.
+QUIET_RETRY = 10e-6
+QUIET_RETRIES = 10
+#: A paced line joins deliveries due within this many seconds into one wake-up (see _next_wake): a
+#: high-speed USB adapter hands the host its bytes in 125 us microframes, so no client of real hardware
+#: sees finer timing. HILBENCH_GRANULE_US overrides it (0: a wake-up for every transmission).
+DELIVERY_GRANULE = float(os.environ.get("HILBENCH_GRANULE_US", "125")) * 1e-6
 
 
 class Device(Protocol):
@@ -54,6 +76,12 @@ class LineStats:
     bytes: int = 0
     by_source: dict[str, int] = field(default_factory=dict)
     callback_errors: int = 0
+    #: How late the line handed transmissions over against its own wire model (paced lines): their
+    #: number, the sum and the largest lateness in seconds, and how many were over a millisecond late.
+    late_count: int = 0
+    late_total: float = 0.0
+    late_max: float = 0.0
+    late_over_1ms: int = 0
 
 
 class SerialMedium(Medium):
@@ -61,24 +89,39 @@ class SerialMedium(Medium):
 
     kind = "serial"
 
-    def __init__(self, name: str, baud: int, *, paced: bool = False) -> None:
+    def __init__(self, name: str, baud: int, *, paced: bool = False, realtime: bool | None = None) -> None:
         super().__init__(name, baud, paced=paced)
         self.stats = LineStats()
-        self._events: list[tuple[float, int, Callable[[], None]]] = []
+        #: Run the line's thread under SCHED_FIFO if the OS allows it (None: when paced, unless
+        #: HILBENCH_REALTIME=0). Unpaced lines gain nothing from it.
+        self.realtime = (paced and os.environ.get("HILBENCH_REALTIME", "1") != "0") if realtime is None \
+            else realtime
+        #: What the line's thread runs under once started ("SCHED_FIFO 10", or SCHED_OTHER and why).
+        self.scheduling: str | None = None
+        # (time, sequence, function, joinable): joinable events (deliveries) may wait for later ones
+        self._events: list[tuple[float, int, Callable[[], None], bool]] = []
         self._seq = itertools.count()
         self._busy_until = 0.0
-        self._last_activity = 0.0
+        self._last_end: dict[str, float] = {}  # by sender: when its latest transmission is delivered
+        self._pending: dict[str, int] = {}  # by sender: transmissions not delivered yet
+        self._quiet: dict[str, tuple] = {}  # host name -> (port, watcher, ready, keen): see watch_quiet
+        self._quiet_retrying: set[str] = set()
         self._wake_r, self._wake_w = os.pipe()
         os.set_blocking(self._wake_r, False)
         os.set_blocking(self._wake_w, False)
         self._thread: threading.Thread | None = None
+        self._ident: int | None = None
+        self._started = threading.Event()
         self._stop = threading.Event()
+        self._hosts_version = 0  # bumped when hosts change: the thread rebuilds its descriptor table
+        self._out: dict[int, tuple] | None = None  # host writes held back while due deliveries run
 
     # ------------------------------------------------------------------ wiring
 
     def add_host(self, endpoint, *, listen_only: bool = False) -> None:
         """Attach a host port (pty, UDP, TCP, ...); ``listen_only`` ignores what it sends."""
         super().add_host(endpoint, listen_only=listen_only)
+        self._hosts_version += 1
         self._wake()
 
     # ------------------------------------------------------------------ sending
@@ -106,8 +149,10 @@ class SerialMedium(Medium):
                 self._busy_until = end
             else:
                 end = t + gap
-            self._push(end, lambda: self._deliver(source, data, end, baud))
-        if threading.current_thread() is not self._thread:
+            self._last_end[source] = end
+            self._pending[source] = self._pending.get(source, 0) + 1
+            self._push(end, lambda: self._deliver(source, data, end, baud), True)
+        if threading.get_ident() != self._ident:
             self._wake()
         return end
 
@@ -115,20 +160,26 @@ class SerialMedium(Medium):
         """Run ``fn`` in the line's thread at time ``t`` (None: at once; thread-safe)."""
         with self._lock:
             self._push(time.monotonic() if t is None else t, fn)
-        if threading.current_thread() is not self._thread:
+        if threading.get_ident() != self._ident:
             self._wake()
 
-    def _push(self, t: float, fn: Callable[[], None]) -> None:
-        heapq.heappush(self._events, (t, next(self._seq), fn))
+    def _push(self, t: float, fn: Callable[[], None], joinable: bool = False) -> None:
+        heapq.heappush(self._events, (t, next(self._seq), fn, joinable))
 
     def _deliver(self, source: str, data: bytes, t: float, baud: int | None) -> None:
         stats = self.stats
         stats.transmissions += 1
         stats.bytes += len(data)
         stats.by_source[source] = stats.by_source.get(source, 0) + len(data)
+        out = self._out
         for endpoint, _ in self._hosts:
             if endpoint.name != source:
-                endpoint.write(data)
+                if out is None:
+                    endpoint.write(data)
+                elif (buf := out.get(id(endpoint))) is not None:
+                    buf[1].extend(data)
+                else:
+                    out[id(endpoint)] = (endpoint, bytearray(data))
         for device in self._devices:
             if device.name != source:
                 try:
@@ -142,16 +193,23 @@ class SerialMedium(Medium):
             except Exception:
                 stats.callback_errors += 1
                 log.exception("tap failed")
+        with self._lock:
+            left = self._pending[source] = self._pending[source] - 1
+            watched = self._quiet.get(source) if not left else None
+        if watched is not None:  # after the devices heard it, before anything they answer reaches the host
+            self.check_quiet(watched[0])
 
     # ------------------------------------------------------------------ running
 
     def start(self) -> None:
-        """Run the line in a background thread."""
+        """Run the line in a background thread (returns once it runs, :attr:`scheduling` known)."""
         if self._thread is not None:
             return
         self._stop.clear()
+        self._started.clear()
         self._thread = threading.Thread(target=self._run, name=f"line-{self.name}", daemon=True)
         self._thread.start()
+        self._started.wait(5)
 
     def stop(self) -> None:
         """Stop the line's thread (host ports stay open; close them separately)."""
@@ -160,41 +218,191 @@ class SerialMedium(Medium):
         if self._thread is not None:
             self._thread.join(timeout=5)
             self._thread = None
+            self._ident = None
 
     def _wake(self) -> None:
         try:
             os.write(self._wake_w, b"x")
         except BlockingIOError:
             pass  # already pending
+        except OSError:
+            pass  # closed: the line has stopped, nobody is waiting
 
     def _run(self) -> None:
+        self._ident = threading.get_ident()
         if self.paced:
             reduce_timer_slack()
-        while not self._stop.is_set():
-            with self._lock:
-                deadline = self._events[0][0] if self._events else None
-                hosts = list(self._hosts)
-            fds = [fd for ep, _ in hosts for fd in ep.filenos()] + [self._wake_r]
-            ready = wait(fds, deadline, precise=self.paced, spin_until=self._last_activity + SPIN_AFTER_ACTIVITY)
+        self.scheduling = try_realtime() if self.realtime else "SCHED_OTHER"
+        self._started.set()
+        events, lock, stop, wake_r, paced = self._events, self._lock, self._stop, self._wake_r, self.paced
+        version = -1
+        fds: list[int] = []
+        by_fd: dict[int, tuple] = {}
+        hosts: list[tuple] = []
+        fixed = True  # every host's descriptors stay the same (a pty's do; a TCP port's follow its client)
+        while not stop.is_set():
+            if version != self._hosts_version or not fixed:
+                with lock:
+                    version = self._hosts_version
+                    hosts = list(self._hosts)
+                by_fd = {fd: (ep, listen_only) for ep, listen_only in hosts for fd in ep.filenos()}
+                fds = [*by_fd, wake_r]
+                fixed = all(type(ep).filenos is HostPort.filenos for ep, _ in hosts)
+            deadline = self._next_wake() if events else None  # (stale is fine: pushes from elsewhere wake us)
+            ready = wait(fds, deadline, precise=paced)
             if ready:
-                now = self._last_activity = time.monotonic()
-                for endpoint, listen_only in hosts:
-                    if any(fd in ready for fd in endpoint.filenos()):
-                        data = endpoint.read()
-                        if data and not listen_only:
-                            self.transmit(endpoint.name, data, t=now, baud=endpoint.client_baud())
-                if self._wake_r in ready:
-                    with contextlib.suppress(BlockingIOError):
-                        os.read(self._wake_r, 4096)
+                now = time.monotonic()
+                taken: set[int] = set()
+                for fd in ready:
+                    if fd == wake_r:
+                        with contextlib.suppress(BlockingIOError):
+                            os.read(wake_r, 4096)
+                        continue
+                    host = by_fd.get(fd)
+                    if host is not None and id(host[0]) not in taken:  # (a port may have several descriptors)
+                        taken.add(id(host[0]))
+                        self._take(host[0], host[1], now)
             self._run_due()
 
-    def _run_due(self) -> None:
-        while True:
+    def _next_wake(self) -> float:
+        """When to wake for the pending events: the first one's time, or on a paced line the last delivery
+        due within :data:`DELIVERY_GRANULE` of it, so that a burst (a Sync Read's twenty replies, 33-75 us
+        apart) costs a few wake-ups instead of one each (a timed sleep costs 15-20 us of CPU on a VM).
+        Deliveries are then up to a granule late, never early; nothing else waits."""
+        with self._lock:
+            events = self._events
+            first = events[0]
+            granule = DELIVERY_GRANULE
+            if not (granule and self.paced and first[3]):
+                return first[0]
+            limit = first[0] + granule
+            for t, _, _, joinable in events:
+                if t < limit and not joinable:
+                    limit = t  # a timer or line event is never kept waiting
+            joined = sorted(t for t, _, _, joinable in events if t <= limit and joinable)
+            if len(joined) > 1 and len(joined) == len(events):
+                # the group ends the burst: its last delivery gets a wake-up of its own, so the client has
+                # only that one left to take in when the wire model says the burst is over
+                return joined[-2]
+            return joined[-1] if joined else first[0]
+
+    def _take(self, endpoint, listen_only: bool, now: float) -> tuple[int, float]:
+        """Read what a host port has and put it on the line; returns (bytes, delivery time)."""
+        data = endpoint.read()
+        if data and not listen_only:
+            return len(data), self.transmit(endpoint.name, data, t=now, baud=endpoint.client_baud())
+        return len(data), now
+
+    def drain_host(self, port) -> tuple[int, float]:
+        """Take everything ``port`` already sent, in the line's thread; returns (bytes taken, when the
+        last byte it ever sent is delivered: later than now on a paced line still sending them).
+
+        A pty master's non-blocking read first runs the tty layer's pending buffer
+        work, so "nothing to read" means every byte a client's write() returned for
+        has been taken.
+        """
+        with self._lock:
+            end = max(time.monotonic(), self._last_end.get(port.name, 0.0))  # bytes taken before, on the wire
+        taken = 0
+        for endpoint, listen_only in list(self._hosts):
+            if endpoint is not port:
+                continue
+            while True:
+                n, t = self._take(endpoint, listen_only, time.monotonic())
+                if not n:
+                    break
+                taken += n
+                end = max(end, t)
+        return taken, end
+
+    def watch_quiet(self, port, watcher: Callable[[int], None] | None, ready: Callable[[], bool] | None = None,
+                    keen: Callable[[], bool] | None = None) -> bool:
+        """Tell ``watcher(ns)``, in the line's thread, each time everything host ``port`` wrote before
+        ``CLOCK_MONOTONIC`` ``ns`` has been delivered (checked after each of its transmissions is
+        delivered, and once now); None stops watching. ``ready()``, read after the clock, says whether
+        no write to the port is under way; if one is and ``keen()`` (someone waits for the news), the
+        check is repeated a little later. ``hilbench run``'s delivery board uses it.
+        """
+        with self._lock:
+            if watcher is None:
+                self._quiet.pop(port.name, None)
+                return True
+            self._quiet[port.name] = (port, watcher, ready, keen)
+        if not self.paced:  # paced lines already wake precisely; the retries need it too
+            self.call_at(None, reduce_timer_slack)
+        self.call_at(None, lambda: self.check_quiet(port))
+        return True
+
+    def check_quiet(self, port, _retry: int = 0) -> bool:
+        """In the line's thread: if nothing ``port`` sent awaits delivery, no write to it is under way
+        and a non-blocking read finds nothing more, tell its watcher (see :meth:`watch_quiet`). What the
+        read finds goes on the line."""
+        with self._lock:
+            if _retry:
+                self._quiet_retrying.discard(port.name)
+            watched = self._quiet.get(port.name)
+            if watched is None or self._pending.get(port.name, 0):
+                return False
+            hosts = [(ep, listen_only) for ep, listen_only in self._hosts if ep is port]
+        _, watcher, ready, keen = watched
+        # The clock before the rest: a write stamped earlier is counted in ready() or has returned, and then
+        # its bytes are there for the read to find (a pty master's read first runs the tty layer's work).
+        t0 = time.monotonic_ns()
+        if ready is not None and not ready():
+            # A client is inside write() (often preempted by this very thread on return): look again soon,
+            # less and less often, and give up (every drain then asks) if it never ends.
+            if keen is not None and not keen():
+                return False
             with self._lock:
-                if not self._events or self._events[0][0] > time.monotonic():
-                    return
-                _, _, fn = heapq.heappop(self._events)
-            fn()
+                if _retry < QUIET_RETRIES and port.name not in self._quiet_retrying:  # one series at a time
+                    self._quiet_retrying.add(port.name)
+                    self._push(time.monotonic() + QUIET_RETRY * 2 ** _retry,
+                               lambda: self.check_quiet(port, _retry + 1))
+            return False
+        for endpoint, listen_only in hosts:
+            if listen_only or self._take(endpoint, listen_only, time.monotonic())[0]:
+                return False  # new bytes (or a port whose bytes are never delivered): not quiet yet
+        try:
+            watcher(t0)
+        except Exception:
+            self.stats.callback_errors += 1
+            log.exception("quiet watcher of %s failed", port.name)
+        return True
+
+    def _run_due(self) -> None:
+        """Run what is due. Deliveries due together reach each host port in one write (a pty write costs
+        about as much as a reply's emulation); anything else first flushes what is pending, so the order
+        the host sees stays the order of the line."""
+        events, lock, paced = self._events, self._lock, self.paced
+        self._out = {}
+        try:
+            while True:
+                with lock:
+                    if not events or events[0][0] > (now := time.monotonic()):
+                        return
+                    t, _, fn, joinable = heapq.heappop(events)
+                if not joinable:
+                    self._flush_out()
+                elif paced:
+                    stats = self.stats
+                    late = now - t
+                    stats.late_count += 1
+                    stats.late_total += late
+                    if late > stats.late_max:
+                        stats.late_max = late
+                    if late > 1e-3:
+                        stats.late_over_1ms += 1
+                fn()
+        finally:
+            self._flush_out()
+            self._out = None
+
+    def _flush_out(self) -> None:
+        out = self._out
+        if out:
+            for endpoint, data in out.values():
+                endpoint.write(bytes(data))
+            out.clear()
 
     def close(self) -> None:
         """Stop the line and release its wake-up pipe."""

@@ -86,8 +86,11 @@ class TapServer:
     def clients(self) -> int:
         return len(self._clients)
 
-    def feed(self, t: float, source: str, data: bytes) -> None:
-        """A transmission on the line (a :data:`~hilbench.transports.serial_medium.Tap`); never blocks."""
+    def feed(self, t: float, source: str, data: bytes, addr: tuple[str, int, str, int] | None = None) -> None:
+        """A transmission on the line (a :data:`~hilbench.transports.serial_medium.Tap`); never blocks.
+
+        ``addr`` (a datagram's addresses) goes out as an ADDRESS record before the data.
+        """
         if not self._clients:
             return
         with self._lock:
@@ -99,7 +102,7 @@ class TapServer:
                 for c in self._clients:
                     c.pending += names
             t_ns = round((t - self.t0) * 1e9)
-            records = b"".join(
+            records = (cap.address_record(sid, t_ns, addr) if addr is not None else b"") + b"".join(
                 cap.pack_record(RecordKind.DATA, sid, t_ns, data[i : i + MAX_PAYLOAD])
                 for i in range(0, len(data), MAX_PAYLOAD)
             )
@@ -142,7 +145,10 @@ class TapServer:
                             sel.modify(c.sock, events, c)
                         except KeyError:
                             sel.register(c.sock, events, c)
-                for key, mask in sel.select(timeout=0.5):
+                # no timeout: a thread that wakes on its own takes the GIL now and then, and a paced
+                # line's real-time thread would wait whenever it was preempted holding it (feed() and
+                # close() wake it through the pipe)
+                for key, mask in sel.select(timeout=None):
                     if key.data == "accept":
                         self._accept()
                     elif key.data == "wake":

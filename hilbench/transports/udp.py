@@ -1,4 +1,4 @@
-"""A UDP endpoint that stands where a serial port would: datagrams in, datagrams out.
+"""A UDP endpoint: a bound socket acting as one host port (on a serial line, or on a datagram net).
 
 :class:`UdpEndpoint` has the pty endpoint's interface (``fileno``, ``read``,
 ``write``, ``client_baud``, ``close``), so a
@@ -8,6 +8,10 @@ the line (e.g. one 28-byte velocity frame); what the device sends goes out as
 datagrams to every peer: the fixed ``peer`` of the profile, if any, and the
 most recent senders (a host registers by sending anything, even an empty
 datagram). It binds 127.0.0.1 unless told otherwise.
+
+On a :class:`~hilbench.transports.datagram_medium.DatagramMedium` the same port
+keeps datagrams whole and addressed: :meth:`UdpEndpoint.recv_from` gives each
+with its sender, :meth:`UdpEndpoint.send_to` answers one address.
 """
 
 from __future__ import annotations
@@ -75,6 +79,8 @@ class UdpEndpoint(HostPort):
         self.sock.bind((bind, port))
         self.sock.setblocking(False)
         self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, 1 << 20)
+        # Room for bursts while the medium's thread is busy (the kernel drops what does not fit).
+        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 21)
         self.fixed_peer = parse_address(peer) if peer else None
         self.peers: OrderedDict[tuple[str, int], None] = OrderedDict()
         self.bytes_in = 0
@@ -116,6 +122,28 @@ class UdpEndpoint(HostPort):
         self.datagrams_in += 1
         self.bytes_in += len(data)
         return data
+
+    def recv_from(self) -> tuple[bytes, tuple[str, int]] | None:
+        """One datagram and its sender (None if none is waiting); a datagram net reads this way."""
+        try:
+            data, addr = self.sock.recvfrom(65536)
+        except (BlockingIOError, InterruptedError):
+            return None
+        except OSError:  # ICMP port unreachable from an earlier send: nothing to read
+            return None
+        self.datagrams_in += 1
+        self.bytes_in += len(data)
+        return data, addr[:2]
+
+    def send_to(self, data: bytes, addr: tuple[str, int]) -> bool:
+        """Send one datagram to ``addr``; False (counted in :attr:`dropped`) if the socket refused it."""
+        try:
+            self.sock.sendto(data, addr)
+        except OSError:
+            self.dropped += len(data)
+            return False
+        self.bytes_out += len(data)
+        return True
 
     def targets(self) -> list[tuple[str, int]]:
         out = list(self.peers)

@@ -60,6 +60,13 @@ class Board:
         self.lag_us = 0.0
         self.on_output: Callable[[bytes, float], None] | None = None
         self.rx_baud_mismatch = 0
+        #: Peripherals that run beside the firmware while the board is live (e.g. the micro-ROS link):
+        #: objects with start(board), stop() and reset(), see :meth:`attach_link`.
+        self.links: list[Any] = []
+
+    def attach_link(self, link: Any) -> None:
+        """Add a peripheral started and stopped with the live board and told about resets."""
+        self.links.append(link)
 
     # ------------------------------------------------------------------ time
 
@@ -115,6 +122,8 @@ class Board:
             self._carry = old_wire.take(now - self.boot_offset)[0]
             self.boot_offset = now
         self._wake.set()
+        for link in self.links:
+            link.reset()
 
     _carry = b""
 
@@ -228,8 +237,12 @@ class Board:
         self._stop.clear()
         self._thread = threading.Thread(target=self._run, name=f"board-{self.name}", daemon=True)
         self._thread.start()
+        for link in self.links:
+            link.start(self)
 
     def stop(self) -> None:
+        for link in self.links:
+            link.stop()
         self._stop.set()
         self._wake.set()
         if self._thread is not None:

@@ -86,6 +86,8 @@ class Robot:
         self.command = (0.0, 0.0, 0.0)
         self.x = self.y = self.theta = 0.0
         self.dropped = 0
+        #: How far each wheel (fr, fl, bl, br) has turned in total (rad): what its encoder counts.
+        self.wheel_angle = [0.0, 0.0, 0.0, 0.0]
 
     def push_setpoint(self, t_us: float, vx: float, vy: float, wz: float) -> bool:
         """recv_vel's ``xQueueSend(vel_sp_queue, timeout 0)``: False when the queue was full."""
@@ -135,9 +137,12 @@ class Robot:
         self.next_cycle += n * self.pose_period
 
     def _odometry(self, n: int) -> None:
+        wheels = self.wheels
+        turned = self.pose_period * 1e-6 * n  # the wheels turn for the whole pose period(s)
+        self.wheel_angle = [a + w * turned for a, w in zip(self.wheel_angle, wheels, strict=True)]
         # One wheel period's encoder delta per pose cycle (the mailbox semantics of the firmware).
         dt = self.wheel_period * 1e-6
-        dx, dy, dth = forward_kinematics(*(w * dt for w in self.wheels))
+        dx, dy, dth = forward_kinematics(*(w * dt for w in wheels))
         if dx == 0 and dy == 0 and dth == 0:
             return
         if n == 1:

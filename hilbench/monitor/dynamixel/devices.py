@@ -16,7 +16,7 @@ own share from the groups it belongs to. That keeps the per-packet work of a
 from __future__ import annotations
 
 import math
-from typing import NamedTuple, Protocol
+from typing import ClassVar, NamedTuple, Protocol
 
 from hilbench.protocols.dynamixel import describe_hardware_error
 from hilbench.protocols.dynamixel_models import MODEL_NAMES, MODELS_BY_NUMBER, MX106_2, Field, Model
@@ -131,6 +131,12 @@ class DeviceState:
         "lat_max",
     )
 
+    #: The model catalogue of the bus (a Feetech or Protocol 1.0 bus brings its own): tables by
+    #: model number, names of model numbers, and the layout that names ranges of unknown models.
+    models_by_number: ClassVar[dict[int, Model]] = MODELS_BY_NUMBER
+    model_names: ClassVar[dict[int, str]] = MODEL_NAMES
+    fallback_layout: ClassVar[Model] = MX106_2
+
     def __init__(self, dev_id: int, t: float | None = None) -> None:
         self.id = dev_id
         self.model: int | None = None
@@ -170,11 +176,13 @@ class DeviceState:
     @property
     def model_info(self) -> Model | None:
         """The model's table, if its number is known to hilbench."""
-        return MODELS_BY_NUMBER.get(self.model) if self.model is not None else None
+        return self.models_by_number.get(self.model) if self.model is not None else None
 
     @property
     def model_name(self) -> str:
-        return model_name(self.model)
+        if self.model is None:
+            return "<unknown>"
+        return self.model_names.get(self.model) or f"model {self.model}"
 
     @property
     def never_answered(self) -> bool:
@@ -301,7 +309,7 @@ class DeviceState:
         layout names the observed ranges, and fields never seen are left out.
         """
         model = self.model_info
-        layout = model or MX106_2
+        layout = model or self.fallback_layout
         mem, how, when = self.table()
         out = []
         for f in layout.fields:

@@ -87,8 +87,9 @@ class PushSource(Source):
         self._cond = threading.Condition()
         self._closed = False
 
-    def push(self, t: float, source: str, data: bytes) -> None:
-        """Queue one chunk (a :data:`~hilbench.transports.serial_medium.Tap` signature)."""
+    def push(self, t: float, source: str, data: bytes, addr: tuple[str, int, str, int] | None = None) -> None:
+        """Queue one chunk (a :data:`~hilbench.transports.serial_medium.Tap` signature; a datagram
+        medium also passes the datagram's addresses)."""
         with self._cond:
             if self._closed:
                 return
@@ -99,7 +100,7 @@ class PushSource(Source):
                 for src, n in self._lost.items():
                     self._q.append(Chunk(t, src, b"", n))
                 self._lost.clear()
-            self._q.append(Chunk(t, source, bytes(data)))
+            self._q.append(Chunk(t, source, bytes(data), 0, addr))
             self._bytes += len(data)
             self._cond.notify()
 

@@ -17,8 +17,9 @@ from hilbench.transports.sources.base import Source, SourceError, SourceOpener
 class UdpSource(Source):
     """Datagrams arriving on a UDP port, receive-only; binds 127.0.0.1 unless told otherwise.
 
-    Each wake-up yields the datagrams that arrived, joined per sender, stamped
-    with their arrival time and named ``udp:HOST:PORT`` after the sender. With
+    Each wake-up yields the datagrams that arrived, one chunk each with its
+    addresses (``Chunk.addr``), stamped with their arrival time and named
+    ``udp:HOST:PORT`` after the sender. With
     ``peer``, an empty datagram announces this socket to a sender that streams
     to whoever registers (hilbench's emulated board does), repeated every
     ``announce_s`` seconds until data arrives.
@@ -57,8 +58,9 @@ class UdpSource(Source):
     MAX_DATAGRAMS = 256
 
     def _drain(self) -> list[Chunk]:
-        parts: list[tuple[str, list[bytes]]] = []
+        out: list[Chunk] = []
         now = time.monotonic()
+        host, port = self.address
         for _ in range(self.MAX_DATAGRAMS):
             try:
                 data, sender = self._sock.recvfrom(65536)
@@ -71,14 +73,10 @@ class UdpSource(Source):
                     break  # closed under us
                 raise
             self.datagrams += 1
-            src = f"udp:{sender[0]}:{sender[1]}"
-            if parts and parts[-1][0] == src:
-                parts[-1][1].append(data)
-            else:
-                parts.append((src, [data]))
-        if parts:
+            out.append(Chunk(now, f"udp:{sender[0]}:{sender[1]}", data, 0, (sender[0], sender[1], host, port)))
+        if out:
             self._heard = True
-        return [Chunk(now, src, b"".join(datas)) for src, datas in parts]
+        return out
 
     def chunks(self, idle: float | None = None) -> Iterator[Chunk | None]:
         sock = self._sock

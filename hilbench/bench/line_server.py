@@ -1,0 +1,368 @@
+"""The line server: what a serial adapter does besides bytes, for clients of a bench's ptys.
+
+A pseudo-terminal has no modem lines and no BREAK, and ``tcflush(TCOFLUSH)`` on
+it throws away bytes the bench has not read yet (on a USB adapter they are
+already on the wire). ``hilbench run`` makes unmodified clients ask this server
+instead, through an LD_PRELOAD shim or a pyserial patch (:mod:`hilbench.run`).
+
+One server per bench, a :attr:`Bench.services` entry named ``lines``: a Unix
+socket in a private directory (mode 0700, so only this user's programs reach
+it), listed in the manifest with the device number (``st_rdev``) of every pty
+it serves. A client sends one line per request and reads one line back, on a
+connection it may keep for further requests (one request at a time on each)::
+
+    RDEV VERB [ARG]\\n   ->   ok N\\n  |  err MESSAGE\\n
+
+======================  ==================================================  =======================
+request                 what the bench does                                 ``ok`` value
+======================  ==================================================  =======================
+``ping``                nothing (is the bench there?)                       ports served
+``mget``                read the modem lines (TIOCMGET)                     TIOCM_* mask
+``mset|mbis|mbic M``    set / raise / clear DTR and RTS (TIOCMSET/BIS/BIC)  mask afterwards
+``break on|off|SECS``   BREAK on, off, or for SECS (answered after them)    0
+``flush``               take the bytes the client wrote, then OutputFlushed bytes taken
+``drain``               take them and answer once they are delivered        bytes taken
+``sync [CFLAG]``        re-read baud rate; CFLAG: the client's framing      baud (0: unknown)
+``framing``             the framing the client last set (a pty forgets it)  c_cflag bits, -1: none
+======================  ==================================================  =======================
+
+Beside the socket, ``lines.board`` (:mod:`hilbench.bench.delivery_board`) tells
+clients when everything they wrote is delivered, so a drain or an output flush
+with nothing pending needs no request at all.
+
+Every change first takes what the client already wrote from the pty, in the
+medium's thread, so a line change or flush never overtakes the bytes written
+before it: on an unpaced line the devices hear those bytes first. On a paced
+line the change is immediate while the bytes are still on the wire, as on a
+real adapter whose client did not wait with ``tcdrain``.
+
+Hand-written over the standard library's socket module: socketserver's
+shutdown polls (up to half a second per bench stop), too slow for test suites
+that start hundreds of benches.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import select
+import socket
+import tempfile
+import termios
+import threading
+import time
+from collections.abc import Callable
+from typing import Any
+
+from hilbench.bench.delivery_board import FILE_NAME as BOARD_FILE
+from hilbench.bench.delivery_board import DeliveryBoard
+
+#: How long a request may wait for the medium's thread before the client is told to give up.
+MEDIUM_TIMEOUT = 5.0
+#: The longest request line; anything longer is refused.
+MAX_REQUEST = 256
+
+TIOCM = {"dtr": termios.TIOCM_DTR, "rts": termios.TIOCM_RTS, "cts": termios.TIOCM_CTS,
+         "dsr": termios.TIOCM_DSR, "ri": termios.TIOCM_RNG, "cd": termios.TIOCM_CAR}
+
+
+class LineRequestError(Exception):
+    """A request the server refuses (answered as ``err MESSAGE``)."""
+
+
+class _Port:
+    """One served host port: the endpoint's port object and the medium behind it."""
+
+    def __init__(self, name: str, port: Any, medium: Any) -> None:
+        self.name = name
+        self.port = port
+        self.medium = medium
+        self.lines = port.lines
+
+
+class LineServer:
+    """Serves line requests for every tty-backed host port of a bench (see the module's docstring).
+
+    :meth:`handle` answers one request line; the socket server calls it for
+    other processes, and in-process clients (the pytest plugin's pyserial patch)
+    may call it directly.
+    """
+
+    def __init__(self, bench: Any) -> None:
+        self._ports: dict[int, _Port] = {}
+        for ep in bench.endpoints.values():
+            port = ep.port
+            rdev = getattr(port, "rdev", None)  # only terminals have one (a pty)
+            if rdev is not None and getattr(port, "lines", None) is not None:
+                self._ports[rdev] = _Port(ep.name, port, ep.medium)
+        self._closed = threading.Event()
+        self.requests = 0
+        self.directory = _private_dir()
+        self.path = os.path.join(self.directory, "lines.sock")
+        self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        try:
+            self._sock.bind(self.path)
+            self._sock.listen(64)
+        except OSError:
+            self._sock.close()
+            os.rmdir(self.directory)
+            raise
+        self.board = DeliveryBoard(os.path.join(self.directory, BOARD_FILE), list(self._ports))
+        for rdev, p in self._ports.items():
+            watch = getattr(p.medium, "watch_quiet", None)
+            if watch is not None:
+                watch(p.port, lambda ns, _rdev=rdev: self.board.delivered(_rdev, ns),
+                      lambda _rdev=rdev: self.board.writers_idle(_rdev),
+                      lambda _rdev=rdev: self.board.draining(_rdev))
+        self._conns: set[socket.socket] = set()
+        self._conns_lock = threading.Lock()
+        self._wake_r, self._wake_w = os.pipe()
+        self._thread = threading.Thread(target=self._accept, name="line-server", daemon=True)
+        self._thread.start()
+
+    # ------------------------------------------------------------------ what the manifest says
+
+    @property
+    def rdevs(self) -> list[int]:
+        """Device numbers of the ptys served."""
+        return list(self._ports)
+
+    def describe(self) -> dict[str, Any]:
+        """The manifest's ``lines`` entry: the socket and the served ptys by endpoint name."""
+        return {"socket": self.path, "board": self.board.path,
+                "ports": {p.name: {"rdev": rdev, "path": p.port.client_path} for rdev, p in self._ports.items()}}
+
+    # ------------------------------------------------------------------ requests
+
+    def handle(self, line: str) -> str:
+        """Answer one request line (without or with its newline): ``ok N`` or ``err MESSAGE``."""
+        self.requests += 1
+        try:
+            return f"ok {self._handle(line.split())}"
+        except LineRequestError as exc:
+            return f"err {exc}"
+        except Exception as exc:  # a request must never take the server down; the client fails open
+            return f"err {type(exc).__name__}: {exc}"
+
+    def _handle(self, words: list[str]) -> int:
+        if len(words) < 2:
+            raise LineRequestError("expected: RDEV VERB [ARG]")
+        rdev_text, verb, args = words[0], words[1], words[2:]
+        if verb == "ping":
+            return len(self._ports)
+        try:
+            port = self._ports[int(rdev_text)]
+        except (ValueError, KeyError):
+            raise LineRequestError(f"no pty of this bench has device number {rdev_text}") from None
+        if verb == "mget":
+            return self._mask(port)
+        if verb in ("mset", "mbis", "mbic"):
+            mask = _int_arg(args)
+            return self._after_taking(port, lambda: self._set_modem(port, verb, mask))
+        if verb == "break":
+            return self._break(port, args)
+        if verb == "flush":
+            return self._after_taking(port, lambda: self._flushed(port), taken=True)
+        if verb == "drain":
+            return self._after_taking(port, lambda: self._quiet(port), taken=True, delivered=True)
+        if verb == "framing":
+            framing = getattr(port.port, "framing", None)
+            return -1 if framing is None else framing
+        if verb == "sync":
+            framing = _int_arg(args) if args else None
+            return self._after_taking(port, lambda: self._sync(port, framing))
+        raise LineRequestError(f"unknown request {verb!r}")
+
+    @staticmethod
+    def _quiet(port: _Port) -> None:
+        """Tell the board if everything is delivered now: a client whose write() returned just after
+        the medium's last check must not have to ask again and again."""
+        check = getattr(port.medium, "check_quiet", None)
+        if check is not None:
+            check(port.port)
+
+    def _flushed(self, port: _Port) -> None:
+        port.lines.host_flushed_output()
+        self._quiet(port)
+
+    @staticmethod
+    def _mask(port: _Port) -> int:
+        snap = port.lines.snapshot()
+        return sum(bit for name, bit in TIOCM.items() if snap.get(name))
+
+    def _set_modem(self, port: _Port, verb: str, mask: int) -> int:
+        dtr, rts = bool(mask & TIOCM["dtr"]), bool(mask & TIOCM["rts"])
+        if verb == "mset":
+            port.lines.host_sets(dtr=dtr, rts=rts)
+        elif verb == "mbis":
+            port.lines.host_sets(dtr=True if dtr else None, rts=True if rts else None)
+        else:
+            port.lines.host_sets(dtr=False if dtr else None, rts=False if rts else None)
+        return self._mask(port)
+
+    def _break(self, port: _Port, args: list[str]) -> int:
+        if len(args) != 1:
+            raise LineRequestError("expected: break on|off|SECONDS")
+        if args[0] in ("on", "off"):
+            return self._after_taking(port, lambda: port.lines.host_break(args[0] == "on"))
+        try:
+            duration = float(args[0])
+        except ValueError:
+            raise LineRequestError(f"expected a break duration in seconds, got {args[0]!r}") from None
+        if not 0.0 < duration <= 60.0:
+            raise LineRequestError(f"break duration {duration} s is outside 0..60 s")
+        self._after_taking(port, lambda: port.lines.host_break(True, duration))
+        self._closed.wait(duration)  # tcsendbreak returns when the break is over, as on an adapter
+        return 0
+
+    @staticmethod
+    def _sync(port: _Port, framing: int | None) -> int:
+        report = getattr(port.port, "report_framing", None)
+        if framing is not None and report is not None:
+            settings = report(framing)
+        else:
+            port.port.client_baud()  # re-reads termios; a change becomes an event
+            settings = port.lines.settings
+        return settings.baud or 0
+
+    def _after_taking(self, port: _Port, apply: Callable[[], Any], *, taken: bool = False,
+                      delivered: bool = False) -> int:
+        """In the medium's thread: take what the client wrote, then ``apply`` (when it is delivered,
+        if ``delivered``). Returns the bytes taken if ``taken``, else what ``apply`` returned."""
+        medium = port.medium
+        took, done = threading.Event(), threading.Event()
+        box: dict[str, Any] = {}
+
+        def finish() -> None:
+            try:
+                box["value"] = apply()
+            except BaseException as exc:
+                box["error"] = exc
+            finally:
+                done.set()
+
+        def take() -> None:
+            try:
+                box["taken"], box["end"] = medium.drain_host(port.port)
+            except BaseException as exc:
+                box["error"] = exc
+                done.set()
+                return
+            finally:
+                took.set()
+            # Queued behind the deliveries of the bytes just taken (an unpaced line delivers them
+            # "now"), so the devices hear those bytes before the change.
+            medium.call_at(box["end"] if delivered else time.monotonic(), finish)
+
+        if medium.in_medium_thread():
+            raise LineRequestError("called from the bench's own line thread")
+        medium.call_at(None, take)
+        if not took.wait(MEDIUM_TIMEOUT):
+            raise LineRequestError(f"the bench's line did not answer within {MEDIUM_TIMEOUT:g} s")
+        wire = max(0.0, box.get("end", 0.0) - time.monotonic())  # a paced line's wire time
+        if not done.wait(MEDIUM_TIMEOUT + wire):
+            raise LineRequestError(f"the bench's line did not answer within {MEDIUM_TIMEOUT:g} s")
+        if "error" in box:
+            raise box["error"]
+        return box.get("taken", 0) if taken else int(box.get("value") or 0)
+
+    # ------------------------------------------------------------------ socket
+
+    def _accept(self) -> None:
+        while not self._closed.is_set():
+            try:
+                ready = select.select([self._sock, self._wake_r], [], [])[0]
+            except (OSError, ValueError):
+                return
+            if self._sock not in ready:
+                continue
+            try:
+                conn, _ = self._sock.accept()
+            except OSError:
+                continue
+            threading.Thread(target=self._serve, args=(conn,), name="line-request", daemon=True).start()
+
+    def _serve(self, conn: socket.socket) -> None:
+        """Answer requests on one connection, one line each, until the client closes it."""
+        with self._conns_lock:
+            if self._closed.is_set():
+                conn.close()
+                return
+            self._conns.add(conn)
+        data = b""
+        try:
+            while not self._closed.is_set():
+                while b"\n" not in data and len(data) <= MAX_REQUEST:
+                    chunk = conn.recv(MAX_REQUEST)
+                    if not chunk:
+                        return  # the client is done (or went away)
+                    data += chunk
+                line, sep, data = data.partition(b"\n")
+                if not sep or len(line) > MAX_REQUEST:
+                    conn.sendall(b"err request too long\n")
+                    return
+                conn.sendall(self.handle(line.decode("ascii", "replace")).encode() + b"\n")
+        except OSError:
+            pass  # the client went away: it fails open on its side
+        finally:
+            with self._conns_lock:
+                self._conns.discard(conn)
+            conn.close()
+
+    def close(self) -> None:
+        """Stop serving and remove the socket and its directory."""
+        if self._closed.is_set():
+            return
+        self._closed.set()
+        with contextlib.suppress(OSError):
+            os.write(self._wake_w, b"x")
+        self._thread.join(timeout=5)
+        self._sock.close()
+        with self._conns_lock:
+            conns = list(self._conns)
+        for conn in conns:  # wakes their threads (recv returns nothing)
+            with contextlib.suppress(OSError):
+                conn.shutdown(socket.SHUT_RDWR)
+        for p in self._ports.values():
+            watch = getattr(p.medium, "watch_quiet", None)
+            if watch is not None:
+                watch(p.port, None)
+        self.board.close()
+        for fd in (self._wake_r, self._wake_w):
+            with contextlib.suppress(OSError):
+                os.close(fd)
+        with contextlib.suppress(OSError):
+            os.unlink(self.path)
+        with contextlib.suppress(OSError):
+            os.rmdir(self.directory)
+
+
+def _int_arg(args: list[str]) -> int:
+    if len(args) != 1:
+        raise LineRequestError("expected one integer argument")
+    try:
+        return int(args[0], 0)
+    except ValueError:
+        raise LineRequestError(f"expected an integer, got {args[0]!r}") from None
+
+
+def _private_dir() -> str:
+    """A fresh 0700 directory whose socket path fits sockaddr_un (108 bytes) even with a long TMPDIR."""
+    path = tempfile.mkdtemp(prefix="hilbench-lines-")
+    if len(path) + len("/lines.sock") < 100:
+        return path
+    os.rmdir(path)
+    return tempfile.mkdtemp(prefix="hilbench-lines-", dir="/tmp")
+
+
+def serve_lines(bench: Any) -> LineServer | None:
+    """Start the bench's line server (once) as its ``lines`` service; None if no endpoint is a tty."""
+    server = bench.services.get("lines")
+    if server is None:
+        if not any(getattr(ep.port, "rdev", None) is not None for ep in bench.endpoints.values()):
+            return None
+        server = bench.services["lines"] = LineServer(bench)
+    return server
+
+
+__all__ = ["TIOCM", "LineRequestError", "LineServer", "serve_lines"]

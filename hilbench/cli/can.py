@@ -1,0 +1,482 @@
+"""``hilbench can``: the CAN side of a bench, the board's DBC and EDS, and small CAN tools.
+
+Subcommands::
+
+    hilbench can dbc PROFILE [-o FILE]                 the DBC of the profile's CANopen boards
+    hilbench can eds PROFILE [--device NAME] [-o FILE] a board's EDS
+    hilbench can dump SOURCE [--dbc F] [--eds F:N]     frames as candump -L lines (decoded with --dbc/--eds)
+    hilbench can send TARGET ID#DATA ...               send frames (cansend syntax; ID#R for remote)
+    hilbench can nmt TARGET start|stop|preop|reset|reset-comm [--node N]
+    hilbench can sdo TARGET --node N read INDEX[:SUB] [--type T]
+    hilbench can sdo TARGET --node N write INDEX[:SUB] VALUE --type T
+    hilbench can drive TARGET [--node N] --vx V [--vy V] [--omega W] [--seconds S]
+    hilbench can status|fault|emcy|bus --manifest FILE ...   a running bench's control channel
+
+TARGET is a bench manifest (``hilbench emulate --manifest``; its socketcand
+server is used) or a CAN bus URL (``socketcand://127.0.0.1:PORT/can0``,
+``slcan:///dev/pts/N``, ``socketcan://vcan0``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from hilbench.cli.common import CliError, int_arg, open_cli_source, terminate_on_sigterm
+from hilbench.errors import DeviceError
+
+TYPES = {"u8": (1, False), "u16": (2, False), "u32": (4, False), "i8": (1, True), "i16": (2, True),
+         "i32": (4, True)}
+NMT = {"start": 0x01, "stop": 0x02, "preop": 0x80, "pre-operational": 0x80, "reset": 0x81, "reset-node": 0x81,
+       "reset-comm": 0x82, "reset-communication": 0x82}
+
+
+# --------------------------------------------------------------------------- helpers
+
+def _boards(profile_name: str) -> list[tuple[str, Any]]:
+    from hilbench.bench.profile import load_profile
+    from hilbench.families.canopen_board import profile_boards
+
+    boards = profile_boards(load_profile(profile_name))
+    if not boards:
+        raise CliError(f"{profile_name}: the profile has no CANopen boards")
+    return boards
+
+
+def _write(text: str, out: str | None, *, crlf: bool = False) -> None:
+    if out is None or out == "-":
+        sys.stdout.write(text)
+        return
+    Path(out).write_bytes(text.encode())
+    print(f"wrote {out}", file=sys.stderr)
+
+
+def manifest_socketcand(path: str) -> str:
+    """The socketcand URL of a bench manifest's CAN endpoint (``file.json#endpoint`` picks one)."""
+    file, _, endpoint = path.partition("#")
+    try:
+        data = json.loads(Path(file).read_text())
+    except (OSError, ValueError) as exc:
+        raise CliError(f"{file}: not a bench manifest ({exc})") from None
+    eps = [e for e in data.get("endpoints", []) if isinstance(e, dict) and e.get("socketcand")]
+    if endpoint:
+        eps = [e for e in eps if e.get("name") == endpoint]
+    if not eps:
+        raise CliError(f"{path}: no CAN endpoint with a socketcand server in the manifest")
+    if len(eps) > 1:
+        raise CliError(f"{path}: several CAN endpoints ({', '.join(e['name'] for e in eps)}); add #NAME")
+    s = eps[0]["socketcand"]
+    return f"socketcand://{s['host']}:{s['port']}/{s['channel']}"
+
+
+def open_target(target: str):
+    """A python-can bus for TARGET (a manifest or a CAN bus URL); CliError in one line."""
+    from hilbench.transports.sources import SourceError
+    from hilbench.transports.sources.can import open_bus
+
+    if target.split("#", 1)[0].endswith(".json"):
+        target = manifest_socketcand(target)
+    try:
+        bus, _channel, _bitrate = open_bus(target)
+    except SourceError as exc:
+        raise CliError(str(exc)) from None
+    return bus
+
+
+def parse_frame(text: str):
+    """``123#DEADBEEF``, ``12345678#01``, ``123#R``, ``123#R4`` (cansend syntax) as a frame."""
+    from hilbench.protocols.can_frame import data_frame, remote_frame
+
+    ident, sep, body = text.partition("#")
+    try:
+        if not sep or not ident or len(ident) not in (3, 8):
+            raise ValueError
+        can_id = int(ident, 16)
+        extended = len(ident) == 8
+        if body.upper().startswith("R"):
+            return remote_frame(can_id, int(body[1:] or "0"), extended=extended)
+        return data_frame(can_id, bytes.fromhex(body.replace(".", "")), extended=extended)
+    except ValueError:
+        raise CliError(f"{text!r}: expected ID#DATA as cansend takes it (3 or 8 hex ID digits, up to 8 bytes), "
+                       "or ID#R[LEN]") from None
+
+
+def _index(text: str) -> tuple[int, int]:
+    index, _, sub = text.partition(":")
+    try:
+        return int(index, 16) if not index.lower().startswith("0x") else int(index, 0), int(sub or "0", 0)
+    except ValueError:
+        raise CliError(f"{text!r}: expected INDEX[:SUB], e.g. 1018:1 or 0x1017") from None
+
+
+# --------------------------------------------------------------------------- artefacts
+
+def cmd_dbc(args: argparse.Namespace) -> int:
+    from hilbench.protocols import board_can
+
+    _write(board_can.dbc(_boards(args.profile)), args.output)
+    return 0
+
+
+def cmd_eds(args: argparse.Namespace) -> int:
+    from hilbench.protocols import board_can
+
+    boards = _boards(args.profile)
+    if args.device:
+        boards = [b for b in boards if b[0] == args.device]
+        if not boards:
+            raise CliError(f"{args.profile}: no CANopen board named {args.device!r}")
+    if len(boards) > 1:
+        raise CliError(f"{args.profile} has several boards ({', '.join(b[0] for b in boards)}): name one with "
+                       "--device")
+    name, cfg = boards[0]
+    _write(board_can.eds(cfg, name), args.output)
+    return 0
+
+
+# --------------------------------------------------------------------------- bus tools
+
+def cmd_dump(args: argparse.Namespace) -> int:
+    from hilbench.monitor.can.decoders import load_dbc, load_eds
+    from hilbench.protocols import can_frame as cf
+
+    terminate_on_sigterm()
+    decoders = [load_dbc(d) for d in args.dbc] + [load_eds(e) for e in args.eds]
+    deadline = time.monotonic() + args.seconds if args.seconds else None
+    count = 0
+    with open_cli_source(args.source, baud=None, speed=args.speed) as source:
+        if source.protocol not in (None, "can"):
+            raise CliError(f"{source.name} carries {source.protocol}, not CAN")
+        offset = getattr(source, "wall_offset", None)
+        if offset is None:
+            offset = time.time() - time.monotonic() if source.live else 0.0
+        try:
+            for chunk in source.chunks(0.1):
+                if chunk is not None and not chunk.lost:
+                    frames, _ = cf.split(chunk.data)
+                    for frame in frames:
+                        line = _candump(frame, chunk.t + offset, args.channel)
+                        for dec in decoders:
+                            try:
+                                values = dec.decode(frame)
+                            except Exception as exc:
+                                line += f" :: {dec.name(frame) or '?'}(error: {exc})"
+                                break
+                            if values is not None:
+                                line += f" :: {dec.name(frame)}(" + ", ".join(f"{k}: {v}" for k, v in values.items()) + ")"
+                                break
+                        print(line, flush=True)
+                        count += 1
+                        if args.count and count >= args.count:
+                            return 0
+                if deadline is not None and time.monotonic() >= deadline:
+                    break
+        except KeyboardInterrupt:
+            pass
+    return 0
+
+
+def _candump(frame, t: float, channel: str) -> str:
+    if frame.error:
+        body = f"{frame.can_id | 0x20000000:08X}#{frame.data.hex().upper()}"
+    elif frame.remote:
+        body = f"{frame.id_text}#R{frame.length if frame.length else ''}"
+    else:
+        body = f"{frame.id_text}#{frame.data.hex().upper()}"
+    return f"({t:.6f}) {channel} {body}"
+
+
+def cmd_send(args: argparse.Namespace) -> int:
+    import can
+
+    from hilbench.transports.can_messages import to_message
+
+    frames = [parse_frame(f) for f in args.frames]
+    bus = open_target(args.target)
+    try:
+        for frame in frames:
+            bus.send(to_message(frame))
+            if args.gap:
+                time.sleep(args.gap)
+    except can.CanError as exc:
+        raise DeviceError(f"{args.target}: {exc}") from None
+    finally:
+        time.sleep(0.05)  # let the last write leave before the connection closes
+        bus.shutdown()
+    return 0
+
+
+def cmd_nmt(args: argparse.Namespace) -> int:
+    from hilbench.protocols.can_frame import data_frame
+    from hilbench.protocols.canopen import nmt_command
+    from hilbench.transports.can_messages import to_message
+
+    bus = open_target(args.target)
+    try:
+        bus.send(to_message(data_frame(0x000, nmt_command(NMT[args.command], args.node))))
+        time.sleep(0.05)
+    finally:
+        bus.shutdown()
+    return 0
+
+
+def cmd_sdo(args: argparse.Namespace) -> int:
+    try:
+        import canopen
+    except ImportError:
+        raise CliError("hilbench can sdo needs the canopen package: pip install 'hilbench[can]'") from None
+    index, sub = _index(args.object)
+    bus = open_target(args.target)
+    canopen.Network.NOTIFIER_SHUTDOWN_TIMEOUT = 0.0
+    net = canopen.Network(bus)
+    try:
+        net.connect()
+        node = canopen.RemoteNode(args.node, canopen.ObjectDictionary())
+        node.sdo.RESPONSE_TIMEOUT = args.timeout
+        net.add_node(node)
+        try:
+            if args.action == "read":
+                raw = node.sdo.upload(index, sub)
+                print(_show(raw, args.type))
+            else:
+                node.sdo.download(index, sub, _encode(args.value, args.type), force_segment=args.segmented)
+        except canopen.SdoAbortedError as exc:
+            raise DeviceError(f"node {args.node} 0x{index:04X}:{sub:02X}: SDO aborted: {exc}") from None
+        except canopen.SdoCommunicationError as exc:
+            raise DeviceError(f"node {args.node} 0x{index:04X}:{sub:02X}: {exc}") from None
+    finally:
+        net.disconnect()
+    return 0
+
+
+def _encode(value: str | None, kind: str) -> bytes:
+    if value is None:
+        raise CliError("write needs a VALUE")
+    try:
+        if kind in TYPES:
+            size, signed = TYPES[kind]
+            return int(value, 0).to_bytes(size, "little", signed=signed)
+        if kind == "f32":
+            import struct
+
+            return struct.pack("<f", float(value))
+        if kind == "str":
+            return value.encode("latin-1")
+        return bytes.fromhex(value)
+    except (ValueError, OverflowError) as exc:
+        raise CliError(f"{value!r} is not a {kind}: {exc}") from None
+
+
+def _show(raw: bytes, kind: str) -> str:
+    if kind in TYPES:
+        size, signed = TYPES[kind]
+        return str(int.from_bytes(raw[:size], "little", signed=signed))
+    if kind == "f32":
+        import struct
+
+        return repr(struct.unpack("<f", raw[:4])[0])
+    if kind == "str":
+        return raw.decode("latin-1")
+    if kind == "auto":
+        if len(raw) <= 4:
+            return f"{int.from_bytes(raw, 'little')} (0x{raw[::-1].hex().upper()})"
+        if all(32 <= b < 127 for b in raw):
+            return raw.decode("ascii")
+    return raw.hex(" ").upper()
+
+
+def cmd_drive(args: argparse.Namespace) -> int:
+    from hilbench.clients.can_rover import RoverCanClient
+
+    terminate_on_sigterm()
+    bus = open_target(args.target)
+    with RoverCanClient(bus, args.node, period=args.period, own_bus=True) as rover:
+        if not args.no_start:
+            rover.start()
+        start = time.monotonic()
+        rover.drive(args.vx, args.vy, args.omega)
+        try:
+            while time.monotonic() - start < args.seconds:
+                time.sleep(min(0.5, args.seconds))
+                pose = rover.pose()
+                if pose is not None and args.verbose:
+                    print(f"t={time.monotonic() - start:5.2f} s  x={pose[0]:+.3f} m  y={pose[1]:+.3f} m  "
+                          f"theta={pose[2]:+.4f} rad", flush=True)
+        except KeyboardInterrupt:
+            pass
+        rover.drive(0.0, 0.0, 0.0)
+        time.sleep(0.3)
+        rover.halt()
+        try:
+            odo = rover.wait_for("odometry", timeout=1.0)
+        except TimeoutError:
+            raise DeviceError(f"node {args.node} sent no odometry (is it OPERATIONAL? sent {rover.sent} setpoints)") \
+                from None
+        print(json.dumps({"node": args.node, "setpoints_sent": rover.sent,
+                          "pose": {"x": odo["x"], "y": odo["y"], "theta": odo["theta"]},
+                          "nmt_state": rover.nmt_state, "emcy": [f"0x{c:04X}" for c, _ in rover.emcy]}))
+    return 0
+
+
+# --------------------------------------------------------------------------- control channel
+
+def _client(args: argparse.Namespace):
+    from hilbench.families.canopen_board import CanClient
+
+    return CanClient.from_manifest(args.manifest)
+
+
+def _knobs(items: list[str]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep:
+            raise CliError(f"{item!r}: expected KEY=VALUE")
+        low = value.lower()
+        if low in ("true", "on", "yes"):
+            out[key] = True
+        elif low in ("false", "off", "no"):
+            out[key] = False
+        else:
+            try:
+                out[key] = int(value, 0)
+            except ValueError:
+                try:
+                    out[key] = float(value)
+                except ValueError:
+                    out[key] = value
+    return out
+
+
+def cmd_control(args: argparse.Namespace) -> int:
+    client = _client(args)
+    if args.cmd == "status":
+        reply = client.status(args.device)
+        out = {"status": reply["status"], "bus": reply["bus"]}
+    elif args.cmd == "fault":
+        out = {"faults": client.fault(args.device, **_knobs(args.knobs))}
+    elif args.cmd == "emcy":
+        out = {"status": client.emcy(int(args.code, 0), int(args.register, 0), args.data, args.device)}
+    elif args.cmd == "bus":
+        out = {"bus": client.bus(args.device, **_knobs(args.knobs))}
+    elif args.cmd == "reset":
+        out = {"status": client.reset(args.device)}
+    else:
+        out = {"status": client.nmt(args.state, args.device)}
+    print(json.dumps(out, indent=None if args.compact else 2))
+    return 0
+
+
+# --------------------------------------------------------------------------- parser
+
+ORDER = 45
+
+HELP = """\
+The CAN side of a bench (the rover board as CANopen node) and small CAN tools:
+
+  hilbench can dbc PROFILE [-o FILE]                  the DBC of the profile's CANopen boards
+  hilbench can eds PROFILE [--device NAME] [-o FILE]  a board's EDS
+  hilbench can dump SOURCE [--dbc F] [--eds F:N]      frames as candump -L lines, decoded
+  hilbench can send TARGET ID#DATA ...                send frames (cansend syntax, ID#R for remote)
+  hilbench can nmt TARGET start|stop|preop|reset|reset-comm [--node N]
+  hilbench can sdo TARGET read|write INDEX[:SUB] [VALUE] --node N [--type T]
+  hilbench can drive TARGET [--node N] --vx V [--vy V] [--omega W] [--seconds S]
+  hilbench can status|fault|emcy|bus|reset|state --manifest FILE ...   control channel
+
+TARGET is a bench manifest (hilbench emulate --manifest; its socketcand server)
+or a CAN bus URL: socketcand://127.0.0.1:PORT/can0, slcan:///dev/pts/N,
+socketcan://vcan0."""
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("can", help="CAN: the board's DBC/EDS, dump/send/nmt/sdo/drive, a CAN bench's control channel",
+                       description=HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
+    cs = p.add_subparsers(dest="can_cmd", required=True, metavar="COMMAND")
+
+    d = cs.add_parser("dbc", help="export the DBC of a profile's CANopen boards (cantools reads it)")
+    d.add_argument("profile", help="profile file or bundled profile name (e.g. mecarover-can)")
+    d.add_argument("-o", "--output", metavar="FILE", help="write to FILE instead of stdout")
+    d.set_defaults(func=cmd_dbc)
+
+    e = cs.add_parser("eds", help="export a board's EDS (the canopen package and CANopen tools import it)")
+    e.add_argument("profile", help="profile file or bundled profile name")
+    e.add_argument("--device", help="the board (when the profile has several)")
+    e.add_argument("-o", "--output", metavar="FILE", help="write to FILE instead of stdout")
+    e.set_defaults(func=cmd_eds)
+
+    u = cs.add_parser("dump", help="print frames as candump -L lines, decoded with --dbc/--eds",
+                      description="Print every frame of SOURCE (anything `hilbench monitor` opens: a CAN bus URL, "
+                                  "a manifest, bench:PROFILE, a capture or python-can log) as candump -L lines, "
+                                  "which `cantools decode` and can-utils read; --dbc/--eds append the decoded "
+                                  "signals after ' :: '.")
+    u.add_argument("source")
+    u.add_argument("--dbc", action="append", default=[], metavar="FILE", help="DBC file or profile name")
+    u.add_argument("--eds", action="append", default=[], metavar="FILE:NODE", help="EDS and its node")
+    u.add_argument("--channel", default="can0", help="channel name in the lines (default can0)")
+    u.add_argument("--seconds", type=float, help="stop after this many seconds")
+    u.add_argument("-n", "--count", type=int, help="stop after this many frames")
+    u.add_argument("--speed", type=float, help="replay a file at this multiple of its recorded speed")
+    u.set_defaults(func=cmd_dump)
+
+    target_help = "a bench manifest (its socketcand server) or a CAN bus URL (socketcand://, slcan://, socketcan://)"
+    s = cs.add_parser("send", help="send frames (cansend syntax: 123#DEADBEEF, 12345678#01, 123#R)")
+    s.add_argument("target", help=target_help)
+    s.add_argument("frames", nargs="+", metavar="ID#DATA")
+    s.add_argument("--gap", type=float, default=0.0, help="seconds between frames")
+    s.set_defaults(func=cmd_send)
+
+    n = cs.add_parser("nmt", help="send an NMT command")
+    n.add_argument("target", help=target_help)
+    n.add_argument("command", choices=sorted(NMT))
+    n.add_argument("--node", type=int_arg, default=0, help="node id (default 0: all nodes)")
+    n.set_defaults(func=cmd_nmt)
+
+    o = cs.add_parser("sdo", help="read or write an object over SDO (needs the canopen package)")
+    o.add_argument("target", help=target_help)
+    o.add_argument("action", choices=("read", "write"))
+    o.add_argument("object", metavar="INDEX[:SUB]", help="e.g. 1018:1, 0x1017, 2002:1")
+    o.add_argument("value", nargs="?", help="the value to write")
+    o.add_argument("--node", type=int_arg, required=True, help="node id")
+    o.add_argument("--type", default="auto", choices=("auto", "hex", "str", "f32", *TYPES),
+                   help="how to show (read) or encode (write) the value (default: auto / hex)")
+    o.add_argument("--segmented", action="store_true", help="write with a segmented transfer even when short")
+    o.add_argument("--timeout", type=float, default=1.0, help="SDO response timeout in seconds (default 1)")
+    o.set_defaults(func=cmd_sdo)
+
+    v = cs.add_parser("drive", help="drive the rover board: NMT start, setpoints every 50 ms, the odometry after")
+    v.add_argument("target", help=target_help)
+    v.add_argument("--node", type=int_arg, default=2, help="node id (default 2)")
+    v.add_argument("--vx", type=float, default=0.0, help="forward velocity in m/s")
+    v.add_argument("--vy", type=float, default=0.0, help="sideways velocity in m/s (left positive)")
+    v.add_argument("--omega", type=float, default=0.0, help="yaw rate in rad/s")
+    v.add_argument("--seconds", type=float, default=1.0, help="how long (default 1)")
+    v.add_argument("--period", type=float, default=0.05, help="setpoint repeat in seconds (default 0.05)")
+    v.add_argument("--no-start", action="store_true", help="do not send NMT start first")
+    v.add_argument("-v", "--verbose", action="store_true", help="print the pose twice a second")
+    v.set_defaults(func=cmd_drive)
+
+    for name, help_text in (("status", "a node's state and the bus's figures"),
+                            ("fault", "turn a node's fault knobs (KEY=VALUE ...)"),
+                            ("emcy", "make a node send an EMCY"),
+                            ("bus", "the bus's figures; bus fault knobs KEY=VALUE (error_rate, error_next, "
+                                    "auto_recover, bus_off=SENDER)"),
+                            ("reset", "reboot a node"),
+                            ("state", "put a node into an NMT state from inside")):
+        c = cs.add_parser(name, help=f"control channel: {help_text}")
+        c.add_argument("--manifest", required=True, help="manifest of `hilbench emulate --manifest`")
+        c.add_argument("--device", help="node name (when the bench has several)")
+        c.add_argument("--compact", action="store_true", help="JSON on one line")
+        if name in ("fault", "bus"):
+            c.add_argument("knobs", nargs="*", metavar="KEY=VALUE")
+        if name == "emcy":
+            c.add_argument("code", help="error code, e.g. 0x2310")
+            c.add_argument("--register", default="0x80", help="error register bits (default 0x80)")
+            c.add_argument("--data", default="", help="up to 5 vendor bytes in hex")
+        if name == "state":
+            c.add_argument("state", choices=("operational", "stopped", "pre-operational", "reset",
+                                             "reset-communication"))
+        c.set_defaults(func=cmd_control, cmd=name if name != "state" else "nmt")

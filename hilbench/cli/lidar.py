@@ -1,0 +1,291 @@
+"""``hilbench lidar``: live scans of a laser scanner (real or emulated) in the terminal, or one as a picture.
+
+SOURCE is a serial port (``/dev/ttyUSB0``, a bench's pty), ``tcp://HOST:PORT``
+(a SCIP 2.0 unit on Ethernet), a bench manifest (``/tmp/bench.json#lidar``:
+the endpoint's path, protocol, and the scene for ``--png``) or
+``bench:PROFILE#ENDPOINT`` (start that bench here). hilbench acts as the host:
+it starts the scans (RPLIDAR: motor on through DTR, SCAN; LMS 200: continuous
+output, after a link speed change with ``--lms-baud``; SCIP: BM and MD) and
+decodes them with the scanner trackers the monitor uses.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import math
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from hilbench.cli.common import CliError, terminate_on_sigterm
+
+PROTOCOLS = {"rplidar": "rplidar", "sick": "sick-lms200", "sick-lms200": "sick-lms200", "lms200": "sick-lms200",
+             "scip": "scip2", "scip2": "scip2"}
+
+
+class Target:
+    """What to open: a link target, its protocol, and (for benches) the scene and the scanner's pose."""
+
+    def __init__(self, link: str, protocol: str | None, *, scene=None, pose: dict | None = None,
+                 motor=None, bench=None, label: str = "") -> None:
+        self.link = link
+        self.protocol = protocol
+        self.scene = scene
+        self.pose = pose
+        self.motor = motor
+        self.bench = bench
+        self.label = label or link
+
+
+def _endpoint_of(endpoints: list[dict], fragment: str, where: str) -> dict:
+    scanners = [e for e in endpoints if e.get("protocol") in PROTOCOLS.values()]
+    if fragment:
+        found = [e for e in endpoints if e.get("name") == fragment]
+        if not found:
+            raise CliError(f"{where}: no endpoint named {fragment!r}")
+        return found[0]
+    if not scanners:
+        raise CliError(f"{where}: no scanner endpoint (give #ENDPOINT)")
+    return scanners[0]
+
+
+def _control_motor(address: str | None, device: str | None):
+    if not address or not device:
+        return None
+
+    def motor(on: bool) -> None:
+        from hilbench.bench.control import ControlClient
+
+        with contextlib.suppress(Exception):
+            ControlClient(address).call("dtr", device=device, dtr=not on)
+
+    return motor
+
+
+def _carry_lines(manifest: dict) -> None:
+    """pyserial's DTR on the bench's ptys goes to its line server, as under ``hilbench run``."""
+    lines = manifest.get("lines") or {}
+    if not isinstance(lines, dict) or not isinstance(lines.get("socket"), str):
+        return  # an older bench: the control channel's dtr command is the way (see _control_motor)
+    from hilbench.run import pyserial_shim
+
+    for port in (lines.get("ports") or {}).values():
+        with contextlib.suppress(KeyError, TypeError, ValueError):
+            pyserial_shim.register(int(port["rdev"]), lines["socket"])
+    pyserial_shim.install()
+
+
+def resolve(source: str) -> Target:
+    """A :class:`Target` from the command line's SOURCE."""
+    if source.startswith("bench:"):
+        from hilbench.bench import Bench
+
+        spec, _, frag = source[len("bench:"):].partition("#")
+        bench = Bench(spec or "scanners").start()
+        manifest = bench.manifest()
+        ep = _endpoint_of(manifest["endpoints"], frag, source)
+        dev = next((d for d in manifest["devices"] if d["endpoint"] == ep["name"]), {})
+        port = bench.endpoint(ep["name"]).port
+        lines = getattr(port, "lines", None)
+        motor = (lambda on: lines.host_sets(dtr=not on)) if lines is not None else None
+        return Target(ep["path"] if ep["type"] != "tcp" else f"{ep['host']}:{ep['port']}", ep["protocol"],
+                      scene=bench.profile.tables.get("scene"), pose=dev.get("pose"), motor=motor, bench=bench,
+                      label=f"bench {bench.profile.name}#{ep['name']}")
+    path, _, frag = source.partition("#")
+    if path.endswith(".json"):
+        try:
+            manifest = json.loads(Path(path).read_text())
+        except (OSError, ValueError) as exc:
+            raise CliError(f"{path}: not a bench manifest ({exc})") from None
+        ep = _endpoint_of(manifest.get("endpoints", []), frag, path)
+        dev = next((d for d in manifest.get("devices", []) if d.get("endpoint") == ep["name"]), {})
+        scene = None
+        if manifest.get("profile"):
+            with contextlib.suppress(Exception):
+                from hilbench.bench.profile import load_profile
+
+                scene = load_profile(manifest["profile"]).tables.get("scene")
+        link = f"{ep['host']}:{ep['port']}" if ep.get("type") == "tcp" else ep["path"]
+        _carry_lines(manifest)
+        return Target(link, ep.get("protocol"), scene=scene, pose=dev.get("pose"),
+                      motor=_control_motor(manifest.get("control"), dev.get("name")), label=f"{path}#{ep['name']}")
+    return Target(source, None)
+
+
+def _driver(target: Target, args: argparse.Namespace):
+    from hilbench.clients.scanners import DRIVERS, ScannerLink
+
+    protocol = target.protocol
+    if args.protocol:
+        asked = PROTOCOLS[args.protocol]
+        if protocol and protocol != asked:
+            raise CliError(f"{target.label} speaks {protocol}, not {asked}")
+        protocol = asked
+    if protocol is None:
+        protocol = "scip2" if ":" in target.link and not target.link.startswith("/") else "rplidar"
+    if protocol not in DRIVERS:
+        raise CliError(f"{target.label}: {protocol} is not a scanner protocol")
+    baud = {"rplidar": 115_200, "sick-lms200": 9600}.get(protocol)
+    try:
+        link = ScannerLink.open(target.link, baud)
+    except (OSError, ValueError) as exc:
+        raise CliError(f"{target.link}: {exc}") from None
+    if protocol == "rplidar":
+        return DRIVERS[protocol](link, express=args.express, motor=target.motor)
+    if protocol == "sick-lms200":
+        return DRIVERS[protocol](link, baud=args.lms_baud)
+    return DRIVERS[protocol](link)
+
+
+def _stats(tr) -> str:
+    rate = tr.scan_rate
+    pps = tr.points_per_scan
+    return (f"{tr.protocol}: {tr.scans} scans, {f'{rate:.2f} Hz' if rate else '- Hz'}, "
+            f"{f'{pps:.0f}' if pps is not None else '-'} points/scan, health {tr.health}, "
+            f"checksum failures {tr.checksum_failures}, errors {tr.error_count}")
+
+
+def save_png(path: str, scan, target: Target) -> None:
+    """One scan as a picture: over the scene in world coordinates when the pose is known, else sensor frame."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        raise CliError("--png needs matplotlib (pip install 'hilbench[plot]')") from None
+    import numpy as np
+
+    ok = scan.ranges > 0
+    a, r = scan.angles[ok], scan.ranges[ok]
+    fig, ax = plt.subplots(figsize=(7, 6), dpi=100)
+    if target.pose is not None:
+        x0, y0 = target.pose["x"], target.pose["y"]
+        h = math.radians(target.pose["heading"])
+        xs, ys = x0 + r * np.cos(h + a), y0 + r * np.sin(h + a)
+        if target.scene is not None:
+            for seg in target.scene.segments:
+                ax.plot([seg[0], seg[2]], [seg[1], seg[3]], color="0.3", lw=2)
+            for cx, cy, rad in target.scene.circles:
+                ax.add_patch(plt.Circle((cx, cy), rad, color="0.3", fill=False, lw=2))
+        ax.plot([x0], [y0], "r^", ms=10, label="scanner")
+        ax.arrow(x0, y0, 0.4 * math.cos(h), 0.4 * math.sin(h), color="r", width=0.01)
+        ax.set_xlabel("x (m)")
+        ax.set_ylabel("y (m)")
+    else:
+        xs, ys = r * np.cos(a), r * np.sin(a)
+        ax.plot([0], [0], "r^", ms=10, label="scanner")
+        ax.set_xlabel("forward (m)")
+        ax.set_ylabel("left (m)")
+    ax.scatter(xs, ys, s=4, color="tab:blue", label=f"{len(r)} points")
+    ax.set_aspect("equal")
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc="upper right")
+    ax.set_title(f"{target.label}: one scan")
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+
+
+def cmd_lidar(args: argparse.Namespace) -> int:
+    terminate_on_sigterm()
+    target = resolve(args.source)
+    try:
+        drv = _driver(target, args)
+        try:
+            drv.start()
+            return _run(drv, target, args)
+        finally:
+            drv.stop()
+            drv.link.close()
+    finally:
+        if target.bench is not None:
+            target.bench.stop()
+
+
+def _run(drv, target: Target, args: argparse.Namespace) -> int:
+    from rich.console import Console
+    from rich.live import Live
+    from rich.text import Text
+
+    from hilbench.dashboard.scanner_views import polar_lines
+
+    tr = drv.tracker
+    deadline = time.monotonic() + args.seconds if args.seconds else None
+    want = 1 if args.png else args.scans
+    quiet = args.json or args.summary or args.png or not sys.stdout.isatty()
+    first_scan_timeout = time.monotonic() + args.timeout
+
+    def done() -> bool:
+        if deadline is not None and time.monotonic() >= deadline:
+            return True
+        return want is not None and tr.scans >= want + (1 if args.png else 0)
+
+    def frame() -> Text:
+        size = Console().size
+        lines = [f" hilbench lidar  {target.label}", " " + _stats(tr)]
+        s = tr.last_scan
+        h = max(6, size.height - 3)
+        lines += polar_lines(s.angles, s.ranges, size.width - 2, h) if s is not None else [" waiting for scans"]
+        return Text("\n".join(lines))
+
+    try:
+        if quiet:
+            while not done():
+                drv.pump(0.05)
+                if tr.scans == 0 and time.monotonic() > first_scan_timeout:
+                    raise CliError(f"{target.label}: no scan within {args.timeout:g} s ({_stats(tr)})")
+        else:
+            with Live(frame(), auto_refresh=False, screen=True) as live:
+                last = 0.0
+                while not done():
+                    drv.pump(0.05)
+                    if time.monotonic() - last >= 0.1:
+                        live.update(frame(), refresh=True)
+                        last = time.monotonic()
+    except KeyboardInterrupt:
+        pass
+    except ConnectionError as exc:
+        raise CliError(str(exc)) from None
+    if args.png:
+        if tr.last_scan is None:
+            raise CliError(f"{target.label}: no scan to draw ({_stats(tr)})")
+        save_png(args.png, tr.last_scan, target)
+        print(f"hilbench lidar: one scan ({tr.last_scan.points} points) drawn to {args.png}")
+        return 0
+    report: dict[str, Any] = tr.summary(source=target.label, timestamps="measured")
+    if args.json:
+        print(json.dumps(report, indent=2))
+    else:
+        print(_stats(tr))
+    return 0
+
+
+ORDER = 45
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "lidar", help="live scans of a laser scanner (RPLIDAR, SICK LMS 200, SCIP 2.0) in the terminal",
+        description="Drive a laser scanner as its host and show its scans live: a polar plot (straight ahead up), "
+                    "scan rate, points per scan, health. SOURCE: a serial port (/dev/ttyUSB0 or a bench pty), "
+                    "tcp://HOST:PORT (SCIP 2.0 on Ethernet), a manifest of `hilbench emulate` (FILE.json#ENDPOINT) "
+                    "or bench:PROFILE#ENDPOINT (start that bench here). --png draws one scan over the bench's "
+                    "scene (a manifest or bench source) or in the sensor frame.")
+    p.add_argument("source", help="what to read (see above)")
+    p.add_argument("--protocol", choices=sorted(PROTOCOLS), help="the scanner's protocol (default: what a bench "
+                   "says; a serial port: rplidar; tcp://: scip)")
+    p.add_argument("--express", action="store_true", help="RPLIDAR: express scan (legacy capsules)")
+    p.add_argument("--lms-baud", type=int, choices=(9600, 19200, 38400, 500_000), default=9600,
+                   help="LMS 200: switch the link to this speed first (default 9600, the power-up rate)")
+    p.add_argument("--scans", type=int, help="stop after N scans")
+    p.add_argument("--seconds", type=float, help="stop after S seconds")
+    p.add_argument("--timeout", type=float, default=10.0, help="give up when no scan arrives within S seconds "
+                   "(without a terminal; default 10)")
+    p.add_argument("--json", action="store_true", help="no live view: print the JSON summary at the end")
+    p.add_argument("--summary", action="store_true", help="no live view: print one summary line at the end")
+    p.add_argument("--png", metavar="FILE", help="draw one complete scan to FILE (PNG) and exit")
+    p.set_defaults(func=cmd_lidar)

@@ -1,0 +1,51 @@
+"""``hilbench plugins``: what this installation can emulate, open and watch, and which package says so."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+
+from hilbench import registry
+
+ORDER = 90
+
+
+def _describe(kind: registry.Kind, name: str, obj) -> str:
+    if kind is registry.families:
+        return f"protocols {', '.join(obj.protocols)}; endpoints {', '.join(obj.endpoint_types)}"
+    if kind is registry.instruments:
+        return f"{obj.title or obj.protocol} (hilbench {obj.verb})"
+    if kind is registry.sources:
+        return obj.usage or obj.what
+    doc = (getattr(obj, "__doc__", None) or "").strip().splitlines()
+    # the first docstring line, without reST markup (:attr:`x` -> x, ``y`` -> y)
+    return re.sub(r":\w+:`~?([^`]+)`|``([^`]+)``", lambda m: m[1] or m[2], doc[0]) if doc else ""
+
+
+def cmd_plugins(args: argparse.Namespace) -> int:
+    rows = {}
+    for kind in registry.KINDS:
+        rows[kind.name] = [{"name": name, "package": kind.origin(name), "what": _describe(kind, name, obj)}
+                           for name, obj in kind.items()]
+        failed = kind.failures()
+        if failed:
+            rows[kind.name] += [{"name": n, "package": why.split(":")[0], "what": f"FAILED: {why}"}
+                                for n, why in failed.items()]
+    if args.json:
+        print(json.dumps(rows, indent=2))
+        return 0
+    for kind, entries in rows.items():
+        print(f"{kind}  [entry points: {getattr(registry, kind).group}]")
+        for e in entries:
+            print(f"  {e['name']:<14} {e['package']:<18} {e['what']}")
+    return 0
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("plugins", help="list the device families, endpoint types, sources, instruments and verbs",
+                       description="List every plug-in this installation has (hilbench's own and other packages' "
+                                   "entry points) and the package that registered it; plug-ins that failed to "
+                                   "load are listed with the reason.")
+    p.add_argument("--json", action="store_true", help="print JSON")
+    p.set_defaults(func=cmd_plugins)

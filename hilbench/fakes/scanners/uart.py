@@ -1,0 +1,85 @@
+"""A device's transmit line paced at its own baud rate, on a medium that delivers at once.
+
+A scanner's UART is full duplex: what it sends does not wait for the host's
+bytes, so its endpoint's medium runs unpaced and the device paces itself, as
+the STM32 board does. :class:`UartTx` keeps the line's busy-until time, cuts
+long writes into chunks of about a millisecond of wire time, and hands each
+chunk to the medium stamped with the time its last bit leaves the device
+(:meth:`DevicePort.transmit` with ``t``). Nothing sleeps: every chunk is one
+event on the medium's clock.
+
+Queued chunks can be cancelled (:meth:`cancel`: a STOP, a reset), so what a
+device has not yet put on the wire never reaches the host; the chunk being
+sent still completes, as on a real UART.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+
+#: Longest piece of one write handed to the medium as a unit (seconds of wire time).
+CHUNK_S = 0.001
+
+
+class UartTx:
+    """The TX line of a device: ``send(data, t_ready)`` paces ``data`` at :attr:`baud` (10 bits a byte)."""
+
+    def __init__(self, port, baud: int | None, *, chunk_s: float = CHUNK_S) -> None:
+        self.port = port
+        self.baud = baud
+        self.chunk_s = chunk_s
+        self.busy_until = 0.0
+        self.epoch = 0
+        self.bytes_sent = 0
+        self.bytes_cancelled = 0
+        self._pending = 0  # chunks scheduled and not yet handed over
+        self.on_idle: Callable[[float], None] | None = None
+
+    def byte_time(self) -> float:
+        return 10.0 / self.baud if self.baud else 0.0
+
+    def send(self, data: bytes, t_ready: float | None = None, *, whole: bool = False) -> float:
+        """Queue ``data`` ready to send at ``t_ready`` (default now); returns when its last byte is out.
+
+        ``whole``: hand it over as one piece (a reply a device writes with one send on a fast link).
+        """
+        if not data:
+            return max(self.busy_until, t_ready or 0.0)
+        now = time.monotonic() if t_ready is None else t_ready
+        start = max(now, self.busy_until)
+        bt = self.byte_time()
+        step = len(data) if whole or bt == 0 else max(1, int(self.chunk_s / bt))
+        epoch = self.epoch
+        t = start
+        for k in range(0, len(data), step):
+            piece = data[k:k + step]
+            t += len(piece) * bt
+            self._pending += 1
+            self.port.call_at(t, lambda p=piece, te=t, ep=epoch: self._emit(p, te, ep))
+        self.busy_until = t
+        return t
+
+    def _emit(self, piece: bytes, t_end: float, epoch: int) -> None:
+        self._pending -= 1
+        if epoch != self.epoch:
+            self.bytes_cancelled += len(piece)
+        else:
+            self.bytes_sent += len(piece)
+            self.port.transmit(piece, t=t_end)
+        if self._pending == 0 and self.on_idle is not None:
+            self.on_idle(t_end)
+
+    @property
+    def idle(self) -> bool:
+        return self._pending == 0
+
+    def cancel(self, now: float | None = None) -> None:
+        """Drop everything queued and not yet on the wire; the line is free from ``now``."""
+        self.epoch += 1
+        now = time.monotonic() if now is None else now
+        # The chunk in flight finishes (it was handed over whole); later ones are dropped.
+        self.busy_until = min(self.busy_until, now + self.chunk_s)
+
+
+__all__ = ["CHUNK_S", "UartTx"]

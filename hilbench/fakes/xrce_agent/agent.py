@@ -1,0 +1,591 @@
+"""An emulated Micro XRCE-DDS agent (what ``micro_ros_agent udp4 --port 8888`` runs) on a datagram net.
+
+It does what eProsima's agent does for a client over UDP (spec sheet §1, and
+the agent's ``Processor``): answers GET_INFO pings out of and in session,
+creates sessions (CREATE_CLIENT -> STATUS_AGENT with the payload's session id
+in the header), keeps best-effort and reliable streams both ways (ACKNACK
+after every reliable message and HEARTBEAT, HEARTBEATs every 200 ms while its
+own reliable messages are unacknowledged, retransmission on NACK, FRAGMENT
+reassembly and fragmentation above the client's MTU), creates entities by
+reference, XML or binary, answers TIMESTAMP, deletes objects and clients, and
+routes WRITE_DATA to every DATAREADER on the same topic (of any client,
+itself included) whose READ_DATA asked for data, as the agent's DDS
+participants do. An optional bridge carries the same samples to and from RTPS.
+
+Bad input never ends a session, with one exception the real agent has too
+(§1.9.4): a datagram read as a CREATE_CLIENT with another key from the address
+of a live session (Xu's zeroed datagram) deletes that session first. The
+``zeroed`` setting ``"keep"`` keeps the session when that CREATE_CLIENT is
+invalid anyway (key 0, bad cookie or version). Everything is counted
+(:attr:`XrceAgent.counters`) and logged the way the agent logs it.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any
+
+from hilbench.fakes.xrce_agent.entities import Entity, EntityError, entity_from_create, same
+from hilbench.fakes.xrce_agent.streams import BestEffortInput, ReliableInput, ReliableOutput
+from hilbench.protocols import xrce_dds as x
+
+log = logging.getLogger(__name__)
+K = x.ObjectKind
+S = x.SubmessageId
+Address = tuple[str, int]
+#: The agent's HEARTBEAT period (UAGENT_CONFIG_HEARTBEAT_PERIOD).
+HEARTBEAT_PERIOD = 0.2
+#: Samples a reader keeps while no READ_DATA asks for them (at most; its history depth decides).
+MAX_QUEUED = 64
+
+
+@dataclass
+class Read:
+    """An active READ_DATA: where DATA goes and how many samples are still wanted (None: unlimited)."""
+
+    request_id: bytes
+    stream_id: int
+    remaining: int | None
+
+
+@dataclass
+class Session:
+    """A client as the agent knows it (the agent's ProxyClient plus its session)."""
+
+    key: bytes
+    session_id: int
+    address: Address
+    mtu: int
+    entities: dict[bytes, Entity] = field(default_factory=dict)
+    be_in: dict[int, BestEffortInput] = field(default_factory=dict)
+    rel_in: dict[int, ReliableInput] = field(default_factory=dict)
+    be_out: dict[int, int] = field(default_factory=dict)
+    rel_out: dict[int, ReliableOutput] = field(default_factory=dict)
+    reads: dict[bytes, Read] = field(default_factory=dict)
+    queued: dict[bytes, deque[bytes]] = field(default_factory=dict)
+    created: float = 0.0
+    last_seen: float = 0.0
+    samples_in: int = 0
+    samples_out: int = 0
+    little_endian: bool | None = None
+
+    def header(self, stream_id: int, seq: int = 0) -> bytes:
+        return x.build_header(self.session_id, stream_id, seq, self.key if self.session_id < 0x80 else None)
+
+    def reset_streams(self) -> None:
+        self.be_in.clear()
+        self.rel_in.clear()
+        self.be_out.clear()
+        self.rel_out.clear()
+
+    def topic_of(self, ent: Entity) -> tuple[str | None, str | None]:
+        """A writer's or reader's topic and type (its own, or its TOPIC object's when created in binary)."""
+        if ent.topic_id is not None:
+            topic = self.entities.get(ent.topic_id)
+            if topic is not None:
+                return topic.topic, topic.type_name
+        return ent.topic, ent.type_name
+
+    def describe(self) -> dict[str, Any]:
+        return {"client_key": self.key.hex().upper(), "session_id": self.session_id,
+                "address": f"{self.address[0]}:{self.address[1]}", "mtu": self.mtu,
+                "entities": [e.describe() for e in self.entities.values()],
+                "reading": [oid.hex().upper() for oid in self.reads], "samples_in": self.samples_in,
+                "samples_out": self.samples_out}
+
+
+class XrceAgent:
+    """The agent as a device on a :class:`~hilbench.transports.datagram_medium.DatagramMedium`."""
+
+    def __init__(self, name: str = "agent", *, zeroed: str = "teardown", refs: dict[str, dict[str, Any]] | None = None,
+                 heartbeat_s: float = HEARTBEAT_PERIOD, log_size: int = 500) -> None:
+        if zeroed not in ("teardown", "keep"):
+            raise ValueError(f"zeroed must be teardown or keep, got {zeroed!r}")
+        self.name = name
+        self.zeroed = zeroed
+        self.refs = dict(refs or {})
+        self.heartbeat_s = heartbeat_s
+        self.port: Any = None
+        self.bridge: Any = None
+        self.sessions: dict[Address, Session] = {}
+        self.by_key: dict[bytes, Session] = {}
+        self.log: deque[str] = deque(maxlen=log_size)
+        self.counters: dict[str, int] = dict.fromkeys((
+            "datagrams", "replies", "malformed", "zero_fill", "zero_fill_foreign", "orphan", "takeovers",
+            "sessions_created", "sessions_deleted", "invalid_create_client", "samples_routed", "samples_bridged",
+            "retransmissions", "fragments_in", "fragments_out", "dropped_out", "too_big"), 0)
+        self.faults = {"drop_next": 0, "corrupt_status_agent": 0}
+        self._running = False
+
+    # ------------------------------------------------------------------ wiring
+
+    def attach(self, net: Any) -> None:
+        """Join a datagram net; the agent answers on the net's endpoint socket."""
+        self.port = net.add_device(self)
+
+    def start(self) -> None:
+        self._running = True
+        if self.port is not None:
+            self.port.call_at(time.monotonic() + self.heartbeat_s, self._heartbeats)
+
+    def stop(self) -> None:
+        self._running = False
+
+    def _log(self, text: str) -> None:
+        self.log.append(text)
+        log.debug("%s: %s", self.name, text)
+
+    # ------------------------------------------------------------------ output
+
+    def _send(self, data: bytes, dst: Address) -> None:
+        if self.faults["drop_next"] > 0:
+            self.faults["drop_next"] -= 1
+            self.counters["dropped_out"] += 1
+            return
+        self.counters["replies"] += 1
+        if self.port is not None:
+            self.port.send(data, dst)
+
+    def _send_none(self, s: Session, sub_id: int, payload: bytes) -> None:
+        self._send(s.header(x.STREAM_NONE) + x.build_submessage(sub_id, payload), s.address)
+
+    def _send_stream(self, s: Session, stream_id: int, sub_id: int, payload: bytes) -> bool:
+        """One submessage on an output stream; False if it could not be sent (too big for best effort)."""
+        if stream_id == x.STREAM_NONE:
+            self._send_none(s, sub_id, payload)
+            return True
+        header_len = 4 if s.session_id >= 0x80 else 8
+        if stream_id < 0x80:
+            if header_len + 4 + len(payload) > s.mtu:
+                self.counters["too_big"] += 1
+                return False
+            seq = (s.be_out.get(stream_id, 0xFFFF) + 1) & 0xFFFF
+            s.be_out[stream_id] = seq
+            self._send(s.header(stream_id, seq) + x.build_submessage(sub_id, payload), s.address)
+            return True
+        out = s.rel_out.setdefault(stream_id, ReliableOutput())
+        if not out.room() or out.backlog:
+            out.queue((sub_id, payload))
+            return True
+        self._send_reliable(s, stream_id, out, sub_id, payload)
+        return True
+
+    def _send_reliable(self, s: Session, stream_id: int, out: ReliableOutput, sub_id: int, payload: bytes) -> None:
+        header_len = 4 if s.session_id >= 0x80 else 8
+        whole = x.build_submessage(sub_id, payload)
+        if header_len + len(whole) <= s.mtu:
+            seq = out.next_seq()
+            msg = s.header(stream_id, seq) + whole
+            out.keep(seq, msg)
+            self._send(msg, s.address)
+            return
+        # Larger than the client's MTU: FRAGMENTs of the serialized submessage, one per message (§1.1).
+        room = s.mtu - header_len - 4
+        for i in range(0, len(whole), room):
+            piece = whole[i:i + room]
+            last = i + room >= len(whole)
+            seq = out.next_seq()
+            msg = s.header(stream_id, seq) + x.build_submessage(
+                S.FRAGMENT, piece, x.FLAG_E | (x.FLAG_LAST_FRAGMENT if last else 0))
+            out.keep(seq, msg)
+            self.counters["fragments_out"] += 1
+            self._send(msg, s.address)
+
+    def _flush_backlog(self, s: Session, stream_id: int) -> None:
+        out = s.rel_out.get(stream_id)
+        while out is not None and out.backlog and out.room():
+            sub_id, payload = out.backlog.popleft()
+            self._send_reliable(s, stream_id, out, sub_id, payload)
+
+    def _heartbeats(self) -> None:
+        if not self._running:
+            return
+        for s in list(self.by_key.values()):
+            for stream_id, out in s.rel_out.items():
+                hb = out.heartbeat()
+                if hb is not None:
+                    self._send_none(s, S.HEARTBEAT, x.heartbeat(hb[0], hb[1], stream_id))
+        self.port.call_at(time.monotonic() + self.heartbeat_s, self._heartbeats)
+
+    # ------------------------------------------------------------------ input
+
+    def on_datagram(self, data: bytes, src: Address, dst: Address, t: float) -> None:
+        """One datagram from a client (the net's thread)."""
+        self.counters["datagrams"] += 1
+        src = (src[0], src[1])
+        if len(data) < 4:
+            self.counters["malformed"] += 1
+            return
+        zero = x.is_zero_fill(data)
+        if zero:
+            self.counters["zero_fill"] += 1
+            if src not in self.sessions:
+                self.counters["zero_fill_foreign"] += 1
+        sid, stream, seq = data[0], data[1], data[2] | data[3] << 8
+        hs = x.header_size(sid)
+        if len(data) < hs + 4:
+            self.counters["malformed"] += 1
+            return
+        if sid in (x.SESSION_NONE_WITH_KEY, x.SESSION_NONE_WITHOUT_KEY):
+            sub_id = data[hs]
+            if sub_id == S.CREATE_CLIENT:
+                self._create_client(data, hs, src, t)
+            elif sub_id == S.GET_INFO:
+                self._ping(data, hs, src)
+            else:
+                self.counters["malformed"] += 1
+            return
+        s = self.by_key.get(data[4:8]) if sid < 0x80 else self.sessions.get(src)
+        if s is None or (sid >= 0x80 and s.session_id != sid):
+            self._unknown_client(data, hs, src)
+            return
+        s.last_seen = t
+        if sid < 0x80 and s.address != src:  # a keyed client may move
+            if self.sessions.get(s.address) is s:
+                del self.sessions[s.address]
+            s.address = src
+            self.sessions[src] = s
+        if stream == x.STREAM_NONE:
+            self._process(s, data, hs, t)
+        elif stream < 0x80:
+            if s.be_in.setdefault(stream, BestEffortInput()).accept(seq):
+                self._process(s, data, hs, t)
+        else:
+            rel = s.rel_in.setdefault(stream, ReliableInput())
+            rel.push(seq, data)
+            while (msg := rel.pop()) is not None:
+                self._process(s, msg, hs, t)
+            first, bitmap = rel.acknack()
+            self._send_none(s, S.ACKNACK, x.acknack(first, bitmap, stream))
+
+    def _unknown_client(self, data: bytes, hs: int, src: Address) -> None:
+        sub_id = data[hs]
+        if sub_id == S.DELETE and len(data) >= hs + 8 and data[hs + 7] & 0x0F == K.CLIENT:
+            # The agent confirms deleting a client it does not know (the client's shutdown succeeds).
+            self._send(data[:hs] + x.build_submessage(S.STATUS, x.status(data[hs + 4:hs + 6], data[hs + 6:hs + 8])),
+                       src)
+        elif sub_id == S.GET_INFO:
+            self._ping(data, hs, src)
+        else:
+            self.counters["orphan"] += 1
+
+    def _process(self, s: Session, msg: bytes, hs: int, t: float) -> None:
+        """Every submessage of one message in order; stops at the first the agent cannot process."""
+        _, stream, _, subs, _ = x.scan(msg)
+        for sub_id, flags, off, length in subs:
+            if off + length > len(msg):
+                self.counters["malformed"] += 1
+                return
+            payload = msg[off:off + length]
+            if s.little_endian is None:
+                s.little_endian = bool(flags & x.FLAG_E)
+            if not self._submessage(s, stream, sub_id, flags, payload, msg, off, t):
+                return
+
+    def _submessage(self, s: Session, stream: int, sub_id: int, flags: int, payload: bytes, msg: bytes, off: int,
+                    t: float) -> bool:
+        if sub_id == S.WRITE_DATA:
+            return self._write_data(s, flags, payload)
+        if sub_id == S.FRAGMENT:
+            rel = s.rel_in.get(stream)
+            if rel is None:
+                return False
+            self.counters["fragments_in"] += 1
+            whole = rel.fragment(msg[:x.header_size(msg[0])], payload, bool(flags & x.FLAG_LAST_FRAGMENT))
+            if whole is not None:
+                self._process(s, whole, x.header_size(whole[0]), t)
+            return True
+        if sub_id == S.RESET:
+            s.reset_streams()
+            return True
+        if sub_id == S.CREATE_CLIENT:
+            return False  # in session: the agent only accepts it session-less
+        fields, problem = x.decode_payload(sub_id, flags, payload)
+        if problem is not None:
+            self.counters["malformed"] += 1
+            return False
+        if sub_id == S.CREATE:
+            self._create(s, stream, flags, fields)
+        elif sub_id == S.DELETE:
+            self._delete(s, stream, fields)
+        elif sub_id == S.READ_DATA:
+            self._read_data(s, fields)
+        elif sub_id == S.ACKNACK:
+            out = s.rel_out.get(fields.stream_id)
+            if out is not None:
+                bitmap = int.from_bytes(fields.nack_bitmap, "big")
+                for again in out.nacked(fields.first_unacked, bitmap):
+                    self.counters["retransmissions"] += 1
+                    self._send(again, s.address)
+                out.acknowledge(fields.first_unacked)
+                self._flush_backlog(s, fields.stream_id)
+        elif sub_id == S.HEARTBEAT:
+            rel = s.rel_in.setdefault(fields.stream_id, ReliableInput())
+            rel.heartbeat(fields.first_unacked, fields.last_unacked)
+            while (m := rel.pop()) is not None:
+                self._process(s, m, x.header_size(m[0]), t)
+            first, bitmap = rel.acknack()
+            self._send_none(s, S.ACKNACK, x.acknack(first, bitmap, fields.stream_id))
+        elif sub_id == S.TIMESTAMP:
+            now = time.time()
+            recv = (int(now), int((now % 1) * 1e9))
+            tr = time.time()
+            self._send_none(s, S.TIMESTAMP_REPLY, x.timestamp_reply(
+                (int(tr), int((tr % 1) * 1e9)), recv,
+                (fields.transmit.seconds, fields.transmit.nanoseconds)))
+        elif sub_id == S.GET_INFO:
+            self._send_none(s, S.INFO, x.info_agent(bytes(fields.request_id), bytes(fields.object_id), 1))
+        else:
+            return False
+        return True
+
+    # ------------------------------------------------------------------ sessions
+
+    def _ping(self, data: bytes, hs: int, src: Address) -> None:
+        fields, problem = x.decode_payload(S.GET_INFO, data[hs + 1], data[hs + 4:hs + 4 + 8])
+        if problem is not None:
+            self.counters["malformed"] += 1
+            return
+        impl = 1 if src in self.sessions else 0
+        self._send(data[:hs] + x.build_submessage(S.INFO, x.info_agent(bytes(fields.request_id),
+                                                                        bytes(fields.object_id), impl)), src)
+
+    def _create_client(self, data: bytes, hs: int, src: Address, t: float) -> None:
+        # The agent reads the CLIENT_Representation to the end of the datagram, whatever the length says (§1.9.2 E).
+        flags = data[hs + 1]
+        fields, problem = x.decode_payload(S.CREATE_CLIENT, flags, data[hs + 4:])
+        if problem is not None:
+            self.counters["malformed"] += 1
+            self.counters["invalid_create_client"] += 1
+            return
+        key = bytes(fields.client_key)
+        if key == b"\x00\x00\x00\x00" or bytes(fields.xrce_cookie) != x.COOKIE:
+            result = x.Status.ERR_INVALID_DATA
+        elif fields.xrce_version[0] != 1:
+            result = x.Status.ERR_INCOMPATIBLE
+        else:
+            result = x.Status.OK
+        old = self.sessions.get(src)
+        if old is not None and old.key != key and (self.zeroed == "teardown" or result == x.Status.OK):
+            # Replace check (§1.6 step 2): the address's session goes before anything else.
+            self.counters["takeovers"] += 1
+            self._log(f"delete_client | client_key: 0x{old.key.hex().upper()}")
+            self._drop_session(old)
+            self._log(f"destroy_session | client_key: 0x{old.key.hex().upper()}, address: {src[0]}:{src[1]}")
+        if result != x.Status.OK:
+            self.counters["invalid_create_client"] += 1
+            what = "invalid client key" if result == x.Status.ERR_INVALID_DATA and key == bytes(4) else (
+                "invalid cookie" if result == x.Status.ERR_INVALID_DATA else "incompatible version")
+            self._log(f"create_client | {what} 0x{key.hex().upper()}")
+        else:
+            existing = self.by_key.get(key)
+            if existing is not None and existing.session_id == fields.session_id:
+                existing.reset_streams()
+                if self.sessions.get(existing.address) is existing:
+                    del self.sessions[existing.address]  # the client moved (a new socket after a restart)
+                existing.address = src
+                existing.mtu = fields.mtu
+                self.sessions[src] = existing
+            else:
+                if existing is not None:
+                    self._drop_session(existing)
+                s = Session(key, fields.session_id, src, max(64, fields.mtu), created=t, last_seen=t)
+                self.by_key[key] = s
+                self.sessions[src] = s
+                self.counters["sessions_created"] += 1
+                self._log(f"create_client | client_key: 0x{key.hex().upper()}, session_id: 0x{fields.session_id:02X}")
+                self._log(f"establish_session | client_key: 0x{key.hex().upper()}, address: {src[0]}:{src[1]}")
+        # STATUS_AGENT: the request's header with the payload's session id (X4, X6).
+        session_id = fields.session_id
+        if self.faults["corrupt_status_agent"] > 0:
+            self.faults["corrupt_status_agent"] -= 1
+            session_id = session_id & 0x80  # X4b: the header a client ignores
+        header = x.build_header(session_id, 0, 0, key if session_id < 0x80 else None)
+        self._send(header + x.build_submessage(S.STATUS_AGENT, x.status_agent(result)), src)
+
+    def _drop_session(self, s: Session) -> None:
+        if self.sessions.get(s.address) is s:
+            del self.sessions[s.address]
+        if self.by_key.get(s.key) is s:
+            del self.by_key[s.key]
+        for ent in s.entities.values():
+            self._bridge_entity(s, ent, removed=True)
+        s.entities.clear()
+        s.reads.clear()
+        self.counters["sessions_deleted"] += 1
+
+    # ------------------------------------------------------------------ entities
+
+    def _create(self, s: Session, stream: int, flags: int, fields: Any) -> None:
+        rep = fields.object_representation
+        oid = bytes((fields.object_id[0], (fields.object_id[1] & 0xF0) | (rep.kind & 0x0F)))
+        reply_stream = x.STREAM_RELIABLE if stream >= 0x80 else x.STREAM_BEST_EFFORT
+        status = x.Status.OK
+        try:
+            ent = entity_from_create(oid, rep, bool(flags & x.FLAG_E), self.refs)
+            status = self._check_parent(s, ent)
+        except EntityError as exc:
+            ent, status = None, exc.status
+            self._log(f"create_object | {exc} object_id: 0x{oid.hex().upper()}")
+        if ent is not None and status == x.Status.OK:
+            reuse, replace = bool(flags & x.FLAG_REUSE), bool(flags & x.FLAG_REPLACE)
+            old = s.entities.get(oid)
+            if old is None:
+                self._add_entity(s, ent)
+            elif not reuse:
+                if replace:
+                    self._remove_entity(s, oid)
+                    self._add_entity(s, ent)
+                else:
+                    status = x.Status.ERR_ALREADY_EXISTS
+            elif same(old, ent):
+                status = x.Status.OK_MATCHED
+            elif replace:
+                self._remove_entity(s, oid)
+                self._add_entity(s, ent)
+            else:
+                status = x.Status.ERR_MISMATCH
+        self._send_stream(s, reply_stream, S.STATUS, x.status(bytes(fields.request_id), oid, status))
+
+    def _check_parent(self, s: Session, ent: Entity) -> int:
+        need = {K.TOPIC: K.PARTICIPANT, K.PUBLISHER: K.PARTICIPANT, K.SUBSCRIBER: K.PARTICIPANT,
+                K.DATAWRITER: K.PUBLISHER, K.DATAREADER: K.SUBSCRIBER, K.REQUESTER: K.PARTICIPANT,
+                K.REPLIER: K.PARTICIPANT}.get(ent.kind)
+        if need is None:
+            return x.Status.OK
+        parent = s.entities.get(ent.parent or b"")
+        if parent is None or parent.kind != need:
+            self._log(f"create_object | unknown parent {ent.parent.hex().upper() if ent.parent else '-'}")
+            return x.Status.ERR_UNKNOWN_REFERENCE
+        if ent.kind in (K.DATAWRITER, K.DATAREADER) and ent.topic_id is not None and ent.topic_id not in s.entities:
+            return x.Status.ERR_UNKNOWN_REFERENCE
+        if ent.kind in (K.DATAWRITER, K.DATAREADER, K.TOPIC) and not (ent.topic or ent.topic_id):
+            return x.Status.ERR_INVALID_DATA
+        return x.Status.OK
+
+    def _add_entity(self, s: Session, ent: Entity) -> None:
+        s.entities[ent.object_id] = ent
+        self._log(f"create_{ent.kind_name} | client_key: 0x{s.key.hex().upper()}, "
+                  f"object_id: 0x{ent.object_id.hex().upper()}")
+        self._bridge_entity(s, ent, removed=False)
+
+    def _remove_entity(self, s: Session, oid: bytes) -> None:
+        # Deleting an object deletes its children (a participant takes its topics, publishers ...).
+        children = [o for o, e in s.entities.items() if e.parent == oid or e.topic_id == oid]
+        for child in children:
+            if child in s.entities:
+                self._remove_entity(s, child)
+        ent = s.entities.pop(oid, None)
+        s.reads.pop(oid, None)
+        s.queued.pop(oid, None)
+        if ent is not None:
+            self._bridge_entity(s, ent, removed=True)
+
+    def _delete(self, s: Session, stream: int, fields: Any) -> None:
+        oid = bytes(fields.object_id)
+        if oid[1] & 0x0F == K.CLIENT:
+            self._log(f"delete_client | client_key: 0x{s.key.hex().upper()}")
+            self._drop_session(s)
+            self._log(f"destroy_session | client_key: 0x{s.key.hex().upper()}")
+            self._send_none(s, S.STATUS, x.status(bytes(fields.request_id), oid))
+            return
+        status = x.Status.OK if oid in s.entities else x.Status.ERR_UNKNOWN_REFERENCE
+        self._remove_entity(s, oid)
+        reply_stream = x.STREAM_RELIABLE if stream >= 0x80 else x.STREAM_BEST_EFFORT
+        self._send_stream(s, reply_stream, S.STATUS, x.status(bytes(fields.request_id), oid, status))
+
+    # ------------------------------------------------------------------ data
+
+    def _write_data(self, s: Session, flags: int, payload: bytes) -> bool:
+        if flags & x.FORMAT_MASK != x.FORMAT_DATA or len(payload) < 4:
+            return False
+        oid = payload[2:4]
+        ent = s.entities.get(oid)
+        if ent is None or ent.kind != K.DATAWRITER:
+            return False
+        s.samples_in += 1
+        topic, type_name = s.topic_of(ent)
+        self.route(topic, type_name, payload[4:], reliable=bool(ent.reliable))
+        if self.bridge is not None:
+            self.counters["samples_bridged"] += 1
+            self.bridge.publish(topic, type_name, payload[4:], s, ent)
+        return True
+
+    def route(self, topic: str | None, type_name: str | None, cdr: bytes, *, reliable: bool = True) -> int:
+        """Hand a sample to every matching reader of every client (as the agent's DDS participants do)."""
+        n = 0
+        for s in list(self.by_key.values()):
+            for ent in list(s.entities.values()):
+                if ent.kind != K.DATAREADER:
+                    continue
+                r_topic, r_type = s.topic_of(ent)
+                if r_topic != topic or (r_type and type_name and r_type != type_name):
+                    continue
+                if ent.reliable and not reliable:
+                    continue  # a RELIABLE reader does not match a BEST_EFFORT writer (DDS QoS rules)
+                self._deliver(s, ent, cdr)
+                n += 1
+        self.counters["samples_routed"] += n
+        return n
+
+    def _deliver(self, s: Session, reader: Entity, cdr: bytes) -> None:
+        read = s.reads.get(reader.object_id)
+        if read is None:
+            q = s.queued.setdefault(reader.object_id, deque(maxlen=min(MAX_QUEUED, max(1, reader.depth))))
+            q.append(cdr)
+            return
+        if self._send_stream(s, read.stream_id, S.DATA, x.data(read.request_id, reader.object_id, cdr)):
+            s.samples_out += 1
+        if read.remaining is not None:
+            read.remaining -= 1
+            if read.remaining <= 0:
+                del s.reads[reader.object_id]
+
+    def _read_data(self, s: Session, fields: Any) -> None:
+        oid = bytes(fields.object_id)
+        ent = s.entities.get(oid)
+        if ent is None or ent.kind != K.DATAREADER:
+            self._send_stream(s, x.STREAM_RELIABLE, S.STATUS,
+                              x.status(bytes(fields.request_id), oid, x.Status.ERR_UNKNOWN_REFERENCE))
+            return
+        if fields.optional_delivery_control:
+            max_samples = fields.delivery_control.max_samples
+            remaining = None if max_samples == 0xFFFF else max_samples
+        else:
+            remaining = 1  # the agent's default delivery control
+        s.reads.pop(oid, None)
+        if remaining == 0:
+            return
+        s.reads[oid] = Read(bytes(fields.request_id), fields.preferred_stream_id, remaining)
+        for cdr in list(s.queued.pop(oid, ())):
+            if oid in s.reads:
+                self._deliver(s, ent, cdr)
+
+    # ------------------------------------------------------------------ bridge
+
+    def _bridge_entity(self, s: Session, ent: Entity, removed: bool) -> None:
+        if self.bridge is not None and ent.kind in (K.DATAWRITER, K.DATAREADER):
+            topic, type_name = s.topic_of(ent)
+            self.bridge.entity(s, ent, topic, type_name, removed)
+
+    # ------------------------------------------------------------------ status
+
+    def set_faults(self, **knobs: int) -> dict[str, int]:
+        """``drop_next``: outgoing datagrams to drop; ``corrupt_status_agent``: STATUS_AGENTs sent with
+        header 0x80 (X4b, which the client ignores)."""
+        for key, value in knobs.items():
+            if key not in self.faults:
+                raise KeyError(f"unknown fault knob {key!r} (expected one of: {', '.join(self.faults)})")
+            self.faults[key] = int(value)
+        return dict(self.faults)
+
+    def status(self) -> dict[str, Any]:
+        return {"name": self.name, "zeroed": self.zeroed, "counters": dict(self.counters),
+                "sessions": [s.describe() for s in self.sessions.values()], "faults": dict(self.faults),
+                "log": list(self.log)[-30:]}
+
+
+__all__ = ["HEARTBEAT_PERIOD", "Read", "Session", "XrceAgent"]

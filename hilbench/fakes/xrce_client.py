@@ -1,0 +1,551 @@
+"""A Micro XRCE-DDS client as micro-ROS (``rmw_microxrcedds``) runs it on a board, over UDP.
+
+The subset of spec sheet §3.3 (a) that a real agent (eProsima's, micro-ROS's)
+or hilbench's accepts: ping (GET_INFO) until the agent answers, CREATE_CLIENT
+with a non-zero key and session 0x81 (resent every second, ten times), time
+sync (TIMESTAMP), entities created in binary on reliable stream 0x80 (the way
+``rmw_microxrcedds`` does), READ_DATA per subscription, WRITE_DATA on the
+best-effort (0x01) or reliable (0x80) output stream, and both reliable
+streams kept as the client library keeps them: up to four unacknowledged
+messages, a HEARTBEAT every 100 ms while any are, NACKed ones resent, every
+agent message and HEARTBEAT answered with an ACKNACK. DATA arrives at the
+subscription's callback with its raw CDR.
+
+Fault knob (Xu's cache-coherency bug, §1.9.4): :meth:`XrceClient.zero_next`
+makes the next datagrams leave zero-filled after their first byte (``0x80``),
+as the board's DMA sent stale RAM; ``zero_after_session`` does it to the first
+datagram after the session is established, as in Xu's log.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import ipaddress
+import logging
+import os
+import random
+import select
+import socket
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+from hilbench.protocols import xrce_dds as x
+
+log = logging.getLogger(__name__)
+K = x.ObjectKind
+S = x.SubmessageId
+#: The client library's reliable history and HEARTBEAT interval (UXR_CONFIG_MIN_HEARTBEAT_TIME_INTERVAL).
+HISTORY = 4
+HEARTBEAT_S = 0.1
+#: micro-ROS's entity creation timeout.
+CREATION_TIMEOUT_S = 1.0
+
+
+@dataclass
+class Subscription:
+    """A datareader with its callback(cdr, little_endian)."""
+
+    topic: str
+    type_name: str
+    callback: Callable[[bytes, bool], None]
+    reliable: bool = False
+    reader: bytes = b""
+    received: int = 0
+
+
+@dataclass
+class Publication:
+    topic: str
+    type_name: str
+    reliable: bool = False
+    writer: bytes = b""
+    sent: int = 0
+
+
+@dataclass
+class _RelOut:
+    first_unacked: int = 0
+    last_sent: int = 0xFFFF
+    history: dict[int, bytes] = field(default_factory=dict)
+    waiting: list[bytes] = field(default_factory=list)  # submessages waiting for room (bounded)
+
+
+class XrceClient:
+    """One client session to an agent at ``agent`` (``(host, port)``); runs its own thread."""
+
+    def __init__(self, agent: tuple[str, int], *, client_key: int | None = None, domain_id: int = 0,
+                 mtu: int = x.DEFAULT_MTU, name: str = "xrce-client", zero_after_session: bool = False,
+                 on_event: Callable[[str, str], None] | None = None) -> None:
+        self.agent = agent
+        self.key = (client_key or random.randint(1, 0xFFFFFFFF)).to_bytes(4, "big")
+        self.domain_id = domain_id
+        self.mtu = mtu
+        self.name = name
+        self.zero_after_session = zero_after_session
+        self.on_event = on_event or (lambda level, text: None)
+        self.session_id = 0x81
+        self.state = "stopped"
+        self.subscriptions: list[Subscription] = []
+        self.publications: list[Publication] = []
+        self.counters = dict.fromkeys(("datagrams_out", "datagrams_in", "pings", "create_client", "sessions",
+                                       "heartbeats", "acknacks", "retransmissions", "samples_out", "samples_in",
+                                       "zeroed", "creation_failures", "time_syncs"), 0)
+        self.time_offset_ns: int | None = None
+        self._zero = 0
+        self._lock = threading.RLock()
+        self._sock: socket.socket | None = None
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+        self._wake_r, self._wake_w = os.pipe()
+        self._reset_session()
+
+    # ------------------------------------------------------------------ set-up
+
+    def subscribe(self, topic: str, type_name: str, callback: Callable[[bytes, bool], None], *,
+                  reliable: bool = False) -> Subscription:
+        sub = Subscription(topic, type_name, callback, reliable)
+        self.subscriptions.append(sub)
+        return sub
+
+    def publish_on(self, topic: str, type_name: str, *, reliable: bool = False) -> Publication:
+        pub = Publication(topic, type_name, reliable)
+        self.publications.append(pub)
+        return pub
+
+    def _reset_session(self) -> None:
+        self._be_out = 0xFFFF
+        self._rel_out = _RelOut()
+        self._rel_in_last = 0xFFFF
+        self._rel_in_pending: dict[int, bytes] = {}
+        self._be_in_last = 0xFFFF
+        self._request = 10
+        self._pending_status: dict[bytes, int | None] = {}
+        self._zeroed_after = False
+        self._fragments = bytearray()
+
+    # ------------------------------------------------------------------ running
+
+    def start(self) -> None:
+        if self._thread is not None:
+            return
+        host = self.agent[0]
+        try:
+            local = "127.0.0.1" if ipaddress.ip_address(host).is_loopback else ""
+        except ValueError:
+            local = ""
+        self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self._sock.bind((local, 0))  # one source port for the whole session (the agent keys it)
+        self._sock.setblocking(False)
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._run, name=f"xrce-{self.name}", daemon=True)
+        self._thread.start()
+
+    def stop(self, delete: bool = True) -> None:
+        """End the session (DELETE of the client, X19, when it is established) and the thread."""
+        if delete and self.state == "running":
+            with contextlib.suppress(OSError):
+                self._send_raw(x.build_message(self.session_id, 0, 0, [(S.DELETE, x.FLAG_E,
+                                                                         x.delete(b"\x00\x02", x.OBJECT_CLIENT))]))
+        self._stop.set()
+        with contextlib.suppress(OSError):
+            os.write(self._wake_w, b"x")
+        if self._thread is not None:
+            self._thread.join(timeout=5)
+            self._thread = None
+        if self._sock is not None:
+            self._sock.close()
+            self._sock = None
+        self.state = "stopped"
+
+    def close(self) -> None:
+        self.stop()
+        for fd in (self._wake_r, self._wake_w):
+            with contextlib.suppress(OSError):
+                os.close(fd)
+
+    @property
+    def local_address(self) -> tuple[str, int] | None:
+        return self._sock.getsockname()[:2] if self._sock is not None else None
+
+    def zero_next(self, n: int = 1) -> None:
+        """The next ``n`` datagrams leave zeroed after their first byte (the DMA/cache fault)."""
+        self._zero = max(0, int(n))
+
+    def _event(self, level: str, text: str) -> None:
+        self.on_event(level, text)
+
+    # ------------------------------------------------------------------ output
+
+    def _send_raw(self, msg: bytes) -> None:
+        if self._sock is None:
+            return
+        if self._zero > 0 or (self.zero_after_session and self.state == "running" and not self._zeroed_after):
+            if self._zero > 0:
+                self._zero -= 1
+            else:
+                self._zeroed_after = True
+            self.counters["zeroed"] += 1
+            # What the Ethernet DMA read from RAM while the message sat in the D-cache: zeros after byte 0.
+            msg = bytes([0x80]) + b"\x00" * (max(24, len(msg)) - 1)
+        try:
+            self._sock.sendto(msg, self.agent)
+            self.counters["datagrams_out"] += 1
+        except OSError:
+            pass
+
+    def _send_none(self, sub_id: int, payload: bytes) -> None:
+        self._send_raw(x.build_message(self.session_id, 0, 0, [(sub_id, x.FLAG_E, payload)]))
+
+    def _next_request(self) -> bytes:
+        rid = self._request
+        self._request = 10 if self._request >= 0xFFFF else self._request + 1
+        return rid.to_bytes(2, "big")
+
+    def _send_reliable(self, sub_id: int, payload: bytes, flags: int = x.FLAG_E) -> None:
+        out = self._rel_out
+        unacked = (out.last_sent - out.first_unacked + 1) & 0xFFFF
+        sub = (sub_id, flags, payload)
+        if unacked >= HISTORY:
+            if len(out.waiting) < 256:
+                out.waiting.append(sub)  # type: ignore[arg-type]
+            return
+        out.last_sent = (out.last_sent + 1) & 0xFFFF
+        msg = x.build_message(self.session_id, x.STREAM_RELIABLE, out.last_sent, [sub])
+        out.history[out.last_sent] = msg
+        self._send_raw(msg)
+
+    def write(self, pub: Publication, cdr: bytes) -> None:
+        """Publish raw CDR (no encapsulation) on ``pub``: WRITE_DATA on 0x01 or 0x80 (thread-safe)."""
+        with self._lock:
+            if self.state != "running" or not pub.writer:
+                return
+            payload = x.data(self._next_request(), pub.writer, cdr)
+            if pub.reliable:
+                self._send_reliable(S.WRITE_DATA, payload)
+            else:
+                self._be_out = (self._be_out + 1) & 0xFFFF
+                self._send_raw(x.build_message(self.session_id, x.STREAM_BEST_EFFORT, self._be_out,
+                                               [(S.WRITE_DATA, x.FLAG_E, payload)]))
+            pub.sent += 1
+            self.counters["samples_out"] += 1
+
+    # ------------------------------------------------------------------ the session's life
+
+    def _run(self) -> None:
+        try:
+            while not self._stop.is_set():
+                if self._session():
+                    self._serve()
+                if not self._stop.is_set():
+                    self._stop.wait(1.0)  # the firmware's retry after a failed start
+        except Exception:  # noqa: BLE001 (a client thread must not die silently)
+            log.exception("%s: client failed", self.name)
+
+    def _recv(self, timeout: float) -> bytes | None:
+        sock = self._sock
+        if sock is None:
+            return None
+        try:
+            ready = select.select([sock, self._wake_r], [], [], max(0.0, timeout))[0]
+        except (OSError, ValueError):
+            return None
+        if sock in ready:
+            try:
+                data, _ = sock.recvfrom(65536)
+            except OSError:
+                return None
+            self.counters["datagrams_in"] += 1
+            return data
+        return None
+
+    def _wait_for(self, pred: Callable[[bytes], Any], timeout: float) -> Any:
+        deadline = time.monotonic() + timeout
+        while not self._stop.is_set():
+            left = deadline - time.monotonic()
+            if left <= 0:
+                return None
+            data = self._recv(min(left, HEARTBEAT_S))
+            if data is not None:
+                got = pred(data)
+                if got:
+                    return got
+            self._housekeeping()
+        return None
+
+    def _session(self) -> bool:
+        with self._lock:
+            self._reset_session()
+            self.state = "pinging"
+        # 1. ping until the agent answers (rmw_uros_ping_agent(50, 1) every 500 ms).
+        ping = x.build_message(0x80, 0, 0, [(S.GET_INFO, x.FLAG_E, x.get_info())])
+        while not self._stop.is_set():
+            self._send_raw(ping)
+            self.counters["pings"] += 1
+            if self._wait_for(self._is_pong, 0.05):
+                break
+            self._event("INFO", "agent not responding yet, retrying...")
+            self._stop.wait(0.5)
+        if self._stop.is_set():
+            return False
+        self._event("INFO", "agent responded. continuing initialization...")
+        # 2. CREATE_CLIENT, every second, up to ten times.
+        self.state = "connecting"
+        cc = x.build_message(0x80, 0, 0, [(S.CREATE_CLIENT, x.FLAG_E, x.client_representation(
+            self.key, self.session_id, self.mtu))])
+        for _ in range(10):
+            self._send_raw(cc)
+            self.counters["create_client"] += 1
+            if self._wait_for(self._is_status_agent, 1.0):
+                break
+        else:
+            self._event("ERROR", "session creation failed: no STATUS_AGENT")
+            return False
+        with self._lock:
+            self.state = "running"
+        self.counters["sessions"] += 1
+        # 3. Entities in binary, on the reliable stream, each answered with STATUS.
+        if not self._create_entities():
+            self.counters["creation_failures"] += 1
+            self._event("ERROR", "entity creation failed (no STATUS within 1000 ms)")
+            with self._lock:
+                self.state = "failed"
+            return False
+        # 4. Time sync (rmw_uros_sync_session(1000)).
+        self._send_none(S.TIMESTAMP, x.timestamp(*_now()))
+        self._wait_for(self._is_timestamp_reply, 1.0)
+        return True
+
+    def _create_entities(self) -> bool:
+        le = True
+        with self._lock:
+            reqs: list[bytes] = []
+            part = x.object_id(1, K.PARTICIPANT)
+            reqs.append(self._create(part, K.PARTICIPANT, {"representation": {
+                "format": x.REPRESENTATION_IN_BINARY, "value": x.binary_blob("participant_binary", {
+                    "optional_domain_reference": False, "domain_reference": None,
+                    "optional_qos_profile_reference": False, "qos_profile_reference": None}, le)},
+                "domain_id": self.domain_id}))
+            topics: dict[tuple[str, str], bytes] = {}
+            n = 0
+            for ep in [*self.publications, *self.subscriptions]:
+                key = (ep.topic, ep.type_name)
+                if key not in topics:
+                    n += 1
+                    topics[key] = x.object_id(n, K.TOPIC)
+                    reqs.append(self._create(topics[key], K.TOPIC, {"representation": {
+                        "format": x.REPRESENTATION_IN_BINARY, "value": x.binary_blob("topic_binary", {
+                            "topic_name": ep.topic, "optional_type_reference": False, "type_reference": None,
+                            "optional_type_name": True, "type_name": ep.type_name}, le)}, "participant_id": part}))
+            group = {"optional_name": False, "name": None, "optional_qos": False, "qos": None}
+            for i, pub in enumerate(self.publications, start=1):
+                p = x.object_id(i, K.PUBLISHER)
+                reqs.append(self._create(p, K.PUBLISHER, {"representation": {
+                    "format": x.REPRESENTATION_IN_BINARY, "value": x.binary_blob("publisher_binary", group, le)},
+                    "participant_id": part}))
+                pub.writer = x.object_id(i, K.DATAWRITER)
+                reqs.append(self._create(pub.writer, K.DATAWRITER, {"representation": {
+                    "format": x.REPRESENTATION_IN_BINARY, "value": x.binary_blob("datawriter_binary", {
+                        "topic_id": topics[(pub.topic, pub.type_name)], "optional_qos": True,
+                        "qos": _qos(pub.reliable, writer=True)}, le)}, "publisher_id": p}))
+            for i, sub in enumerate(self.subscriptions, start=1):
+                s = x.object_id(i, K.SUBSCRIBER)
+                reqs.append(self._create(s, K.SUBSCRIBER, {"representation": {
+                    "format": x.REPRESENTATION_IN_BINARY, "value": x.binary_blob("subscriber_binary", group, le)},
+                    "participant_id": part}))
+                sub.reader = x.object_id(i, K.DATAREADER)
+                reqs.append(self._create(sub.reader, K.DATAREADER, {"representation": {
+                    "format": x.REPRESENTATION_IN_BINARY, "value": x.binary_blob("datareader_binary", {
+                        "topic_id": topics[(sub.topic, sub.type_name)], "optional_qos": True,
+                        "qos": _qos(sub.reliable, writer=False)}, le)}, "subscriber_id": s}))
+        deadline = time.monotonic() + CREATION_TIMEOUT_S * max(1, len(reqs) // 4)
+        while time.monotonic() < deadline and not self._stop.is_set():
+            if all(self._pending_status.get(r) is not None for r in reqs):
+                break
+            data = self._recv(HEARTBEAT_S)
+            if data is not None:
+                self._handle(data)
+            self._housekeeping()
+        if not all(self._pending_status.get(r) is not None and self._pending_status[r] < 0x80 for r in reqs):
+            return False
+        with self._lock:
+            for sub in self.subscriptions:
+                stream = x.STREAM_RELIABLE if sub.reliable else x.STREAM_BEST_EFFORT
+                self._send_reliable(S.READ_DATA, x.read_data(self._next_request(), sub.reader, stream))
+        return True
+
+    def _create(self, oid: bytes, kind: int, rep: dict[str, Any]) -> bytes:
+        req = self._next_request()
+        self._pending_status[req] = None
+        self._send_reliable(S.CREATE, x.create(req, oid, kind, rep), x.FLAG_E | x.FLAG_REPLACE)
+        return req
+
+    def _serve(self) -> None:
+        while not self._stop.is_set() and self.state == "running":
+            data = self._recv(HEARTBEAT_S)
+            if data is not None:
+                self._handle(data)
+            self._housekeeping()
+
+    # ------------------------------------------------------------------ input
+
+    def _is_pong(self, data: bytes) -> bool:
+        msg = x.parse_message(data)
+        for sub in msg.submessages:
+            if sub.id == S.INFO and sub.fields is not None and sub.fields.optional_activity:
+                return sub.fields.activity.info.availability > 0
+        return False
+
+    def _is_status_agent(self, data: bytes) -> bool:
+        # The client only takes a STATUS_AGENT whose header carries its session id (X4b is ignored).
+        if not data or data[0] != self.session_id:
+            return False
+        msg = x.parse_message(data)
+        for sub in msg.submessages:
+            if sub.id == S.STATUS_AGENT and sub.fields is not None:
+                if sub.fields.status == x.Status.OK:
+                    return True
+                self._event("ERROR", f"agent refused the session: status 0x{sub.fields.status:02X}")
+        return False
+
+    def _is_timestamp_reply(self, data: bytes) -> bool:
+        t3 = time.time_ns()
+        msg = x.parse_message(data)
+        for sub in msg.submessages:
+            if sub.id == S.TIMESTAMP_REPLY and sub.fields is not None:
+                f = sub.fields
+
+                def ns(tm: Any) -> int:
+                    return tm.seconds * 1_000_000_000 + tm.nanoseconds
+
+                t0, t1, t2 = ns(f.originate), ns(f.receive), ns(f.transmit)
+                self.time_offset_ns = ((t0 + t3) - (t1 + t2)) // 2
+                self.counters["time_syncs"] += 1
+                return True
+        self._handle(data)
+        return False
+
+    def _handle(self, data: bytes) -> None:
+        if len(data) < 4 or data[0] != self.session_id:
+            return
+        stream, seq = data[1], data[2] | data[3] << 8
+        with self._lock:
+            if stream == 0:
+                self._process(data)
+            elif stream < 0x80:
+                if x.seq_newer(seq, self._be_in_last):
+                    self._be_in_last = seq
+                    self._process(data)
+            else:
+                ahead = (seq - self._rel_in_last) & 0xFFFF
+                if 0 < ahead <= 16:
+                    self._rel_in_pending.setdefault(seq, data)
+                while (nxt := (self._rel_in_last + 1) & 0xFFFF) in self._rel_in_pending:
+                    self._rel_in_last = nxt
+                    self._process(self._rel_in_pending.pop(nxt))
+                self._send_acknack()
+
+    def _send_acknack(self) -> None:
+        first = (self._rel_in_last + 1) & 0xFFFF
+        bitmap = 0
+        last = max(self._rel_in_pending, key=lambda s: (s - first) & 0xFFFF, default=None)
+        if last is not None:
+            for i in range(16):
+                s = (first + i) & 0xFFFF
+                if (s - first) & 0xFFFF > (last - first) & 0xFFFF:
+                    break
+                if s not in self._rel_in_pending:
+                    bitmap |= 1 << i
+        self._send_none(S.ACKNACK, x.acknack(first, bitmap, x.STREAM_RELIABLE))
+        self.counters["acknacks"] += 1
+
+    def _process(self, data: bytes) -> None:
+        _, _, _, subs, _ = x.scan(data)
+        for sub_id, flags, off, length in subs:
+            payload = data[off:off + length]
+            if len(payload) < length:
+                return
+            if sub_id == S.FRAGMENT:
+                if not self._fragments:
+                    self._fragments += data[:4 if data[0] >= 0x80 else 8]
+                self._fragments += payload
+                if len(self._fragments) > 1 << 20:
+                    self._fragments.clear()
+                elif flags & x.FLAG_LAST_FRAGMENT:
+                    whole = bytes(self._fragments)
+                    self._fragments.clear()
+                    self._process(whole)
+            elif sub_id == S.STATUS and length >= 6:
+                req, status = payload[0:2], payload[4]
+                if req in self._pending_status:
+                    self._pending_status[req] = status
+            elif sub_id == S.DATA and length >= 4:
+                oid = payload[2:4]
+                for sub in self.subscriptions:
+                    if sub.reader == oid:
+                        sub.received += 1
+                        self.counters["samples_in"] += 1
+                        try:
+                            sub.callback(payload[4:], bool(flags & x.FLAG_E))
+                        except Exception:
+                            log.exception("%s: callback of %s failed", self.name, sub.topic)
+            elif sub_id == S.ACKNACK and length >= 5:
+                first = payload[0] | payload[1] << 8
+                bitmap = payload[2] << 8 | payload[3]
+                out = self._rel_out
+                for i in range(16):
+                    if bitmap >> i & 1 and (m := out.history.get((first + i) & 0xFFFF)) is not None:
+                        self.counters["retransmissions"] += 1
+                        self._send_raw(m)
+                while x.seq_newer(first, out.first_unacked):
+                    out.history.pop(out.first_unacked, None)
+                    out.first_unacked = (out.first_unacked + 1) & 0xFFFF
+                while out.waiting and ((out.last_sent - out.first_unacked + 1) & 0xFFFF) < HISTORY:
+                    sub_id_w, flags_w, payload_w = out.waiting.pop(0)
+                    self._send_reliable(sub_id_w, payload_w, flags_w)
+            elif sub_id == S.HEARTBEAT and length >= 5:
+                first = payload[0] | payload[1] << 8
+                if x.seq_newer(first, (self._rel_in_last + 1) & 0xFFFF):
+                    self._rel_in_last = (first - 1) & 0xFFFF
+                self._send_acknack()
+
+    def _housekeeping(self) -> None:
+        now = time.monotonic()
+        if now - getattr(self, "_hb_t", 0.0) < HEARTBEAT_S:
+            return
+        self._hb_t = now
+        with self._lock:
+            out = self._rel_out
+            if out.history:
+                self._send_none(S.HEARTBEAT, x.heartbeat(out.first_unacked, out.last_sent, x.STREAM_RELIABLE))
+                self.counters["heartbeats"] += 1
+
+    def status(self) -> dict[str, Any]:
+        return {"agent": f"{self.agent[0]}:{self.agent[1]}", "client_key": self.key.hex().upper(),
+                "session_id": f"0x{self.session_id:02X}", "state": self.state,
+                "local": f"{self.local_address[0]}:{self.local_address[1]}" if self.local_address else None,
+                "time_offset_ns": self.time_offset_ns, "counters": dict(self.counters),
+                "publications": [{"topic": p.topic, "type": p.type_name, "sent": p.sent} for p in self.publications],
+                "subscriptions": [{"topic": s.topic, "type": s.type_name, "received": s.received}
+                                  for s in self.subscriptions]}
+
+
+def _qos(reliable: bool, writer: bool) -> dict[str, Any]:
+    base = {"qos_flags": (x.QOS_RELIABLE if reliable else 0) | x.QOS_HISTORY_KEEP_LAST,
+            "optional_history_depth": True, "history_depth": 1 if not reliable else 10,
+            "optional_deadline_msec": False, "deadline_msec": None, "optional_lifespan_msec": False,
+            "lifespan_msec": None, "optional_user_data": False, "user_data": None}
+    if writer:
+        return {"base": base, "optional_ownership_strength": False, "ownership_strength": None}
+    return {"base": base, "optional_timebasedfilter_msec": False, "timebasedfilter_msec": None,
+            "optional_contentbased_filter": False, "contentbased_filter": None}
+
+
+def _now() -> tuple[int, int]:
+    ns = time.time_ns()
+    return ns // 1_000_000_000, ns % 1_000_000_000
+
+
+__all__ = ["CREATION_TIMEOUT_S", "HEARTBEAT_S", "HISTORY", "Publication", "Subscription", "XrceClient"]

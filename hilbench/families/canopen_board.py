@@ -1,0 +1,396 @@
+"""The CANopen board family: the STM32 rover board as a CANopen node on an emulated CAN bus.
+
+Profile schema (endpoint ``type = "can"``, ``protocol = "can"``)::
+
+    [endpoints.can]
+    type = "can"
+    protocol = "can"
+    bitrate = 500_000                # 10 kbit/s .. 1 Mbit/s (``baud`` is accepted too)
+    paced = true                     # arbitration and bit-time pacing (false: frames delivered at once)
+    socketcand = { port = 0, channel = "can0" }   # the host port's doors, see hilbench.transports.can_port
+    slcan = true
+    # virtual = "rover-bus"
+    # socketcan = "vcan0"
+    bus_faults = { error_rate = 0.0, error_next = 0, auto_recover = true }
+    # seed = 0                       # the bus's fault draws
+
+    [[devices]]
+    model = "stm32f767-rover-canopen"
+    name = "rover"
+    node_id = 2
+    heartbeat_ms = 1000              # object 0x1017
+    setpoint_timeout_ms = 150        # object 0x1400 sub 5
+    autostart = false                # true: OPERATIONAL right after boot-up
+    tpdo_periods_ms = { encoders = 20, odometry = 50, velocity = 50, status = 100 }
+    identity = { vendor_id = 0x0048424E, product_code = 0x00F76701, revision = 0x00010000, serial = 1 }
+    faults = { heartbeat_stop = false, silent = false, sdo_abort = 0, motor_fault = false, battery_v = 24.6,
+               stuck_odometry = false, dlc_mismatch = false }
+
+Several boards may share an endpoint (one bus), each with its own node id.
+``endpoint.nodes`` maps node ids to nodes; ``bench.node(2)`` finds one,
+``bench.can_bus()`` opens a python-can bus on the endpoint in this process.
+Control commands (``hilbench can status|nmt|reset|fault|emcy|bus``): see
+:attr:`CanopenBoardFamily.control_commands`.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+from hilbench.bench.checks import Checker
+from hilbench.bench.control import ControlClient, ControlError
+from hilbench.bench.family import DeviceFamily, DeviceSpec
+
+MODELS = ("stm32f767-rover-canopen", "mecarover-canopen")
+DEVICE_KEYS = ("model", "name", "endpoint", "node_id", "heartbeat_ms", "setpoint_timeout_ms", "autostart",
+               "tpdo_periods_ms", "identity", "faults")
+IDENTITY_KEYS = {"vendor_id": "vendor_id", "product_code": "product_code", "revision": "revision",
+                 "serial": "serial"}
+#: Fault knobs and their ranges (booleans as (False, True)).
+FAULT_RANGES: dict[str, tuple[Any, Any]] = {
+    "heartbeat_stop": (False, True), "silent": (False, True), "sdo_abort": (0, 0xFFFFFFFF),
+    "motor_fault": (False, True), "battery_v": (0.0, 60.0), "stuck_odometry": (False, True),
+    "dlc_mismatch": (False, True),
+}
+BUS_FAULT_RANGES: dict[str, tuple[Any, Any]] = {"error_rate": (0.0, 1.0), "error_next": (0, 1 << 31),
+                                                "auto_recover": (False, True)}
+NMT_STATES = {"operational": 0x01, "start": 0x01, "stopped": 0x02, "stop": 0x02, "pre-operational": 0x80,
+              "preop": 0x80, "reset": 0x81, "reset-node": 0x81, "reset-communication": 0x82}
+
+
+@dataclass
+class NodeSpec(DeviceSpec):
+    """A CANopen rover board on a ``can`` endpoint."""
+
+    model: str = MODELS[0]
+    node_id: int = 2
+    heartbeat_ms: int = 1000
+    setpoint_timeout_ms: int = 150
+    autostart: bool = False
+    tpdo_periods_ms: dict[str, int] = field(default_factory=dict)
+    identity: dict[str, int] = field(default_factory=dict)
+    faults: dict[str, Any] = field(default_factory=dict)
+
+
+def board_config(spec: NodeSpec, bitrate: int):
+    """The CAN interface configuration (:class:`~hilbench.protocols.board_can.BoardCanConfig`) of a device entry."""
+    from hilbench.protocols.board_can import BoardCanConfig
+
+    base = BoardCanConfig()
+    periods = {**base.periods_ms, **spec.tpdo_periods_ms}
+    return BoardCanConfig(node_id=spec.node_id, heartbeat_ms=spec.heartbeat_ms,
+                          setpoint_timeout_ms=spec.setpoint_timeout_ms, periods_ms=periods, bitrate=bitrate,
+                          **{IDENTITY_KEYS[k]: v for k, v in spec.identity.items()})
+
+
+def check_knobs(knobs: dict[str, Any], ranges: dict[str, tuple[Any, Any]], what: str = "fault knob",
+                fail=None) -> dict[str, Any]:
+    """Knob values checked against their ranges; ``fail(key, message)`` reports (default: ControlError)."""
+
+    def bad(key: str, message: str) -> None:
+        if fail is not None:
+            fail(key, message)
+        raise ControlError(f"{what} {key}: {message}")
+
+    out = {}
+    for key, value in knobs.items():
+        if key not in ranges:
+            bad(key, f"unknown (expected one of: {', '.join(ranges)})")
+        lo, hi = ranges[key]
+        if lo is False:
+            if not isinstance(value, bool):
+                bad(key, f"expected true or false, got {value!r}")
+        elif isinstance(value, bool) or not isinstance(value, int | float) or not lo <= value <= hi:
+            bad(key, f"expected a number {lo}..{hi}, got {value!r}")
+        elif isinstance(lo, int) and not isinstance(lo, bool) and not isinstance(value, int):
+            bad(key, f"expected an integer {lo}..{hi}, got {value!r}")
+        out[key] = value
+    return out
+
+
+class CanopenBoardFamily(DeviceFamily):
+    """CANopen rover boards on ``can`` endpoints (one bus each)."""
+
+    name = "canopen"
+    protocols = ("can",)
+    endpoint_types = ("can",)
+    medium = "can"
+    rate_key = "bitrate"
+    endpoint_keys = ("bus_faults", "seed")
+    device_keys = DEVICE_KEYS
+    models = MODELS
+    endpoint_attrs = ("nodes",)
+    profile_attrs = ("can_nodes",)
+    device_word = "node"
+    control_commands = {
+        "status": "a node's NMT state, odometry, setpoint counters, errors and the bus figures",
+        "nmt": "put a node into an NMT state from inside (state: operational, stopped, pre-operational, reset)",
+        "reset": "reboot a node (boot-up message, defaults restored)",
+        "fault": "turn a node's fault knobs: heartbeat_stop, silent, sdo_abort, motor_fault, battery_v, "
+                 "stuck_odometry, dlc_mismatch",
+        "emcy": "make a node send one EMCY (code, register, data hex)",
+        "bus": "the bus's figures; with knobs: error_rate, error_next, auto_recover; bus_off=SENDER",
+    }
+
+    # ------------------------------------------------------------------ profile
+
+    def check_baud(self, c: Checker, key: str, value: Any, port_type: str) -> int:
+        return c.integer(500_000 if value is None else value, key, 10_000, 1_000_000)
+
+    def check_endpoint(self, c: Checker, key: str, raw: dict[str, Any], port_type: str) -> dict[str, Any]:
+        faults = c.table(raw.get("bus_faults", {}), f"{key}.bus_faults")
+        faults = check_knobs(faults, BUS_FAULT_RANGES, fail=lambda k, m: c.fail(f"{key}.bus_faults.{k}", m))
+        seed = raw.get("seed")
+        if seed is not None:
+            seed = c.integer(seed, f"{key}.seed", 0, 2**31)
+        return {"bus_faults": faults, "seed": seed}
+
+    def check_devices(self, c: Checker, key: str, dev: dict[str, Any], endpoint, profile) -> list[NodeSpec]:
+        from hilbench.protocols.board_can import PDOS
+
+        model = c.choice(dev.get("model", MODELS[0]), f"{key}.model", MODELS)
+        name = dev.get("name", endpoint.name)
+        if not isinstance(name, str) or not name:
+            c.fail(f"{key}.name", f"expected a string, got {name!r}")
+        periods = c.table(dev.get("tpdo_periods_ms", {}), f"{key}.tpdo_periods_ms")
+        keys = tuple(p.key for p in PDOS if p.kind == "tpdo")
+        c.unknown(periods, f"{key}.tpdo_periods_ms", keys)
+        for k, v in periods.items():
+            c.integer(v, f"{key}.tpdo_periods_ms.{k}", 0, 65535)
+        identity = c.table(dev.get("identity", {}), f"{key}.identity")
+        c.unknown(identity, f"{key}.identity", tuple(IDENTITY_KEYS))
+        for k, v in identity.items():
+            c.integer(v, f"{key}.identity.{k}", 0, 0xFFFFFFFF)
+        faults = c.table(dev.get("faults", {}), f"{key}.faults")
+        faults = check_knobs(faults, FAULT_RANGES, fail=lambda k, m: c.fail(f"{key}.faults.{k}", m))
+        return [NodeSpec(
+            name=name, endpoint=endpoint.name, model=model,
+            node_id=c.integer(dev.get("node_id", 2), f"{key}.node_id", 1, 127),
+            heartbeat_ms=c.integer(dev.get("heartbeat_ms", 1000), f"{key}.heartbeat_ms", 0, 65535),
+            setpoint_timeout_ms=c.integer(dev.get("setpoint_timeout_ms", 150), f"{key}.setpoint_timeout_ms", 0, 65535),
+            autostart=c.boolean(dev.get("autostart", False), f"{key}.autostart"),
+            tpdo_periods_ms=dict(periods), identity=dict(identity), faults=faults,
+        )]
+
+    def check_profile(self, c: Checker, profile) -> None:
+        seen: dict[tuple[str, int], str] = {}
+        for spec in profile.devices_of(self.name):
+            where = (spec.endpoint, spec.node_id)
+            if where in seen:
+                c.fail(f"{spec.where}.node_id", f"node id {spec.node_id} is taken on endpoint {spec.endpoint!r} "
+                                                f"by {seen[where]!r}")
+            seen[where] = spec.name
+
+    # ------------------------------------------------------------------ bench
+
+    def build(self, bench, endpoint, devices: list[NodeSpec], t: float) -> None:
+        from hilbench.fakes.canopen import RoverNode
+
+        medium = endpoint.medium
+        options = endpoint.spec.options
+        if options.get("seed") is not None:
+            medium.rng.seed(options["seed"])
+        if options.get("bus_faults"):
+            medium.set_faults(**options["bus_faults"])
+        nodes = {}
+        for spec in devices:
+            battery = spec.faults.get("battery_v", 24.6)
+            node = RoverNode(spec.name, board_config(spec, medium.bitrate), autostart=spec.autostart,
+                             battery_v=battery)
+            node.set_faults(**{k: v for k, v in spec.faults.items() if k != "battery_v"})
+            node.attach(medium)
+            endpoint.add_device(spec.name, node)
+            nodes[spec.node_id] = node
+        endpoint.attrs["nodes"] = nodes
+
+    def start(self, endpoint, t: float) -> None:
+        now = time.monotonic()  # power-up happens now: the boot-up and the heartbeat phase count from here
+        for node in endpoint.devices.values():
+            node.start(now)
+
+    def stop(self, endpoint) -> None:
+        for node in endpoint.devices.values():
+            node.stop()
+
+    def device_at(self, endpoint, address: int):
+        nodes = endpoint.attrs.get("nodes", {})
+        if address not in nodes:
+            raise KeyError(f"endpoint {endpoint.name!r} has no node {address} (nodes: {sorted(nodes)})")
+        return nodes[address]
+
+    # ------------------------------------------------------------------ description
+
+    def describe_endpoint(self, endpoint) -> dict[str, Any]:
+        medium = endpoint.medium
+        return {"bitrate": medium.bitrate, "baud": medium.bitrate,
+                "nodes": sorted(endpoint.attrs.get("nodes", {}))}
+
+    def describe_device(self, spec: NodeSpec, device, endpoint, profile) -> dict[str, Any]:
+        return {"name": spec.name, "model": spec.model, "endpoint": spec.endpoint,
+                "protocol": profile.endpoints[spec.endpoint].protocol, "node_id": spec.node_id,
+                "heartbeat_ms": spec.heartbeat_ms, "autostart": spec.autostart}
+
+    def summary(self, endpoint) -> str:
+        port = endpoint.port
+        nodes = ", ".join(f"node {n} {d.name!r}" for n, d in sorted(endpoint.attrs.get("nodes", {}).items()))
+        doors = []
+        if getattr(port, "slcan", None) is not None:
+            doors.append(f"SLCAN {port.slcan.path}")
+        if getattr(port, "virtual", None) is not None:
+            doors.append(f"virtual {port.virtual.channel!r}")
+        if getattr(port, "socketcan", None) is not None:
+            doors.append(f"SocketCAN {port.socketcan.channel}")
+        elif getattr(port, "socketcan_error", None):
+            doors.append("SocketCAN skipped: " + port.socketcan_error)
+        paced = "paced" if endpoint.medium.paced else "unpaced"
+        extra = f"; {'; '.join(doors)}" if doors else ""
+        return f"CAN {endpoint.medium.bitrate} bit/s {paced}, {nodes or 'no nodes'}{extra}"
+
+    # ------------------------------------------------------------------ artefacts
+
+    def dbc_for_profile(self, spec: str) -> str | None:
+        """The DBC of a profile's boards (``--dbc PROFILE`` of the CAN monitor); None if it has none."""
+        from hilbench.bench.checks import ProfileError
+        from hilbench.bench.profile import load_profile
+        from hilbench.protocols import board_can
+
+        try:
+            boards = profile_boards(load_profile(spec))
+        except ProfileError:
+            return None
+        return board_can.dbc(boards) if boards else None
+
+    # ------------------------------------------------------------------ control channel
+
+    def control(self, bench, node, cmd: str, req: dict[str, Any]) -> dict[str, Any]:
+        endpoint = next(ep for ep in bench.endpoints.values() if node in ep.devices.values())
+        medium = endpoint.medium
+
+        def in_bus_thread(fn):
+            """Run ``fn`` in the bus thread (the node's own) and wait for its result."""
+            box: dict[str, Any] = {}
+            done = threading.Event()
+
+            def run() -> None:
+                try:
+                    box["value"] = fn()
+                except Exception as exc:  # handed back to the caller
+                    box["error"] = exc
+                done.set()
+
+            medium.call_at(None, run)
+            if not done.wait(5):
+                raise ControlError("the bus thread did not answer within 5 s")
+            if "error" in box:
+                raise ControlError(str(box["error"]))
+            return box.get("value")
+
+        if cmd == "status":
+            return {"status": in_bus_thread(node.status), "bus": medium.status()}
+        if cmd == "nmt":
+            state = str(req.get("state", "")).lower()
+            if state not in NMT_STATES:
+                raise ControlError(f"nmt: state must be one of {', '.join(NMT_STATES)}, got {state!r}")
+            code = NMT_STATES[state]
+            in_bus_thread(lambda: node._nmt(bytes([code, node.node_id]), time.monotonic()))
+            return {"status": in_bus_thread(node.status)}
+        if cmd == "reset":
+            in_bus_thread(lambda: node.reset())
+            return {"status": in_bus_thread(node.status)}
+        if cmd == "fault":
+            knobs = req.get("knobs", {})
+            if not isinstance(knobs, dict):
+                raise ControlError("knobs: expected an object")
+            checked = check_knobs(knobs, FAULT_RANGES)
+            return {"faults": in_bus_thread(lambda: node.set_faults(**checked))}
+        if cmd == "emcy":
+            try:
+                code = int(req.get("code", 0x1000))
+                register = int(req.get("register", 0x80))
+                data = bytes.fromhex(str(req.get("data", "")))
+            except (TypeError, ValueError):
+                raise ControlError("emcy: code and register are integers, data is hex") from None
+            if not 0 <= code <= 0xFFFF or not 0 <= register <= 0xFF or len(data) > 5:
+                raise ControlError("emcy: code 0..0xFFFF, register 0..0xFF, at most 5 data bytes")
+            in_bus_thread(lambda: node.emcy(code, register, data.ljust(5, b"\0")))
+            return {"status": in_bus_thread(node.status)}
+        if cmd == "bus":
+            knobs = dict(req.get("knobs", {}) or {})
+            bus_off = knobs.pop("bus_off", None)
+            if knobs:
+                try:
+                    medium.set_faults(**check_knobs(knobs, BUS_FAULT_RANGES, "bus fault"))
+                except ValueError as exc:
+                    raise ControlError(str(exc)) from None
+            if bus_off is not None:
+                medium.force_bus_off(str(bus_off))
+            return {"bus": medium.status()}
+        raise ControlError(f"unknown command {cmd!r}")
+
+
+def profile_boards(profile) -> list[tuple[str, Any]]:
+    """``(device name, BoardCanConfig)`` of every CANopen board of a profile."""
+    return [(spec.name, board_config(spec, profile.endpoints[spec.endpoint].baud or 500_000))
+            for spec in profile.devices_of(CanopenBoardFamily.name)]
+
+
+def _bench_node(bench, name_or_id: str | int | None = None):
+    """``bench.node(2)`` or ``bench.node("rover")``: an emulated CANopen node (or the only one)."""
+    from hilbench.fakes.canopen import CanopenNode
+
+    nodes = [d for d in bench.devices.values() if isinstance(d, CanopenNode)]
+    if name_or_id is None:
+        if len(nodes) != 1:
+            raise KeyError(f"bench has nodes {[n.name for n in nodes]}; name one")
+        return nodes[0]
+    for node in nodes:
+        if name_or_id in (node.name, node.node_id):
+            return node
+    raise KeyError(f"no CANopen node {name_or_id!r} (nodes: {[(n.node_id, n.name) for n in nodes]})")
+
+
+def _bench_can_bus(bench, endpoint: str | None = None, **kwargs: Any):
+    """``bench.can_bus()``: a python-can bus on a CAN endpoint, in this process (shut it down when done)."""
+    import can
+
+    eps = [ep for ep in bench.endpoints.values() if ep.spec.type == "can"]
+    if endpoint is not None:
+        eps = [ep for ep in eps if ep.name == endpoint]
+    if len(eps) != 1:
+        raise KeyError(f"bench has CAN endpoints {[ep.name for ep in eps]}; name one")
+    channel = eps[0].port.open_virtual()
+    return can.Bus(interface="virtual", channel=channel, **kwargs)
+
+
+CanopenBoardFamily.bench_methods = {"node": _bench_node, "can_bus": _bench_can_bus}
+
+
+class CanClient(ControlClient):
+    """The CANopen board family's control commands from another process (``hilbench can`` uses it)."""
+
+    def status(self, device: str | None = None) -> dict[str, Any]:
+        return self.call("status", device=device)
+
+    def nmt(self, state: str, device: str | None = None) -> dict[str, Any]:
+        return self.call("nmt", device=device, state=state)["status"]
+
+    def reset(self, device: str | None = None) -> dict[str, Any]:
+        return self.call("reset", device=device)["status"]
+
+    def fault(self, device: str | None = None, **knobs: Any) -> dict[str, Any]:
+        return self.call("fault", device=device, knobs=knobs)["faults"]
+
+    def emcy(self, code: int, register: int = 0x80, data: str = "", device: str | None = None) -> dict[str, Any]:
+        return self.call("emcy", device=device, code=code, register=register, data=data)["status"]
+
+    def bus(self, device: str | None = None, **knobs: Any) -> dict[str, Any]:
+        return self.call("bus", device=device, knobs=knobs)["bus"]
+
+
+FAMILY = CanopenBoardFamily()
+
+__all__ = ["FAMILY", "MODELS", "CanClient", "CanopenBoardFamily", "NodeSpec", "board_config", "check_knobs",
+           "profile_boards"]

@@ -1,0 +1,275 @@
+"""The FreeRTPS family: microcontroller boards speaking minimal RTPS on 127.0.0.1 unicast.
+
+Profile schema (endpoint ``protocol = "rtps"``, ``type = "udp"``)::
+
+    [endpoints.nodes]
+    type = "udp"
+    protocol = "rtps"
+    port = 0                       # a shared discovery port: SPDP sent here reaches every node
+    domain_id = 42                 # non-zero by default, away from a real DDS on the machine
+    peers = ["127.0.0.1"]          # where SPDP goes: every participant index of a host, or "host:port"
+    naming = "ros2"                # "ros2" (rt/ prefix), "legacy" or "legacy-partition" (spec §2.10)
+
+    [[devices]]
+    model = "freertps-node"
+    name = "talker"
+    participant_index = 0          # ports 7410/7411 + 250 * domain_id + 2 * index
+    mac = "2C:4D:59:01:23:53"      # the GUID prefix is 2C 2F + MAC + 00 00 00 00
+    topics = [{ name = "chatter", type = "std_msgs/String", direction = "pub", rate_hz = 10,
+                value = "Hello" }]
+
+A topic is ``{name, type, direction = "pub" | "sub", rate_hz, value, reliable,
+echo_of}``: an output with ``echo_of = "INPUT"`` republishes what the input
+receives. The manifest's device entries give ``domain_id``,
+``participant_index``, ``guid_prefix``, ``ports`` and ``topics`` (each with
+its ``dds_name``). Control commands: ``status`` and ``publish``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+from hilbench.bench.checks import Checker
+from hilbench.bench.control import ControlError
+from hilbench.bench.family import DeviceFamily, DeviceSpec
+
+#: The default domain: non-zero, so the nodes do not meet a real DDS on the machine (domain 0).
+DEFAULT_DOMAIN = 42
+NODE_MODELS = ("freertps-node", "stm32f407-freertps")
+NODE_KEYS = ("model", "name", "endpoint", "participant_index", "mac", "topics", "clock")
+TOPIC_KEYS = ("name", "type", "direction", "rate_hz", "value", "reliable", "echo_of")
+NAMING = ("ros2", "legacy", "legacy-partition")
+#: Highest participant index: the user unicast port of domain 232 must stay below 65536.
+MAX_INDEX = 119
+
+
+@dataclass
+class NodeSpec(DeviceSpec):
+    """An emulated FreeRTPS board on an ``rtps`` endpoint."""
+
+    model: str = "freertps-node"
+    participant_index: int = 0
+    mac: str = ""
+    topics: list[dict[str, Any]] = field(default_factory=list)
+    clock: str = "freertps"
+
+
+def check_peers(c: Checker, key: str, raw: Any) -> list[str]:
+    """A list of peer hosts (``"127.0.0.1"``) or ``"host:port"`` strings (default: 127.0.0.1)."""
+    from hilbench.transports.udp import parse_address
+
+    if raw is None:
+        return ["127.0.0.1"]
+    if not isinstance(raw, list) or not raw:
+        c.fail(key, f"expected a list of \"host\" or \"host:port\" strings, got {raw!r}")
+    for i, peer in enumerate(raw):
+        if not isinstance(peer, str) or not peer:
+            c.fail(f"{key}[{i}]", f"expected \"host\" or \"host:port\", got {peer!r}")
+        if ":" in peer:
+            try:
+                parse_address(peer)
+            except ValueError:
+                c.fail(f"{key}[{i}]", f"expected \"host:port\", got {peer!r}")
+    return list(raw)
+
+
+def _check_topics(c: Checker, key: str, raw: Any) -> list[dict[str, Any]]:
+    from hilbench.protocols import cdr
+
+    if not isinstance(raw, list) or not raw:
+        c.fail(key, "expected a list of topic tables ({ name, type, direction, rate_hz ... })")
+    out = []
+    names: set[str] = set()
+    for i, t in enumerate(raw):
+        where = f"{key}[{i}]"
+        t = c.table(t, where)
+        c.unknown(t, where, TOPIC_KEYS)
+        name = c.string(t.get("name"), f"{where}.name")
+        if name in names:
+            c.fail(f"{where}.name", f"topic {name!r} is listed twice")
+        names.add(name)
+        typ = c.string(t.get("type"), f"{where}.type")
+        if cdr.ros_type(typ) is None:
+            known = ", ".join(cdr.ros_type(n).short_name for n in cdr.known_types())
+            c.fail(f"{where}.type", f"unknown message type {typ!r} (known: {known})")
+        direction = c.choice(t.get("direction"), f"{where}.direction", ("pub", "sub"))
+        rate = c.number(t.get("rate_hz", 0.0), f"{where}.rate_hz", 0.0, 10_000.0)
+        out.append({"name": name, "type": typ, "direction": direction, "rate_hz": rate, "value": t.get("value"),
+                    "reliable": c.boolean(t.get("reliable", False), f"{where}.reliable"),
+                    "echo_of": t.get("echo_of")})
+    for i, t in enumerate(out):
+        if t["echo_of"] is not None:
+            src = next((s for s in out if s["name"] == t["echo_of"]), None)
+            if t["direction"] != "pub" or src is None or src["direction"] != "sub" or src["type"] != t["type"]:
+                c.fail(f"{key}[{i}].echo_of", "expected the name of a subscribed topic of the same type, on a "
+                                              "published topic")
+    return out
+
+
+class FreeRtpsFamily(DeviceFamily):
+    """FreeRTPS boards (one RTPS participant each) sharing a datagram net per endpoint."""
+
+    name = "freertps"
+    protocols = ("rtps",)
+    endpoint_types = ("udp",)
+    medium = "datagram"
+    endpoint_keys = ("domain_id", "peers", "naming")
+    device_keys = NODE_KEYS
+    models = NODE_MODELS
+    endpoint_attrs = ("nodes",)
+    device_word = "node"
+    control_commands = {
+        "status": "what a node published and received, its discovered peers and counters",
+        "publish": "publish one sample now: topic, value (a table of the message's fields)",
+    }
+
+    def check_baud(self, c: Checker, key: str, value: Any, port_type: str) -> int | None:
+        if value is not None:
+            c.fail(key, "an RTPS endpoint has no baud rate")
+        return None
+
+    def check_endpoint(self, c: Checker, key: str, raw: dict[str, Any], port_type: str) -> dict[str, Any]:
+        return {"domain_id": c.integer(raw.get("domain_id", DEFAULT_DOMAIN), f"{key}.domain_id", 0, 232),
+                "peers": check_peers(c, f"{key}.peers", raw.get("peers")),
+                "naming": c.choice(raw.get("naming", "ros2"), f"{key}.naming", NAMING)}
+
+    def check_devices(self, c: Checker, key: str, dev: dict[str, Any], endpoint, profile) -> list[NodeSpec]:
+        model = c.choice(dev.get("model", NODE_MODELS[0]), f"{key}.model", NODE_MODELS)
+        index = c.integer(dev.get("participant_index", 0), f"{key}.participant_index", 0, MAX_INDEX)
+        mac = dev.get("mac", f"2C:4D:59:01:23:{0x51 + index:02X}")
+        from hilbench.fakes.rtps_node.node import mac_prefix
+
+        try:
+            mac_prefix(str(mac))
+        except ValueError as exc:
+            c.fail(f"{key}.mac", str(exc))
+        return [NodeSpec(name=c.string(dev.get("name", f"node{index}"), f"{key}.name"), endpoint=endpoint.name,
+                         model=model, participant_index=index, mac=str(mac),
+                         topics=_check_topics(c, f"{key}.topics", dev.get("topics")),
+                         clock=c.choice(dev.get("clock", "freertps"), f"{key}.clock", ("freertps", "wall")))]
+
+    def check_profile(self, c: Checker, profile) -> None:
+        seen: dict[tuple[str, int], str] = {}
+        macs: dict[str, str] = {}
+        for spec in profile.devices_of(self.name):
+            k = (spec.endpoint, spec.participant_index)
+            if k in seen:
+                c.fail(f"{spec.where}.participant_index", f"index {spec.participant_index} is taken by "
+                                                          f"{seen[k]!r} (each node needs its own ports)")
+            seen[k] = spec.name
+            if spec.mac.upper() in macs:
+                c.fail(f"{spec.where}.mac", f"same MAC as {macs[spec.mac.upper()]!r}: the GUID prefixes collide")
+            macs[spec.mac.upper()] = spec.name
+
+    # ------------------------------------------------------------------ bench
+
+    def build(self, bench, endpoint, devices: list[NodeSpec], t: float) -> None:
+        from hilbench.errors import BenchError
+        from hilbench.fakes.rtps_node import FreeRtpsNode, TopicSpec
+        from hilbench.protocols import rtps
+
+        opts = endpoint.spec.options
+        nodes = []
+        for spec in devices:
+            node = FreeRtpsNode(spec.name, domain_id=opts["domain_id"], participant_index=spec.participant_index,
+                                mac=spec.mac, topics=[TopicSpec(**t) for t in spec.topics], peers=opts["peers"],
+                                naming=opts["naming"], clock=spec.clock)
+            try:
+                node.attach(endpoint.medium)
+            except OSError as exc:
+                ports = rtps.ports(opts["domain_id"], spec.participant_index)
+                raise BenchError(f"node {spec.name!r}: cannot bind 127.0.0.1 ports "
+                                 f"{ports['metatraffic_unicast']}/{ports['user_unicast']} (domain "
+                                 f"{opts['domain_id']}, participant index {spec.participant_index}): "
+                                 f"{exc.strerror or exc}") from None
+            endpoint.add_device(spec.name, node)
+            nodes.append(node)
+        endpoint.attrs["nodes"] = nodes
+
+    def start(self, endpoint, t: float) -> None:
+        for node in endpoint.attrs.get("nodes", []):
+            node.start()
+
+    def stop(self, endpoint) -> None:
+        for node in endpoint.attrs.get("nodes", []):
+            node.stop()
+
+    # ------------------------------------------------------------------ description
+
+    def describe_endpoint(self, endpoint) -> dict[str, Any]:
+        opts = endpoint.spec.options
+        return {"domain_id": opts["domain_id"], "naming": opts["naming"], "peers": opts["peers"]}
+
+    def describe_device(self, spec: NodeSpec, device, endpoint, profile) -> dict[str, Any]:
+        from hilbench.fakes.rtps_node.node import mac_prefix
+        from hilbench.protocols import rtps
+
+        ep = profile.endpoints[spec.endpoint]
+        domain = ep.options["domain_id"]
+        ports = rtps.ports(domain, spec.participant_index)
+        topics = device.describe_topics() if device is not None else spec.topics
+        return {"name": spec.name, "model": spec.model, "endpoint": spec.endpoint, "protocol": "rtps",
+                "domain_id": domain, "participant_index": spec.participant_index, "mac": spec.mac,
+                "guid_prefix": mac_prefix(spec.mac).hex(), "host": "127.0.0.1",
+                "ports": {"metatraffic_unicast": ports["metatraffic_unicast"], "user_unicast": ports["user_unicast"]},
+                "topics": topics}
+
+    def summary(self, endpoint) -> str:
+        nodes = endpoint.attrs.get("nodes", [])
+        opts = endpoint.spec.options
+        return (f"RTPS domain {opts['domain_id']}, {len(nodes)} FreeRTPS nodes "
+                f"({', '.join(f'{n.name}#{n.participant_index}' for n in nodes)}), naming {opts['naming']}")
+
+    def device_at(self, endpoint, address: int) -> Any:
+        for node in endpoint.attrs.get("nodes", []):
+            if node.participant_index == address:
+                return node
+        raise KeyError(f"endpoint {endpoint.name!r} has no node with participant index {address}")
+
+    # ------------------------------------------------------------------ control channel
+
+    def control(self, bench, node, cmd: str, req: dict[str, Any]) -> dict[str, Any]:
+        if cmd == "status":
+            return {"status": node.status()}
+        if cmd == "publish":
+            topic, value = req.get("topic"), req.get("value", {})
+            if not isinstance(value, dict):
+                raise ControlError("value: expected an object of the message's fields")
+            done: dict[str, Any] = {}
+            ev = __import__("threading").Event()
+
+            def run() -> None:
+                try:
+                    done["readers"] = node.publish(topic, value)
+                except StopIteration:
+                    done["error"] = f"node {node.name!r} publishes no topic {topic!r}"
+                except Exception as exc:  # noqa: BLE001 (a bad value: one line back to the caller)
+                    done["error"] = f"{type(exc).__name__}: {exc}"
+                ev.set()
+
+            node.port.call_at(None, run)  # in the net's thread, like every other node action
+            if not ev.wait(5):
+                raise ControlError("the node did not publish within 5 s")
+            if "error" in done:
+                raise ControlError(done["error"])
+            return {"readers": done["readers"]}
+        raise ControlError(f"unknown command {cmd!r}")
+
+
+def _bench_node(bench, name: str | None = None):
+    """``bench.node(name=None)``: an emulated FreeRTPS node by name (or the only one)."""
+    from hilbench.fakes.rtps_node import FreeRtpsNode
+
+    nodes = {n: d for n, d in bench.devices.items() if isinstance(d, FreeRtpsNode)}
+    if name is None:
+        if len(nodes) != 1:
+            raise KeyError(f"bench has nodes {list(nodes)}; name one")
+        return next(iter(nodes.values()))
+    return nodes[name]
+
+
+FreeRtpsFamily.bench_methods = {"node": _bench_node}
+FAMILY = FreeRtpsFamily()
+
+__all__ = ["DEFAULT_DOMAIN", "FAMILY", "FreeRtpsFamily", "NodeSpec", "check_peers"]

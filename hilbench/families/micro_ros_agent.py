@@ -1,0 +1,204 @@
+"""The Micro XRCE-DDS agent family: what ``micro_ros_agent udp4 --port 8888`` is, on UDP 127.0.0.1.
+
+Profile schema (endpoint ``protocol = "xrce-dds"``, ``type = "udp"``)::
+
+    [endpoints.agent]
+    type = "udp"
+    protocol = "xrce-dds"
+    port = 8888                    # 0: any free port (the manifest says which)
+
+    [[devices]]                    # optional: an endpoint without one gets a default agent
+    model = "micro-ros-agent"
+    name = "agent"
+    zeroed = "teardown"            # a zeroed CREATE_CLIENT from a session's address ends it, as the real
+                                   # agent does (spec §1.9.4); "keep" keeps the session
+    refs = { talker = { topic = "rt/chatter", type = "std_msgs::msg::dds_::String_", reliable = false } }
+    bridge = { domain_id = 42, participant_index = 5 }   # optional: the samples on RTPS too
+    faults = { drop_next = 0, corrupt_status_agent = 0 }
+
+The manifest's endpoint entry says ``"role": "agent"`` with its ``host`` and
+``port``; ``endpoint.agent`` (and ``bench.agent()``) is the
+:class:`~hilbench.fakes.xrce_agent.XrceAgent`. Control commands: ``status``
+(counters, sessions, entities, log) and ``fault``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+from hilbench.bench.checks import Checker
+from hilbench.bench.control import ControlError
+from hilbench.bench.family import DeviceFamily, DeviceSpec
+
+AGENT_MODELS = ("micro-ros-agent", "micro-xrce-dds-agent")
+AGENT_KEYS = ("model", "name", "endpoint", "zeroed", "refs", "bridge", "faults")
+REF_KEYS = ("topic", "type", "reliable", "depth")
+FAULT_KEYS = ("drop_next", "corrupt_status_agent")
+BRIDGE_KEYS = ("domain_id", "participant_index", "peers")
+
+
+@dataclass
+class AgentSpec(DeviceSpec):
+    """An emulated Micro XRCE-DDS agent on an ``xrce-dds`` endpoint."""
+
+    model: str = "micro-ros-agent"
+    zeroed: str = "teardown"
+    refs: dict[str, dict[str, Any]] = field(default_factory=dict)
+    bridge: dict[str, Any] | None = None
+    faults: dict[str, int] = field(default_factory=dict)
+
+
+def check_bridge(c: Checker, key: str, raw: Any) -> dict[str, Any] | None:
+    """An RTPS bridge table (``false``/absent: no bridge)."""
+    if raw is None or raw is False:
+        return None
+    if raw is True:
+        raw = {}
+    raw = c.table(raw, key)
+    c.unknown(raw, key, BRIDGE_KEYS)
+    from hilbench.families.freertps import DEFAULT_DOMAIN, check_peers
+
+    return {"domain_id": c.integer(raw.get("domain_id", DEFAULT_DOMAIN), f"{key}.domain_id", 0, 232),
+            "participant_index": c.integer(raw.get("participant_index", 9), f"{key}.participant_index", 0, 119),
+            "peers": check_peers(c, f"{key}.peers", raw.get("peers"))}
+
+
+class MicroRosAgentFamily(DeviceFamily):
+    """One emulated agent per ``xrce-dds`` endpoint (a UDP port on a datagram net)."""
+
+    name = "micro-ros-agent"
+    protocols = ("xrce-dds",)
+    endpoint_types = ("udp",)
+    medium = "datagram"
+    device_keys = AGENT_KEYS
+    models = AGENT_MODELS
+    endpoint_attrs = ("agent",)
+    device_word = "agent"
+    control_commands = {
+        "status": "counters, sessions with their entities and streams, the agent's log",
+        "fault": "drop_next (outgoing datagrams to drop), corrupt_status_agent (STATUS_AGENTs with header 0x80)",
+    }
+
+    def check_baud(self, c: Checker, key: str, value: Any, port_type: str) -> int | None:
+        if value is not None:
+            c.fail(key, "a UDP agent has no baud rate")
+        return None
+
+    def check_devices(self, c: Checker, key: str, dev: dict[str, Any], endpoint, profile) -> list[AgentSpec]:
+        model = c.choice(dev.get("model", AGENT_MODELS[0]), f"{key}.model", AGENT_MODELS)
+        name = c.string(dev.get("name", endpoint.name), f"{key}.name")
+        zeroed = c.choice(dev.get("zeroed", "teardown"), f"{key}.zeroed", ("teardown", "keep"))
+        refs_raw = c.table(dev.get("refs", {}), f"{key}.refs")
+        refs: dict[str, dict[str, Any]] = {}
+        for ref, body in refs_raw.items():
+            where = f"{key}.refs.{ref}"
+            body = c.table(body, where)
+            c.unknown(body, where, REF_KEYS)
+            for k in ("topic", "type"):
+                if not isinstance(body.get(k, ""), str):
+                    c.fail(f"{where}.{k}", f"expected a string, got {body[k]!r}")
+            refs[ref] = {"topic": body.get("topic") or None, "type": body.get("type") or None,
+                         "reliable": c.boolean(body.get("reliable", True), f"{where}.reliable"),
+                         "depth": c.integer(body.get("depth", 1), f"{where}.depth", 1, 1000)}
+        faults = c.table(dev.get("faults", {}), f"{key}.faults")
+        c.unknown(faults, f"{key}.faults", FAULT_KEYS)
+        faults = {k: c.integer(v, f"{key}.faults.{k}", 0, 2**31) for k, v in faults.items()}
+        return [AgentSpec(name=name, endpoint=endpoint.name, model=model, zeroed=zeroed, refs=refs,
+                          bridge=check_bridge(c, f"{key}.bridge", dev.get("bridge")), faults=faults)]
+
+    def check_profile(self, c: Checker, profile) -> None:
+        seen: set[str] = set()
+        for spec in profile.devices_of(self.name):
+            if spec.endpoint in seen:
+                c.fail(f"{spec.where}.endpoint", f"endpoint {spec.endpoint!r} already has an agent")
+            seen.add(spec.endpoint)
+
+    # ------------------------------------------------------------------ bench
+
+    def build(self, bench, endpoint, devices: list[AgentSpec], t: float) -> None:
+        from hilbench.fakes.xrce_agent import XrceAgent
+
+        spec = devices[0] if devices else AgentSpec(name=endpoint.name, endpoint=endpoint.name)
+        agent = XrceAgent(spec.name, zeroed=spec.zeroed, refs=spec.refs)
+        agent.set_faults(**spec.faults)
+        agent.attach(endpoint.medium)
+        endpoint.add_device(spec.name, agent)
+        endpoint.attrs["agent"] = agent
+        if spec.bridge is not None:
+            from hilbench.fakes.xrce_agent.bridge import RtpsBridge
+
+            endpoint.attrs["bridge"] = RtpsBridge(agent, endpoint.medium, **spec.bridge)
+
+    def start(self, endpoint, t: float) -> None:
+        endpoint.attrs["agent"].start()
+        bridge = endpoint.attrs.get("bridge")
+        if bridge is not None:
+            bridge.start()
+
+    def stop(self, endpoint) -> None:
+        bridge = endpoint.attrs.get("bridge")
+        if bridge is not None:
+            bridge.stop()
+        agent = endpoint.attrs.get("agent")
+        if agent is not None:
+            agent.stop()
+
+    # ------------------------------------------------------------------ description
+
+    def describe_endpoint(self, endpoint) -> dict[str, Any]:
+        out: dict[str, Any] = {"role": "agent"}
+        bridge = endpoint.attrs.get("bridge")
+        if bridge is not None:
+            out["bridge"] = bridge.describe()
+        return out
+
+    def describe_device(self, spec: AgentSpec, device, endpoint, profile) -> dict[str, Any]:
+        out = {"name": spec.name, "model": spec.model, "endpoint": spec.endpoint, "protocol": "xrce-dds",
+               "role": "agent", "zeroed": spec.zeroed, "refs": sorted(spec.refs)}
+        if endpoint is not None:
+            host, port = endpoint.port.address
+            out.update(host=host, port=port)
+        return out
+
+    def summary(self, endpoint) -> str:
+        agent = endpoint.attrs.get("agent")
+        bridge = endpoint.attrs.get("bridge")
+        extra = f", bridged to RTPS domain {bridge.domain_id}" if bridge is not None else ""
+        return f"Micro XRCE-DDS agent {agent.name!r} (zeroed datagrams: {agent.zeroed}){extra}"
+
+    def device_at(self, endpoint, address: int) -> Any:
+        return endpoint.attrs["agent"]
+
+    # ------------------------------------------------------------------ control channel
+
+    def control(self, bench, agent, cmd: str, req: dict[str, Any]) -> dict[str, Any]:
+        if cmd == "status":
+            return {"status": agent.status()}
+        if cmd == "fault":
+            knobs = req.get("knobs", {})
+            if not isinstance(knobs, dict):
+                raise ControlError("knobs: expected an object")
+            try:
+                return {"faults": agent.set_faults(**{k: int(v) for k, v in knobs.items()})}
+            except (KeyError, TypeError, ValueError) as exc:
+                raise ControlError(str(exc)) from None
+        raise ControlError(f"unknown command {cmd!r}")
+
+
+def _bench_agent(bench, name: str | None = None):
+    """``bench.agent(name=None)``: an emulated XRCE agent by name (or the only one)."""
+    from hilbench.fakes.xrce_agent import XrceAgent
+
+    agents = {n: d for n, d in bench.devices.items() if isinstance(d, XrceAgent)}
+    if name is None:
+        if len(agents) != 1:
+            raise KeyError(f"bench has agents {list(agents)}; name one")
+        return next(iter(agents.values()))
+    return agents[name]
+
+
+MicroRosAgentFamily.bench_methods = {"agent": _bench_agent}
+FAMILY = MicroRosAgentFamily()
+
+__all__ = ["AGENT_MODELS", "FAMILY", "AgentSpec", "MicroRosAgentFamily", "check_bridge"]

@@ -1,0 +1,218 @@
+"""What the laser-scanner families share: the ``[scene]`` table's schema, poses, range models, fault knobs.
+
+The scene is one top-level table every scanner of a profile sees. Its schema
+lives here, once; the RPLIDAR family owns the table (it declares it in
+``profile_tables``) and the SICK LMS 200 and SCIP 2.0 families read the checked
+:class:`~hilbench.fakes.scanners.scene.Scene` from ``profile.tables["scene"]``
+(an empty scene when a profile has none)::
+
+    [scene]
+    walls = [ [[-3.0, -2.0], [3.0, -2.0], [3.0, 2.0], [-3.0, 2.0], [-3.0, -2.0]] ]   # polylines, metres
+    wall_reflectivity = 0.8
+    boxes = [ { center = [1.0, 1.0], size = [0.4, 0.3], heading = 30.0, reflectivity = 0.5 } ]
+    circles = [ { center = [-1.0, 0.5], radius = 0.1 } ]
+    moving = [ { path = [[1.0, -1.0], [1.0, 1.0]], speed = 0.5, radius = 0.2 } ]   # or size = [w, h]
+
+Each scanner device has ``pose = { x = 0.5, y = 0.3, heading = 0.0 }`` (metres;
+heading in degrees counter-clockwise from +x, the sensor's straight-ahead),
+an optional ``seed``, ``noise`` (``sigma0_mm``, ``sigma_k``, ``dropout``) and
+``max_range`` overrides, and ``faults`` (family-specific knobs).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+from hilbench.bench.checks import Checker
+from hilbench.bench.family import DeviceFamily, DeviceSpec
+
+SCENE_KEYS = ("walls", "wall_reflectivity", "boxes", "circles", "moving")
+COMMON_DEVICE_KEYS = ("model", "name", "endpoint", "pose", "seed", "noise", "max_range", "faults")
+NOISE_KEYS = ("sigma0_mm", "sigma_k", "dropout")
+#: Largest scene accepted (edges), so a profile cannot make every beam cost seconds.
+MAX_EDGES = 20_000
+
+
+def _point(c: Checker, value: Any, key: str) -> tuple[float, float]:
+    if not isinstance(value, list) or len(value) != 2:
+        c.fail(key, f"expected a point [x, y] in metres, got {value!r}")
+    return c.number(value[0], f"{key}[0]", -1e4, 1e4), c.number(value[1], f"{key}[1]", -1e4, 1e4)
+
+
+def check_scene(c: Checker, raw: Any, name: str = "scene"):
+    """The ``[scene]`` table -> a :class:`~hilbench.fakes.scanners.scene.Scene` (one-line errors)."""
+    from hilbench.fakes.scanners.scene import Mover, Scene
+
+    raw = c.table(raw, name)
+    c.unknown(raw, name, SCENE_KEYS)
+    walls = raw.get("walls", [])
+    if not isinstance(walls, list):
+        c.fail(f"{name}.walls", "expected an array of polylines ([[x, y], [x, y], ...])")
+    lines = []
+    for i, line in enumerate(walls):
+        key = f"{name}.walls[{i}]"
+        if not isinstance(line, list) or len(line) < 2:
+            c.fail(key, "expected a polyline of at least two points [[x, y], [x, y], ...]")
+        lines.append([_point(c, p, f"{key}[{j}]") for j, p in enumerate(line)])
+    refl = c.number(raw.get("wall_reflectivity", 0.8), f"{name}.wall_reflectivity", 0.0, 1.0)
+    boxes = []
+    for i, box in enumerate(_array(c, raw.get("boxes", []), f"{name}.boxes")):
+        key = f"{name}.boxes[{i}]"
+        box = c.table(box, key)
+        c.unknown(box, key, ("center", "size", "heading", "reflectivity"))
+        if "center" not in box or "size" not in box:
+            c.fail(key, "expected center = [x, y] and size = [w, h]")
+        w, h = _point(c, box["size"], f"{key}.size")
+        if w <= 0 or h <= 0:
+            c.fail(f"{key}.size", f"expected positive sizes, got {box['size']!r}")
+        boxes.append({"center": _point(c, box["center"], f"{key}.center"), "size": (w, h),
+                      "heading": c.number(box.get("heading", 0.0), f"{key}.heading", -360, 360),
+                      "reflectivity": c.number(box.get("reflectivity", 0.8), f"{key}.reflectivity", 0, 1)})
+    circles = []
+    for i, circ in enumerate(_array(c, raw.get("circles", []), f"{name}.circles")):
+        key = f"{name}.circles[{i}]"
+        circ = c.table(circ, key)
+        c.unknown(circ, key, ("center", "radius", "reflectivity"))
+        if "center" not in circ or "radius" not in circ:
+            c.fail(key, "expected center = [x, y] and radius")
+        circles.append({"center": _point(c, circ["center"], f"{key}.center"),
+                        "radius": c.number(circ["radius"], f"{key}.radius", 1e-4, 1e3),
+                        "reflectivity": c.number(circ.get("reflectivity", 0.8), f"{key}.reflectivity", 0, 1)})
+    movers = []
+    for i, mv in enumerate(_array(c, raw.get("moving", []), f"{name}.moving")):
+        key = f"{name}.moving[{i}]"
+        mv = c.table(mv, key)
+        c.unknown(mv, key, ("path", "speed", "radius", "size", "reflectivity"))
+        path = mv.get("path")
+        if not isinstance(path, list) or not path:
+            c.fail(f"{key}.path", "expected an array of points [[x, y], ...] (a closed loop)")
+        pts = tuple(_point(c, p, f"{key}.path[{j}]") for j, p in enumerate(path))
+        if ("radius" in mv) == ("size" in mv):
+            c.fail(key, "expected exactly one of radius = R (a circle) or size = [w, h] (a box)")
+        size = _point(c, mv["size"], f"{key}.size") if "size" in mv else None
+        movers.append(Mover(pts, c.number(mv.get("speed", 0.5), f"{key}.speed", 0, 100),
+                            radius=c.number(mv.get("radius", 0.0), f"{key}.radius", 0, 1e3), size=size,
+                            reflectivity=c.number(mv.get("reflectivity", 0.8), f"{key}.reflectivity", 0, 1)))
+    scene = Scene.build(walls=lines, boxes=boxes, circles=circles, movers=movers,
+                        wall_reflectivity=[refl] * len(lines))
+    if scene.edge_count > MAX_EDGES:
+        c.fail(name, f"expected at most {MAX_EDGES} edges, got {scene.edge_count}")
+    return scene
+
+
+def _array(c: Checker, value: Any, key: str) -> list:
+    if not isinstance(value, list):
+        c.fail(key, "expected an array of tables")
+    return value
+
+
+def scene_of(profile) -> Any:
+    """The profile's checked scene (an empty one when the profile has no ``[scene]``)."""
+    from hilbench.fakes.scanners.scene import Scene
+
+    return profile.tables.get("scene") or Scene()
+
+
+@dataclass
+class ScannerSpec(DeviceSpec):
+    """A scanner device of a profile: pose, measurement model overrides, fault knobs."""
+
+    x: float = 0.0
+    y: float = 0.0
+    heading: float = 0.0
+    seed: int = 0
+    noise: dict[str, float] = field(default_factory=dict)
+    max_range: float | None = None
+    faults: dict[str, Any] = field(default_factory=dict)
+    options: dict[str, Any] = field(default_factory=dict)
+
+
+class ScannerFamily(DeviceFamily):
+    """Shared profile checks of scanner families; subclasses add their options and build devices."""
+
+    device_word = "scanner"
+    #: Family-specific device keys (besides :data:`COMMON_DEVICE_KEYS`).
+    extra_keys: tuple[str, ...] = ()
+    #: Fault knobs: name -> ("bool" | "rate" | "int" | "float", lo, hi).
+    fault_knobs: dict[str, tuple[str, float, float]] = {}
+    #: The family's default model name.
+    default_model: str = ""
+
+    def check_common(self, c: Checker, key: str, dev: dict[str, Any], endpoint) -> dict[str, Any]:
+        """Model, name, pose, seed, noise, max_range and faults of a scanner entry."""
+        model = c.choice(dev.get("model", self.default_model), f"{key}.model", self.models)
+        name = dev.get("name", endpoint.name)
+        if not isinstance(name, str) or not name:
+            c.fail(f"{key}.name", f"expected a string, got {name!r}")
+        pose = c.table(dev.get("pose", {}), f"{key}.pose")
+        c.unknown(pose, f"{key}.pose", ("x", "y", "heading"))
+        noise = c.table(dev.get("noise", {}), f"{key}.noise")
+        c.unknown(noise, f"{key}.noise", NOISE_KEYS)
+        for nk, hi in (("sigma0_mm", 1000.0), ("sigma_k", 1.0), ("dropout", 1.0)):
+            if nk in noise:
+                c.number(noise[nk], f"{key}.noise.{nk}", 0.0, hi)
+        faults = c.table(dev.get("faults", {}), f"{key}.faults")
+        c.unknown(faults, f"{key}.faults", tuple(self.fault_knobs))
+        for fk, value in faults.items():
+            kind, lo, hi = self.fault_knobs[fk]
+            where = f"{key}.faults.{fk}"
+            if kind == "bool":
+                c.boolean(value, where)
+            elif kind == "int":
+                c.integer(value, where, int(lo), int(hi))
+            else:
+                c.number(value, where, lo, hi)
+        return {
+            "model": model, "name": name,
+            "x": c.number(pose.get("x", 0.0), f"{key}.pose.x", -1e4, 1e4),
+            "y": c.number(pose.get("y", 0.0), f"{key}.pose.y", -1e4, 1e4),
+            "heading": c.number(pose.get("heading", 0.0), f"{key}.pose.heading", -360.0, 360.0),
+            "seed": c.integer(dev.get("seed", 0), f"{key}.seed", 0, 2**31),
+            "noise": dict(noise),
+            "max_range": c.number(dev["max_range"], f"{key}.max_range", 0.01, 1000.0) if "max_range" in dev
+            else None,
+            "faults": dict(faults),
+        }
+
+    def check_profile(self, c: Checker, profile) -> None:
+        seen: set[str] = set()
+        for spec in profile.devices_of(self.name):
+            if spec.endpoint in seen:
+                c.fail(f"{spec.where}.endpoint", f"endpoint {spec.endpoint!r} already has a scanner "
+                                                 "(one unit per port)")
+            seen.add(spec.endpoint)
+
+    def range_model(self, spec: ScannerSpec, defaults: dict[str, float]):
+        """The device's range model: the model's defaults with the profile's overrides."""
+        from hilbench.fakes.scanners.scene import RangeModel
+
+        n = spec.noise
+        return RangeModel(
+            min_range=defaults["min_range"],
+            max_range=spec.max_range or defaults["max_range"],
+            sigma0=n.get("sigma0_mm", defaults["sigma0"] * 1000.0) / 1000.0,
+            sigma_k=n.get("sigma_k", defaults["sigma_k"]),
+            dropout=n.get("dropout", defaults.get("dropout", 0.0)),
+            seed=spec.seed,
+        )
+
+    def describe_device(self, spec: ScannerSpec, device, endpoint, profile) -> dict[str, Any]:
+        return {"name": spec.name, "model": spec.model, "endpoint": spec.endpoint,
+                "protocol": profile.endpoints[spec.endpoint].protocol,
+                "pose": {"x": spec.x, "y": spec.y, "heading": spec.heading}}
+
+    def device_at(self, endpoint, address: int):
+        if not endpoint.devices:
+            raise KeyError(f"endpoint {endpoint.name!r} has no scanner")
+        return next(iter(endpoint.devices.values()))
+
+
+def pose_of(spec: ScannerSpec):
+    from hilbench.fakes.scanners.scene import Pose
+
+    return Pose(spec.x, spec.y, spec.heading)
+
+
+__all__ = ["COMMON_DEVICE_KEYS", "SCENE_KEYS", "ScannerFamily", "ScannerSpec", "check_scene", "pose_of",
+           "scene_of"]

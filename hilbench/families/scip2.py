@@ -1,0 +1,118 @@
+"""The SCIP 2.0 family: emulated Hokuyo units on TCP (UST-10LX) or a pty (URG-04LX), protocol ``scip2``.
+
+Profile schema::
+
+    [endpoints.ust]
+    type = "tcp"                    # 127.0.0.1, a free port unless port = 10940 is given
+    protocol = "scip2"
+
+    [endpoints.urg]
+    type = "pty"                    # USB CDC-ACM style: the baud rate does not matter
+    protocol = "scip2"
+
+    [[devices]]
+    model = "ust-10lx"              # or "urg-04lx"
+    endpoint = "ust"
+    pose = { x = 0.5, y = 0.3, heading = 0.0 }   # heading = the front step (AFRT)
+    clock_offset_ms = 0             # start of the 24-bit ms clock (16_700_000 tests the wrap soon)
+    faults = { bad_sum_next = 0, truncate_next = 0, unstable_next = 0, burst = false }
+
+Each reply goes out whole (one write), scans every 60000/rpm ms. Control
+commands: ``scanner_status``, ``scanner_fault``.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from hilbench.bench.checks import Checker
+from hilbench.bench.control import ControlError
+from hilbench.families.scanner import COMMON_DEVICE_KEYS, ScannerFamily, ScannerSpec, pose_of, scene_of
+
+SCIP_MODELS = ("ust-10lx", "urg-04lx", "UST-10LX", "URG-04LX")
+SCIP_KEYS = ("clock_offset_ms",)
+FAULTS = {"bad_sum_next": ("int", 0, 1000), "truncate_next": ("int", 0, 1000), "unstable_next": ("int", 0, 1000),
+          "burst": ("bool", 0, 1)}
+
+
+class Scip2Family(ScannerFamily):
+    """One emulated SCIP 2.0 unit per ``scip2`` endpoint."""
+
+    name = "scip2"
+    protocols = ("scip2",)
+    endpoint_types = ("tcp", "pty")
+    device_keys = (*COMMON_DEVICE_KEYS, *SCIP_KEYS)
+    models = SCIP_MODELS
+    default_model = "ust-10lx"
+    profile_attrs = ("scip_units",)
+    endpoint_attrs = ("scip",)
+    fault_knobs = FAULTS
+    control_commands = {"scanner_status": "what the unit is doing (laser, continuous scans, clock)",
+                        "scanner_fault": "turn fault knobs: " + ", ".join(FAULTS)}
+
+    def check_baud(self, c: Checker, key: str, value: Any, port_type: str) -> int | None:
+        if value is None:
+            return None
+        return c.integer(value, key, 1200, 12_000_000)
+
+    def check_devices(self, c: Checker, key: str, dev: dict[str, Any], endpoint, profile) -> list[ScannerSpec]:
+        common = self.check_common(c, key, dev, endpoint)
+        model = common["model"].lower()
+        if endpoint.type == "tcp" and model == "urg-04lx":
+            c.fail(f"{key}.model", "a URG-04LX has no Ethernet port: put it on a pty endpoint")
+        common["model"] = model
+        options = {"clock_offset_ms": c.integer(dev.get("clock_offset_ms", 0), f"{key}.clock_offset_ms", 0,
+                                                (1 << 24) - 1)}
+        return [ScannerSpec(name=common.pop("name"), endpoint=endpoint.name, options=options, **common)]
+
+    def paced(self, spec, requested: bool) -> bool:
+        return False  # replies leave whole, at the times the unit decides
+
+    def build(self, bench, endpoint, devices: list[ScannerSpec], t: float) -> None:
+        from hilbench.fakes.scanners.scip import MODELS, ScipConfig, ScipFaults, ScipScanner
+
+        port = endpoint.port
+        for spec in devices:
+            unit = MODELS[spec.model]
+            defaults = {"min_range": unit.dmin / 1000, "max_range": unit.dmax / 1000, "sigma0": unit.sigma0,
+                        "sigma_k": 0.0}
+            config = ScipConfig(clock_offset_ms=spec.options["clock_offset_ms"],
+                                faults=ScipFaults(seed=spec.seed, **spec.faults))
+            connected = (lambda p=port: p.client is not None) if hasattr(port, "client") else None
+            dev = ScipScanner(spec.name, scene_of(bench.profile), pose_of(spec), self.range_model(spec, defaults),
+                              unit, config, t0=t, connected=connected)
+            dev.attach(endpoint.medium)
+            endpoint.add_device(spec.name, dev)
+            endpoint.attrs["scip"] = dev
+
+    def describe_device(self, spec: ScannerSpec, device, endpoint, profile) -> dict[str, Any]:
+        out = super().describe_device(spec, device, endpoint, profile)
+        if endpoint is not None:
+            out.update({k: v for k, v in endpoint.port.describe().items() if k in ("host", "port", "path")})
+        return out
+
+    def summary(self, endpoint) -> str:
+        dev = endpoint.attrs.get("scip")
+        return f"scip2, {dev.unit.name if dev else '?'}"
+
+    def control(self, bench, device, cmd: str, req: dict[str, Any]) -> dict[str, Any]:
+        if cmd == "scanner_status":
+            return {"status": device.status()}
+        if cmd == "scanner_fault":
+            knobs = req.get("knobs", {})
+            if not isinstance(knobs, dict):
+                raise ControlError("knobs: expected an object")
+            for k, v in knobs.items():
+                if k not in FAULTS:
+                    raise ControlError(f"unknown fault knob {k!r} (expected one of: {', '.join(FAULTS)})")
+                kind, lo, hi = FAULTS[k]
+                if (kind == "bool") != isinstance(v, bool) or (kind != "bool" and not lo <= v <= hi):
+                    raise ControlError(f"fault knob {k}: bad value {v!r}")
+            device.port.call_at(None, lambda: [setattr(device.faults, k, v) for k, v in knobs.items()])
+            return {"faults": {**{k: getattr(device.faults, k) for k in FAULTS}, **knobs}}
+        raise ControlError(f"unknown command {cmd!r}")
+
+
+FAMILY = Scip2Family()
+
+__all__ = ["FAMILY", "SCIP_MODELS", "Scip2Family"]

@@ -1,0 +1,129 @@
+"""The SICK LMS 200 family: an emulated LMS 200 on a pty (protocol ``sick-lms200``).
+
+Profile schema::
+
+    [endpoints.lms]
+    type = "pty"
+    protocol = "sick-lms200"
+    baud = 9600                     # the power-up rate (hosts switch with mode 40/41/48)
+
+    [[devices]]
+    model = "lms200"
+    endpoint = "lms"
+    pose = { x = 0.5, y = 0.3, heading = 0.0 }   # heading = the sensor's 90° beam
+    variant = [180, 50]             # angle ° and resolution 1/100 °: [100|180, 100|50|25]
+    units = "mm"                    # or "cm"
+    no_echo = 8191                  # value reported when nothing returns (top of the 13-bit field)
+    faults = { nak_next = 0, no_ack = false, bad_crc_rate = 0.0, refuse_modes = false, status = 16,
+               truncate_next = 0, ignore_stop_once = false }
+
+The LMS paces its own UART at the current link speed. Control commands:
+``scanner_status``, ``scanner_fault``.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from hilbench.bench.checks import Checker
+from hilbench.bench.control import ControlError
+from hilbench.families.scanner import COMMON_DEVICE_KEYS, ScannerFamily, ScannerSpec, pose_of, scene_of
+
+LMS_MODELS = ("lms200", "LMS200", "sick-lms200")
+LMS_KEYS = ("variant", "units", "no_echo")
+#: LMS 200 measurement model: 8 m / 80 m ranges, about 1 cm systematic error at short range.
+LMS_RANGE = {"min_range": 0.0, "max_range": 80.0, "sigma0": 0.005, "sigma_k": 0.0}
+FAULTS = {
+    "nak_next": ("int", 0, 1000), "no_ack": ("bool", 0, 1), "bad_crc_rate": ("rate", 0.0, 1.0),
+    "refuse_modes": ("bool", 0, 1), "status": ("int", 0, 255), "truncate_next": ("int", 0, 1000),
+    "ignore_stop_once": ("bool", 0, 1),
+}
+LMS_BAUDS = (9600, 19200, 38400, 500_000)
+
+
+class SickLms200Family(ScannerFamily):
+    """One emulated LMS 200 per ``sick-lms200`` endpoint."""
+
+    name = "sick-lms200"
+    protocols = ("sick-lms200",)
+    endpoint_types = ("pty",)
+    device_keys = (*COMMON_DEVICE_KEYS, *LMS_KEYS)
+    models = LMS_MODELS
+    default_model = "lms200"
+    profile_attrs = ("lms_units",)
+    endpoint_attrs = ("lms",)
+    fault_knobs = FAULTS
+    control_commands = {"scanner_status": "what the unit is doing (link speed, mode, variant, units)",
+                        "scanner_fault": "turn fault knobs: " + ", ".join(FAULTS)}
+
+    def check_baud(self, c: Checker, key: str, value: Any, port_type: str) -> int:
+        baud = 9600 if value is None else value
+        if baud != 9600:
+            c.fail(key, f"expected 9600 (an LMS 200 starts at 9600 baud; hosts change it with mode 40/41/48), "
+                        f"got {baud!r}")
+        return baud
+
+    def check_devices(self, c: Checker, key: str, dev: dict[str, Any], endpoint, profile) -> list[ScannerSpec]:
+        from hilbench.protocols.sick_lms200 import VARIANTS
+
+        common = self.check_common(c, key, dev, endpoint)
+        variant = dev.get("variant", [180, 50])
+        if not isinstance(variant, list) or tuple(variant) not in VARIANTS:
+            known = ", ".join(f"[{a}, {r}]" for a, r in VARIANTS)
+            c.fail(f"{key}.variant", f"expected one of {known}, got {variant!r}")
+        options = {"variant": tuple(variant),
+                   "units": c.choice(dev.get("units", "mm"), f"{key}.units", ("mm", "cm")),
+                   "no_echo": c.integer(dev.get("no_echo", 8191), f"{key}.no_echo", 0, 8191)}
+        return [ScannerSpec(name=common.pop("name"), endpoint=endpoint.name, options=options, **common)]
+
+    def paced(self, spec, requested: bool) -> bool:
+        return False  # the unit paces its own UART at its current link speed
+
+    def build(self, bench, endpoint, devices: list[ScannerSpec], t: float) -> None:
+        from hilbench.fakes.scanners.sick_lms200 import LmsConfig, LmsFaults, SickLms200
+
+        for spec in devices:
+            o = spec.options
+            config = LmsConfig(angle=o["variant"][0], resolution=o["variant"][1], units_mm=o["units"] == "mm",
+                               no_echo=o["no_echo"], faults=LmsFaults(seed=spec.seed, **spec.faults))
+            dev = SickLms200(spec.name, scene_of(bench.profile), pose_of(spec), self.range_model(spec, LMS_RANGE),
+                             config, t0=t)
+            dev.attach(endpoint.medium)
+            endpoint.add_device(spec.name, dev)
+            endpoint.attrs["lms"] = dev
+
+    def describe_endpoint(self, endpoint) -> dict[str, Any]:
+        return {"paced": True}
+
+    def describe_device(self, spec: ScannerSpec, device, endpoint, profile) -> dict[str, Any]:
+        out = super().describe_device(spec, device, endpoint, profile)
+        out.update({"variant": list(spec.options["variant"]), "units": spec.options["units"],
+                    "baud": device.baud if device is not None else 9600})
+        return out
+
+    def summary(self, endpoint) -> str:
+        dev = endpoint.attrs.get("lms")
+        baud = dev.baud if dev else endpoint.spec.baud
+        return f"sick-lms200, {baud} baud now (9600 at power-up)"
+
+    def control(self, bench, device, cmd: str, req: dict[str, Any]) -> dict[str, Any]:
+        if cmd == "scanner_status":
+            return {"status": device.status()}
+        if cmd == "scanner_fault":
+            knobs = req.get("knobs", {})
+            if not isinstance(knobs, dict):
+                raise ControlError("knobs: expected an object")
+            for k, v in knobs.items():
+                if k not in FAULTS:
+                    raise ControlError(f"unknown fault knob {k!r} (expected one of: {', '.join(FAULTS)})")
+                kind, lo, hi = FAULTS[k]
+                if (kind == "bool") != isinstance(v, bool) or (kind != "bool" and not lo <= v <= hi):
+                    raise ControlError(f"fault knob {k}: bad value {v!r}")
+            device.port.call_at(None, lambda: [setattr(device.faults, k, v) for k, v in knobs.items()])
+            return {"faults": {**{k: getattr(device.faults, k) for k in FAULTS}, **knobs}}
+        raise ControlError(f"unknown command {cmd!r}")
+
+
+FAMILY = SickLms200Family()
+
+__all__ = ["FAMILY", "LMS_MODELS", "SickLms200Family"]

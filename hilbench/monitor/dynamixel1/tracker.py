@@ -1,0 +1,594 @@
+"""Turning Protocol 1.0-framed traffic (Dynamixel 1.0 with a USB2AX, Feetech) into device and bus state.
+
+:class:`Bus1Tracker` is fed bytes with their bus time, like the Protocol 2.0
+tracker, and offers the same state to the summary and the dashboard (devices
+with their counters, latencies and control-table observations, the main
+cycle, the error log, packet counts and rates). A :class:`Dialect` says what
+the bytes mean on this bus: Dynamixel Protocol 1.0 (SYNC_READ 0x84 answered
+by the USB2AX at ID 0xFD in one status, all-0xFF for a servo that did not
+answer; BULK_READ 0x92; no reply to a broadcast PING) or Feetech (SYNC_READ
+0x82 answered by each servo in turn; every servo answers a broadcast PING;
+the model number at address 3).
+
+Instruction and status packets share one layout in Protocol 1.0, so the
+tracker tells them apart by what is owed: a packet from an ID that owes a
+reply, with the length that reply must have, is that reply; a packet whose
+code is no instruction is a status nobody asked for; anything else is an
+instruction. That works on a bench's tap and on a raw dump of a real bus.
+
+Pairing and liveness follow the Protocol 2.0 tracker: each request expects
+its replies in order; the next instruction (or ``reply_timeout`` of quiet)
+counts what is still owed as missed; a device is disconnected after more
+than ``miss_limit`` consecutive misses or ``silence`` seconds owing a reply;
+any reply brings it back. An unanswered PING of an ID never heard from is a
+scan, not a miss.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from hilbench.monitor.dynamixel.devices import CONNECTED, DISCONNECTED, READ, UNKNOWN, WRITTEN, DeviceState
+from hilbench.monitor.errorlog import ErrorLog
+from hilbench.protocols.dynamixel_protocol1 import BROADCAST_ID, USB2AX_ID, DecodeProblem1, Decoder1, Packet1
+
+# what a pending request expects
+DATA, PING, NODATA, USB2AX, ANY_PING = 1, 2, 3, 4, 5
+HISTORY_STEP = 0.1
+HISTORY_SPAN = 5.0
+#: Distinct multi-device read requests remembered for the main cycle (bounded memory).
+CYCLE_CACHE = 1024
+
+
+@dataclass(frozen=True)
+class Dialect:
+    """What Protocol 1.0-framed bytes mean on one kind of bus."""
+
+    protocol: str
+    instruction_names: dict[int, str]
+    describe_error: Callable[[int], str]
+    device_class: type[DeviceState]
+    #: Instruction codes.
+    ping: int = 0x01
+    read: int = 0x02
+    write: int = 0x03
+    reg_write: int = 0x04
+    action: int = 0x05
+    reset: int = 0x06
+    sync_write: int = 0x83
+    sync_read: int | None = None  # per-servo replies (Feetech 0x82)
+    usb2ax_sync_read: int | None = None  # one reply from the USB2AX (0x84)
+    bulk_read: int | None = None
+    broadcast_ping_answered: bool = False
+    #: Control-table addresses the tracker interprets.
+    model_address: int = 0
+    firmware_address: int = 2
+    status_return_level_address: int = 16
+    #: Status Return Level from which READ, and every other instruction, is answered.
+    read_level: int = 1
+    write_level: int = 2
+    #: Model numbers a table may store big-endian (Feetech SCS).
+    big_endian_models: frozenset[int] = field(default_factory=frozenset)
+
+
+class Cycle:
+    """A repeating multi-device read (the bus's control cycle candidates): its count and period."""
+
+    __slots__ = ("name", "ids", "ranges", "count", "last_t", "iv_n", "iv_mean", "iv_m2", "iv_min", "iv_max")
+
+    def __init__(self, name: str, entries: list[tuple[int, int, int]]) -> None:
+        self.name = name
+        self.ids = tuple(e[0] for e in entries)
+        self.ranges = tuple((e[1], e[2]) for e in entries)
+        self.count = 0
+        self.last_t: float | None = None
+        self.iv_n = 0
+        self.iv_mean = 0.0
+        self.iv_m2 = 0.0
+        self.iv_min = math.inf
+        self.iv_max = 0.0
+
+    def add_interval(self, dt: float) -> None:
+        """Welford's running mean and variance of the period."""
+        self.iv_n += 1
+        delta = dt - self.iv_mean
+        self.iv_mean += delta / self.iv_n
+        self.iv_m2 += delta * (dt - self.iv_mean)
+        self.iv_min = min(self.iv_min, dt)
+        self.iv_max = max(self.iv_max, dt)
+
+    @property
+    def jitter(self) -> float:
+        return math.sqrt(self.iv_m2 / (self.iv_n - 1)) if self.iv_n > 1 else 0.0
+
+
+class _Pending:
+    __slots__ = ("kind", "code", "entries", "devices", "answered", "t")
+
+    def __init__(self, kind: int, code: int, entries: list[tuple[int, int, int]], devices: list[DeviceState],
+                 t: float) -> None:
+        self.kind = kind
+        self.code = code
+        self.entries = entries
+        self.devices = devices
+        self.answered = bytearray(len(entries))
+        self.t = t
+
+
+class Bus1Tracker:
+    """Device and bus state of one Protocol 1.0-framed bus (see the module docstring)."""
+
+    def __init__(
+        self,
+        dialect: Dialect,
+        *,
+        baud: int | None = None,
+        timestamps: bool = True,
+        miss_limit: int = 4,
+        silence: float | None = 1.0,
+        reply_timeout: float = 0.1,
+        log_capacity: int = 1000,
+    ) -> None:
+        self.dialect = dialect
+        self.protocol = dialect.protocol
+        self.describe_error = dialect.describe_error
+        self.baud = baud
+        self.timestamps = timestamps
+        self.miss_limit = miss_limit
+        self.silence = silence or None
+        self.reply_timeout = reply_timeout
+        self.devices: dict[int, DeviceState] = {}
+        self.log = ErrorLog(log_capacity)
+        self.log.timed = timestamps
+        self.decoders: dict[str, Decoder1] = {}
+        self.counts = [0] * 256
+        self.statuses = 0
+        self.bytes = 0
+        self.bytes_by_source: dict[str, int] = {}
+        self.t0: float | None = None
+        self.t_last: float | None = None
+        self.unanswered = 0
+        self.unexpected = 0
+        self.bad_replies = 0
+        self.invalid_instructions = 0
+        self.dropped_input = 0
+        self.requests_expecting_replies = 0
+        self.cycles: dict[bytes, Cycle] = {}
+        self.history: deque[tuple[float, int, tuple[int, ...]]] = deque()
+        self._pending: _Pending | None = None
+        self._last_tick = -math.inf
+        self._names = dict(dialect.instruction_names)
+
+    # ------------------------------------------------------------------ input
+
+    def feed(self, t: float, source: str, data: bytes) -> None:
+        """Bytes ``data`` that ``source`` put on the bus, complete at bus time ``t``."""
+        if self.t0 is None:
+            self.t0 = self.log.t0 = t
+        self.t_last = t
+        self.bytes += len(data)
+        self.bytes_by_source[source] = self.bytes_by_source.get(source, 0) + len(data)
+        dec = self.decoders.get(source)
+        if dec is None:
+            dec = self.decoders[source] = Decoder1()
+        self.feed_items(dec.feed(data, t))
+        if self.timestamps and t - self._last_tick >= HISTORY_STEP / 2:
+            self.tick(t)
+
+    def feed_items(self, items: list) -> None:
+        """Decoded packets and problems in bus order."""
+        for item in items:
+            if type(item) is Packet1:
+                if self._is_status(item):
+                    self.statuses += 1
+                    self._status(item)
+                else:
+                    self._instruction(item)
+            else:
+                self._problem(item)
+
+    def gap(self, t: float, source: str, nbytes: int) -> None:
+        """``nbytes`` from ``source`` were lost before reaching the monitor."""
+        self.dropped_input += nbytes
+        self.log.add(t, "dropped_input", f"monitor input lost {nbytes} bytes from {source}")
+        dec = self.decoders.get(source)
+        if dec is not None:
+            self.feed_items(dec.flush(t))
+
+    def flush(self, t: float | None = None) -> None:
+        """The line went idle: partial packets are reported as truncated."""
+        t = self.t_last if t is None else t
+        for dec in self.decoders.values():
+            if dec.pending:
+                self.feed_items(dec.flush(t or 0.0))
+
+    def finish(self) -> None:
+        """End of the source: count replies still owed as missed."""
+        self.flush()
+        if self._pending is not None:
+            self._close(self.t_last or 0.0)
+
+    def tick(self, t: float) -> None:
+        """Bus time passes: reply timeout, silence rule, rate history."""
+        self._last_tick = t
+        p = self._pending
+        if p is not None and t - p.t > self.reply_timeout:
+            self._close(t)
+        if self.silence is not None:
+            for dev in self.devices.values():
+                if dev.consecutive and dev.state is not DISCONNECTED and t - dev.owed_since > self.silence:
+                    self._disconnect(dev, t, f"silent for {t - dev.owed_since:.1f} s")
+        hist = self.history
+        if not hist or t - hist[-1][0] >= HISTORY_STEP:
+            hist.append((t, self.bytes, (self.statuses, *self.counts)))
+            while hist and t - hist[0][0] > HISTORY_SPAN:
+                hist.popleft()
+        for dev in self.devices.values():
+            if len(dev.lat) > 4 * 1024:
+                dev.fold_latency()
+
+    # ------------------------------------------------------------------ telling packets apart
+
+    def _is_status(self, pkt: Packet1) -> bool:
+        if pkt.code not in self._names:
+            return True  # no such instruction: a status (most often ERR 0)
+        p = self._pending
+        if p is None:
+            return False
+        n = len(pkt.params)
+        if p.kind == USB2AX:
+            return pkt.id == USB2AX_ID and n == sum(e[2] for e in p.entries)
+        if p.kind == ANY_PING:
+            return n == 0
+        for k, (dev_id, _, length) in enumerate(p.entries):
+            if dev_id == pkt.id and not p.answered[k]:
+                return n == length
+        return False
+
+    # ------------------------------------------------------------------ devices
+
+    def device(self, dev_id: int, t: float | None = None) -> DeviceState:
+        dev = self.devices.get(dev_id)
+        if dev is None:
+            dev = self.devices[dev_id] = self.dialect.device_class(dev_id, t)
+        return dev
+
+    def _alive(self, dev: DeviceState, t: float) -> None:
+        dev.seen_t = t
+        dev.consecutive = 0
+        dev.health = 0
+        dev.extra_replies += 1  # replies seen (this tracker counts them directly)
+        if dev.state is not CONNECTED:
+            if dev.state is DISCONNECTED:
+                self.log.add(t, "reconnected", f"ID {dev.id} reconnected", dev.id)
+            dev.state = CONNECTED
+            dev.ever_replied = True
+
+    def _disconnect(self, dev: DeviceState, t: float, why: str) -> None:
+        dev.state = DISCONNECTED
+        dev.health = 1
+        dev.disconnects += 1
+        what = f"never answered ({why})" if not dev.ever_replied else why
+        self.log.add(t, "disconnected", f"ID {dev.id} disconnected: {what}", dev.id)
+
+    def replies(self, dev: DeviceState) -> int:
+        """Status packets from ``dev`` (its share of a USB2AX reply counts as one)."""
+        return dev.extra_replies
+
+    # ------------------------------------------------------------------ instructions
+
+    def _instruction(self, pkt: Packet1) -> None:
+        d = self.dialect
+        code, pid, p, t = pkt.code, pkt.id, pkt.params, pkt.t
+        self.counts[code] += 1
+        if self._pending is not None:
+            self._close(t)
+        broadcast = pid == BROADCAST_ID
+        try:
+            if code == d.ping:
+                if broadcast:
+                    if d.broadcast_ping_answered:
+                        self._expect(ANY_PING, code, [], t)
+                    return
+                self._expect(PING, code, [(pid, 0, 0)], t)
+            elif code == d.read:
+                address, length = p  # exactly two parameters
+                if not broadcast:
+                    self._expect(DATA, code, [(pid, address, length)], t)
+            elif code in (d.write, d.reg_write):
+                if len(p) < 2:
+                    raise ValueError("no data")
+                self._expect_status(code, pid, t)  # at the level before the write (it may change it)
+                if code == d.write:
+                    for dev in (list(self.devices.values()) if broadcast else [self.device(pid, t)]):
+                        self._store(dev, p[0], p[1:], t, WRITTEN)
+            elif code in (d.action, d.reset):
+                self._expect_status(code, pid, t)
+                if code == d.reset:
+                    for dev in (list(self.devices.values()) if broadcast else [self.device(pid, t)]):
+                        dev.obs.clear()
+            elif code == d.sync_write:
+                address, length = p[0], p[1]
+                step = length + 1
+                if not length or (len(p) - 2) % step:
+                    raise ValueError("entries do not fit the length")
+                for k in range(2, len(p), step):
+                    dev = self.device(p[k], t)
+                    dev.direct_requests += 1
+                    self._store(dev, address, p[k + 1 : k + step], t, WRITTEN)
+            elif code in (d.sync_read, d.usb2ax_sync_read):
+                if not broadcast and not (code == d.usb2ax_sync_read and pid == USB2AX_ID):
+                    return
+                address, length, ids = p[0], p[1], p[2:]
+                entries = [(i, address, length) for i in ids]
+                self._expect(USB2AX if code == d.usb2ax_sync_read else DATA, code, entries, t, cycle=p)
+            elif code == d.bulk_read:
+                if not p or p[0] != 0 or (len(p) - 1) % 3:
+                    raise ValueError("entries are LEN, ID, ADDRESS")
+                seen: set[int] = set()
+                entries = []
+                for k in range(1, len(p), 3):
+                    if p[k + 1] not in seen:
+                        seen.add(p[k + 1])
+                        entries.append((p[k + 1], p[k + 2], p[k]))
+                self._expect(DATA, code, entries, t, cycle=p)
+            else:
+                raise ValueError(f"unknown instruction 0x{code:02x}")
+        except (ValueError, IndexError) as exc:
+            self.invalid_instructions += 1
+            self.log.add(t, "invalid_instruction", "invalid instruction packet to ID {}: {}", pid, pid, str(exc))
+
+    def _expect_status(self, code: int, pid: int, t: float) -> None:
+        if pid == BROADCAST_ID:
+            return
+        dev = self.device(pid, t)
+        if dev.status_return_level is not None and dev.status_return_level < self.dialect.write_level:
+            dev.direct_requests += 1
+            return
+        self._expect(NODATA, code, [(pid, 0, 0)], t)
+
+    def _expect(self, kind: int, code: int, entries: list[tuple[int, int, int]], t: float,
+                cycle: bytes | None = None) -> None:
+        if kind == PING:
+            dev = self.devices.get(entries[0][0]) or self.dialect.device_class(entries[0][0], t)
+        devices = [self.device(e[0], t) for e in entries] if kind != PING else [dev]
+        for dev in devices:
+            dev.direct_requests += 1
+            dev.direct_expected += 1
+        self.requests_expecting_replies += 1 if entries or kind == ANY_PING else 0
+        self._pending = _Pending(kind, code, entries, devices, t)
+        if cycle is not None and len(entries) > 1:
+            key = bytes((code,)) + cycle
+            c = self.cycles.get(key)
+            if c is None:
+                if len(self.cycles) >= CYCLE_CACHE:
+                    main = self.main_cycle()
+                    self.cycles = {k: v for k, v in self.cycles.items() if v is main}
+                c = self.cycles[key] = Cycle(self._names.get(code, f"0x{code:02x}"), entries)
+            c.count += 1
+            if c.last_t is not None and self.timestamps:
+                c.add_interval(t - c.last_t)
+            c.last_t = t
+
+    def _close(self, t: float) -> None:
+        """The pending request is over: whoever did not answer missed a reply."""
+        p, self._pending = self._pending, None
+        if p is None:
+            return
+        for k, dev in enumerate(p.devices):
+            if p.answered[k]:
+                continue
+            if p.kind == PING and not dev.ever_replied:
+                dev.direct_expected -= 1  # a scan for a device that is not there
+                continue
+            self._miss(dev, p, t)
+
+    def _miss(self, dev: DeviceState, p: _Pending, t: float) -> None:
+        if dev.id not in self.devices:
+            self.devices[dev.id] = dev
+        dev.misses += 1
+        dev.consecutive += 1
+        dev.health = 1
+        self.unanswered += 1
+        if dev.consecutive == 1:
+            dev.owed_since = p.t
+            if dev.state is not DISCONNECTED:
+                self.log.add(p.t, "missed_reply", "ID {} missed its reply to {}", dev.id, dev.id,
+                             self._names.get(p.code, "a request"))
+        if dev.consecutive > self.miss_limit and dev.state is not DISCONNECTED:
+            self._disconnect(dev, t, f"{dev.consecutive} consecutive missed replies")
+
+    # ------------------------------------------------------------------ statuses
+
+    def _status(self, st: Packet1) -> None:
+        p = self._pending
+        t = st.t
+        if p is None:
+            self._orphan(st)
+            return
+        if p.kind == USB2AX:
+            self._usb2ax_reply(st, p)
+            return
+        if p.kind == ANY_PING:
+            if st.id <= 0xFD:
+                dev = self.device(st.id, t)
+                dev.direct_requests += 1
+                dev.direct_expected += 1
+                self._alive(dev, t)
+                self._error_byte(dev, st.code, p)
+            return
+        for k, (dev_id, address, length) in enumerate(p.entries):
+            if dev_id == st.id and not p.answered[k]:
+                p.answered[k] = 1
+                dev = p.devices[k]
+                if dev.id not in self.devices:
+                    self.devices[dev.id] = dev  # a pinged device answered
+                self._alive(dev, t)
+                if self.timestamps:
+                    dev.lat.append(t - p.t)
+                self._error_byte(dev, st.code, p)
+                if p.kind == DATA:
+                    if len(st.params) != length:
+                        self.bad_replies += 1
+                        self.log.add(t, "bad_reply", f"ID {dev.id} replied {len(st.params)} bytes to a read of "
+                                                     f"{length} at {address}", dev.id)
+                    else:
+                        self._store(dev, address, st.params, t, READ)
+                if p.answered.find(0) < 0:
+                    self._pending = None
+                return
+        self._orphan(st)
+
+    def _usb2ax_reply(self, st: Packet1, p: _Pending) -> None:
+        """Split the adapter's one status into each servo's bytes; all-0xFF means it did not answer."""
+        t = st.t
+        data = st.params
+        pos = 0
+        for k, (_, address, length) in enumerate(p.entries):
+            dev = p.devices[k]
+            chunk = data[pos : pos + length]
+            pos += length
+            p.answered[k] = 1
+            if chunk.count(0xFF) == length:
+                self._miss(dev, p, t)
+                continue
+            self._alive(dev, t)
+            if self.timestamps:
+                dev.lat.append(t - p.t)
+            self._store(dev, address, chunk, t, READ)
+        self._pending = None
+
+    def _error_byte(self, dev: DeviceState, err: int, p: _Pending | None) -> None:
+        dev.last_error = err
+        if err:
+            dev.error_statuses += 1
+            what = self._names.get(p.code, "a request") if p is not None else "a request"
+            self.log.add(p.t if p is not None else (self.t_last or 0.0), "error_status",
+                         f"ID {dev.id} status packet has an error: {self.describe_error(err)} (reply to {what})",
+                         dev.id)
+
+    def _orphan(self, st: Packet1) -> None:
+        self.unexpected += 1
+        if st.id <= 0xFD:
+            dev = self.device(st.id, st.t)
+            if dev.health:
+                self._alive(dev, st.t)
+            else:
+                dev.seen_t = st.t
+                dev.extra_replies += 1
+        self.log.add(st.t, "unexpected_status", "status packet without a matching request (ID {})", st.id, st.id)
+
+    def _store(self, dev: DeviceState, address: int, data: bytes, t: float, how: int) -> None:
+        """Remember observed bytes; model, firmware and Status Return Level change what the tracker believes."""
+        if not data:
+            return
+        d = self.dialect
+        dev.obs[(address, len(data))] = (bytes(data), t, how)
+        if len(dev.obs) > 256:
+            dev.compact()
+        end = address + len(data)
+        ma = d.model_address
+        if how == READ and address <= ma and end >= ma + 2:
+            lo, hi = data[ma - address], data[ma + 1 - address]
+            number = lo | hi << 8
+            if number not in dev.models_by_number and (hi | lo << 8) in d.big_endian_models:
+                number = hi | lo << 8
+            dev.model = number
+            dev.model_from = "read"
+        if how == READ and address <= d.firmware_address < end:
+            dev.firmware = data[d.firmware_address - address]
+        if address <= d.status_return_level_address < end:
+            dev.status_return_level = data[d.status_return_level_address - address]
+
+    # ------------------------------------------------------------------ problems
+
+    def _problem(self, pr: DecodeProblem1) -> None:
+        kind, raw, t = pr.kind, pr.raw, pr.t
+        if kind == "checksum":
+            p = self._pending
+            if p is not None and len(raw) > 2:
+                for k, (dev_id, _, _) in enumerate(p.entries):
+                    if dev_id == raw[2] and not p.answered[k]:
+                        p.devices[k].crc_errors += 1
+                        break
+            self.log.add(t, "crc", f"mismatched checksum ({len(raw)} bytes, ID {raw[2] if len(raw) > 2 else '?'})")
+        elif kind == "bad_length":
+            self.log.add(t, "bad_length", "invalid packet length")
+        else:
+            self.log.add(t, "truncated", "truncated packet ({} bytes)", None, len(raw))
+
+    # ------------------------------------------------------------------ bus figures
+
+    @property
+    def crc_errors(self) -> int:
+        return sum(d.problems["checksum"] + d.problems["bad_length"] for d in self.decoders.values())
+
+    def problems(self) -> dict[str, int]:
+        out = {"crc": 0, "bad_length": 0, "truncated": 0}
+        skipped = 0
+        for d in self.decoders.values():
+            out["crc"] += d.problems["checksum"]
+            out["bad_length"] += d.problems["bad_length"]
+            out["truncated"] += d.problems["truncated"]
+            skipped += d.bytes_skipped
+        out["garbage_bytes"] = skipped
+        return out
+
+    def packet_counts(self) -> dict[str, int]:
+        out = {name: self.counts[code] for code, name in self._names.items()}
+        out["status"] = self.statuses
+        unknown = sum(c for code, c in enumerate(self.counts) if code not in self._names)
+        if unknown:
+            out["unknown"] = unknown
+        return out
+
+    @property
+    def duration(self) -> float:
+        if self.t0 is None or self.t_last is None or not self.timestamps:
+            return 0.0
+        return self.t_last - self.t0
+
+    def main_cycle(self) -> Cycle | None:
+        """The most frequent multi-device read: the bus's control cycle."""
+        return max(self.cycles.values(), key=lambda c: c.count, default=None)
+
+    def recent(self, window: float = 1.0) -> tuple[float, int, dict[str, int]] | None:
+        """(seconds, bytes, packets by name) over about the last ``window`` s of bus time, or None."""
+        hist = self.history
+        if not hist or self.t_last is None:
+            return None
+        ref = hist[0]
+        for entry in hist:
+            if self.t_last - entry[0] >= window:
+                ref = entry
+            else:
+                break
+        span = self.t_last - ref[0]
+        if span <= 0:
+            return None
+        now = (self.statuses, *self.counts)
+        delta = [a - b for a, b in zip(now, ref[2], strict=True)]
+        packets = {name: delta[code + 1] for code, name in self._names.items() if delta[code + 1]}
+        if delta[0]:
+            packets["status"] = delta[0]
+        return span, self.bytes - ref[1], packets
+
+    def state_counts(self) -> dict[str, int]:
+        out = {CONNECTED: 0, DISCONNECTED: 0, UNKNOWN: 0}
+        for dev in self.devices.values():
+            out[dev.state] += 1
+        return out
+
+    def models(self) -> dict[str, list[DeviceState]]:
+        """Devices grouped by model name (``<unknown>`` for devices never identified), sorted by ID."""
+        groups: dict[str, list[DeviceState]] = {}
+        for dev_id in sorted(self.devices):
+            dev = self.devices[dev_id]
+            groups.setdefault(dev.model_name, []).append(dev)
+        return dict(sorted(groups.items(), key=lambda kv: (kv[0] == "<unknown>", kv[0])))
+
+
+__all__ = ["Bus1Tracker", "Cycle", "Dialect"]

@@ -1,0 +1,69 @@
+"""The UDP monitor: micro-ROS (XRCE-DDS), RTPS and other datagrams, classified and tracked.
+
+- :mod:`classify`: what one datagram carries (XRCE, RTPS, Vel2d, trace stamps, unknown);
+- :mod:`xrce_state`, :mod:`rtps_state`: sessions, entities, streams, participants, endpoints, topics;
+- :mod:`tracker`: :class:`UdpTracker`, the state machine the monitor feeds;
+- :mod:`summary`: the JSON summary and its printed form;
+- :data:`INSTRUMENT`: the plug-in (``hilbench.instruments`` entry point ``udp``), for the protocols
+  ``udp``, ``xrce-dds`` and ``rtps`` (a bench's agent or FreeRTPS endpoint, a pcap, a UDP relay).
+"""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+from hilbench.errors import UsageError
+from hilbench.monitor.instrument import Instrument
+from hilbench.monitor.udp.tracker import UdpTracker
+
+
+class UdpInstrument(Instrument):
+    """UDP traffic of micro-ROS boards, agents and RTPS nodes as an instrument plug-in."""
+
+    protocol = "udp"
+    aliases = ("xrce-dds", "xrce", "rtps", "micro-ros")
+    title = "UDP traffic (Micro XRCE-DDS, RTPS)"
+    views_path = "hilbench.dashboard.udp_views:VIEW_SET"
+
+    def sniff(self, data: bytes) -> float:
+        from hilbench.protocols import xrce_dds
+
+        if data[:4] == b"RTPS":
+            return 0.9
+        if xrce_dds.looks_like_xrce(data) and (b"XRCE" in data[:16] or data[0] in (0x80, 0x81, 0x00, 0x01)):
+            return 0.6
+        return 0.0
+
+    def add_arguments(self, parser: argparse.ArgumentParser) -> None:
+        g = parser.add_argument_group("UDP (micro-ROS, RTPS)")
+        g.add_argument("--agent-port", type=int, action="append", metavar="PORT",
+                       help="a UDP port where an XRCE agent listens (default 8888; repeatable; agents are also "
+                            "learned from their replies)")
+
+    def tracker_options(self, args: argparse.Namespace) -> dict[str, Any]:
+        ports = getattr(args, "agent_port", None)
+        if ports is None:
+            return {}
+        for p in ports:
+            if not 0 < p < 65536:
+                raise UsageError(f"--agent-port must be 1..65535, got {p}")
+        return {"agent_ports": tuple(ports)}
+
+    def make_tracker(self, *, baud: int | None, timestamps: bool, **options: Any) -> UdpTracker:
+        return UdpTracker(baud=baud, timestamps=timestamps, **options)
+
+    def summary(self, tracker: UdpTracker, *, source: str, timestamps: str | None, errors: int = 50) -> dict:
+        from hilbench.monitor.udp.summary import summary
+
+        return summary(tracker, source=source, protocol=self.protocol, timestamps=timestamps, errors=errors)
+
+    def print_summary(self, report: dict[str, Any], console: Any) -> None:
+        from hilbench.monitor.udp.summary import print_summary
+
+        print_summary(report, console)
+
+
+INSTRUMENT = UdpInstrument()
+
+__all__ = ["INSTRUMENT", "UdpInstrument", "UdpTracker"]

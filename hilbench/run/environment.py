@@ -1,0 +1,129 @@
+"""From bench manifests to the environment a client runs in under ``hilbench run``."""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+from hilbench.errors import BenchError, UsageError
+from hilbench.run.build import ShimBuildError, shim_library
+
+#: What ``HILBENCH_RUN_SHIM`` / ``--shim`` accept.
+SHIMS = ("auto", "c", "python")
+
+
+@dataclass
+class BenchLines:
+    """A running bench's line server as its manifest lists it: the socket and the ptys by endpoint."""
+
+    manifest: str
+    socket: str
+    ports: dict[str, dict[str, Any]] = field(default_factory=dict)
+
+    @property
+    def rdevs(self) -> list[int]:
+        return [int(p["rdev"]) for p in self.ports.values()]
+
+
+def manifest_paths(given: Iterable[str] | None, environ: Mapping[str, str] | None = None) -> list[str]:
+    """``--manifest`` values, else ``$HILBENCH_MANIFEST`` (several joined with ``:``); raises UsageError."""
+    paths = [p for p in (given or []) if p]
+    if not paths:
+        env = (os.environ if environ is None else environ).get("HILBENCH_MANIFEST", "")
+        paths = [p for p in env.split(os.pathsep) if p]
+    if not paths:
+        raise UsageError("no bench given: --manifest FILE (what `hilbench emulate --manifest FILE` writes) "
+                         "or HILBENCH_MANIFEST=FILE")
+    return paths
+
+
+def read_bench(manifest: str | os.PathLike[str] | Mapping[str, Any], *, check: bool = True) -> BenchLines:
+    """The line server of the bench a manifest (a file, or its parsed content) describes.
+
+    With ``check``, the bench must answer on its socket. Raises :class:`BenchError`
+    (not running, no line server) or :class:`UsageError` (not a manifest).
+    """
+    if isinstance(manifest, Mapping):
+        data, name = manifest, str(manifest.get("manifest_path") or "the manifest")
+    else:
+        name = str(manifest)
+        try:
+            data = json.loads(Path(manifest).read_text())
+        except FileNotFoundError:
+            raise BenchError(f"{name}: no such manifest; is the bench running "
+                             f"(`hilbench emulate --manifest {name}`)?") from None
+        except (OSError, ValueError) as exc:
+            raise UsageError(f"{name}: not a bench manifest ({exc})") from None
+    if not isinstance(data, Mapping) or "endpoints" not in data:
+        raise UsageError(f"{name}: not a bench manifest (no 'endpoints')")
+    lines = data.get("lines")
+    if not isinstance(lines, Mapping) or not isinstance(lines.get("socket"), str):
+        raise BenchError(f"{name}: the bench serves no modem lines (no 'lines' entry: no pty endpoint, "
+                         "or a hilbench older than `hilbench run`)")
+    bench = BenchLines(name, lines["socket"], dict(lines.get("ports") or {}))
+    if check and not ping(bench.socket):
+        pid = data.get("pid")
+        raise BenchError(f"{name}: the bench (pid {pid}) does not answer on {bench.socket}; is it still running?")
+    return bench
+
+
+def ping(path: str, timeout: float = 2.0) -> bool:
+    """Whether a line server answers on ``path``."""
+    try:
+        with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as s:
+            s.settimeout(timeout)
+            s.connect(path)
+            s.sendall(b"0 ping\n")
+            return s.recv(64).startswith(b"ok")
+    except OSError:
+        return False
+
+
+def ports_value(benches: Iterable[BenchLines]) -> str:
+    """``HILBENCH_RUN_PORTS``: ``RDEV=SOCKET`` for every served pty, joined with ``;``."""
+    return ";".join(f"{rdev}={b.socket}" for b in benches for rdev in b.rdevs)
+
+
+def python_site_dir() -> str:
+    """The directory whose ``sitecustomize`` loads the pyserial fallback."""
+    return str(resources.files("hilbench.run").joinpath("site"))
+
+
+def run_environment(benches: Iterable[BenchLines], shim: str = "auto",
+                    environ: Mapping[str, str] | None = None) -> tuple[dict[str, str], list[str]]:
+    """The environment for a client of ``benches`` and notes for the user (a fallback taken).
+
+    ``shim``: ``c`` (the preload library, built on first use; raises
+    :class:`ShimBuildError` without a compiler), ``python`` (the pyserial
+    fallback alone), ``auto`` (c, else python with a note).
+    """
+    if shim not in SHIMS:
+        raise UsageError(f"unknown shim {shim!r}; expected one of {', '.join(SHIMS)}")
+    env = dict(os.environ if environ is None else environ)
+    env["HILBENCH_RUN_PORTS"] = ports_value(benches)
+    notes: list[str] = []
+    library = None
+    if shim in ("auto", "c"):
+        try:
+            library = shim_library()
+        except ShimBuildError as exc:
+            if shim == "c":
+                raise
+            notes.append(f"{exc}; pyserial clients get the Python fallback, compiled programs see a plain pty")
+    if library is not None:
+        env["LD_PRELOAD"] = ":".join(p for p in (str(library), env.get("LD_PRELOAD", "")) if p)
+        env["HILBENCH_RUN"] = "c"
+    else:
+        env["PYTHONPATH"] = os.pathsep.join(p for p in (python_site_dir(), env.get("PYTHONPATH", "")) if p)
+        env["HILBENCH_RUN"] = "python"
+    return env, notes
+
+
+__all__ = ["SHIMS", "BenchLines", "manifest_paths", "ping", "ports_value", "python_site_dir", "read_bench",
+           "run_environment"]

@@ -1,0 +1,1 @@
+"""Built-in servers (``hilbench emulate --serve NAME``); see :mod:`hilbench.bench.server`."""

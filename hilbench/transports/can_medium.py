@@ -1,0 +1,519 @@
+"""An emulated CAN bus: arbitration by identifier, bit-time pacing, error frames, bus-off and bus load.
+
+Parties are in-process devices (``on_frame(frame, t)``; they send through the
+:class:`CanDevicePort` :meth:`CanMedium.add_device` returns) and CAN host ports
+(:mod:`hilbench.transports.can_port`: socketcand, SLCAN, SocketCAN and
+python-can ``virtual`` doors), whose every client is a sender of its own. A
+frame reaches every party but its sender (as SocketCAN does with
+``CAN_RAW_RECV_OWN_MSGS`` off), and every tap as ``(t, sender, 16 bytes of
+struct can_frame)`` (:mod:`hilbench.protocols.can_frame`).
+
+Timing. Unpaced (the default), a frame is delivered when it is sent. Paced,
+the bus models a real one: each sender has a transmit queue (FIFO, like a
+SocketCAN qdisc); whenever the bus falls idle the queue heads arbitrate and
+the lowest identifier wins (:func:`~hilbench.protocols.can_frame.arbitration_key`);
+the winner occupies the bus for its exact stuffed bit count plus the
+interframe space at the bitrate, and is delivered when its last bit is on
+the wire. Queueing delay, arbitration order and bus load then come out as on
+the real bus.
+
+Faults (:meth:`CanMedium.set_faults`). ``error_rate`` destroys that share of
+transmission attempts and ``error_next`` the next N: receivers signal an error
+frame (reported to every party as a SocketCAN error frame), the sender's
+transmit error counter (TEC) rises by 8 and the controller retransmits, as
+CAN controllers do. A successful transmission lowers the TEC by 1. At TEC 128
+the sender is error passive, above 255 it is bus-off: its queue is dropped
+and it sends nothing until it recovers after 128 x 11 recessive bits
+(``auto_recover``), when its TEC is 0 again. :meth:`CanMedium.force_bus_off`
+puts one sender there at once. Devices with ``on_bus_state(state, t)`` hear
+their own controller's state changes (``active``, ``passive``, ``bus-off``,
+``recovered``).
+"""
+
+from __future__ import annotations
+
+import collections
+import contextlib
+import heapq
+import itertools
+import logging
+import os
+import random
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+from hilbench.protocols import can_frame as cf
+from hilbench.protocols.can_frame import CanFrame
+from hilbench.transports.clock import reduce_timer_slack, wait
+from hilbench.transports.medium import DevicePort, Medium
+
+log = logging.getLogger(__name__)
+
+DEFAULT_BITRATE = 500_000
+#: Recessive bit sequences a bus-off controller must see before it may transmit again.
+BUS_OFF_RECOVERY_BITS = 128 * 11
+ERROR_PASSIVE = 128
+BUS_OFF = 256
+#: Frames a sender's transmit queue holds (paced); beyond, new frames are dropped and counted.
+TX_QUEUE_LIMIT = 4096
+#: Seconds of history the bus load figure covers.
+LOAD_WINDOW = 1.0
+
+FAULT_KEYS = {"error_rate": (0.0, 1.0), "error_next": (0, 1 << 31), "auto_recover": (False, True)}
+
+
+class CanDevice(Protocol):
+    """An in-process party on a CAN medium."""
+
+    name: str
+
+    def on_frame(self, frame: CanFrame, t: float) -> None:
+        """A frame (or an error frame) another party put on the bus, complete at time ``t``."""
+
+
+class CanDevicePort(DevicePort):
+    """What a device holds to send frames on its CAN medium."""
+
+    def send(self, frame: CanFrame, t: float | None = None) -> None:
+        """Queue ``frame`` for transmission (not before ``t``); thread-safe."""
+        self._medium.send(self.name, frame, t)
+
+    def transmit(self, data: bytes, t: float | None = None, gap: float = 0.0, baud: int | None = None) -> float:
+        """Send frames given as 16-byte SocketCAN records (the generic :class:`DevicePort` form)."""
+        frames, _ = cf.split(data)
+        at = None if t is None else t + gap
+        for frame in frames:
+            self._medium.send(self.name, frame, at)
+        return time.monotonic() if at is None else at
+
+    @property
+    def state(self) -> str:
+        """This device's controller state: ``active``, ``passive`` or ``bus-off``."""
+        return self._medium.controller_state(self.name)
+
+
+@dataclass
+class BusStats:
+    """Counters of the bus."""
+
+    frames: int = 0
+    error_frames: int = 0
+    bits: int = 0
+    attempts_failed: int = 0
+    dropped_bus_off: int = 0
+    dropped_queue_full: int = 0
+    callback_errors: int = 0
+    by_source: dict[str, int] = field(default_factory=dict)
+
+
+class CanMedium(Medium):
+    """One CAN bus at ``baud`` bit/s (default 500 kbit/s); see the module docstring."""
+
+    kind = "can"
+
+    def __init__(self, name: str, baud: int | None = None, *, paced: bool = False, seed: int | None = None) -> None:
+        super().__init__(name, baud or DEFAULT_BITRATE, paced=paced)
+        self.stats = BusStats()
+        self.rng = random.Random(seed)
+        self.faults: dict[str, Any] = {"error_rate": 0.0, "error_next": 0, "auto_recover": True}
+        self.tec: dict[str, int] = {}
+        self._bus_off: set[str] = set()
+        self._queues: dict[str, collections.deque[CanFrame]] = {}
+        self._busy_until = 0.0
+        self._arbitrating = False
+        self._load: collections.deque[tuple[float, int]] = collections.deque()
+        self._load_bits = 0
+        self._events: list[tuple[float, int, Callable[[], None]]] = []
+        self._seq = itertools.count()
+        # One mapping from the bus clock (time.monotonic) to Unix time, so wire stamps never jump.
+        self.wall_offset = time.time() - time.monotonic()
+        self._wake_r, self._wake_w = os.pipe()
+        os.set_blocking(self._wake_r, False)
+        os.set_blocking(self._wake_w, False)
+        self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+
+    @property
+    def bitrate(self) -> int:
+        return int(self.baud or DEFAULT_BITRATE)
+
+    def wall(self, t: float) -> float:
+        """Unix time of bus time ``t`` (what socketcand stamps frames with)."""
+        return t + self.wall_offset
+
+    # ------------------------------------------------------------------ wiring
+
+    def add_device(self, device: Any) -> CanDevicePort:
+        """Attach an in-process device (``on_frame``); it sends through the returned port."""
+        with self._lock:
+            self._devices.append(device)
+        return CanDevicePort(self, device.name)
+
+    def add_host(self, port: Any, *, listen_only: bool = False) -> None:
+        """Attach a CAN host port (``filenos``, ``read_frames``, ``write_frames``, ``flush``, ``poll``)."""
+        super().add_host(port, listen_only=listen_only)
+        attach = getattr(port, "attach", None)
+        if attach is not None:
+            attach(self)
+        self._wake()
+
+    # ------------------------------------------------------------------ faults and state
+
+    def set_faults(self, **knobs: Any) -> dict[str, Any]:
+        """Turn fault knobs (``error_rate`` 0..1, ``error_next`` N, ``auto_recover``); returns them all."""
+        for key, value in knobs.items():
+            if key not in FAULT_KEYS:
+                raise ValueError(f"unknown bus fault {key!r} (expected one of: {', '.join(FAULT_KEYS)})")
+            if key == "auto_recover":
+                value = bool(value)
+            else:
+                lo, hi = FAULT_KEYS[key]
+                if isinstance(value, bool) or not isinstance(value, int | float) or not lo <= value <= hi:
+                    raise ValueError(f"bus fault {key}: expected {lo}..{hi}, got {value!r}")
+            with self._lock:
+                self.faults[key] = value
+        return dict(self.faults)
+
+    def controller_state(self, source: str) -> str:
+        """``active``, ``passive`` or ``bus-off`` for a sender's controller."""
+        if source in self._bus_off:
+            return "bus-off"
+        return "passive" if self.tec.get(source, 0) >= ERROR_PASSIVE else "active"
+
+    def force_bus_off(self, source: str) -> None:
+        """Put ``source``'s controller into bus-off now (as after 32 failed attempts)."""
+        self.call_at(None, lambda: self._enter_bus_off(source, time.monotonic()))
+
+    def recover(self, source: str) -> None:
+        """Restart a bus-off controller now (what ``ip link set canX type can restart`` does)."""
+        self.call_at(None, lambda: self._recover(source, time.monotonic()))
+
+    def load(self, window: float = LOAD_WINDOW, now: float | None = None) -> float:
+        """Share of the last ``window`` seconds the bus was busy (bits sent / bits possible)."""
+        now = time.monotonic() if now is None else now
+        with self._lock:
+            bits = sum(b for t, b in self._load if t > now - window)
+        return bits / (self.bitrate * window)
+
+    def status(self) -> dict[str, Any]:
+        """The bus's figures for the manifest and the control channel (safe from any thread)."""
+        s = self.stats
+        tec, off = dict(self.tec), set(self._bus_off)  # copies: the bus thread changes them
+        return {"bitrate": self.bitrate, "paced": self.paced, "frames": s.frames, "error_frames": s.error_frames,
+                "failed_attempts": s.attempts_failed, "dropped_bus_off": s.dropped_bus_off,
+                "dropped_queue_full": s.dropped_queue_full, "load": round(self.load(), 4),
+                "faults": dict(self.faults),
+                "controllers": {src: {"tec": tec.get(src, 0),
+                                      "state": "bus-off" if src in off else
+                                      "passive" if tec.get(src, 0) >= ERROR_PASSIVE else "active"}
+                                for src in sorted(set(tec) | off)}}
+
+    # ------------------------------------------------------------------ sending
+
+    def send(self, source: str, frame: CanFrame, t: float | None = None) -> None:
+        """Put ``frame`` from ``source`` on the bus (not before ``t``); thread-safe."""
+        in_thread = threading.current_thread() is self._thread
+        if t is None and in_thread:
+            self._submit(source, frame, time.monotonic())
+            return
+        with self._lock:
+            at = time.monotonic() if t is None else t
+            self._push(at, lambda: self._submit(source, frame, max(at, time.monotonic())))
+        if not in_thread:
+            self._wake()
+
+    def transmit(self, source: str, data: bytes, *, t: float | None = None, gap: float = 0.0,
+                 baud: int | None = None) -> float:
+        """Send 16-byte SocketCAN records (the generic medium form); returns when they were queued."""
+        frames, _ = cf.split(bytes(data))
+        at = None if t is None else t + gap
+        for frame in frames:
+            self.send(source, frame, at)
+        return time.monotonic() if at is None else at
+
+    def call_at(self, t: float | None, fn: Callable[[], None]) -> None:
+        """Run ``fn`` in the bus thread at time ``t`` (None: at once); thread-safe."""
+        with self._lock:
+            self._push(time.monotonic() if t is None else t, fn)
+        if threading.current_thread() is not self._thread:
+            self._wake()
+
+    def _push(self, t: float, fn: Callable[[], None]) -> None:
+        heapq.heappush(self._events, (t, next(self._seq), fn))
+
+    def _submit(self, source: str, frame: CanFrame, now: float) -> None:
+        if source in self._bus_off:
+            self.stats.dropped_bus_off += 1
+            return
+        if not self.paced:
+            self._attempt_unpaced(source, frame, now)
+            return
+        queue = self._queues.get(source)
+        if queue is None:
+            queue = self._queues[source] = collections.deque()
+        if len(queue) >= TX_QUEUE_LIMIT:
+            self.stats.dropped_queue_full += 1
+            return
+        queue.append(frame)
+        if not self._arbitrating:
+            self._arbitrating = True
+            start = max(now, self._busy_until)
+            with self._lock:
+                self._push(start, lambda: self._arbitrate(start))
+
+    def _fails(self) -> bool:
+        """Whether the fault knobs destroy this transmission attempt (called in the bus thread)."""
+        f = self.faults
+        if f["error_next"] > 0:
+            f["error_next"] -= 1
+            return True
+        rate = f["error_rate"]
+        return rate > 0 and self.rng.random() < rate
+
+    def _attempt_unpaced(self, source: str, frame: CanFrame, now: float) -> None:
+        bits = cf.frame_bits(frame)
+        while self._fails():
+            self._count_bits(now, bits // 2 + cf.ERROR_FRAME_BITS)
+            self._error(source, now)
+            if source in self._bus_off:
+                self.stats.dropped_bus_off += 1
+                return
+        self._count_bits(now, bits)
+        self._success(source)
+        self._deliver(source, frame, now)
+
+    def _arbitrate(self, t: float) -> None:
+        """Contention at bus time ``t`` (the end of the previous frame, or when a frame found the bus idle)."""
+        start = max(t, self._busy_until)
+        best = None
+        for src, queue in self._queues.items():
+            if queue and src not in self._bus_off:
+                key = cf.arbitration_key(queue[0])
+                if best is None or key < best[0]:
+                    best = (key, src)
+        if best is None:
+            self._arbitrating = False
+            return
+        source = best[1]
+        frame = self._queues[source][0]
+        bits = cf.frame_bits(frame)
+        if self._fails():
+            # Receivers flag the error somewhere in the frame; the sender retries after the error frame.
+            used = self.rng.randint(14, max(14, bits - cf.TRAILER_BITS)) + cf.ERROR_FRAME_BITS
+            end = start + used / self.bitrate
+            self._busy_until = end
+            self._count_bits(end, used)
+
+            def failed() -> None:
+                self._error(source, end)
+                self._arbitrate(end)
+
+            with self._lock:
+                self._push(end, failed)
+            return
+        self._queues[source].popleft()
+        end = start + bits / self.bitrate
+        self._busy_until = end
+        self._count_bits(end, bits)
+
+        def done() -> None:
+            self._success(source)
+            self._deliver(source, frame, end)
+            self._arbitrate(end)
+
+        with self._lock:
+            self._push(end, done)
+
+    def _count_bits(self, t: float, bits: int) -> None:
+        self.stats.bits += bits
+        with self._lock:
+            self._load.append((t, bits))
+            while self._load and self._load[0][0] < t - 10 * LOAD_WINDOW:
+                self._load.popleft()
+
+    # ------------------------------------------------------------------ error confinement
+
+    def _success(self, source: str) -> None:
+        tec = self.tec.get(source, 0)
+        if tec:
+            self.tec[source] = tec - 1
+            if tec == ERROR_PASSIVE:  # back below the passive threshold
+                self._state_change(source, "active", time.monotonic())
+
+    def _error(self, source: str, t: float) -> None:
+        self.stats.attempts_failed += 1
+        before = self.tec.get(source, 0)
+        tec = self.tec[source] = before + 8
+        data = bytearray(8)
+        data[2] = cf.CAN_ERR_PROT_TX
+        data[3] = cf.CAN_ERR_PROT_LOC_CRC_SEQ
+        data[6] = min(tec, 255)
+        self._deliver_error(cf.CAN_ERR_PROT | cf.CAN_ERR_BUSERROR | cf.CAN_ERR_CNT, bytes(data), t)
+        if tec >= BUS_OFF:
+            self._enter_bus_off(source, t)
+        elif before < ERROR_PASSIVE <= tec:
+            data = bytearray(8)
+            data[1] = cf.CAN_ERR_CRTL_TX_PASSIVE
+            data[6] = tec
+            self._deliver_error(cf.CAN_ERR_CRTL | cf.CAN_ERR_CNT, bytes(data), t)
+            self._state_change(source, "passive", t)
+
+    def _enter_bus_off(self, source: str, t: float) -> None:
+        if source in self._bus_off:
+            return
+        self._bus_off.add(source)
+        self.tec[source] = max(self.tec.get(source, 0), BUS_OFF)
+        queue = self._queues.get(source)
+        if queue:
+            self.stats.dropped_bus_off += len(queue)
+            queue.clear()
+        self._deliver_error(cf.CAN_ERR_BUSOFF, bytes(8), t)
+        self._state_change(source, "bus-off", t)
+        if self.faults["auto_recover"]:
+            at = t + BUS_OFF_RECOVERY_BITS / self.bitrate
+            with self._lock:
+                self._push(at, lambda: self._recover(source, at))
+
+    def _recover(self, source: str, t: float) -> None:
+        if source not in self._bus_off:
+            return
+        self._bus_off.discard(source)
+        self.tec[source] = 0
+        self._deliver_error(cf.CAN_ERR_RESTARTED, bytes(8), t)
+        self._state_change(source, "recovered", t)
+
+    def _state_change(self, source: str, state: str, t: float) -> None:
+        for device in self._devices:
+            if device.name == source:
+                handler = getattr(device, "on_bus_state", None)
+                if handler is not None:
+                    try:
+                        handler(state, t)
+                    except Exception:
+                        self.stats.callback_errors += 1
+                        log.exception("device %s failed on bus state %s", device.name, state)
+
+    # ------------------------------------------------------------------ delivery
+
+    def _deliver_error(self, error_class: int, data: bytes, t: float) -> None:
+        self.stats.error_frames += 1
+        self._deliver("bus", cf.error_frame(error_class, data), t)
+
+    def _deliver(self, source: str, frame: CanFrame, t: float) -> None:
+        stats = self.stats
+        if not frame.error:
+            stats.frames += 1
+            stats.by_source[source] = stats.by_source.get(source, 0) + 1
+        for port, _listen_only in self._hosts:
+            try:
+                port.write_frame(t, source, frame)
+            except Exception:
+                stats.callback_errors += 1
+                log.exception("host port %s failed on a frame", getattr(port, "name", port))
+        for device in self._devices:
+            if device.name != source:
+                try:
+                    device.on_frame(frame, t)
+                except Exception:  # one faulty device must not stop the bus
+                    stats.callback_errors += 1
+                    log.exception("device %s failed on frame %s", device.name, frame)
+        if self._taps:
+            record = cf.pack(frame)
+            for tap in self._taps:
+                try:
+                    tap(t, source, record)
+                except Exception:
+                    stats.callback_errors += 1
+                    log.exception("tap failed")
+
+    # ------------------------------------------------------------------ running
+
+    def start(self) -> None:
+        """Run the bus in a background thread."""
+        if self._thread is not None:
+            return
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._run, name=f"can-{self.name}", daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        """Stop the bus thread (host ports stay open; close them separately)."""
+        self._stop.set()
+        self._wake()
+        if self._thread is not None:
+            self._thread.join(timeout=5)
+            self._thread = None
+
+    def wake(self) -> None:
+        """Make the bus thread look at its host ports again (a port opened a door)."""
+        self._wake()
+
+    def _wake(self) -> None:
+        with contextlib.suppress(BlockingIOError, OSError):
+            os.write(self._wake_w, b"x")
+
+    def _run(self) -> None:
+        if self.paced:
+            reduce_timer_slack()
+        while not self._stop.is_set():
+            with self._lock:
+                deadline = self._events[0][0] if self._events else None
+                hosts = list(self._hosts)
+            fds = [self._wake_r]
+            for port, _ in hosts:
+                fds.extend(port.filenos())
+                d = port.deadline()
+                if d is not None and (deadline is None or d < deadline):
+                    deadline = d
+            ready = wait(fds, deadline, precise=self.paced)
+            now = time.monotonic()
+            if ready:
+                if self._wake_r in ready:
+                    with contextlib.suppress(BlockingIOError):
+                        os.read(self._wake_r, 4096)
+            for port, listen_only in hosts:
+                try:
+                    if ready and any(fd in ready for fd in port.filenos()):
+                        frames = port.read_frames(now)
+                    else:
+                        frames = []
+                    frames += port.poll(now)
+                except Exception:
+                    self.stats.callback_errors += 1
+                    log.exception("host port %s failed", getattr(port, "name", port))
+                    continue
+                if not listen_only:
+                    for src, frame in frames:
+                        self._submit(src, frame, now)
+            self._run_due()
+            for port, _ in hosts:
+                try:
+                    port.flush()
+                except Exception:
+                    self.stats.callback_errors += 1
+                    log.exception("host port %s failed to flush", getattr(port, "name", port))
+
+    def _run_due(self) -> None:
+        while True:
+            with self._lock:
+                if not self._events or self._events[0][0] > time.monotonic():
+                    return
+                _, _, fn = heapq.heappop(self._events)
+            try:
+                fn()
+            except Exception:
+                self.stats.callback_errors += 1
+                log.exception("bus event failed")
+
+    def close(self) -> None:
+        """Stop the bus and release its wake-up pipe."""
+        self.stop()
+        for fd in (self._wake_r, self._wake_w):
+            with contextlib.suppress(OSError):
+                os.close(fd)
+
+
+__all__ = ["DEFAULT_BITRATE", "BusStats", "CanDevice", "CanDevicePort", "CanMedium"]

@@ -1,0 +1,254 @@
+"""CAN sources: live buses through python-can (socketcand, SLCAN, SocketCAN, virtual) and python-can log files.
+
+Every CAN source yields chunks of 16-byte SocketCAN frame records
+(:mod:`hilbench.protocols.can_frame`) and says ``protocol = "can"``, so the
+monitor, the recorder and captures treat them like any other source.
+
+=============================================  ======================================================
+source string                                  what it opens
+=============================================  ======================================================
+``socketcand://HOST:PORT/CHANNEL[?bitrate=N]``  a socketcand server (a bench's, or the linux-can daemon)
+``slcan:///dev/ttyACM0[?bitrate=N]``            a LAWICEL adapter (or a bench's SLCAN pty); also
+                                               ``slcan://socket://HOST:PORT``
+``socketcan://vcan0``                          a kernel CAN interface (where the kernel has AF_CAN)
+``virtual://CHANNEL``                          a python-can virtual channel in this process
+``run.asc``, ``run.blf``, ``run.trc``,         python-can's log readers (a ``.log`` that is not candump
+``run.log`` (candump ``-L``)                   text is read as any other file)
+=============================================  ======================================================
+
+Live buses stamp frames with Unix time (what socketcand and python-can give);
+``bitrate`` only tells the monitor the bus load's reference.
+"""
+
+from __future__ import annotations
+
+import re
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+from urllib.parse import parse_qs, urlparse
+
+from hilbench.protocols import can_frame as cf
+from hilbench.transports.capture_file import Chunk
+from hilbench.transports.sources.base import PushSource, Source, SourceError, SourceOpener
+
+#: python-can log formats read by suffix.
+LOG_SUFFIXES = (".asc", ".blf", ".trc", ".log")
+_CANDUMP = re.compile(r"^\(\d+(\.\d+)?\)\s+\S+\s+[0-9A-Fa-f]{1,8}#")
+
+
+def _query_int(query: dict[str, list[str]], key: str, spec: str) -> int | None:
+    if key not in query:
+        return None
+    try:
+        return int(query[key][0], 0)
+    except ValueError:
+        raise SourceError(f"{spec}: {key} must be an integer, got {query[key][0]!r}") from None
+
+
+def open_bus(spec: str) -> tuple[Any, str, int | None]:
+    """A python-can bus for a CAN source string, its channel name and the bitrate the string gives.
+
+    Raises :class:`SourceError` in one line (unknown scheme, no server, no AF_CAN, ...).
+    """
+    import can
+
+    url = urlparse(spec)
+    query = parse_qs(url.query)
+    bitrate = _query_int(query, "bitrate", spec)
+    scheme = url.scheme
+    try:
+        if scheme == "socketcand":
+            channel = url.path.strip("/") or "can0"
+            if not url.hostname or not url.port:
+                raise SourceError(f"{spec}: expected socketcand://HOST:PORT/CHANNEL")
+            import socket
+
+            try:  # python-can retries a refused connection for 10 s; say at once when nothing listens
+                socket.create_connection((url.hostname, url.port), timeout=2).close()
+            except OSError as exc:
+                raise SourceError(f"{spec}: no socketcand server there ({exc.strerror or exc})") from None
+            bus = can.Bus(interface="socketcand", host=url.hostname, port=url.port, channel=channel)
+            return bus, channel, bitrate
+        if scheme == "slcan":
+            target = spec[len("slcan://"):].split("?", 1)[0]
+            if not target:
+                raise SourceError(f"{spec}: expected slcan:///dev/PORT or slcan://socket://HOST:PORT")
+            kwargs: dict[str, Any] = {"sleep_after_open": 0}
+            if bitrate:
+                kwargs["bitrate"] = bitrate
+            tty = _query_int(query, "tty_baudrate", spec)
+            if tty:
+                kwargs["tty_baudrate"] = tty
+            bus = can.Bus(interface="slcan", channel=target, **kwargs)
+            return bus, target, bitrate
+        if scheme == "socketcan":
+            channel = url.netloc or url.path.strip("/")
+            from hilbench.transports.socketcan import af_can_status
+
+            ok, why = af_can_status()
+            if not ok:
+                raise SourceError(f"{spec}: {why}")
+            return can.Bus(interface="socketcan", channel=channel), channel, bitrate
+        if scheme == "virtual":
+            channel = url.netloc or url.path.strip("/")
+            return can.Bus(interface="virtual", channel=channel), channel, bitrate
+    except SourceError:
+        raise
+    except (can.CanError, OSError, ValueError) as exc:
+        text = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise SourceError(f"{spec}: {text}") from None
+    raise SourceError(f"{spec}: not a CAN bus URL (socketcand://, slcan://, socketcan://, virtual://)")
+
+
+class CanBusSource(PushSource):
+    """A live CAN bus through python-can: a thread receives frames and queues them (bounded)."""
+
+    protocol = "can"
+    live = True
+
+    def __init__(self, spec: str, *, baud: int | None = None) -> None:
+        bus, channel, bitrate = open_bus(spec)
+        super().__init__(spec, baud=baud or bitrate)
+        self.bus = bus
+        self.channel = channel
+        self.wall_offset = 0.0  # frames carry Unix time already
+        self.errors: list[str] = []
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name=f"can-source-{channel}", daemon=True)
+        self._thread.start()
+
+    def clock(self) -> float | None:
+        return time.time()
+
+    def _run(self) -> None:
+        from hilbench.transports.can_messages import to_frame
+
+        while not self._stop.is_set():
+            try:
+                msg = self.bus.recv(0.2)
+            except Exception as exc:  # the bus went away: end the source, say why
+                if not self._stop.is_set():
+                    self.errors.append(str(exc).splitlines()[0] if str(exc) else type(exc).__name__)
+                break
+            if msg is None:
+                continue
+            frame = to_frame(msg)
+            if frame is None:
+                continue
+            t = msg.timestamp or time.time()
+            self.push(t, self.channel if msg.is_rx else f"{self.channel} tx", cf.pack(frame))
+        self.end()
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=2)
+        try:
+            self.bus.shutdown()
+        except Exception:  # shutting down a broken bus must not hide why it broke
+            pass
+        super().close()
+
+
+class CanLogSource(Source):
+    """A python-can log file (ASC, BLF, TRC, candump ``.log``), replayed fast or at recorded speed."""
+
+    protocol = "can"
+    live = False
+    timestamps = "measured"
+
+    def __init__(self, path: str, *, baud: int | None = None, speed: float | None = None) -> None:
+        import can
+
+        if not Path(path).exists():
+            raise SourceError(f"{path}: no such file")
+        if speed is not None and speed <= 0:
+            raise SourceError(f"replay speed must be positive, got {speed}")
+        self.name = path
+        self.baud = baud
+        self.speed = speed
+        self.wall_offset = 0.0
+        try:
+            self.reader = can.LogReader(path)
+        except Exception as exc:
+            raise SourceError(f"{path}: python-can cannot read it: {exc}") from None
+        self._stop = threading.Event()
+        self._origin: tuple[float, float] | None = None
+
+    def clock(self) -> float | None:
+        if self.speed is None or self._origin is None:
+            return None
+        t_log, t_mono = self._origin
+        return t_log + (time.monotonic() - t_mono) * self.speed
+
+    def chunks(self, idle: float | None = None) -> Iterator[Chunk | None]:
+        from hilbench.transports.can_messages import to_frame
+
+        stop = self._stop
+        try:
+            for msg in self.reader:
+                if stop.is_set():
+                    return
+                frame = to_frame(msg)
+                if frame is None:
+                    continue
+                t = float(msg.timestamp)
+                if self.speed is not None:
+                    if self._origin is None:
+                        self._origin = (t, time.monotonic())
+                    due = self._origin[1] + (t - self._origin[0]) / self.speed
+                    while (wait := due - time.monotonic()) > 0:
+                        if idle is not None and wait > idle:
+                            if stop.wait(idle):
+                                return
+                            yield None
+                        elif stop.wait(wait):
+                            return
+                channel = msg.channel if msg.channel is not None else "can"
+                yield Chunk(t, f"{channel}" if msg.is_rx else f"{channel} tx", cf.pack(frame))
+        except (ValueError, OSError, EOFError, IndexError, KeyError) as exc:  # a corrupt or truncated log
+            raise SourceError(f"{self.name}: {type(exc).__name__}: {exc}") from None
+
+    def close(self) -> None:
+        self._stop.set()
+        stop = getattr(self.reader, "stop", None)
+        if stop is not None:
+            try:
+                stop()
+            except Exception:
+                pass
+
+
+def _is_candump(path: str) -> bool:
+    try:
+        with open(path, encoding="ascii", errors="replace") as fh:
+            for line in fh:
+                if line.strip():
+                    return bool(_CANDUMP.match(line.strip()))
+    except OSError:
+        return False
+    return False
+
+
+def open_can_bus(spec: str, target: str, fragment: str, *, baud: int | None = None, **_: object) -> Source:
+    return CanBusSource(spec, baud=baud)
+
+
+def open_can_log(spec: str, target: str, fragment: str, *, baud: int | None = None, speed: float | None = None,
+                 **options: object) -> Source:
+    if Path(target).suffix.lower() == ".log" and not _is_candump(target):
+        from hilbench.transports.sources.file import open_file
+
+        return open_file(spec, target, fragment, baud=baud, speed=speed)
+    return CanLogSource(target, baud=baud, speed=speed)
+
+
+CAN_BUS = SourceOpener("can-bus", open_can_bus, schemes=("socketcand", "slcan", "socketcan", "virtual"),
+                       usage="socketcand://127.0.0.1:PORT/can0, slcan:///dev/ttyACM0, socketcan://vcan0",
+                       what="a live CAN bus through python-can (add ?bitrate=N for the bus load)")
+CAN_LOG = SourceOpener("can-log", open_can_log, suffixes=LOG_SUFFIXES, usage="run.asc, run.blf, run.trc, run.log",
+                       what="a python-can log file (Vector ASC/BLF, PEAK TRC, candump -L)")
+
+__all__ = ["CAN_BUS", "CAN_LOG", "CanBusSource", "CanLogSource", "open_bus"]

@@ -1,0 +1,157 @@
+"""eProsima's Micro XRCE-DDS client examples, unmodified, against hilbench's agent on 127.0.0.1.
+
+The client library is not on the package index: the set-up builds its examples with
+CMake from source trees named by environment variables, and every test here skips
+with the reason when they are not given:
+
+- ``HILBENCH_XRCE_CLIENT_SRC``: a Micro-XRCE-DDS-Client source tree (e.g. tag v3.0.0);
+- ``HILBENCH_MICROCDR_SRC``: the Micro-CDR tree of the version that client pins (v2.0.1 for
+  client v3.0.0): the client's superbuild would otherwise download it;
+- ``HILBENCH_XRCE_BUILD_DIR`` (optional): where to build (kept between runs; default: a temp dir).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import subprocess
+import time
+from pathlib import Path
+
+import pytest
+
+from hilbench.bench import Bench
+from hilbench.bench.profile import parse_profile
+
+pytestmark = pytest.mark.slow
+
+AGENT = {"schema": 1, "endpoints": {"agent": {"type": "udp", "protocol": "xrce-dds", "port": 0}}}
+
+
+def _build(client: Path, microcdr: Path, build: Path) -> Path:
+    install = build / "install"
+    done = build / "examples.done"
+    if done.exists():
+        return build / "client" / "examples"
+    build.mkdir(parents=True, exist_ok=True)
+    log = build / "build.log"
+    with open(log, "w") as out:
+        def run(*cmd: str) -> None:
+            r = subprocess.run(cmd, stdout=out, stderr=subprocess.STDOUT, timeout=900)
+            if r.returncode:
+                raise RuntimeError(f"{' '.join(cmd[:3])} failed (see {log})")
+
+        run("cmake", "-S", str(microcdr), "-B", str(build / "microcdr"), "-DUCDR_SUPERBUILD=OFF",
+            f"-DCMAKE_INSTALL_PREFIX={install}", "-DCMAKE_BUILD_TYPE=Release")
+        run("cmake", "--build", str(build / "microcdr"), "-j2", "--target", "install")
+        run("cmake", "-S", str(client), "-B", str(build / "client"), "-DUCLIENT_SUPERBUILD=OFF",
+            "-DUCLIENT_BUILD_EXAMPLES=ON", f"-DCMAKE_PREFIX_PATH={install}", f"-DCMAKE_INSTALL_PREFIX={install}",
+            "-DCMAKE_BUILD_TYPE=Release")
+        run("cmake", "--build", str(build / "client"), "-j2")
+    done.touch()
+    return build / "client" / "examples"
+
+
+@pytest.fixture(scope="module")
+def examples(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    client = os.environ.get("HILBENCH_XRCE_CLIENT_SRC")
+    microcdr = os.environ.get("HILBENCH_MICROCDR_SRC")
+    if not client or not microcdr:
+        pytest.skip("set HILBENCH_XRCE_CLIENT_SRC (Micro-XRCE-DDS-Client source) and HILBENCH_MICROCDR_SRC "
+                    "(Micro-CDR source) to build eProsima's client examples")
+    if shutil.which("cmake") is None or shutil.which("cc") is None:
+        pytest.skip("cmake and a C compiler are needed to build the Micro XRCE-DDS client examples")
+    build = Path(os.environ.get("HILBENCH_XRCE_BUILD_DIR") or tmp_path_factory.mktemp("xrce-build"))
+    try:
+        return _build(Path(client), Path(microcdr), build)
+    except (RuntimeError, subprocess.TimeoutExpired) as exc:
+        pytest.fail(f"building the Micro XRCE-DDS client examples: {exc}")
+
+
+@pytest.fixture
+def agent(tmp_path: Path):
+    bench = Bench(parse_profile(AGENT, "agent.toml")).start()
+    yield bench
+    bench.stop()
+
+
+def _exe(examples: Path, name: str) -> str:
+    found = [p for p in (examples / name).iterdir() if p.is_file() and os.access(p, os.X_OK)]
+    assert found, f"no executable in {examples / name}"
+    return str(found[0])
+
+
+def _run(cmd: list[str], timeout: float = 30) -> subprocess.CompletedProcess:
+    return subprocess.run(["stdbuf", "-oL", *cmd] if shutil.which("stdbuf") else cmd, capture_output=True,
+                          text=True, timeout=timeout)
+
+
+def _pub_sub(examples: Path, agent: Bench, pub: str, sub: str, n: int, timeout: float = 30) -> tuple[str, str]:
+    port = str(agent.endpoint().port.address[1])
+    subscriber = subprocess.Popen(["stdbuf", "-oL", _exe(examples, sub), "127.0.0.1", port, str(n)],
+                                  stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        a = agent.agent()
+        # The subscriber is ready once its READ_DATA reached the agent.
+        deadline = time.monotonic() + 10
+        while not any(s.reads for s in a.sessions.values()):
+            assert time.monotonic() < deadline, "the subscriber never asked for data"
+            time.sleep(0.01)
+        published = _run([_exe(examples, pub), "127.0.0.1", port, str(n)], timeout)
+        out, _ = subscriber.communicate(timeout=timeout)
+    finally:
+        if subscriber.poll() is None:
+            subscriber.kill()
+            subscriber.communicate()
+    return published.stdout, out
+
+
+def test_ping_agent_with_and_without_a_session(examples: Path, agent: Bench) -> None:
+    port = str(agent.endpoint().port.address[1])
+    r = _run([str(examples / "PingAgent" / "UDP" / "PingAgentUDP"), "127.0.0.1", port])
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "Agent is up" in r.stdout and "without a session" in r.stdout and "within a session" in r.stdout
+
+
+def test_reliable_publisher_to_subscriber(examples: Path, agent: Bench) -> None:
+    pub, sub = _pub_sub(examples, agent, "PublishHelloWorld", "SubscribeHelloWorld", 5)
+    assert re.findall(r"Send topic: Hello DDS world!, id: (\d+)", pub) == ["1", "2", "3", "4", "5"]
+    assert re.findall(r"Received topic: Hello DDS world!, id: (\d+)", sub)[:5] == ["1", "2", "3", "4", "5"]
+    a = agent.agent()
+    assert a.counters["sessions_created"] == 2 and a.counters["samples_routed"] >= 5
+    assert not a.sessions  # both deleted their sessions
+
+
+def test_best_effort_publisher_to_subscriber(examples: Path, agent: Bench) -> None:
+    pub, sub = _pub_sub(examples, agent, "PublishHelloWorldBestEffort", "SubscribeHelloWorldBestEffort", 5)
+    got = re.findall(r"Received topic: Hello DDS world!, id: (\d+)", sub)
+    assert got and got == sorted(set(got), key=int)  # in order, no duplicates
+
+
+def test_fragmented_samples_both_ways(examples: Path, agent: Bench) -> None:
+    pub, sub = _pub_sub(examples, agent, "PublishBigHelloWorld", "SubscribeBigHelloWorld", 2)
+    assert pub.count("Send topic with size 49999") == 2
+    assert re.findall(r"Received topic with size (\d+), id: (\d+)", sub)[:2] == [("49999", "0"), ("49999", "1")]
+    c = agent.agent().counters
+    assert c["fragments_in"] > 100 and c["fragments_out"] > 100
+
+
+def test_binary_entities_and_a_client_reading_its_own_writer(examples: Path, agent: Bench) -> None:
+    port = str(agent.endpoint().port.address[1])
+    r = _run([_exe(examples, "BinaryEntityCreation"), "127.0.0.1", port, "3"])
+    assert r.returncode == 0, r.stdout
+    assert re.findall(r"Received topic: (\d+)", r.stdout) == ["0", "1", "2"]
+
+
+def test_time_sync(examples: Path, agent: Bench) -> None:
+    port = str(agent.endpoint().port.address[1])
+    proc = subprocess.Popen(["stdbuf", "-oL", _exe(examples, "TimeSync"), "127.0.0.1", port],
+                            stdout=subprocess.PIPE, text=True)
+    try:
+        lines = [proc.stdout.readline() for _ in range(2)]
+    finally:
+        proc.kill()
+        proc.communicate()
+    offsets = [int(m.group(1)) for line in lines if (m := re.search(r"time offset\s+(-?\d+) us", line))]
+    assert len(offsets) == 2 and all(abs(o) < 100_000 for o in offsets)  # same clock: well under 0.1 s

@@ -1,0 +1,117 @@
+"""`hilbench lidar` and `hilbench monitor` on scanners, as a user runs them: `hilbench emulate` in one process,
+the verb in another, through the bench's manifest (ptys, TCP on 127.0.0.1, the control channel for DTR)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from hilbench.pytest_plugin import wait_until
+
+
+def hb(*args: str, timeout: float = 60) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "hilbench.cli", *args], capture_output=True, text=True,
+                          timeout=timeout)
+
+
+@pytest.fixture(scope="module")
+def emulator(tmp_path_factory):
+    path = tmp_path_factory.mktemp("scanners") / "bench.json"
+    proc = subprocess.Popen([sys.executable, "-m", "hilbench.cli", "emulate", "scanners", "--manifest", str(path)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    wait_until(lambda: path.exists() or proc.poll() is not None, timeout=30)
+    assert proc.poll() is None, proc.stderr.read()
+    manifest = json.loads(path.read_text())
+    yield path, manifest
+    proc.terminate()
+    proc.wait(timeout=10)
+    proc.stdout.close()
+    proc.stderr.close()
+
+
+def test_manifest_lists_scanner_endpoints(emulator):
+    _path, m = emulator
+    eps = {e["name"]: e for e in m["endpoints"]}
+    assert {n: e["protocol"] for n, e in eps.items()} == {"lidar": "rplidar", "lms": "sick-lms200", "ust": "scip2",
+                                                          "urg": "scip2"}
+    assert eps["ust"]["host"] == "127.0.0.1" and isinstance(eps["ust"]["port"], int) and eps["ust"]["port"] > 0
+    assert eps["lidar"]["path"].startswith("/dev/pts/")
+    devs = {d["name"]: d for d in m["devices"]}
+    assert devs["lidar"]["pose"] == {"x": 0.5, "y": 0.3, "heading": 0.0} and devs["lidar"]["motor"] == "dtr"
+    assert m["control"]
+
+
+@pytest.mark.parametrize(("endpoint", "protocol", "rate", "points"), [
+    ("lidar", "rplidar", (5.0, 6.0), (330, 390)),
+    ("ust", "scip2", (30.0, 50.0), (1081, 1081)),
+    ("urg", "scip2", (8.0, 12.0), (682, 682)),
+])
+def test_lidar_json_against_the_emulator(emulator, endpoint, protocol, rate, points):
+    path, _ = emulator
+    proc = hb("lidar", f"{path}#{endpoint}", "--scans", "6", "--json")
+    assert proc.returncode == 0, proc.stderr
+    rep = json.loads(proc.stdout)
+    assert rep["protocol"] == protocol and rep["scans"] >= 6 and rep["error_count"] == 0
+    assert rate[0] <= rep["scan_rate_hz"] <= rate[1]
+    # The first RPLIDAR revolution is partial (the head starts at a random phase).
+    assert points[0] * 0.8 <= rep["points_per_scan"] <= points[1]
+
+
+def test_lidar_png_over_the_scene(emulator, tmp_path):
+    path, _ = emulator
+    png = tmp_path / "scan.png"
+    proc = hb("lidar", f"{path}#lms", "--png", str(png), "--lms-baud", "38400")
+    assert proc.returncode == 0, proc.stderr
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 10_000
+    assert "361 points" in proc.stdout
+
+
+def test_lidar_errors_are_one_line(tmp_path):
+    proc = hb("lidar", str(tmp_path / "missing.json"))
+    assert proc.returncode == 2 and proc.stderr.count("\n") == 1 and "not a bench manifest" in proc.stderr
+    proc = hb("lidar", "bench:scanners#nope")
+    assert proc.returncode == 2 and "no endpoint named 'nope'" in proc.stderr
+
+
+def test_monitor_taps_a_scanner_while_lidar_reads_it(emulator):
+    from hilbench.bench.control import ControlClient
+
+    path, manifest = emulator
+    control = ControlClient(manifest["control"])
+    before = control.taps()["urg"]["clients"]
+    mon = subprocess.Popen([sys.executable, "-m", "hilbench.cli", "monitor", f"{path}#urg", "--json",
+                            "--seconds", "6"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    wait_until(lambda: control.taps()["urg"]["clients"] > before, timeout=20)  # the monitor listens
+    reader = hb("lidar", f"{path}#urg", "--scans", "10", "--summary")
+    assert reader.returncode == 0, reader.stderr
+    out, err = mon.communicate(timeout=30)
+    assert mon.returncode == 0, err
+    rep = json.loads(out)
+    assert rep["protocol"] == "scip2" and rep["scans"] >= 8 and rep["checksum_failures"] == 0
+    assert rep["requests"] >= 4 and 8.0 <= rep["scan_rate_hz"] <= 12.0
+    assert rep["device"]["model"] == "URG-04LX"
+
+
+def test_control_channel_turns_scanner_knobs(emulator):
+    from hilbench.bench.control import ControlClient, ControlError
+
+    _path, manifest = emulator
+    c = ControlClient(manifest["control"])
+    assert c.call("scanner_status", device="lidar")["status"]["motor"]["policy"] == "dtr"
+    assert c.call("dtr", device="lidar", dtr=False)["dtr"] is False
+    wait_until(lambda: c.call("scanner_status", device="lidar")["status"]["motor"]["commanded"])
+    c.call("dtr", device="lidar", dtr=True)
+    faults = c.call("scanner_fault", device="urg", knobs={"unstable_next": 2})["faults"]
+    assert faults["unstable_next"] == 2
+    with pytest.raises(ControlError, match="unknown fault knob"):
+        c.call("scanner_fault", device="lms", knobs={"melt": True})
+
+
+def test_mecarover_lidar_sees_the_lab():
+    proc = hb("lidar", "bench:mecarover#lidar", "--scans", "3", "--json")
+    assert proc.returncode == 0, proc.stderr
+    rep = json.loads(proc.stdout)
+    assert rep["protocol"] == "rplidar" and rep["scans"] >= 3 and 5.0 <= rep["scan_rate_hz"] <= 6.0

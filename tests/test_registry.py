@@ -1,0 +1,118 @@
+"""The plug-in registry: built-ins come from entry points, broken plug-ins are skipped with a warning,
+the core knows no family by name, and old import paths still work with a deprecation warning."""
+
+from __future__ import annotations
+
+import importlib
+import re
+import subprocess
+import sys
+import tokenize
+import warnings
+from pathlib import Path
+
+import pytest
+
+from hilbench import registry
+
+ROOT = Path(__file__).resolve().parents[1]
+#: The generic modules: none of them may name a device family or its protocol.
+CORE = [
+    "hilbench/registry.py", "hilbench/errors.py", "hilbench/bench/bench.py", "hilbench/bench/profile.py",
+    "hilbench/bench/checks.py", "hilbench/bench/manifest.py", "hilbench/bench/control.py",
+    "hilbench/cli/__init__.py", "hilbench/cli/common.py", "hilbench/cli/emulate.py", "hilbench/cli/monitor.py",
+    "hilbench/monitor/live.py", "hilbench/monitor/detect.py", "hilbench/monitor/instrument.py",
+    "hilbench/dashboard/app.py", "hilbench/transports/medium.py", "hilbench/transports/host_port.py",
+    *[f"hilbench/transports/sources/{m}.py" for m in ("__init__", "base", "file", "serial", "stream", "udp",
+                                                        "manifest")],
+]
+DOCSTRING = re.compile(r"^[rRuU]?('''|\"\"\")")
+
+
+def test_builtins_are_registered_through_entry_points_like_any_package():
+    assert {"dynamixel", "stm32-rover"} <= set(registry.families)
+    assert registry.families.origin("dynamixel") == "hilbench"  # from the metadata, not from code
+    assert {"pty", "udp", "tcp"} <= set(registry.host_ports)
+    assert "serial" in registry.media
+    assert {"file", "stdin", "serial", "fifo", "tcp", "udp", "manifest"} <= set(registry.sources)
+    assert registry.instrument_for("dynamixel").verb == "monitor"
+    assert registry.instrument_for("vel2d").verb == "profile"
+    assert {"emulate", "monitor", "profile", "plugins"} <= set(registry.verbs)
+
+
+@pytest.mark.parametrize("path", CORE)
+def test_the_core_names_no_family(path):
+    """No identifier, import path or plain string of a generic module is a family's or protocol's name
+    (docstrings and comments may give examples; a word in a message is not a name)."""
+    names = {n for fam in registry.families.values() for n in (fam.name, *fam.protocols)}
+    names |= {n.replace("-", "_") for n in names} | {"servo", "rover", "board", "stm32", "dxl", "dynamixel"}
+    found = set()
+    with tokenize.open(ROOT / path) as fh:
+        for tok in tokenize.generate_tokens(fh.readline):
+            if tok.type == tokenize.NAME and tok.string.lower() in names:
+                found.add(tok.string)
+            elif tok.type == tokenize.STRING and not DOCSTRING.match(tok.string):
+                value = tok.string.lstrip("frbuFRBU").strip("'\"")
+                if value.lower() in names or any(f"families.{n}" in value or f"{n}." in value.split(":")[0]
+                                                 for n in names if n not in ("can",)):
+                    found.add(value)
+    assert not found, f"{path} names {sorted(found)}"
+
+
+def test_a_broken_plugin_is_skipped_with_one_warning(tmp_path, monkeypatch):
+    dist = tmp_path / "broken_lab_plugin-0.1.dist-info"
+    dist.mkdir()
+    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: broken-lab-plugin\nVersion: 0.1\n")
+    (dist / "entry_points.txt").write_text("[hilbench.families]\nacme = no_such_module:FAMILY\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    registry.reload()
+    try:
+        with pytest.warns(registry.PluginWarning, match="acme.*broken-lab-plugin.*skipped"):
+            names = registry.families.names()
+        assert "acme" not in names and "dynamixel" in names
+        assert "ModuleNotFoundError" in registry.families.failures()["acme"]
+    finally:
+        monkeypatch.undo()
+        registry.reload()
+    assert registry.families.failures() == {}
+
+
+def test_plugins_verb_lists_every_kind():
+    proc = subprocess.run([sys.executable, "-m", "hilbench.cli", "plugins"], capture_output=True, text=True,
+                          timeout=60)
+    assert proc.returncode == 0
+    for kind in registry.KINDS:
+        assert f"[entry points: {kind.group}]" in proc.stdout
+    assert re.search(r"^  dynamixel\s+hilbench\s+protocols dynamixel", proc.stdout, re.M)
+
+
+def test_an_unknown_name_is_a_usage_error_naming_the_known_ones():
+    from hilbench.errors import UsageError
+
+    with pytest.raises(UsageError, match=r"unknown endpoint type 'serial9' \(known: .*pty"):
+        registry.host_ports.get("serial9")
+    with pytest.raises(UsageError, match="no device family speaks 'canbus'"):
+        registry.family_for_protocol("canbus")
+
+
+@pytest.mark.parametrize("old,name,new", [
+    ("hilbench.profile", "load_profile", "hilbench.bench.profile"),
+    ("hilbench.profile", "DeviceSpec", "hilbench.families.dynamixel"),
+    ("hilbench.control", "ControlClient", "hilbench.families.stm32_rover"),
+    ("hilbench.dxl_client", "DxlError", "hilbench.clients.dynamixel"),
+    ("hilbench.teleop", "Teleop", "hilbench.clients.teleop"),
+    ("hilbench.demo", "run_demo", "hilbench.clients.dynamixel_demo"),
+    ("hilbench.monitor.tracker", "BusTracker", "hilbench.monitor.dynamixel.tracker"),
+    ("hilbench.monitor", "BusTracker", "hilbench.monitor.dynamixel.tracker"),
+    ("hilbench.bench", "board_config", "hilbench.families.stm32_rover"),
+    ("hilbench.dashboard", "VIEWS", "hilbench.dashboard.dynamixel_views"),
+])
+def test_old_import_paths_work_with_a_deprecation_warning(old, name, new):
+    if old not in ("hilbench.monitor", "hilbench.bench", "hilbench.dashboard"):  # packages that still exist
+        sys.modules.pop(old, None)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        obj = getattr(importlib.import_module(old), name)
+    assert any(w.category is DeprecationWarning and new in str(w.message) for w in caught)
+    moved = {"DeviceSpec": "ServoSpec", "ControlClient": "BoardClient"}.get(name, name)
+    assert obj is getattr(importlib.import_module(new), moved)

@@ -1,0 +1,216 @@
+"""The socketcand door: the daemon's handshake and modes on a raw socket, and unmodified python-can in other
+processes exchanging frames with the bus both ways."""
+
+from __future__ import annotations
+
+import json
+import socket
+import subprocess
+import sys
+import threading
+import time
+
+import pytest
+
+from hilbench.protocols import socketcand as sc
+from hilbench.protocols.can_frame import data_frame
+from hilbench.pytest_plugin import wait_until
+from hilbench.transports.can_medium import CanMedium
+from hilbench.transports.can_port import CanHostPort
+from tests.conftest import REPO
+
+
+class Recorder:
+    def __init__(self, name="dev"):
+        self.name = name
+        self.frames = []
+        self.lock = threading.Lock()
+
+    def on_frame(self, frame, t):
+        with self.lock:
+            self.frames.append(frame)
+
+
+@pytest.fixture
+def can_bus():
+    """A CAN medium with only a socketcand door, a device on it, and the server's address."""
+    made = []
+
+    def make(paced=False, **socketcand):
+        opts = CanHostPort.check_options({"socketcand": socketcand, "slcan": False})
+        port = CanHostPort.open("can", opts)
+        medium = CanMedium("can", 500_000, paced=paced)
+        dev = Recorder()
+        dport = medium.add_device(dev)
+        medium.add_host(port)
+        medium.start()
+        made.append((medium, port))
+        return medium, port, dev, dport, port.socketcand.address
+
+    yield make
+    for medium, port in made:
+        medium.close()
+        port.close()
+
+
+class Raw:
+    """A bare TCP client: sends messages, reads whole messages as the server sends them."""
+
+    def __init__(self, address):
+        self.sock = socket.create_connection(address, timeout=5)
+        self.splitter = sc.MessageSplitter()
+        self.pending: list[str] = []
+
+    def send(self, text: str) -> None:
+        self.sock.sendall(text.encode())
+
+    def read(self, timeout: float = 5.0) -> str:
+        deadline = time.monotonic() + timeout
+        while not self.pending:
+            self.sock.settimeout(max(0.01, deadline - time.monotonic()))
+            data = self.sock.recv(4096)
+            if not data:
+                raise ConnectionError("closed")
+            self.pending += self.splitter.feed(data)
+        return self.pending.pop(0)
+
+    def segment(self) -> bytes:
+        """One recv's worth, as python-can's handshake reads it."""
+        return self.sock.recv(256)
+
+    def close(self):
+        self.sock.close()
+
+
+def test_handshake_replies_come_alone_and_frames_wait_for_the_delay(can_bus):
+    _m, _p, _dev, dport, address = can_bus(rawmode_delay_ms=100)
+    raw = Raw(address)
+    assert raw.segment() == b"< hi >"
+    raw.send("< open can0 >")
+    assert raw.segment() == b"< ok >"
+    t0 = time.monotonic()  # before the switch: a late test thread cannot make the hold look short
+    raw.send("< rawmode >")
+    dport.send(data_frame(0x123, b"\x01"))  # on the bus right after the switch
+    assert raw.segment() == b"< ok >"  # alone: python-can compares the whole read with "< ok >"
+    msg = sc.parse_server_message(raw.read())
+    assert msg.frame == data_frame(0x123, b"\x01")  # held, not lost
+    assert time.monotonic() - t0 >= 0.1  # the 100 ms the server waits after the switch
+    assert abs(msg.t_wall - time.time()) < 5  # Unix time, not the monotonic clock
+    raw.close()
+
+
+def test_unknown_bus_is_refused_and_closed(can_bus):
+    *_, address = can_bus()
+    raw = Raw(address)
+    raw.read()
+    raw.send("< open vcan9 >")
+    assert raw.read() == sc.ERROR_OPEN
+    with pytest.raises(ConnectionError):
+        raw.read()
+
+
+def test_raw_mode_commands(can_bus):
+    _m, _p, dev, dport, address = can_bus(rawmode_delay_ms=0)
+    raw = Raw(address)
+    raw.read()
+    raw.send("< open can0 >< rawmode >")  # two commands in one segment
+    assert raw.read() == sc.OK and raw.read() == sc.OK
+    raw.send("< echo >")
+    assert raw.read() == sc.ECHO
+    raw.send("< frobnicate >")
+    assert raw.read() == sc.ERROR_UNKNOWN
+    raw.send("< rawmode >")  # no change: the daemon answers an error
+    assert raw.read() == sc.ERROR_UNKNOWN
+    raw.send("< send 123 2 de >")  # malformed: dropped silently
+    raw.send("< send 12345678 2 de ad >< send 7ff 0 >")
+    wait_until(lambda: len(dev.frames) == 2)
+    assert dev.frames == [data_frame(0x12345678, b"\xde\xad", extended=True), data_frame(0x7FF, b"")]
+    dport.send(data_frame(0x7FF, b""))
+    report = raw.read()
+    assert report.startswith("< frame 7FF ") and report.endswith("  >")  # DLC 0: two spaces before ">"
+    raw.close()
+
+
+def test_bcm_mode_subscriptions_filters_and_cyclic_jobs(can_bus):
+    _m, _p, dev, dport, address = can_bus()
+    raw = Raw(address)
+    raw.read()
+    raw.send("< open can0 >")
+    assert raw.read() == sc.OK
+    raw.send("< subscribe 0 0 123 >< filter 0 0 456 1 F0 >")
+    time.sleep(0.05)  # commands without replies: let them arrive before the frames (no reply to wait on)
+    for frame in (data_frame(0x100, b"\x00"), data_frame(0x123, b"\x01\x02"), data_frame(0x456, b"\x11"),
+                  data_frame(0x456, b"\x1f"), data_frame(0x456, b"\x21")):
+        dport.send(frame)
+    assert raw.read().endswith(" 01 02  >")  # BCM's spaced bytes
+    assert raw.read().split()[2] == "456" and raw.read().endswith(" 21  >")  # 0x1F: masked bits unchanged
+    raw.send("< add 0 20000 321 1 aa >")
+    wait_until(lambda: sum(f.can_id == 0x321 for f in dev.frames) >= 3)
+    raw.send("< delete 321 >")
+    time.sleep(0.1)
+    n = sum(f.can_id == 0x321 for f in dev.frames)
+    time.sleep(0.1)
+    assert sum(f.can_id == 0x321 for f in dev.frames) == n  # the job is gone
+    raw.send("< controlmode >")
+    assert raw.read() == sc.OK
+    raw.send("< statistics 50 >")
+    stat = raw.read().split()
+    assert stat[1] == "stat" and len(stat) == 7
+    raw.close()
+
+
+def test_beacon_reaches_python_can_detection(can_bus):
+    probe = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        probe.bind(("127.0.0.1", sc.BEACON_PORT))
+    except OSError:
+        probe.close()
+        pytest.skip("UDP port 42000 is taken on this machine (another beacon listener)")
+    probe.close()
+    from can.interfaces.socketcand.socketcand import detect_beacon
+
+    result: list = []
+    t = threading.Thread(target=lambda: result.extend(detect_beacon(4000)))
+    t.start()
+    time.sleep(0.2)
+    *_, address = can_bus(beacon=True)
+    t.join()
+    assert {"interface": "socketcand", "host": "127.0.0.1", "port": address[1], "channel": "can0"} in result
+
+
+def _client(args: list[str]) -> subprocess.Popen:
+    proc = subprocess.Popen([sys.executable, str(REPO / "tests" / "can_client.py"), *args], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, cwd=REPO)
+    line = proc.stdout.readline()
+    if line.strip() != "ready":
+        proc.kill()
+        raise AssertionError(f"client did not start: {line} {proc.stderr.read()}")
+    return proc
+
+
+def _result(proc: subprocess.Popen) -> dict:
+    out, err = proc.communicate(timeout=20)
+    assert proc.returncode == 0, err
+    return json.loads(out.strip().splitlines()[-1])
+
+
+@pytest.mark.parametrize("paced", [False, True])
+def test_python_can_clients_in_other_processes_both_ways(can_bus, paced):
+    _m, _p, dev, dport, (host, port) = can_bus(paced=paced)
+    kwargs = [f"host={host}", f"port={port}", "channel=can0"]
+    clients = [_client(["socketcand", "0x123", "5", str(0x300 + i), *kwargs]) for i in range(2)]
+    # The server holds frames for 100 ms after rawmode; wait until both clients are past it.
+    wait_until(lambda: all(c.raw_at is None and c.mode == "raw" for c in _p.socketcand.clients)
+               and len(_p.socketcand.clients) == 2, timeout=10)
+    for i in range(5):
+        dport.send(data_frame(0x123, bytes([i])))
+    results = [_result(c) for c in clients]
+    for res in results:
+        frames = [g for g in res["received"] if g["id"] == 0x123]
+        assert [g["data"] for g in frames] == [f"{i:02x}" for i in range(5)]
+        assert all(abs(g["t"] - time.time()) < 30 for g in frames)
+    wait_until(lambda: sum(f.can_id in (0x300, 0x301) for f in dev.frames) == 10)
+    assert sorted(f.data for f in dev.frames if f.can_id == 0x300) == [bytes([i, 0xAA]) for i in range(5)]
+    # A client never hears its own frames back.
+    assert 0x300 not in {g["id"] for g in results[0]["received"]}
+    assert 0x301 not in {g["id"] for g in results[1]["received"]}
