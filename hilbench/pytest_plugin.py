@@ -34,7 +34,6 @@ port. A test whose ``hilbench_profile`` marker names another bench is skipped.
 
 from __future__ import annotations
 
-import json
 import os
 import subprocess
 import sys
@@ -48,6 +47,7 @@ import pytest
 
 from hilbench.bench import Bench
 from hilbench.bench.line_server import serve_lines
+from hilbench.bench.manifest import read_manifest
 from hilbench.bench.profile import DEFAULT_PROFILE
 from hilbench.run import pyserial_shim
 
@@ -173,7 +173,7 @@ def hilbench_emulator() -> Iterator[Callable[..., dict[str, Any]]]:
             if time.monotonic() > deadline:
                 raise RuntimeError(f"hilbench emulate wrote no manifest within {timeout} s")
             time.sleep(0.01)
-        data = json.loads(manifest.read_text())
+        data = read_manifest(manifest)
         data["process"] = proc
         data["manifest_path"] = str(manifest)
         lines = data.get("lines") or {}

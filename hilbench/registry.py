@@ -20,6 +20,8 @@ kind                   entry-point group         the object an entry point names
 :data:`sources`        ``hilbench.sources``      a :class:`~hilbench.transports.sources.SourceOpener`
 :data:`instruments`    ``hilbench.instruments``  an :class:`~hilbench.monitor.instrument.Instrument`
 :data:`verbs`          ``hilbench.verbs``        a module with ``register(subparsers)``
+:data:`decoders`       ``hilbench.decoders``     a :class:`~hilbench.decoders.DecoderTarget` (fuzzing,
+                                                 rough-input benchmarks)
 :data:`servers`        ``hilbench.servers``      a :class:`~hilbench.bench.server.Server` (``emulate --serve``)
 :data:`recorders`      ``hilbench.recorders``    a recording format: ``accepts(path, protocol)``,
                                                  ``open(path, source=..., description=...)``
@@ -170,10 +172,11 @@ media = Kind("media", "hilbench.media", what="medium")
 sources = Kind("sources", "hilbench.sources", what="source kind")
 instruments = Kind("instruments", "hilbench.instruments", what="instrument")
 verbs = Kind("verbs", "hilbench.verbs", what="verb module")
+decoders = Kind("decoders", "hilbench.decoders", what="decoder target")
 servers = Kind("servers", "hilbench.servers", what="server")
 recorders = Kind("recorders", "hilbench.recorders", what="recording format")
 
-KINDS: tuple[Kind, ...] = (families, host_ports, media, sources, instruments, verbs, servers, recorders)
+KINDS: tuple[Kind, ...] = (families, host_ports, media, sources, instruments, verbs, decoders, servers, recorders)
 
 
 def reload() -> None:
@@ -200,5 +203,5 @@ def instrument_for(protocol: str) -> Any | None:
     return None
 
 
-__all__ = ["KINDS", "Kind", "PluginWarning", "families", "family_for_protocol", "host_ports", "instrument_for",
-           "instruments", "media", "recorders", "reload", "servers", "sources", "verbs"]
+__all__ = ["KINDS", "Kind", "PluginWarning", "decoders", "families", "family_for_protocol", "host_ports",
+           "instrument_for", "instruments", "media", "recorders", "reload", "servers", "sources", "verbs"]

@@ -1,28 +1,21 @@
-"""Shared test helpers: where the shared captures live."""
+"""Shared test helpers: where the test data lives (in the repository, so a fresh clone has it)."""
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-
-
-def shared_data_dir() -> Path:
-    """``$HILBENCH_SHARED_DATA`` or ``../shared/data`` beside the repository."""
-    env = os.environ.get("HILBENCH_SHARED_DATA")
-    return Path(env) if env else REPO.parent / "shared" / "data"
+DATA = REPO / "tests" / "data"
+#: The raw Wolfgang bus capture (MIT/Apache-2.0; see tests/data/dynamixel/README.md).
+WOLFGANG_TRACE = DATA / "dynamixel" / "wolfgang_trace.bin"
 
 
 @pytest.fixture(scope="session")
 def wolfgang_capture() -> bytes:
-    """The raw Wolfgang bus capture (see shared/data/README.md)."""
-    path = shared_data_dir() / "dynamixel" / "wolfgang_trace.bin"
-    if not path.exists():
-        pytest.skip(f"shared capture not found at {path} (set HILBENCH_SHARED_DATA)")
-    return path.read_bytes()
+    """The raw Wolfgang bus capture's bytes."""
+    return WOLFGANG_TRACE.read_bytes()
 
 
 @pytest.fixture

@@ -154,5 +154,5 @@ def test_control_channel_refuses_an_endless_line(rover):
     with socket.create_connection((host, int(port)), timeout=10) as sock:
         sock.sendall(b"x" * 200_000)  # > MAX_LINE, no newline
         reply = sock.makefile("rb").readline()
-    assert json.loads(reply) == {"ok": False, "error": "request too long"}
+    assert json.loads(reply) == {"ok": False, "error": "request too long (at most 65536 bytes)"}
     assert status(rover)["name"] == "rover"

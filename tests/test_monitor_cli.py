@@ -31,12 +31,9 @@ def summary_of(*args: str, **kw) -> dict:
 
 @pytest.fixture(scope="module")
 def trace(tmp_path_factory):
-    from tests.conftest import shared_data_dir
+    from tests.conftest import WOLFGANG_TRACE
 
-    path = shared_data_dir() / "dynamixel" / "wolfgang_trace.bin"
-    if not path.exists():
-        pytest.skip(f"shared capture not found at {path}")
-    return str(path)
+    return str(WOLFGANG_TRACE)
 
 
 def test_monitor_summary_of_the_wolfgang_capture(trace):

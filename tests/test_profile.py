@@ -55,7 +55,7 @@ def test_good_profile(tmp_path):
         (GOOD.replace("ids = [1, 2]", "ids = [1, 300]"), "devices[0].id", "expected an integer 0..252, got 300"),
         (GOOD + "init = { led = 7 }\n", "devices[0].init.led", "expected 0..1, got 7"),
         (GOOD + "init = { warp_drive = 1 }\n", "devices[0].init.warp_drive", "no such control-table item"),
-        (GOOD + "faults = { drop_rate = 2.0 }\n", "devices[0].faults.drop_rate", "expected a number 0.0..1.0"),
+        (GOOD + "faults = { drop_rate = 2.0 }\n", "devices[0].faults.drop_rate", "expected a number 0..1"),
         (GOOD + "colour = 'red'\n", "devices[0].colour", "unknown key"),
         (GOOD.replace("[endpoints.bus]", "[endpoints.bus]\npaced = 'yes'"), "endpoints.bus.paced",
          "expected true or false"),

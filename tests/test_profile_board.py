@@ -51,7 +51,7 @@ def test_board_defaults_and_task_overrides(tmp_path):
         (GOOD + 'output = "v9"\n', "devices[0].output", "expected one of v1, v2, v3, binary"),
         (GOOD + "tasks = { warp = { mean_us = 1.0 } }\n", "devices[0].tasks.warp", "no such task or function"),
         (GOOD + 'tasks = { IDLE = { mean = 1.0 } }\n', "devices[0].tasks.IDLE.mean", "unknown key"),
-        (GOOD + "faults = { drop_rate = 3 }\n", "devices[0].faults.drop_rate", "expected a number 0.0..1.0"),
+        (GOOD + "faults = { drop_rate = 3 }\n", "devices[0].faults.drop_rate", "expected a number 0..1"),
         (GOOD.replace("115200", "50"), "endpoints.rover.baud", "expected an integer 1200..12500000"),
         (GOOD.replace('protocol = "vel2d"', 'protocol = "vel2d"\nport = 9000'), "endpoints.rover.port",
          '"udp"'),

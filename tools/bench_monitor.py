@@ -249,15 +249,37 @@ def bench_lag(samples: int) -> None:
         _lag_figure("monitor_lag_serial_tap", probe.lags, path="SerialTap read -> PushSource -> tracker")
 
 
+def bench_rough(capture: Path) -> None:
+    """The tracker and the capture parser on noise and on damaged input: the Wolfgang capture with 1 % of
+    its bytes damaged, raw (tracker) and as a .hbcap with byte times (capture parser) (tools/rough.py)."""
+    from rough import measure
+
+    from hilbench.monitor.dynamixel.target import TRACKER
+    from hilbench.transports.capture_file import CaptureReader, CaptureWriter
+    from hilbench.transports.capture_target import CAPTURE
+
+    raw = capture.read_bytes()
+    measure(TRACKER, seed=raw, seed_name="the Wolfgang capture", prefix="monitor_rough_")
+    buf = io.BytesIO()
+    with CaptureWriter(buf, baud=2_000_000, protocol="dynamixel", timestamps="synthetic") as w, \
+            CaptureReader(capture, raw_baud=2_000_000) as r:
+        for chunk in r:
+            w.chunk(chunk)
+        hbcap = buf.getvalue()
+    measure(CAPTURE, seed=hbcap, seed_name="the Wolfgang capture as .hbcap", prefix="monitor_rough_")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--capture", type=Path, default=REPO.parent / "shared/data/dynamixel/wolfgang_trace.bin")
+    ap.add_argument("--capture", type=Path, default=REPO / "tests/data/dynamixel/wolfgang_trace.bin")
     ap.add_argument("--repeats", type=int, default=11, help="runs per throughput figure")
     ap.add_argument("--samples", type=int, default=300, help="marked packets per lag figure")
-    ap.add_argument("--only", choices=("throughput", "lag"))
+    ap.add_argument("--only", choices=("throughput", "rough", "lag"))
     args = ap.parse_args()
     if args.only in (None, "throughput"):
         bench_throughput(args.capture, args.repeats)
+    if args.only in (None, "rough"):
+        bench_rough(args.capture)
     if args.only in (None, "lag"):
         bench_lag(args.samples)
 

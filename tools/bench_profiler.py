@@ -173,6 +173,23 @@ def main() -> None:
     emit("profiler_live_refresh_last_1s", statistics.median(times) * 1e3, "ms", 100.0,
          statistics.median(times) * 1e3 / 100.0, note="reference: the 100 ms between refreshes at 10/s",
          stamps_stored=p.timeline.count)
+    bench_rough(ids, t, b)
+
+
+def bench_rough(ids, t, b) -> None:
+    """The stamp decoders and the whole profiler on 1 MB of noise and on this benchmark's traces (the first
+    MB) with 1 % of the bytes damaged, against a 12.5 Mbit/s UART (tools/rough.py)."""
+    from rough import measure
+
+    from hilbench.profiler.target import PROFILER
+    from hilbench.protocols.targets import TRACESTAMP_BINARY, TRACESTAMP_STREAM, TRACESTAMP_TEXT
+
+    text, binary = text_stream(ids, t, b)[:1_000_000], binary_stream(ids, t, b)[:1_000_000]
+    measure(TRACESTAMP_TEXT, seed=text, seed_name="a text trace", prefix="profiler_rough_")
+    measure(TRACESTAMP_BINARY, seed=binary, seed_name="a binary trace", prefix="profiler_rough_")
+    measure(TRACESTAMP_STREAM, seed=binary, seed_name="a binary trace", prefix="profiler_rough_")
+    for seed, name in ((text, "text"), (binary, "binary")):
+        measure(PROFILER, seed=seed, seed_name=f"a {name} trace", prefix=f"profiler_rough_{name}_")
 
 
 if __name__ == "__main__":

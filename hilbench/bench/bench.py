@@ -112,6 +112,8 @@ class Bench:
         self._stopped = False
         self.control = None  # a ControlServer once serve_control() ran
         self.services: dict[str, Any] = {}  # name -> object with close() and describe(): listed in the manifest
+        self._manifest_token: str | None = None  # names this bench's manifests (see hilbench.bench.manifest)
+        self._manifests: dict[Path, Any] = {}  # path -> ManifestClaim
 
     # ------------------------------------------------------------------ lifecycle
 
@@ -256,6 +258,8 @@ class Bench:
                 "protocol": ep.spec.protocol,
                 "baud": ep.spec.baud,
                 "paced": ep.medium.paced,
+                # what the medium's thread runs under (SCHED_FIFO where allowed), for media that say
+                **({"scheduling": sched} if (sched := getattr(ep.medium, "scheduling", None)) else {}),
                 "tap": ep.tap.url if ep.tap is not None else None,
             }
             entry.update(ep.family.describe_endpoint(ep))
@@ -280,11 +284,33 @@ class Bench:
             out[name] = service.describe()
         return out
 
-    def write_manifest(self, path: str | Path) -> None:
-        """Write the manifest atomically (readers never see half a file)."""
-        from hilbench.bench.manifest import write_manifest
+    def write_manifest(self, path: str | Path):
+        """Write the manifest atomically to ``path``; returns the :class:`~hilbench.bench.manifest.ManifestClaim`.
 
-        write_manifest(path, self.manifest())
+        Never replaces a file hilbench did not write, nor a running bench's manifest (one-line
+        :class:`~hilbench.errors.HilbenchError`); takes over a stale one (``claim.took_over`` is its pid);
+        rewrites this bench's own.
+        """
+        from hilbench.bench.manifest import new_token, write_manifest
+
+        if self._manifest_token is None:
+            self._manifest_token = new_token()
+        claim = write_manifest(path, self.manifest(), token=self._manifest_token)
+        self._manifests[Path(path)] = claim
+        return claim
+
+    def check_manifest_path(self, path: str | Path) -> int | None:
+        """Raise if the manifest could not be written to ``path`` (before starting); the pid of a stale one."""
+        from hilbench.bench.manifest import check_path
+
+        return check_path(path, self._manifest_token)
+
+    def remove_manifest(self, path: str | Path | None = None) -> None:
+        """Remove the manifest(s) this bench wrote, each only while it is still this bench's."""
+        from hilbench.bench.manifest import remove_manifest
+
+        for p in [Path(path)] if path is not None else list(self._manifests):
+            remove_manifest(self._manifests.pop(p, None))
 
 
 __all__ = ["Bench", "Endpoint"]

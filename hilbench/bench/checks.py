@@ -11,6 +11,7 @@ from collections.abc import Callable
 from typing import Any, NoReturn
 
 from hilbench.errors import OptionError, UsageError
+from hilbench.rules import Rule
 
 
 class ProfileError(UsageError, ValueError):
@@ -52,6 +53,12 @@ class Checker:
         if not lo <= value <= hi:
             self.fail(key, f"expected a number {lo}..{hi}, got {value}")
         return float(value)
+
+    def rule(self, value: Any, key: str, rule: Rule) -> Any:
+        """A value checked against a shared :class:`~hilbench.rules.Rule` (the command line uses the same)."""
+        if not rule.ok(value):
+            self.fail(key, f"expected {rule.expected}, got {value!r}")
+        return rule.check(value)
 
     def boolean(self, value: Any, key: str) -> bool:
         if not isinstance(value, bool):

@@ -16,7 +16,12 @@ every other command belongs to a device family
 (:attr:`~hilbench.bench.family.DeviceFamily.control_commands`), e.g. the rover
 board's ``status``, ``button``, ``reset``, ``fault``, ``log`` and
 ``wait_report``. ``device`` may be left out when one device answers the
-command. Errors come back as ``{"ok": false, "error": "..."}``.
+command. Errors come back as ``{"ok": false, "error": "..."}``, malformed
+requests included: a line is at most :data:`MAX_LINE` bytes and JSON nested at
+most :data:`MAX_DEPTH` levels, at most :data:`MAX_CLIENTS` connections are
+served at once and one idle for :data:`IDLE_TIMEOUT` s is closed, and nothing a
+client sends (or a client leaving early) puts a traceback on the bench's
+stderr.
 :class:`ControlClient` is the Python side; ``hilbench board`` a command line.
 """
 
@@ -24,19 +29,44 @@ from __future__ import annotations
 
 import contextlib
 import json
+import re
 import socket
 import socketserver
 import threading
+from itertools import accumulate
 from pathlib import Path
 from typing import Any
 
-from hilbench.errors import BenchError
+from hilbench.errors import BenchError, HilbenchError
 
+#: Longest request line the bench reads (bytes); longer ones are answered with an error and dropped.
 MAX_LINE = 65536
+#: Longest reply a client reads (a status with the board's log is a few kB).
+MAX_REPLY = 16 << 20
+#: Deepest nesting of arrays and objects a request may have.
+MAX_DEPTH = 32
+#: Connections served at once; more are answered with an error and closed.
+MAX_CLIENTS = 32
+#: A connection that sends nothing for this long is closed (seconds).
+IDLE_TIMEOUT = 300.0
+
+_JSON_STRING = re.compile(rb'"(?:[^"\\]|\\.)*"')
+_NESTING = bytes.maketrans(b"[{]}", b"\x01\x01\x02\x02")
+
+
+def nesting(raw: bytes) -> int:
+    """How deeply the arrays and objects of a JSON text nest (strings do not count); linear time."""
+    opened = _JSON_STRING.sub(b"", raw).translate(_NESTING)
+    steps = (1 if c == 1 else -1 for c in opened if c in (1, 2))
+    return max(accumulate(steps, initial=0))
 
 
 class ControlError(BenchError):
     """The bench refused or failed a command (one line)."""
+
+
+class ControlUnreachable(ControlError):
+    """No bench answered at the control address (refused, closed, not JSON): exit status 1."""
 
 
 class ControlServer:
@@ -51,20 +81,39 @@ class ControlServer:
         self.bench = bench
         server = self
 
+        clients = threading.BoundedSemaphore(MAX_CLIENTS)
+
         class Handler(socketserver.StreamRequestHandler):
+            timeout = IDLE_TIMEOUT
+
             def handle(self) -> None:
-                with contextlib.suppress(ConnectionError):  # a client that leaves early is no error
-                    while raw := self.rfile.readline(MAX_LINE + 1):  # bounded: a line never grows past this
-                        if len(raw) > MAX_LINE:
-                            self.wfile.write(b'{"ok": false, "error": "request too long"}\n')
-                            return  # the rest of that line is not worth reading
-                        reply = server.handle(raw)
-                        self.wfile.write((json.dumps(reply) + "\n").encode())
-                        self.wfile.flush()
+                # A client that leaves early, stalls or resets is no error of the bench's: OSError covers
+                # them all (BrokenPipeError, ConnectionResetError, TimeoutError).
+                with contextlib.suppress(OSError):
+                    if not clients.acquire(blocking=False):
+                        self.wfile.write(b'{"ok": false, "error": "too many control clients"}\n')
+                        return
+                    try:
+                        self._serve()
+                    finally:
+                        clients.release()
+
+            def _serve(self) -> None:
+                while raw := self.rfile.readline(MAX_LINE + 1):  # bounded: a line never grows past this
+                    if len(raw) > MAX_LINE:
+                        self.wfile.write(b'{"ok": false, "error": "request too long (at most %d bytes)"}\n'
+                                         % MAX_LINE)
+                        return  # the rest of that line is not worth reading
+                    reply = server.handle(raw)
+                    self.wfile.write((json.dumps(reply, default=str) + "\n").encode())
+                    self.wfile.flush()
 
         class Server(socketserver.ThreadingTCPServer):
             daemon_threads = True
             allow_reuse_address = True
+
+            def handle_error(self, request, client_address) -> None:
+                pass  # Handler.handle lets nothing escape; this is the last guard against a traceback
 
         self._server = Server((host, port), Handler)
         self._thread = threading.Thread(target=self._server.serve_forever, name="hilbench-control", daemon=True)
@@ -86,17 +135,21 @@ class ControlServer:
     # ------------------------------------------------------------------ commands
 
     def handle(self, raw: bytes) -> dict[str, Any]:
+        """The reply to one request line; never raises (a malformed request gets an error reply)."""
         try:
-            req = json.loads(raw)
+            if nesting(raw) > MAX_DEPTH:
+                raise ControlError(f"request nested too deeply (at most {MAX_DEPTH} levels)")
+            try:
+                req = json.loads(raw)
+            except (ValueError, RecursionError):  # UnicodeDecodeError is a ValueError
+                raise ControlError("request is not JSON (one object per line)") from None
             if not isinstance(req, dict):
                 raise ControlError("expected a JSON object")
             return {"ok": True, **self._dispatch(req)}
-        except ControlError as exc:
+        except HilbenchError as exc:  # ControlError and the rules' one-line errors
             return {"ok": False, "error": str(exc)}
-        except RecursionError:
-            return {"ok": False, "error": "request nested too deeply"}
-        except (ValueError, KeyError, TypeError) as exc:
-            return {"ok": False, "error": f"{type(exc).__name__}: {exc}"}
+        except Exception as exc:  # noqa: BLE001 (a command that broke must not break the channel)
+            return {"ok": False, "error": f"command failed: {type(exc).__name__}: {exc}"}
 
     def _commands(self) -> dict[str, list[str]]:
         """Device name -> the control commands its family answers."""
@@ -111,6 +164,8 @@ class ControlServer:
         commands = self._commands()
         able = sorted(n for n, cmds in commands.items() if cmd in cmds)
         name = req.get("device")
+        if name is not None and not isinstance(name, str):
+            raise ControlError(f"device: expected a device name, got {name!r:.40}")
         if name is None:
             if len(able) != 1:
                 if not able:
@@ -169,11 +224,15 @@ class ControlClient:
 
     @classmethod
     def from_manifest(cls, path: str | Path, timeout: float = 10.0) -> ControlClient:
+        """The client of the bench whose manifest is ``path`` (:func:`~hilbench.bench.manifest.read_manifest`:
+        a bench that is gone raises :class:`~hilbench.bench.manifest.BenchNotRunning`)."""
+        from hilbench.bench.manifest import ManifestError, read_manifest
+
         try:
-            data = json.loads(Path(path).read_text())
-        except (OSError, ValueError) as exc:
-            raise ControlError(f"{path}: not a bench manifest ({exc})") from None
-        if not isinstance(data, dict) or "control" not in data:
+            data = read_manifest(path)
+        except ManifestError as exc:
+            raise ControlError(str(exc)) from None
+        if not isinstance(data.get("control"), str):
             raise ControlError(f"{path}: the bench serves no control channel (run it with hilbench emulate)")
         return cls(data["control"], timeout)
 
@@ -189,16 +248,18 @@ class ControlClient:
                 while not buf.endswith(b"\n"):
                     chunk = sock.recv(65536)
                     if not chunk:
-                        raise ControlError(f"the bench at {where} closed the control connection")
+                        raise ControlUnreachable(f"the bench at {where} closed the control connection")
                     buf += chunk
+                    if len(buf) > MAX_REPLY:
+                        raise ControlUnreachable(f"the bench at {where} sent a reply longer than {MAX_REPLY} bytes")
         except OSError as exc:
-            raise ControlError(f"no bench control channel at {where}: {exc.strerror or exc}") from None
+            raise ControlUnreachable(f"no bench control channel at {where}: {exc.strerror or exc}") from None
         try:
             reply = json.loads(buf)
-        except ValueError:
-            raise ControlError(f"the bench at {where} sent something that is not JSON") from None
+        except (ValueError, RecursionError):
+            raise ControlUnreachable(f"the bench at {where} sent something that is not JSON") from None
         if not isinstance(reply, dict):
-            raise ControlError(f"the bench at {where} sent a reply that is not a JSON object")
+            raise ControlUnreachable(f"the bench at {where} sent a reply that is not a JSON object")
         if not reply.get("ok"):
             raise ControlError(str(reply.get("error", "command failed")))
         return reply
@@ -220,4 +281,4 @@ class ControlClient:
         return self.call("taps")["taps"]
 
 
-__all__ = ["MAX_LINE", "ControlClient", "ControlError", "ControlServer"]
+__all__ = ["MAX_LINE", "MAX_REPLY", "ControlClient", "ControlError", "ControlServer", "ControlUnreachable"]

@@ -102,7 +102,9 @@ class DeviceFamily:
 
     def check_baud(self, c: Checker, key: str, value: Any, port_type: str) -> int | None:
         """The endpoint's ``baud`` (``value`` is None when the profile leaves it out)."""
-        return c.integer(115_200 if value is None else value, key, 1, 100_000_000)
+        from hilbench.rules import LINE_BAUD
+
+        return c.rule(115_200 if value is None else value, key, LINE_BAUD)
 
     def check_endpoint(self, c: Checker, key: str, raw: dict[str, Any], port_type: str) -> dict[str, Any]:
         """The family's own endpoint keys (:attr:`endpoint_keys`) of ``raw``, checked; stored as options."""

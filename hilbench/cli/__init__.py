@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import select
 import sys
 from collections.abc import Callable, Sequence
 
@@ -47,14 +48,27 @@ def main(argv: Sequence[str] | None = None) -> int:
         return exc.exit_code
     except KeyboardInterrupt:
         return 130
-    except BrokenPipeError:
-        # The reader went away (`| head`): stop quietly, as Unix tools do, and keep Python's
-        # exit-time flush of stdout from complaining again.
+    except BrokenPipeError as exc:
+        if not _reader_gone(sys.stdout):
+            print(f"hilbench: error: {exc}", file=sys.stderr)  # some other pipe or socket broke
+            return 1
+        # The reader of our output went away (`| head -1`): it has what it wanted, so this is no
+        # error. Stop quietly with status 0, and keep Python's exit-time flush from complaining again.
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-        return 141
+        return 0
     except OSError as exc:
         print(f"hilbench: error: {exc}", file=sys.stderr)
         return 1
+
+
+def _reader_gone(stream) -> bool:
+    """Whether the pipe behind ``stream`` lost its reader (poll reports an error on the write end)."""
+    try:
+        poller = select.poll()
+        poller.register(stream.fileno(), select.POLLOUT)
+        return any(ev & (select.POLLERR | select.POLLHUP) for _, ev in poller.poll(0))
+    except (OSError, ValueError, AttributeError):
+        return True  # no descriptor to ask: assume the usual cause
 
 
 __all__ = ["CliError", "build_parser", "main"]

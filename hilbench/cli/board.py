@@ -9,7 +9,7 @@ from hilbench.cli.common import CliError
 
 
 def _client(args: argparse.Namespace):
-    from hilbench.bench.control import ControlError
+    from hilbench.bench.control import ControlError, ControlUnreachable
     from hilbench.families.stm32_rover import BoardClient as ControlClient
 
     try:
@@ -17,15 +17,33 @@ def _client(args: argparse.Namespace):
             return ControlClient(args.control)
         if args.manifest:
             return ControlClient.from_manifest(args.manifest)
+    except ControlUnreachable:
+        raise
     except ControlError as exc:
         raise CliError(str(exc)) from None
     raise CliError("tell me where the bench is: --manifest FILE (from hilbench emulate) or --control HOST:PORT")
 
 
-def _knob(text: str) -> tuple[str, float]:
+def _rule(name: str):
+    """An argparse type checking the board family's rule ``name`` (imported when an argument is parsed)."""
+
+    def parse(text: str):
+        from hilbench.families import stm32_rover
+
+        return getattr(stm32_rover, name)(text)
+
+    parse.__name__ = name.lower()
+    return parse
+
+
+def _knob(text: str) -> tuple[str, float | int]:
     key, sep, value = text.partition("=")
     if not sep:
         raise argparse.ArgumentTypeError(f"expected KEY=VALUE, got {text!r}")
+    try:
+        return key, int(value, 0)  # counts (drop_next=3) stay integers for the integer rules
+    except ValueError:
+        pass
     try:
         return key, float(value)
     except ValueError:
@@ -33,8 +51,15 @@ def _knob(text: str) -> tuple[str, float]:
 
 
 def cmd_board(args: argparse.Namespace) -> int:
-    from hilbench.bench.control import ControlError
+    from hilbench.bench.control import ControlError, ControlUnreachable
+    from hilbench.families.stm32_rover import FAULT_RULES, check_fault_knobs
 
+    if args.action == "fault":
+        if not args.knobs:
+            raise CliError(f"fault: give KEY=VALUE knobs ({', '.join(FAULT_RULES)})")
+        knobs = check_fault_knobs(dict(args.knobs))  # the bench's own rules, before anything is sent
+    elif args.knobs and args.action != "micro-ros":
+        raise CliError(f"{args.action}: takes no KEY=VALUE knobs (only fault and micro-ros do)")
     client = _client(args)
     try:
         if args.action == "button":
@@ -44,9 +69,7 @@ def cmd_board(args: argparse.Namespace) -> int:
             st = client.reset(args.device)
             print(f"{st['name']}: reset (boot {st['boots']})")
         elif args.action == "fault":
-            if not args.knobs:
-                raise CliError("fault: give KEY=VALUE knobs (drop_rate, corrupt_rate, drop_next, corrupt_next, stall)")
-            faults = client.fault(args.device, **dict(args.knobs))
+            faults = client.fault(args.device, **knobs)
             print(json.dumps(faults) if args.json else ", ".join(f"{k}={v:g}" for k, v in faults.items()))
         elif args.action == "log":
             for line in client.log(args.device):
@@ -87,6 +110,8 @@ def cmd_board(args: argparse.Namespace) -> int:
                       f"{tr['stamps_dropped']}, records lost {tr['records_lost']}")
                 for line in st["log"][-5:]:
                     print(f"  {line}")
+    except ControlUnreachable:
+        raise  # the bench is not there: exit status 1
     except ControlError as exc:
         raise CliError(str(exc)) from None
     return 0
@@ -109,6 +134,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     b.add_argument("knobs", nargs="*", type=_knob, metavar="KEY=VALUE",
                    help="fault knobs: drop_rate, corrupt_rate (per byte), drop_next, corrupt_next (bytes), stall (s); "
                         "micro-ros: zeroed_next (datagrams sent zeroed)")
-    b.add_argument("--timeout", type=float, default=30.0, help="wait-report: seconds to wait (default: 30)")
-    b.add_argument("--after", type=int, help="wait-report: return once more than N reports exist")
+    b.add_argument("--timeout", type=_rule("WAIT_TIMEOUT"), default=30.0,
+                   help="wait-report: seconds to wait (default: 30)")
+    b.add_argument("--after", type=_rule("REPORT_COUNT"), help="wait-report: return once more than N reports exist")
     b.set_defaults(func=cmd_board)

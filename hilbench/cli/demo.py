@@ -5,6 +5,12 @@ from __future__ import annotations
 import argparse
 
 from hilbench.bench.profile import DEFAULT_PROFILE, bundled_profiles, load_profile
+from hilbench.errors import DeviceError
+from hilbench.rules import SECONDS
+
+
+class DemoError(DeviceError):
+    """The demo's control loop did nothing (exit status 1, one line)."""
 
 
 def demo_report(result) -> list[str]:
@@ -15,9 +21,13 @@ def demo_report(result) -> list[str]:
     gone = devices.get(str(sc.vanish_id), {}) if sc else {}
     hot = devices.get(str(sc.error_id), {}) if sc else {}
     if gone:
-        back = "came back" if gone.get("state") == "connected" else f"is {gone.get('state')}"
-        lines.append(f"monitor: ID {sc.vanish_id} dropped out {gone.get('disconnects', 0)} time(s), "
-                     f"missed {gone.get('misses', 0)} replies, {back}")
+        drops = gone.get("disconnects", 0)
+        if drops:
+            back = "came back" if gone.get("state") == "connected" else f"is {gone.get('state')}"
+            lines.append(f"monitor: ID {sc.vanish_id} dropped out {drops} time(s), "
+                         f"missed {gone.get('misses', 0)} replies, {back}")
+        else:  # a run too short to reach the staged drop-out
+            lines.append(f"monitor: ID {sc.vanish_id} did not drop out (missed {gone.get('misses', 0)} replies)")
     if hot:
         bits = ", ".join(hot.get("hardware_error_bits") or []) or "none read"
         lines.append(f"monitor: ID {sc.error_id} alert {'on' if hot.get('alert') else 'off'}, hardware error: {bits}")
@@ -36,7 +46,9 @@ def cmd_demo(args: argparse.Namespace) -> int:
         print(line)
     print(f"demo: {result.cycles} control cycles in {result.seconds:.1f} s ({result.rate:.0f}/s), "
           f"{result.failed_reads} failed reads")
-    return 0 if result.cycles else 1
+    if not result.cycles:
+        raise DemoError("the control loop completed no cycle (give it more time: --seconds)")
+    return 0
 
 
 def cmd_profiles(args: argparse.Namespace) -> int:
@@ -58,7 +70,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                                     "official dynamixel-sdk, and show the bus monitor's dashboard while one servo "
                                     "drops out and comes back and another reports overheating.")
     dm.add_argument("--profile", default=DEFAULT_PROFILE, help=f"profile (default: {DEFAULT_PROFILE})")
-    dm.add_argument("--seconds", type=float, default=10.0, help="how long to run (0: until Ctrl-C; default 10)")
+    dm.add_argument("--seconds", type=SECONDS, default=10.0, help="how long to run (0: until Ctrl-C; default 10)")
     dm.add_argument("--unpaced", action="store_true", help="deliver bytes at once instead of at wire speed")
     dm.add_argument("--view", choices=VIEWS, default="devices", help="dashboard view to start with (keys: 1-4)")
     dm.set_defaults(func=cmd_demo)

@@ -7,6 +7,13 @@ import json
 import sys
 
 from hilbench.cli.common import int_arg
+from hilbench.protocols.dynamixel_models import SDK_BAUDS
+from hilbench.rules import Rule
+
+#: ``--baud``: a rate the official SDK opens (what a real or emulated port can be driven at).
+SDK_BAUD = Rule(int, choices=SDK_BAUDS, what="a baud rate the Dynamixel SDK can open")
+#: LENGTH of a read or write by address, in bytes.
+DATA_LENGTH = Rule(int, 1, 1024)
 
 
 def dxl_id(text: str) -> int:
@@ -26,8 +33,9 @@ def cmd_dxl_scan(args: argparse.Namespace) -> int:
         print(json.dumps([{"id": f.id, "model": f.model_number, "model_name": f.model_name,
                            "firmware": f.firmware, "baud": f.baud} for f in found]))
         return 0
-    from rich.console import Console
     from rich.table import Table
+
+    from hilbench.console import Console
 
     table = Table(title=f"Dynamixel devices on {args.port}")
     for col in ("ID", "model", "number", "firmware", "baud"):
@@ -85,12 +93,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     def port_args(q: argparse.ArgumentParser, baud: bool = True) -> None:
         q.add_argument("port", help="serial port, e.g. /dev/ttyUSB0, an emulated pty or a remote rfc2217://HOST:PORT")
         if baud:
-            q.add_argument("--baud", type=int_arg, default=57_600, help="baud rate (default: 57600)")
+            q.add_argument("--baud", type=SDK_BAUD, default=57_600, help="baud rate (default: 57600)")
 
     s = dsub.add_parser("scan", help="find IDs and models across baud rates",
                         description="Broadcast-ping at each baud rate and list every device that answers.")
     port_args(s, baud=False)
-    s.add_argument("--baud", type=int_arg, action="append", help="baud rate to try (repeatable; default: all)")
+    s.add_argument("--baud", type=SDK_BAUD, action="append", help="baud rate to try (repeatable; default: all)")
     s.add_argument("--protocol", choices=("1", "2"), default="2", help="protocol version (default: 2)")
     s.add_argument("--json", action="store_true", help="print JSON instead of a table")
     s.set_defaults(func=cmd_dxl_scan)
@@ -107,7 +115,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     port_args(r)
     r.add_argument("id", type=dxl_id, help="device ID")
     r.add_argument("item", help="item name (e.g. present_position) or address")
-    r.add_argument("length", type=int_arg, nargs="?", help="bytes to read (default: the item's size)")
+    r.add_argument("length", type=DATA_LENGTH, nargs="?", help="bytes to read (default: the item's size)")
     r.add_argument("--json", action="store_true", help="print JSON")
     r.set_defaults(func=cmd_dxl_read)
 
@@ -117,5 +125,5 @@ def register(sub: argparse._SubParsersAction) -> None:
     w.add_argument("id", type=dxl_id, help="device ID")
     w.add_argument("item", help="item name (e.g. goal_position) or address")
     w.add_argument("value", type=int_arg, help="value to write (decimal or 0x hex; negative for signed items)")
-    w.add_argument("--length", type=int_arg, help="bytes to write (default: the item's size)")
+    w.add_argument("--length", type=DATA_LENGTH, help="bytes to write (default: the item's size)")
     w.set_defaults(func=cmd_dxl_write)

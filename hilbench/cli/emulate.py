@@ -21,17 +21,22 @@ def cmd_emulate(args: argparse.Namespace) -> int:
     paced = True if args.paced else (False if args.unpaced else None)
     serve = _server_names(args.serve)
     bench = Bench(profile, paced=paced, link_dir=args.link_dir, tap=not args.no_tap, serve=serve, bind=args.bind)
+    manifest = Path(args.manifest) if args.manifest else None
+    if manifest:
+        bench.check_manifest_path(manifest)  # refuse a user's file or a live bench's manifest before starting
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
     bench.start()
-    manifest = Path(args.manifest) if args.manifest else None
     try:
         if bench.has_control_commands or serve:  # a served bench is found remotely through its control channel
             bench.serve_control()
         lines = serve_lines(bench)  # modem lines, BREAK and flushes for clients under `hilbench run`
         if manifest:
-            bench.write_manifest(manifest)
+            claim = bench.write_manifest(manifest)
+            if claim.took_over is not None:
+                print(f"hilbench: {manifest}: took over a stale manifest (pid {claim.took_over} gone)",
+                      file=sys.stderr)
         print(f"hilbench: bench {profile.name!r} running ({len(bench.devices)} devices); Ctrl-C stops it")
         for ep in bench.endpoints.values():
             address = getattr(ep.port, "address", None)
@@ -43,7 +48,7 @@ def cmd_emulate(args: argparse.Namespace) -> int:
                   "beyond this machine, without authentication (labgrid's SSH proxying reaches a bench bound to "
                   "127.0.0.1)", file=sys.stderr)
         for ep in bench.endpoints.values():
-            print(f"  {ep.name}: {ep.path}  ({ep.family.summary(ep)})")
+            print(f"  {ep.name}: {_where(ep)}  ({ep.family.summary(ep)})")
             for name, service in ep.services.items():
                 print(f"    {name}: {service.describe().get(registry.servers.get(name).manifest_key, service)}")
             if ep.tap is not None:
@@ -62,9 +67,16 @@ def cmd_emulate(args: argparse.Namespace) -> int:
         stop.wait()
     finally:
         bench.stop()
-        if manifest:
-            manifest.unlink(missing_ok=True)
+        bench.remove_manifest()  # only our own, and only while it is still ours
     return 0
+
+
+def _where(ep) -> str:
+    """What a program opens: the pty, or the stable link and the pty it points to, or a socket's URL."""
+    d = ep.port.describe()
+    if d.get("link") and d.get("pty") and d["pty"] != ep.path:
+        return f"{ep.path} -> {d['pty']}"
+    return ep.path
 
 
 def _server_names(values: list[str] | None) -> tuple[str, ...]:

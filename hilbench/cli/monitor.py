@@ -21,6 +21,7 @@ import time
 from collections.abc import Callable
 
 from hilbench.cli.common import CliError, int_arg, open_cli_source, terminate_on_sigterm
+from hilbench.rules import LINE_BAUD, SECONDS, SPEED
 
 
 def _monitor_instruments() -> list:
@@ -75,10 +76,14 @@ def _writer(path: str | None, source, description: str | None = None):
                          wall_offset=getattr(source, "wall_offset", None))
 
 
+#: Exit status of ``--strict`` when the input is damaged (as ``hilbench profile --strict``).
+STRICT_EXIT = 3
+
+
 def _watch(monitor, args: argparse.Namespace, label: str, status: Callable[[], str],
-           stop: Callable[[], bool] | None = None) -> None:
-    """Show the dashboard (or, with --summary/--json, just wait), then print the summary."""
-    from rich.console import Console
+           stop: Callable[[], bool] | None = None) -> int:
+    """Show the dashboard (or, with --summary/--json, just wait), then print the summary; the exit status."""
+    from hilbench.console import Console
 
     deadline = time.monotonic() + args.seconds if args.seconds else None
 
@@ -104,14 +109,26 @@ def _watch(monitor, args: argparse.Namespace, label: str, status: Callable[[], s
     monitor.stop()
     if monitor.error is not None:
         raise CliError(f"{label}: {monitor.error}")
+    report = monitor.summary()
+    findings = report["data_quality"]["findings"]
     if quiet:
-        report = monitor.summary()
         if args.json:
             print(json.dumps(report, indent=None if args.compact else 2))
         elif monitor.instrument is None or monitor.tracker is None:
             console.print(f"[bold]{report['source']}[/]: {report['note']}", highlight=False)
         else:
             monitor.instrument.print_summary(report, console)
+        if not args.json:
+            for line in findings:
+                console.print(f"data quality: {line}", markup=False, highlight=False)
+    elif findings:  # the dashboard is gone: say what was wrong with the input
+        for line in findings:
+            print(f"hilbench: data quality: {line}", file=sys.stderr)
+    if args.strict and findings:
+        print(f"hilbench: error: {label}: the input is damaged ({len(findings)} data-quality finding(s)); "
+              "--strict", file=sys.stderr)
+        return STRICT_EXIT
+    return 0
 
 
 # --------------------------------------------------------------------------- verbs
@@ -137,8 +154,7 @@ def cmd_monitor(args: argparse.Namespace) -> int:
                 return "live"
             return f"replay {speed:g}x" if speed else "replay"
 
-        _watch(mon, args, source.name, status)
-    return 0
+        return _watch(mon, args, source.name, status)
 
 
 def cmd_record(args: argparse.Namespace) -> int:
@@ -165,8 +181,11 @@ def cmd_record(args: argparse.Namespace) -> int:
             pass
         finally:
             writer.close()
+        findings = source.quality()["findings"]
     out = sys.stderr if args.file == "-" else sys.stdout
     print(f"recorded {writer.bytes} bytes in {writer.records} records from {source.name} to {args.file}", file=out)
+    for line in findings:  # what a damaged input lost on the way (the copy holds what could be read)
+        print(f"hilbench record: data quality: {line}", file=sys.stderr)
     return 0
 
 
@@ -240,15 +259,15 @@ def cmd_tap(args: argparse.Namespace) -> int:
         mon.start()
         tap.start()
         print(f"hilbench tap: application port {tap.app_path} <-> {args.port}", flush=True)
-        _watch(mon, args, label, lambda: "tapping" if not mon.ended.is_set() else "device gone",
-               stop=lambda: tap.error is not None)
+        code = _watch(mon, args, label, lambda: "tapping" if not mon.ended.is_set() else "device gone",
+                      stop=lambda: tap.error is not None)
     finally:
         tap.close()
     if tap.error is not None:
         raise CliError(f"{args.port}: {tap.error}")
     print(f"hilbench tap: forwarded {tap.bytes_to_device} bytes to the device, {tap.bytes_to_app} to the application",
           file=sys.stderr)
-    return 0
+    return code
 
 
 # --------------------------------------------------------------------------- parsers
@@ -278,7 +297,10 @@ def _watch_args(p: argparse.ArgumentParser) -> None:
                    help="no dashboard: print a summary when the source ends (or on Ctrl-C / --seconds)")
     p.add_argument("--json", action="store_true", help="print the summary as one JSON document (implies --summary)")
     p.add_argument("--compact", action="store_true", help="JSON on one line")
-    p.add_argument("--seconds", type=float, help="stop after this many seconds")
+    p.add_argument("--strict", action="store_true",
+                   help=f"exit {STRICT_EXIT} when the input is damaged (a capture cut short or corrupted, times out "
+                        "of order: the data-quality findings)")
+    p.add_argument("--seconds", type=SECONDS, help="stop after this many seconds")
     p.add_argument("--view", type=_view, help="dashboard view to start with (the instrument's, e.g. devices, models, details, "
                                   "log; keys 1-9)")
     p.add_argument("--device", type=int_arg, help="device ID the details view shows first (keys: left/right)")
@@ -301,11 +323,11 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "tcp://127.0.0.1:PORT or a manifest.json of `hilbench emulate` (its traffic tap), or "
                     "bench:PROFILE (start that bench here); every kind: " + _kinds() + ".")
     m.add_argument("source", help="what to watch (see above)")
-    m.add_argument("--baud", type=int_arg,
+    m.add_argument("--baud", type=LINE_BAUD,
                    help="line rate in bit/s (for the bus load; a serial port's rate; the byte time of a raw dump)")
     speed = m.add_mutually_exclusive_group()
     speed.add_argument("--realtime", action="store_true", help="replay a capture at its recorded speed")
-    speed.add_argument("--speed", type=float, help="replay a capture at this multiple of its recorded speed")
+    speed.add_argument("--speed", type=SPEED, help="replay a capture at this multiple of its recorded speed")
     _watch_args(m)
     m.set_defaults(func=cmd_monitor)
 
@@ -316,9 +338,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "when the source ends, on Ctrl-C / SIGTERM, or after --seconds. Converts raw dumps too.")
     r.add_argument("source", help="what to record")
     r.add_argument("file", help="capture file to write ('-': stdout)")
-    r.add_argument("--baud", type=int_arg, help="line rate in bit/s (a serial port's rate; a raw dump's byte time)")
-    r.add_argument("--seconds", type=float, help="stop after this many seconds")
-    r.add_argument("--speed", type=float, help="read a capture at this multiple of its recorded speed")
+    r.add_argument("--baud", type=LINE_BAUD, help="line rate in bit/s (a serial port's rate; a raw dump's byte time)")
+    r.add_argument("--seconds", type=SECONDS, help="stop after this many seconds")
+    r.add_argument("--speed", type=SPEED, help="read a capture at this multiple of its recorded speed")
     r.set_defaults(func=cmd_record)
 
     t = sub.add_parser(
@@ -333,7 +355,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "and both directions are decoded with their addresses.")
     t.add_argument("port", help="the real port (e.g. /dev/ttyUSB0, or an emulated bench's pty), or udp")
     t.add_argument("more", nargs="*", metavar="LISTEN TARGET", help="after udp: where clients send, and the target")
-    t.add_argument("--baud", type=int_arg,
+    t.add_argument("--baud", type=LINE_BAUD,
                    help="fixed baud rate for PORT (default: follow the rate the application sets)")
     t.add_argument("--link", metavar="PATH", help="also make PATH a symlink to the application's pty")
     _watch_args(t)

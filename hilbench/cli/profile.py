@@ -14,11 +14,18 @@ from __future__ import annotations
 import argparse
 import fnmatch
 import json
+import math
 import re
 import sys
 import time
 
 from hilbench.cli.common import CliError, open_cli_source, terminate_on_sigterm
+from hilbench.rules import LINE_BAUD, POSITIVE_COUNT, SECONDS, Rule
+
+#: ``--bins``: linear histogram bins (each is an array slot: bounded).
+BINS = Rule(int, 1, 10_000)
+#: ``--tick``: histogram tick in µs.
+TICK_US = Rule(float, 0, 1e9, above=True)
 
 #: The rover board's UART rate on the firmware branch heads (spec §1.1).
 DEFAULT_BAUD = 115_200
@@ -34,6 +41,8 @@ def time_us(text: str, *, allow_hz: bool = False) -> float:
         rate = " or a rate such as 100Hz" if allow_hz else ""
         raise argparse.ArgumentTypeError(f"expected a time such as 250, 1.5ms or 2s{rate}, got {text!r}")
     value, unit = float(m[1]), (m[2] or "").lower()
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"expected a finite time, got {text!r}")
     if unit in ("hz", "khz"):
         if not allow_hz:
             raise argparse.ArgumentTypeError(f"expected a time, got a frequency {text!r}")
@@ -164,8 +173,7 @@ def _check_protocol(source) -> None:
 
 
 def cmd_profile(args: argparse.Namespace) -> int:
-    from rich.console import Console
-
+    from hilbench.console import Console
     from hilbench.profiler import Profiler
     from hilbench.profiler.compare import compare, load_summary
     from hilbench.profiler.report import compare_table, full_report
@@ -191,7 +199,17 @@ def cmd_profile(args: argparse.Namespace) -> int:
         profiler = Profiler(settings.with_(joined_mid_stream=source.live))
         lost = _read(args, profiler, source, console)
         source_name = source.name
+        damage = source.quality()
     a = profiler.analyse()
+    q = a.quality
+    if lost:  # bytes the transport lost (a slow tap client): the board's own counters cannot know
+        q["source_bytes_lost"] = lost
+        q["untrustworthy"] = True
+        q["reasons"].append(f"{lost} bytes lost between the board and the profiler")
+    if damage["findings"]:  # the capture file itself is damaged (cut short, corrupted, times out of order)
+        q["capture"] = damage
+        q["untrustworthy"] = True
+        q["reasons"].extend(f"capture {line}" for line in damage["findings"])
     if args.compare and base is None:
         other = Profiler(settings)
         with open_cli_source(args.compare, baud=args.baud, default_baud=DEFAULT_BAUD) as s2:
@@ -203,10 +221,6 @@ def cmd_profile(args: argparse.Namespace) -> int:
 
     doc = a.to_json()
     doc["source"] = source_name
-    if lost:  # bytes the transport lost (a slow tap client): the board's own counters cannot know
-        doc["quality"]["source_bytes_lost"] = lost
-        doc["quality"]["untrustworthy"] = True
-        doc["quality"]["reasons"].append(f"{lost} bytes lost between the board and the profiler")
     cmp = None
     if base is not None:
         cmp = compare(base, a)
@@ -263,7 +277,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("source", help="file or capture, - (stdin), serial port or pty, serial://PATH?baud=N, "
                                   "udp://HOST:PORT[?peer=HOST:PORT], tcp://HOST:PORT (a bench tap), a bench "
                                   "manifest.json[#endpoint], or bench:PROFILE")
-    p.add_argument("--baud", type=int, help="serial baud rate (default 115200)")
+    p.add_argument("--baud", type=LINE_BAUD, help="serial baud rate (default 115200)")
     p.add_argument("--from", dest="from_", metavar="GLOB,...",
                    help="read only these chunk sources of a capture or tap (default: on a board line, the "
                         "board's side, '*-board'; elsewhere everything)")
@@ -282,8 +296,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="share denominator: stamps' span (default), the report's 'profiled for', or a time")
     p.add_argument("--reorder", type=time_us, default=500_000, metavar="T",
                    help="reorder window for late stamps (default 500ms)")
-    p.add_argument("--tick", type=float, default=1.0, metavar="US", help="histogram tick in µs (default 1)")
-    p.add_argument("--bins", type=int, default=20, help="linear histogram bins (default 20)")
+    p.add_argument("--tick", type=TICK_US, default=1.0, metavar="US", help="histogram tick in µs (default 1)")
+    p.add_argument("--bins", type=BINS, default=20, help="linear histogram bins (default 20, at most 10000)")
     p.add_argument("--hist", metavar="KINDS", type=hist_kinds,
                    help="print histograms: duration, latency, response, period_error in PX4 buckets; "
                         "duration:linear, latency:linear, response:linear in linear bins (--bins)")
@@ -303,8 +317,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="live view: statistics over the last T (default 1s)")
     p.add_argument("--live-gantt", type=time_us, default=20_000, metavar="T",
                    help="live view: text Gantt of the last T (default 20ms)")
-    p.add_argument("--duration", type=float, metavar="S", help="live sources: stop after S seconds")
-    p.add_argument("--reports", type=int, metavar="N", help="stop after N run-time statistics reports")
+    p.add_argument("--duration", type=SECONDS, metavar="S", help="live sources: stop after S seconds")
+    p.add_argument("--reports", type=POSITIVE_COUNT, metavar="N", help="stop after N run-time statistics reports")
     p.add_argument("--strict", action="store_true", help="exit 3 when the data quality makes the figures "
                                                         "untrustworthy")
     p.set_defaults(func=cmd_profile)

@@ -8,6 +8,18 @@ import signal
 import time
 
 from hilbench.cli.common import CliError
+from hilbench.rules import POSITIVE_COUNT, RATE_HZ, SECONDS, Rule
+
+#: ``teleop --repeat-rate``: 0 (only on key presses) or a rate in Hz.
+REPEAT_HZ = Rule(float, 0, 1000)
+#: ``teleop --speed`` / ``--turn``: m/s and rad/s (a Vel2d frame carries doubles; keep them sane).
+SPEED_LIMIT = Rule(float, -1000, 1000)
+
+
+def _board_baud(text: str) -> int:
+    from hilbench.families.stm32_rover import BOARD_BAUD
+
+    return BOARD_BAUD(text)
 
 
 def _finite(text: str) -> float:
@@ -34,8 +46,6 @@ def cmd_send_vel(args: argparse.Namespace) -> int:
     from hilbench.protocols.tracestamp_stream import StreamDecoder
     from hilbench.transports.host_link import HostLink
 
-    if args.rate is not None and args.rate <= 0:
-        raise CliError(f"--rate: expected a positive rate in Hz, got {args.rate}")
     try:
         link = HostLink.open(args.port, args.baud)
     except ValueError as exc:
@@ -107,12 +117,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     s.add_argument("x", type=_finite, help="linear.x in m/s")
     s.add_argument("y", type=_finite, help="linear.y in m/s")
     s.add_argument("z", type=_finite, help="angular.z in rad/s")
-    s.add_argument("--baud", type=int, default=115_200, help="serial baud rate (default: 115200)")
-    s.add_argument("--rate", type=float, metavar="HZ", help="stream the frame at HZ until Ctrl-C (or --count)")
-    s.add_argument("--count", type=int, help="with --rate: stop after N frames")
-    s.add_argument("--duration", type=float, metavar="S", help="with --rate: stop after S seconds")
+    s.add_argument("--baud", type=_board_baud, default=115_200, help="serial baud rate (default: 115200)")
+    s.add_argument("--rate", type=RATE_HZ, metavar="HZ", help="stream the frame at HZ until Ctrl-C (or --count)")
+    s.add_argument("--count", type=POSITIVE_COUNT, help="with --rate: stop after N frames")
+    s.add_argument("--duration", type=SECONDS, metavar="S", help="with --rate: stop after S seconds")
     s.add_argument("--echo", action="store_true", help="print the log lines the board sends back")
-    s.add_argument("--echo-time", type=float, default=0.5, metavar="S",
+    s.add_argument("--echo-time", type=SECONDS, default=0.5, metavar="S",
                    help="with --echo: how long to listen after the last frame (default: 0.5)")
     s.set_defaults(func=cmd_send_vel)
 
@@ -121,10 +131,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "m , . and shift for strafing; q/z w/x e/c change speeds; anything else stops). "
                                    "Every key sends one Vel2d frame; Ctrl-C sends a stop frame and quits.")
     t.add_argument("port", help="serial port or udp://127.0.0.1:PORT")
-    t.add_argument("--baud", type=int, default=115_200, help="serial baud rate (default: 115200)")
-    t.add_argument("--speed", type=float, default=0.5, help="initial linear speed in m/s (default: 0.5)")
-    t.add_argument("--turn", type=float, default=1.0, help="initial angular speed in rad/s (default: 1.0)")
-    t.add_argument("--repeat-rate", type=float, default=0.0, metavar="HZ",
+    t.add_argument("--baud", type=_board_baud, default=115_200, help="serial baud rate (default: 115200)")
+    t.add_argument("--speed", type=SPEED_LIMIT, default=0.5, help="initial linear speed in m/s (default: 0.5)")
+    t.add_argument("--turn", type=SPEED_LIMIT, default=1.0, help="initial angular speed in rad/s (default: 1.0)")
+    t.add_argument("--repeat-rate", type=REPEAT_HZ, default=0.0, metavar="HZ",
                    help="also resend the current command at HZ (default: 0, only on key presses)")
     t.set_defaults(func=cmd_teleop)
 

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import dynamixel_sdk as sdk
 import serial
 
-from hilbench.errors import DeviceError
+from hilbench.errors import DeviceError, UsageError
 from hilbench.protocols.dynamixel import describe_error
 from hilbench.protocols.dynamixel_models import MODEL_NAMES, MODELS_BY_NUMBER, Field, Model
 
@@ -24,6 +24,10 @@ SCAN_BAUDS = (57_600, 115_200, 1_000_000, 2_000_000, 3_000_000, 4_000_000, 9_600
 
 class DxlError(DeviceError, RuntimeError):
     """A failed exchange; the message says what and why in one line (exit status 1 on the command line)."""
+
+
+class DxlRequestError(UsageError, ValueError):
+    """A request that cannot be made (an item the model does not have, a value too big): exit status 2."""
 
 
 @dataclass(frozen=True)
@@ -154,14 +158,14 @@ def resolve_field(model: Model | None, item: str, length: int | None) -> tuple[i
         f = model.field_at(address) if model else None
         size = length or (f.size if f else None)
         if size is None:
-            raise DxlError(f"address {address}: give a length (unknown item)")
+            raise DxlRequestError(f"address {address}: give a length (unknown item)")
         return address, size, f
     if model is None:
-        raise DxlError(f"{item!r}: unknown model, give an address and length instead of a name")
+        raise DxlRequestError(f"{item!r}: unknown model, give an address and length instead of a name")
     try:
         f = model.field_named(item)
     except KeyError as exc:
-        raise DxlError(str(exc.args[0])) from None
+        raise DxlRequestError(str(exc.args[0])) from None
     return f.address, length or f.size, f
 
 
@@ -188,7 +192,8 @@ def write(path: str, dxl_id: int, item: str, value: int, baud: int, length: int 
         try:
             data = list(int(value).to_bytes(size, "little", signed=signed))
         except OverflowError:
-            raise DxlError(f"{value} does not fit in {size} byte(s)") from None
+            kind = "a signed" if signed else "an unsigned"
+            raise DxlRequestError(f"{value} does not fit in {size} byte(s) ({kind} item)") from None
         result, error = ph.writeTxRx(port, dxl_id, address, size, data)
         _check(ph, result, error, f"write ID {dxl_id} address {address}")
         return address, f

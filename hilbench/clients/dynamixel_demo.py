@@ -22,11 +22,11 @@ import time
 from dataclasses import dataclass, field
 
 import dynamixel_sdk as sdk
-from rich.console import Console
 
 from hilbench.bench import Bench
 from hilbench.bench.profile import DEFAULT_PROFILE, load_profile
 from hilbench.clients.dynamixel import open_port
+from hilbench.console import Console
 from hilbench.dashboard import Dashboard
 from hilbench.monitor import Monitor
 from hilbench.transports.sources import MediumSource

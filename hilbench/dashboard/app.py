@@ -27,11 +27,12 @@ import time
 from collections.abc import Callable
 from typing import Any, Protocol
 
-from rich.console import Console, Group
+from rich.console import Group
 from rich.live import Live
 from rich.text import Text
 
 from hilbench import registry
+from hilbench.console import Console
 from hilbench.dashboard.keys import KeyReader
 
 #: The refresh cap (frames per second).

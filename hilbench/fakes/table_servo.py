@@ -220,6 +220,13 @@ class TableServo:
         """True while rebooting or vanished: the servo hears nothing."""
         return t < self._rebooting_until or t < self.faults.vanished_until
 
+    def listens(self, t: float, baud: int | None) -> bool:
+        """Whether it hears a transmission at ``t`` sent at ``baud`` (None: any): not silent, and at its baud."""
+        if t < self._rebooting_until or t < self.faults.vanished_until:
+            return False
+        b = self.baud if baud is not None else None
+        return b is None or b == baud
+
     # ------------------------------------------------------------------ fault knobs
 
     def vanish(self, t: float, duration: float = math.inf) -> None:
@@ -269,6 +276,10 @@ class TableServo:
             return err
         self._apply_write(address, data, t)
         return err
+
+    def write_unanswered(self, address: int, data: bytes, t: float) -> None:
+        """A write whose status nobody hears (Sync/Bulk Write on a Protocol 2.0 bus)."""
+        self.write(address, data, t)
 
     def reg_write(self, address: int, data: bytes, t: float) -> int:
         """Reg Write: checks now, applies on Action."""

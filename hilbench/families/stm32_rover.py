@@ -39,20 +39,25 @@ from typing import Any
 from hilbench.bench.checks import Checker
 from hilbench.bench.control import ControlClient, ControlError
 from hilbench.bench.family import DeviceFamily, DeviceSpec, bench_device
-from hilbench.bench.knobs import check_fault_table, check_knobs, requested_knobs
+from hilbench.rules import FAULT_COUNT, PROBABILITY, Rule, RuleError
 
 #: Line rates a board endpoint accepts (bit/s); a pty does not care, the board paces its UART by it.
 BOARD_BAUD_RANGE = (1200, 12_500_000)
+#: The board's UART rate: a profile's ``baud``, and ``--baud`` of ``send-vel`` / ``teleop``.
+BOARD_BAUD = Rule(int, *BOARD_BAUD_RANGE)
 BOARD_MODELS = ("stm32f767-rover", "mecarover", "stm32-rover")
 BOARD_KEYS = ("model", "name", "endpoint", "preset", "caches", "output", "dialect", "window_ms", "flush_ms", "seed",
               "boot_banner", "faults", "tasks", "agent", "micro_ros")
 MICRO_ROS_KEYS = ("client_key", "domain_id", "zero_after_session")
 TIMING_KEYS = ("mean_us", "sd_us", "min_us", "max_us", "dist")
-#: Fault knobs the control channel turns (``stall`` in seconds), with their ranges.
-LIVE_FAULT_RANGES = {"drop_rate": (0.0, 1.0), "corrupt_rate": (0.0, 1.0), "drop_next": (0, 2**31),
-                     "corrupt_next": (0, 2**31), "stall": (0.0, 3600.0)}
-#: Fault knobs a profile sets (the live ones but ``stall``).
-BOARD_FAULT_RANGES = {k: v for k, v in LIVE_FAULT_RANGES.items() if k != "stall"}
+#: ``wait_report``: how long to wait (s), and after how many reports (``hilbench board wait-report`` too).
+WAIT_TIMEOUT = Rule(float, 0, 3600)
+REPORT_COUNT = Rule(int, 0, 2**31)
+#: Fault knobs and their rules: a profile's ``faults`` table (all but ``stall``), ``hilbench board fault``
+#: before it sends, and the bench's control channel when it receives (``stall`` in seconds).
+FAULT_RULES: dict[str, Rule] = {"drop_rate": PROBABILITY, "corrupt_rate": PROBABILITY, "drop_next": FAULT_COUNT,
+                                "corrupt_next": FAULT_COUNT, "stall": Rule(float, 0.0, 3600.0)}
+BOARD_FAULT_KEYS = tuple(k for k in FAULT_RULES if k != "stall")
 
 
 @dataclass
@@ -86,6 +91,21 @@ def board_config(spec: BoardSpec, baud: int):
                        faults=dict(spec.faults))
 
 
+def check_fault_knobs(knobs: dict[str, Any]) -> dict[str, float]:
+    """Fault knobs for a live board, checked against :data:`FAULT_RULES`; raises
+    :class:`~hilbench.rules.RuleError` (a usage error) in one line. ``hilbench board`` checks before
+    sending and the bench again when it receives, with these same rules."""
+    out = {}
+    for key, value in knobs.items():
+        rule = FAULT_RULES.get(key)
+        if rule is None:
+            raise RuleError(f"unknown fault knob {key!r} (expected one of: {', '.join(FAULT_RULES)})")
+        if not rule.ok(value):
+            raise RuleError(f"fault knob {key}: expected {rule.expected}, got {value!r}")
+        out[key] = value
+    return out
+
+
 class Stm32RoverFamily(DeviceFamily):
     """One emulated rover board per ``vel2d`` endpoint."""
 
@@ -111,7 +131,7 @@ class Stm32RoverFamily(DeviceFamily):
     # ------------------------------------------------------------------ profile
 
     def check_baud(self, c: Checker, key: str, value: Any, port_type: str) -> int:
-        return c.integer(115_200 if value is None else value, key, *BOARD_BAUD_RANGE)
+        return c.rule(115_200 if value is None else value, key, BOARD_BAUD)
 
     def check_devices(self, c: Checker, key: str, dev: dict[str, Any], endpoint, profile) -> list[BoardSpec]:
         from hilbench.fakes.stm32_board.presets import OUTPUTS, make_preset, preset_names
@@ -130,7 +150,11 @@ class Stm32RoverFamily(DeviceFamily):
         name = dev.get("name", endpoint.name)
         if not isinstance(name, str) or not name:
             c.fail(f"{key}.name", f"expected a string, got {name!r}")
-        faults = check_fault_table(c, f"{key}.faults", dev.get("faults", {}), BOARD_FAULT_RANGES)
+        faults = c.table(dev.get("faults", {}), f"{key}.faults")
+        c.unknown(faults, f"{key}.faults", BOARD_FAULT_KEYS)
+        for fk in BOARD_FAULT_KEYS:
+            if fk in faults:
+                c.rule(faults[fk], f"{key}.faults.{fk}", FAULT_RULES[fk])
         tasks = c.table(dev.get("tasks", {}), f"{key}.tasks")
         base = make_preset(preset, dev.get("caches", True) is not False)
         known = {t.name for t in base.tasks} | {f.name for f in base.functions} | {"line_cost"}
@@ -242,8 +266,13 @@ class Stm32RoverFamily(DeviceFamily):
             board.settle()
             return {"status": board.status()}
         if cmd == "fault":
-            knobs = check_knobs(requested_knobs(req), LIVE_FAULT_RANGES, whole_counts=False)
-            return {"faults": board.set_faults(**knobs)}
+            knobs = req.get("knobs", {})
+            if not isinstance(knobs, dict):
+                raise ControlError("knobs: expected an object")
+            try:
+                return {"faults": board.set_faults(**check_fault_knobs(knobs))}
+            except RuleError as exc:
+                raise ControlError(str(exc)) from None
         if cmd == "log":
             return {"log": board.status()["log"]}
         if cmd == "micro_ros":
@@ -257,14 +286,12 @@ class Stm32RoverFamily(DeviceFamily):
                 links[0].client.zero_next(zeroed)
             return {"micro_ros": links[0].status()}
         if cmd == "wait_report":
-            try:
-                timeout = float(req.get("timeout", 10.0))
-                start = req.get("after")
-                start = len(board.reports) if start is None else int(start)
-            except (TypeError, ValueError):
-                raise ControlError("wait_report: timeout and after must be numbers") from None
-            if not 0 <= timeout <= 3600:
-                raise ControlError(f"wait_report: timeout must be 0..3600 s, got {timeout}")
+            timeout, start = req.get("timeout", 10.0), req.get("after")
+            if not WAIT_TIMEOUT.ok(timeout):
+                raise ControlError(f"wait_report: timeout: expected {WAIT_TIMEOUT.expected} (s), got {timeout!r}")
+            if start is not None and not REPORT_COUNT.ok(start):
+                raise ControlError(f"wait_report: after: expected {REPORT_COUNT.expected}, got {start!r}")
+            start = len(board.reports) if start is None else start
             deadline = time.monotonic() + timeout
             while len(board.reports) <= start:
                 if time.monotonic() > deadline:
@@ -361,4 +388,5 @@ class BoardClient(ControlClient):
 
 FAMILY = Stm32RoverFamily()
 
-__all__ = ["BOARD_MODELS", "FAMILY", "BoardClient", "BoardSpec", "Stm32RoverFamily", "board_config"]
+__all__ = ["BOARD_BAUD", "BOARD_MODELS", "FAMILY", "FAULT_RULES", "BoardClient", "BoardSpec", "Stm32RoverFamily",
+           "board_config", "check_fault_knobs"]

@@ -186,8 +186,13 @@ class Monitor:
         """The JSON summary of what was seen so far (the instrument's; a stub while nothing was told)."""
         with self.lock:
             if self.tracker is None or self.instrument is None:
-                return {"source": self.source.name, "protocol": None, "baud": self.source.baud,
-                        "timestamps": self.source.timestamps, "bytes": 0,
-                        "note": "no traffic seen: the protocol is unknown"}
-            return self.instrument.summary(self.tracker, source=self.source.name,
-                                           timestamps=self.source.timestamps, errors=errors)
+                report = {"source": self.source.name, "protocol": None, "baud": self.source.baud,
+                          "timestamps": self.source.timestamps, "bytes": 0,
+                          "note": "no traffic seen: the protocol is unknown"}
+            else:
+                report = self.instrument.summary(self.tracker, source=self.source.name,
+                                                 timestamps=self.source.timestamps, errors=errors)
+            # Damage in the input itself (a capture cut short, corrupted, with times out of order): the
+            # same for every instrument, so the frame adds it.
+            report["data_quality"] = self.source.quality()
+            return report

@@ -197,11 +197,25 @@ def analyse(profiler, settings: ProfileSettings, *, last_us: float | None = None
     jobs: dict[str, Jobs] = {}
     misses: dict[str, list] = {}
     tick = settings.hist_tick_us
+    # Names with no closed interval (a stamp whose name was damaged on the line makes one) all get the
+    # same figures for the same settings: computed once, shared (thousands of them in a damaged trace;
+    # each name gets its own top-level dict, the nested histograms are the same read-only objects).
+    empty: dict[tuple, tuple[dict, Jobs | None]] = {}
     for i in np.flatnonzero(present).tolist():
         name = names[i]
         lo, hi = int(bounds[i]), int(bounds[i + 1])
-        d, b, e, sg = d_all[lo:hi], b_all[lo:hi], e_all[lo:hi], iseg[lo:hi]
         task = bool(is_task[i])
+        key = None
+        if hi == lo:
+            key = (task, settings.periods.get(name), settings.deadlines.get(name), settings.budgets.get(name),
+                   settings.merge_gap(name))
+            hit = empty.get(key)
+            if hit is not None:
+                per[name] = dict(hit[0])
+                if hit[1] is not None:
+                    jobs[name] = hit[1]
+                continue
+        d, b, e, sg = d_all[lo:hi], b_all[lo:hi], e_all[lo:hi], iseg[lo:hi]
         st: dict = {"kind": "task" if task else "function"}
         st.update(duration_stats(d, b))
         st["share"] = float(d.sum()) / W * 100 if W else None
@@ -258,6 +272,8 @@ def analyse(profiler, settings: ProfileSettings, *, last_us: float | None = None
             st["overrun_offenders"] = offenders(over, acts, c_vals, settings.offenders)
         st["histograms"] = hist
         per[name] = st
+        if key is not None:
+            empty[key] = (dict(st), jobs.get(name))
 
     order = sorted(per, key=lambda n: (per[n]["kind"] != "task", -per[n]["total_us"], n))
     per = {n: per[n] for n in order}

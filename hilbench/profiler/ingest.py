@@ -62,21 +62,46 @@ class Profiler:
             self.finished = True
 
     def feed_items(self, items: Iterable) -> None:
-        """Take in decoded items (as :meth:`StreamDecoder.feed_batch` returns them)."""
+        """Take in decoded items (as :meth:`StreamDecoder.feed_batch` returns them).
+
+        Stamps reach the timeline in arrival order; runs of them separated only by items that do not
+        touch the timeline (damaged lines and words, logs, name-table lines) are joined into one call
+        (noise makes thousands of tiny runs per chunk).
+        """
         tl = self.timeline
         registry = self.decoder.registry
         stamps: list[Stamp] = []
+        batches: list[StampBatch] = []
         for item in items:
             kind = type(item)
             if kind is Stamp:
+                if batches:
+                    self._add_batches(batches)
+                    batches = []
                 stamps.append(item)
+                continue
+            if kind is StampBatch:
+                if stamps:
+                    self._add_stamps(stamps, registry)
+                    stamps = []
+                batches.append(item)
+                continue
+            if kind is LogLine:
+                self.log_lines.append(item)
+                continue
+            if kind is BadLine:
+                self.bad_lines.append(item)
+                continue
+            if kind is WordProblem:
+                self.word_problems[item.kind] = self.word_problems.get(item.kind, 0) + item.count
                 continue
             if stamps:
                 self._add_stamps(stamps, registry)
                 stamps = []
-            if kind is StampBatch:
-                tl.add(item.ids, item.t_us, item.begin)
-            elif kind is RuntimeReport:
+            if batches:
+                self._add_batches(batches)
+                batches = []
+            if kind is RuntimeReport:
                 self.reports.append((tl.segment.index, item))
                 tl.attach_report(item)
             elif kind is Marker:
@@ -87,14 +112,18 @@ class Profiler:
                     tl.new_window("window_start")
                 elif item.kind == "window_stop":
                     self.windows_stopped += 1
-            elif kind is LogLine:
-                self.log_lines.append(item)
-            elif kind is BadLine:
-                self.bad_lines.append(item)
-            elif kind is WordProblem:
-                self.word_problems[item.kind] = self.word_problems.get(item.kind, 0) + item.count
         if stamps:
             self._add_stamps(stamps, registry)
+        if batches:
+            self._add_batches(batches)
+
+    def _add_batches(self, batches: list[StampBatch]) -> None:
+        if len(batches) == 1:
+            b = batches[0]
+            self.timeline.add(b.ids, b.t_us, b.begin)
+        else:
+            self.timeline.add(np.concatenate([b.ids for b in batches]), np.concatenate([b.t_us for b in batches]),
+                              np.concatenate([b.begin for b in batches]))
 
     def _add_stamps(self, stamps: list[Stamp], registry) -> None:
         ids = np.fromiter((registry.id_of_str(s.name) for s in stamps), np.int32, len(stamps))

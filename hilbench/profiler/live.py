@@ -11,11 +11,12 @@ from __future__ import annotations
 
 import time
 
-from rich.console import Console, Group
+from rich.console import Group
 from rich.live import Live
 from rich.table import Table
 from rich.text import Text
 
+from hilbench.console import Console
 from hilbench.profiler.gantt import text_gantt
 from hilbench.profiler.ingest import Profiler
 

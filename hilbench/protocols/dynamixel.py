@@ -23,6 +23,7 @@ from bisect import bisect_left
 from collections.abc import Iterator, Sequence
 from enum import IntEnum
 from functools import cache
+from struct import Struct as Struct_
 from typing import NamedTuple
 
 import numpy as np
@@ -385,10 +386,14 @@ def parse(raw: bytes) -> InstructionPacket | StatusPacket:
     return InstructionPacket(frame.id, body[0], bytes(body[1:]), bytes(raw))
 
 
+_CRC16, _CRC16_TABLE = raw_crc_routine(crc16_buypass)
+_PACK_CRC = Struct_("<H").pack
+
+
 def _frame(packet_id: int, body: bytes) -> bytes:
-    head = b"\xff\xff\xfd\x00" + bytes((packet_id, (len(body) + 2) & 0xFF, (len(body) + 2) >> 8)) + body
-    crc = crc16_buypass(head)
-    return head + bytes((crc & 0xFF, crc >> 8))
+    n = len(body) + 2
+    head = b"\xff\xff\xfd\x00" + bytes((packet_id, n & 0xFF, n >> 8)) + body
+    return head + _PACK_CRC(_CRC16(head, 0, _CRC16_TABLE))
 
 
 def instruction_packet(packet_id: int, instruction: int, params: bytes = b"") -> bytes:
@@ -403,7 +408,12 @@ def instruction_packet_unstuffed(packet_id: int, instruction: int, params: bytes
 
 def status_packet(packet_id: int, error: int = 0, data: bytes = b"") -> bytes:
     """Fast path: a stuffed status packet."""
-    return _frame(packet_id, stuff(bytes((STATUS, error)) + data))
+    body = bytes((STATUS, error)) + data
+    if STUFF_PATTERN in body:
+        body = body.replace(STUFF_PATTERN, STUFFED)
+    n = len(body) + 2
+    head = b"\xff\xff\xfd\x00" + bytes((packet_id, n & 0xFF, n >> 8)) + body
+    return head + _PACK_CRC(_CRC16(head, 0, _CRC16_TABLE))
 
 
 def build_fast_reply(slices: list[tuple[int, int, bytes]]) -> bytes:

@@ -27,6 +27,9 @@ BAUD_CODES: dict[int, int] = {
     7: 4_500_000,
 }
 BAUD_TO_CODE = {v: k for k, v in BAUD_CODES.items()}
+#: The rates the official SDK's PortHandler opens (its ``getCFlagBaud`` table; a test keeps them equal).
+SDK_BAUDS = (9_600, 19_200, 38_400, 57_600, 115_200, 230_400, 460_800, 500_000, 576_000, 921_600, 1_000_000,
+             1_152_000, 2_000_000, 2_500_000, 3_000_000, 3_500_000, 4_000_000)
 
 #: Control-table addresses used by behaviour code.
 MODEL_NUMBER = 0

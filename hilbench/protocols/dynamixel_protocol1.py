@@ -208,8 +208,11 @@ class Decoder1:
     def _scan(self, buf: bytes, out: list, t: float, final: bool) -> int:
         pos = 0
         n = len(buf)
+        find = buf.find
+        append = out.append
+        new = tuple.__new__  # NamedTuple's own __new__ is a Python frame; skip it
         while True:
-            start = buf.find(HEADER, pos)
+            start = find(HEADER, pos)
             if start < 0:
                 keep = n if final else max(pos, n - 1)
                 self.bytes_skipped += keep - pos
@@ -235,12 +238,14 @@ class Decoder1:
                 continue
             end = start + 4 + length
             raw = buf[start:end]
-            if dynamixel1_checksum(raw[2:-1]) != raw[-1]:
+            # the checksum of ID..last parameter (dynamixel1_checksum) from the sum of the whole packet:
+            # no copy of the body; the header's two FFs and the checksum byte taken back out
+            if ~(sum(raw) - 0x1FE - raw[-1]) & 0xFF != raw[-1]:
                 self.problems["checksum"] += 1
-                out.append(DecodeProblem1("checksum", raw, t))
+                append(DecodeProblem1("checksum", raw, t))
                 self.bytes_skipped += 1
                 pos = start + 1
                 continue
-            out.append(Packet1(raw[2], raw[4], raw[5:-1], raw, t))
+            append(new(Packet1, (raw[2], raw[4], raw[5:-1], raw, t)))
             self.packets += 1
             pos = end

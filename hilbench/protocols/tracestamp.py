@@ -57,6 +57,10 @@ _RT_HEADER = re.compile(rb"Task\t+Time\t+(%%?)")
 _TASK_HEADER = re.compile(rb"Task\t+State\t+Prio\t+Stack\t+Num")
 _RT_ROW = re.compile(rb"([^\t]+)\t+(\d+)\t+(<1|\d+)%")
 _TASK_ROW = re.compile(rb"([^\t]+)\t+([XRBSD])\t+(\d+)\t+(\d+)\t+(\d+)")
+#: Last bytes a stamp line can end with (its edge token: 0, 1, in, out): a cheap test before the regex.
+_STAMP_LAST = frozenset(b"01nt")
+#: Last bytes a report row, header or key line can end with (a digit, ``%``, or ``Num``).
+_REPORT_LAST = frozenset(b"0123456789%m")
 
 
 # --------------------------------------------------------------------------- items
@@ -310,6 +314,8 @@ def _kind(line: bytes) -> str:
 def _report_row(line: bytes) -> tuple[str, object] | None:
     """A TAB-bearing report line: ('free_heap', n) / ('ctx', n) / ('rt_header', pct) / ('task_header', None)
     / ('rt_row', RuntimeRow) / ('task_row', TaskRow); None if it is none of them."""
+    if not line or line[-1] not in _REPORT_LAST:
+        return None  # every report line ends with a digit, % or "Num": garbage is turned away at once
     m = _RT_ROW.fullmatch(line)
     if m:
         name = m[1].decode("latin-1").rstrip(" ")
@@ -488,7 +494,19 @@ class TextDecoder:
             expanded.extend(item.stamps() if type(item) is StampBatch else [item])
         return expanded
 
-    def _decode(self, data: bytes) -> list:
+    def feed_lines(self, data: bytes) -> tuple[list, list]:
+        """:meth:`feed` for a caller that interleaves the items with other input: returns the items
+        (stamps as :class:`Stamp` or unmerged :class:`StampBatch` runs; merge with :meth:`merge`) and,
+        for each, the index of the line that completed it among the lines this call completed (an int,
+        or for a batch the range of its lines, ``(first, last + 1)``; one stamp per line)."""
+        pos: list = []
+        return self._decode(data, pos), pos
+
+    def merge(self, items: list) -> list[StampBatch | Item]:
+        """Runs of stamps among ``items`` (from :meth:`feed_lines`) merged into batches."""
+        return self._batched(items)
+
+    def _decode(self, data: bytes, pos: list | None = None) -> list:
         self.bytes_in += len(data)
         out: list = []
         buf = self._buf + bytes(data) if self._buf else bytes(data)
@@ -502,14 +520,21 @@ class TextDecoder:
         last = buf.rfind(b"\n")
         if last < 0:
             self._buf = self._cap(buf, out)
+            if pos is not None:
+                pos.extend([0] * len(out))
             return out
         self._buf = self._cap(buf[last + 1 :], out)
-        self._lines_into(buf[: last + 1], out)
+        if pos is not None:
+            pos.extend([0] * len(out))
+        self._lines_into(buf[: last + 1], out, pos)
         return out
 
     def _batched(self, items: list) -> list:
         """Merge runs of :class:`Stamp` and :class:`StampBatch` items into single batches."""
-        if not any(type(i) is Stamp for i in items) and sum(type(i) is StampBatch for i in items) <= 1:
+        if len(items) < 2:
+            if not items or type(items[0]) is not Stamp:
+                return items
+        elif not any(type(i) is Stamp for i in items) and sum(type(i) is StampBatch for i in items) <= 1:
             return items
         out: list = []
         run: list = []
@@ -554,12 +579,17 @@ class TextDecoder:
         self._skipping = True
         return b""
 
-    def _lines_into(self, chunk: bytes, out: list) -> None:
-        """Decode complete lines (``chunk`` ends with LF)."""
-        fast = _vector_parse(chunk)
+    def _lines_into(self, chunk: bytes, out: list, pos: list | None = None) -> None:
+        """Decode complete lines (``chunk`` ends with LF); with ``pos``, note each item's line index."""
+        fast = _vector_parse(chunk) if chunk.count(b"\n") >= _MIN_VECTOR_LINES else None
         if fast is None:  # too few lines for numpy to pay off
-            for line in chunk[:-1].split(b"\n"):
+            if pos is None:
+                for line in chunk[:-1].split(b"\n"):
+                    self._slow_line(line, out)
+                return
+            for i, line in enumerate(chunk[:-1].split(b"\n")):
                 self._slow_line(line, out)
+                pos.extend([i] * (len(out) - len(pos)))
             return
         starts, ends, ok, t_us, begin, name_start, name_end, word_edges = fast
         n = len(starts)
@@ -567,6 +597,8 @@ class TextDecoder:
         if not ok.any():
             for i in range(n):
                 self._other_line(chunk[starts[i] : ends[i]], out)
+                if pos is not None:
+                    pos.extend([i] * (len(out) - len(pos)))
             return
         ids = self._name_ids_for(chunk, name_start, name_end, ok)
         nwords = int(word_edges[ok].sum())
@@ -577,16 +609,24 @@ class TextDecoder:
         bad = np.flatnonzero(~ok)
         if len(bad) == 0:
             out.append(StampBatch(self.registry.snapshot(), ids, t_us, begin))
+            if pos is not None:
+                pos.append((0, n))
             return
         # Interleave: runs of stamp lines between the other lines, in arrival order.
         prev = 0
         for i in bad.tolist():
             if i > prev:
                 out.append(StampBatch(self.registry.snapshot(), ids[prev:i], t_us[prev:i], begin[prev:i]))
+                if pos is not None:
+                    pos.append((prev, i))
             self._other_line(chunk[starts[i] : ends[i]], out)
+            if pos is not None:
+                pos.extend([i] * (len(out) - len(pos)))
             prev = i + 1
         if prev < n:
             out.append(StampBatch(self.registry.snapshot(), ids[prev:], t_us[prev:], begin[prev:]))
+            if pos is not None:
+                pos.append((prev, n))
 
     def _name_ids_for(self, chunk: bytes, ns: np.ndarray, ne: np.ndarray, ok: np.ndarray) -> np.ndarray:
         """Decoder-wide name ids for the stamp lines (``ok``); other rows get 0 (unused)."""
@@ -637,7 +677,7 @@ class TextDecoder:
         self.lines += 1
         if line.endswith(b"\r"):
             line = line[:-1]
-        if line and line[0] != 0x40 and b"\t" not in line and not _LOG.match(line):
+        if line and line[-1] in _STAMP_LAST and line[0] != 0x40 and b"\t" not in line and not _LOG.match(line):
             m = _STAMP.fullmatch(line)
             if m is not None:
                 self.stamp_lines += 1
@@ -652,7 +692,7 @@ class TextDecoder:
         """A line the vectorised path did not take as a stamp (no LF; already counted in ``lines``)."""
         if line.endswith(b"\r"):
             line = line[:-1]
-        if line and line[0] != 0x40 and b"\t" not in line and not _LOG.match(line):
+        if line and line[-1] in _STAMP_LAST and line[0] != 0x40 and b"\t" not in line and not _LOG.match(line):
             m = _STAMP.fullmatch(line)
             if m is not None:  # e.g. a time with more digits than the fast path reads
                 self.stamp_lines += 1
@@ -706,7 +746,7 @@ class TextDecoder:
             else:
                 rep.tasks.append(value)
             return
-        m = _CLOSING.fullmatch(line)
+        m = _CLOSING.fullmatch(line) if line.endswith(b" us") else None
         if m:
             self.report_lines += 1
             rep = self._report or self._open(out, implicit=True)
@@ -715,7 +755,7 @@ class TextDecoder:
             if rep.has_content:  # (if the end separator was lost, the report is marked incomplete)
                 out.append(self._emit_report())
             return
-        m = _LOG.fullmatch(line)
+        m = _LOG.fullmatch(line) if 0x30 <= c <= 0x39 else None
         if m:
             self.log_lines += 1
             out.append(LogLine(m[1].decode(), m[2].decode(), m[3].decode("latin-1")))

@@ -238,11 +238,16 @@ def split_words(data: bytes | np.ndarray) -> tuple[np.ndarray, int, int]:
     the tagged bytes were used (the rest start an unfinished word).
     """
     a = np.frombuffer(data, dtype=np.uint8) if not isinstance(data, np.ndarray) else data
-    a = a[a >= 0x80]
+    p, broken, consumed, _ = _split(a[a >= 0x80])
+    return p, broken, consumed
+
+
+def _split(a: np.ndarray) -> tuple[np.ndarray, int, int, np.ndarray]:
+    """:func:`split_words` of tagged bytes only, with the index of each good word's first byte."""
     n = len(a)
     leads = np.flatnonzero(a >= 0xC0)
     if len(leads) == 0:
-        return np.zeros(0, np.uint32), int(n > 0), n
+        return np.zeros(0, np.uint32), int(n > 0), n, leads
     nxt = np.empty(len(leads), dtype=np.int64)
     nxt[:-1] = leads[1:]
     nxt[-1] = n
@@ -260,7 +265,7 @@ def split_words(data: bytes | np.ndarray) -> tuple[np.ndarray, int, int]:
     short = int((complete & (span < WORD_SIZE)).sum())  # words that lost bytes
     extra = int((complete & (span > WORD_SIZE)).sum())  # continuation bytes after a good word
     stray_head = int(leads[0] > 0)  # continuation bytes before the first lead
-    return p.astype(np.uint32), short + extra + stray_head, consumed
+    return p.astype(np.uint32), short + extra + stray_head, consumed, gi
 
 
 class WordDecoder:
@@ -351,6 +356,32 @@ class WordDecoder:
         self._decode(payloads, out, broken)
         return out
 
+    def feed_segments(self, tagged: np.ndarray, starts: np.ndarray) -> list[list]:
+        """:meth:`feed_batch` of tagged bytes (all >= 0x80) that belong to consecutive segments of the
+        stream, the first byte of segment ``k + 1`` at ``tagged[starts[k]]``; returns each segment's items.
+
+        The stream decoder puts each segment's items before the text line that ends it, with one call
+        for many segments (one numpy pass instead of one per line). Damaged words are reported in the
+        first segment of the call.
+        """
+        nseg = len(starts) + 1
+        outs: list[list] = [[] for _ in range(nseg)]
+        a = tagged
+        if len(self._pending):
+            a = np.concatenate((self._pending, a))
+            starts = starts + len(self._pending)
+        payloads, broken, consumed, leads = _split(a)
+        self._pending = a[consumed:].copy()
+        if broken:
+            self.broken_words += broken
+        if len(payloads) == 0:
+            if broken:
+                outs[0].append(WordProblem("broken_word", broken, self._t))
+            return outs
+        seg = np.searchsorted(starts, leads + (WORD_SIZE - 1), side="right")  # where each word completes
+        self._decode(payloads, outs, broken, seg)
+        return outs
+
     def flush(self) -> list:
         """End of input: an unfinished word is a broken one."""
         if len(self._pending):
@@ -361,7 +392,8 @@ class WordDecoder:
 
     # ------------------------------------------------------------------ internals
 
-    def _decode(self, p: np.ndarray, out: list, broken: int) -> None:
+    def _decode(self, p: np.ndarray, out: list, broken: int, seg: np.ndarray | None = None) -> None:
+        """Decode payloads into ``out`` (with ``seg``: into ``out[seg[i]]``, a list per segment)."""
         n = len(p)
         self.words += n
         ids = (p >> 18).astype(np.int64)
@@ -381,17 +413,48 @@ class WordDecoder:
         self.stamps += nst
         self.time_words += int(is_time.sum())
         self.controls += int(is_ctrl.sum())
+        first = out if seg is None else out[int(seg[0])]
         if broken:
-            out.append(WordProblem("broken_word", broken, int(t_full[0]) if self._t is not None else None))
+            first.append(WordProblem("broken_word", broken, int(t_full[0]) if self._t is not None else None))
         sp = np.flatnonzero(special)
-        prev = 0
-        for i in [*sp.tolist(), n]:
-            if i > prev:
-                self._emit_stamps(p[prev:i], ids[prev:i], is_stamp[prev:i], t_full[prev:i], out)
+        if seg is None:
+            prev = 0
+            for i in [*sp.tolist(), n]:
+                if i > prev:
+                    self._emit_stamps(p[prev:i], ids[prev:i], is_stamp[prev:i], t_full[prev:i], out)
+                if i == n:
+                    break
+                self._special(int(p[i]), int(ids[i]), int(t_full[i]), out)
+                prev = i + 1
+            return
+        # Split at special words and where a segment begins; each piece goes to its segment's list. The
+        # stamp columns are made once for the call and sliced per piece (many pieces: one per line of noise).
+        cuts = np.union1d(sp, np.flatnonzero(seg[1:] != seg[:-1]) + 1).tolist()
+        segs = seg.tolist()
+        spos = np.flatnonzero(is_stamp)
+        if len(spos):
+            sid = ids[spos]
+            idx = self._lut[sid]
+            missing = idx < 0
+            if missing.any():
+                for wid in np.unique(sid[missing]).tolist():
+                    self._lut[wid] = self._index(f"#{wid}")
+                self.unnamed_stamps += int(missing.sum())
+                idx = self._lut[sid]
+            cols = (idx.astype(np.int32), t_full[spos].astype(np.int64), ((p[spos] >> 17) & 1).astype(bool))
+            names = self.registry.snapshot()
+        bounds = np.searchsorted(spos, [*cuts, n]).tolist()  # stamps before each cut
+        prev, sprev = 0, 0
+        for i, s in zip([*cuts, n], bounds, strict=True):
+            if s > sprev:
+                out[segs[prev]].append(StampBatch(names, cols[0][sprev:s], cols[1][sprev:s], cols[2][sprev:s]))
             if i == n:
                 break
-            self._special(int(p[i]), int(ids[i]), int(t_full[i]), out)
-            prev = i + 1
+            if special[i]:
+                self._special(int(p[i]), int(ids[i]), int(t_full[i]), out[segs[i]])
+                prev, sprev = i + 1, s
+            else:
+                prev, sprev = i, s
 
     def _emit_stamps(self, p, ids, is_stamp, t_full, out) -> None:
         if not is_stamp.any():
@@ -433,7 +496,10 @@ class WordDecoder:
         f[is_check] = 0
         ye = np.zeros(len(p) + 1, dtype=np.uint32)  # ye[i] = XOR of f[0..i-1]
         np.bitwise_xor.accumulate(f, out=ye[1:])
-        resets = np.union1d(np.flatnonzero(is_check) + 1, np.flatnonzero(is_start))  # block starts
+        starts = np.zeros(len(p) + 1, dtype=bool)  # block starts: after each CHECK, at each WINDOW_START
+        starts[1:] = is_check
+        starts[:-1] |= is_start
+        resets = np.flatnonzero(starts)
         checks = np.flatnonzero(is_check)
         if len(checks):
             pos = np.searchsorted(resets, checks, side="right") - 1  # the last block start <= each check
@@ -464,6 +530,7 @@ class WordDecoder:
         hi = pb & (HI_WRAP - 1)
         low = np.where(tb_is_time, (hi << HI_SHIFT) & TIME_MASK, pb & TIME_MASK)
         t0 = self._t
+        before = t0 if t0 is not None else 0  # the time of words before the first time-bearing one
         unsynced = t0 is None
         if unsynced:
             t0 = int(low[0])  # epoch 0 until a TIME word says otherwise
@@ -476,18 +543,20 @@ class WordDecoder:
         # Anchor at TIME words: their high part fixes the epoch after long gaps.
         anchors = np.flatnonzero(tb_is_time)
         if len(anchors):
-            offset = np.zeros(len(low), dtype=np.int64)
+            # Each anchor shifts everything after it: record the steps, sum them once (linear time).
+            steps = np.zeros(len(low), dtype=np.int64)
             shift = 0
-            for j in anchors.tolist():
-                est = int(rel[j]) + shift
+            rel_at = rel[anchors].tolist()
+            for j, r, h in zip(anchors.tolist(), rel_at, hi[anchors].tolist(), strict=True):
+                est = r + shift
                 h_est = est >> HI_SHIFT
-                dh = (int(hi[j]) - h_est) % HI_WRAP
+                dh = (h - h_est) % HI_WRAP
                 if dh >= HI_WRAP // 2:
                     dh -= HI_WRAP
-                exact = (h_est + dh) << HI_SHIFT
-                shift += exact - est
-                offset[j:] = shift
-            rel = rel + offset
+                step = ((h_est + dh) << HI_SHIFT) - est
+                shift += step
+                steps[j] = step
+            rel = rel + np.cumsum(steps)
             if unsynced:
                 first = int(anchors[0])
                 self.unsynced_stamps += int(is_stamp[bi[:first]].sum())
@@ -496,8 +565,8 @@ class WordDecoder:
             self.unsynced_stamps += int(is_stamp[bi].sum())
         self._t = int(rel[-1])
         # Spread to all words: each word gets the time of the last bearing word at or before it.
-        k = np.searchsorted(bi, np.arange(n), side="right") - 1
-        t_word = np.where(k >= 0, rel[np.maximum(k, 0)], t0)
+        k = np.cumsum(bearing) - 1  # the last bearing word at or before each word (linear, no search)
+        t_word = np.where(k >= 0, rel[np.maximum(k, 0)], before)
         return t_word
 
 

@@ -173,13 +173,19 @@ class IdleLineFramer:
         size = self.size
         pos = 0
         n = len(data)
-        while pos < n:
-            take = min(size - len(pending), n - pos)
-            pending += data[pos : pos + take]
-            pos += take
+        if pending:  # complete the buffer the last bytes began
+            pos = min(size - len(pending), n)
+            pending += data[:pos]
             if len(pending) == size:
                 out.append((bytes(pending), start + pos * ct))
                 pending.clear()
+        whole = (n - pos) // size  # then whole buffers straight from the data (a stream of frames)
+        if whole:
+            stop = pos + whole * size
+            out.extend([(data[p : p + size], start + (p + size) * ct) for p in range(pos, stop, size)])
+            pos = stop
+        if pos < n:
+            pending += data[pos:]
         self._line_free = start + n * ct
         return out
 

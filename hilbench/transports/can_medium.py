@@ -42,7 +42,7 @@ from typing import Any, Protocol
 
 from hilbench.protocols import can_frame as cf
 from hilbench.protocols.can_frame import CanFrame
-from hilbench.transports.clock import SPIN_AFTER_ACTIVITY, reduce_timer_slack, wait
+from hilbench.transports.clock import reduce_timer_slack, wait
 from hilbench.transports.medium import DevicePort
 from hilbench.transports.medium_loop import LoopMedium
 
@@ -123,7 +123,6 @@ class CanMedium(LoopMedium):
         self._arbitrating = False
         self._load: collections.deque[tuple[float, int]] = collections.deque()
         self._load_bits = 0
-        self._last_activity = 0.0
         # One mapping from the bus clock (time.monotonic) to Unix time, so wire stamps never jump.
         self.wall_offset = time.time() - time.monotonic()
 
@@ -430,10 +429,9 @@ class CanMedium(LoopMedium):
                 d = port.deadline()
                 if d is not None and (deadline is None or d < deadline):
                     deadline = d
-            ready = wait(fds, deadline, precise=self.paced, spin_until=self._last_activity + SPIN_AFTER_ACTIVITY)
+            ready = wait(fds, deadline, precise=self.paced)
             now = time.monotonic()
             if ready:
-                self._last_activity = now
                 if waker.fd in ready:
                     waker.drain()
             for port, listen_only in hosts:

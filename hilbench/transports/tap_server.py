@@ -145,7 +145,10 @@ class TapServer:
                             sel.modify(c.sock, events, c)
                         except KeyError:
                             sel.register(c.sock, events, c)
-                for key, mask in sel.select(timeout=0.5):
+                # no timeout: a thread that wakes on its own takes the GIL now and then, and a paced
+                # line's real-time thread would wait whenever it was preempted holding it (feed() and
+                # close() wake it through the pipe)
+                for key, mask in sel.select(timeout=None):
                     if key.data == "accept":
                         self._accept()
                     elif key.data == "wake":

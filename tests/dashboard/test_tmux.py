@@ -11,7 +11,7 @@ import sys
 import pytest
 
 from hilbench.pytest_plugin import wait_until
-from tests.conftest import REPO, shared_data_dir
+from tests.conftest import REPO, WOLFGANG_TRACE
 
 pytestmark = pytest.mark.skipif(shutil.which("tmux") is None,
                                 reason="tmux is not installed: the real-terminal dashboard test needs it")
@@ -64,10 +64,7 @@ def hilbench(*args: str) -> str:
 
 
 def test_replayed_capture_in_a_real_terminal(terminal):
-    trace = shared_data_dir() / "dynamixel" / "wolfgang_trace.bin"
-    if not trace.exists():
-        pytest.skip(f"shared capture not found at {trace}")
-    term = terminal(hilbench("monitor", str(trace), "--baud", "2000000"))
+    term = terminal(hilbench("monitor", str(WOLFGANG_TRACE), "--baud", "2000000"))
     screen = term.wait_for("[ended - q quits]")
     lines = screen.splitlines()
     assert lines[2] == "Device overview" and len(lines) <= 24

@@ -124,3 +124,17 @@ def test_linear_histograms_are_printed_and_in_the_json(trace64, tmp_path):
     assert sum(hists["response_linear"]["counts"]) == 6
     bad = run(str(trace64), "--hist", "durations", check_rc=2)
     assert b"unknown histogram 'durations'" in bad.stderr
+
+
+def test_a_dynamixel_bench_is_refused_not_profiled(hilbench_emulator, tmp_path):
+    """`profile MANIFEST` of a servo bus: one line pointing to `hilbench monitor`, exit 2, no empty profile."""
+    manifest = hilbench_emulator("arm")
+    mfile = tmp_path / "bench.json"
+    mfile.write_text(json.dumps({k: v for k, v in manifest.items() if k != "process"}))
+    tap = manifest["endpoints"][0]["tap"]
+    for source, name in ((str(mfile), f"{mfile}#arm"), (f"{mfile}#arm", f"{mfile}#arm"), (tap, tap)):
+        proc = run(source, "--duration", "1", "--json", check_rc=2)
+        assert proc.stdout == b""
+        assert proc.stderr.decode().splitlines() == [
+            f"hilbench: error: {name} carries dynamixel, not vel2d (Dynamixel Protocol 2.0 bus: use `hilbench "
+            "monitor`)"]

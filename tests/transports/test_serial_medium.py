@@ -137,14 +137,16 @@ def test_paced_line_models_wire_time_and_reply_gap():
         byte_time = 10 / 9600
         expected = 10 * byte_time + 0.005 + 10 * byte_time  # request, gap, reply
         times = []
-        with serial.Serial(host.path, 9600, timeout=0) as ser:
-            for _ in range(3):  # the fastest of three: a loaded machine only adds delay
+        # a blocking read: a thread busy-polling the port would hold the GIL the line's thread needs, and a
+        # loaded machine preempts it while it holds it
+        with serial.Serial(host.path, 9600, timeout=1) as ser:
+            for _ in range(5):  # the fastest of five: a loaded machine only adds delay
                 t0 = time.monotonic()
                 ser.write(bytes(10))
                 assert read_exactly(ser, 10) == bytes(10)
                 times.append(time.monotonic() - t0)
         assert expected * 0.98 < min(times) < expected + 0.010
-        assert len(tapped) == 6
+        assert len(tapped) == 10
         for (t_req, src_req), (t_rep, src_rep) in zip(tapped[::2], tapped[1::2], strict=True):
             assert (src_req, src_rep) == ("host", "dev")
             assert abs((t_rep - t_req) - (0.005 + 10 * byte_time)) < 1e-6  # the model itself is exact
@@ -161,3 +163,73 @@ def test_paced_transmissions_queue_behind_each_other():
     assert abs(end1 - (t + 0.001)) < 1e-9
     assert abs(end2 - (end1 + 0.0005)) < 1e-9
     line.close()
+
+
+def test_a_burst_reaches_the_host_in_granules_never_early():
+    """Deliveries due within the granule share a wake-up and a host write; none arrives before its wire time,
+    and taps and devices still see each transmission at its own model time."""
+    import hilbench.transports.serial_medium as sm
+
+    host = PtyEndpoint("host")
+    line = SerialMedium("line", 1_000_000, paced=True)  # 10 us per byte: ten 5-byte replies, 50 us apart
+    line.add_host(host)
+    tapped = []
+    line.add_tap(lambda t, src, data: tapped.append((t, data)))
+    line.start()
+    try:
+        with serial.Serial(host.path, 1_000_000, timeout=0) as ser:
+            arrivals = []
+            for _ in range(5):  # the best of five: a loaded machine only makes deliveries later
+                tapped.clear()
+                t0 = time.monotonic() + 0.002
+                ends = [line.transmit("dev", bytes([i]) * 5, t=t0) for i in range(10)]
+                got, seen = b"", []
+                while len(got) < 50 and time.monotonic() < t0 + 1:
+                    chunk = ser.read(50)
+                    if chunk:
+                        seen.append((time.monotonic(), len(got) + len(chunk)))
+                        got += chunk
+                assert got == b"".join(bytes([i]) * 5 for i in range(10))
+                for now, total in seen:  # every byte read had been on the wire by then
+                    assert now >= ends[(total - 1) // 5]
+                assert [t for t, _ in tapped] == ends  # taps: exact model times, one record per transmission
+                arrivals.append((len(seen), seen[-1][0] - ends[-1]))
+        chunks, late = min(arrivals, key=lambda a: a[1])
+        assert late < 0.005  # the last byte came when the wire model says, give or take a wake-up
+        assert min(n for n, _ in arrivals) < 10  # a 450 us burst came in fewer writes than transmissions
+        assert sm.DELIVERY_GRANULE > 0
+    finally:
+        line.close()
+        host.close()
+
+
+def test_paced_line_reports_its_scheduling_and_can_stay_normal(monkeypatch):
+    line = SerialMedium("line", 9600, paced=True, realtime=False)
+    line.start()
+    try:
+        assert line.scheduling == "SCHED_OTHER"
+    finally:
+        line.close()
+    monkeypatch.setenv("HILBENCH_REALTIME", "0")
+    assert SerialMedium("x", 9600, paced=True).realtime is False
+    monkeypatch.delenv("HILBENCH_REALTIME")
+    assert SerialMedium("x", 9600, paced=True).realtime is True
+    assert SerialMedium("x", 9600, paced=False).realtime is False  # unpaced lines gain nothing from it
+    line = SerialMedium("line", 9600, paced=True)
+    line.start()
+    try:  # root or CAP_SYS_NICE: SCHED_FIFO; otherwise the normal scheduler and why
+        assert line.scheduling == "SCHED_FIFO 10" or line.scheduling.startswith("SCHED_OTHER (SCHED_FIFO refused")
+    finally:
+        line.close()
+
+
+def test_realtime_falls_back_with_the_reason():
+    import threading
+
+    from hilbench.transports.clock import try_realtime
+
+    out = []
+    t = threading.Thread(target=lambda: out.append(try_realtime(priority=1000)))  # no such priority
+    t.start()
+    t.join()
+    assert out[0].startswith("SCHED_OTHER (SCHED_FIFO refused: ")

@@ -14,6 +14,7 @@ import logging
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from itertools import repeat
 
 from hilbench.fakes.dynamixel.servo import Servo
 from hilbench.protocols import dynamixel as dxl
@@ -79,6 +80,7 @@ class DynamixelBus:
         self.decoder = dxl.Decoder(strict_stuffing=strict_stuffing, inter_byte_timeout=inter_byte_timeout)
         self.stats = BusStats()
         self.port: DevicePort | None = None
+        self._packets: dict[int, tuple[bytes, int, bytes]] = {}  # reply id -> (data, err, its last status)
         self._handlers: dict[int, Callable[[InstructionPacket, float, int | None, list[Servo]], None]] = {
             I.PING: self._ping,
             I.READ: self._read,
@@ -122,9 +124,7 @@ class DynamixelBus:
 
     def _hearing(self, t: float, baud: int | None) -> list[Servo]:
         """Devices that receive this transmission: awake, and at the sender's baud."""
-        if baud is None:
-            return [s for s in self.servos if not s.silent(t)]
-        return [s for s in self.servos if not s.silent(t) and ((b := s.baud) is None or b == baud)]
+        return [s for s in self.servos if s.listens(t, baud)]
 
     def _dispatch(self, pkt: InstructionPacket, t: float, baud: int | None) -> None:
         self.stats.requests[pkt.name] += 1
@@ -166,21 +166,30 @@ class DynamixelBus:
         end = t
         batch = bytearray()
         batch_baud: int | None = None
+        status_packet = dxl.status_packet
+        stats = self.stats
+        packets = self._packets
         try:
             for s, err, data, reply_id in replies:
                 faults = s.faults
-                if faults.take_drop():
-                    self.stats.dropped_replies += 1
+                # (the knobs are read first: drawing from the generator only when a rate is set)
+                if (faults.drop_next or faults.drop_rate) and faults.take_drop():
+                    stats.dropped_replies += 1
                     if self.chain_policy == "stall":
                         return
                     continue
-                raw = dxl.status_packet(reply_id, err, data)
-                if faults.take_corrupt():
+                cached = packets.get(reply_id)
+                if cached is not None and cached[0] == data and cached[1] == err:
+                    raw = cached[2]  # the same status as last time (a joint holding still): no new CRC
+                else:
+                    raw = status_packet(reply_id, err, data)
+                    packets[reply_id] = (data, err, raw)
+                if (faults.corrupt_next or faults.corrupt_rate) and faults.take_corrupt():
                     raw = raw[:-2] + bytes((raw[-2] ^ 0xFF, raw[-1]))
-                    self.stats.corrupted_replies += 1
+                    stats.corrupted_replies += 1
                 gap = (s.return_delay if paced else 0.0) + faults.delay
                 baud = s.baud
-                self.stats.replies += 1
+                stats.replies += 1
                 joins = not paced and gap == 0.0
                 if batch and not (joins and baud == batch_baud):
                     end = port.transmit(bytes(batch), t=end, baud=batch_baud)
@@ -281,14 +290,21 @@ class DynamixelBus:
     def _multi_read(self, pkt: InstructionPacket, t: float, baud: int | None, hearing: list[Servo]) -> None:
         by_id = {s.id: s for s in hearing}
         replies = []
-        for dxl_id, address, length in self._read_list(pkt):
+        stall = self.chain_policy == "stall"
+        p = pkt.params
+        if pkt.instruction == I.SYNC_READ:  # one address and length for all: the hot path of control loops
+            address, length = _u16s(p)
+            wanted = zip(p[4:], repeat(address), repeat(length))
+        else:
+            wanted = self._read_list(pkt)
+        for dxl_id, address, length in wanted:
             s = by_id.get(dxl_id)
-            if s is None or not self._answers(s, pkt.instruction):
-                if self.chain_policy == "stall":
+            if s is None or s.status_return_level < 1:  # _answers() of a read
+                if stall:
                     break
                 continue
             err, data = s.read(address, length, t)
-            replies.append((s, s.error_byte(err), data, s.id))
+            replies.append((s, s.error_byte(err), data, dxl_id))
         self._send(replies, t)
 
     def _supports_fast(self, s: Servo) -> bool:
@@ -337,23 +353,26 @@ class DynamixelBus:
             self.stats.replies += 1
 
     def _multi_write(self, pkt: InstructionPacket, t: float, baud: int | None, hearing: list[Servo]) -> None:
-        by_id: dict[int, list[Servo]] = {}
+        by_id: dict[int, list] = {}  # id -> the bound write_unanswered of each device answering to it
         for s in hearing:
-            by_id.setdefault(s.id, []).append(s)
-            if s.secondary_id is not None and s.secondary_id != s.id:
-                by_id.setdefault(s.secondary_id, []).append(s)
+            write = s.write_unanswered
+            sid = s.id
+            by_id.setdefault(sid, []).append(write)
+            second = s.secondary_id
+            if second is not None and second != sid:
+                by_id.setdefault(second, []).append(write)
         p = pkt.params
         if pkt.instruction == I.SYNC_WRITE:
             address, length = _u16s(p)
             for k in range(4, len(p), length + 1):
-                for s in by_id.get(p[k], ()):
-                    s.write(address, p[k + 1 : k + 1 + length], t)
+                for write in by_id.get(p[k], ()):
+                    write(address, p[k + 1 : k + 1 + length], t)
         else:
             k = 0
             while k < len(p):
                 length = p[k + 3] | p[k + 4] << 8
-                for s in by_id.get(p[k], ()):
-                    s.write(p[k + 1] | p[k + 2] << 8, p[k + 5 : k + 5 + length], t)
+                for write in by_id.get(p[k], ()):
+                    write(p[k + 1] | p[k + 2] << 8, p[k + 5 : k + 5 + length], t)
                 k += 5 + length
 
 

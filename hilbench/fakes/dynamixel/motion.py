@@ -36,7 +36,15 @@ class Profile:
 
     def at(self, t: float) -> State:
         """Position, velocity and acceleration at time ``t``."""
-        for seg in self.segments:
+        segments = self.segments
+        if len(segments) == 1:  # at rest, or running at a constant speed (most reads)
+            seg = segments[0]
+            dt = t - seg.t0
+            if dt < 0.0:
+                dt = 0.0
+            return State(seg.p0 + seg.v0 * dt + 0.5 * seg.a * dt * dt, seg.v0 + seg.a * dt, seg.a,
+                         seg.duration != math.inf or seg.v0 != 0.0)
+        for seg in segments:
             dt = t - seg.t0
             if dt < seg.duration:
                 dt = max(dt, 0.0)
@@ -44,6 +52,23 @@ class Profile:
                              seg.duration != math.inf or seg.v0 != 0.0)
         seg = self.segments[-1]  # unreachable: the last segment is open-ended
         return State(seg.p0, seg.v0, 0.0, False)
+
+    def position_velocity(self, t: float) -> tuple[float, float]:
+        """``at(t)``'s position and velocity (the same arithmetic, without building a State)."""
+        segments = self.segments
+        if len(segments) == 1:
+            seg = segments[0]
+            dt = t - seg.t0
+            if dt < 0.0:
+                dt = 0.0
+            return seg.p0 + seg.v0 * dt + 0.5 * seg.a * dt * dt, seg.v0 + seg.a * dt
+        s = self.at(t)
+        return s.position, s.velocity
+
+    def rests_at(self, t: float, position: float) -> bool:
+        """Whether the horn is at rest at ``position`` from ``t`` on (planning a move there would change nothing)."""
+        seg = self.segments[-1]
+        return t >= seg.t0 and seg.p0 == position and seg.v0 == 0.0 and seg.a == 0.0 and self.target == position
 
     def end_time(self) -> float:
         """When the motion settles (the start of the final, open-ended segment)."""

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 import random
+import struct
 from dataclasses import dataclass, field
 
 from hilbench.fakes.dynamixel.motion import Profile
@@ -27,6 +28,25 @@ MAX_ACCELERATION = 200 * PULSES_PER_REV
 DYNAMIC_LO, DYNAMIC_HI = 120, 148
 #: Indirect Data areas and where their addresses live.
 INDIRECT_AREAS = ((224, 252, 168), (634, 662, 578))
+
+# The hot paths (every Sync Read/Write touches every servo) read and write the table with struct at
+# fixed addresses, bound here once: a module attribute lookup per access is a measurable share of a
+# 20-servo cycle.
+_U16, _U32, _I32 = struct.Struct("<H"), struct.Struct("<I"), struct.Struct("<i")
+_PWM_CUR_VEL = struct.Struct("<hhi")  # Present PWM, Present Current, Present Velocity (124..131)
+_POS_VEL_POS = struct.Struct("<iii")  # Present Position, Velocity Trajectory, Position Trajectory (132..143)
+assert (m.PRESENT_POSITION, m.VELOCITY_TRAJECTORY, m.POSITION_TRAJECTORY, m.PRESENT_INPUT_VOLTAGE) == (132, 136, 140, 144)
+_BAUD_CODES = m.BAUD_CODES
+_BAUD_RATE, _RETURN_DELAY_TIME, _DRIVE_MODE, _OPERATING_MODE = m.BAUD_RATE, m.RETURN_DELAY_TIME, m.DRIVE_MODE, \
+    m.OPERATING_MODE
+_HOMING_OFFSET, _MAX_VOLTAGE, _MIN_VOLTAGE = m.HOMING_OFFSET, m.MAX_VOLTAGE, m.MIN_VOLTAGE
+_MAX_POSITION, _MIN_POSITION, _VELOCITY_LIMIT = m.MAX_POSITION, m.MIN_POSITION, m.VELOCITY_LIMIT
+_TORQUE_ENABLE, _STATUS_RETURN_LEVEL, _HARDWARE_ERROR_STATUS = m.TORQUE_ENABLE, m.STATUS_RETURN_LEVEL, \
+    m.HARDWARE_ERROR_STATUS
+_BUS_WATCHDOG, _GOAL_POSITION = m.BUS_WATCHDOG, m.GOAL_POSITION
+_GOALS = (m.GOAL_POSITION, m.GOAL_VELOCITY, m.GOAL_PWM, m.GOAL_CURRENT)
+_ALWAYS_APPLY = (m.GOAL_POSITION, m.GOAL_VELOCITY, m.TORQUE_ENABLE)
+_LIMITS = {m.GOAL_VELOCITY: (m.VELOCITY_LIMIT, 4), m.GOAL_PWM: (m.PWM_LIMIT, 2), m.GOAL_CURRENT: (m.CURRENT_LIMIT, 2)}
 
 
 @dataclass
@@ -162,32 +182,44 @@ class Servo:
     @property
     def baud(self) -> int | None:
         """Baud the device listens at; boards have no Baud Rate item and use ``board_baud`` (None: any)."""
-        return m.BAUD_CODES.get(self.mem[m.BAUD_RATE]) if self.is_servo else self.board_baud
+        return _BAUD_CODES.get(self.mem[_BAUD_RATE]) if self.is_servo else self.board_baud
 
     @property
     def status_return_level(self) -> int:
-        return self.mem[m.STATUS_RETURN_LEVEL] if self.is_servo else 2
+        return self.mem[_STATUS_RETURN_LEVEL] if self.is_servo else 2
 
     @property
     def return_delay(self) -> float:
         """Return Delay Time in seconds."""
-        return self.mem[m.RETURN_DELAY_TIME] * 2e-6 if self.is_servo else 0.0
+        return self.mem[_RETURN_DELAY_TIME] * 2e-6 if self.is_servo else 0.0
 
     @property
     def torque(self) -> bool:
-        return self.is_servo and self.mem[m.TORQUE_ENABLE] == 1
+        return self.is_servo and self.mem[_TORQUE_ENABLE] == 1
 
     @property
     def hardware_error(self) -> int:
-        return self.mem[m.HARDWARE_ERROR_STATUS] if self.is_servo else 0
+        return self.mem[_HARDWARE_ERROR_STATUS] if self.is_servo else 0
 
     def error_byte(self, number: int = 0) -> int:
         """ERR for a status: the error number plus the Alert bit while a hardware error stands."""
-        return number | (ALERT_BIT if self.hardware_error else 0)
+        if self.is_servo and self.mem[_HARDWARE_ERROR_STATUS]:
+            return number | ALERT_BIT
+        return number
 
     def silent(self, t: float) -> bool:
         """True while rebooting or vanished: the device hears nothing."""
         return t < self._rebooting_until or t < self.faults.vanished_until
+
+    def listens(self, t: float, baud: int | None) -> bool:
+        """Whether it hears a transmission at ``t`` sent at ``baud`` (None: any): not :meth:`silent`, and at its
+        :attr:`baud` (one call per device and packet where there were two)."""
+        if t < self._rebooting_until or t < self.faults.vanished_until:
+            return False
+        if baud is None:
+            return True
+        b = _BAUD_CODES.get(self.mem[_BAUD_RATE]) if self.is_servo else self.board_baud
+        return b is None or b == baud
 
     # ------------------------------------------------------------------ fault knobs
 
@@ -225,12 +257,15 @@ class Servo:
     def read(self, address: int, length: int, t: float) -> tuple[int, bytes]:
         """A Read: (error number, data). Leaving the table is an Access Error with no data."""
         self._touch(t)
-        if length == 0 or address + length > self.model.table_size:
-            return ErrorNumber.ACCESS_ERROR, b""
         end = address + length
-        self._refresh(t, address, end)
+        if length == 0 or end > self.model.table_size:
+            return ErrorNumber.ACCESS_ERROR, b""
+        if not self.is_servo:
+            return 0, bytes(self.mem[address:end])
+        if end > DYNAMIC_LO and address < DYNAMIC_HI:
+            self._refresh(t, address, end)
         data = bytes(self.mem[address:end])
-        if self.is_servo and (end > 224 and address < 252 or end > 634):
+        if end > 224 and address < 252 or end > 634:
             data = self._indirect_read(address, data, t)
         return 0, data
 
@@ -240,8 +275,34 @@ class Servo:
         err = self._check_write(address, data)
         if err:
             return err
+        end = address + len(data)
+        if 64 <= address < 224 and end <= 224:  # RAM, no indirect data: see whether it is one whole field
+            f = self._fields[address]
+            if f.address == address and f.size == len(data):  # (checked: a field starts here and fills it)
+                mem = self.mem
+                if mem[address:end] != data:
+                    mem[address:end] = data
+                    self._after_write(f, t)
+                elif address in _ALWAYS_APPLY:
+                    self._after_write(f, t)
+                return 0
         self._apply_write(address, data, t)
         return 0
+
+    def write_unanswered(self, address: int, data: bytes, t: float) -> None:
+        """A write whose status nobody hears (Sync/Bulk Write): :meth:`write`, with a shortcut for a value
+        the table already holds where writing it again would change nothing (the goals a control loop
+        repeats for joints that hold still)."""
+        end = address + len(data)
+        if address >= 64 and end <= 224 and self.mem[address:end] == data and not (
+                address <= 104 < end or address <= 64 < end):  # (rewriting Goal Velocity, Torque Enable acts)
+            if not (address <= _GOAL_POSITION < end) or not self.is_servo or self.mem[_TORQUE_ENABLE] != 1 or (
+                    self.mem[_OPERATING_MODE] in (3, 4, 5) and self.profile.rests_at(
+                        t, float(self._actual(_I32.unpack_from(self.mem, _GOAL_POSITION)[0])))):
+                # whether or not its checks pass, the write leaves everything as it was
+                self._touch(t)
+                return
+        self.write(address, data, t)
 
     def reg_write(self, address: int, data: bytes, t: float) -> int:
         """Reg Write: checks now, applies on Action."""
@@ -323,29 +384,38 @@ class Servo:
     def _check_write(self, address: int, data: bytes) -> int:
         """Access, length, range and limit checks of spec §2.2 for a write."""
         n = len(data)
-        size = self.model.table_size
-        if n == 0 or address + n > size:
+        end = address + n
+        if n == 0 or end > self.model.table_size:
             return ErrorNumber.ACCESS_ERROR
         fields = self._fields
+        f = fields[address]
+        if f is not None and f.size == n and f.address == address and 64 <= address < 224 and self.is_servo:
+            # one whole RAM field (a goal, a torque switch): the write of every control loop
+            if f.access != "RW":
+                return ErrorNumber.ACCESS_ERROR
+            value = f.decode(data)
+            if not f.in_range(value):
+                return ErrorNumber.DATA_RANGE_ERROR
+            return self._check_limit(f, value, address, data)
         pos = address
-        end = address + n
         torque = self.torque
         while pos < end:
             f = fields[pos]
             if f is None:
                 return ErrorNumber.ACCESS_ERROR
-            if f.address != pos or pos + f.size > end:
+            size = f.size
+            if f.address != pos or pos + size > end:
                 return ErrorNumber.DATA_LENGTH_ERROR
-            if not f.writable or (f.eeprom and torque):
+            if f.access != "RW" or (pos < 64 and torque):  # Field.writable, Field.eeprom
                 return ErrorNumber.ACCESS_ERROR
-            if not (224 <= f.address < 252 or f.address >= 634):  # indirect data checks its target
-                value = f.decode(data[pos - address : pos - address + f.size])
+            if not (224 <= pos < 252 or pos >= 634):  # indirect data checks its target
+                value = f.decode(data[pos - address : pos - address + size])
                 if not f.in_range(value):
                     return ErrorNumber.DATA_RANGE_ERROR
                 err = self._check_limit(f, value, address, data)
                 if err:
                     return err
-            pos += f.size
+            pos += size
         return 0
 
     def _value_after(self, key_address: int, address: int, data: bytes, size: int, signed: bool = False) -> int:
@@ -359,16 +429,21 @@ class Servo:
         if not self.is_servo:
             return 0
         a = f.address
-        if a in (m.GOAL_POSITION, m.GOAL_VELOCITY, m.GOAL_PWM, m.GOAL_CURRENT) and self.mem[m.BUS_WATCHDOG] == 0xFF:
+        mem = self.mem
+        if a in _GOALS and mem[_BUS_WATCHDOG] == 0xFF:
             return ErrorNumber.DATA_RANGE_ERROR  # watchdog tripped: goals refused until it is cleared
-        if a == m.GOAL_POSITION:
-            if self.mem[m.OPERATING_MODE] == 3:  # the Position Limits bind in position mode only
-                lo = self._value_after(m.MIN_POSITION, address, data, 4)
-                hi = self._value_after(m.MAX_POSITION, address, data, 4)
+        if a == _GOAL_POSITION:
+            if mem[_OPERATING_MODE] == 3:  # the Position Limits bind in position mode only
+                if address <= _MIN_POSITION and address + len(data) >= _MIN_POSITION + 4 or \
+                        address <= _MAX_POSITION and address + len(data) >= _MAX_POSITION + 4:
+                    lo = self._value_after(_MIN_POSITION, address, data, 4)
+                    hi = self._value_after(_MAX_POSITION, address, data, 4)
+                else:  # the usual goal-only write: the limits are the table's
+                    lo, hi = _U32.unpack_from(mem, _MIN_POSITION)[0], _U32.unpack_from(mem, _MAX_POSITION)[0]
                 if not lo <= value <= hi:
                     return ErrorNumber.DATA_LIMIT_ERROR
             return 0
-        limits = {m.GOAL_VELOCITY: (m.VELOCITY_LIMIT, 4), m.GOAL_PWM: (m.PWM_LIMIT, 2), m.GOAL_CURRENT: (m.CURRENT_LIMIT, 2)}
+        limits = _LIMITS
         if a in limits and self.model.field_at(limits[a][0]) is not None:
             limit_address, size = limits[a]
             if abs(value) > self._value_after(limit_address, address, data, size):
@@ -386,7 +461,7 @@ class Servo:
             else:
                 old = bytes(self.mem[pos : pos + f.size])
                 self.mem[pos : pos + f.size] = chunk
-                if old != chunk or f.address in (m.GOAL_POSITION, m.GOAL_VELOCITY, m.TORQUE_ENABLE):
+                if old != chunk or f.address in _ALWAYS_APPLY:
                     self._after_write(f, t)
             pos += f.size
 
@@ -428,8 +503,9 @@ class Servo:
     def _present(self, actual: int) -> int:
         """Present Position of the horn's actual position: Drive Mode bit 0 reverses the direction and
         the Homing Offset is added (e-Manual: Present Position = Actual Position + Homing Offset)."""
-        sign = -1 if self.mem[m.DRIVE_MODE] & 1 else 1
-        return sign * actual + self._peek(m.HOMING_OFFSET, 4, signed=True)
+        mem = self.mem
+        sign = -1 if mem[_DRIVE_MODE] & 1 else 1
+        return sign * actual + _I32.unpack_from(mem, _HOMING_OFFSET)[0]
 
     def _actual(self, present: int) -> int:
         """The actual position a Goal Position (in Present Position terms) asks for."""
@@ -448,6 +524,9 @@ class Servo:
     def _retarget(self, t: float) -> None:
         if not self.torque:
             return
+        if self.mem[_OPERATING_MODE] in (3, 4, 5) and self.profile.rests_at(
+                t, float(self._actual(_I32.unpack_from(self.mem, _GOAL_POSITION)[0]))):
+            return  # already holding that goal (a control loop repeating its goals): planning again changes nothing
         mode = self.mem[m.OPERATING_MODE]
         vmax, amax = self._limits()
         if mode in (3, 4, 5):
@@ -495,13 +574,15 @@ class Servo:
     def _touch(self, t: float) -> None:
         """Note bus traffic for the Bus Watchdog, tripping it first if it had expired."""
         if self.is_servo:
-            wd = self.mem[m.BUS_WATCHDOG]
-            if 0 < wd < 128 and self.torque and t - self._last_comm > wd * 0.020:
-                self.mem[m.BUS_WATCHDOG] = 0xFF  # -1: tripped, motion stops
+            mem = self.mem
+            wd = mem[_BUS_WATCHDOG]
+            if 0 < wd < 128 and mem[_TORQUE_ENABLE] == 1 and t - self._last_comm > wd * 0.020:
+                mem[_BUS_WATCHDOG] = 0xFF  # -1: tripped, motion stops
                 self.profile.stop(self._last_comm + wd * 0.020)
             volts = self.supply_voltage
-            if not self._peek(m.MIN_VOLTAGE, 2) / 10 <= volts <= self._peek(m.MAX_VOLTAGE, 2) / 10:
-                if not self.hardware_error & 0x01:
+            if not (mem[_MIN_VOLTAGE] | mem[_MIN_VOLTAGE + 1] << 8) / 10 <= volts \
+                    <= (mem[_MAX_VOLTAGE] | mem[_MAX_VOLTAGE + 1] << 8) / 10:
+                if not mem[_HARDWARE_ERROR_STATUS] & 0x01:
                     self.raise_hardware_error(0x01, t)
         self._last_comm = t
 
@@ -509,30 +590,33 @@ class Servo:
         """Write the present values that overlap [lo, hi) into the control table."""
         if not self.is_servo or hi <= DYNAMIC_LO or lo >= DYNAMIC_HI:
             return
-        s = self.profile.at(t)
         mem = self.mem
+        if lo >= 132 and hi <= 144:  # (PRESENT_POSITION .. PRESENT_INPUT_VOLTAGE, as literals: a hot path)
+            # Present Position and the trajectories only: what a control loop reads every cycle
+            p, v = self.profile.position_velocity(t)
+            pos = (-1 if mem[_DRIVE_MODE] & 1 else 1) * int(round(p)) + _I32.unpack_from(mem, _HOMING_OFFSET)[0]
+            _POS_VEL_POS.pack_into(mem, 132, pos, int(v / VEL_UNIT), pos)
+            return
+        s = self.profile.at(t)
         vel_units = s.velocity / VEL_UNIT
         if lo < 124:
-            self._poke(m.REALTIME_TICK, 2, int(t * 1000) % 32768)
-            thr = self._peek(24, 4)
+            _U16.pack_into(mem, m.REALTIME_TICK, int(t * 1000) % 32768)
+            thr = _U32.unpack_from(mem, 24)[0]
             # Moving: the profile is still running or the speed exceeds the Moving Threshold
             mem[m.MOVING] = 1 if s.moving or abs(vel_units) > thr else 0
             in_pos = abs(self.profile.target - s.position) < 20 if math.isfinite(self.profile.target) else False
             mem[m.MOVING_STATUS] = (1 if in_pos else 0) | (2 if s.moving else 0)
         if lo < 132 and hi > 124:
-            torque = self.torque
-            pwm = int(max(-885, min(885, vel_units / max(1, self._peek(m.VELOCITY_LIMIT, 4)) * 700))) if torque else 0
-            self._poke(m.PRESENT_PWM, 2, pwm, signed=True)
+            torque = mem[_TORQUE_ENABLE] == 1
+            pwm = int(max(-885, min(885, vel_units / max(1, _U32.unpack_from(mem, _VELOCITY_LIMIT)[0]) * 700))) \
+                if torque else 0
             load = (s.acceleration / MAX_ACCELERATION * 800 + (15 if torque else 0)) if torque else 0
-            self._poke(m.PRESENT_CURRENT, 2, int(load), signed=True)
-            self._poke(m.PRESENT_VELOCITY, 4, int(vel_units), signed=True)
+            _PWM_CUR_VEL.pack_into(mem, m.PRESENT_PWM, pwm, int(load), int(vel_units))
         if hi > 132 and lo < 144:
             pos = self._present(int(round(s.position)))
-            self._poke(m.PRESENT_POSITION, 4, pos, signed=True)
-            self._poke(m.VELOCITY_TRAJECTORY, 4, int(vel_units), signed=True)
-            self._poke(m.POSITION_TRAJECTORY, 4, pos, signed=True)
+            _POS_VEL_POS.pack_into(mem, m.PRESENT_POSITION, pos, int(vel_units), pos)
         if hi > 144:
             sag = 0.2 if s.moving else 0.0
-            self._poke(m.PRESENT_INPUT_VOLTAGE, 2, int(round((self.supply_voltage - sag) * 10)))
+            _U16.pack_into(mem, m.PRESENT_INPUT_VOLTAGE, int(round((self.supply_voltage - sag) * 10)))
             warm = min(8.0, (t - self._torque_since) / 60.0) if self._torque_since is not None else 0.0
             mem[m.PRESENT_TEMPERATURE] = int(self.ambient_temperature + warm)

@@ -13,18 +13,16 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from hilbench.errors import UsageError
 from hilbench.monitor.dynamixel.devices import DeviceState
 from hilbench.monitor.dynamixel.summary import summary
 from hilbench.monitor.dynamixel.tracker import BusTracker
 from hilbench.monitor.instrument import Instrument
+from hilbench.rules import SECONDS, Rule
 
-
-def _int(text: str) -> int:
-    try:
-        return int(text, 0)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+#: ``--miss-limit``: consecutive missed replies before a device counts as disconnected.
+MISS_LIMIT = Rule(int, 0, 1_000_000)
+#: ``--max-length``: the largest LENGTH field the decoder accepts (the field is 16 bits; 3 is the least).
+MAX_LENGTH = Rule(int, 3, 0xFFFF)
 
 
 class DynamixelInstrument(Instrument):
@@ -44,19 +42,16 @@ class DynamixelInstrument(Instrument):
 
     def add_arguments(self, parser: argparse.ArgumentParser) -> None:
         g = parser.add_argument_group("Dynamixel bus")
-        g.add_argument("--silence", type=float, default=1.0,
+        g.add_argument("--silence", type=SECONDS, default=1.0,
                        help="disconnect a device owing a reply that said nothing for S seconds (0: off; default 1)")
-        g.add_argument("--miss-limit", type=int, default=4,
+        g.add_argument("--miss-limit", type=MISS_LIMIT, default=4,
                        help="disconnect after more than N consecutive missed replies (default 4, as the thesis "
                             "monitor)")
-        g.add_argument("--max-length", type=_int, default=1024,
+        g.add_argument("--max-length", type=MAX_LENGTH, default=1024,
                        help="largest LENGTH accepted (default 1024 like the SDK; 65535 counts like the spec sheet)")
 
     def tracker_options(self, args: argparse.Namespace) -> dict[str, Any]:
-        if not 3 <= args.max_length <= 0xFFFF:
-            raise UsageError(f"--max-length must be 3..65535, got {args.max_length}")
-        if args.miss_limit < 0 or args.silence < 0:
-            raise UsageError("--miss-limit and --silence must not be negative")
+        # checked by the options' rules as they were parsed
         return {"silence": args.silence, "max_length": args.max_length, "miss_limit": args.miss_limit}
 
     def make_tracker(self, *, baud: int | None, timestamps: bool, **options: Any) -> BusTracker:

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from hilbench.errors import UsageError
-from hilbench.transports.capture_file import Chunk
+from hilbench.transports.capture_file import Chunk, sound_quality
 
 
 class SourceError(UsageError, ValueError):
@@ -49,6 +49,12 @@ class Source:
     def clock(self) -> float | None:
         """The source's current time, or None if it has no clock (fast replay)."""
         return time.monotonic() if self.live else None
+
+    def quality(self) -> dict[str, Any]:
+        """Damage found in the input so far: counters and one-line ``findings`` (truncation, corruption,
+        times out of order; see :class:`~hilbench.transports.capture_file.CaptureParser`). Sources that
+        carry no capture format have nothing to report."""
+        return sound_quality()
 
     def close(self) -> None:
         """Stop the iteration (thread-safe) and release the source."""
@@ -233,6 +239,9 @@ class PeekedSource(Source):
 
     def clock(self) -> float | None:
         return self.source.clock()
+
+    def quality(self) -> dict[str, Any]:
+        return self.source.quality()
 
     def chunks(self, idle: float | None = None) -> Iterator[Chunk | None]:
         early, self._early = self._early, []

@@ -7,7 +7,7 @@ import stat
 import sys
 from collections.abc import Iterator
 
-from hilbench.transports.capture_file import CaptureError, CaptureReader, Chunk
+from hilbench.transports.capture_file import CaptureError, CaptureReader, Chunk, sound_quality
 from hilbench.transports.sources.base import ReplaySource, Source, SourceError, SourceOpener
 
 
@@ -33,6 +33,9 @@ class FileSource(ReplaySource):
             self.check_speed(speed)
             raise SourceError(f"{self.name}: a raw capture has no times; give --baud to replay it at wire speed")
         self._start_replay(speed)
+
+    def quality(self) -> dict:
+        return self.reader.parser.quality() if not self.reader.is_raw else sound_quality()
 
     def chunks(self, idle: float | None = None) -> Iterator[Chunk | None]:
         stop = self._stop

@@ -11,7 +11,7 @@ import time
 from collections.abc import Iterator
 from urllib.parse import urlparse
 
-from hilbench.transports.capture_file import READ_SIZE, CaptureParser, Chunk
+from hilbench.transports.capture_file import READ_SIZE, CaptureParser, Chunk, sound_quality
 from hilbench.transports.sources.base import Source, SourceError, SourceOpener
 
 
@@ -30,7 +30,7 @@ class StreamSource(Source):
         self._baud = baud
         self._baud_set: int | None = None
         self._stop = threading.Event()
-        self.parser = CaptureParser(name=name)
+        self.parser = CaptureParser(name=name, lookahead=False)  # live: hand records out as they complete
         self._early: list[Chunk] = []
 
     @property
@@ -49,6 +49,9 @@ class StreamSource(Source):
     def protocol(self) -> str | None:  # type: ignore[override]
         info = self.parser.info
         return (info.protocol or None) if info is not None else None
+
+    def quality(self) -> dict:
+        return self.parser.quality() if self.parser.info is not None else sound_quality()
 
     def _parse(self, data: bytes, now: float) -> list[Chunk]:
         chunks = self.parser.feed(data)
