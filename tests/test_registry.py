@@ -23,8 +23,7 @@ CORE = [
     "hilbench/cli/__init__.py", "hilbench/cli/common.py", "hilbench/cli/emulate.py", "hilbench/cli/monitor.py",
     "hilbench/monitor/live.py", "hilbench/monitor/detect.py", "hilbench/monitor/instrument.py",
     "hilbench/dashboard/app.py", "hilbench/transports/medium.py", "hilbench/transports/host_port.py",
-    *[f"hilbench/transports/sources/{m}.py" for m in ("__init__", "base", "file", "serial", "stream", "udp",
-                                                        "manifest")],
+    *[f"hilbench/transports/sources/{m}.py" for m in ("__init__", "base", "file", "serial", "stream", "udp")],
 ]
 DOCSTRING = re.compile(r"^[rRuU]?('''|\"\"\")")
 

@@ -420,6 +420,17 @@ class RequestDecoder:
         self._buf.clear()
 
 
+_ANS_TYPES = frozenset(int(t) for t in AnsType)
+
+
+def _plausible_descriptor(buf: bytearray, i: int) -> bool:
+    """Whether the 7 bytes at ``i`` are a descriptor a device sends: a known TYPE, a single response of
+    bounded length or a stream."""
+    len_mode = struct.unpack_from("<I", buf, i + 2)[0]
+    length, mode = len_mode & 0x3FFFFFFF, len_mode >> 30
+    return buf[i + 6] in _ANS_TYPES and (mode == MULTIPLE or (mode == SINGLE and length <= MAX_SINGLE))
+
+
 class ResponseDecoder:
     """Decodes what an RPLIDAR sends: descriptors with their payloads, node and capsule streams.
 
@@ -485,6 +496,17 @@ class ResponseDecoder:
             if self.stream == AnsType.MEASUREMENT:
                 if i + NODE_SIZE > n:
                     break
+                # After a lost byte the node grid is off: a new descriptor (the host's next request
+                # answered) may start inside what would parse as a node. A5 5A can be a node's angle
+                # bytes, so only a whole plausible descriptor wins over the node.
+                j = buf.find(b"\xa5\x5a", i + 1, i + NODE_SIZE + 1)
+                if j > 0:
+                    if j + DESCRIPTOR_SIZE > n:
+                        break
+                    if _plausible_descriptor(buf, j):
+                        self._drop(out, "garbage", bytes(buf[i:j]))
+                        i = j
+                        continue
                 nd = parse_node(buf[i:i + NODE_SIZE])
                 if nd is not None:
                     out.append(nd)

@@ -100,3 +100,25 @@ def test_decoders_never_raise(data, stream):
     items = dec.feed(data)
     assert sum(len(i.raw) for i in items if isinstance(i, rp.Problem)) <= len(data)
     rp.RequestDecoder().feed(data)
+
+
+def test_a_descriptor_inside_a_misaligned_node_wins():
+    """A node stream that lost a byte, then the answer to EXPRESS_SCAN: the descriptor starts inside what
+    would parse as a node (the grid is off by the lost byte); the decoder must switch to capsules."""
+    n = 6
+    nodes = rp.encode_nodes(np.full(n, 40), np.arange(n) * 640, np.full(n, 4000), np.zeros(n, dtype=bool))
+    damaged = nodes[:-1]  # the last node lost a byte: the grid now ends 4 bytes into a node
+    caps = [rp.capsule(64 * 10 * k, [1000] * 32, k == 0) for k in range(3)]
+    bad = bytearray(caps[2])
+    bad[10] ^= 0x5A
+    stream = (rp.descriptor(5, rp.MULTIPLE, rp.AnsType.MEASUREMENT) + damaged
+              + rp.descriptor(84, rp.MULTIPLE, rp.AnsType.MEASUREMENT_CAPSULED) + caps[0] + caps[1] + bytes(bad))
+    dec = rp.ResponseDecoder()
+    items = dec.feed(stream)
+    assert sum(isinstance(x, rp.CapsuleItem) for x in items) == 2
+    assert dec.stream == rp.AnsType.MEASUREMENT_CAPSULED and dec.bad_checksum == 1
+    # a node whose angle bytes are A5 5A stays a node: only a whole plausible descriptor wins
+    odd = bytes([0x3E, 0xA5, 0x5A, 0x00, 0x10])
+    dec = rp.ResponseDecoder()
+    dec.expect_stream(rp.AnsType.MEASUREMENT)
+    assert [type(x).__name__ for x in dec.feed(odd + nodes)] == ["Node"] * (1 + n)

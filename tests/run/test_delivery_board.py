@@ -227,7 +227,9 @@ def test_sdk3_ping_through_the_in_process_patch_costs_what_a_plain_pty_does(hilb
     got = fastest_ping(sdk, patched.endpoint().path)
     requests = server.requests - before
     reference = fastest_ping(sdk, plain.endpoint().path)
-    assert requests < PINGS // 2  # each drain a round trip: at least PINGS
+    # each drain a round trip would be at least PINGS; on a quiet machine almost none ask the bench, under
+    # load a drain that meets a reply still on its way does (128 of 150 once in a loaded full run)
+    assert requests < PINGS
     assert close_to(got, reference), (got, reference)
 
 
@@ -263,6 +265,6 @@ def test_sdk3_ping_under_hilbench_run_costs_what_a_plain_pty_does(hilbench_bench
     got = ping(hilbench_run.command(bench, shim=shim))
     requests = server.requests - before
     reference = ping([])
-    assert requests < PINGS // 2
+    assert requests < PINGS  # as above: every drain a round trip would be at least PINGS
     assert close_to(got, reference), (got, reference)
 
