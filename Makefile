@@ -6,7 +6,7 @@ PY := $(VENV)/bin/python
 
 LGVENV ?= .venv-labgrid
 
-.PHONY: demo test test-labgrid lint bench install install-robots
+.PHONY: demo test test-slow test-labgrid lint bench install install-robots
 
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -47,9 +47,15 @@ $(LGVENV)/.installed: pyproject.toml
 demo: $(VENV)/.installed
 	$(VENV)/bin/hilbench demo
 
+# The README's test command: lint, then every test but the slow real-client set (about five minutes).
 test: $(VENV)/.installed $(SDK3)/.installed
 	$(PY) -m ruff check hilbench tests tools
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -m "not slow"
+
+# The slow real-client set (`slow` marker): clients built from C sources, published scanner clients,
+# Cyclone DDS, CAN tools in a terminal, the robots' own software. .ci/run runs it after `make test`.
+test-slow: $(VENV)/.robots $(SDK3)/.installed
+	$(PY) -m pytest -q -m slow
 
 # The slow labgrid set (real labgrid-coordinator/-exporter/-client) and the serial tests again, under
 # pyserial-labgrid's `serial`. .ci/run runs it after `make test`.
