@@ -118,6 +118,7 @@ def can_bench(hilbench_emulator):
     return path, f"socketcand://{s['host']}:{s['port']}/{s['channel']}", manifest
 
 
+@pytest.mark.slow  # a long CLI session against python-can and cantools: the slow real-client set
 def test_a_whole_session_decodes_with_the_exported_dbc(can_bench, tmp_path):
     manifest, url, data = can_bench
     log = tmp_path / "session.log"

@@ -13,8 +13,9 @@ import pytest
 from tests.conftest import REPO
 from tests.dashboard.test_tmux import Terminal, hilbench, terminal  # noqa: F401 (the fixture)
 
-pytestmark = pytest.mark.skipif(shutil.which("tmux") is None,
-                                reason="tmux is not installed: the real-terminal tests need it")
+pytestmark = [pytest.mark.slow,  # CAN tools in a real terminal: the slow real-client set
+              pytest.mark.skipif(shutil.which("tmux") is None,
+                                 reason="tmux is not installed: the real-terminal tests need it")]
 
 
 def python(*args: str) -> str:

@@ -15,6 +15,8 @@ from hilbench.bench import Bench
 from hilbench.bench.profile import parse_profile
 from tests.helpers.domains import free_domain
 
+pytestmark = pytest.mark.slow  # Cyclone DDS against the emulated nodes: the slow real-client set
+
 pytest.importorskip("cyclonedds", reason="the cyclonedds package (a standard DDS participant) is not installed")
 PEER = Path(__file__).resolve().parents[1] / "helpers" / "cyclone_peer.py"
 

@@ -21,6 +21,8 @@ import pytest
 
 from tests.fakes.scanners.conftest import fraction_within, need, room_range, run_client
 
+pytestmark = pytest.mark.slow  # published scanner clients, some built from C: the slow real-client set
+
 # The A1's range model in the profile: sigma = max(0.5 mm, 0.5 % of the range).
 A1 = {"sigma0": 0.0005, "sigma_k": 0.005}
 
