@@ -19,6 +19,7 @@ spec vector. Problems are reported as flag strings (``xrce.bad_length``,
 
 from __future__ import annotations
 
+import re
 import struct
 from dataclasses import dataclass, field
 from enum import IntEnum
@@ -195,6 +196,31 @@ SubmessageHeader = Struct(
 )
 
 
+def _service_binary(string: Construct) -> Construct:
+    return Struct("service_name" / string, "request_type" / string, "reply_type" / string,
+                  "optional_request_topic_name" / Flag,
+                  "request_topic_name" / If(this.optional_request_topic_name, string),
+                  "optional_reply_topic_name" / Flag,
+                  "reply_topic_name" / If(this.optional_reply_topic_name, string))
+
+
+def _xml_attributes(text: str, tag: str) -> dict[str, str] | None:
+    """The attributes of the first ``<tag ...>`` in ``text``, read the way tinyxml2 (Fast DDS's XML parser,
+    so the agent's) reads them: eProsima's RequestAdder/ReplyAdder examples send attributes with no space
+    between them (``profile_name="a"service_name="b"``), which the agent accepts and expat rejects."""
+    m = re.search(rf"<\s*{tag}\b([^>]*)>", text)
+    if m is None:
+        return None
+    return dict(re.findall(r'([A-Za-z_][\w.-]*)\s*=\s*"([^"]*)"', m.group(1)))
+
+
+def service_topics(service: str, request_topic: str | None = None, reply_topic: str | None = None
+                   ) -> tuple[str, str]:
+    """The request and reply topic names of a requester/replier: the given ones, or the agent's defaults
+    (``<service>_Request`` and ``<service>_Reply``, as Fast DDS's RequesterAttributes names them)."""
+    return request_topic or f"{service}_Request", reply_topic or f"{service}_Reply"
+
+
 def _layouts(le: bool) -> dict[str, Construct]:
     """Every payload of one byte order (E flag), as construct structures."""
     p = primitives(le)
@@ -278,6 +304,9 @@ def _layouts(le: bool) -> dict[str, Construct]:
         "topic_binary": Struct("topic_name" / string, "optional_type_reference" / Flag,
                                "type_reference" / If(this.optional_type_reference, string),
                                "optional_type_name" / Flag, "type_name" / If(this.optional_type_name, string)),
+        # OBJK_Requester_Binary and OBJK_Replier_Binary: one layout (what rmw_microxrcedds sends for services).
+        "requester_binary": _service_binary(string),
+        "replier_binary": _service_binary(string),
         "publisher_binary": _group_binary(p, le),
         "subscriber_binary": _group_binary(p, le),
         "datawriter_binary": Struct("topic_id" / Bytes(2), "optional_qos" / Flag,
@@ -468,6 +497,13 @@ def _xml_text(root: Any, *path: str) -> str | None:
     return node.text.strip() if node is not None and node.text else None
 
 
+def _service_info(service: str | None, request_type: str | None, reply_type: str | None,
+                  request_topic: str | None, reply_topic: str | None) -> dict[str, Any]:
+    req, rep = service_topics(service or "", request_topic, reply_topic)
+    return {"service": service, "request_type": request_type, "reply_type": reply_type,
+            "request_topic": req, "reply_topic": rep}
+
+
 def representation_info(kind: int, rep: Any, le: bool = True) -> dict[str, Any]:
     """What a CREATE's representation says (``rep`` = the kind's parsed body): ``format`` and, as far as
     the representation tells, ``topic``, ``type``, ``reliable``, ``depth``, ``name``, ``topic_id``,
@@ -489,6 +525,16 @@ def representation_info(kind: int, rep: Any, le: bool = True) -> dict[str, Any]:
         if fmt == REPRESENTATION_BY_REFERENCE:
             out["name"] = str(value)
         elif fmt == REPRESENTATION_AS_XML:
+            if kind in (ObjectKind.REQUESTER, ObjectKind.REPLIER):
+                tag = "requester" if kind == ObjectKind.REQUESTER else "replier"
+                attrs = _xml_attributes(str(value), tag)
+                if attrs is None or not attrs.get("service_name"):
+                    raise ValueError(f"no <{tag}> with a service_name")
+                out.update(_service_info(attrs.get("service_name"), attrs.get("request_type"),
+                                         attrs.get("reply_type"), attrs.get("request_topic_name"),
+                                         attrs.get("reply_topic_name")))
+                out["name"] = attrs.get("profile_name")
+                return out
             root = ET.fromstring(str(value).strip() or "<dds/>")
             if kind == ObjectKind.PARTICIPANT:
                 out["name"] = _xml_text(root, "name")
@@ -511,6 +557,10 @@ def representation_info(kind: int, rep: Any, le: bool = True) -> dict[str, Any]:
                 out["topic"], out["type"] = b.topic_name, b.type_name or b.type_reference
             elif kind in (ObjectKind.PUBLISHER, ObjectKind.SUBSCRIBER):
                 out["name"] = payload_layout("publisher_binary", le).parse(blob).name
+            elif kind in (ObjectKind.REQUESTER, ObjectKind.REPLIER):
+                b = payload_layout("requester_binary", le).parse(blob)
+                out.update(_service_info(b.service_name, b.request_type, b.reply_type, b.request_topic_name,
+                                         b.reply_topic_name))
             elif kind in (ObjectKind.DATAWRITER, ObjectKind.DATAREADER):
                 name = "datawriter_binary" if kind == ObjectKind.DATAWRITER else "datareader_binary"
                 b = payload_layout(name, le).parse(blob)
@@ -709,6 +759,6 @@ __all__ = [
     "align4", "binary_blob", "build_header", "build_message", "build_payload", "build_submessage",
     "client_representation", "create", "data", "decode_payload", "delete", "get_info", "header_size", "heartbeat",
     "info_agent", "is_zero_fill", "looks_like_xrce", "object_id", "object_text", "parse_message",
-    "payload_layout", "read_data", "representation_info", "scan", "seq_newer", "split_object_id", "status", "status_agent", "timestamp",
+    "payload_layout", "read_data", "representation_info", "scan", "seq_newer", "service_topics", "split_object_id", "status", "status_agent", "timestamp",
     "timestamp_reply",
 ]

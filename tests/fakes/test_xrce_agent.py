@@ -320,3 +320,79 @@ def test_manifest_says_agent_host_and_port(agent_bench) -> None:
     ep = b.manifest()["endpoints"][0]
     assert (ep["type"], ep["protocol"], ep["role"], ep["host"]) == ("udp", "xrce-dds", "agent", "127.0.0.1")
     assert ep["port"] == b.endpoint().port.address[1] > 0
+
+
+class RawSession(Raw):
+    """A raw client with a session (id 0x81) speaking on best-effort stream 1 (no acknowledgements)."""
+
+    def __init__(self, bench: Bench, key: bytes) -> None:
+        super().__init__(bench)
+        self.seq = 0
+        reply = x.parse_message(self.ask(x.build_header(0x80) + x.build_submessage(
+            x.SubmessageId.CREATE_CLIENT, x.client_representation(key, 0x81))))
+        assert reply.submessages[0].fields.status == x.Status.OK
+
+    def say(self, sub_id: int, payload: bytes, flags: int = x.FLAG_E) -> None:
+        self.seq += 1
+        self.send(x.build_message(0x81, x.STREAM_BEST_EFFORT, self.seq, [(sub_id, flags, payload)]))
+
+    def next(self, name: str):
+        while True:
+            for sub in x.parse_message(self.recv()).submessages:
+                if sub.name == name:
+                    return sub
+
+
+def test_requester_and_replier_as_the_agent_pairs_them(agent_bench) -> None:
+    """eProsima's RequestAdder/ReplyAdder XML (attributes with no space between them, which the agent's
+    XML parser accepts) and rmw_microxrcedds' binary form: a request reaches the replier behind a sample
+    identity; the reply carrying it reaches that requester only, behind its WRITE_DATA's request id."""
+    b = agent_bench()
+    S = x.SubmessageId
+    participant = x.object_id(1, x.ObjectKind.PARTICIPANT)
+    part_xml = {"representation": {"format": x.REPRESENTATION_AS_XML,
+                                   "value": "<dds><participant><rtps><name>p</name></rtps></participant></dds>"},
+                "domain_id": 0}
+    requester, replier = x.object_id(1, x.ObjectKind.REQUESTER), x.object_id(1, x.ObjectKind.REPLIER)
+    svc = 'profile_name="my_requester"service_name="adder"request_type="req"reply_type="rep"'
+    clients = [RawSession(b, bytes.fromhex(k)) for k in ("0000000A", "0000000B", "0000000C")]
+    rep_c, req_c, other = clients
+    try:
+        for c in clients:
+            c.say(S.CREATE, x.create(b"\x00\x01", participant, x.ObjectKind.PARTICIPANT, part_xml),
+                  x.FLAG_E | x.FLAG_REPLACE)
+            assert c.next("STATUS").fields.status == x.Status.OK
+        rep_c.say(S.CREATE, x.create(b"\x00\x02", replier, x.ObjectKind.REPLIER, {
+            "representation": {"format": x.REPRESENTATION_AS_XML, "value": f"<dds><replier {svc}></replier></dds>"},
+            "participant_id": participant}), x.FLAG_E | x.FLAG_REPLACE)
+        assert rep_c.next("STATUS").fields.status == x.Status.OK
+        blob = x.binary_blob("requester_binary", {
+            "service_name": "adder", "request_type": "req", "reply_type": "rep",
+            "optional_request_topic_name": True, "request_topic_name": "adder_Request",
+            "optional_reply_topic_name": False, "reply_topic_name": None})
+        for c in (req_c, other):
+            c.say(S.CREATE, x.create(b"\x00\x02", requester, x.ObjectKind.REQUESTER, {
+                "representation": {"format": x.REPRESENTATION_IN_BINARY, "value": blob},
+                "participant_id": participant}), x.FLAG_E | x.FLAG_REPLACE)
+            assert c.next("STATUS").fields.status == x.Status.OK
+        for c, oid in ((rep_c, replier), (req_c, requester), (other, requester)):
+            c.say(S.READ_DATA, x.read_data(b"\x00\x03", oid, x.STREAM_BEST_EFFORT))
+        agent = b.agent()
+        wait_until(lambda: sum(len(s.reads) for s in agent.sessions.values()) == 3)
+        req_c.say(S.WRITE_DATA, x.data(b"\x12\x34", requester, b"\x02\x00\x00\x00\x03\x00\x00\x00"))
+        request = rep_c.next("DATA").payload
+        assert request[2:4] == replier and request[4 + 24:] == b"\x02\x00\x00\x00\x03\x00\x00\x00"
+        identity = request[4:4 + 24]
+        rep_c.say(S.WRITE_DATA, x.data(b"\x00\x09", replier, identity + b"\x05" + bytes(7)))
+        reply = req_c.next("DATA").payload
+        # DATA: READ_DATA's request id and object, then the request's WRITE_DATA request id and object.
+        assert reply == b"\x00\x03" + requester + b"\x12\x34" + requester + b"\x05" + bytes(7)
+        wait_until(lambda: agent.counters["replies_routed"] == 1)
+        other.sock.settimeout(0.3)
+        with pytest.raises(TimeoutError):
+            other.next("DATA")  # the other requester's reader gets neither the request nor the reply
+        rep_c.say(S.WRITE_DATA, x.data(b"\x00\x0a", replier, identity + bytes(8)))  # answered already
+        wait_until(lambda: agent.counters["replies_unmatched"] == 1)
+    finally:
+        for c in clients:
+            c.close()

@@ -155,3 +155,39 @@ def test_time_sync(examples: Path, agent: Bench) -> None:
         proc.communicate()
     offsets = [int(m.group(1)) for line in lines if (m := re.search(r"time offset\s+(-?\d+) us", line))]
     assert len(offsets) == 2 and all(abs(o) < 100_000 for o in offsets)  # same clock: well under 0.1 s
+
+
+def test_request_reply_adder(examples: Path, agent: Bench) -> None:
+    """RequestAdder asks ReplyAdder for sums through a REQUESTER and a REPLIER (XML with no space between
+    attributes, as the agent's parser accepts); each reply names the request it answers."""
+    port = str(agent.endpoint().port.address[1])
+    procs = []
+    try:
+        replier = subprocess.Popen(["stdbuf", "-oL", _exe(examples, "ReplyAdder"), "127.0.0.1", port],
+                                   stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        procs.append(replier)
+        a = agent.agent()
+        deadline = time.monotonic() + 10
+        while not any(s.reads for s in a.sessions.values()):
+            assert replier.poll() is None, replier.communicate()[0]
+            assert time.monotonic() < deadline, "the replier never asked for requests"
+            time.sleep(0.01)
+        requester = subprocess.Popen(["stdbuf", "-oL", _exe(examples, "RequestAdder"), "127.0.0.1", port],
+                                     stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        procs.append(requester)
+        sent, replies = {}, []
+        deadline = time.monotonic() + 20
+        while len(replies) < 2:  # one request a second; each reply arrives during the next second
+            assert time.monotonic() < deadline, f"replies: {replies}, requests: {sent}"
+            line = requester.stdout.readline()
+            assert line, "RequestAdder ended"
+            if m := re.search(r"Request sent: \((\d+) \+ \d+\) \[id: (\d+)\]", line):
+                sent[m.group(2)] = int(m.group(1))
+            elif m := re.search(r"Reply received: (\d+) \[id: (\d+)\]", line):
+                replies.append((int(m.group(1)), m.group(2)))
+    finally:
+        for p in procs:
+            p.kill()
+            p.communicate()
+    assert all(total == 2 * sent[rid] for total, rid in replies), (replies, sent)
+    assert a.counters["replies_routed"] >= 2

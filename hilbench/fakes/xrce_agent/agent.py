@@ -10,7 +10,11 @@ reassembly and fragmentation above the client's MTU), creates entities by
 reference, XML or binary, answers TIMESTAMP, deletes objects and clients, and
 routes WRITE_DATA to every DATAREADER on the same topic (of any client,
 itself included) whose READ_DATA asked for data, as the agent's DDS
-participants do. An optional bridge carries the same samples to and from RTPS.
+participants do. A REQUESTER's request goes to every REPLIER of the same
+request topic and type, prefixed with a sample identity (writer GUID and
+sequence number); the REPLIER's reply carries that identity back and goes to
+that requester only, prefixed with the original WRITE_DATA's request id and
+object id, as the agent's Requester and Replier objects do. An optional bridge carries the same samples to and from RTPS.
 
 Bad input never ends a session, with one exception the real agent has too
 (§1.9.4): a datagram read as a CREATE_CLIENT with another key from the address
@@ -24,7 +28,7 @@ from __future__ import annotations
 
 import logging
 import time
-from collections import deque
+from collections import OrderedDict, deque
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -40,6 +44,8 @@ Address = tuple[str, int]
 HEARTBEAT_PERIOD = 0.2
 #: Samples a reader keeps while no READ_DATA asks for them (at most; its history depth decides).
 MAX_QUEUED = 64
+#: Requests whose reply is still awaited (their sample identity -> requester): oldest forgotten first.
+MAX_PENDING_REQUESTS = 1024
 
 
 @dataclass
@@ -116,8 +122,12 @@ class XrceAgent:
         self.counters: dict[str, int] = dict.fromkeys((
             "datagrams", "replies", "malformed", "zero_fill", "zero_fill_foreign", "orphan", "takeovers",
             "sessions_created", "sessions_deleted", "invalid_create_client", "samples_routed", "samples_bridged",
-            "retransmissions", "fragments_in", "fragments_out", "dropped_out", "too_big"), 0)
+            "retransmissions", "fragments_in", "fragments_out", "dropped_out", "too_big", "requests", "replies_routed",
+            "replies_unmatched"), 0)
         self.faults = {"drop_next": 0, "corrupt_status_agent": 0}
+        # sample identity of a request -> (requester's client key, requester object id, WRITE_DATA request id)
+        self._pending: OrderedDict[bytes, tuple[bytes, bytes, bytes]] = OrderedDict()
+        self._request_seq: dict[tuple[bytes, bytes], int] = {}
         self._running = False
 
     # ------------------------------------------------------------------ wiring
@@ -504,6 +514,10 @@ class XrceAgent:
             return False
         oid = payload[2:4]
         ent = s.entities.get(oid)
+        if ent is not None and ent.kind == K.REQUESTER:
+            return self._request(s, ent, payload[:2], payload[4:])
+        if ent is not None and ent.kind == K.REPLIER:
+            return self._reply(s, ent, payload[4:])
         if ent is None or ent.kind != K.DATAWRITER:
             return False
         s.samples_in += 1
@@ -531,6 +545,59 @@ class XrceAgent:
         self.counters["samples_routed"] += n
         return n
 
+    def _request(self, s: Session, requester: Entity, request_id: bytes, cdr: bytes) -> bool:
+        """A requester's WRITE_DATA: to every replier of its request topic, behind the request's sample
+        identity (what the replier echoes in its reply so that the reply finds this requester)."""
+        s.samples_in += 1
+        self.counters["requests"] += 1
+        key = (s.key, requester.object_id)
+        seq = self._request_seq.get(key, 0) + 1
+        self._request_seq[key] = seq
+        # A GUID unique per client and requester object; entity kind 0x03: a writer without key (RTPS).
+        guid = b"\x01\x0f" + s.key + b"\x00\x00" + requester.object_id + b"\x00\x00" + b"\x00\x00\x01\x03"
+        self._pending[guid + seq.to_bytes(8, "big")] = (s.key, requester.object_id, request_id)
+        while len(self._pending) > MAX_PENDING_REQUESTS:
+            self._pending.popitem(last=False)
+        topic, type_name = requester.extra.get("request_topic"), requester.extra.get("request_type")
+        for other in list(self.by_key.values()):
+            for ent in list(other.entities.values()):
+                if ent.kind != K.REPLIER or ent.extra.get("request_topic") != topic:
+                    continue
+                if type_name and ent.extra.get("request_type") and ent.extra["request_type"] != type_name:
+                    continue
+                # SequenceNumber_t {int32 high; uint32 low} in the replier's byte order (it echoes it as is).
+                order = "little" if other.little_endian is not False else "big"
+                identity = guid + (seq >> 32).to_bytes(4, order) + (seq & 0xFFFFFFFF).to_bytes(4, order)
+                self.counters["samples_routed"] += 1
+                self._deliver(other, ent, identity + cdr)
+        self.route(topic, type_name, cdr)  # plain readers of the request topic see the request too
+        return True
+
+    def _reply(self, s: Session, replier: Entity, payload: bytes) -> bool:
+        """A replier's WRITE_DATA (sample identity + reply): to the requester that sent that request, behind
+        the request id and object id of the requester's WRITE_DATA (the client's on_reply reads them)."""
+        if len(payload) < 24:
+            return False
+        s.samples_in += 1
+        identity, cdr = payload[:24], payload[24:]
+        # The sequence number comes back in the byte order it was sent in: this replier's.
+        order = "little" if s.little_endian is not False else "big"
+        seq = int.from_bytes(identity[16:20], order, signed=True) << 32 | int.from_bytes(identity[20:24], order)
+        pending = self._pending.pop(identity[:16] + seq.to_bytes(8, "big", signed=True), None)
+        self.route(replier.extra.get("reply_topic"), replier.extra.get("reply_type"), cdr)
+        if pending is None:
+            self.counters["replies_unmatched"] += 1
+            return True
+        key, requester_oid, request_id = pending
+        other = self.by_key.get(key)
+        requester = other.entities.get(requester_oid) if other is not None else None
+        if requester is None or requester.kind != K.REQUESTER:
+            self.counters["replies_unmatched"] += 1
+            return True
+        self.counters["replies_routed"] += 1
+        self._deliver(other, requester, request_id + requester_oid + cdr)
+        return True
+
     def _deliver(self, s: Session, reader: Entity, cdr: bytes) -> None:
         read = s.reads.get(reader.object_id)
         if read is None:
@@ -547,7 +614,7 @@ class XrceAgent:
     def _read_data(self, s: Session, fields: Any) -> None:
         oid = bytes(fields.object_id)
         ent = s.entities.get(oid)
-        if ent is None or ent.kind != K.DATAREADER:
+        if ent is None or ent.kind not in (K.DATAREADER, K.REQUESTER, K.REPLIER):
             self._send_stream(s, x.STREAM_RELIABLE, S.STATUS,
                               x.status(bytes(fields.request_id), oid, x.Status.ERR_UNKNOWN_REFERENCE))
             return

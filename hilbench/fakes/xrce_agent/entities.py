@@ -50,6 +50,8 @@ class Entity:
             v = getattr(self, key)
             if v is not None and not (key == "domain_id" and self.kind != K.PARTICIPANT):
                 out["type" if key == "type_name" else key] = v
+        if self.kind in (K.REQUESTER, K.REPLIER):
+            out.update({k: v for k, v in self.extra.items() if v is not None})
         return out
 
 
@@ -87,6 +89,11 @@ def entity_from_create(object_id: bytes, rep: Any, le: bool, refs: dict[str, dic
             raise EntityError(x.Status.ERR_DDS_ERROR, f"unknown reference {representation.value!r}")
         ent.topic, ent.type_name, ent.reliable = ref.get("topic"), ref.get("type"), ref.get("reliable")
         ent.depth = int(ref.get("depth", 1))
+        if kind in (K.REQUESTER, K.REPLIER) and ref.get("service"):
+            info.update({"service": ref["service"], "request_type": ref.get("request_type"),
+                         "reply_type": ref.get("reply_type")})
+            info["request_topic"], info["reply_topic"] = x.service_topics(
+                ref["service"], ref.get("request_topic"), ref.get("reply_topic"))
     elif info.get("format") in ("xml", "binary"):
         ent.topic, ent.type_name = info.get("topic"), info.get("type")
         ent.reliable = info.get("reliable")
@@ -95,6 +102,12 @@ def entity_from_create(object_id: bytes, rep: Any, le: bool, refs: dict[str, dic
             raise EntityError(x.Status.ERR_INVALID_DATA, "topic without a name")
     else:
         raise EntityError(x.Status.ERR_INVALID_DATA, f"unknown representation format {representation.format}")
+    if kind in (K.REQUESTER, K.REPLIER):
+        if not info.get("service"):
+            raise EntityError(x.Status.ERR_INVALID_DATA, f"{ent.kind_name} without a service name")
+        for key in ("service", "request_topic", "request_type", "reply_topic", "reply_type"):
+            ent.extra[key] = info.get(key)
+        ent.reliable = True  # Fast DDS requesters and repliers are reliable
     if ent.reliable is None and kind in (K.DATAWRITER, K.DATAREADER):
         # Fast DDS defaults: writers reliable, readers best-effort.
         ent.reliable = kind == K.DATAWRITER
