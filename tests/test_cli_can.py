@@ -15,6 +15,7 @@ import canopen
 import cantools
 import pytest
 
+from hilbench.bench.control import ControlClient
 from hilbench.bench.profile import load_profile, parse_profile
 from hilbench.errors import UsageError
 from hilbench.protocols import board_can as bc
@@ -125,7 +126,8 @@ def test_a_whole_session_decodes_with_the_exported_dbc(can_bench, tmp_path):
     recorder = subprocess.Popen([sys.executable, "-m", "hilbench.cli", "record", manifest, str(log)],
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO)
     try:
-        time.sleep(0.5)  # the recorder connects to the tap (nothing to wait on from outside)
+        control = ControlClient.from_manifest(manifest)
+        wait_until(lambda: all(t["clients"] >= 1 for t in control.taps().values()), timeout=30)  # recording
         assert hb("can", "nmt", manifest, "start", "--node", "2").returncode == 0
         out = hb("can", "sdo", manifest, "read", "1018:1", "--node", "2")
         assert out.returncode == 0 and out.stdout.startswith(str(bc.BoardCanConfig().vendor_id)), out.stderr
@@ -145,7 +147,8 @@ def test_a_whole_session_decodes_with_the_exported_dbc(can_bench, tmp_path):
         time.sleep(0.6)  # one more heartbeat at the new period
     finally:
         recorder.send_signal(signal.SIGINT)
-        recorder.communicate(timeout=10)
+        _, err = recorder.communicate(timeout=30)
+    assert recorder.returncode == 0, err
     db = cantools.database.load_string(hb("can", "dbc", "mecarover-can").stdout, "dbc")
     messages = list(can.LogReader(str(log)))
     ids = {m.arbitration_id for m in messages}
