@@ -117,15 +117,7 @@ class DynamixelFamily(ServoBusFamily):
             c.fail(f"{key}.model", f"{model.name} speaks Protocol {model.protocol}.0 but endpoint "
                                    f"{endpoint.name!r} is a Protocol {version}.0 bus (protocol_version)")
         ids = self.check_ids(c, key, dev, 252)
-        init = c.table(dev.get("init", {}), f"{key}.init")
-        for field_key, value in init.items():
-            try:
-                f = model.field_named(field_key)
-            except KeyError:
-                c.fail(f"{key}.init.{field_key}", f"{model.name} has no such control-table item")
-            if not isinstance(value, int | float) or isinstance(value, bool) or not f.in_range(value):
-                rng = f"one of {f.allowed}" if f.allowed else f"{f.min}..{f.max}"
-                c.fail(f"{key}.init.{field_key}", f"expected {rng}, got {value!r}")
+        init = self.check_init(c, key, dev, model, integers=False)
         faults = c.table(dev.get("faults", {}), f"{key}.faults")
         c.unknown(faults, f"{key}.faults", FAULT_KEYS)
         for fk in ("drop_rate", "corrupt_rate"):

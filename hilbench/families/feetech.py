@@ -63,14 +63,7 @@ class FeetechFamily(ServoBusFamily):
     def check_devices(self, c: Checker, key: str, dev: dict[str, Any], endpoint, profile) -> list[FeetechSpec]:
         model = self.check_model(c, key, dev)
         ids = self.check_ids(c, key, dev, 253)
-        init = c.table(dev.get("init", {}), f"{key}.init")
-        for field_key, value in init.items():
-            try:
-                f = model.field_named(field_key)
-            except KeyError:
-                c.fail(f"{key}.init.{field_key}", f"{model.name} has no such control-table item")
-            if not isinstance(value, int) or isinstance(value, bool) or not f.in_range(value):
-                c.fail(f"{key}.init.{field_key}", f"expected an integer {f.min}..{f.max}, got {value!r}")
+        init = self.check_init(c, key, dev, model, integers=True)
         faults = check_fault_table(c, f"{key}.faults", dev.get("faults", {}), FAULT_RANGES)
         name = self.check_name(c, key, dev, ids)
         top = model.motion.position_max if model.motion else 4095

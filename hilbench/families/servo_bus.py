@@ -77,6 +77,25 @@ class ServoBusFamily(DeviceFamily):
         return [c.integer(i, f"{key}.id", 0, max_id) for i in ids]
 
     @staticmethod
+    def check_init(c: Checker, key: str, dev: dict[str, Any], model: Any, *, integers: bool) -> dict[str, Any]:
+        """The entry's ``init`` table: control-table items of ``model`` with values in their ranges
+        (whole numbers only where ``integers``)."""
+        init = c.table(dev.get("init", {}), f"{key}.init")
+        kinds = int if integers else int | float
+        for field_key, value in init.items():
+            try:
+                f = model.field_named(field_key)
+            except KeyError:
+                c.fail(f"{key}.init.{field_key}", f"{model.name} has no such control-table item")
+            if not isinstance(value, kinds) or isinstance(value, bool) or not f.in_range(value):
+                if integers:
+                    expected = f"an integer {f.min}..{f.max}"
+                else:
+                    expected = f"one of {f.allowed}" if f.allowed else f"{f.min}..{f.max}"
+                c.fail(f"{key}.init.{field_key}", f"expected {expected}, got {value!r}")
+        return init
+
+    @staticmethod
     def check_name(c: Checker, key: str, dev: dict[str, Any], ids: list[int]) -> str | None:
         """The entry's ``name``: a string, and only for a single ID."""
         name = dev.get("name")
