@@ -35,8 +35,8 @@ from __future__ import annotations
 
 import math
 
+from hilbench.fakes.control_table_servo import ControlTableServo
 from hilbench.fakes.dynamixel.motion import Profile
-from hilbench.fakes.dynamixel.servo import Faults
 from hilbench.protocols.control_table import Field, Model
 from hilbench.protocols.dynamixel import ALERT_BIT, ErrorNumber
 
@@ -54,7 +54,7 @@ _DYNAMIC_ROLES = ("present_position", "present_speed", "present_load", "present_
                   "moving", "present_current", "realtime_tick")
 
 
-class TableServo:
+class TableServo(ControlTableServo):
     """One emulated servo of a role-described control table (see the module docstring)."""
 
     is_servo = True
@@ -79,14 +79,10 @@ class TableServo:
     ) -> None:
         if model.motion is None:
             raise ValueError(f"{model.name} has no motion description")
-        self.model = model
+        super().__init__(model, servo_id, name=name, initial=initial, supply_voltage=supply_voltage,
+                         ambient_temperature=ambient_temperature, reboot_time=reboot_time, seed=seed,
+                         firmware=firmware)
         self.motion = model.motion
-        self.name = name or f"{model.name}#{servo_id}"
-        self.supply_voltage = supply_voltage
-        self.ambient_temperature = ambient_temperature
-        self.reboot_time = reboot_time
-        self.faults = Faults(seed=seed or servo_id)
-        self.initial = dict(initial or {})
         roles = model.roles
         self._r = roles
         self._f: dict[str, Field] = {k: f for k in roles if (f := model.role(k)) is not None}
@@ -102,24 +98,14 @@ class TableServo:
                 self._roles_at[a] += ((key, f),)
         self._baud_address = roles.get("baud")
         self._srl_address = roles.get("status_return_level")
+        self._return_delay_address = roles.get("return_delay")
+        self._torque_address = roles.get("torque_enable")
+        self._hardware_error_address = roles.get("hardware_error")
+        self._shutdown_address = roles.get("shutdown")
+        self._eeprom_end = model.eeprom_end
         spans = [(f.address, f.address + f.size) for k in _DYNAMIC_ROLES if (f := self._f.get(k)) is not None]
         self._dyn_lo = min((a for a, _ in spans), default=0)
         self._dyn_hi = max((b for _, b in spans), default=0)
-        self._power_on(t, servo_id, firmware, position)
-
-    def _power_on(self, t: float, servo_id: int, firmware: int | None, position: float | None) -> None:
-        model = self.model
-        self.mem = model.defaults()
-        if firmware is not None:
-            self.mem[model.firmware_address] = firmware
-        self._set_role("id", servo_id)
-        for key, value in self.initial.items():
-            f = model.field_named(key)
-            self.mem[f.address : f.address + f.size] = f.encode(value)
-        self._registered: tuple[int, bytes] | None = None
-        self._rebooting_until = 0.0
-        self._torque_since: float | None = None
-        self._sticky_hw_error = 0
         self._after_power_on(t, position)
 
     def _after_power_on(self, t: float, position: float | None) -> None:
@@ -144,28 +130,7 @@ class TableServo:
         if f is not None:
             self.mem[f.address : f.address + f.size] = f.encode(value)
 
-    def get(self, key: str, t: float | None = None) -> int | float:
-        """A control-table value by field key (refreshing present values at ``t``)."""
-        f = self.model.field_named(key)
-        if t is not None:
-            self._refresh(t)
-        return f.decode(bytes(self.mem[f.address : f.address + f.size]))
-
-    def set(self, key: str, value: int | float, t: float = 0.0) -> None:
-        """Set a value directly, bypassing access rules (for tests and scenarios)."""
-        f = self.model.field_named(key)
-        self.mem[f.address : f.address + f.size] = f.encode(value)
-        self._after_write(f, t)
-
     # ------------------------------------------------------------------ properties
-
-    @property
-    def id(self) -> int:
-        return self.mem[self.model.id_address]
-
-    @property
-    def firmware(self) -> int:
-        return self.mem[self.model.firmware_address]
 
     @property
     def secondary_id(self) -> None:
@@ -175,24 +140,6 @@ class TableServo:
     def baud(self) -> int | None:
         a = self._baud_address
         return None if a is None else self.model.baud_codes.get(self.mem[a])
-
-    @property
-    def status_return_level(self) -> int:
-        a = self._srl_address
-        return 2 if a is None else self.mem[a]
-
-    @property
-    def return_delay(self) -> float:
-        """Return Delay Time in seconds (2 us units)."""
-        return self._role("return_delay") * 2e-6
-
-    @property
-    def torque(self) -> bool:
-        return self._role("torque_enable") == 1
-
-    @property
-    def hardware_error(self) -> int:
-        return self._role("hardware_error") if "hardware_error" in self._f else 0
 
     @property
     def wheel(self) -> bool:
@@ -215,40 +162,6 @@ class TableServo:
         if "temperature_limit" in self._f and self.ambient_temperature > self._role("temperature_limit"):
             bits |= OVERHEAT_BIT
         return bits
-
-    def silent(self, t: float) -> bool:
-        """True while rebooting or vanished: the servo hears nothing."""
-        return t < self._rebooting_until or t < self.faults.vanished_until
-
-    def listens(self, t: float, baud: int | None) -> bool:
-        """Whether it hears a transmission at ``t`` sent at ``baud`` (None: any): not silent, and at its baud."""
-        if t < self._rebooting_until or t < self.faults.vanished_until:
-            return False
-        b = self.baud if baud is not None else None
-        return b is None or b == baud
-
-    # ------------------------------------------------------------------ fault knobs
-
-    def vanish(self, t: float, duration: float = math.inf) -> None:
-        """Fall silent (cable pulled) for ``duration`` seconds, or until :meth:`revive`."""
-        self.faults.vanished_until = t + duration
-
-    def revive(self) -> None:
-        self.faults.vanished_until = 0.0
-
-    def raise_hardware_error(self, bits: int, t: float, *, sticky: bool = False) -> None:
-        """Set Hardware Error Status bits where the model has the register (the XL-320); torque goes off."""
-        if "hardware_error" not in self._f:
-            return
-        self._set_role("hardware_error", self.hardware_error | bits)
-        if sticky:
-            self._sticky_hw_error |= bits
-        if bits & (self._role("shutdown") if "shutdown" in self._f else bits):
-            self._set_torque(False, t)
-
-    def clear_hardware_error(self) -> None:
-        self._sticky_hw_error = 0
-        self._set_role("hardware_error", 0)
 
     # ------------------------------------------------------------------ instructions
 
@@ -297,33 +210,6 @@ class TableServo:
         self._registered = None
         self._set_role("registered", 0)
         return self.write(address, data, t)
-
-    def reboot(self, t: float) -> int:
-        """Restart: RAM back to defaults, EEPROM kept, silent for :attr:`reboot_time`."""
-        end = self.model.eeprom_end
-        keep = bytes(self.mem[:end])
-        pos = self.profile.at(t).position
-        self.mem = self.model.defaults()
-        self.mem[:end] = keep
-        self._registered = None
-        self._torque_since = None
-        self._after_power_on(t, pos)
-        self._rebooting_until = t + self.reboot_time
-        if self._sticky_hw_error:
-            self._set_role("hardware_error", self._sticky_hw_error)
-        return 0
-
-    def factory_reset(self, mode: int, t: float) -> int:
-        """Factory Reset: ``0xFF`` everything (ID back to 1), ``0x01`` all but ID, ``0x02`` all but ID and baud."""
-        servo_id, baud, firmware = self.id, self._role("baud"), self.firmware
-        end = self.model.eeprom_end
-        self.mem[:end] = self.model.defaults()[:end]
-        self.mem[self.model.firmware_address] = firmware
-        if mode in (0x01, 0x02):
-            self._set_role("id", servo_id)
-        if mode == 0x02:
-            self._set_role("baud", baud)
-        return self.reboot(t)
 
     def clear(self, params: bytes, t: float) -> int:
         return ErrorNumber.INSTRUCTION_ERROR
@@ -437,17 +323,6 @@ class TableServo:
         elif key == "max_torque":
             pass  # Torque Limit takes it at the next power-on
 
-    def _set_torque(self, on: bool, t: float) -> None:
-        if on and self.hardware_error and "shutdown" in self._f and self.hardware_error & self._role("shutdown"):
-            on = False
-        self._set_role("torque_enable", 1 if on else 0)
-        if on:
-            self._torque_since = t
-            self._retarget(t)
-        else:
-            self._torque_since = None
-            self.profile.stop(t)
-
     # ------------------------------------------------------------------ motion
 
     def _offset(self) -> int:
@@ -498,8 +373,9 @@ class TableServo:
 
     # ------------------------------------------------------------------ present values
 
-    def _refresh(self, t: float) -> None:
-        """Write every present value into the control table (called before a read that covers one)."""
+    def _refresh(self, t: float, lo: int = 0, hi: int = 0) -> None:
+        """Write every present value into the control table (called before a read that covers one; the
+        values are few, so all are written whatever range [``lo``, ``hi``) is read)."""
         s = self.profile.at(t)
         mo = self.motion
         f = self._f

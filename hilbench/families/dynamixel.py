@@ -34,13 +34,12 @@ Devices of one endpoint share one :class:`~hilbench.fakes.dynamixel.bus.Dynamixe
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 from hilbench.bench.checks import Checker
-from hilbench.bench.family import DeviceFamily, DeviceSpec
 from hilbench.fakes.dynamixel.bus import CHAIN_POLICIES, FAST_MISSING_POLICIES
+from hilbench.families.servo_bus import ServoBusFamily, ServoBusSpec, apply_faults, initial_values
 from hilbench.protocols.dynamixel_classic_models import P1_NOMINAL_BAUDS
 from hilbench.protocols.dynamixel_models import BAUD_CODES, find_model, model_names
 from hilbench.rules import FAULT_COUNT, PROBABILITY, Rule
@@ -62,41 +61,31 @@ DEVICE_KEYS = ("model", "id", "ids", "name", "endpoint", "firmware", "init", "fa
 
 
 @dataclass
-class ServoSpec(DeviceSpec):
+class ServoSpec(ServoBusSpec):
     """One Dynamixel device of a profile (``ids = [...]`` entries are expanded to one spec per ID)."""
 
-    id: int = 0
-    firmware: int | None = None
-    init: dict[str, int | float] = field(default_factory=dict)
-    faults: dict[str, Any] = field(default_factory=dict)
-    position: float | None = None
-    supply_voltage: float | None = None
-    ambient_temperature: float | None = None
     fast_read: bool | None = None
 
 
-class DynamixelFamily(DeviceFamily):
+class DynamixelFamily(ServoBusFamily):
     """Dynamixel Protocol 2.0 servos and boards on one bus per endpoint."""
 
     name = "dynamixel"
     protocols = ("dynamixel",)
-    endpoint_types = ("pty",)
     endpoint_keys = ("protocol_version", "chain_policy", "fast_missing", "strict_stuffing", "usb2ax")
     device_keys = DEVICE_KEYS
     models = tuple(model_names())
     default_keys = {"supply_voltage": (0, 50, 12.0), "ambient_temperature": (-40, 100, 30.0)}
-    endpoint_attrs = ("bus",)
     profile_attrs = ("servos",)
-    device_word = "servo"
+    example_model = "XM430-W350"
 
     # ------------------------------------------------------------------ profile
 
-    def knows_model(self, model: Any) -> bool:
-        try:
-            find_model(model)
-        except (KeyError, TypeError, AttributeError):
-            return False
-        return True
+    def find_model(self, name: Any, **how: Any) -> Any:
+        return find_model(name, **how)
+
+    def model_names(self) -> list[str]:
+        return list(model_names())
 
     def check_baud(self, c: Checker, key: str, value: Any, port_type: str) -> int:
         return c.rule(57_600 if value is None else value, key, BUS_BAUD)
@@ -122,31 +111,13 @@ class DynamixelFamily(DeviceFamily):
         }
 
     def check_devices(self, c: Checker, key: str, dev: dict[str, Any], endpoint, profile) -> list[ServoSpec]:
-        if "model" not in dev:
-            c.fail(f"{key}.model", "missing (expected a model name such as 'XM430-W350')")
         version = endpoint.options.get("protocol_version", 2)
-        try:
-            model = find_model(dev["model"], protocol=version)
-        except (KeyError, TypeError, AttributeError):
-            c.fail(f"{key}.model", f"unknown model {dev['model']!r} (expected one of: {', '.join(model_names())})")
+        model = self.check_model(c, key, dev, protocol=version)
         if model.protocol != version:
             c.fail(f"{key}.model", f"{model.name} speaks Protocol {model.protocol}.0 but endpoint "
                                    f"{endpoint.name!r} is a Protocol {version}.0 bus (protocol_version)")
-        if ("id" in dev) == ("ids" in dev):
-            c.fail(f"{key}.id", "expected exactly one of id = N or ids = [N, ...]")
-        ids = [dev["id"]] if "id" in dev else dev["ids"]
-        if not isinstance(ids, list) or not ids:
-            c.fail(f"{key}.ids", f"expected a non-empty array of IDs, got {ids!r}")
-        ids = [c.integer(i, f"{key}.id", 0, 252) for i in ids]
-        init = c.table(dev.get("init", {}), f"{key}.init")
-        for field_key, value in init.items():
-            try:
-                f = model.field_named(field_key)
-            except KeyError:
-                c.fail(f"{key}.init.{field_key}", f"{model.name} has no such control-table item")
-            if not isinstance(value, int | float) or isinstance(value, bool) or not f.in_range(value):
-                rng = f"one of {f.allowed}" if f.allowed else f"{f.min}..{f.max}"
-                c.fail(f"{key}.init.{field_key}", f"expected {rng}, got {value!r}")
+        ids = self.check_ids(c, key, dev, 252)
+        init = self.check_init(c, key, dev, model, integers=False)
         faults = c.table(dev.get("faults", {}), f"{key}.faults")
         c.unknown(faults, f"{key}.faults", FAULT_KEYS)
         for fk in ("drop_rate", "corrupt_rate"):
@@ -161,9 +132,7 @@ class DynamixelFamily(DeviceFamily):
             c.boolean(faults["vanished"], f"{key}.faults.vanished")
         if "hardware_error" in faults:
             c.integer(faults["hardware_error"], f"{key}.faults.hardware_error", 0, 0x3D)
-        name = dev.get("name")
-        if name is not None and (not isinstance(name, str) or len(ids) > 1):
-            c.fail(f"{key}.name", "expected a string, and only with a single id")
+        name = self.check_name(c, key, dev, ids)
         firmware = c.integer(dev["firmware"], f"{key}.firmware", 0, 255) if "firmware" in dev else None
         position = c.number(dev["position"], f"{key}.position", -1_048_575, 1_048_575) if "position" in dev else None
         supply = c.number(dev["supply_voltage"], f"{key}.supply_voltage", 0, 50) if "supply_voltage" in dev else None
@@ -186,14 +155,6 @@ class DynamixelFamily(DeviceFamily):
             )
             for i in ids
         ]
-
-    def check_profile(self, c: Checker, profile) -> None:
-        taken: dict[tuple[str, int], str] = {}
-        for spec in profile.devices_of(self.name):
-            owner = taken.get((spec.endpoint, spec.id))
-            if owner is not None:
-                c.fail(f"{spec.where}.id", f"ID {spec.id} is already used on endpoint {spec.endpoint!r} by {owner}")
-            taken[(spec.endpoint, spec.id)] = spec.where
 
     # ------------------------------------------------------------------ bench
 
@@ -236,10 +197,7 @@ class DynamixelFamily(DeviceFamily):
         model = find_model(dev.model)
         init = dict(dev.init)
         if model.kind == "servo":
-            codes = P1_NOMINAL_BAUDS if model.protocol == 1 else model.baud_codes
-            code = {baud: code for code, baud in codes.items()}.get(spec.baud)
-            if code is not None:
-                init.setdefault("baud_rate", code)
+            init = initial_values(init, P1_NOMINAL_BAUDS if model.protocol == 1 else model.baud_codes, spec.baud)
         cls = TableServo if model.motion is not None else Servo  # the classic tables (AX, MX 1.0, XL-320)
         servo = cls(
             model,
@@ -254,18 +212,8 @@ class DynamixelFamily(DeviceFamily):
             t=t,
             seed=dev.faults.get("seed", 0),
         )
-        f = dev.faults
-        for key in ("drop_rate", "drop_next", "corrupt_rate", "corrupt_next", "delay"):
-            if key in f:
-                setattr(servo.faults, key, f[key])
-        if f.get("vanished"):
-            servo.vanish(t, math.inf)
-        if f.get("hardware_error"):
-            servo.raise_hardware_error(f["hardware_error"], t, sticky=True)
+        apply_faults(servo, dev.faults, t)
         return servo
-
-    def device_at(self, endpoint, address: int):
-        return endpoint.attrs["bus"].servo(address)
 
     # ------------------------------------------------------------------ description
 

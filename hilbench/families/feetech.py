@@ -19,13 +19,12 @@ Devices of one endpoint share one :class:`~hilbench.fakes.feetech.bus.FeetechBus
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 from hilbench.bench.checks import Checker
-from hilbench.bench.family import DeviceFamily, DeviceSpec
 from hilbench.bench.knobs import check_fault_table
+from hilbench.families.servo_bus import ServoBusFamily, ServoBusSpec, apply_faults, initial_values
 from hilbench.protocols.feetech_models import STS_BAUD_CODES, find_model, model_names
 
 FEETECH_BAUDS = tuple(sorted(set(STS_BAUD_CODES.values())))
@@ -36,35 +35,24 @@ DEVICE_KEYS = ("model", "id", "ids", "name", "endpoint", "firmware", "init", "fa
 
 
 @dataclass
-class FeetechSpec(DeviceSpec):
+class FeetechSpec(ServoBusSpec):
     """One Feetech servo of a profile (``ids = [...]`` entries are expanded to one spec per ID)."""
 
-    id: int = 0
-    firmware: int | None = None
-    init: dict[str, int | float] = field(default_factory=dict)
-    faults: dict[str, Any] = field(default_factory=dict)
-    position: float | None = None
-    supply_voltage: float | None = None
-    ambient_temperature: float | None = None
 
-
-class FeetechFamily(DeviceFamily):
+class FeetechFamily(ServoBusFamily):
     """Feetech STS/SCS servos on one bus per endpoint."""
 
     name = "feetech"
     protocols = ("feetech",)
-    endpoint_types = ("pty",)
     device_keys = DEVICE_KEYS
     models = tuple(model_names())
-    endpoint_attrs = ("bus",)
-    device_word = "servo"
+    example_model = "STS3215"
 
-    def knows_model(self, model: Any) -> bool:
-        try:
-            find_model(model)
-        except (KeyError, TypeError, AttributeError):
-            return False
-        return True
+    def find_model(self, name: Any, **how: Any) -> Any:
+        return find_model(name)
+
+    def model_names(self) -> list[str]:
+        return list(model_names())
 
     def check_baud(self, c: Checker, key: str, value: Any, port_type: str) -> int:
         baud = 1_000_000 if value is None else value
@@ -73,30 +61,11 @@ class FeetechFamily(DeviceFamily):
         return baud
 
     def check_devices(self, c: Checker, key: str, dev: dict[str, Any], endpoint, profile) -> list[FeetechSpec]:
-        if "model" not in dev:
-            c.fail(f"{key}.model", "missing (expected a model name such as 'STS3215')")
-        try:
-            model = find_model(dev["model"])
-        except (KeyError, TypeError, AttributeError):
-            c.fail(f"{key}.model", f"unknown model {dev['model']!r} (expected one of: {', '.join(model_names())})")
-        if ("id" in dev) == ("ids" in dev):
-            c.fail(f"{key}.id", "expected exactly one of id = N or ids = [N, ...]")
-        ids = [dev["id"]] if "id" in dev else dev["ids"]
-        if not isinstance(ids, list) or not ids:
-            c.fail(f"{key}.ids", f"expected a non-empty array of IDs, got {ids!r}")
-        ids = [c.integer(i, f"{key}.id", 0, 253) for i in ids]
-        init = c.table(dev.get("init", {}), f"{key}.init")
-        for field_key, value in init.items():
-            try:
-                f = model.field_named(field_key)
-            except KeyError:
-                c.fail(f"{key}.init.{field_key}", f"{model.name} has no such control-table item")
-            if not isinstance(value, int) or isinstance(value, bool) or not f.in_range(value):
-                c.fail(f"{key}.init.{field_key}", f"expected an integer {f.min}..{f.max}, got {value!r}")
+        model = self.check_model(c, key, dev)
+        ids = self.check_ids(c, key, dev, 253)
+        init = self.check_init(c, key, dev, model, integers=True)
         faults = check_fault_table(c, f"{key}.faults", dev.get("faults", {}), FAULT_RANGES)
-        name = dev.get("name")
-        if name is not None and (not isinstance(name, str) or len(ids) > 1):
-            c.fail(f"{key}.name", "expected a string, and only with a single id")
+        name = self.check_name(c, key, dev, ids)
         top = model.motion.position_max if model.motion else 4095
         return [
             FeetechSpec(
@@ -116,14 +85,6 @@ class FeetechFamily(DeviceFamily):
             for i in ids
         ]
 
-    def check_profile(self, c: Checker, profile) -> None:
-        taken: dict[tuple[str, int], str] = {}
-        for spec in profile.devices_of(self.name):
-            owner = taken.get((spec.endpoint, spec.id))
-            if owner is not None:
-                c.fail(f"{spec.where}.id", f"ID {spec.id} is already used on endpoint {spec.endpoint!r} by {owner}")
-            taken[(spec.endpoint, spec.id)] = spec.where
-
     # ------------------------------------------------------------------ bench
 
     def build(self, bench, endpoint, devices: list[FeetechSpec], t: float) -> None:
@@ -135,29 +96,19 @@ class FeetechFamily(DeviceFamily):
         servos = []
         for dev in devices:
             model = find_model(dev.model)
-            init = dict(dev.init)
-            code = {baud: code for code, baud in model.baud_codes.items()}.get(spec.baud)
-            if code is not None:
-                init.setdefault("baud_rate", code)
+            init = initial_values(dev.init, model.baud_codes, spec.baud)
             servo = TableServo(
                 model, dev.id, name=dev.name, initial=init, position=dev.position, t=t,
                 supply_voltage=dev.supply_voltage or defaults.get("supply_voltage", 12.0),
                 ambient_temperature=dev.ambient_temperature or defaults.get("ambient_temperature", 30.0),
                 firmware=dev.firmware, seed=dev.faults.get("seed", 0),
             )
-            for key in ("drop_rate", "drop_next", "corrupt_rate", "corrupt_next", "delay"):
-                if key in dev.faults:
-                    setattr(servo.faults, key, dev.faults[key])
-            if dev.faults.get("vanished"):
-                servo.vanish(t, math.inf)
+            apply_faults(servo, dev.faults, t)
             servos.append(servo)
             endpoint.add_device(dev.name, servo)
         bus = FeetechBus(servos, name=f"{spec.name}-devices")
         bus.attach(endpoint.medium)
         endpoint.attrs["bus"] = bus
-
-    def device_at(self, endpoint, address: int):
-        return endpoint.attrs["bus"].servo(address)
 
     # ------------------------------------------------------------------ description
 

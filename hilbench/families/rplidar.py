@@ -41,8 +41,6 @@ from hilbench.families.scanner import (
     ScannerFamily,
     ScannerSpec,
     check_scene,
-    pose_of,
-    scene_of,
 )
 
 RPLIDAR_MODELS = ("rplidar-a1", "A1M8", "rplidar-a1m8")
@@ -109,17 +107,13 @@ class RplidarFamily(ScannerFamily):
                                speed_wander=o["speed_wander"], firmware=o["firmware"],
                                typical_mode=o["typical_mode"], baud=endpoint.spec.baud,
                                faults=RplidarFaults(seed=spec.seed, **spec.faults))
-        dev = RplidarA1(spec.name, scene_of(bench.profile), pose_of(spec), self.range_model(spec, A1_RANGE),
-                        config, t0=t)
+        dev = RplidarA1(*self.placement(bench, spec, A1_RANGE), config, t0=t)
         lines = getattr(endpoint.port, "lines", None)
         if lines is not None:
             dev.dtr = lines.dtr  # the line's level now; changes arrive as on_line events
         return dev
 
     # ------------------------------------------------------------------ description
-
-    def describe_endpoint(self, endpoint) -> dict[str, Any]:
-        return {"paced": True}  # by the unit itself
 
     def describe_device(self, spec: ScannerSpec, device, endpoint, profile) -> dict[str, Any]:
         out = super().describe_device(spec, device, endpoint, profile)

@@ -140,6 +140,8 @@ class ScannerFamily(DeviceFamily):
     fault_knobs: KnobRanges = {}
     #: The family's default model name.
     default_model: str = ""
+    #: Whether the unit paces its link itself (its UART at the link speed), as the manifest says.
+    unit_paces_link: bool = True
 
     def check_common(self, c: Checker, key: str, dev: dict[str, Any], endpoint) -> dict[str, Any]:
         """Model, name, pose, seed, noise, max_range and faults of a scanner entry."""
@@ -215,7 +217,15 @@ class ScannerFamily(DeviceFamily):
         """The emulated unit of ``spec`` (not yet attached to the endpoint's medium)."""
         raise NotImplementedError
 
+    def placement(self, bench, spec: ScannerSpec, range_defaults: dict[str, float]) -> tuple[Any, ...]:
+        """What every unit is built with, in order: its name, the profile's scene, its pose and its range
+        model (the model's ``range_defaults`` with the profile's overrides)."""
+        return spec.name, scene_of(bench.profile), pose_of(spec), self.range_model(spec, range_defaults)
+
     # ------------------------------------------------------------------ description
+
+    def describe_endpoint(self, endpoint) -> dict[str, Any]:
+        return {"paced": True} if self.unit_paces_link else {}
 
     def describe_device(self, spec: ScannerSpec, device, endpoint, profile) -> dict[str, Any]:
         return {**super().describe_device(spec, device, endpoint, profile),

@@ -26,7 +26,7 @@ from __future__ import annotations
 from typing import Any
 
 from hilbench.bench.checks import Checker
-from hilbench.families.scanner import COMMON_DEVICE_KEYS, ScannerFamily, ScannerSpec, pose_of, scene_of
+from hilbench.families.scanner import COMMON_DEVICE_KEYS, ScannerFamily, ScannerSpec
 
 SCIP_MODELS = ("ust-10lx", "urg-04lx", "UST-10LX", "URG-04LX")
 SCIP_KEYS = ("clock_offset_ms",)
@@ -42,6 +42,7 @@ class Scip2Family(ScannerFamily):
     device_keys = (*COMMON_DEVICE_KEYS, *SCIP_KEYS)
     models = SCIP_MODELS
     default_model = "ust-10lx"
+    unit_paces_link = False  # each reply goes out whole
     profile_attrs = ("scip_units",)
     endpoint_attrs = ("scip",)
     fault_knobs = FAULTS
@@ -72,8 +73,7 @@ class Scip2Family(ScannerFamily):
         config = ScipConfig(clock_offset_ms=spec.options["clock_offset_ms"],
                             faults=ScipFaults(seed=spec.seed, **spec.faults))
         connected = (lambda p=port: p.client is not None) if hasattr(port, "client") else None
-        return ScipScanner(spec.name, scene_of(bench.profile), pose_of(spec), self.range_model(spec, defaults),
-                           unit, config, t0=t, connected=connected)
+        return ScipScanner(*self.placement(bench, spec, defaults), unit, config, t0=t, connected=connected)
 
     def describe_device(self, spec: ScannerSpec, device, endpoint, profile) -> dict[str, Any]:
         out = super().describe_device(spec, device, endpoint, profile)

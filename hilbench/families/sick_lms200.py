@@ -26,7 +26,7 @@ from __future__ import annotations
 from typing import Any
 
 from hilbench.bench.checks import Checker
-from hilbench.families.scanner import COMMON_DEVICE_KEYS, ScannerFamily, ScannerSpec, pose_of, scene_of
+from hilbench.families.scanner import COMMON_DEVICE_KEYS, ScannerFamily, ScannerSpec
 
 LMS_MODELS = ("lms200", "LMS200", "sick-lms200")
 LMS_KEYS = ("variant", "units", "no_echo")
@@ -79,11 +79,7 @@ class SickLms200Family(ScannerFamily):
         o = spec.options
         config = LmsConfig(angle=o["variant"][0], resolution=o["variant"][1], units_mm=o["units"] == "mm",
                            no_echo=o["no_echo"], faults=LmsFaults(seed=spec.seed, **spec.faults))
-        return SickLms200(spec.name, scene_of(bench.profile), pose_of(spec), self.range_model(spec, LMS_RANGE),
-                          config, t0=t)
-
-    def describe_endpoint(self, endpoint) -> dict[str, Any]:
-        return {"paced": True}
+        return SickLms200(*self.placement(bench, spec, LMS_RANGE), config, t0=t)
 
     def describe_device(self, spec: ScannerSpec, device, endpoint, profile) -> dict[str, Any]:
         out = super().describe_device(spec, device, endpoint, profile)

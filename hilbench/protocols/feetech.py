@@ -25,17 +25,14 @@ from hilbench.protocols.dynamixel_protocol1 import (
     HEADER,
     DecodeProblem1,
     Decoder1,
-    NoParams,
     Packet,
     Packet1,
-    ReadParams,
     SyncReadParams,
-    SyncWriteParams,
-    WriteParams,
     build,
     frame,
     parse,
 )
+from hilbench.protocols.dynamixel_protocol1 import PARAMS as P1_PARAMS
 
 #: The highest servo ID (scservo_sdk's MAX_ID).
 MAX_ID = 0xFC
@@ -65,15 +62,10 @@ ERROR_BITS: dict[int, str] = {
     0x20: "overload",
 }
 
+#: Parameter layouts: Protocol 1.0's for every instruction Feetech shares with it (same codes, same
+#: parameters); SYNC_READ has Feetech's own code with the layout of the USB2AX's.
 PARAMS: dict[int, Struct] = {
-    Instruction.PING: NoParams,
-    Instruction.READ: ReadParams,
-    Instruction.WRITE: WriteParams,
-    Instruction.REG_WRITE: WriteParams,
-    Instruction.ACTION: NoParams,
-    Instruction.RESET: NoParams,
-    Instruction.SYNC_READ: SyncReadParams,
-    Instruction.SYNC_WRITE: SyncWriteParams,
+    i: SyncReadParams if i == Instruction.SYNC_READ else P1_PARAMS[i] for i in Instruction
 }
 
 

@@ -11,16 +11,15 @@ reads), each after its Return Delay Time when the line is paced.
 from __future__ import annotations
 
 import logging
-from collections import Counter
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from itertools import repeat
+from typing import ClassVar
 
 from hilbench.fakes.dynamixel.servo import Servo
+from hilbench.fakes.servo_line import ServoLine
 from hilbench.protocols import dynamixel as dxl
 from hilbench.protocols.dynamixel import BROADCAST_ID, DecodeProblem, ErrorNumber, InstructionPacket
 from hilbench.protocols.dynamixel import Instruction as I  # noqa: N814
-from hilbench.transports.serial_medium import DevicePort, SerialMedium
 
 log = logging.getLogger(__name__)
 
@@ -30,19 +29,7 @@ CHAIN_POLICIES = ("continue", "stall")
 FAST_MISSING_POLICIES = ("truncate", "drop", "silent")
 
 
-@dataclass
-class BusStats:
-    """What the emulated devices received and sent."""
-
-    requests: Counter = field(default_factory=Counter)
-    replies: int = 0
-    dropped_replies: int = 0
-    corrupted_replies: int = 0
-    crc_errors_received: int = 0
-    invalid_received: int = 0
-
-
-class DynamixelBus:
+class DynamixelBus(ServoLine):
     """Emulated Dynamixel devices sharing one line.
 
     Policies for what the e-Manual leaves open: ``chain_policy`` (does a Sync/
@@ -54,6 +41,9 @@ class DynamixelBus:
     quiet longer than that (1.5 ms on real devices; None disables it), which
     is how devices recover from a corrupted LENGTH.
     """
+
+    status_frame: ClassVar = staticmethod(dxl.status_packet)
+    checksum_size: ClassVar = 2
 
     def __init__(
         self,
@@ -71,16 +61,12 @@ class DynamixelBus:
             raise ValueError(f"chain_policy must be one of {CHAIN_POLICIES}")
         if fast_missing not in FAST_MISSING_POLICIES:
             raise ValueError(f"fast_missing must be one of {FAST_MISSING_POLICIES}")
-        self.name = name
-        self.servos = list(servos)
+        super().__init__(servos, name=name)
         self.chain_policy = chain_policy
         self.fast_missing = fast_missing
         self.fast_read = dict(fast_read or {})
         self.reply_crc_errors = reply_crc_errors
         self.decoder = dxl.Decoder(strict_stuffing=strict_stuffing, inter_byte_timeout=inter_byte_timeout)
-        self.stats = BusStats()
-        self.port: DevicePort | None = None
-        self._packets: dict[int, tuple[bytes, int, bytes]] = {}  # reply id -> (data, err, its last status)
         self._handlers: dict[int, Callable[[InstructionPacket, float, int | None, list[Servo]], None]] = {
             I.PING: self._ping,
             I.READ: self._read,
@@ -99,17 +85,6 @@ class DynamixelBus:
             I.BULK_WRITE: self._multi_write,
         }
 
-    def attach(self, medium: SerialMedium) -> None:
-        """Join a serial line."""
-        self.port = medium.add_device(self)
-
-    def servo(self, dxl_id: int) -> Servo:
-        """The device that currently has ``dxl_id``."""
-        for s in self.servos:
-            if s.id == dxl_id:
-                return s
-        raise KeyError(dxl_id)
-
     # ------------------------------------------------------------------ receiving
 
     def on_bytes(self, data: bytes, t: float, baud: int | None) -> None:
@@ -121,10 +96,6 @@ class DynamixelBus:
                 self._dispatch(item, t, baud)
             elif type(item) is DecodeProblem and item.kind == "crc":
                 self._crc_error(item, t, baud)
-
-    def _hearing(self, t: float, baud: int | None) -> list[Servo]:
-        """Devices that receive this transmission: awake, and at the sender's baud."""
-        return [s for s in self.servos if s.listens(t, baud)]
 
     def _dispatch(self, pkt: InstructionPacket, t: float, baud: int | None) -> None:
         self.stats.requests[pkt.name] += 1
@@ -151,57 +122,6 @@ class DynamixelBus:
                 self._send([(s, s.error_byte(ErrorNumber.CRC_ERROR), b"", s.id)], t)
 
     # ------------------------------------------------------------------ sending
-
-    def _send(self, replies: list[tuple[Servo, int, bytes, int]], t: float) -> None:
-        """Put status packets on the line in order: ``(device, err, data, reply id)``.
-
-        On an unpaced line, replies without a delay all arrive at once anyway; they go out as one
-        transmission (one pty write instead of twenty for a Sync Read), which changes nothing a
-        host or tap can observe but the chunking.
-        """
-        port = self.port
-        if port is None:
-            return
-        paced = port.paced
-        end = t
-        batch = bytearray()
-        batch_baud: int | None = None
-        status_packet = dxl.status_packet
-        stats = self.stats
-        packets = self._packets
-        try:
-            for s, err, data, reply_id in replies:
-                faults = s.faults
-                # (the knobs are read first: drawing from the generator only when a rate is set)
-                if (faults.drop_next or faults.drop_rate) and faults.take_drop():
-                    stats.dropped_replies += 1
-                    if self.chain_policy == "stall":
-                        return
-                    continue
-                cached = packets.get(reply_id)
-                if cached is not None and cached[0] == data and cached[1] == err:
-                    raw = cached[2]  # the same status as last time (a joint holding still): no new CRC
-                else:
-                    raw = status_packet(reply_id, err, data)
-                    packets[reply_id] = (data, err, raw)
-                if (faults.corrupt_next or faults.corrupt_rate) and faults.take_corrupt():
-                    raw = raw[:-2] + bytes((raw[-2] ^ 0xFF, raw[-1]))
-                    stats.corrupted_replies += 1
-                gap = (s.return_delay if paced else 0.0) + faults.delay
-                baud = s.baud
-                stats.replies += 1
-                joins = not paced and gap == 0.0
-                if batch and not (joins and baud == batch_baud):
-                    end = port.transmit(bytes(batch), t=end, baud=batch_baud)
-                    batch.clear()
-                if joins:
-                    batch += raw
-                    batch_baud = baud
-                else:
-                    end = port.transmit(raw, t=end, gap=gap, baud=baud)
-        finally:
-            if batch:
-                port.transmit(bytes(batch), t=end, baud=batch_baud)
 
     @staticmethod
     def _answers(s: Servo, inst: int) -> bool:

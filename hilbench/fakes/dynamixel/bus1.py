@@ -25,13 +25,13 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
+from typing import ClassVar
 
-from hilbench.fakes.dynamixel.bus import BusStats
+from hilbench.fakes.servo_line import ServoLine
 from hilbench.protocols import dynamixel_protocol1 as p1
 from hilbench.protocols.dynamixel import ErrorNumber
 from hilbench.protocols.dynamixel_protocol1 import BROADCAST_ID, USB2AX_ID, DecodeProblem1, Packet1
 from hilbench.protocols.dynamixel_protocol1 import Instruction1 as I  # noqa: N814
-from hilbench.transports.serial_medium import DevicePort, SerialMedium
 
 log = logging.getLogger(__name__)
 
@@ -64,8 +64,10 @@ class Usb2ax:
         self.mem[6] = 8
 
 
-class Protocol1Bus:
+class Protocol1Bus(ServoLine):
     """Emulated servos sharing one Protocol 1.0 line (see the module docstring)."""
+
+    status_frame: ClassVar = staticmethod(p1.frame)
 
     #: Every servo answers a broadcast PING (Feetech) or none does (Dynamixel Protocol 1.0).
     broadcast_ping = False
@@ -85,13 +87,10 @@ class Protocol1Bus:
         usb2ax: bool = True,
         inter_byte_timeout: float | None = 0.0015,
     ) -> None:
-        self.name = name
-        self.servos = list(servos)
+        super().__init__(servos, name=name)
         self.usb2ax = Usb2ax() if usb2ax else None
         self.inter_byte_timeout = inter_byte_timeout
         self.decoder = p1.Decoder1()
-        self.stats = BusStats()
-        self.port: DevicePort | None = None
         self._last_t = 0.0
         self._handlers: dict[int, Callable[[Packet1, float, list], None]] = self.handlers()
 
@@ -113,17 +112,6 @@ class Protocol1Bus:
     def instruction_name(code: int) -> str:
         return p1.INSTRUCTION_NAMES.get(code, f"0x{code:02x}")
 
-    def attach(self, medium: SerialMedium) -> None:
-        """Join a serial line."""
-        self.port = medium.add_device(self)
-
-    def servo(self, servo_id: int):
-        """The servo that currently has ``servo_id``."""
-        for s in self.servos:
-            if s.id == servo_id:
-                return s
-        raise KeyError(servo_id)
-
     # ------------------------------------------------------------------ receiving
 
     def on_bytes(self, data: bytes, t: float, baud: int | None) -> None:
@@ -139,11 +127,6 @@ class Protocol1Bus:
             elif item.kind == "checksum":
                 self._checksum_error(item, t, baud)
 
-    def _hearing(self, t: float, baud: int | None) -> list:
-        if baud is None:
-            return [s for s in self.servos if not s.silent(t)]
-        return [s for s in self.servos if not s.silent(t) and ((b := s.baud) is None or b == baud)]
-
     def _dispatch(self, pkt: Packet1, t: float, baud: int | None) -> None:
         self.stats.requests[self.instruction_name(pkt.code)] += 1
         hearing = self._hearing(t, baud)
@@ -158,7 +141,7 @@ class Protocol1Bus:
         except (ValueError, IndexError):  # a malformed or unknown instruction: an instruction error to a unicast
             self.stats.invalid_received += 1
             if pkt.id != BROADCAST_ID:
-                self._send([(s, self.error_bits(s, ErrorNumber.INSTRUCTION_ERROR), b"")
+                self._send([(s, self.error_bits(s, ErrorNumber.INSTRUCTION_ERROR), b"", s.id)
                             for s in hearing if s.id == pkt.id and s.status_return_level >= 2], t)
 
     def _checksum_error(self, problem: DecodeProblem1, t: float, baud: int | None) -> None:
@@ -166,7 +149,7 @@ class Protocol1Bus:
         raw = problem.raw
         if not self.reply_checksum_errors or len(raw) < 6:
             return
-        self._send([(s, self.error_bits(s, ErrorNumber.CRC_ERROR), b"")
+        self._send([(s, self.error_bits(s, ErrorNumber.CRC_ERROR), b"", s.id)
                     for s in self._hearing(t, baud) if s.id == raw[2] and s.status_return_level >= 2], t)
 
     # ------------------------------------------------------------------ sending
@@ -175,41 +158,6 @@ class Protocol1Bus:
         """The ERR byte of a status: the instruction's error plus the servo's condition."""
         return P1_ERROR_BITS.get(number, 0x40 if number else 0) | s.condition_bits()
 
-    def _send(self, replies: list[tuple[object, int, bytes]], t: float) -> None:
-        """Put ``(servo, err, data)`` statuses on the line in order, each after its Return Delay Time
-        when paced; unpaced replies without a delay go out as one transmission (one pty write)."""
-        port = self.port
-        if port is None:
-            return
-        paced = port.paced
-        end = t
-        batch = bytearray()
-        batch_baud = None
-        stats = self.stats
-        for s, err, data in replies:
-            faults = s.faults
-            if faults.take_drop():
-                stats.dropped_replies += 1
-                continue
-            raw = p1.frame(s.id, err, data)
-            if faults.take_corrupt():
-                raw = raw[:-1] + bytes((raw[-1] ^ 0xFF,))
-                stats.corrupted_replies += 1
-            gap = (s.return_delay if paced else 0.0) + faults.delay
-            baud = s.baud
-            stats.replies += 1
-            joins = not paced and gap == 0.0
-            if batch and not (joins and baud == batch_baud):
-                end = port.transmit(bytes(batch), t=end, baud=batch_baud)
-                batch.clear()
-            if joins:
-                batch += raw
-                batch_baud = baud
-            else:
-                end = port.transmit(raw, t=end, gap=gap, baud=baud)
-        if batch:
-            port.transmit(bytes(batch), t=end, baud=batch_baud)
-
     # ------------------------------------------------------------------ instructions
 
     def _ping(self, pkt: Packet1, t: float, hearing: list) -> None:
@@ -217,9 +165,9 @@ class Protocol1Bus:
             raise ValueError("PING takes no parameters")
         if pkt.id == BROADCAST_ID:
             if self.broadcast_ping:
-                self._send([(s, self.error_bits(s), b"") for s in sorted(hearing, key=lambda s: s.id)], t)
+                self._send([(s, self.error_bits(s), b"", s.id) for s in sorted(hearing, key=lambda s: s.id)], t)
             return
-        self._send([(s, self.error_bits(s), b"") for s in hearing if s.id == pkt.id], t)  # even at level 0
+        self._send([(s, self.error_bits(s), b"", s.id) for s in hearing if s.id == pkt.id], t)  # even at level 0
 
     def _read(self, pkt: Packet1, t: float, hearing: list) -> None:
         address, length = pkt.params  # ValueError unless exactly two
@@ -229,7 +177,7 @@ class Protocol1Bus:
         for s in hearing:
             if s.id == pkt.id and s.status_return_level >= self.read_level:
                 err, data = s.read(address, length, t)
-                replies.append((s, self.error_bits(s, err), data))
+                replies.append((s, self.error_bits(s, err), data, s.id))
         self._send(replies, t)
 
     def _write(self, pkt: Packet1, t: float, hearing: list) -> None:
@@ -244,7 +192,7 @@ class Protocol1Bus:
                 op = s.write if pkt.code == I.WRITE else s.reg_write
                 err = op(address, data, t)
                 if pkt.id != BROADCAST_ID and reply_id_level >= self.write_level:
-                    replies.append((s, self.error_bits(s, err), b""))
+                    replies.append((s, self.error_bits(s, err), b"", s.id))
         self._send(replies, t)
 
     def _action(self, pkt: Packet1, t: float, hearing: list) -> None:
@@ -253,13 +201,13 @@ class Protocol1Bus:
             if pkt.id in (s.id, BROADCAST_ID):
                 err = s.action(t)
                 if pkt.id != BROADCAST_ID and s.status_return_level >= self.write_level:
-                    replies.append((s, self.error_bits(s, err), b""))
+                    replies.append((s, self.error_bits(s, err), b"", s.id))
         self._send(replies, t)
 
     def _reset(self, pkt: Packet1, t: float, hearing: list) -> None:
         targets = [s for s in hearing if pkt.id in (s.id, BROADCAST_ID)]
         if pkt.id != BROADCAST_ID:  # the status comes from the old ID, before the reset
-            self._send([(s, self.error_bits(s), b"") for s in targets
+            self._send([(s, self.error_bits(s), b"", s.id) for s in targets
                         if s.status_return_level >= self.write_level], t)
         for s in targets:
             s.factory_reset(self.reset_mode, t)
@@ -291,7 +239,7 @@ class Protocol1Bus:
                 continue
             seen.add(sid)
             err, data = s.read(address, length, t)
-            replies.append((s, self.error_bits(s, err), data))
+            replies.append((s, self.error_bits(s, err), data, s.id))
         self._send(replies, t)
 
     # ------------------------------------------------------------------ the USB2AX adapter

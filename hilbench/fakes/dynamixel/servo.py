@@ -9,10 +9,9 @@ Custom boards (model kind ``board``) share the same code without motion.
 from __future__ import annotations
 
 import math
-import random
 import struct
-from dataclasses import dataclass, field
 
+from hilbench.fakes.control_table_servo import ControlTableServo
 from hilbench.fakes.dynamixel.motion import Profile
 from hilbench.protocols import dynamixel_models as m
 from hilbench.protocols.dynamixel import ALERT_BIT, BACKUP_KEY, CLEAR_KEY, ErrorNumber
@@ -49,40 +48,7 @@ _ALWAYS_APPLY = (m.GOAL_POSITION, m.GOAL_VELOCITY, m.TORQUE_ENABLE)
 _LIMITS = {m.GOAL_VELOCITY: (m.VELOCITY_LIMIT, 4), m.GOAL_PWM: (m.PWM_LIMIT, 2), m.GOAL_CURRENT: (m.CURRENT_LIMIT, 2)}
 
 
-@dataclass
-class Faults:
-    """Fault knobs; tests and profiles set them to rehearse what goes wrong on real benches.
-
-    Rates are probabilities per reply (drawn from a seeded generator so runs
-    repeat); ``*_next`` counters affect exactly the next N replies.
-    """
-
-    drop_rate: float = 0.0
-    drop_next: int = 0
-    corrupt_rate: float = 0.0
-    corrupt_next: int = 0
-    delay: float = 0.0  # extra seconds before each reply
-    vanished_until: float = 0.0  # silent until this monotonic time (math.inf: until revived)
-    seed: int = 0
-    rng: random.Random = field(default_factory=random.Random, repr=False)
-
-    def __post_init__(self) -> None:
-        self.rng.seed(self.seed)
-
-    def take_drop(self) -> bool:
-        if self.drop_next > 0:
-            self.drop_next -= 1
-            return True
-        return self.drop_rate > 0 and self.rng.random() < self.drop_rate
-
-    def take_corrupt(self) -> bool:
-        if self.corrupt_next > 0:
-            self.corrupt_next -= 1
-            return True
-        return self.corrupt_rate > 0 and self.rng.random() < self.corrupt_rate
-
-
-class Servo:
+class Servo(ControlTableServo):
     """One emulated device on a Dynamixel bus.
 
     ``initial`` overrides control-table values by field key at power-up (they
@@ -107,33 +73,31 @@ class Servo:
         firmware: int | None = None,
         board_baud: int | None = None,
     ) -> None:
-        self.model = model
+        super().__init__(model, dxl_id, name=name, initial=initial, supply_voltage=supply_voltage,
+                         ambient_temperature=ambient_temperature, reboot_time=reboot_time, seed=seed,
+                         firmware=firmware)
         self.board_baud = board_baud
-        self.name = name or f"{model.name}#{dxl_id}"
-        self.supply_voltage = supply_voltage
-        self.ambient_temperature = ambient_temperature
-        self.reboot_time = reboot_time
-        self.faults = Faults(seed=seed or dxl_id)
-        self.initial = dict(initial or {})
-        self.mem = model.defaults()
-        if firmware is not None:
-            self.mem[model.firmware_address] = firmware
-        self._poke(model.id_address, 1, dxl_id)
-        for key, value in self.initial.items():
-            f = model.field_named(key)
-            self.mem[f.address : f.address + f.size] = f.encode(value)
         self._power_on_eeprom = bytes(self.mem[: m.EEPROM_END])
         self._backup: bytes | None = None
         self.is_servo = model.kind == "servo"
+        if self.is_servo:  # boards have none of these registers
+            self._baud_address = _BAUD_RATE
+            self._srl_address = _STATUS_RETURN_LEVEL
+            self._return_delay_address = _RETURN_DELAY_TIME
+            self._torque_address = _TORQUE_ENABLE
+            self._hardware_error_address = _HARDWARE_ERROR_STATUS
+            self._shutdown_address = m.SHUTDOWN
+        self._eeprom_end = m.EEPROM_END
         start = position if position is not None else (2048 if self.is_servo else 0)
         self.profile = Profile(t, float(start))
         self._goal_at_power_on(start)
-        self._torque_since: float | None = None
-        self._registered: tuple[int, bytes] | None = None
-        self._rebooting_until = 0.0
         self._last_comm = t
-        self._sticky_hw_error = 0
         self._fields = [model.covering(a) for a in range(model.table_size)]
+
+    def _after_power_on(self, t: float, position: float) -> None:
+        """After a reboot the horn is where it was and Goal Position holds it there."""
+        self.profile = Profile(t, position)
+        self._goal_at_power_on(position)
 
     def _goal_at_power_on(self, position: float) -> None:
         """After power-on or a reboot Goal Position holds where the horn is, not 0, so switching the
@@ -149,28 +113,7 @@ class Servo:
     def _poke(self, address: int, size: int, value: int, signed: bool = False) -> None:
         self.mem[address : address + size] = int(value).to_bytes(size, "little", signed=signed)
 
-    def get(self, key: str, t: float | None = None) -> int | float:
-        """A control-table value by field key (refreshing dynamic items at ``t``)."""
-        f = self.model.field_named(key)
-        if t is not None:
-            self._refresh(t, f.address, f.address + f.size)
-        return f.decode(bytes(self.mem[f.address : f.address + f.size]))
-
-    def set(self, key: str, value: int | float, t: float = 0.0) -> None:
-        """Set a value directly, bypassing access rules (for tests and scenarios)."""
-        f = self.model.field_named(key)
-        self.mem[f.address : f.address + f.size] = f.encode(value)
-        self._after_write(f, t)
-
     # ------------------------------------------------------------------ properties
-
-    @property
-    def id(self) -> int:
-        return self.mem[self.model.id_address]
-
-    @property
-    def firmware(self) -> int:
-        return self.mem[self.model.firmware_address]
 
     @property
     def secondary_id(self) -> int | None:
@@ -184,69 +127,11 @@ class Servo:
         """Baud the device listens at; boards have no Baud Rate item and use ``board_baud`` (None: any)."""
         return _BAUD_CODES.get(self.mem[_BAUD_RATE]) if self.is_servo else self.board_baud
 
-    @property
-    def status_return_level(self) -> int:
-        return self.mem[_STATUS_RETURN_LEVEL] if self.is_servo else 2
-
-    @property
-    def return_delay(self) -> float:
-        """Return Delay Time in seconds."""
-        return self.mem[_RETURN_DELAY_TIME] * 2e-6 if self.is_servo else 0.0
-
-    @property
-    def torque(self) -> bool:
-        return self.is_servo and self.mem[_TORQUE_ENABLE] == 1
-
-    @property
-    def hardware_error(self) -> int:
-        return self.mem[_HARDWARE_ERROR_STATUS] if self.is_servo else 0
-
     def error_byte(self, number: int = 0) -> int:
         """ERR for a status: the error number plus the Alert bit while a hardware error stands."""
         if self.is_servo and self.mem[_HARDWARE_ERROR_STATUS]:
             return number | ALERT_BIT
         return number
-
-    def silent(self, t: float) -> bool:
-        """True while rebooting or vanished: the device hears nothing."""
-        return t < self._rebooting_until or t < self.faults.vanished_until
-
-    def listens(self, t: float, baud: int | None) -> bool:
-        """Whether it hears a transmission at ``t`` sent at ``baud`` (None: any): not :meth:`silent`, and at its
-        :attr:`baud` (one call per device and packet where there were two)."""
-        if t < self._rebooting_until or t < self.faults.vanished_until:
-            return False
-        if baud is None:
-            return True
-        b = _BAUD_CODES.get(self.mem[_BAUD_RATE]) if self.is_servo else self.board_baud
-        return b is None or b == baud
-
-    # ------------------------------------------------------------------ fault knobs
-
-    def vanish(self, t: float, duration: float = math.inf) -> None:
-        """Fall silent (cable pulled) for ``duration`` seconds, or until :meth:`revive`."""
-        self.faults.vanished_until = t + duration
-
-    def revive(self) -> None:
-        self.faults.vanished_until = 0.0
-
-    def raise_hardware_error(self, bits: int, t: float, *, sticky: bool = False) -> None:
-        """Set Hardware Error Status bits; shutdown bits switch the torque off.
-
-        ``sticky`` bits come back after a reboot (a fault that is still there).
-        """
-        if not self.is_servo:
-            return
-        self._poke(m.HARDWARE_ERROR_STATUS, 1, self.hardware_error | bits)
-        if sticky:
-            self._sticky_hw_error |= bits
-        if bits & self.mem[m.SHUTDOWN]:
-            self._set_torque(False, t)
-
-    def clear_hardware_error(self) -> None:
-        self._sticky_hw_error = 0
-        if self.is_servo:
-            self._poke(m.HARDWARE_ERROR_STATUS, 1, 0)
 
     # ------------------------------------------------------------------ instructions
 
@@ -327,32 +212,6 @@ class Servo:
         if not err:
             self._apply_write(address, data, t)
         return err
-
-    def reboot(self, t: float) -> int:
-        """Restart: RAM back to defaults, errors cleared, silent for :attr:`reboot_time`."""
-        keep = bytes(self.mem[: m.EEPROM_END])
-        pos = self.profile.at(t).position
-        self.mem = self.model.defaults()
-        self.mem[: m.EEPROM_END] = keep
-        self.profile = Profile(t, pos)
-        self._goal_at_power_on(pos)
-        self._registered = None
-        self._torque_since = None
-        self._rebooting_until = t + self.reboot_time
-        if self._sticky_hw_error and self.is_servo:
-            self._poke(m.HARDWARE_ERROR_STATUS, 1, self._sticky_hw_error)
-        return 0
-
-    def factory_reset(self, mode: int, t: float) -> int:
-        """Factory Reset: ``0xFF`` everything, ``0x01`` all but ID, ``0x02`` all but ID and baud."""
-        dxl_id, baud, firmware = self.id, self.mem[m.BAUD_RATE], self.firmware
-        self.mem[: m.EEPROM_END] = self.model.defaults()[: m.EEPROM_END]
-        self.mem[self.model.firmware_address] = firmware  # read-only: the firmware stays what it is
-        if mode in (0x01, 0x02):
-            self._poke(self.model.id_address, 1, dxl_id)
-        if mode == 0x02 and self.is_servo:
-            self.mem[m.BAUD_RATE] = baud
-        return self.reboot(t)
 
     def clear(self, params: bytes, t: float) -> int:
         """Clear multi-turn (``01 'DXL"'``): Present Position back into one turn."""
@@ -471,7 +330,7 @@ class Servo:
             return
         a = f.address
         if a == m.TORQUE_ENABLE:
-            self._set_torque(self.mem[a] == 1, t, from_write=True)
+            self._set_torque(self.mem[a] == 1, t)
         elif a == m.OPERATING_MODE:
             # A new operating mode puts gains and profile items back to their defaults.
             defaults = self.model.defaults()
@@ -488,17 +347,6 @@ class Servo:
             self._goal_at_power_on(self.profile.at(t).position)
         elif a == m.BUS_WATCHDOG and self.mem[a] == 0:
             pass  # writing 0 clears a tripped watchdog
-
-    def _set_torque(self, on: bool, t: float, from_write: bool = False) -> None:
-        if on and self.hardware_error & self.mem[m.SHUTDOWN]:
-            on = False  # in shutdown: only a reboot brings the torque back
-        self.mem[m.TORQUE_ENABLE] = 1 if on else 0
-        if on:
-            self._torque_since = t
-            self._retarget(t)
-        else:
-            self._torque_since = None
-            self.profile.stop(t)
 
     def _present(self, actual: int) -> int:
         """Present Position of the horn's actual position: Drive Mode bit 0 reverses the direction and

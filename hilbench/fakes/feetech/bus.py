@@ -18,6 +18,7 @@ from __future__ import annotations
 
 from hilbench.fakes.dynamixel.bus1 import Protocol1Bus
 from hilbench.protocols import feetech as ft
+from hilbench.protocols.dynamixel_protocol1 import Instruction1 as I1  # noqa: N814
 from hilbench.protocols.feetech import BROADCAST_ID, Packet1
 from hilbench.protocols.feetech import Instruction as I  # noqa: N814
 
@@ -35,16 +36,11 @@ class FeetechBus(Protocol1Bus):
         super().__init__(servos, name=name, usb2ax=False, inter_byte_timeout=inter_byte_timeout)
 
     def handlers(self):
-        return {
-            I.PING: self._ping,
-            I.READ: self._read,
-            I.WRITE: self._write,
-            I.REG_WRITE: self._write,
-            I.ACTION: self._action,
-            I.RESET: self._reset,
-            I.SYNC_WRITE: self._sync_write,
-            I.SYNC_READ: self._sync_read,
-        }
+        """Protocol 1.0's, with Feetech's SYNC_READ for the BULK_READ and the USB2AX's SYNC_READ it lacks."""
+        out = super().handlers()
+        del out[I1.BULK_READ], out[I1.SYNC_READ]
+        out[I.SYNC_READ] = self._sync_read
+        return out
 
     @staticmethod
     def instruction_name(code: int) -> str:
@@ -65,7 +61,7 @@ class FeetechBus(Protocol1Bus):
             if s is None:
                 continue
             err, data = s.read(address, length, t)
-            replies.append((s, self.error_bits(s), data))
+            replies.append((s, self.error_bits(s), data, s.id))
         self._send(replies, t)
 
 

@@ -36,20 +36,11 @@ state.
 
 from __future__ import annotations
 
-import math
-from collections import deque
+from typing import ClassVar
 
-from hilbench.monitor.dynamixel.devices import (
-    CONNECTED,
-    DISCONNECTED,
-    OBS_LIMIT,
-    READ,
-    UNKNOWN,
-    WRITTEN,
-    DeviceState,
-    model_name,
-)
-from hilbench.monitor.errorlog import ErrorLog
+from hilbench.monitor.dynamixel.bus_state import ANY_PING, DATA, NODATA, PING, Period, ServoBusState
+from hilbench.monitor.dynamixel.bus_state import COMBINED as FAST
+from hilbench.monitor.dynamixel.devices import CONNECTED, OBS_LIMIT, READ, WRITTEN, DeviceState
 from hilbench.protocols import dynamixel as dxl
 from hilbench.protocols.dynamixel import (
     BROADCAST_ID,
@@ -65,12 +56,7 @@ from hilbench.protocols.dynamixel import (
 )
 from hilbench.protocols.dynamixel import Instruction as I  # noqa: N814
 
-# What a request expects back.
-DATA = 1  # one status per listed ID, carrying data for (address, length)
-PING = 2  # one status with model number and firmware
-NODATA = 3  # one status without data (write, action, reboot, ...)
-FAST = 4  # one combined Fast-read packet (ID FE) with a slice per listed ID
-ANY_PING = 5  # broadcast Ping: any device may answer, nobody owes a reply
+# What a request expects back (bus_state): FAST is one combined Fast-read packet (ID FE) with a slice per ID.
 
 #: Control-table addresses whose values change what the monitor believes.
 MODEL_NUMBER, FIRMWARE_BOARD, FIRMWARE, STATUS_RETURN_LEVEL, HARDWARE_ERROR = 0, 2, 6, 68, 70
@@ -84,9 +70,6 @@ _WRITES = frozenset({int(I.WRITE), int(I.REG_WRITE), int(I.SYNC_WRITE), int(I.BU
 _SYNC_WRITE, _REBOOT, _FACTORY_RESET = int(I.SYNC_WRITE), int(I.REBOOT), int(I.FACTORY_RESET)
 #: Distinct repeating requests remembered (folded into the devices when full: bounded memory).
 GROUP_CACHE = 4096
-#: Bus-time spacing and span of the history the "per second" figures use.
-HISTORY_STEP = 0.1
-HISTORY_SPAN = 5.0
 
 
 def _crc_text(raw: bytes) -> str:
@@ -104,7 +87,7 @@ def _covers_special(address: int, length: int) -> bool:
     return address <= HARDWARE_ERROR and any(address <= a < address + length for a in _SPECIAL)
 
 
-class Expectation:
+class Expectation(Period):
     """Who owes what for one distinct request; built once and reused while the request repeats.
 
     It is the device's :class:`~hilbench.monitor.devices.RequestGroup` for
@@ -128,16 +111,11 @@ class Expectation:
         "last_t",
         "slot_index",
         "slot_epoch",
-        "count",
         "last_at",
-        "iv_n",
-        "iv_mean",
-        "iv_m2",
-        "iv_min",
-        "iv_max",
     )
 
     def __init__(self, kind: int, instruction: int, entries: list[tuple[int, int, int]], devices: list[DeviceState]):
+        super().__init__()
         self.kind = kind
         self.instruction = instruction
         self.ids = tuple(e[0] for e in entries)
@@ -158,33 +136,10 @@ class Expectation:
         #: The reply slots of the connected devices, as of BusTracker._epoch == slot_epoch (see _arm).
         self.slot_index: dict[int, int] = {}
         self.slot_epoch = -1
-        self.count = 0
-        self.last_t: float | None = None
-        self.iv_n = 0
-        self.iv_mean = 0.0
-        self.iv_m2 = 0.0
-        self.iv_min = math.inf
-        self.iv_max = 0.0
-
-    def add_interval(self, dt: float) -> None:
-        """Welford's running mean and variance of the request's period."""
-        self.iv_n += 1
-        delta = dt - self.iv_mean
-        self.iv_mean += delta / self.iv_n
-        self.iv_m2 += delta * (dt - self.iv_mean)
-        if dt < self.iv_min:
-            self.iv_min = dt
-        if dt > self.iv_max:
-            self.iv_max = dt
 
     @property
     def name(self) -> str:
         return INSTRUCTION_NAMES.get(self.instruction, f"0x{self.instruction:02x}")
-
-    @property
-    def jitter(self) -> float:
-        """Standard deviation of the period (seconds)."""
-        return math.sqrt(self.iv_m2 / (self.iv_n - 1)) if self.iv_n > 1 else 0.0
 
     def observation(self, k: int) -> tuple[int, bytes, float, int] | None:
         data = self.last[k]
@@ -222,7 +177,7 @@ class WriteGroup:
         self.cleared.add(k)
 
 
-class BusTracker:
+class BusTracker(ServoBusState):
     """Device and bus state of one Dynamixel Protocol 2.0 bus, from its bytes.
 
     ``baud`` is the line rate (for the bus load; None if unknown).
@@ -235,6 +190,9 @@ class BusTracker:
     """
 
     protocol = "dynamixel"
+    problem_names: ClassVar = {"crc": "crc", "bad_length": "bad_length", "truncated": "truncated",
+                               "stuffing": "stuffing"}
+    crc_problem: ClassVar = "crc"
 
     def __init__(
         self,
@@ -247,85 +205,40 @@ class BusTracker:
         max_length: int = MAX_LENGTH,
         log_capacity: int = 1000,
     ) -> None:
-        self.baud = baud
-        self.timestamps = timestamps
-        self.miss_limit = miss_limit
-        self.silence = silence or None
-        self.reply_timeout = reply_timeout
+        super().__init__(instruction_names=INSTRUCTION_NAMES, device_class=DeviceState, baud=baud,
+                         timestamps=timestamps, miss_limit=miss_limit, silence=silence,
+                         reply_timeout=reply_timeout, log_capacity=log_capacity)
         self.max_length = max_length
-        self.devices: dict[int, DeviceState] = {}
-        self.log = ErrorLog(log_capacity)
-        self.log.timed = timestamps
-        self.decoders: dict[str, Decoder] = {}
-        #: Instruction packets by instruction code.
-        self.counts = [0] * 256
         self.items = 0  # packets and problems seen
         self.problem_items = 0
-        self.bytes = 0
-        self.bytes_by_source: dict[str, int] = {}
-        self.t0: float | None = None
-        self.t_last: float | None = None
-        self.unanswered = 0
-        self.unexpected = 0
-        self.bad_replies = 0
-        self.invalid_instructions = 0
-        self.dropped_input = 0
-        self.requests_expecting_replies = 0
         self.expectations: dict[bytes, Expectation] = {}
         self.write_groups: dict[bytes, WriteGroup] = {}
         #: Every multi-device read request seen, by its parameters (for the main cycle).
         self.cycles: dict[bytes, Expectation] = {}
-        self.history: deque[tuple[float, int, tuple[int, ...]]] = deque()
         self._exp: Expectation | None = None
         self._exp_t = 0.0
         #: Replies the decoders may store straight into the pending request (see _arm).
         self._slots = ReplySlots()
         self._scan_t = 0.0
-        self._epoch = 0  # counts device state changes (connected / disconnected)
         self._answered = bytearray()
         self._pending_write: tuple[int, bytes] | None = None
         self._orphans: list[int] = []
-        self._last_tick = -math.inf
 
     # ------------------------------------------------------------------ input
 
-    def feed(self, t: float, source: str, data: bytes) -> None:
-        """Bytes ``data`` that ``source`` put on the bus, complete at bus time ``t``."""
-        if self.t0 is None:
-            self.t0 = self.log.t0 = t
-        self.t_last = t
-        n = len(data)
-        self.bytes += n
-        by_source = self.bytes_by_source
-        by_source[source] = by_source.get(source, 0) + n
-        dec = self.decoders.get(source)
-        if dec is None:
-            dec = self.decoders[source] = Decoder(max_length=self.max_length)
+    def _new_decoder(self) -> Decoder:
+        return Decoder(max_length=self.max_length)
+
+    def _decode(self, dec: Decoder, data: bytes, t: float) -> None:
         self._scan_t = t
         self._consume(dec.scan(data, t, slots=self._arm()))
-        if self.timestamps and t - self._last_tick >= HISTORY_STEP / 2:
-            self.tick(t)
 
-    def gap(self, t: float, source: str, nbytes: int) -> None:
-        """``nbytes`` from ``source`` were lost before reaching the monitor (a slow consumer)."""
-        self.dropped_input += nbytes
-        self.log.add(t, "dropped_input", f"monitor input lost {nbytes} bytes from {source}")
-        dec = self.decoders.get(source)
-        if dec is not None:
-            self.feed_items(dec.flush(t))
-
-    def flush(self, t: float | None = None) -> None:
-        """The line went idle (or the stream ended): report partial packets as truncated."""
-        t = self.t_last if t is None else t
-        for dec in self.decoders.values():
-            if dec.pending:
-                self.feed_items(dec.flush(t or 0.0))
+    def _pending_since(self) -> float | None:
+        return self._exp_t if self._exp is not None else None
 
     def finish(self) -> None:
-        """End of the source: flush the decoders and count replies still owed as missed."""
-        self.flush()
-        if self._exp is not None:
-            self._close(self.t_last or 0.0)
+        """End of the source: flush the decoders, count replies still owed as missed, log orphans."""
+        super().finish()
         self._flush_orphans(self.t_last or 0.0)
 
     def feed_items(self, items: list) -> None:
@@ -435,52 +348,7 @@ class BusTracker:
                     dev.consecutive = dev.health = 0
         fills.clear()
 
-    def tick(self, t: float) -> None:
-        """Advance bus time without data: reply timeout, silence rule, rate history."""
-        self._last_tick = t
-        if self._exp is not None and t - self._exp_t > self.reply_timeout:
-            self._close(t)
-        if self.silence is not None:
-            for dev in self.devices.values():
-                if dev.consecutive and dev.state is not DISCONNECTED and t - dev.owed_since > self.silence:
-                    self._disconnect(dev, t, f"silent for {t - dev.owed_since:.1f} s")
-        hist = self.history
-        if not hist or t - hist[-1][0] >= HISTORY_STEP:
-            hist.append((t, self.bytes, (self.statuses, *self.counts)))
-            while hist and t - hist[0][0] > HISTORY_SPAN:
-                hist.popleft()
-        for dev in self.devices.values():
-            if len(dev.lat) > 4 * 1024:
-                dev.fold_latency()
-
     # ------------------------------------------------------------------ devices
-
-    def device(self, dev_id: int, t: float | None = None) -> DeviceState:
-        """The state of ``dev_id``, created on first mention."""
-        dev = self.devices.get(dev_id)
-        if dev is None:
-            dev = self.devices[dev_id] = DeviceState(dev_id, t)
-        return dev
-
-    def _alive(self, dev: DeviceState, t: float) -> None:
-        """Any status from a device proves it is there."""
-        dev.seen_t = t
-        dev.consecutive = 0
-        dev.health = 0
-        if dev.state is not CONNECTED:
-            if dev.state is DISCONNECTED:
-                self.log.add(t, "reconnected", f"ID {dev.id} reconnected", dev.id)
-            dev.state = CONNECTED
-            dev.ever_replied = True
-            self._epoch += 1
-
-    def _disconnect(self, dev: DeviceState, t: float, why: str) -> None:
-        dev.state = DISCONNECTED
-        dev.health = 1
-        self._epoch += 1
-        dev.disconnects += 1
-        what = f"never answered ({why})" if not dev.ever_replied else why
-        self.log.add(t, "disconnected", f"ID {dev.id} disconnected: {what}", dev.id)
 
     def replies(self, dev: DeviceState) -> int:
         """Status packets from ``dev`` so far.
@@ -756,25 +624,9 @@ class BusTracker:
         answered = self._answered
         self._exp = None
         self._pending_write = None
-        idx = answered.find(0) if exp is not None else -1
-        limit = self.miss_limit
-        while idx >= 0:
-            dev = exp.devices[idx]
-            idx = answered.find(0, idx + 1)
-            if exp.kind == PING and not dev.ever_replied:
-                dev.direct_expected -= 1  # looking for a device that is not there is not a failure
-                continue
-            dev.misses += 1
-            dev.consecutive += 1
-            dev.health = 1
-            self.unanswered += 1
-            if dev.consecutive == 1:
-                dev.owed_since = self._exp_t
-                if dev.state is not DISCONNECTED:
-                    self.log.add(self._exp_t, "missed_reply", "ID {} missed its reply to {}", dev.id, dev.id,
-                                 INSTRUCTION_NAMES.get(exp.instruction, "request"))
-            if dev.consecutive > limit and dev.state is not DISCONNECTED:
-                self._disconnect(dev, t, f"{dev.consecutive} consecutive missed replies")
+        if exp is not None:
+            self._misses(exp.kind, exp.devices, answered, self._exp_t, t,
+                         INSTRUCTION_NAMES.get(exp.instruction, "request"))
 
     # ------------------------------------------------------------------ statuses
 
@@ -928,81 +780,3 @@ class BusTracker:
             self.log.add(t, "truncated", "truncated packet ({} bytes, {})", None, len(raw), pr.detail)
         else:
             self.log.add(t, "invalid_instruction", "{}: {}", None, kind, pr.detail)
-
-    # ------------------------------------------------------------------ bus figures
-
-    @property
-    def crc_errors(self) -> int:
-        """Packet candidates that failed their CRC or LENGTH check (the spec sheet's "CRC failures")."""
-        return sum(d.problems["crc"] + d.problems["bad_length"] for d in self.decoders.values())
-
-    def problems(self) -> dict[str, int]:
-        """Decode problems by kind, over every source, plus bytes outside valid packets."""
-        out = {"crc": 0, "bad_length": 0, "truncated": 0, "stuffing": 0}
-        skipped = 0
-        for d in self.decoders.values():
-            for k, v in d.problems.items():
-                out[k] = out.get(k, 0) + v
-            skipped += d.bytes_skipped
-        out["garbage_bytes"] = skipped
-        return out
-
-    def packet_counts(self) -> dict[str, int]:
-        """Packets by snake_case instruction name (every known name, zeros included)."""
-        out = {name: self.counts[code] for code, name in INSTRUCTION_NAMES.items()}
-        out["status"] = self.statuses
-        unknown = sum(c for code, c in enumerate(self.counts) if code not in INSTRUCTION_NAMES)
-        if unknown:
-            out["unknown"] = unknown
-        return out
-
-    @property
-    def duration(self) -> float:
-        """Bus time between the first and the last data (0 without timestamps)."""
-        if self.t0 is None or self.t_last is None or not self.timestamps:
-            return 0.0
-        return self.t_last - self.t0
-
-    def main_cycle(self) -> Expectation | None:
-        """The most frequent Sync/Bulk (Fast) Read request: the bus's control cycle."""
-        best = None
-        for exp in self.cycles.values():
-            if best is None or exp.count > best.count:
-                best = exp
-        return best
-
-    def recent(self, window: float = 1.0) -> tuple[float, int, dict[str, int]] | None:
-        """(seconds, bytes, packets by name) over about the last ``window`` s of bus time, or None."""
-        hist = self.history
-        if not hist or self.t_last is None:
-            return None
-        t_now = self.t_last
-        ref = hist[0]
-        for entry in hist:
-            if t_now - entry[0] >= window:
-                ref = entry
-            else:
-                break
-        span = t_now - ref[0]
-        if span <= 0:
-            return None
-        now = (self.statuses, *self.counts)
-        delta = [a - b for a, b in zip(now, ref[2], strict=True)]
-        packets = {name: delta[code + 1] for code, name in INSTRUCTION_NAMES.items() if delta[code + 1]}
-        if delta[0]:
-            packets["status"] = delta[0]
-        return span, self.bytes - ref[1], packets
-
-    def state_counts(self) -> dict[str, int]:
-        out = {CONNECTED: 0, DISCONNECTED: 0, UNKNOWN: 0}
-        for dev in self.devices.values():
-            out[dev.state] += 1
-        return out
-
-    def models(self) -> dict[str, list[DeviceState]]:
-        """Devices grouped by model name (``<unknown>`` for devices never identified), sorted by ID."""
-        groups: dict[str, list[DeviceState]] = {}
-        for dev_id in sorted(self.devices):
-            dev = self.devices[dev_id]
-            groups.setdefault(model_name(dev.model), []).append(dev)
-        return dict(sorted(groups.items(), key=lambda kv: (kv[0] == "<unknown>", kv[0])))

@@ -26,19 +26,16 @@ scan, not a miss.
 
 from __future__ import annotations
 
-import math
-from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import ClassVar
 
-from hilbench.monitor.dynamixel.devices import CONNECTED, DISCONNECTED, READ, UNKNOWN, WRITTEN, DeviceState
-from hilbench.monitor.errorlog import ErrorLog
+from hilbench.monitor.dynamixel.bus_state import ANY_PING, DATA, NODATA, PING, Period, ServoBusState
+from hilbench.monitor.dynamixel.bus_state import COMBINED as USB2AX
+from hilbench.monitor.dynamixel.devices import READ, WRITTEN, DeviceState
 from hilbench.protocols.dynamixel_protocol1 import BROADCAST_ID, USB2AX_ID, DecodeProblem1, Decoder1, Packet1
 
-# what a pending request expects
-DATA, PING, NODATA, USB2AX, ANY_PING = 1, 2, 3, 4, 5
-HISTORY_STEP = 0.1
-HISTORY_SPAN = 5.0
+# what a pending request expects (bus_state): USB2AX is the adapter's one combined reply to SYNC_READ 0x84
 #: Distinct multi-device read requests remembered for the main cycle (bounded memory).
 CYCLE_CACHE = 1024
 
@@ -74,35 +71,16 @@ class Dialect:
     big_endian_models: frozenset[int] = field(default_factory=frozenset)
 
 
-class Cycle:
+class Cycle(Period):
     """A repeating multi-device read (the bus's control cycle candidates): its count and period."""
 
-    __slots__ = ("name", "ids", "ranges", "count", "last_t", "iv_n", "iv_mean", "iv_m2", "iv_min", "iv_max")
+    __slots__ = ("name", "ids", "ranges")
 
     def __init__(self, name: str, entries: list[tuple[int, int, int]]) -> None:
+        super().__init__()
         self.name = name
         self.ids = tuple(e[0] for e in entries)
         self.ranges = tuple((e[1], e[2]) for e in entries)
-        self.count = 0
-        self.last_t: float | None = None
-        self.iv_n = 0
-        self.iv_mean = 0.0
-        self.iv_m2 = 0.0
-        self.iv_min = math.inf
-        self.iv_max = 0.0
-
-    def add_interval(self, dt: float) -> None:
-        """Welford's running mean and variance of the period."""
-        self.iv_n += 1
-        delta = dt - self.iv_mean
-        self.iv_mean += delta / self.iv_n
-        self.iv_m2 += delta * (dt - self.iv_mean)
-        self.iv_min = min(self.iv_min, dt)
-        self.iv_max = max(self.iv_max, dt)
-
-    @property
-    def jitter(self) -> float:
-        return math.sqrt(self.iv_m2 / (self.iv_n - 1)) if self.iv_n > 1 else 0.0
 
 
 class _Pending:
@@ -118,8 +96,11 @@ class _Pending:
         self.t = t
 
 
-class Bus1Tracker:
+class Bus1Tracker(ServoBusState):
     """Device and bus state of one Protocol 1.0-framed bus (see the module docstring)."""
+
+    problem_names: ClassVar = {"checksum": "crc", "bad_length": "bad_length", "truncated": "truncated"}
+    crc_problem: ClassVar = "checksum"
 
     def __init__(
         self,
@@ -132,51 +113,26 @@ class Bus1Tracker:
         reply_timeout: float = 0.1,
         log_capacity: int = 1000,
     ) -> None:
+        super().__init__(instruction_names=dict(dialect.instruction_names), device_class=dialect.device_class,
+                         baud=baud, timestamps=timestamps, miss_limit=miss_limit, silence=silence,
+                         reply_timeout=reply_timeout, log_capacity=log_capacity)
         self.dialect = dialect
         self.protocol = dialect.protocol
         self.describe_error = dialect.describe_error
-        self.baud = baud
-        self.timestamps = timestamps
-        self.miss_limit = miss_limit
-        self.silence = silence or None
-        self.reply_timeout = reply_timeout
-        self.devices: dict[int, DeviceState] = {}
-        self.log = ErrorLog(log_capacity)
-        self.log.timed = timestamps
-        self.decoders: dict[str, Decoder1] = {}
-        self.counts = [0] * 256
         self.statuses = 0
-        self.bytes = 0
-        self.bytes_by_source: dict[str, int] = {}
-        self.t0: float | None = None
-        self.t_last: float | None = None
-        self.unanswered = 0
-        self.unexpected = 0
-        self.bad_replies = 0
-        self.invalid_instructions = 0
-        self.dropped_input = 0
-        self.requests_expecting_replies = 0
         self.cycles: dict[bytes, Cycle] = {}
-        self.history: deque[tuple[float, int, tuple[int, ...]]] = deque()
         self._pending: _Pending | None = None
-        self._last_tick = -math.inf
-        self._names = dict(dialect.instruction_names)
 
     # ------------------------------------------------------------------ input
 
-    def feed(self, t: float, source: str, data: bytes) -> None:
-        """Bytes ``data`` that ``source`` put on the bus, complete at bus time ``t``."""
-        if self.t0 is None:
-            self.t0 = self.log.t0 = t
-        self.t_last = t
-        self.bytes += len(data)
-        self.bytes_by_source[source] = self.bytes_by_source.get(source, 0) + len(data)
-        dec = self.decoders.get(source)
-        if dec is None:
-            dec = self.decoders[source] = Decoder1()
+    def _new_decoder(self) -> Decoder1:
+        return Decoder1()
+
+    def _decode(self, dec: Decoder1, data: bytes, t: float) -> None:
         self.feed_items(dec.feed(data, t))
-        if self.timestamps and t - self._last_tick >= HISTORY_STEP / 2:
-            self.tick(t)
+
+    def _pending_since(self) -> float | None:
+        return self._pending.t if self._pending is not None else None
 
     def feed_items(self, items: list) -> None:
         """Decoded packets and problems in bus order."""
@@ -190,50 +146,10 @@ class Bus1Tracker:
             else:
                 self._problem(item)
 
-    def gap(self, t: float, source: str, nbytes: int) -> None:
-        """``nbytes`` from ``source`` were lost before reaching the monitor."""
-        self.dropped_input += nbytes
-        self.log.add(t, "dropped_input", f"monitor input lost {nbytes} bytes from {source}")
-        dec = self.decoders.get(source)
-        if dec is not None:
-            self.feed_items(dec.flush(t))
-
-    def flush(self, t: float | None = None) -> None:
-        """The line went idle: partial packets are reported as truncated."""
-        t = self.t_last if t is None else t
-        for dec in self.decoders.values():
-            if dec.pending:
-                self.feed_items(dec.flush(t or 0.0))
-
-    def finish(self) -> None:
-        """End of the source: count replies still owed as missed."""
-        self.flush()
-        if self._pending is not None:
-            self._close(self.t_last or 0.0)
-
-    def tick(self, t: float) -> None:
-        """Bus time passes: reply timeout, silence rule, rate history."""
-        self._last_tick = t
-        p = self._pending
-        if p is not None and t - p.t > self.reply_timeout:
-            self._close(t)
-        if self.silence is not None:
-            for dev in self.devices.values():
-                if dev.consecutive and dev.state is not DISCONNECTED and t - dev.owed_since > self.silence:
-                    self._disconnect(dev, t, f"silent for {t - dev.owed_since:.1f} s")
-        hist = self.history
-        if not hist or t - hist[-1][0] >= HISTORY_STEP:
-            hist.append((t, self.bytes, (self.statuses, *self.counts)))
-            while hist and t - hist[0][0] > HISTORY_SPAN:
-                hist.popleft()
-        for dev in self.devices.values():
-            if len(dev.lat) > 4 * 1024:
-                dev.fold_latency()
-
     # ------------------------------------------------------------------ telling packets apart
 
     def _is_status(self, pkt: Packet1) -> bool:
-        if pkt.code not in self._names:
+        if pkt.code not in self.instruction_names:
             return True  # no such instruction: a status (most often ERR 0)
         p = self._pending
         if p is None:
@@ -250,29 +166,9 @@ class Bus1Tracker:
 
     # ------------------------------------------------------------------ devices
 
-    def device(self, dev_id: int, t: float | None = None) -> DeviceState:
-        dev = self.devices.get(dev_id)
-        if dev is None:
-            dev = self.devices[dev_id] = self.dialect.device_class(dev_id, t)
-        return dev
-
     def _alive(self, dev: DeviceState, t: float) -> None:
-        dev.seen_t = t
-        dev.consecutive = 0
-        dev.health = 0
         dev.extra_replies += 1  # replies seen (this tracker counts them directly)
-        if dev.state is not CONNECTED:
-            if dev.state is DISCONNECTED:
-                self.log.add(t, "reconnected", f"ID {dev.id} reconnected", dev.id)
-            dev.state = CONNECTED
-            dev.ever_replied = True
-
-    def _disconnect(self, dev: DeviceState, t: float, why: str) -> None:
-        dev.state = DISCONNECTED
-        dev.health = 1
-        dev.disconnects += 1
-        what = f"never answered ({why})" if not dev.ever_replied else why
-        self.log.add(t, "disconnected", f"ID {dev.id} disconnected: {what}", dev.id)
+        super()._alive(dev, t)
 
     def replies(self, dev: DeviceState) -> int:
         """Status packets from ``dev`` (its share of a USB2AX reply counts as one)."""
@@ -367,7 +263,7 @@ class Bus1Tracker:
                 if len(self.cycles) >= CYCLE_CACHE:
                     main = self.main_cycle()
                     self.cycles = {k: v for k, v in self.cycles.items() if v is main}
-                c = self.cycles[key] = Cycle(self._names.get(code, f"0x{code:02x}"), entries)
+                c = self.cycles[key] = Cycle(self.instruction_names.get(code, f"0x{code:02x}"), entries)
             c.count += 1
             if c.last_t is not None and self.timestamps:
                 c.add_interval(t - c.last_t)
@@ -378,28 +274,7 @@ class Bus1Tracker:
         p, self._pending = self._pending, None
         if p is None:
             return
-        for k, dev in enumerate(p.devices):
-            if p.answered[k]:
-                continue
-            if p.kind == PING and not dev.ever_replied:
-                dev.direct_expected -= 1  # a scan for a device that is not there
-                continue
-            self._miss(dev, p, t)
-
-    def _miss(self, dev: DeviceState, p: _Pending, t: float) -> None:
-        if dev.id not in self.devices:
-            self.devices[dev.id] = dev
-        dev.misses += 1
-        dev.consecutive += 1
-        dev.health = 1
-        self.unanswered += 1
-        if dev.consecutive == 1:
-            dev.owed_since = p.t
-            if dev.state is not DISCONNECTED:
-                self.log.add(p.t, "missed_reply", "ID {} missed its reply to {}", dev.id, dev.id,
-                             self._names.get(p.code, "a request"))
-        if dev.consecutive > self.miss_limit and dev.state is not DISCONNECTED:
-            self._disconnect(dev, t, f"{dev.consecutive} consecutive missed replies")
+        self._misses(p.kind, p.devices, p.answered, p.t, t, self.instruction_names.get(p.code, "a request"))
 
     # ------------------------------------------------------------------ statuses
 
@@ -453,7 +328,7 @@ class Bus1Tracker:
             pos += length
             p.answered[k] = 1
             if chunk.count(0xFF) == length:
-                self._miss(dev, p, t)
+                self._missed(dev, p.t, t, self.instruction_names.get(p.code, "a request"))
                 continue
             self._alive(dev, t)
             if self.timestamps:
@@ -465,7 +340,7 @@ class Bus1Tracker:
         dev.last_error = err
         if err:
             dev.error_statuses += 1
-            what = self._names.get(p.code, "a request") if p is not None else "a request"
+            what = self.instruction_names.get(p.code, "a request") if p is not None else "a request"
             self.log.add(p.t if p is not None else (self.t_last or 0.0), "error_status",
                          f"ID {dev.id} status packet has an error: {self.describe_error(err)} (reply to {what})",
                          dev.id)
@@ -519,76 +394,6 @@ class Bus1Tracker:
             self.log.add(t, "bad_length", "invalid packet length")
         else:
             self.log.add(t, "truncated", "truncated packet ({} bytes)", None, len(raw))
-
-    # ------------------------------------------------------------------ bus figures
-
-    @property
-    def crc_errors(self) -> int:
-        return sum(d.problems["checksum"] + d.problems["bad_length"] for d in self.decoders.values())
-
-    def problems(self) -> dict[str, int]:
-        out = {"crc": 0, "bad_length": 0, "truncated": 0}
-        skipped = 0
-        for d in self.decoders.values():
-            out["crc"] += d.problems["checksum"]
-            out["bad_length"] += d.problems["bad_length"]
-            out["truncated"] += d.problems["truncated"]
-            skipped += d.bytes_skipped
-        out["garbage_bytes"] = skipped
-        return out
-
-    def packet_counts(self) -> dict[str, int]:
-        out = {name: self.counts[code] for code, name in self._names.items()}
-        out["status"] = self.statuses
-        unknown = sum(c for code, c in enumerate(self.counts) if code not in self._names)
-        if unknown:
-            out["unknown"] = unknown
-        return out
-
-    @property
-    def duration(self) -> float:
-        if self.t0 is None or self.t_last is None or not self.timestamps:
-            return 0.0
-        return self.t_last - self.t0
-
-    def main_cycle(self) -> Cycle | None:
-        """The most frequent multi-device read: the bus's control cycle."""
-        return max(self.cycles.values(), key=lambda c: c.count, default=None)
-
-    def recent(self, window: float = 1.0) -> tuple[float, int, dict[str, int]] | None:
-        """(seconds, bytes, packets by name) over about the last ``window`` s of bus time, or None."""
-        hist = self.history
-        if not hist or self.t_last is None:
-            return None
-        ref = hist[0]
-        for entry in hist:
-            if self.t_last - entry[0] >= window:
-                ref = entry
-            else:
-                break
-        span = self.t_last - ref[0]
-        if span <= 0:
-            return None
-        now = (self.statuses, *self.counts)
-        delta = [a - b for a, b in zip(now, ref[2], strict=True)]
-        packets = {name: delta[code + 1] for code, name in self._names.items() if delta[code + 1]}
-        if delta[0]:
-            packets["status"] = delta[0]
-        return span, self.bytes - ref[1], packets
-
-    def state_counts(self) -> dict[str, int]:
-        out = {CONNECTED: 0, DISCONNECTED: 0, UNKNOWN: 0}
-        for dev in self.devices.values():
-            out[dev.state] += 1
-        return out
-
-    def models(self) -> dict[str, list[DeviceState]]:
-        """Devices grouped by model name (``<unknown>`` for devices never identified), sorted by ID."""
-        groups: dict[str, list[DeviceState]] = {}
-        for dev_id in sorted(self.devices):
-            dev = self.devices[dev_id]
-            groups.setdefault(dev.model_name, []).append(dev)
-        return dict(sorted(groups.items(), key=lambda kv: (kv[0] == "<unknown>", kv[0])))
 
 
 __all__ = ["Bus1Tracker", "Cycle", "Dialect"]
