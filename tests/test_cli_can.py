@@ -172,6 +172,7 @@ def test_a_whole_session_decodes_with_the_exported_dbc(can_bench, tmp_path):
     assert report["ids"]["0x182"]["rate_hz"] == pytest.approx(50, rel=0.1)
 
 
+@pytest.mark.slow  # a long CLI session on a live CAN bench: the slow set
 def test_monitor_a_live_bench_with_faults(can_bench):
     manifest, url, data = can_bench
     assert hb("can", "fault", "--manifest", manifest, "heartbeat_stop=true").returncode == 0
@@ -210,6 +211,7 @@ def test_send_and_dump(can_bench):
     assert bad.returncode == 2 and "cansend" in bad.stderr
 
 
+@pytest.mark.slow  # a long CLI session on a live CAN bench: the slow set
 def test_record_a_live_bus_to_a_capture_and_convert_it(can_bench, tmp_path):
     manifest, url, data = can_bench
     cap = tmp_path / "bus.hbcap"

@@ -55,6 +55,7 @@ def test_emulated_agent_manifest_and_a_session(tmp_path: Path, hilbench_emulator
         c.close()
 
 
+@pytest.mark.slow  # a long CLI session (relay, agent, monitor): the slow set
 def test_tap_udp_relays_and_decodes_both_ways(tmp_path: Path, hilbench_emulator) -> None:
     prof = tmp_path / "agent.toml"
     prof.write_text(AGENT_TOML)

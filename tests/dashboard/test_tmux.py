@@ -85,6 +85,7 @@ def test_replayed_capture_in_a_real_terminal(terminal):
     term.wait_for("EXITED 0")
 
 
+@pytest.mark.slow  # the whole demo in a real terminal: the slow set
 def test_demo_in_a_real_terminal(terminal):
     term = terminal(hilbench("demo", "--seconds", "4"))
     screen = term.wait_for("Device overview")

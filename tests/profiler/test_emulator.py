@@ -173,6 +173,7 @@ def test_cli_on_the_emulated_board_over_udp(hilbench_bench):
     assert doc["source"].startswith("udp://127.0.0.1:")
 
 
+@pytest.mark.slow  # a long CLI session on a running bench: the slow set
 def test_cli_follows_a_running_bench_through_its_tap(hilbench_emulator, tmp_path):
     """`hilbench emulate mecarover` in its own process; the profiler reads the board's side of its traffic
     tap (manifest.json#rover), while a host sends a frame on the same line (which it must skip)."""
