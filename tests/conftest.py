@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import signal
+import subprocess
 from pathlib import Path
 
 import pytest
@@ -28,3 +30,20 @@ def patient_sdk(monkeypatch):
     import dynamixel_sdk.port_handler as port_handler
 
     monkeypatch.setattr(port_handler, "LATENCY_TIMER", 100)
+
+
+def interrupt(proc: subprocess.Popen, timeout: float = 20) -> tuple[str, str]:
+    """Ctrl-C a hilbench command and collect its output; one that does not end within ``timeout`` fails
+    with every thread's stack (the CLI dumps them on SIGUSR1), so a hang says where it is."""
+    proc.send_signal(signal.SIGINT)
+    try:
+        return proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        proc.send_signal(signal.SIGUSR1)
+        try:
+            proc.communicate(timeout=2)
+        except subprocess.TimeoutExpired:
+            pass
+        proc.kill()
+        out, err = proc.communicate()
+        raise AssertionError(f"{proc.args} did not end within {timeout} s of SIGINT; stderr:\n{err}") from None

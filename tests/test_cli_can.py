@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import json
 import os
-import signal
 import subprocess
 import sys
 import time
@@ -23,7 +22,7 @@ from hilbench.protocols import can_frame as cf
 from hilbench.pytest_plugin import wait_until
 from hilbench.transports.capture_file import Chunk
 from hilbench.transports.sources import open_source
-from tests.conftest import REPO
+from tests.conftest import REPO, interrupt
 
 
 def hb(*args: str, timeout: float = 60) -> subprocess.CompletedProcess:
@@ -146,8 +145,7 @@ def test_a_whole_session_decodes_with_the_exported_dbc(can_bench, tmp_path):
         assert status["status"]["heartbeat_ms"] == 500 and status["status"]["pose"]["x"] > 0.12
         time.sleep(0.6)  # one more heartbeat at the new period
     finally:
-        recorder.send_signal(signal.SIGINT)
-        _, err = recorder.communicate(timeout=30)
+        _, err = interrupt(recorder, timeout=30)
     assert recorder.returncode == 0, err
     db = cantools.database.load_string(hb("can", "dbc", "mecarover-can").stdout, "dbc")
     messages = list(can.LogReader(str(log)))

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import os
-import signal
 import subprocess
 import sys
 import threading
@@ -14,6 +13,7 @@ import pytest
 
 from hilbench.pytest_plugin import wait_until
 from hilbench.transports.capture_file import CaptureReader
+from tests.conftest import interrupt
 
 OK = sdk.COMM_SUCCESS
 
@@ -148,8 +148,7 @@ def test_tap_forwards_a_full_sdk_session_byte_exactly(hilbench_bench, tmp_path, 
         wait_until(lambda: sum(len(d) for s, d in list(seen) if s == "dxl") == 10 + 16 + 14 + 20 * (34 + 114)
                    + 20 + 14)
     finally:
-        proc.send_signal(signal.SIGINT)
-        out, err = proc.communicate(timeout=20)
+        out, err = interrupt(proc)
     assert proc.returncode == 0, err
     # byte-exact: what the application sent is what the bench received, and back
     with lock:

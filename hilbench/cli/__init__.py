@@ -11,8 +11,10 @@ status (2 for usage mistakes, 1 for devices or benches that fail).
 from __future__ import annotations
 
 import argparse
+import faulthandler
 import os
 import select
+import signal
 import sys
 from collections.abc import Callable, Sequence
 
@@ -41,6 +43,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     func: Callable[[argparse.Namespace], int] = args.func
+    if hasattr(signal, "SIGUSR1"):  # `kill -USR1 PID`: every thread's stack on stderr (a command that hangs)
+        faulthandler.register(signal.SIGUSR1, all_threads=True)
     try:
         return func(args)
     except HilbenchError as exc:
