@@ -51,6 +51,7 @@ import time
 from pathlib import Path
 
 import dynamixel_sdk as sdk
+from benchlib import sdk_cycle
 
 from hilbench.bench.manifest import read_manifest
 from hilbench.protocols.dynamixel import Decoder
@@ -159,12 +160,7 @@ def run_cycles(path: str, seconds: float, emulator_pid: int, baud: int = BAUD) -
     port.openPort()
     if not port.setBaudRate(baud):
         raise SystemExit(f"the SDK did not open {path} at {baud}")
-    ph = sdk.PacketHandler(2.0)
-    reader = sdk.GroupSyncRead(port, ph, 132, 4)
-    writer = sdk.GroupSyncWrite(port, ph, 116, 4)
-    for i in IDS:
-        reader.addParam(i)
-        writer.addParam(i, [0x00, 0x08, 0, 0])
+    ph, reader, writer = sdk_cycle(port, IDS)
 
     failed = [0]
 

@@ -21,7 +21,7 @@ import statistics
 import time
 
 import dynamixel_sdk as sdk
-from benchlib import emit, emulator
+from benchlib import emit, emulator, sdk_cycle
 
 from hilbench.clients.dynamixel import port_handler
 
@@ -34,12 +34,7 @@ def cycles_per_second(path: str, seconds: float) -> float:
     port = port_handler(path)
     if not (port.openPort() and port.setBaudRate(BAUD)):
         raise SystemExit(f"cannot open {path}")
-    ph = sdk.PacketHandler(2.0)
-    reader = sdk.GroupSyncRead(port, ph, 132, 4)
-    writer = sdk.GroupSyncWrite(port, ph, 116, 4)
-    for i in IDS:
-        reader.addParam(i)
-        writer.addParam(i, [0x00, 0x08, 0, 0])
+    ph, reader, writer = sdk_cycle(port, IDS)
     failures = 0
 
     def cycle() -> None:

@@ -52,3 +52,21 @@ def emulator(*args: str, timeout: float = 20.0) -> Iterator[dict[str, Any]]:
 
 
 __all__ = ["REPO", "emit", "emulator"]
+
+
+#: The servos of the wolfgang bench's 20-servo SDK cycle.
+CYCLE_IDS = list(range(1, 21))
+
+
+def sdk_cycle(port: Any, ids: list[int] = CYCLE_IDS) -> tuple[Any, Any, Any]:
+    """The official SDK's 20-servo cycle on an open ``port``: ``(packet handler, GroupSyncRead of Present
+    Position, GroupSyncWrite of Goal Position)`` with every servo's parameter added."""
+    import dynamixel_sdk as sdk
+
+    ph = sdk.PacketHandler(2.0)
+    reader = sdk.GroupSyncRead(port, ph, 132, 4)
+    writer = sdk.GroupSyncWrite(port, ph, 116, 4)
+    for i in ids:
+        reader.addParam(i)
+        writer.addParam(i, [0x00, 0x08, 0, 0])
+    return ph, reader, writer

@@ -34,6 +34,7 @@ from pathlib import Path
 
 import dynamixel_sdk as sdk
 from bench_dynamixel import CustomBaudPortHandler, neighbours, process_cpu_s, start_emulator, wolfgang_at
+from benchlib import sdk_cycle
 
 IDS = list(range(1, 21))
 HIST_BIN = 10e-6
@@ -80,12 +81,7 @@ def soak(minutes: float, rate: float, baud: int, sample_every: float) -> dict:
         port = CustomBaudPortHandler(path)
         if not (port.openPort() and port.setBaudRate(baud)):
             raise SystemExit(f"the SDK did not open {path} at {baud}")
-        ph = sdk.PacketHandler(2.0)
-        reader = sdk.GroupSyncRead(port, ph, 132, 4)
-        writer = sdk.GroupSyncWrite(port, ph, 116, 4)
-        for i in IDS:
-            reader.addParam(i)
-            writer.addParam(i, [0x00, 0x08, 0, 0])
+        ph, reader, writer = sdk_cycle(port, IDS)
         period = 1.0 / rate
         cycles = failed_reads = missed = overruns = 0
         hist = [0] * (HIST_BINS + 1)  # cycle times in 10 us bins (a list of every time would grow: not a soak)
