@@ -15,6 +15,7 @@ from __future__ import annotations
 import functools
 import os
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -117,8 +118,12 @@ class Bench:
 
     # ------------------------------------------------------------------ lifecycle
 
-    def start(self) -> Bench:
-        """Open the endpoints and start every medium and device; returns self."""
+    def start(self, on_endpoint: Callable[[Endpoint], Any] | None = None) -> Bench:
+        """Open the endpoints and start every medium and device; returns self.
+
+        ``on_endpoint(ep)`` is called for each endpoint once its medium exists and before anything
+        runs, e.g. to tap the medium from the first byte (a monitor that must see RTPS discovery).
+        """
         if self.started_at is not None:
             return self
         if self._stopped:
@@ -149,6 +154,9 @@ class Bench:
                                        description=f"bench {prof.name}, endpoint {spec.name}")
                     medium.add_tap(ep.tap.feed)
             self._start_servers()
+            if on_endpoint is not None:
+                for ep in self.endpoints.values():
+                    on_endpoint(ep)
             for ep in self.endpoints.values():
                 ep.medium.start()
             for ep in self.endpoints.values():

@@ -11,6 +11,7 @@ status (2 for usage mistakes, 1 for devices or benches that fail).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import faulthandler
 import os
 import select
@@ -44,7 +45,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     func: Callable[[argparse.Namespace], int] = args.func
     if hasattr(signal, "SIGUSR1"):  # `kill -USR1 PID`: every thread's stack on stderr (a command that hangs)
-        faulthandler.register(signal.SIGUSR1, all_threads=True)
+        with contextlib.suppress(AttributeError, OSError, ValueError):  # stderr without a descriptor (embedded)
+            faulthandler.register(signal.SIGUSR1, all_threads=True)
     try:
         return func(args)
     except HilbenchError as exc:

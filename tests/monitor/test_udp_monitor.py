@@ -143,9 +143,10 @@ def test_live_freertps_bench_rates(tmp_path: Path) -> None:
                 {"name": "chatter", "type": "std_msgs/String", "direction": "pub", "rate_hz": 20}]},
                 {"name": "listener", "participant_index": 1, "topics": [
                     {"name": "chatter", "type": "std_msgs/String", "direction": "sub"}]}]}
-    bench = Bench(parse_profile(prof, "n.toml")).start()
+    sources = []  # tapped before any device runs: the monitor must see the discovery to name the topic
+    bench = Bench(parse_profile(prof, "n.toml")).start(on_endpoint=lambda ep: sources.append(MediumSource(ep.medium)))
     try:
-        mon = Monitor(MediumSource(bench.endpoint().medium)).start()
+        mon = Monitor(sources[0]).start()
         wait_until(lambda: bench.device("listener").received["chatter"] >= 30, 10)
         mon.stop()
         rep = mon.summary()
