@@ -433,14 +433,7 @@ class WordDecoder:
         segs = seg.tolist()
         spos = np.flatnonzero(is_stamp)
         if len(spos):
-            sid = ids[spos]
-            idx = self._lut[sid]
-            missing = idx < 0
-            if missing.any():
-                for wid in np.unique(sid[missing]).tolist():
-                    self._lut[wid] = self._index(f"#{wid}")
-                self.unnamed_stamps += int(missing.sum())
-                idx = self._lut[sid]
+            idx = self._name_indices(ids[spos])
             cols = (idx.astype(np.int32), t_full[spos].astype(np.int64), ((p[spos] >> 17) & 1).astype(bool))
             names = self.registry.snapshot()
         bounds = np.searchsorted(spos, [*cuts, n]).tolist()  # stamps before each cut
@@ -460,7 +453,12 @@ class WordDecoder:
         if not is_stamp.any():
             return
         sel = is_stamp if not is_stamp.all() else slice(None)
-        sid = ids[sel]
+        idx = self._name_indices(ids[sel])
+        begin = ((p[sel] >> 17) & 1).astype(bool)
+        out.append(StampBatch(self.registry.snapshot(), idx.astype(np.int32), t_full[sel].astype(np.int64), begin))
+
+    def _name_indices(self, sid: np.ndarray) -> np.ndarray:
+        """The name index of each stamp id; ids no NAME word declared get a name ``#<id>`` (counted)."""
         idx = self._lut[sid]
         missing = idx < 0
         if missing.any():
@@ -468,8 +466,7 @@ class WordDecoder:
                 self._lut[wid] = self._index(f"#{wid}")
             self.unnamed_stamps += int(missing.sum())
             idx = self._lut[sid]
-        begin = ((p[sel] >> 17) & 1).astype(bool)
-        out.append(StampBatch(self.registry.snapshot(), idx.astype(np.int32), t_full[sel].astype(np.int64), begin))
+        return idx
 
     def _special(self, payload: int, wid: int, t: int, out: list) -> None:
         if wid != ID_CONTROL:
