@@ -221,15 +221,15 @@ def cmd_tap_udp(args: argparse.Namespace) -> int:
         relay.start()
         print(f"hilbench tap: clients send to udp://{relay.listen[0]}:{relay.listen[1]}, relayed to "
               f"{target[0]}:{target[1]}", flush=True)
-        _watch(mon, args, label, lambda: "relaying" if relay.error is None else "failed",
-               stop=lambda: relay.error is not None)
+        code = _watch(mon, args, label, lambda: "relaying" if relay.error is None else "failed",
+                      stop=lambda: relay.error is not None)
     finally:
         relay.close()
     if relay.error is not None:
         raise CliError(f"tap udp: {relay.error}")
     print(f"hilbench tap: relayed {relay.datagrams_up} datagrams to the target, {relay.datagrams_down} back",
           file=sys.stderr)
-    return 0
+    return code
 
 
 def cmd_tap(args: argparse.Namespace) -> int:
