@@ -363,6 +363,8 @@ class CaptureParser:
         """The fast path: hand out DATA records of named sources whose next two headers are DATA records
         of named sources too, stamped in order with them; return where it stopped (everything else,
         and the last two records of ``buf``, go the general way). Nine records in ten of a capture."""
+        if self._addr:  # a datagram's ADDRESS record waits for its DATA: that one goes the general way
+            return pos
         n = len(buf) - _HEAD
         unpack = cap.unpack_record_header
         declared = self._declared

@@ -131,3 +131,26 @@ def test_tap_server_streams_addresses() -> None:
         src.close()
     finally:
         srv.close()
+
+
+def test_addresses_survive_runs_of_plain_data(tmp_path) -> None:
+    """A datagram among runs of address-less data (a serial source in the same capture): the reader's fast
+    path for plain DATA runs must leave each datagram its address, whatever the split of the input."""
+    path = tmp_path / "mixed.hbcap"
+    t = 1.0
+    with CaptureWriter(path, protocol="udp") as w:
+        w.write(t, "bus", b"x")
+        for k in range(50):
+            t += 0.001
+            w.write(t, "udp", b"D%d" % k, ("127.0.0.1", 1000 + k, "127.0.0.1", 8888))
+            for _ in range(3):
+                t += 0.001
+                w.write(t, "bus", b"serial")
+    want = [1000 + k for k in range(50)]
+    assert [c.addr[1] for c in CaptureReader(path) if c.source == "udp"] == want
+    raw = path.read_bytes()
+    for step in (1, 7, 64, 4096):
+        parser = CaptureParser()
+        got = [c for i in range(0, len(raw), step) for c in parser.feed(raw[i:i + step])] + parser.finish()
+        assert [c.addr[1] for c in got if c.source == "udp"] == want, step
+        assert all(c.addr is None for c in got if c.source == "bus"), step
