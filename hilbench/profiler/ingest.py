@@ -21,6 +21,9 @@ from hilbench.protocols.tracestamp import BadLine, LogLine, RuntimeReport, Stamp
 from hilbench.protocols.tracestamp_binary import Marker, WordProblem
 from hilbench.protocols.tracestamp_stream import StreamDecoder
 
+#: Unreadable lines the quality report quotes (the first ones; the count is exact).
+FIRST_BAD_LINES = 5
+
 
 class Profiler:
     """Feed it a board's output; ask it for an :class:`~hilbench.profiler.analysis.Analysis`.
@@ -38,7 +41,8 @@ class Profiler:
         self.timeline = Timeline(self.settings.reorder_us, self.settings.max_stamps)
         self.reports: list[tuple[int, RuntimeReport]] = []  # (window index, report)
         self.log_lines: deque[LogLine] = deque(maxlen=50)
-        self.bad_lines: deque[BadLine] = deque(maxlen=20)
+        self.bad_lines: deque[BadLine] = deque(maxlen=20)  # the latest unreadable lines
+        self.first_bad_lines: list[BadLine] = []  # the first ones (what a damaged start looked like)
         self.word_problems: dict[str, int] = {}
         self.windows_started = 0
         self.windows_stopped = 0
@@ -91,6 +95,8 @@ class Profiler:
                 continue
             if kind is BadLine:
                 self.bad_lines.append(item)
+                if len(self.first_bad_lines) < FIRST_BAD_LINES:
+                    self.first_bad_lines.append(item)
                 continue
             if kind is WordProblem:
                 self.word_problems[item.kind] = self.word_problems.get(item.kind, 0) + item.count

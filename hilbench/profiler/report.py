@@ -134,6 +134,8 @@ def quality_text(a: Analysis) -> Text:
         items.append(("broken words / bad checks", f"{q['broken_words']}/{q['checks_failed']}"))
     text = Text("quality: ", style="bold")
     text.append("; ".join(f"{k} {_f(v) if isinstance(v, int) else v}" for k, v in items))
+    for bad in q["unreadable_lines"]:
+        text.append(f"\nunreadable: {bad['line']!r} ({bad['reason']})")
     if q["untrustworthy"]:
         text.append("\nUNTRUSTWORTHY: ", style="bold red")
         text.append("; ".join(q["reasons"]), style="red")

@@ -138,7 +138,7 @@ def test_cli_on_the_emulated_board_over_a_pty(bench):
     assert proc.returncode == 0, err
     doc = json.loads(out)
     q = doc["quality"]
-    assert doc["runtime_stats"]["closing"] == "profiled for" and q["parse_errors"] == 0
+    assert doc["runtime_stats"]["closing"] == "profiled for" and q["parse_errors"] == 0, q["unreadable_lines"]
     assert (q["orphan_ends"], q["orphan_begins"], q["double_begins"]) == (0, 0, 0)
     for name in ("wheel_ctrl", "hal_fetch"):
         assert doc["tasks"][name]["freq_hz"] == pytest.approx(100, rel=2e-3)

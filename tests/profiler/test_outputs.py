@@ -248,3 +248,20 @@ def test_gantt_does_not_paint_a_short_frequent_task_as_a_solid_bar(tmp_path):
 
     assert full("IDLE") > 10_000  # the idle task fills its row
     assert full("tsink") == 0  # tsink is shown pale, by how busy each pixel is
+
+
+def test_unreadable_lines_are_quoted_in_the_quality_report():
+    """The count of unreadable lines is exact; the first few are quoted (what a damaged start looked like)."""
+    from hilbench.profiler.ingest import FIRST_BAD_LINES
+    from hilbench.profiler.report import quality_text
+
+    p = Profiler()
+    bad = [b"garbage %d!" % k for k in range(FIRST_BAD_LINES + 3)]
+    p.feed(b"IDLE 0 out\nwheel_ctrl 0 in\n" + b"\n".join(bad) + b"\nwheel_ctrl 10 out\nIDLE 10 in\n")
+    p.finish()
+    a = p.analyse()
+    q = a.quality
+    assert q["parse_errors"] == len(bad)
+    assert [u["line"] for u in q["unreadable_lines"]] == [b.decode() for b in bad[:FIRST_BAD_LINES]]
+    assert "unreadable: 'garbage 0!'" in quality_text(a).plain
+    assert json.loads(json.dumps(a.to_json()))["quality"]["unreadable_lines"][0]["reason"]
