@@ -53,6 +53,7 @@ from pathlib import Path
 import dynamixel_sdk as sdk
 from benchlib import sdk_cycle
 
+from hilbench.bench.control import ControlClient
 from hilbench.bench.manifest import read_manifest
 from hilbench.protocols.dynamixel import Decoder
 
@@ -147,15 +148,30 @@ class CustomBaudPortHandler(sdk.PortHandler):
         return baudrate
 
 
+def line_lateness(tmp: tempfile.TemporaryDirectory) -> tuple[int, float, float]:
+    """(deliveries, seconds late in all, the latest) of the bench's serial line so far, against its own wire
+    model: what the emulator added to a paced cycle (the control channel's ``media``)."""
+    stats = next(iter(ControlClient.from_manifest(Path(tmp.name) / "manifest.json").media().values()))["stats"]
+    return stats.get("late_count", 0), stats.get("late_total", 0.0), stats.get("late_max", 0.0)
+
+
+def lateness_figures(before: tuple[int, float, float], after: tuple[int, float, float]) -> dict:
+    """``line_late_us``: how late the line handed the measured cycles' transmissions over on average."""
+    n = after[0] - before[0]
+    return {"line_late_us": round((after[1] - before[1]) / n * 1e6, 1) if n else None,
+            "line_late_max_us": round(after[2] * 1e6, 1)}
+
+
 def process_cpu_s(pid: int) -> float:
     """User + system CPU seconds of a process so far (Linux /proc)."""
     fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
-def run_cycles(path: str, seconds: float, emulator_pid: int, baud: int = BAUD) -> tuple[int, float, float, float]:
+def run_cycles(path: str, seconds: float, emulator_pid: int, baud: int = BAUD,
+               tmp: tempfile.TemporaryDirectory | None = None) -> tuple[int, float, float, float]:
     """(cycles, seconds, emulator CPU seconds, this process's CPU seconds) of the measured cycles, after a
-    warm-up."""
+    warm-up; with the bench's ``tmp``, the line's lateness over them goes to CONDITION."""
     port = CustomBaudPortHandler(path) if baud == 4_500_000 else sdk.PortHandler(path)
     port.openPort()
     if not port.setBaudRate(baud):
@@ -173,6 +189,7 @@ def run_cycles(path: str, seconds: float, emulator_pid: int, baud: int = BAUD) -
     while time.perf_counter() < warm_end:
         cycle()
     n = failed[0] = 0
+    late0 = line_lateness(tmp) if tmp is not None else None
     cpu0, own0 = process_cpu_s(emulator_pid), time.process_time()
     t0 = time.perf_counter()
     end = t0 + seconds
@@ -181,6 +198,8 @@ def run_cycles(path: str, seconds: float, emulator_pid: int, baud: int = BAUD) -
         n += 1
     dt = time.perf_counter() - t0
     cpu, own = process_cpu_s(emulator_pid) - cpu0, time.process_time() - own0
+    if late0 is not None:
+        CONDITION["lateness"] = lateness_figures(late0, line_lateness(tmp))
     port.closePort()
     CONDITION["failed_reads"] = failed[0]
     return n, dt, cpu, own
@@ -194,7 +213,7 @@ def bench_cycle(paced: bool, seconds: float, baud: int = BAUD) -> None:
     avg = loadavg()
     proc, path, tmp = start_emulator(paced, "wolfgang" if baud == BAUD else wolfgang_at(baud))
     try:
-        n, dt, emulator_cpu, own_cpu = run_cycles(path, seconds, proc.pid, baud)
+        n, dt, emulator_cpu, own_cpu = run_cycles(path, seconds, proc.pid, baud, tmp if paced else None)
     finally:
         proc.terminate()
         proc.wait(timeout=5)
@@ -207,7 +226,7 @@ def bench_cycle(paced: bool, seconds: float, baud: int = BAUD) -> None:
         label = f"{baud / 1e6:g}M".replace(".5M", "M5")
         emit(f"dxl_sdk_cycle_paced_{label}{suffix()}", measured * 1e3, "ms/cycle", wire_cycle * 1e3,
              measured / wire_cycle, target="ratio within 0.9..1.1", cycles=n, scheduling=CONDITION.get("scheduling"),
-             **cond)
+             **cond, **CONDITION.pop("lateness", {}))
     else:
         rate = n / dt
         emit(f"dxl_sdk_cycle_unpaced{suffix()}", rate, "cycles/s", 1 / wire_cycle, rate * wire_cycle,
@@ -307,12 +326,14 @@ def bench_bus(kind: str, seconds: float, paced_bauds: tuple[int, ...]) -> None:
             warm_end = time.perf_counter() + min(0.5, seconds / 4)
             while time.perf_counter() < warm_end:
                 cycle()
+            late0 = line_lateness(tmp) if paced else None
             n, failed, cpu0, t0 = 0, 0, process_cpu_s(proc.pid), time.perf_counter()
             while time.perf_counter() < t0 + seconds:
                 failed += not cycle()  # a reply timeout (the client's own) on a loaded machine
                 n += 1
             dt = time.perf_counter() - t0
             cpu = process_cpu_s(proc.pid) - cpu0
+            lateness = lateness_figures(late0, line_lateness(tmp)) if paced else {}
             close()
         finally:
             proc.terminate()
@@ -323,7 +344,7 @@ def bench_bus(kind: str, seconds: float, paced_bauds: tuple[int, ...]) -> None:
         if paced:
             emit(f"{kind}_{client}_cycle_paced_{baud // 1000}k{suffix()}", dt / n * 1e3, "ms/cycle", wire * 1e3,
                  dt / n / wire, target="ratio within 0.9..1.1", cycles=n, failed_reads=failed,
-                 scheduling=CONDITION.get("scheduling"), emulator_cpu_us=round(cpu / n * 1e6, 1), **cond)
+                 scheduling=CONDITION.get("scheduling"), emulator_cpu_us=round(cpu / n * 1e6, 1), **lateness, **cond)
         else:
             emit(f"{kind}_{client}_cycle_unpaced{suffix()}", n / dt, "cycles/s", 1 / wire, n / dt * wire, cycles=n,
                  failed_reads=failed, **cond)

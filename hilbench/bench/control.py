@@ -9,6 +9,9 @@ per line each way::
 
 The bench answers ``devices`` (each device that takes commands, with them),
 ``taps`` (each endpoint's traffic tap and how many clients it serves),
+``media`` (each endpoint's line or bus: kind, paced, what its thread is scheduled
+under and its counters, e.g. how late a paced serial line handed transmissions
+over against its wire model),
 ``servers`` (each endpoint's network servers, e.g. RFC 2217, with their
 client and counters) and ``manifest`` (the bench's manifest, for programs that reach the bench only
 through this channel, e.g. over labgrid);
@@ -28,6 +31,7 @@ stderr.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import json
 import re
 import socket
@@ -49,6 +53,9 @@ MAX_DEPTH = 32
 MAX_CLIENTS = 32
 #: A connection that sends nothing for this long is closed (seconds).
 IDLE_TIMEOUT = 300.0
+
+#: What every bench answers, whatever its devices.
+BENCH_COMMANDS = ("devices", "manifest", "media", "servers", "taps")
 
 _JSON_STRING = re.compile(rb'"(?:[^"\\]|\\.)*"')
 _NESTING = bytes.maketrans(b"[{]}", b"\x01\x01\x02\x02")
@@ -72,7 +79,7 @@ class ControlUnreachable(ControlError):
 class ControlServer:
     """Serves the control channel of a running bench in a background thread.
 
-    ``devices`` and ``taps`` are the bench's own commands; every other command
+    :data:`BENCH_COMMANDS` are the bench's own commands; every other command
     goes to the family of the device it names (or of the only device whose
     family answers it): :attr:`DeviceFamily.control_commands`.
     """
@@ -169,7 +176,7 @@ class ControlServer:
         if name is None:
             if len(able) != 1:
                 if not able:
-                    known = sorted({c for cmds in commands.values() for c in cmds} | {"devices", "manifest", "servers", "taps"})
+                    known = sorted({c for cmds in commands.values() for c in cmds} | set(BENCH_COMMANDS))
                     raise ControlError(f"unknown command {cmd!r} (expected {', '.join(known)})")
                 raise ControlError(f"name a device: the bench has {', '.join(able)} answering {cmd!r}")
             name = able[0]
@@ -199,11 +206,32 @@ class ControlServer:
                                 for ep in self.bench.endpoints.values() if ep.services}}
         if cmd == "manifest":
             return {"manifest": self.bench.manifest()}
+        if cmd == "media":
+            return {"media": {ep.name: medium_status(ep.medium) for ep in self.bench.endpoints.values()
+                              if ep.medium is not None}}
         if cmd == "taps":
             return {"taps": {ep.name: {"url": ep.tap.url, "clients": ep.tap.clients}
                              for ep in self.bench.endpoints.values() if ep.tap is not None}}
         _name, device, family = self._device(cmd, req)
         return family.control(self.bench, device, cmd, req)
+
+
+def medium_status(medium: Any) -> dict[str, Any]:
+    """A line's or bus's kind, pacing, scheduling and counters (its ``stats`` dataclass), for ``media``.
+
+    The counters are read while the medium's thread runs: each field is one consistent value, the whole
+    is not an atomic snapshot (a dict the thread grows meanwhile is copied again)."""
+    stats: dict[str, Any] = {}
+    for f in dataclasses.fields(medium.stats) if dataclasses.is_dataclass(medium.stats) else ():
+        value = getattr(medium.stats, f.name)
+        for _ in range(5):
+            try:
+                stats[f.name] = dict(value) if isinstance(value, dict) else value
+                break
+            except RuntimeError:  # the line thread added a key while we copied
+                continue
+    return {"kind": medium.kind, "paced": medium.paced, "scheduling": getattr(medium, "scheduling", None),
+            "stats": stats}
 
 
 class ControlClient:
@@ -272,6 +300,11 @@ class ControlClient:
         """The bench's manifest, as ``hilbench emulate --manifest`` writes it."""
         return self.call("manifest")["manifest"]
 
+    def media(self) -> dict[str, dict[str, Any]]:
+        """Each endpoint's line or bus: ``{"dxl": {"kind": "serial", "paced": true, "scheduling": ...,
+        "stats": {"transmissions": ..., "late_count": ..., "late_total": ..., ...}}}``."""
+        return self.call("media")["media"]
+
     def servers(self) -> dict[str, dict[str, Any]]:
         """Each served endpoint's servers: ``{"arm": {"rfc2217": {"url": ..., "client": ..., ...}}}``."""
         return self.call("servers")["servers"]
@@ -281,4 +314,4 @@ class ControlClient:
         return self.call("taps")["taps"]
 
 
-__all__ = ["MAX_LINE", "MAX_REPLY", "ControlClient", "ControlError", "ControlServer", "ControlUnreachable"]
+__all__ = ["BENCH_COMMANDS", "MAX_LINE", "MAX_REPLY", "ControlClient", "ControlError", "ControlServer", "ControlUnreachable"]

@@ -9,6 +9,7 @@ import threading
 from pathlib import Path
 
 from hilbench import registry
+from hilbench.bench.control import BENCH_COMMANDS
 from hilbench.bench.profile import DEFAULT_PROFILE, load_profile
 from hilbench.transports.host_port import DEFAULT_BIND, bind_address, is_loopback
 
@@ -29,8 +30,7 @@ def cmd_emulate(args: argparse.Namespace) -> int:
         signal.signal(sig, lambda *_: stop.set())
     bench.start()
     try:
-        if bench.has_control_commands or serve:  # a served bench is found remotely through its control channel
-            bench.serve_control()
+        bench.serve_control()  # family commands, and what every bench answers (its media's timing, taps, ...)
         lines = serve_lines(bench)  # modem lines, BREAK and flushes for clients under `hilbench run`
         if manifest:
             claim = bench.write_manifest(manifest)
@@ -58,7 +58,7 @@ def cmd_emulate(args: argparse.Namespace) -> int:
             takers = "; ".join(f"{name}: {', '.join(ep.family.control_commands)}"
                                for ep in bench.endpoints.values() if ep.family.control_commands
                                for name in ep.devices)
-            print(f"  control: {bench.control.address_text}  ({takers or 'devices, manifest, servers, taps'})")
+            print(f"  control: {bench.control.address_text}  ({takers or ', '.join(BENCH_COMMANDS)})")
         if lines is not None and manifest:
             print(f"  modem lines: hilbench run --manifest {manifest} -- COMMAND")
         if manifest:
