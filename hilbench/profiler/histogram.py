@@ -13,6 +13,8 @@ from __future__ import annotations
 import numpy as np
 
 PX4_BOUNDS = (1, 2, 5, 10, 20, 50, 100, 1000)
+#: Most bins a fixed-width linear histogram gets (a width far below the range would allocate without bound).
+MAX_BINS = 10_000
 PX4_LABELS = tuple(f"<={b}" for b in PX4_BOUNDS) + (f">{PX4_BOUNDS[-1]}",)
 
 
@@ -45,19 +47,25 @@ def linear_histogram(values, bins: int = 20, *, width: float | None = None,
                      lo: float | None = None, hi: float | None = None) -> dict[str, list]:
     """Equal-width bins over [lo, hi] (default: the data's range): ``{"edges": [...], "counts": [...]}``.
 
-    ``width`` fixes the bin width instead of the count (bins start at ``lo``).
+    ``width`` fixes the bin width instead of the count (bins start at ``lo``; at most
+    :data:`MAX_BINS` of them, wider if the range needs more). Values that are not finite are left out.
     """
     v = np.asarray(values, dtype=np.float64)
+    v = v[np.isfinite(v)]
     if len(v) == 0:
         return {"edges": [], "counts": []}
     lo = float(v.min()) if lo is None else lo
     hi = float(v.max()) if hi is None else hi
     if width is not None and width > 0:
-        n = max(1, int(np.ceil((hi - lo) / width)) or 1)
+        n = max(1, min(MAX_BINS, int(np.ceil((hi - lo) / width)) or 1))
+        width = max(width, (hi - lo) / n)
         edges = lo + width * np.arange(n + 1)
         counts, edges = np.histogram(v, bins=edges)
     else:
-        if hi <= lo:
-            hi = lo + 1.0
+        # Each bin a few float steps wide at least: durations of 2**48 us apart from each other by
+        # less than that (a wrapped counter) would otherwise make bins numpy refuses.
+        need = bins * 4 * float(np.spacing(max(abs(lo), abs(hi))))
+        if not hi - lo > need:
+            hi = lo + max(1.0, need)
         counts, edges = np.histogram(v, bins=bins, range=(lo, hi))  # equal bins: numpy's linear-time path
     return {"edges": [round(float(e), 6) for e in edges], "counts": [int(c) for c in counts]}

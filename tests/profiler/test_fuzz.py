@@ -3,6 +3,7 @@ binary words, report fragments and garbage, in any chunking; its JSON and trace 
 
 from __future__ import annotations
 
+import itertools
 import json
 
 from hypothesis import given, settings
@@ -42,3 +43,22 @@ def test_anything_in_gives_an_analysis_never_an_exception(pieces, chunk, periods
     events = trace_events(a)
     json.dumps(events, allow_nan=False)
     assert all(e["ph"] in "XMiCBE" for e in events)
+
+
+def test_a_huge_duration_alone_still_gets_linear_bins():
+    """Found by the test above: one task instance 2**48 us long (a counter read as garbage) left a range numpy
+    could not split into 20 finite bins, and the whole analysis raised."""
+    data = b"IDLE 0 in\n" * 6 + b"IDLE 281474996594764 out\n"
+    p = Profiler(ProfileSettings())
+    p.feed(data)
+    p.finish()
+    hist = p.analyse().tasks["IDLE"]["histograms"]["duration_linear"]
+    assert sum(hist["counts"]) == 1 and len(hist["edges"]) == 21
+    assert all(a < b for a, b in itertools.pairwise(hist["edges"]))
+
+
+def test_a_fixed_bin_width_never_allocates_without_bound():
+    from hilbench.profiler.histogram import MAX_BINS, linear_histogram
+
+    hist = linear_histogram([0.0, 1e18, float("nan")], width=1.0)
+    assert len(hist["counts"]) == MAX_BINS and sum(hist["counts"]) == 2
