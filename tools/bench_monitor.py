@@ -239,7 +239,7 @@ def bench_lag(samples: int) -> None:
         _lag_figure("monitor_lag_tcp_tap", probe.lags, path="bench line -> TapServer -> TCP -> tracker")
         # 3. hilbench tap between the SDK and the bench's pty
         tap = SerialTap(ep.path).start()
-        mon = Monitor(tap.source)
+        mon = Monitor(tap.source, protocol="dynamixel")  # a tap has no protocol to say: the bus is known
         probe = LagProbe(mon.tracker, lambda d: 1 if d[7:12] == b"\x83\x74\x00\x04\x00" else None)
         mon.start()
         _drive(tap.app_path, samples)
