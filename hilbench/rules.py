@@ -103,8 +103,53 @@ class Rule:
         except RuleError as exc:
             raise argparse.ArgumentTypeError(str(exc)) from None
 
+    def any_number(self) -> Rule:
+        """The same range taking any number (an integer rule's knob set by a client that sends every value
+        as a float); a float rule is itself."""
+        if self.kind is float:
+            return self
+        return Rule(float, self.lo, self.hi, above=self.above, choices=self.choices, what=self._what)
+
     def __repr__(self) -> str:
         return f"Rule({self.expected!r})"
+
+
+class Switch:
+    """A setting that is on or off: ``true`` or ``false`` (command-line text: true/false, on/off, yes/no, 1/0).
+
+    It answers what a :class:`Rule` answers (``expected``, ``ok``, ``check``, ``parse``, argparse ``type=``),
+    so a table of settings mixes both.
+    """
+
+    expected = "true or false"
+    __name__ = "bool"
+    _TEXT = {"true": True, "on": True, "yes": True, "1": True, "false": False, "off": False, "no": False, "0": False}
+
+    def ok(self, value: Any) -> bool:
+        return isinstance(value, bool)
+
+    def check(self, value: Any) -> bool:
+        if not self.ok(value):
+            raise RuleError(f"expected true or false, got {value!r}")
+        return value
+
+    def parse(self, text: str) -> bool:
+        value = self._TEXT.get(str(text).strip().lower())
+        if value is None:
+            raise RuleError(f"expected true or false, got {text!r}")
+        return value
+
+    def __call__(self, text: str) -> bool:
+        try:
+            return self.parse(text)
+        except RuleError as exc:
+            raise argparse.ArgumentTypeError(str(exc)) from None
+
+    def any_number(self) -> Switch:
+        return self
+
+    def __repr__(self) -> str:
+        return "Switch()"
 
 
 def _num(x: float) -> str:
@@ -125,7 +170,9 @@ FAULT_COUNT = Rule(int, 0, 2**31)
 POSITIVE_COUNT = Rule(int, 1, 2**31)
 #: A replay speed: a positive multiple of the recorded speed.
 SPEED = Rule(float, 0, 1e6, above=True)
+#: A fault knob or setting that is on or off.
+SWITCH = Switch()
 
 
-__all__ = ["FAULT_COUNT", "LINE_BAUD", "POSITIVE_COUNT", "PROBABILITY", "RATE_HZ", "SECONDS", "SPEED", "Rule",
-           "RuleError"]
+__all__ = ["FAULT_COUNT", "LINE_BAUD", "POSITIVE_COUNT", "PROBABILITY", "RATE_HZ", "SECONDS", "SPEED", "SWITCH", "Rule",
+           "RuleError", "Switch"]

@@ -11,7 +11,7 @@ from collections.abc import Callable
 from typing import Any, NoReturn
 
 from hilbench.errors import OptionError, UsageError
-from hilbench.rules import Rule
+from hilbench.rules import Rule, Switch
 
 
 class ProfileError(UsageError, ValueError):
@@ -54,7 +54,7 @@ class Checker:
             self.fail(key, f"expected a number {lo}..{hi}, got {value}")
         return float(value)
 
-    def rule(self, value: Any, key: str, rule: Rule) -> Any:
+    def rule(self, value: Any, key: str, rule: Rule | Switch) -> Any:
         """A value checked against a shared :class:`~hilbench.rules.Rule` (the command line uses the same)."""
         if not rule.ok(value):
             self.fail(key, f"expected {rule.expected}, got {value!r}")

@@ -43,21 +43,20 @@ from typing import Any
 from hilbench.bench.checks import Checker
 from hilbench.bench.control import ControlClient, ControlError
 from hilbench.bench.family import DeviceFamily, DeviceSpec
-from hilbench.bench.knobs import check_fault_table, check_knobs, requested_knobs
+from hilbench.bench.knobs import KnobRules, check_fault_table, check_knobs, requested_knobs
+from hilbench.rules import SWITCH, Rule
+from hilbench.transports.can_medium import FAULT_RULES as BUS_FAULT_RULES
 
 MODELS = ("stm32f767-rover-canopen", "mecarover-canopen")
 DEVICE_KEYS = ("model", "name", "endpoint", "node_id", "heartbeat_ms", "setpoint_timeout_ms", "autostart",
                "tpdo_periods_ms", "identity", "faults")
 IDENTITY_KEYS = {"vendor_id": "vendor_id", "product_code": "product_code", "revision": "revision",
                  "serial": "serial"}
-#: Fault knobs and their ranges (booleans as (False, True)).
-FAULT_RANGES: dict[str, tuple[Any, Any]] = {
-    "heartbeat_stop": (False, True), "silent": (False, True), "sdo_abort": (0, 0xFFFFFFFF),
-    "motor_fault": (False, True), "battery_v": (0.0, 60.0), "stuck_odometry": (False, True),
-    "dlc_mismatch": (False, True),
+#: The board's fault knobs (the node's and the rover's, as the fake's ROVER_FAULT_KEYS) and their rules.
+FAULT_RULES: KnobRules = {
+    "heartbeat_stop": SWITCH, "silent": SWITCH, "sdo_abort": Rule(int, 0, 0xFFFFFFFF), "motor_fault": SWITCH,
+    "battery_v": Rule(float, 0.0, 60.0), "stuck_odometry": SWITCH, "dlc_mismatch": SWITCH,
 }
-BUS_FAULT_RANGES: dict[str, tuple[Any, Any]] = {"error_rate": (0.0, 1.0), "error_next": (0, 1 << 31),
-                                                "auto_recover": (False, True)}
 NMT_STATES = {"operational": 0x01, "start": 0x01, "stopped": 0x02, "stop": 0x02, "pre-operational": 0x80,
               "preop": 0x80, "reset": 0x81, "reset-node": 0x81, "reset-communication": 0x82}
 
@@ -117,7 +116,7 @@ class CanopenBoardFamily(DeviceFamily):
         return c.integer(500_000 if value is None else value, key, 10_000, 1_000_000)
 
     def check_endpoint(self, c: Checker, key: str, raw: dict[str, Any], port_type: str) -> dict[str, Any]:
-        faults = check_fault_table(c, f"{key}.bus_faults", raw.get("bus_faults", {}), BUS_FAULT_RANGES)
+        faults = check_fault_table(c, f"{key}.bus_faults", raw.get("bus_faults", {}), BUS_FAULT_RULES)
         seed = raw.get("seed")
         if seed is not None:
             seed = c.integer(seed, f"{key}.seed", 0, 2**31)
@@ -139,7 +138,7 @@ class CanopenBoardFamily(DeviceFamily):
         c.unknown(identity, f"{key}.identity", tuple(IDENTITY_KEYS))
         for k, v in identity.items():
             c.integer(v, f"{key}.identity.{k}", 0, 0xFFFFFFFF)
-        faults = check_fault_table(c, f"{key}.faults", dev.get("faults", {}), FAULT_RANGES)
+        faults = check_fault_table(c, f"{key}.faults", dev.get("faults", {}), FAULT_RULES)
         return [NodeSpec(
             name=name, endpoint=endpoint.name, model=model,
             node_id=c.integer(dev.get("node_id", 2), f"{key}.node_id", 1, 127),
@@ -275,7 +274,7 @@ class CanopenBoardFamily(DeviceFamily):
             in_bus_thread(lambda: node.reset())
             return {"status": in_bus_thread(node.status)}
         if cmd == "fault":
-            checked = check_knobs(requested_knobs(req), FAULT_RANGES)
+            checked = check_knobs(requested_knobs(req), FAULT_RULES)
             return {"faults": in_bus_thread(lambda: node.set_faults(**checked))}
         if cmd == "emcy":
             try:
@@ -293,7 +292,7 @@ class CanopenBoardFamily(DeviceFamily):
             bus_off = knobs.pop("bus_off", None)
             if knobs:
                 try:
-                    medium.set_faults(**check_knobs(knobs, BUS_FAULT_RANGES, "bus fault"))
+                    medium.set_faults(**check_knobs(knobs, BUS_FAULT_RULES, "bus fault"))
                 except ValueError as exc:
                     raise ControlError(str(exc)) from None
             if bus_off is not None:

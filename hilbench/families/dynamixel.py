@@ -38,11 +38,18 @@ from dataclasses import dataclass
 from typing import Any
 
 from hilbench.bench.checks import Checker
+from hilbench.bench.knobs import check_fault_table
 from hilbench.fakes.dynamixel.bus import CHAIN_POLICIES, FAST_MISSING_POLICIES
-from hilbench.families.servo_bus import ServoBusFamily, ServoBusSpec, apply_faults, initial_values
+from hilbench.families.servo_bus import (
+    SERVO_FAULT_RULES,
+    ServoBusFamily,
+    ServoBusSpec,
+    apply_faults,
+    initial_values,
+)
 from hilbench.protocols.dynamixel_classic_models import P1_NOMINAL_BAUDS
 from hilbench.protocols.dynamixel_models import BAUD_CODES, find_model, model_names
-from hilbench.rules import FAULT_COUNT, PROBABILITY, Rule
+from hilbench.rules import Rule
 
 #: Protocol 2.0 baud codes. The official SDK's list (spec §7.1) lacks 4.5 Mbaud, which pyserial opens on
 #: Linux all the same (BOTHER): the README shows the one-method PortHandler subclass that lifts the list.
@@ -54,8 +61,10 @@ PROTOCOL1_TRAFFIC = "dynamixel1"
 #: An emulated bus's line rate (``endpoints.NAME.baud``): a baud code of either protocol (the endpoint
 #: check then holds it to its protocol's list).
 BUS_BAUD = Rule(int, choices=tuple(sorted(set(DYNAMIXEL_BAUDS + PROTOCOL1_BAUDS))), what="a Dynamixel baud rate")
-FAULT_KEYS = ("drop_rate", "drop_next", "corrupt_rate", "corrupt_next", "delay", "vanished", "hardware_error",
-              "seed")
+#: A Dynamixel servo's fault knobs: every servo's, and the Hardware Error Status bits to raise.
+FAULT_RULES = {**{k: v for k, v in SERVO_FAULT_RULES.items() if k != "seed"}, "hardware_error": Rule(int, 0, 0x3D),
+               "seed": SERVO_FAULT_RULES["seed"]}
+FAULT_KEYS = tuple(FAULT_RULES)
 DEVICE_KEYS = ("model", "id", "ids", "name", "endpoint", "firmware", "init", "faults", "position",
                "supply_voltage", "ambient_temperature", "fast_read")
 
@@ -118,20 +127,7 @@ class DynamixelFamily(ServoBusFamily):
                                    f"{endpoint.name!r} is a Protocol {version}.0 bus (protocol_version)")
         ids = self.check_ids(c, key, dev, 252)
         init = self.check_init(c, key, dev, model, integers=False)
-        faults = c.table(dev.get("faults", {}), f"{key}.faults")
-        c.unknown(faults, f"{key}.faults", FAULT_KEYS)
-        for fk in ("drop_rate", "corrupt_rate"):
-            if fk in faults:
-                c.rule(faults[fk], f"{key}.faults.{fk}", PROBABILITY)
-        for fk in ("drop_next", "corrupt_next", "seed"):
-            if fk in faults:
-                c.rule(faults[fk], f"{key}.faults.{fk}", FAULT_COUNT)
-        if "delay" in faults:
-            c.number(faults["delay"], f"{key}.faults.delay", 0.0, 10.0)
-        if "vanished" in faults:
-            c.boolean(faults["vanished"], f"{key}.faults.vanished")
-        if "hardware_error" in faults:
-            c.integer(faults["hardware_error"], f"{key}.faults.hardware_error", 0, 0x3D)
+        faults = check_fault_table(c, f"{key}.faults", dev.get("faults", {}), FAULT_RULES)
         name = self.check_name(c, key, dev, ids)
         firmware = c.integer(dev["firmware"], f"{key}.firmware", 0, 255) if "firmware" in dev else None
         position = c.number(dev["position"], f"{key}.position", -1_048_575, 1_048_575) if "position" in dev else None

@@ -24,12 +24,16 @@ from typing import Any
 
 from hilbench.bench.checks import Checker
 from hilbench.bench.knobs import check_fault_table
-from hilbench.families.servo_bus import ServoBusFamily, ServoBusSpec, apply_faults, initial_values
+from hilbench.families.servo_bus import (
+    SERVO_FAULT_RULES,
+    ServoBusFamily,
+    ServoBusSpec,
+    apply_faults,
+    initial_values,
+)
 from hilbench.protocols.feetech_models import STS_BAUD_CODES, find_model, model_names
 
 FEETECH_BAUDS = tuple(sorted(set(STS_BAUD_CODES.values())))
-FAULT_RANGES = {"drop_rate": (0.0, 1.0), "drop_next": (0, 2**31), "corrupt_rate": (0.0, 1.0), "corrupt_next": (0, 2**31),
-                "delay": (0.0, 10.0), "vanished": (False, True), "seed": (0, 2**31)}
 DEVICE_KEYS = ("model", "id", "ids", "name", "endpoint", "firmware", "init", "faults", "position",
                "supply_voltage", "ambient_temperature")
 
@@ -64,7 +68,7 @@ class FeetechFamily(ServoBusFamily):
         model = self.check_model(c, key, dev)
         ids = self.check_ids(c, key, dev, 253)
         init = self.check_init(c, key, dev, model, integers=True)
-        faults = check_fault_table(c, f"{key}.faults", dev.get("faults", {}), FAULT_RANGES)
+        faults = check_fault_table(c, f"{key}.faults", dev.get("faults", {}), SERVO_FAULT_RULES)
         name = self.check_name(c, key, dev, ids)
         top = model.motion.position_max if model.motion else 4095
         return [

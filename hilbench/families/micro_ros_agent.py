@@ -31,11 +31,12 @@ from hilbench.bench.checks import Checker
 from hilbench.bench.control import ControlError
 from hilbench.bench.family import DeviceFamily, DeviceSpec, bench_device
 from hilbench.bench.knobs import check_fault_table, requested_knobs
+from hilbench.rules import FAULT_COUNT
 
 AGENT_MODELS = ("micro-ros-agent", "micro-xrce-dds-agent")
 AGENT_KEYS = ("model", "name", "endpoint", "zeroed", "refs", "bridge", "faults")
 REF_KEYS = ("topic", "type", "reliable", "depth")
-FAULT_RANGES = {"drop_next": (0, 2**31), "corrupt_status_agent": (0, 2**31)}
+FAULT_RULES = {"drop_next": FAULT_COUNT, "corrupt_status_agent": FAULT_COUNT}
 BRIDGE_KEYS = ("domain_id", "participant_index", "peers")
 
 
@@ -102,7 +103,7 @@ class MicroRosAgentFamily(DeviceFamily):
             refs[ref] = {"topic": body.get("topic") or None, "type": body.get("type") or None,
                          "reliable": c.boolean(body.get("reliable", True), f"{where}.reliable"),
                          "depth": c.integer(body.get("depth", 1), f"{where}.depth", 1, 1000)}
-        faults = check_fault_table(c, f"{key}.faults", dev.get("faults", {}), FAULT_RANGES)
+        faults = check_fault_table(c, f"{key}.faults", dev.get("faults", {}), FAULT_RULES)
         return [AgentSpec(name=name, endpoint=endpoint.name, model=model, zeroed=zeroed, refs=refs,
                           bridge=check_bridge(c, f"{key}.bridge", dev.get("bridge")), faults=faults)]
 

@@ -42,15 +42,16 @@ from hilbench.families.scanner import (
     ScannerSpec,
     check_scene,
 )
+from hilbench.rules import PROBABILITY, SWITCH, Rule
 
 RPLIDAR_MODELS = ("rplidar-a1", "A1M8", "rplidar-a1m8")
 RPLIDAR_KEYS = ("motor", "spin_up", "rpm", "speed_wander", "firmware", "typical_mode")
 #: The A1's measurement model (datasheet: 0.15-12 m, < 1 % of the distance beyond 1.5 m).
 A1_RANGE = {"min_range": 0.15, "max_range": 12.0, "sigma0": 0.0005, "sigma_k": 0.005}
 FAULTS = {
-    "stall": (False, True), "health_status": (0, 2), "health_code": (0, 0xFFFF), "sticky": (False, True),
-    "corrupt_rate": (0.0, 1.0), "bad_flags_rate": (0.0, 1.0), "drop_byte_rate": (0.0, 1.0), "burst": (False, True),
-    "out_of_range_angle": (False, True),
+    "stall": SWITCH, "health_status": Rule(int, 0, 2), "health_code": Rule(int, 0, 0xFFFF), "sticky": SWITCH,
+    "corrupt_rate": PROBABILITY, "bad_flags_rate": PROBABILITY, "drop_byte_rate": PROBABILITY, "burst": SWITCH,
+    "out_of_range_angle": SWITCH,
 }
 
 

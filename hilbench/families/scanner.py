@@ -27,7 +27,7 @@ from typing import Any
 from hilbench.bench.checks import Checker
 from hilbench.bench.control import ControlError
 from hilbench.bench.family import DeviceFamily, DeviceSpec
-from hilbench.bench.knobs import KnobRanges, check_fault_table, check_knobs, requested_knobs
+from hilbench.bench.knobs import KnobRules, check_fault_table, check_knobs, requested_knobs
 
 SCENE_KEYS = ("walls", "wall_reflectivity", "boxes", "circles", "moving")
 COMMON_DEVICE_KEYS = ("model", "name", "endpoint", "pose", "seed", "noise", "max_range", "faults")
@@ -137,7 +137,7 @@ class ScannerFamily(DeviceFamily):
 
     device_word = "scanner"
     #: Fault knobs and their ranges (:mod:`hilbench.bench.knobs`: (False, True) a switch, int bounds a count).
-    fault_knobs: KnobRanges = {}
+    fault_knobs: KnobRules = {}
     #: The family's default model name.
     default_model: str = ""
     #: Whether the unit paces its link itself (its UART at the link speed), as the manifest says.

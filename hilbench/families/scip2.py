@@ -27,10 +27,12 @@ from typing import Any
 
 from hilbench.bench.checks import Checker
 from hilbench.families.scanner import COMMON_DEVICE_KEYS, ScannerFamily, ScannerSpec
+from hilbench.rules import SWITCH, Rule
 
 SCIP_MODELS = ("ust-10lx", "urg-04lx", "UST-10LX", "URG-04LX")
 SCIP_KEYS = ("clock_offset_ms",)
-FAULTS = {"bad_sum_next": (0, 1000), "truncate_next": (0, 1000), "unstable_next": (0, 1000), "burst": (False, True)}
+FAULTS = {"bad_sum_next": Rule(int, 0, 1000), "truncate_next": Rule(int, 0, 1000), "unstable_next": Rule(int, 0, 1000),
+          "burst": SWITCH}
 
 
 class Scip2Family(ScannerFamily):

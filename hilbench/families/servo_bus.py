@@ -15,8 +15,13 @@ from typing import Any
 
 from hilbench.bench.checks import Checker
 from hilbench.bench.family import DeviceFamily, DeviceSpec
+from hilbench.rules import FAULT_COUNT, PROBABILITY, SWITCH, Rule
 
 #: Fault knobs a servo takes straight from a profile's ``faults`` table.
+#: The fault knobs every emulated servo has (profile ``faults`` tables), with their rules; a family adds its own.
+SERVO_FAULT_RULES = {"drop_rate": PROBABILITY, "drop_next": FAULT_COUNT, "corrupt_rate": PROBABILITY,
+                     "corrupt_next": FAULT_COUNT, "delay": Rule(float, 0.0, 10.0), "vanished": SWITCH,
+                     "seed": FAULT_COUNT}
 FAULT_SETTINGS = ("drop_rate", "drop_next", "corrupt_rate", "corrupt_next", "delay")
 
 
@@ -135,4 +140,4 @@ def apply_faults(servo: Any, faults: dict[str, Any], t: float) -> None:
         servo.raise_hardware_error(faults["hardware_error"], t, sticky=True)
 
 
-__all__ = ["ServoBusFamily", "ServoBusSpec", "apply_faults", "initial_values"]
+__all__ = ["SERVO_FAULT_RULES", "ServoBusFamily", "ServoBusSpec", "apply_faults", "initial_values"]

@@ -27,14 +27,15 @@ from typing import Any
 
 from hilbench.bench.checks import Checker
 from hilbench.families.scanner import COMMON_DEVICE_KEYS, ScannerFamily, ScannerSpec
+from hilbench.rules import PROBABILITY, SWITCH, Rule
 
 LMS_MODELS = ("lms200", "LMS200", "sick-lms200")
 LMS_KEYS = ("variant", "units", "no_echo")
 #: LMS 200 measurement model: 8 m / 80 m ranges, about 1 cm systematic error at short range.
 LMS_RANGE = {"min_range": 0.0, "max_range": 80.0, "sigma0": 0.005, "sigma_k": 0.0}
 FAULTS = {
-    "nak_next": (0, 1000), "no_ack": (False, True), "bad_crc_rate": (0.0, 1.0), "refuse_modes": (False, True),
-    "status": (0, 255), "truncate_next": (0, 1000), "ignore_stop_once": (False, True),
+    "nak_next": Rule(int, 0, 1000), "no_ack": SWITCH, "bad_crc_rate": PROBABILITY, "refuse_modes": SWITCH,
+    "status": Rule(int, 0, 255), "truncate_next": Rule(int, 0, 1000), "ignore_stop_once": SWITCH,
 }
 LMS_BAUDS = (9600, 19200, 38400, 500_000)
 

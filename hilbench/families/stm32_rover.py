@@ -39,6 +39,7 @@ from typing import Any
 from hilbench.bench.checks import Checker
 from hilbench.bench.control import ControlClient, ControlError
 from hilbench.bench.family import DeviceFamily, DeviceSpec, bench_device
+from hilbench.bench.knobs import check_fault_table, check_knobs
 from hilbench.rules import FAULT_COUNT, PROBABILITY, Rule, RuleError
 
 #: Line rates a board endpoint accepts (bit/s); a pty does not care, the board paces its UART by it.
@@ -95,15 +96,7 @@ def check_fault_knobs(knobs: dict[str, Any]) -> dict[str, float]:
     """Fault knobs for a live board, checked against :data:`FAULT_RULES`; raises
     :class:`~hilbench.rules.RuleError` (a usage error) in one line. ``hilbench board`` checks before
     sending and the bench again when it receives, with these same rules."""
-    out = {}
-    for key, value in knobs.items():
-        rule = FAULT_RULES.get(key)
-        if rule is None:
-            raise RuleError(f"unknown fault knob {key!r} (expected one of: {', '.join(FAULT_RULES)})")
-        if not rule.ok(value):
-            raise RuleError(f"fault knob {key}: expected {rule.expected}, got {value!r}")
-        out[key] = value
-    return out
+    return check_knobs(knobs, FAULT_RULES, error=RuleError)
 
 
 class Stm32RoverFamily(DeviceFamily):
@@ -150,11 +143,8 @@ class Stm32RoverFamily(DeviceFamily):
         name = dev.get("name", endpoint.name)
         if not isinstance(name, str) or not name:
             c.fail(f"{key}.name", f"expected a string, got {name!r}")
-        faults = c.table(dev.get("faults", {}), f"{key}.faults")
-        c.unknown(faults, f"{key}.faults", BOARD_FAULT_KEYS)
-        for fk in BOARD_FAULT_KEYS:
-            if fk in faults:
-                c.rule(faults[fk], f"{key}.faults.{fk}", FAULT_RULES[fk])
+        faults = check_fault_table(c, f"{key}.faults", dev.get("faults", {}),
+                                   {k: FAULT_RULES[k] for k in BOARD_FAULT_KEYS})
         tasks = c.table(dev.get("tasks", {}), f"{key}.tasks")
         base = make_preset(preset, dev.get("caches", True) is not False)
         known = {t.name for t in base.tasks} | {f.name for f in base.functions} | {"line_cost"}

@@ -42,6 +42,7 @@ from typing import Any, Protocol
 
 from hilbench.protocols import can_frame as cf
 from hilbench.protocols.can_frame import CanFrame
+from hilbench.rules import FAULT_COUNT, PROBABILITY, SWITCH
 from hilbench.transports.clock import reduce_timer_slack, wait
 from hilbench.transports.medium import DevicePort
 from hilbench.transports.medium_loop import LoopMedium
@@ -58,7 +59,8 @@ TX_QUEUE_LIMIT = 4096
 #: Seconds of history the bus load figure covers.
 LOAD_WINDOW = 1.0
 
-FAULT_KEYS = {"error_rate": (0.0, 1.0), "error_next": (0, 1 << 31), "auto_recover": (False, True)}
+#: The bus's fault knobs and their rules (the CANopen family checks profiles and control commands with them).
+FAULT_RULES = {"error_rate": PROBABILITY, "error_next": FAULT_COUNT, "auto_recover": SWITCH}
 
 
 class CanDevice(Protocol):
@@ -155,14 +157,13 @@ class CanMedium(LoopMedium):
     def set_faults(self, **knobs: Any) -> dict[str, Any]:
         """Turn fault knobs (``error_rate`` 0..1, ``error_next`` N, ``auto_recover``); returns them all."""
         for key, value in knobs.items():
-            if key not in FAULT_KEYS:
-                raise ValueError(f"unknown bus fault {key!r} (expected one of: {', '.join(FAULT_KEYS)})")
+            rule = FAULT_RULES.get(key)
+            if rule is None:
+                raise ValueError(f"unknown bus fault {key!r} (expected one of: {', '.join(FAULT_RULES)})")
             if key == "auto_recover":
                 value = bool(value)
-            else:
-                lo, hi = FAULT_KEYS[key]
-                if isinstance(value, bool) or not isinstance(value, int | float) or not lo <= value <= hi:
-                    raise ValueError(f"bus fault {key}: expected {lo}..{hi}, got {value!r}")
+            elif not rule.any_number().ok(value):  # (Python callers may give a count as a float)
+                raise ValueError(f"bus fault {key}: expected {rule.expected}, got {value!r}")
             with self._lock:
                 self.faults[key] = value
         return dict(self.faults)
