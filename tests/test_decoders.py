@@ -14,7 +14,7 @@ from hilbench.decoders import mutate, run, targets
 from tests.conftest import REPO
 
 BUILT_IN = {"dynamixel", "dynamixel1", "vel2d", "tracestamp-text", "tracestamp-binary", "tracestamp-stream",
-            "capture", "monitor-dynamixel", "profiler"}
+            "capture", "monitor-dynamixel", "profiler", "rplidar", "sick-lms200", "scip2"}
 
 
 def test_every_built_in_reader_is_registered():
