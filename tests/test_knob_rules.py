@@ -61,3 +61,10 @@ def test_one_table_checks_a_profile_a_control_command_and_a_command_line():
     # the command line checks with the same rules before sending, as a usage error (exit status 2)
     with pytest.raises(RuleError, match="fault knob drop_rate: expected a number 0..1, got 2"):
         stm32_rover.check_fault_knobs({"drop_rate": 2})
+
+
+def test_the_can_board_family_and_its_fake_name_the_same_knobs():
+    """The family checks the knobs the fake turns (the fake is imported only when a bench runs)."""
+    from hilbench.fakes.canopen.rover import ROVER_FAULT_KEYS
+
+    assert tuple(canopen_board.FAULT_RULES) == ROVER_FAULT_KEYS
