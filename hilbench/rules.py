@@ -139,11 +139,7 @@ class Switch:
             raise RuleError(f"expected true or false, got {text!r}")
         return value
 
-    def __call__(self, text: str) -> bool:
-        try:
-            return self.parse(text)
-        except RuleError as exc:
-            raise argparse.ArgumentTypeError(str(exc)) from None
+    __call__ = Rule.__call__  # argparse ``type=``, as a Rule: a one-line usage error naming the option
 
     def any_number(self) -> Switch:
         return self
