@@ -222,16 +222,17 @@ def medium_status(medium: Any) -> dict[str, Any]:
     The counters are read while the medium's thread runs: each field is one consistent value, the whole
     is not an atomic snapshot (a dict the thread grows meanwhile is copied again)."""
     stats: dict[str, Any] = {}
-    for f in dataclasses.fields(medium.stats) if dataclasses.is_dataclass(medium.stats) else ():
-        value = getattr(medium.stats, f.name)
+    counters = getattr(medium, "stats", None)  # (a plug-in's medium may keep none)
+    for f in dataclasses.fields(counters) if dataclasses.is_dataclass(counters) else ():
+        value = getattr(counters, f.name)
         for _ in range(5):
             try:
                 stats[f.name] = dict(value) if isinstance(value, dict) else value
                 break
             except RuntimeError:  # the line thread added a key while we copied
                 continue
-    return {"kind": medium.kind, "paced": medium.paced, "scheduling": getattr(medium, "scheduling", None),
-            "stats": stats}
+    return {"kind": getattr(medium, "kind", None), "paced": getattr(medium, "paced", False),
+            "scheduling": getattr(medium, "scheduling", None), "stats": stats}
 
 
 class ControlClient:
