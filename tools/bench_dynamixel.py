@@ -149,14 +149,17 @@ class CustomBaudPortHandler(sdk.PortHandler):
 
 
 def line_lateness(tmp: tempfile.TemporaryDirectory) -> tuple[int, float, float]:
-    """(deliveries, seconds late in all, the latest) of the bench's serial line so far, against its own wire
-    model: what the emulator added to a paced cycle (the control channel's ``media``)."""
+    """(deliveries, seconds late in all, the latest single delivery) of the bench's serial line since it
+    started, against its own wire model: what the emulator added to a paced cycle (the control channel's
+    ``media``). The first two are differenced over the measured cycles; the latest is since the start,
+    warm-up included."""
     stats = next(iter(ControlClient.from_manifest(Path(tmp.name) / "manifest.json").media().values()))["stats"]
     return stats.get("late_count", 0), stats.get("late_total", 0.0), stats.get("late_max", 0.0)
 
 
 def lateness_figures(before: tuple[int, float, float], after: tuple[int, float, float]) -> dict:
-    """``line_late_us``: how late the line handed the measured cycles' transmissions over on average."""
+    """``line_late_us``: how late the line handed the measured cycles' transmissions over on average;
+    ``line_late_max_us``: the latest delivery since the bench started (warm-up included)."""
     n = after[0] - before[0]
     return {"line_late_us": round((after[1] - before[1]) / n * 1e6, 1) if n else None,
             "line_late_max_us": round(after[2] * 1e6, 1)}

@@ -58,7 +58,8 @@ REPORT_COUNT = Rule(int, 0, 2**31)
 #: before it sends, and the bench's control channel when it receives (``stall`` in seconds).
 FAULT_RULES: dict[str, Rule] = {"drop_rate": PROBABILITY, "corrupt_rate": PROBABILITY, "drop_next": FAULT_COUNT,
                                 "corrupt_next": FAULT_COUNT, "stall": Rule(float, 0.0, 3600.0)}
-BOARD_FAULT_KEYS = tuple(k for k in FAULT_RULES if k != "stall")
+#: The knobs a profile may set (``stall`` is live only).
+BOARD_FAULT_RULES = {k: rule for k, rule in FAULT_RULES.items() if k != "stall"}
 
 
 @dataclass
@@ -143,8 +144,7 @@ class Stm32RoverFamily(DeviceFamily):
         name = dev.get("name", endpoint.name)
         if not isinstance(name, str) or not name:
             c.fail(f"{key}.name", f"expected a string, got {name!r}")
-        faults = check_fault_table(c, f"{key}.faults", dev.get("faults", {}),
-                                   {k: FAULT_RULES[k] for k in BOARD_FAULT_KEYS})
+        faults = check_fault_table(c, f"{key}.faults", dev.get("faults", {}), BOARD_FAULT_RULES)
         tasks = c.table(dev.get("tasks", {}), f"{key}.tasks")
         base = make_preset(preset, dev.get("caches", True) is not False)
         known = {t.name for t in base.tasks} | {f.name for f in base.functions} | {"line_cost"}
