@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import os
-import signal
 import subprocess
 import sys
 
@@ -22,6 +21,7 @@ from hilbench.bench.manifest import (
 )
 from hilbench.pytest_plugin import wait_until
 from hilbench.transports.sources import SourceError, open_source
+from tests.conftest import interrupt
 
 
 def hb(*args: str, timeout: float = 60) -> subprocess.CompletedProcess:
@@ -170,8 +170,7 @@ def test_emulate_keeps_the_users_profile_and_survives_a_kill(tmp_path):
                    or second.poll() is not None, timeout=30)
         assert read_manifest(manifest)["pid"] == second.pid
     finally:
-        second.send_signal(signal.SIGINT)
-        out, err = second.communicate(timeout=10)
+        out, err = interrupt(second, timeout=10)  # (a hang fails with every thread's stack)
     assert second.returncode == 0, err
     assert f"took over a stale manifest (pid {pid} gone)" in err
     assert not manifest.exists()  # its own manifest is removed at the end
