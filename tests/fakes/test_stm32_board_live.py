@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import struct
 
 import pytest
@@ -103,8 +104,13 @@ def test_udp_round_trip_frames_logs_and_binary_stamps(hilbench_bench):
         assert w.windows_started == w.windows_stopped == 1 and w.checks_failed == 0 and w.broken_words == 0
         assert len(stamps) + w.drops == rep.ctx_switches == board.truth.stamps_recorded
         assert w.drops == board.truth.stamps_dropped
-        periods = [s.t_us for s in stamps if s.name == "hal_fetch" and s.begin]
-        assert (periods[-1] - periods[0]) / (len(periods) - 1) == pytest.approx(1000, abs=2)
+        begins = [s.t_us for s in stamps if s.name == "hal_fetch" and s.begin]
+        # A task switched in twice in one period (preempted by a higher-priority task woken mid-run, as
+        # FreeRTOS does) is one activation: count releases, not switch-ins.
+        releases = [t for i, t in enumerate(begins) if i == 0 or t - begins[i - 1] > 500]
+        assert len(releases) > 100
+        odd = [(a, b) for a, b in itertools.pairwise(begins) if not 950 <= b - a <= 1050]  # shown on failure
+        assert (releases[-1] - releases[0]) / (len(releases) - 1) == pytest.approx(1000, abs=2), odd
     finally:
         link.close()
 

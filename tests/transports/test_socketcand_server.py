@@ -59,14 +59,18 @@ class Raw:
 
 
 def test_handshake_replies_come_alone_and_frames_wait_for_the_delay(can_bus):
-    _m, _p, _dev, dport, address = can_bus(rawmode_delay_ms=100)
+    _m, port, _dev, dport, address = can_bus(rawmode_delay_ms=100)
+    server = port.socketcand
     raw = Raw(address)
     assert raw.segment() == b"< hi >"
     raw.send("< open can0 >")
     assert raw.segment() == b"< ok >"
     t0 = time.monotonic()  # before the switch: a late test thread cannot make the hold look short
     raw.send("< rawmode >")
-    dport.send(data_frame(0x123, b"\x01"))  # on the bus right after the switch
+    # On the bus right after the switch (and before the test reads its "< ok >"); a frame sent before the
+    # server has read "< rawmode >" is not for this client yet, so wait for the server's own state.
+    wait_until(lambda: any(c.mode == "raw" for c in server.clients))
+    dport.send(data_frame(0x123, b"\x01"))
     assert raw.segment() == b"< ok >"  # alone: python-can compares the whole read with "< ok >"
     msg = sc.parse_server_message(raw.read())
     assert msg.frame == data_frame(0x123, b"\x01")  # held, not lost
