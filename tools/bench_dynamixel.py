@@ -131,6 +131,7 @@ def start_emulator(paced: bool, profile: str = "wolfgang") -> tuple[subprocess.P
         time.sleep(0.01)
     endpoint = read_manifest(manifest)["endpoints"][0]
     CONDITION["scheduling"] = endpoint.get("scheduling")
+    CONDITION["cpu_latency"] = endpoint.get("cpu_latency")
     return proc, endpoint["path"], tmp
 
 
@@ -229,7 +230,7 @@ def bench_cycle(paced: bool, seconds: float, baud: int = BAUD) -> None:
         label = f"{baud / 1e6:g}M".replace(".5M", "M5")
         emit(f"dxl_sdk_cycle_paced_{label}{suffix()}", measured * 1e3, "ms/cycle", wire_cycle * 1e3,
              measured / wire_cycle, target="ratio within 0.9..1.1", cycles=n, scheduling=CONDITION.get("scheduling"),
-             **cond, **CONDITION.pop("lateness", {}))
+             cpu_latency=CONDITION.get("cpu_latency"), **cond, **CONDITION.pop("lateness", {}))
     else:
         rate = n / dt
         emit(f"dxl_sdk_cycle_unpaced{suffix()}", rate, "cycles/s", 1 / wire_cycle, rate * wire_cycle,
@@ -347,7 +348,8 @@ def bench_bus(kind: str, seconds: float, paced_bauds: tuple[int, ...]) -> None:
         if paced:
             emit(f"{kind}_{client}_cycle_paced_{baud // 1000}k{suffix()}", dt / n * 1e3, "ms/cycle", wire * 1e3,
                  dt / n / wire, target="ratio within 0.9..1.1", cycles=n, failed_reads=failed,
-                 scheduling=CONDITION.get("scheduling"), emulator_cpu_us=round(cpu / n * 1e6, 1), **lateness, **cond)
+                 scheduling=CONDITION.get("scheduling"), cpu_latency=CONDITION.get("cpu_latency"),
+                 emulator_cpu_us=round(cpu / n * 1e6, 1), **lateness, **cond)
         else:
             emit(f"{kind}_{client}_cycle_unpaced{suffix()}", n / dt, "cycles/s", 1 / wire, n / dt * wire, cycles=n,
                  failed_reads=failed, **cond)

@@ -268,6 +268,8 @@ class Bench:
                 "paced": ep.medium.paced,
                 # what the medium's thread runs under (SCHED_FIFO where allowed), for media that say
                 **({"scheduling": sched} if (sched := getattr(ep.medium, "scheduling", None)) else {}),
+                # a paced line's request that idle CPUs wake fast ("0 us", or why not)
+                **({"cpu_latency": lat} if (lat := getattr(ep.medium, "cpu_latency", None)) else {}),
                 "tap": ep.tap.url if ep.tap is not None else None,
             }
             entry.update(ep.family.describe_endpoint(ep))

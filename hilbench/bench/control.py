@@ -232,7 +232,8 @@ def medium_status(medium: Any) -> dict[str, Any]:
             except RuntimeError:  # the line thread added a key while we copied
                 continue
     return {"kind": getattr(medium, "kind", None), "paced": getattr(medium, "paced", False),
-            "scheduling": getattr(medium, "scheduling", None), "stats": stats}
+            "scheduling": getattr(medium, "scheduling", None),
+            **({"cpu_latency": lat} if (lat := getattr(medium, "cpu_latency", None)) else {}), "stats": stats}
 
 
 class ControlClient:

@@ -5,10 +5,13 @@ apart, on machines where other programs want the CPU too. Spinning on the
 clock gets the precision but makes the line a CPU hog that the scheduler
 then preempts for milliseconds as soon as a neighbour is busy. So the line
 sleeps in ``select`` (woken at once by input), with the kernel's timer slack
-cut to a microsecond, and spins only the last :data:`SPIN_WINDOW` before a
-deadline, which covers select's own wake-up latency. Where the OS allows it
-the line's thread also runs under SCHED_FIFO (:func:`try_realtime`), so a
-wake-up preempts CPU-bound neighbours instead of waiting for their time slice.
+cut to a microsecond, asks for each wake-up as much earlier as this
+machine's wake-ups are late (:class:`Waiter`) and polls the last few
+microseconds. Where the OS allows it the line's thread also runs under
+SCHED_FIFO (:func:`try_realtime`), so a wake-up preempts CPU-bound neighbours
+instead of waiting for their time slice, and the process asks that idle CPUs
+stay awake (:class:`CpuLatency`), so waking one (the line, the kernel's tty
+worker, the client) takes microseconds instead of tens.
 """
 
 from __future__ import annotations
@@ -17,19 +20,19 @@ import ctypes
 import ctypes.util
 import os
 import select
+import struct
+import threading
 import time
+from collections import deque
 
-#: Below this much time to a deadline, spin instead of sleeping. select's wake-up is typically
-#: 15-25 us late on a 2-core Linux VM (p99 40-70 us), but spinning through a Sync Read's twenty
-#: replies (75 us apart at 2 Mbaud) cost the emulator 1.7 ms of CPU per 1.5 ms of replies and, under
-#: SCHED_FIFO, took that core from the client: sleeping all the way is the better trade. A delivery
-#: is then that much late, never early, and a late one does not delay the next (times are absolute).
-SPIN_WINDOW = 0.0
 #: SCHED_FIFO priority of a paced line's thread: the lowest band, above every normal process but
 #: below the kernel's own real-time threads and audio/IRQ threads that use 50 and more.
 REALTIME_PRIORITY = 10
 
 _PR_SET_TIMERSLACK = 29
+#: Linux's PM QoS request for the whole system: while a process holds it open with a value written,
+#: no idle CPU enters a state that takes longer than that many microseconds to leave.
+CPU_DMA_LATENCY = "/dev/cpu_dma_latency"
 
 
 def reduce_timer_slack(nanoseconds: int = 1000) -> bool:
@@ -63,28 +66,126 @@ def try_realtime(priority: int = REALTIME_PRIORITY) -> str:
     return f"SCHED_FIFO {priority}"
 
 
-def wait(fds: list[int], deadline: float | None, *, precise: bool = False, idle: float = 0.5) -> list[int]:
-    """Wait until one of ``fds`` is readable or ``time.monotonic()`` reaches ``deadline``.
+def wait(fds: list[int], deadline: float | None, *, idle: float = 0.5) -> list[int]:
+    """Wait until one of ``fds`` is readable or ``time.monotonic()`` reaches ``deadline`` (give or take
+    the kernel's wake-up lateness; :class:`Waiter` keeps deadlines precisely). Returns the readable
+    descriptors (possibly none). Input ends the wait at once; with no deadline it ends after ``idle``."""
+    timeout = idle if deadline is None else max(0.0, min(deadline - time.monotonic(), idle))
+    return select.select(fds, [], [], timeout)[0]
 
-    Returns the readable descriptors (possibly none). The thread sleeps in
-    select; with ``precise`` it wakes :data:`SPIN_WINDOW` before the deadline
-    and polls the rest of the way, so it returns within microseconds of it
-    (select's own wake-up can be 50 us late). Input ends the wait at once
-    either way.
+
+class Waiter:
+    """:func:`wait` for one thread that must wake on time: it learns how late this machine's timed
+    wake-ups are and asks for each one that much earlier.
+
+    Spinning through the last stretch before every deadline (what paced lines
+    did first) gets the precision too, but at 20 replies per Sync Read it kept
+    the line on a CPU the client and the kernel's tty worker needed.
+
+    A timed ``select`` wakes late by an amount that hardly varies on a given
+    machine (measured on a 2-core Firecracker VM: 22 - 27 us, p50 to p90
+    within 1 us; 11 - 15 us with idle CPUs polling, see :class:`CpuLatency`),
+    so a deadline kept by sleeping alone is always that late. The waiter
+    sleeps until its deadline less the smallest lateness among the last
+    :attr:`WINDOW` timed wake-ups and polls the few microseconds left, so it
+    returns at the deadline for almost no spinning. A wake-up preempted for
+    longer counts as at most :attr:`MAX_EARLY`.
     """
-    now = time.monotonic()
-    if deadline is None:
-        timeout = idle
-    else:
-        timeout = deadline - now
-        if precise:
-            timeout -= SPIN_WINDOW
-        timeout = max(0.0, min(timeout, idle))
-    ready = select.select(fds, [], [], timeout)[0]
-    if ready or deadline is None or not precise:
-        return ready
-    while time.monotonic() < deadline:
-        ready = select.select(fds, [], [], 0)[0]
-        if ready:
-            return ready
-    return []
+
+    WINDOW = 32
+    MAX_EARLY = 100e-6
+
+    def __init__(self) -> None:
+        self.early = 0.0  # seconds to ask early; 0 until the first timed wake-ups are measured
+        self._seen: deque[float] = deque(maxlen=self.WINDOW)
+
+    def __call__(self, fds: list[int], deadline: float | None, idle: float = 0.5) -> list[int]:
+        """Like :func:`wait`: the readable descriptors, or none once ``deadline`` has come (never before)."""
+        if deadline is None:
+            return select.select(fds, [], [], idle)[0]
+        now = time.monotonic()
+        sleep = deadline - now - self.early
+        if sleep > 0:
+            timed = sleep < idle
+            sleep = min(sleep, idle)
+            ready = select.select(fds, [], [], sleep)[0]
+            if ready:
+                return ready
+            if timed:
+                seen = self._seen
+                seen.append(min(time.monotonic() - now - sleep, self.MAX_EARLY))
+                self.early = min(seen)
+        while time.monotonic() < deadline:
+            ready = select.select(fds, [], [], 0)[0]
+            if ready:
+                return ready
+        return []
+
+
+class CpuLatency:
+    """A process-wide request that idle CPUs wake within :attr:`us` microseconds, held while any
+    paced line runs (:meth:`hold` / :meth:`release`, counted).
+
+    Waking an idle CPU is the slow part of every hand-over a paced line makes:
+    the line's own timer, the kernel's tty worker moving a pty's bytes, the
+    client woken by them. Written to ``/dev/cpu_dma_latency`` (what
+    ``cyclictest`` and audio servers do), 0 keeps idle CPUs polling instead of
+    halting: on a 2-core VM a timed wake-up then came 11 - 15 us late instead
+    of 22 - 27 us, and the official SDK's 4.5 Mbaud cycle went from 1.12 -
+    1.14x to 1.06 - 1.09x the wire model. The cost: idle CPUs stay busy (power
+    and heat on a laptop) while the bench runs, which is why it ends with the
+    last paced line. Needs root or write access to the device; elsewhere
+    nothing changes and :meth:`hold` says why. ``HILBENCH_CPU_LATENCY_US``
+    sets the value (``off``: never ask).
+    """
+
+    _lock = threading.Lock()
+    _fd: int | None = None
+    _users = 0
+    _state = "not requested"
+
+    @classmethod
+    def wanted(cls) -> int | None:
+        """The microseconds to ask for, from the environment (None: do not ask)."""
+        raw = os.environ.get("HILBENCH_CPU_LATENCY_US", "0").strip().lower()
+        if raw in ("off", "no", "none", ""):
+            return None
+        try:
+            return max(0, int(raw))
+        except ValueError:
+            return 0
+
+    @classmethod
+    def hold(cls) -> str:
+        """Take a share of the request (asking the kernel on the first); returns what is in force."""
+        with cls._lock:
+            cls._users += 1
+            if cls._fd is None and cls._users == 1:
+                us = cls.wanted()
+                if us is None:
+                    cls._state = "not requested (HILBENCH_CPU_LATENCY_US=off)"
+                else:
+                    try:
+                        fd = os.open(CPU_DMA_LATENCY, os.O_WRONLY | os.O_CLOEXEC)
+                    except OSError as exc:
+                        cls._state = f"not granted ({CPU_DMA_LATENCY}: {exc.strerror or exc})"
+                    else:
+                        try:
+                            os.write(fd, struct.pack("=i", us))
+                        except OSError as exc:
+                            os.close(fd)
+                            cls._state = f"not granted ({CPU_DMA_LATENCY}: {exc.strerror or exc})"
+                        else:
+                            cls._fd = fd
+                            cls._state = f"{us} us"
+            return cls._state
+
+    @classmethod
+    def release(cls) -> None:
+        """Give a share back; the last one closes the request (idle CPUs may sleep again)."""
+        with cls._lock:
+            cls._users = max(0, cls._users - 1)
+            if not cls._users and cls._fd is not None:
+                os.close(cls._fd)
+                cls._fd = None
+                cls._state = "not requested"

@@ -198,7 +198,7 @@ class DatagramMedium(LoopMedium):
                 hosts = list(self._hosts)
             fds = [p.fileno() for p, _ in hosts] + [waker.fd]
             try:
-                ready = wait(fds, deadline, precise=False)
+                ready = wait(fds, deadline)
             except (OSError, ValueError):
                 if self._stop.is_set():
                     return

@@ -39,7 +39,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Protocol
 
-from hilbench.transports.clock import reduce_timer_slack, try_realtime, wait
+from hilbench.transports.clock import CpuLatency, Waiter, reduce_timer_slack, try_realtime, wait
 from hilbench.transports.host_port import HostPort
 from hilbench.transports.medium import DevicePort, Medium, Tap
 
@@ -98,6 +98,9 @@ class SerialMedium(Medium):
             else realtime
         #: What the line's thread runs under once started ("SCHED_FIFO 10", or SCHED_OTHER and why).
         self.scheduling: str | None = None
+        #: A paced line's request that idle CPUs wake fast (:class:`~hilbench.transports.clock.CpuLatency`)
+        #: once started: "0 us", or why not.
+        self.cpu_latency: str | None = None
         # (time, sequence, function, joinable): joinable events (deliveries) may wait for later ones
         self._events: list[tuple[float, int, Callable[[], None], bool]] = []
         self._seq = itertools.count()
@@ -233,9 +236,18 @@ class SerialMedium(Medium):
         if self.paced:
             reduce_timer_slack()
         self.scheduling = try_realtime() if self.realtime else "SCHED_OTHER"
+        self.cpu_latency = CpuLatency.hold() if self.paced else None
         self._started.set()
+        try:
+            self._loop()
+        finally:
+            if self.paced:
+                CpuLatency.release()
+
+    def _loop(self) -> None:
         events, lock, stop, wake_r, paced = self._events, self._lock, self._stop, self._wake_r, self.paced
         version = -1
+        waiter = Waiter()
         fds: list[int] = []
         by_fd: dict[int, tuple] = {}
         hosts: list[tuple] = []
@@ -249,7 +261,7 @@ class SerialMedium(Medium):
                 fds = [*by_fd, wake_r]
                 fixed = all(type(ep).filenos is HostPort.filenos for ep, _ in hosts)
             deadline = self._next_wake() if events else None  # (stale is fine: pushes from elsewhere wake us)
-            ready = wait(fds, deadline, precise=paced)
+            ready = waiter(fds, deadline) if paced else wait(fds, deadline)
             if ready:
                 now = time.monotonic()
                 taken: set[int] = set()

@@ -19,6 +19,8 @@ def test_a_paced_line_reports_how_late_it_delivered(hilbench_emulator):
     before = control.media()["dxl"]
     assert before["kind"] == "serial" and before["paced"] is True
     assert before["scheduling"].startswith(("SCHED_FIFO", "SCHED_OTHER"))
+    assert before["cpu_latency"] == "0 us" or before["cpu_latency"].startswith("not ")  # root: idle CPUs poll
+    assert bench["endpoints"][0]["cpu_latency"] == before["cpu_latency"]  # the manifest says it too
 
     port = sdk.PortHandler(bench["endpoints"][0]["path"])
     assert port.openPort() and port.setBaudRate(2_000_000)
@@ -61,7 +63,7 @@ def test_every_kind_of_medium_answers(tmp_path):
     assert reply["ok"] is True
     media = reply["media"]
     assert media["arm"]["kind"] == "serial" and media["arm"]["paced"] is False
-    assert media["arm"]["scheduling"] == "SCHED_OTHER"
+    assert media["arm"]["scheduling"] == "SCHED_OTHER" and "cpu_latency" not in media["arm"]
     assert {"transmissions", "bytes", "late_count", "late_total", "late_max"} <= set(media["arm"]["stats"])
     assert media["can"]["kind"] == "can" and {"frames", "bits", "error_frames"} <= set(media["can"]["stats"])
     assert "media" in BENCH_COMMANDS and "media" in unknown["error"]

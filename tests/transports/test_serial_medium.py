@@ -210,6 +210,7 @@ def test_paced_line_reports_its_scheduling_and_can_stay_normal(monkeypatch):
         assert line.scheduling == "SCHED_OTHER"
     finally:
         line.close()
+    assert SerialMedium("x", 9600).cpu_latency is None  # unpaced lines never ask
     monkeypatch.setenv("HILBENCH_REALTIME", "0")
     assert SerialMedium("x", 9600, paced=True).realtime is False
     monkeypatch.delenv("HILBENCH_REALTIME")
@@ -219,6 +220,8 @@ def test_paced_line_reports_its_scheduling_and_can_stay_normal(monkeypatch):
     line.start()
     try:  # root or CAP_SYS_NICE: SCHED_FIFO; otherwise the normal scheduler and why
         assert line.scheduling == "SCHED_FIFO 10" or line.scheduling.startswith("SCHED_OTHER (SCHED_FIFO refused")
+        # and idle CPUs kept awake while it runs (root: the PM QoS request), or why not
+        assert line.cpu_latency == "0 us" or line.cpu_latency.startswith("not ")
     finally:
         line.close()
 

@@ -1,0 +1,82 @@
+"""Precise waits (the Waiter that learns this machine's wake-up lateness) and the idle-CPU latency request."""
+
+from __future__ import annotations
+
+import os
+import struct
+import threading
+import time
+
+import pytest
+
+from hilbench.transports.clock import CPU_DMA_LATENCY, CpuLatency, Waiter
+
+
+@pytest.fixture
+def pipe():
+    r, w = os.pipe()
+    yield r, w
+    os.close(r)
+    os.close(w)
+
+
+def test_waiter_never_returns_before_its_deadline_and_learns_to_ask_early(pipe):
+    r, _ = pipe
+    waiter = Waiter()
+    late = []
+    for _ in range(50):
+        deadline = time.monotonic() + 300e-6
+        assert waiter([r], deadline) == []
+        late.append(time.monotonic() - deadline)
+    assert min(late) >= 0  # at the deadline or after, never before
+    # A timed select is always somewhat late: the waiter has measured that and now asks early by it
+    assert 0 < waiter.early <= Waiter.MAX_EARLY
+
+
+def test_waiter_returns_at_once_on_input(pipe):
+    r, w = pipe
+    waiter = Waiter()
+    threading.Timer(0.02, os.write, (w, b"x")).start()
+    t0 = time.monotonic()
+    assert waiter([r], t0 + 5) == [r]
+    assert time.monotonic() - t0 < 1
+    assert waiter([r], None) == [r]  # no deadline: waits for input only (it is still there)
+
+
+def _system_latency() -> int | None:
+    """The kernel's current PM QoS CPU latency (readable by root only)."""
+    try:
+        fd = os.open(CPU_DMA_LATENCY, os.O_RDONLY)
+    except OSError:
+        return None
+    try:
+        return struct.unpack("=i", os.read(fd, 4))[0]
+    finally:
+        os.close(fd)
+
+
+def test_cpu_latency_is_held_while_a_holder_wants_it(monkeypatch):
+    monkeypatch.setenv("HILBENCH_CPU_LATENCY_US", "0")
+    first = CpuLatency.hold()
+    try:
+        if not os.access(CPU_DMA_LATENCY, os.W_OK):  # not root: nothing changes, and the answer says why
+            assert first.startswith("not granted (/dev/cpu_dma_latency")
+            return
+        assert first == "0 us"
+        assert CpuLatency.hold() == "0 us"  # a second line shares the one request
+        CpuLatency.release()
+        assert _system_latency() == 0  # still held by the first
+    finally:
+        CpuLatency.release()
+    assert CpuLatency._fd is None  # the last release ends the request: idle CPUs may sleep again
+
+
+def test_cpu_latency_can_be_turned_off(monkeypatch):
+    monkeypatch.setenv("HILBENCH_CPU_LATENCY_US", "off")
+    try:
+        assert CpuLatency.hold() == "not requested (HILBENCH_CPU_LATENCY_US=off)"
+        assert CpuLatency._fd is None
+    finally:
+        CpuLatency.release()
+    monkeypatch.setenv("HILBENCH_CPU_LATENCY_US", "25")
+    assert CpuLatency.wanted() == 25
