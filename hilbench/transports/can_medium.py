@@ -43,7 +43,7 @@ from typing import Any, Protocol
 from hilbench.protocols import can_frame as cf
 from hilbench.protocols.can_frame import CanFrame
 from hilbench.rules import FAULT_COUNT, PROBABILITY, SWITCH
-from hilbench.transports.clock import CpuLatency, Waiter, reduce_timer_slack, wait
+from hilbench.transports.clock import Waiter, awake_cpus, reduce_timer_slack, wait
 from hilbench.transports.medium import DevicePort
 from hilbench.transports.medium_loop import LoopMedium
 
@@ -116,7 +116,7 @@ class CanMedium(LoopMedium):
     def __init__(self, name: str, baud: int | None = None, *, paced: bool = False, seed: int | None = None) -> None:
         super().__init__(name, baud or DEFAULT_BITRATE, paced=paced)
         self.stats = BusStats()
-        #: A paced bus's request that idle CPUs wake fast (see clock.CpuLatency) once started, or why not.
+        #: A paced bus's request that idle CPUs wake fast (see clock.CpuLatency) once its thread runs, or why not.
         self.cpu_latency: str | None = None
         self.rng = random.Random(seed)
         self.faults: dict[str, Any] = {"error_rate": 0.0, "error_next": 0, "auto_recover": True}
@@ -418,20 +418,11 @@ class CanMedium(LoopMedium):
         """Make the bus thread look at its host ports again (a port opened a door)."""
         self._wake()
 
-    def start(self) -> None:
-        """Run the bus in a background thread (a paced bus first asks that idle CPUs wake fast)."""
-        if self._thread is None and self.paced:
-            self.cpu_latency = CpuLatency.hold()  # given back when the thread ends
-        super().start()
-
     def _run(self) -> None:
         if self.paced:
             reduce_timer_slack()
-        try:
+        with awake_cpus(self.paced) as self.cpu_latency:
             self._loop()
-        finally:
-            if self.paced:
-                CpuLatency.release()
 
     def _loop(self) -> None:
         waker = self._waker

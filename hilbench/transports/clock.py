@@ -16,6 +16,7 @@ worker, the client) takes microseconds instead of tens.
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import ctypes.util
 import os
@@ -24,6 +25,7 @@ import struct
 import threading
 import time
 from collections import deque
+from collections.abc import Iterator
 
 #: SCHED_FIFO priority of a paced line's thread: the lowest band, above every normal process but
 #: below the kernel's own real-time threads and audio/IRQ threads that use 50 and more.
@@ -106,15 +108,14 @@ class Waiter:
         now = time.monotonic()
         sleep = deadline - now - self.early
         if sleep > 0:
-            timed = sleep < idle
-            sleep = min(sleep, idle)
+            if sleep >= idle:  # a far deadline: look again after ``idle`` (never spin the rest of the way)
+                return select.select(fds, [], [], idle)[0]
             ready = select.select(fds, [], [], sleep)[0]
             if ready:
                 return ready
-            if timed:
-                seen = self._seen
-                seen.append(min(time.monotonic() - now - sleep, self.MAX_EARLY))
-                self.early = min(seen)
+            seen = self._seen
+            seen.append(min(time.monotonic() - now - sleep, self.MAX_EARLY))
+            self.early = min(seen)
         while time.monotonic() < deadline:
             ready = select.select(fds, [], [], 0)[0]
             if ready:
@@ -123,20 +124,20 @@ class Waiter:
 
 
 class CpuLatency:
-    """A process-wide request that idle CPUs wake within :attr:`us` microseconds, held while any
-    paced line runs (:meth:`hold` / :meth:`release`, counted).
+    """A process-wide request that idle CPUs wake within a few microseconds (0 by default), held
+    while any paced medium runs (:meth:`hold` / :meth:`release`, counted).
 
     Waking an idle CPU is the slow part of every hand-over a paced line makes:
     the line's own timer, the kernel's tty worker moving a pty's bytes, the
     client woken by them. Written to ``/dev/cpu_dma_latency`` (what
-    ``cyclictest`` and audio servers do), 0 keeps idle CPUs polling instead of
-    halting: on a 2-core VM a timed wake-up then came 11 - 15 us late instead
-    of 22 - 27 us, and the official SDK's 4.5 Mbaud cycle went from 1.12 -
-    1.14x to 1.06 - 1.09x the wire model. The cost: idle CPUs stay busy (power
-    and heat on a laptop) while the bench runs, which is why it ends with the
-    last paced line. Needs root or write access to the device; elsewhere
-    nothing changes and :meth:`hold` says why. ``HILBENCH_CPU_LATENCY_US``
-    sets the value (``off``: never ask).
+    ``cyclictest`` does), 0 keeps idle CPUs polling instead of halting: on a
+    2-core VM a timed wake-up then came 11 - 15 us late instead of 22 - 27 us
+    and a pty round trip took 20 us instead of 54 us (the README's benchmark
+    notes have what it did to the SDK's cycle). The cost: idle CPUs stay busy
+    (power and heat on a laptop) while the bench runs, which is why it ends
+    with the last paced medium. Needs root or write access to the device;
+    elsewhere nothing changes and :meth:`hold` says why.
+    ``HILBENCH_CPU_LATENCY_US`` sets the value (``off``: never ask).
     """
 
     _lock = threading.Lock()
@@ -189,3 +190,17 @@ class CpuLatency:
                 os.close(cls._fd)
                 cls._fd = None
                 cls._state = "not requested"
+
+
+@contextlib.contextmanager
+def awake_cpus(wanted: bool) -> Iterator[str | None]:
+    """Hold a share of :class:`CpuLatency` for the block if ``wanted``; yields what is in force
+    (None when not wanted). A paced medium's thread runs inside it."""
+    if not wanted:
+        yield None
+        return
+    state = CpuLatency.hold()
+    try:
+        yield state
+    finally:
+        CpuLatency.release()

@@ -16,12 +16,15 @@ on top. Clients then see the timing of the real bus.
 How a paced line keeps that timing on a busy machine (:mod:`hilbench.transports.clock`):
 every delivery time is computed when the transmission is queued (from the
 previous one's end, so a late wake-up never shifts the ones after it); the
-thread sleeps until input or the next delivery, never spinning; deliveries
+thread sleeps until input or the next delivery, asking for the wake-up as much
+earlier as this machine's wake-ups are late and polling only the microseconds
+left (:class:`~hilbench.transports.clock.Waiter`); deliveries
 due within :data:`DELIVERY_GRANULE` of each other share one wake-up and one
 write to each host (late by at most that, never early; taps still get each
 transmission's exact time); and it asks for SCHED_FIFO where the OS allows it
 (``realtime``; :attr:`SerialMedium.scheduling` says what it got), so its
-wake-ups preempt CPU-bound neighbours. ``HILBENCH_REALTIME=0`` in the
+wake-ups preempt CPU-bound neighbours, and that idle CPUs stay awake while it
+runs (:attr:`SerialMedium.cpu_latency`). ``HILBENCH_REALTIME=0`` in the
 environment keeps every line under the normal scheduler. :attr:`SerialMedium.stats`
 counts how late deliveries were against the model.
 """
@@ -39,7 +42,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Protocol
 
-from hilbench.transports.clock import CpuLatency, Waiter, reduce_timer_slack, try_realtime, wait
+from hilbench.transports.clock import Waiter, awake_cpus, reduce_timer_slack, try_realtime, wait
 from hilbench.transports.host_port import HostPort
 from hilbench.transports.medium import DevicePort, Medium, Tap
 
@@ -236,18 +239,14 @@ class SerialMedium(Medium):
         if self.paced:
             reduce_timer_slack()
         self.scheduling = try_realtime() if self.realtime else "SCHED_OTHER"
-        self.cpu_latency = CpuLatency.hold() if self.paced else None
-        self._started.set()
-        try:
+        with awake_cpus(self.paced) as self.cpu_latency:
+            self._started.set()
             self._loop()
-        finally:
-            if self.paced:
-                CpuLatency.release()
 
     def _loop(self) -> None:
         events, lock, stop, wake_r, paced = self._events, self._lock, self._stop, self._wake_r, self.paced
         version = -1
-        waiter = Waiter()
+        waiter = Waiter() if paced else wait  # a paced line keeps its deliveries' times
         fds: list[int] = []
         by_fd: dict[int, tuple] = {}
         hosts: list[tuple] = []
@@ -261,7 +260,7 @@ class SerialMedium(Medium):
                 fds = [*by_fd, wake_r]
                 fixed = all(type(ep).filenos is HostPort.filenos for ep, _ in hosts)
             deadline = self._next_wake() if events else None  # (stale is fine: pushes from elsewhere wake us)
-            ready = waiter(fds, deadline) if paced else wait(fds, deadline)
+            ready = waiter(fds, deadline)
             if ready:
                 now = time.monotonic()
                 taken: set[int] = set()

@@ -84,3 +84,13 @@ def test_cpu_latency_can_be_turned_off(monkeypatch):
         CpuLatency.release()
     monkeypatch.setenv("HILBENCH_CPU_LATENCY_US", "25")
     assert CpuLatency.wanted() == 25
+
+
+def test_waiter_does_not_spin_towards_a_far_deadline(pipe):
+    r, _ = pipe
+    waiter = Waiter()
+    t0 = time.monotonic()
+    cpu0 = time.thread_time()
+    assert waiter([r], t0 + 10, idle=0.2) == []  # back after idle, long before the deadline
+    assert time.monotonic() - t0 < 1
+    assert time.thread_time() - cpu0 < 0.1  # slept, did not poll the clock
