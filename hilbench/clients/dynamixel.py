@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import dynamixel_sdk as sdk
 import serial
+from serial import rfc2217
 
 from hilbench.errors import DeviceError, UsageError
 from hilbench.protocols.dynamixel import describe_error
@@ -64,6 +65,29 @@ class UrlPortHandler(sdk.PortHandler):
     asking the server to purge: over RFC 2217 a purge is a round trip whose acknowledgement
     pyserial's client polls for in 50 ms steps, which would cap the SDK at a few packets per second.
     """
+
+    def readPort(self, length: int) -> bytes:  # noqa: N802 (the SDK's name)
+        """Up to ``length`` bytes: waits up to :data:`URL_READ_WAIT` for the first, then takes every byte
+        already received.
+
+        pyserial's RFC 2217 client queues each received byte as an item of its own and its ``read`` takes
+        them one by one (a liveness check, a timeout computation and a queue get per byte: most of a
+        remote 20-servo cycle's time); the bytes already queued are taken here in one step under the
+        queue's lock. Other URL ports (``socket://``, ``loop://``) read as the SDK does.
+        """
+        ser = self.ser
+        queued = getattr(ser, "_read_buffer", None) if isinstance(ser, rfc2217.Serial) else None
+        if queued is None or length <= 1:
+            return ser.read(length)
+        data = ser.read(1)
+        if data:
+            with queued.mutex:  # (queue.Queue's own lock: what get() takes, once instead of per byte)
+                items, more = queued.queue, bytearray(data)
+                while items and len(more) < length and items[0] is not None:  # None: the client closed
+                    more += items.popleft()
+                queued.not_full.notify_all()
+            data = bytes(more)
+        return data
 
     def clearPort(self) -> None:  # noqa: N802 (the SDK's name)
         waiting = self.ser.in_waiting

@@ -101,6 +101,31 @@ def test_the_official_sdk_syncs_over_rfc2217(served):
         port.closePort()
 
 
+def test_the_url_port_takes_every_byte_already_received_in_one_read(served):
+    """pyserial's RFC 2217 client queues one item per received byte; the SDK's reads through UrlPortHandler
+    take what is queued at once (up to the length asked for), and stop at the client's end-of-connection
+    marker instead of swallowing it."""
+    _, _, url, _ = served
+    port = UrlPortHandler(url)
+    assert port.openPort() and port.setBaudRate(1_000_000)
+    try:
+        queued = port.ser._read_buffer
+        gets = []
+        get = queued.get
+        queued.get = lambda *a, **k: gets.append(1) or get(*a, **k)  # count pyserial's per-item gets
+        for byte in b"abcdef":
+            queued.put(bytes([byte]))
+        assert port.readPort(4) == b"abcd"  # no more than asked for
+        assert len(gets) == 1  # one get (the wait for the first byte), not one per byte
+        assert port.readPort(10) == b"ef"  # what is there, without waiting for the rest
+        assert port.readPort(3) == b""  # nothing: after the short wait
+        queued.put(b"x")
+        queued.put(None)
+        assert port.readPort(5) == b"x" and list(queued.queue) == [None]  # the marker stays for pyserial
+    finally:
+        port.closePort()
+
+
 def test_a_baud_change_reaches_the_line(served):
     """Servos hear only their own rate: the client's SET-BAUDRATE decides who answers, as on a real bus."""
     bench, ep, url, recorder = served
