@@ -63,7 +63,6 @@ PROTOCOL1_TRAFFIC = "dynamixel1"
 BUS_BAUD = Rule(int, choices=tuple(sorted(set(DYNAMIXEL_BAUDS + PROTOCOL1_BAUDS))), what="a Dynamixel baud rate")
 #: A Dynamixel servo's fault knobs: every servo's, and the Hardware Error Status bits to raise.
 FAULT_RULES = {**SERVO_FAULT_RULES, "hardware_error": Rule(int, 0, 0x3D)}
-FAULT_KEYS = tuple(FAULT_RULES)
 DEVICE_KEYS = ("model", "id", "ids", "name", "endpoint", "firmware", "init", "faults", "position",
                "supply_voltage", "ambient_temperature", "fast_read")
 

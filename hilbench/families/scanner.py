@@ -136,7 +136,7 @@ class ScannerFamily(DeviceFamily):
     (:meth:`check_options`) and make their devices (:meth:`make_scanner`)."""
 
     device_word = "scanner"
-    #: Fault knobs and their ranges (:mod:`hilbench.bench.knobs`: (False, True) a switch, int bounds a count).
+    #: Fault knobs and their rules (:mod:`hilbench.rules`: SWITCH, or a Rule for a count, rate or time).
     fault_knobs: KnobRules = {}
     #: The family's default model name.
     default_model: str = ""

@@ -17,11 +17,11 @@ from hilbench.bench.checks import Checker
 from hilbench.bench.family import DeviceFamily, DeviceSpec
 from hilbench.rules import FAULT_COUNT, PROBABILITY, SWITCH, Rule
 
-#: Fault knobs a servo takes straight from a profile's ``faults`` table.
 #: The fault knobs every emulated servo has (profile ``faults`` tables), with their rules; a family adds its own.
 SERVO_FAULT_RULES = {"drop_rate": PROBABILITY, "drop_next": FAULT_COUNT, "corrupt_rate": PROBABILITY,
                      "corrupt_next": FAULT_COUNT, "delay": Rule(float, 0.0, 10.0), "vanished": SWITCH,
                      "seed": FAULT_COUNT}
+#: Fault knobs a servo takes straight from a profile's ``faults`` table.
 FAULT_SETTINGS = ("drop_rate", "drop_next", "corrupt_rate", "corrupt_next", "delay")
 
 
