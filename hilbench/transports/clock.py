@@ -68,10 +68,11 @@ def try_realtime(priority: int = REALTIME_PRIORITY) -> str:
     return f"SCHED_FIFO {priority}"
 
 
-def wait(fds: list[int], deadline: float | None, *, idle: float = 0.5) -> list[int]:
+def wait(fds: list[int], deadline: float | None, *, idle: float = 0.5, leave_cpu: bool = False) -> list[int]:
     """Wait until one of ``fds`` is readable or ``time.monotonic()`` reaches ``deadline`` (give or take
     the kernel's wake-up lateness; :class:`Waiter` keeps deadlines precisely). Returns the readable
-    descriptors (possibly none). Input ends the wait at once; with no deadline it ends after ``idle``."""
+    descriptors (possibly none). Input ends the wait at once; with no deadline it ends after ``idle``.
+    (``leave_cpu`` is :class:`Waiter`'s: this wait always sleeps.)"""
     timeout = idle if deadline is None else max(0.0, min(deadline - time.monotonic(), idle))
     return select.select(fds, [], [], timeout)[0]
 
@@ -92,21 +93,36 @@ class Waiter:
     :attr:`WINDOW` timed wake-ups and polls the few microseconds left, so it
     returns at the deadline for almost no spinning. A wake-up preempted for
     longer counts as at most :attr:`MAX_EARLY`.
+
+    Polling keeps the CPU, and so does a sleep too short to leave it (the
+    timer fires while the kernel is still arming it: under ~15 us on that VM).
+    A real-time thread that has just handed the kernel work which runs on its
+    own CPU once it sleeps (a pty write: the tty worker that moves the bytes to
+    the client) passes ``leave_cpu``: a wait whose early sleep would be shorter
+    than :attr:`MIN_SLEEP` then sleeps to the deadline itself, a wake-up's
+    lateness late, instead of keeping the worker, and the client, waiting.
     """
 
     WINDOW = 32
     MAX_EARLY = 100e-6
+    MIN_SLEEP = 20e-6
 
     def __init__(self) -> None:
         self.early = 0.0  # seconds to ask early; 0 until the first timed wake-ups are measured
+        self.polls = 0  # non-blocking looks in the last microseconds before deadlines, in all
         self._seen: deque[float] = deque(maxlen=self.WINDOW)
 
-    def __call__(self, fds: list[int], deadline: float | None, idle: float = 0.5) -> list[int]:
-        """Like :func:`wait`: the readable descriptors, or none once ``deadline`` has come (never before)."""
+    def __call__(self, fds: list[int], deadline: float | None, idle: float = 0.5, *,
+                 leave_cpu: bool = False) -> list[int]:
+        """Like :func:`wait`: the readable descriptors, or none once ``deadline`` has come (never before).
+        ``leave_cpu``: sleep rather than poll if the deadline is too near for an early sleep to leave the
+        CPU (see the class notes); the wait may then end a wake-up's lateness after the deadline."""
         if deadline is None:
             return select.select(fds, [], [], idle)[0]
         now = time.monotonic()
         sleep = deadline - now - self.early
+        if leave_cpu and sleep < self.MIN_SLEEP and deadline > now:
+            return select.select(fds, [], [], deadline - now)[0]  # (not measured: not an early sleep)
         if sleep > 0:
             if sleep >= idle:  # a far deadline: look again after ``idle`` (never spin the rest of the way)
                 return select.select(fds, [], [], idle)[0]
@@ -117,6 +133,7 @@ class Waiter:
             seen.append(min(time.monotonic() - now - sleep, self.MAX_EARLY))
             self.early = min(seen)
         while time.monotonic() < deadline:
+            self.polls += 1
             ready = select.select(fds, [], [], 0)[0]
             if ready:
                 return ready

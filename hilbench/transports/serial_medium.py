@@ -251,6 +251,7 @@ class SerialMedium(Medium):
         by_fd: dict[int, tuple] = {}
         hosts: list[tuple] = []
         fixed = True  # every host's descriptors stay the same (a pty's do; a TCP port's follow its client)
+        wrote = False
         while not stop.is_set():
             if version != self._hosts_version or not fixed:
                 with lock:
@@ -259,8 +260,12 @@ class SerialMedium(Medium):
                 by_fd = {fd: (ep, listen_only) for ep, listen_only in hosts for fd in ep.filenos()}
                 fds = [*by_fd, wake_r]
                 fixed = all(type(ep).filenos is HostPort.filenos for ep, _ in hosts)
-            deadline = self._next_wake() if events else None  # (stale is fine: pushes from elsewhere wake us)
-            ready = waiter(fds, deadline)
+            # (stale is fine: pushes from other threads wake us)
+            deadline, last = self._next_wake() if events else (None, False)
+            # Bytes just written to a pty reach the client once the kernel's tty worker has run, on this CPU
+            # as soon as this thread sleeps: only the burst's last delivery, whose timing ends the client's
+            # wait, is worth keeping it waiting (see Waiter).
+            ready = waiter(fds, deadline, leave_cpu=wrote and not last)
             if ready:
                 now = time.monotonic()
                 taken: set[int] = set()
@@ -273,29 +278,33 @@ class SerialMedium(Medium):
                     if host is not None and id(host[0]) not in taken:  # (a port may have several descriptors)
                         taken.add(id(host[0]))
                         self._take(host[0], host[1], now)
-            self._run_due()
+            wrote = self._run_due()
 
-    def _next_wake(self) -> float:
+    def _next_wake(self) -> tuple[float, bool]:
         """When to wake for the pending events: the first one's time, or on a paced line the last delivery
         due within :data:`DELIVERY_GRANULE` of it, so that a burst (a Sync Read's twenty replies, 33-75 us
         apart) costs a few wake-ups instead of one each (a timed sleep costs 15-20 us of CPU on a VM).
-        Deliveries are then up to a granule late, never early; nothing else waits."""
+        Deliveries are then up to a granule late, never early; nothing else waits.
+        Also says whether no delivery is due after that wake-up (the burst's last)."""
         with self._lock:
             events = self._events
             first = events[0]
             granule = DELIVERY_GRANULE
             if not (granule and self.paced and first[3]):
-                return first[0]
-            limit = first[0] + granule
-            for t, _, _, joinable in events:
-                if t < limit and not joinable:
-                    limit = t  # a timer or line event is never kept waiting
-            joined = sorted(t for t, _, _, joinable in events if t <= limit and joinable)
-            if len(joined) > 1 and len(joined) == len(events):
-                # the group ends the burst: its last delivery gets a wake-up of its own, so the client has
-                # only that one left to take in when the wire model says the burst is over
-                return joined[-2]
-            return joined[-1] if joined else first[0]
+                wake = first[0]
+            else:
+                limit = first[0] + granule
+                for t, _, _, joinable in events:
+                    if t < limit and not joinable:
+                        limit = t  # a timer or line event is never kept waiting
+                joined = sorted(t for t, _, _, joinable in events if t <= limit and joinable)
+                if len(joined) > 1 and len(joined) == len(events):
+                    # the group ends the burst: its last delivery gets a wake-up of its own, so the client
+                    # has only that one left to take in when the wire model says the burst is over
+                    wake = joined[-2]
+                else:
+                    wake = joined[-1] if joined else first[0]
+            return wake, not any(joinable and t > wake for t, _, _, joinable in events)
 
     def _take(self, endpoint, listen_only: bool, now: float) -> tuple[int, float]:
         """Read what a host port has and put it on the line; returns (bytes, delivery time)."""
@@ -380,20 +389,22 @@ class SerialMedium(Medium):
             log.exception("quiet watcher of %s failed", port.name)
         return True
 
-    def _run_due(self) -> None:
-        """Run what is due. Deliveries due together reach each host port in one write (a pty write costs
-        about as much as a reply's emulation); anything else first flushes what is pending, so the order
-        the host sees stays the order of the line."""
+    def _run_due(self) -> bool:
+        """Run what is due; returns whether anything was written to a host port. Deliveries due together
+        reach each host port in one write (a pty write costs about as much as a reply's emulation);
+        anything else first flushes what is pending, so the order the host sees stays the order of the
+        line."""
         events, lock, paced = self._events, self._lock, self.paced
         self._out = {}
+        wrote = False
         try:
             while True:
                 with lock:
                     if not events or events[0][0] > (now := time.monotonic()):
-                        return
+                        break
                     t, _, fn, joinable = heapq.heappop(events)
                 if not joinable:
-                    self._flush_out()
+                    wrote |= self._flush_out()
                 elif paced:
                     stats = self.stats
                     late = now - t
@@ -405,15 +416,18 @@ class SerialMedium(Medium):
                         stats.late_over_1ms += 1
                 fn()
         finally:
-            self._flush_out()
+            wrote |= self._flush_out()
             self._out = None
+        return wrote
 
-    def _flush_out(self) -> None:
+    def _flush_out(self) -> bool:
         out = self._out
-        if out:
-            for endpoint, data in out.values():
-                endpoint.write(bytes(data))
-            out.clear()
+        if not out:
+            return False
+        for endpoint, data in out.values():
+            endpoint.write(bytes(data))
+        out.clear()
+        return True
 
     def close(self) -> None:
         """Stop the line and release its wake-up pipe."""

@@ -94,3 +94,20 @@ def test_waiter_does_not_spin_towards_a_far_deadline(pipe):
     assert waiter([r], t0 + 10, idle=0.2) == []  # back after idle, long before the deadline
     assert time.monotonic() - t0 < 1
     assert time.thread_time() - cpu0 < 0.1  # slept, did not poll the clock
+
+
+def test_a_waiter_leaving_the_cpu_sleeps_to_a_near_deadline_instead_of_polling(pipe):
+    r, _ = pipe
+    waiter = Waiter()
+    for _ in range(40):  # learn this machine's lateness first, so that waits ask early and poll the rest
+        waiter([r], time.monotonic() + 300e-6)
+    polls = waiter.polls
+    for _ in range(20):
+        deadline = time.monotonic() + waiter.early + Waiter.MIN_SLEEP / 2  # too near for an early sleep
+        assert waiter([r], deadline, leave_cpu=True) == []
+        assert time.monotonic() >= deadline  # still never early
+    assert waiter.polls == polls  # every one of them slept (left the CPU to whoever needed it)
+    # A far deadline is waited for as usual (an early sleep leaves the CPU anyway), and input still ends it
+    deadline = time.monotonic() + 0.002
+    assert waiter([r], deadline, leave_cpu=True) == []
+    assert time.monotonic() >= deadline
