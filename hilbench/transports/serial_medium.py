@@ -285,12 +285,14 @@ class SerialMedium(Medium):
         due within :data:`DELIVERY_GRANULE` of it, so that a burst (a Sync Read's twenty replies, 33-75 us
         apart) costs a few wake-ups instead of one each (a timed sleep costs 15-20 us of CPU on a VM).
         Deliveries are then up to a granule late, never early; nothing else waits.
-        Also says whether no delivery is due after that wake-up (the burst's last)."""
+        On a paced line it also says whether no delivery is due after that wake-up (the burst's last)."""
         with self._lock:
             events = self._events
             first = events[0]
             granule = DELIVERY_GRANULE
-            if not (granule and self.paced and first[3]):
+            if not self.paced:
+                return first[0], False  # (an unpaced line's waits never poll: nothing to tell)
+            if not (granule and first[3]):
                 wake = first[0]
             else:
                 limit = first[0] + granule
