@@ -118,6 +118,7 @@ class CanMedium(LoopMedium):
         self.stats = BusStats()
         #: A paced bus's request that idle CPUs wake fast (see clock.CpuLatency) once its thread runs, or why not.
         self.cpu_latency: str | None = None
+        self._running = threading.Event()
         self.rng = random.Random(seed)
         self.faults: dict[str, Any] = {"error_rate": 0.0, "error_next": 0, "auto_recover": True}
         self.tec: dict[str, int] = {}
@@ -418,10 +419,20 @@ class CanMedium(LoopMedium):
         """Make the bus thread look at its host ports again (a port opened a door)."""
         self._wake()
 
+    def start(self) -> None:
+        """Run the bus in a background thread; returns once it runs (:attr:`cpu_latency` known, so the
+        manifest written next can say it)."""
+        if self._thread is not None:
+            return
+        self._running.clear()
+        super().start()
+        self._running.wait(5)
+
     def _run(self) -> None:
         if self.paced:
             reduce_timer_slack()
         with awake_cpus(self.paced) as self.cpu_latency:
+            self._running.set()
             self._loop()
 
     def _loop(self) -> None:

@@ -164,14 +164,15 @@ class CpuLatency:
 
     @classmethod
     def wanted(cls) -> int | None:
-        """The microseconds to ask for, from the environment (None: do not ask)."""
+        """The microseconds to ask for, from the environment (None: do not ask; a value that is neither
+        a number nor ``off`` is not asked for either, and :meth:`hold` says so)."""
         raw = os.environ.get("HILBENCH_CPU_LATENCY_US", "0").strip().lower()
         if raw in ("off", "no", "none", ""):
             return None
         try:
             return max(0, int(raw))
         except ValueError:
-            return 0
+            return None
 
     @classmethod
     def hold(cls) -> str:
@@ -181,7 +182,10 @@ class CpuLatency:
             if cls._fd is None and cls._users == 1:
                 us = cls.wanted()
                 if us is None:
-                    cls._state = "not requested (HILBENCH_CPU_LATENCY_US=off)"
+                    raw = os.environ.get("HILBENCH_CPU_LATENCY_US", "").strip()
+                    cls._state = ("not requested (HILBENCH_CPU_LATENCY_US=off)" if raw.lower() in
+                                  ("off", "no", "none", "") else f"not requested (HILBENCH_CPU_LATENCY_US="
+                                  f"{raw!r} is neither a number of microseconds nor off)")
                 else:
                     try:
                         fd = os.open(CPU_DMA_LATENCY, os.O_WRONLY | os.O_CLOEXEC)

@@ -67,3 +67,19 @@ def test_every_kind_of_medium_answers(tmp_path):
     assert {"transmissions", "bytes", "late_count", "late_total", "late_max"} <= set(media["arm"]["stats"])
     assert media["can"]["kind"] == "can" and {"frames", "bits", "error_frames"} <= set(media["can"]["stats"])
     assert "media" in BENCH_COMMANDS and "media" in unknown["error"]
+
+
+def test_a_paced_can_bus_says_in_the_manifest_whether_idle_cpus_stay_awake(tmp_path):
+    """The bus's thread makes the request; the bench's start waits for it, so the manifest has the answer."""
+    profile = tmp_path / "can.toml"
+    profile.write_text(
+        'schema = 1\n'
+        '[endpoints.can]\ntype = "can"\nprotocol = "can"\nbitrate = 500_000\n'
+        '[[devices]]\nendpoint = "can"\nmodel = "stm32f767-rover-canopen"\nname = "rover"\nnode_id = 2\n'
+    )
+    with Bench(load_profile(profile), paced=True) as bench:
+        entry = bench.manifest()["endpoints"][0]
+        latency = bench.endpoint("can").medium.cpu_latency
+    assert entry["paced"] is True
+    assert latency == "0 us" or latency.startswith("not ")
+    assert entry["cpu_latency"] == latency

@@ -84,6 +84,13 @@ def test_cpu_latency_can_be_turned_off(monkeypatch):
         CpuLatency.release()
     monkeypatch.setenv("HILBENCH_CPU_LATENCY_US", "25")
     assert CpuLatency.wanted() == 25
+    monkeypatch.setenv("HILBENCH_CPU_LATENCY_US", "fast")  # a typo asks for nothing, and says why
+    try:
+        assert CpuLatency.hold() == ("not requested (HILBENCH_CPU_LATENCY_US='fast' is neither a number of "
+                                     "microseconds nor off)")
+        assert CpuLatency._fd is None
+    finally:
+        CpuLatency.release()
 
 
 def test_waiter_does_not_spin_towards_a_far_deadline(pipe):
