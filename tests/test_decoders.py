@@ -14,7 +14,8 @@ from hilbench.decoders import mutate, run, targets
 from tests.conftest import REPO
 
 BUILT_IN = {"dynamixel", "dynamixel1", "vel2d", "tracestamp-text", "tracestamp-binary", "tracestamp-stream",
-            "capture", "monitor-dynamixel", "profiler", "rplidar", "sick-lms200", "scip2"}
+            "capture", "monitor-dynamixel", "profiler", "rplidar", "sick-lms200", "scip2", "slcan",
+            "socketcand-client", "socketcand-server"}
 
 
 def test_every_built_in_reader_is_registered():
