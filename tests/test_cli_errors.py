@@ -144,3 +144,15 @@ def test_demo_reports_only_what_happened(monkeypatch, capsys):
     out, err = capsys.readouterr()
     assert "came back" not in out
     assert err.splitlines() == ["hilbench: error: the control loop completed no cycle (give it more time: --seconds)"]
+
+
+def test_ctrl_c_while_the_verbs_load_ends_quietly(monkeypatch, capsys):
+    """Ctrl-C in the first half second (the verbs' modules loading) is status 130 and no traceback."""
+    import hilbench.cli as cli
+
+    def interrupted():
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli, "build_parser", interrupted)
+    assert cli.main(["--help"]) == 130
+    assert capsys.readouterr().err == ""

@@ -41,8 +41,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``hilbench`` command."""
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        parser = build_parser()
+        args = parser.parse_args(argv)
+    except KeyboardInterrupt:  # Ctrl-C while the verbs load (half a second): no traceback
+        return 130
     func: Callable[[argparse.Namespace], int] = args.func
     if hasattr(signal, "SIGUSR1"):  # `kill -USR1 PID`: every thread's stack on stderr (a command that hangs)
         with contextlib.suppress(AttributeError, OSError, ValueError):  # stderr without a descriptor (embedded)
