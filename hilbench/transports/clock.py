@@ -163,16 +163,16 @@ class CpuLatency:
     _state = "not requested"
 
     @classmethod
-    def wanted(cls) -> int | None:
-        """The microseconds to ask for, from the environment (None: do not ask; a value that is neither
-        a number nor ``off`` is not asked for either, and :meth:`hold` says so)."""
-        raw = os.environ.get("HILBENCH_CPU_LATENCY_US", "0").strip().lower()
-        if raw in ("off", "no", "none", ""):
-            return None
+    def setting(cls) -> tuple[int | None, str]:
+        """From the environment: (microseconds to ask for, ""), or (None, why nothing is asked for): ``off``,
+        or a value that is neither a number nor ``off``."""
+        raw = os.environ.get("HILBENCH_CPU_LATENCY_US", "0").strip()
+        if raw.lower() in ("off", "no", "none", ""):
+            return None, "HILBENCH_CPU_LATENCY_US=off"
         try:
-            return max(0, int(raw))
+            return max(0, int(raw)), ""
         except ValueError:
-            return None
+            return None, f"HILBENCH_CPU_LATENCY_US={raw!r} is neither a number of microseconds nor off"
 
     @classmethod
     def hold(cls) -> str:
@@ -180,12 +180,9 @@ class CpuLatency:
         with cls._lock:
             cls._users += 1
             if cls._fd is None and cls._users == 1:
-                us = cls.wanted()
+                us, why_not = cls.setting()
                 if us is None:
-                    raw = os.environ.get("HILBENCH_CPU_LATENCY_US", "").strip()
-                    cls._state = ("not requested (HILBENCH_CPU_LATENCY_US=off)" if raw.lower() in
-                                  ("off", "no", "none", "") else f"not requested (HILBENCH_CPU_LATENCY_US="
-                                  f"{raw!r} is neither a number of microseconds nor off)")
+                    cls._state = f"not requested ({why_not})"
                 else:
                     try:
                         fd = os.open(CPU_DMA_LATENCY, os.O_WRONLY | os.O_CLOEXEC)

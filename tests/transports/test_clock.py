@@ -83,7 +83,7 @@ def test_cpu_latency_can_be_turned_off(monkeypatch):
     finally:
         CpuLatency.release()
     monkeypatch.setenv("HILBENCH_CPU_LATENCY_US", "25")
-    assert CpuLatency.wanted() == 25
+    assert CpuLatency.setting() == (25, "")
     monkeypatch.setenv("HILBENCH_CPU_LATENCY_US", "fast")  # a typo asks for nothing, and says why
     try:
         assert CpuLatency.hold() == ("not requested (HILBENCH_CPU_LATENCY_US='fast' is neither a number of "
