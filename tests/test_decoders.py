@@ -15,13 +15,13 @@ from tests.conftest import REPO
 
 BUILT_IN = {"dynamixel", "dynamixel1", "vel2d", "tracestamp-text", "tracestamp-binary", "tracestamp-stream",
             "capture", "monitor-dynamixel", "profiler", "rplidar", "sick-lms200", "scip2", "slcan",
-            "socketcand-client", "socketcand-server"}
+            "socketcand-client", "socketcand-server", "monitor-udp"}
 
 
 def test_every_built_in_reader_is_registered():
     found = {t.name: t for t in targets()}
     assert set(found) >= BUILT_IN
-    assert {found[n].kind for n in ("monitor-dynamixel", "profiler")} == {"instrument"}
+    assert {found[n].kind for n in ("monitor-dynamixel", "monitor-udp", "profiler")} == {"instrument"}
     assert all(t.line_rate > 0 and t.line for t in found.values())
 
 

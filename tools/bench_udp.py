@@ -32,49 +32,16 @@ from benchlib import emit
 
 from hilbench.bench import Bench
 from hilbench.bench.profile import parse_profile
+from hilbench.monitor.udp.target import datagrams
 from hilbench.monitor.udp.tracker import UdpTracker
-from hilbench.protocols import rtps as r
 from hilbench.protocols import xrce_dds as x
 
 #: 100-byte datagrams on a saturated 100 Mbit/s link: 166 byte times each (see the docstring).
 LINK_DATAGRAMS = 100e6 / (8 * (100 + 8 + 20 + 14 + 4 + 8 + 12))
 
 
-
-
-def traffic(n: int) -> list[tuple[float, bytes, tuple[str, int, str, int]]]:
-    """A mix of 100-byte datagrams between two clients, an agent and two RTPS nodes."""
-    client, agent, node_a, node_b = ("127.0.0.1", 40001), ("127.0.0.1", 8888), ("127.0.0.1", 7411), \
-        ("127.0.0.1", 7413)
-    prefix = bytes.fromhex("2C2F2C4D5901235300000000")
-    out = []
-    t = 0.0
-    for i in range(n):
-        t += 1e-5
-        k = i % 8
-        if k < 3:  # best-effort WRITE_DATA, 100 bytes
-            body = x.data(b"\x00\x0a", b"\x00\x15", bytes(88))
-            d = x.build_message(0x81, 0x01, i & 0xFFFF, [(7, 1, body)])
-            out.append((t, d, (*client, *agent)))
-        elif k == 3:  # the agent's DATA to a reader
-            d = x.build_message(0x81, 0x01, i & 0xFFFF, [(9, 1, x.data(b"\x00\x0e", b"\x00\x16", bytes(88)))])
-            out.append((t, d, (*agent, *client)))
-        elif k == 4:  # reliable WRITE_DATA
-            d = x.build_message(0x81, 0x80, (i // 8) & 0xFFFF, [(7, 1, x.data(b"\x00\x0b", b"\x00\x25", bytes(88)))])
-            out.append((t, d, (*client, *agent)))
-        elif k == 5:  # the agent's ACKNACK (and now and then a HEARTBEAT)
-            d = x.build_message(0x81, 0, 0, [(10, 1, x.acknack((i // 8 + 1) & 0xFFFF, 0, 0x80))])
-            out.append((t, d, (*agent, *client)))
-        else:  # RTPS user DATA: INFO_TS + DATA, 100 bytes
-            writer = b"\x00\x00\x01\x03" if k == 6 else b"\x00\x00\x02\x03"
-            payload = r.CDR_LE + b"\x00\x00" + bytes(36)
-            d = r.message(prefix, r.info_ts(1436564565, i), r.data(r.ENTITYID_UNKNOWN, writer, i // 8 + 1, payload))
-            out.append((t, d, (*node_a, *node_b)))
-    return out
-
-
 def bench_monitor(n: int, repeats: int) -> None:
-    data = traffic(n)
+    data = datagrams(n)
     sizes = {len(d) for _, d, _ in data}
     walls, cpus = [], []
     for _ in range(repeats):

@@ -115,6 +115,16 @@ def test_endianness_flip_is_flagged() -> None:
     assert tr.flags == {"xrce.endianness_flip": 1}
 
 
+def test_short_datagrams_to_an_agent_are_taken_not_raised_on() -> None:
+    """Found by tools/fuzz.py (monitor-udp): a 4 - 7 byte datagram with a session id >= 0x80 (a 4-byte
+    header) on the agent's port made the zero-fill check read past its end."""
+    tr = UdpTracker()
+    addr = ("127.0.0.1", 40000, "127.0.0.1", 8888)
+    for n in range(4, 8):
+        tr.feed_datagram(float(n), "c", bytes((0x81, 0x01, 0, 0)) + bytes(n - 4), addr)
+    assert tr.datagrams == 4 and tr.classes["xrce"][0] == 4
+
+
 def test_rtps_vectors_give_participants_and_data() -> None:
     tr = UdpTracker()
     for i, name in enumerate(("R3", "R4", "R5", "R1", "R2")):

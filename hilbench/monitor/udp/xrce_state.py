@@ -106,7 +106,7 @@ class XrceState:
         if n < hs:
             self._flag("xrce.malformed", t, src, "header cut short", s)
             return
-        if not data[6] and not data[7] and x.is_zero_fill(data):  # (a zero-fill has a zero length there)
+        if n >= 8 and not data[6] and not data[7] and x.is_zero_fill(data):  # (a zero-fill has a zero length there)
             self._flag("xrce.zero_fill", t, src, f"zeroed {n}-byte datagram from {src}", s)
         if trailing > 3:
             self._flag("xrce.bad_length", t, src, f"{trailing} bytes after the last submessage", s)
