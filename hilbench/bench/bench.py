@@ -23,6 +23,7 @@ from hilbench import registry
 from hilbench.bench.family import DeviceFamily
 from hilbench.bench.profile import EndpointSpec, Profile, load_profile
 from hilbench.errors import BenchError, UsageError
+from hilbench.transports.medium import medium_timing
 from hilbench.transports.tap_server import TapServer
 
 
@@ -266,10 +267,7 @@ class Bench:
                 "protocol": ep.spec.protocol,
                 "baud": ep.spec.baud,
                 "paced": ep.medium.paced,
-                # what the medium's thread runs under (SCHED_FIFO where allowed), for media that say
-                **({"scheduling": sched} if (sched := getattr(ep.medium, "scheduling", None)) else {}),
-                # a paced line's request that idle CPUs wake fast ("0 us", or why not)
-                **({"cpu_latency": lat} if (lat := getattr(ep.medium, "cpu_latency", None)) else {}),
+                **medium_timing(ep.medium),  # scheduling, cpu_latency
                 "tap": ep.tap.url if ep.tap is not None else None,
             }
             entry.update(ep.family.describe_endpoint(ep))

@@ -42,6 +42,7 @@ from pathlib import Path
 from typing import Any
 
 from hilbench.errors import BenchError, HilbenchError
+from hilbench.transports.medium import medium_timing
 
 #: Longest request line the bench reads (bytes); longer ones are answered with an error and dropped.
 MAX_LINE = 65536
@@ -232,8 +233,7 @@ def medium_status(medium: Any) -> dict[str, Any]:
             except RuntimeError:  # the line thread added a key while we copied
                 continue
     return {"kind": getattr(medium, "kind", None), "paced": getattr(medium, "paced", False),
-            "scheduling": getattr(medium, "scheduling", None),
-            **({"cpu_latency": lat} if (lat := getattr(medium, "cpu_latency", None)) else {}), "stats": stats}
+            "scheduling": None, **medium_timing(medium), "stats": stats}
 
 
 class ControlClient:

@@ -187,4 +187,11 @@ class DevicePort:
         self._medium.set_device_lines(**lines)
 
 
-__all__ = ["DevicePort", "Medium", "Tap"]
+def medium_timing(medium: Any) -> dict[str, str]:
+    """What a medium's thread runs under, as the manifest and ``media`` say it: ``scheduling`` (SCHED_FIFO
+    where allowed) and a paced medium's ``cpu_latency`` (idle CPUs kept awake: "0 us", or why not), each
+    only where the medium has it."""
+    return {key: value for key in ("scheduling", "cpu_latency") if (value := getattr(medium, key, None))}
+
+
+__all__ = ["DevicePort", "Medium", "Tap", "medium_timing"]
