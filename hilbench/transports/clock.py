@@ -68,12 +68,16 @@ def try_realtime(priority: int = REALTIME_PRIORITY) -> str:
     return f"SCHED_FIFO {priority}"
 
 
-def wait(fds: list[int], deadline: float | None, *, idle: float = 0.5, leave_cpu: bool = False) -> list[int]:
+def wait(fds: list[int], deadline: float | None, idle: float | None = 0.5, *, leave_cpu: bool = False) -> list[int]:
     """Wait until one of ``fds`` is readable or ``time.monotonic()`` reaches ``deadline`` (give or take
     the kernel's wake-up lateness; :class:`Waiter` keeps deadlines precisely). Returns the readable
-    descriptors (possibly none). Input ends the wait at once; with no deadline it ends after ``idle``.
-    (``leave_cpu`` is :class:`Waiter`'s: this wait always sleeps.)"""
-    timeout = idle if deadline is None else max(0.0, min(deadline - time.monotonic(), idle))
+    descriptors (possibly none). Input ends the wait at once; with no deadline it ends after ``idle``
+    seconds (None: only input ends it). (``leave_cpu`` is :class:`Waiter`'s: this wait always sleeps.)"""
+    if deadline is None:
+        timeout = idle
+    else:
+        left = max(0.0, deadline - time.monotonic())
+        timeout = left if idle is None else min(left, idle)
     return select.select(fds, [], [], timeout)[0]
 
 
@@ -112,7 +116,7 @@ class Waiter:
         self.polls = 0  # non-blocking looks in the last microseconds before deadlines, in all
         self._seen: deque[float] = deque(maxlen=self.WINDOW)
 
-    def __call__(self, fds: list[int], deadline: float | None, idle: float = 0.5, *,
+    def __call__(self, fds: list[int], deadline: float | None, idle: float | None = 0.5, *,
                  leave_cpu: bool = False) -> list[int]:
         """Like :func:`wait`: the readable descriptors, or none once ``deadline`` has come (never before).
         ``leave_cpu``: sleep rather than poll if the deadline is too near for an early sleep to leave the
@@ -124,7 +128,7 @@ class Waiter:
         if leave_cpu and sleep < self.MIN_SLEEP and deadline > now:
             return select.select(fds, [], [], deadline - now)[0]  # (not measured: not an early sleep)
         if sleep > 0:
-            if sleep >= idle:  # a far deadline: look again after ``idle`` (never spin the rest of the way)
+            if idle is not None and sleep >= idle:  # a far deadline: look again after ``idle`` (never spin the rest of the way)
                 return select.select(fds, [], [], idle)[0]
             ready = select.select(fds, [], [], sleep)[0]
             if ready:

@@ -56,6 +56,11 @@ QUIET_RETRIES = 10
 #: high-speed USB adapter hands the host its bytes in 125 us microframes, so no client of real hardware
 #: sees finer timing. HILBENCH_GRANULE_US overrides it (0: a wake-up for every transmission).
 DELIVERY_GRANULE = float(os.environ.get("HILBENCH_GRANULE_US", "125")) * 1e-6
+#: A paced line hands the last deliveries of a burst due within this many seconds of its very last one over
+#: with it: writing, leaving the CPU for the kernel's tty worker and the client, and being woken again take
+#: a line thread about this long on a VM (see _next_wake), so an earlier wake-up of its own would only add
+#: one more preemption of the client while it parses the burst's tail.
+TAIL_JOIN = 45e-6
 
 
 class Device(Protocol):
@@ -251,7 +256,6 @@ class SerialMedium(Medium):
         by_fd: dict[int, tuple] = {}
         hosts: list[tuple] = []
         fixed = True  # every host's descriptors stay the same (a pty's do; a TCP port's follow its client)
-        wrote = False
         while not stop.is_set():
             if version != self._hosts_version or not fixed:
                 with lock:
@@ -262,10 +266,16 @@ class SerialMedium(Medium):
                 fixed = all(type(ep).filenos is HostPort.filenos for ep, _ in hosts)
             # (stale is fine: pushes from other threads wake us)
             deadline, last = self._next_wake() if events else (None, False)
-            # Bytes just written to a pty reach the client once the kernel's tty worker has run, on this CPU
-            # as soon as this thread sleeps: only the burst's last delivery, whose timing ends the client's
-            # wait, is worth keeping it waiting (see Waiter).
-            ready = waiter(fds, deadline, leave_cpu=wrote and not last)
+            # The host writes the due deliveries held back go out only now, just before the wait: bytes
+            # written to a pty reach the client once the kernel's tty worker has run, usually on this CPU
+            # as soon as this thread sleeps, so everything this thread had to do first is already done.
+            wrote = self._flush_out()
+            self._out = None
+            # After a write, only the burst's last delivery, whose timing ends the client's wait, is worth
+            # keeping the worker waiting (see Waiter). With nothing due and fixed descriptors the wait has
+            # no timeout (input and _wake end it): a timed sleep arms a timer first, which on a VM takes
+            # ~10 us, between the burst's last write and the worker that hands it to the client.
+            ready = waiter(fds, deadline, None if fixed else 0.5, leave_cpu=wrote and not last)
             if ready:
                 now = time.monotonic()
                 taken: set[int] = set()
@@ -278,13 +288,16 @@ class SerialMedium(Medium):
                     if host is not None and id(host[0]) not in taken:  # (a port may have several descriptors)
                         taken.add(id(host[0]))
                         self._take(host[0], host[1], now)
-            wrote = self._run_due()
+            self._run_due()
 
     def _next_wake(self) -> tuple[float, bool]:
         """When to wake for the pending events: the first one's time, or on a paced line the last delivery
         due within :data:`DELIVERY_GRANULE` of it, so that a burst (a Sync Read's twenty replies, 33-75 us
         apart) costs a few wake-ups instead of one each (a timed sleep costs 15-20 us of CPU on a VM).
-        Deliveries are then up to a granule late, never early; nothing else waits.
+        Deliveries are then up to a granule late, never early; nothing else waits. When only deliveries
+        are pending (a burst), its tail, the deliveries due within :data:`TAIL_JOIN` of its last one, has
+        a wake-up of its own at that last one's time, so the client has no more than the tail left to
+        take in when the wire model says the burst is over.
         On a paced line it also says whether no delivery is due after that wake-up (the burst's last)."""
         with self._lock:
             events = self._events
@@ -296,16 +309,19 @@ class SerialMedium(Medium):
                 wake = first[0]
             else:
                 limit = first[0] + granule
+                end = first[0]  # the burst's last delivery
+                timers = False
                 for t, _, _, joinable in events:
-                    if t < limit and not joinable:
-                        limit = t  # a timer or line event is never kept waiting
-                joined = sorted(t for t, _, _, joinable in events if t <= limit and joinable)
-                if len(joined) > 1 and len(joined) == len(events):
-                    # the group ends the burst: its last delivery gets a wake-up of its own, so the client
-                    # has only that one left to take in when the wire model says the burst is over
-                    wake = joined[-2]
-                else:
-                    wake = joined[-1] if joined else first[0]
+                    if not joinable:
+                        timers = True
+                        if t < limit:
+                            limit = t  # a timer or line event is never kept waiting
+                    elif t > end:
+                        end = t
+                if not timers:
+                    limit = min(limit, end - TAIL_JOIN)
+                joined = [t for t, _, _, joinable in events if t <= limit and joinable]
+                wake = max(joined) if joined else end
             return wake, not any(joinable and t > wake for t, _, _, joinable in events)
 
     def _take(self, endpoint, listen_only: bool, now: float) -> tuple[int, float]:
@@ -391,14 +407,14 @@ class SerialMedium(Medium):
             log.exception("quiet watcher of %s failed", port.name)
         return True
 
-    def _run_due(self) -> bool:
-        """Run what is due; returns whether anything was written to a host port. Deliveries due together
-        reach each host port in one write (a pty write costs about as much as a reply's emulation);
-        anything else first flushes what is pending, so the order the host sees stays the order of the
-        line."""
+    def _run_due(self) -> None:
+        """Run what is due. Deliveries due together reach each host port in one write (a pty write costs
+        about as much as a reply's emulation), held back in ``_out`` for the loop to make just before it
+        waits; anything else first flushes what is pending, so the order the host sees stays the order of
+        the line."""
         events, lock, paced = self._events, self._lock, self.paced
-        self._out = {}
-        wrote = False
+        if self._out is None:
+            self._out = {}
         try:
             while True:
                 with lock:
@@ -406,7 +422,7 @@ class SerialMedium(Medium):
                         break
                     t, _, fn, joinable = heapq.heappop(events)
                 if not joinable:
-                    wrote |= self._flush_out()
+                    self._flush_out()
                 elif paced:
                     stats = self.stats
                     late = now - t
@@ -417,10 +433,10 @@ class SerialMedium(Medium):
                     if late > 1e-3:
                         stats.late_over_1ms += 1
                 fn()
-        finally:
-            wrote |= self._flush_out()
+        except BaseException:  # (the thread is ending: what was due still reaches the hosts)
+            self._flush_out()
             self._out = None
-        return wrote
+            raise
 
     def _flush_out(self) -> bool:
         out = self._out

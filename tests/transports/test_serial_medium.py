@@ -203,6 +203,35 @@ def test_a_burst_reaches_the_host_in_granules_never_early():
         host.close()
 
 
+def test_a_bursts_tail_is_handed_over_in_one_wake_up_and_the_rest_in_granules():
+    """A Sync Read's twenty statuses 33 us apart (4.5 Mbaud): wake-ups cover a granule each, never early; the
+    deliveries within TAIL_JOIN of the burst's last one share its wake-up (the line could not leave the CPU
+    between them), which is the burst's last; a pending timer is never kept waiting by a group."""
+    import hilbench.transports.serial_medium as sm
+
+    line = SerialMedium("line", 4_500_000, paced=True)
+    t0 = time.monotonic() + 10.0
+    ends = [line.transmit("dev", bytes(15), t=t0) for _ in range(20)]
+    assert abs((ends[1] - ends[0]) - 33.3e-6) < 1e-7
+    wakes = []
+    while line._events:
+        wake, last = line._next_wake()
+        group = [e for e in line._events if e[0] <= wake]
+        assert group and max(e[0] for e in group) == wake  # never early: woken for a delivery's own time
+        assert wake - min(e[0] for e in group) <= sm.DELIVERY_GRANULE + 1e-9
+        wakes.append((len(group), last))
+        line._events[:] = [e for e in line._events if e[0] > wake]
+    assert [n for n, _ in wakes] == [4, 4, 4, 4, 2, 2]  # the tail: statuses 19 and 20, 33 us apart
+    assert [last for _, last in wakes] == [False] * 5 + [True]
+    assert sm.TAIL_JOIN < 50e-6  # replies 50 us apart or more (3 Mbaud and slower) each keep their own
+
+    line._events.clear()
+    ends = [line.transmit("dev", bytes(15), t=t0 + 1) for _ in range(3)]
+    line.call_at(ends[0] + 10e-6, lambda: None)  # a timer between the first two deliveries
+    assert line._next_wake() == (ends[0], False)
+    line.close()
+
+
 def test_paced_line_reports_its_scheduling_and_can_stay_normal(monkeypatch):
     line = SerialMedium("line", 9600, paced=True, realtime=False)
     line.start()
