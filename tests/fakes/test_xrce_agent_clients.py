@@ -1,13 +1,16 @@
 """eProsima's Micro XRCE-DDS client examples, unmodified, against hilbench's agent on 127.0.0.1.
 
-The client library is not on the package index: the set-up builds its examples with
-CMake from source trees named by environment variables, and every test here skips
-with the reason when they are not given:
+The client library is on no package index: the set-up builds its examples with CMake
+from the source trees bundled as test data (``tests/data/third_party``: client tag
+v3.0.0 and the Micro-CDR v2.0.1 it pins, Apache-2.0, see the README there), or from
+trees named by environment variables, both or neither:
 
-- ``HILBENCH_XRCE_CLIENT_SRC``: a Micro-XRCE-DDS-Client source tree (e.g. tag v3.0.0);
-- ``HILBENCH_MICROCDR_SRC``: the Micro-CDR tree of the version that client pins (v2.0.1 for
-  client v3.0.0): the client's superbuild would otherwise download it;
+- ``HILBENCH_XRCE_CLIENT_SRC``: a Micro-XRCE-DDS-Client source tree;
+- ``HILBENCH_MICROCDR_SRC``: the Micro-CDR tree of the version that client pins (the client's
+  superbuild would otherwise download it);
 - ``HILBENCH_XRCE_BUILD_DIR`` (optional): where to build (kept between runs; default: a temp dir).
+
+Every test skips with the reason where cmake or a C compiler is missing.
 """
 
 from __future__ import annotations
@@ -16,6 +19,7 @@ import os
 import re
 import shutil
 import subprocess
+import tarfile
 import time
 from pathlib import Path
 
@@ -27,6 +31,24 @@ from hilbench.bench.profile import parse_profile
 pytestmark = pytest.mark.slow
 
 AGENT = {"schema": 1, "endpoints": {"agent": {"type": "udp", "protocol": "xrce-dds", "port": 0}}}
+#: The bundled source trees (git archive of the tags, trimmed to what the build reads).
+THIRD_PARTY = Path(__file__).resolve().parents[1] / "data" / "third_party"
+BUNDLED = {"Micro-XRCE-DDS-Client": THIRD_PARTY / "micro-xrce-dds-client-v3.0.0.tar.gz",
+           "Micro-CDR": THIRD_PARTY / "micro-cdr-v2.0.1.tar.gz"}
+
+
+def _sources(scratch: Path) -> tuple[Path, Path]:
+    """(client tree, Micro-CDR tree): the ones the environment names, or the bundled ones unpacked."""
+    client = os.environ.get("HILBENCH_XRCE_CLIENT_SRC")
+    microcdr = os.environ.get("HILBENCH_MICROCDR_SRC")
+    if bool(client) != bool(microcdr):
+        pytest.fail("set both HILBENCH_XRCE_CLIENT_SRC and HILBENCH_MICROCDR_SRC, or neither (the bundled trees)")
+    if client and microcdr:
+        return Path(client), Path(microcdr)
+    for tarball in BUNDLED.values():
+        with tarfile.open(tarball) as tar:
+            tar.extractall(scratch, filter="data")
+    return scratch / "Micro-XRCE-DDS-Client", scratch / "Micro-CDR"
 
 
 def _build(client: Path, microcdr: Path, build: Path) -> Path:
@@ -55,16 +77,12 @@ def _build(client: Path, microcdr: Path, build: Path) -> Path:
 
 @pytest.fixture(scope="module")
 def examples(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    client = os.environ.get("HILBENCH_XRCE_CLIENT_SRC")
-    microcdr = os.environ.get("HILBENCH_MICROCDR_SRC")
-    if not client or not microcdr:
-        pytest.skip("set HILBENCH_XRCE_CLIENT_SRC (Micro-XRCE-DDS-Client source) and HILBENCH_MICROCDR_SRC "
-                    "(Micro-CDR source) to build eProsima's client examples")
     if shutil.which("cmake") is None or shutil.which("cc") is None:
         pytest.skip("cmake and a C compiler are needed to build the Micro XRCE-DDS client examples")
+    client, microcdr = _sources(tmp_path_factory.mktemp("xrce-src"))
     build = Path(os.environ.get("HILBENCH_XRCE_BUILD_DIR") or tmp_path_factory.mktemp("xrce-build"))
     try:
-        return _build(Path(client), Path(microcdr), build)
+        return _build(client, microcdr, build)
     except (RuntimeError, subprocess.TimeoutExpired) as exc:
         pytest.fail(f"building the Micro XRCE-DDS client examples: {exc}")
 
