@@ -33,8 +33,7 @@ pytestmark = pytest.mark.slow
 AGENT = {"schema": 1, "endpoints": {"agent": {"type": "udp", "protocol": "xrce-dds", "port": 0}}}
 #: The bundled source trees (git archive of the tags, trimmed to what the build reads).
 THIRD_PARTY = Path(__file__).resolve().parents[1] / "data" / "third_party"
-BUNDLED = {"Micro-XRCE-DDS-Client": THIRD_PARTY / "micro-xrce-dds-client-v3.0.0.tar.gz",
-           "Micro-CDR": THIRD_PARTY / "micro-cdr-v2.0.1.tar.gz"}
+BUNDLED = (THIRD_PARTY / "micro-xrce-dds-client-v3.0.0.tar.gz", THIRD_PARTY / "micro-cdr-v2.0.1.tar.gz")
 
 
 def _sources(scratch: Path) -> tuple[Path, Path]:
@@ -45,7 +44,7 @@ def _sources(scratch: Path) -> tuple[Path, Path]:
         pytest.fail("set both HILBENCH_XRCE_CLIENT_SRC and HILBENCH_MICROCDR_SRC, or neither (the bundled trees)")
     if client and microcdr:
         return Path(client), Path(microcdr)
-    for tarball in BUNDLED.values():
+    for tarball in BUNDLED:
         with tarfile.open(tarball) as tar:
             tar.extractall(scratch, filter="data")
     return scratch / "Micro-XRCE-DDS-Client", scratch / "Micro-CDR"
