@@ -305,24 +305,25 @@ class SerialMedium(Medium):
             granule = DELIVERY_GRANULE
             if not self.paced:
                 return first[0], False  # (an unpaced line's waits never poll: nothing to tell)
-            if not (granule and first[3]):
+            grouped = granule and first[3]
+            limit = first[0] + granule if grouped else first[0]
+            end = 0.0  # the last delivery pending
+            timers = False
+            for t, _, _, joinable in events:
+                if not joinable:
+                    timers = True
+                    if t < limit:
+                        limit = t  # a timer or line event is never kept waiting
+                elif t > end:
+                    end = t
+            if not grouped:
                 wake = first[0]
             else:
-                limit = first[0] + granule
-                end = first[0]  # the burst's last delivery
-                timers = False
-                for t, _, _, joinable in events:
-                    if not joinable:
-                        timers = True
-                        if t < limit:
-                            limit = t  # a timer or line event is never kept waiting
-                    elif t > end:
-                        end = t
                 if not timers:
                     limit = min(limit, end - TAIL_JOIN)
                 joined = [t for t, _, _, joinable in events if t <= limit and joinable]
                 wake = max(joined) if joined else end
-            return wake, not any(joinable and t > wake for t, _, _, joinable in events)
+            return wake, wake >= end
 
     def _take(self, endpoint, listen_only: bool, now: float) -> tuple[int, float]:
         """Read what a host port has and put it on the line; returns (bytes, delivery time)."""
