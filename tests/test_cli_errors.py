@@ -150,7 +150,7 @@ def test_ctrl_c_while_the_verbs_load_ends_quietly(monkeypatch, capsys):
     """Ctrl-C in the first half second (the verbs' modules loading) is status 130 and no traceback."""
     import hilbench.cli as cli
 
-    def interrupted():
+    def interrupted(*_):
         raise KeyboardInterrupt
 
     monkeypatch.setattr(cli, "build_parser", interrupted)

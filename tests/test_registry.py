@@ -85,6 +85,39 @@ def test_plugins_verb_lists_every_kind():
     assert re.search(r"^  dynamixel\s+hilbench\s+protocols dynamixel", proc.stdout, re.M)
 
 
+def test_each_verb_module_names_the_verbs_it_registers():
+    import argparse
+
+    declared = {name: module for name, module in registry.verbs.items() if hasattr(module, "VERBS")}
+    assert {"emulate", "monitor", "dxl", "rover"} <= set(declared)
+    for name, module in declared.items():
+        sub = argparse.ArgumentParser().add_subparsers()
+        module.register(sub)
+        assert set(sub.choices) == set(module.VERBS), name
+
+
+LOADED = """
+import sys
+from hilbench.cli import build_parser
+parser = build_parser(sys.argv[1:])
+print(sorted(parser._subparsers._group_actions[0].choices), "dpkt" in sys.modules)
+"""
+
+
+def test_a_command_registers_only_its_own_verbs_and_help_lists_them_all():
+    def loaded(*argv: str) -> str:
+        proc = subprocess.run([sys.executable, "-c", LOADED, *argv], capture_output=True, text=True, timeout=60)
+        assert proc.returncode == 0, proc.stderr
+        return proc.stdout.strip()
+
+    # `hilbench dxl ...` does not load the monitor's sources and instruments (dpkt among them) for help texts
+    assert loaded("dxl", "ping", "/dev/null") == "['dxl'] False"
+    assert loaded("send-vel", "--help") == "['send-vel', 'teleop'] False"
+    full = loaded("--help")
+    assert "'emulate'" in full and "'monitor'" in full and "'teleop'" in full and full.endswith("True")
+    assert loaded("emulat").startswith(full.split("]")[0])  # a typo: every verb, for argparse's suggestion
+
+
 def test_an_unknown_name_is_a_usage_error_naming_the_known_ones():
     from hilbench.errors import UsageError
 

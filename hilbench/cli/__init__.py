@@ -1,9 +1,13 @@
 """The ``hilbench`` command line: thin verbs over the library.
 
 Verbs are plug-ins: every module named in the ``hilbench.verbs`` entry-point
-group (:mod:`hilbench.registry`) has a ``register(subparsers)`` function, and
-an optional ``ORDER`` number for where ``--help`` lists it (built-ins use
-10-90; a lab's package adds its own verbs the same way). Every error is a
+group (:mod:`hilbench.registry`) has a ``register(subparsers)`` function, an
+optional ``ORDER`` number for where ``--help`` lists it (built-ins use
+10-90; a lab's package adds its own verbs the same way), and an optional
+``VERBS`` tuple naming the verbs ``register`` adds: ``hilbench VERB ...`` then
+registers only the module that has VERB (and those without ``VERBS``), so a
+command does not pay for every other verb's help texts (``monitor``'s load
+every source kind and instrument: a third of a second). Every error is a
 :class:`~hilbench.errors.HilbenchError`: one line on stderr and its exit
 status (2 for usage mistakes, 1 for devices or benches that fail).
 """
@@ -24,8 +28,9 @@ from hilbench.cli.common import CliError, OneLineParser
 from hilbench.errors import HilbenchError
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The whole argument parser, every registered verb added."""
+def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
+    """The argument parser: with ``argv`` naming a verb some module's ``VERBS`` has, that module's verbs
+    (and those of modules without ``VERBS``); else every registered verb (``--help``, a typo)."""
     p = OneLineParser(
         prog="hilbench",
         description="Hardware-in-the-loop benches for robots: emulated devices on real ptys, CAN and UDP, and "
@@ -34,6 +39,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--version", action="version", version=f"hilbench {__version__}")
     sub = p.add_subparsers(dest="verb", required=True, metavar="VERB")
     modules = sorted(registry.verbs.items(), key=lambda item: (getattr(item[1], "ORDER", 100), item[0]))
+    verb = next((a for a in argv if not a.startswith("-")), None) if argv else None
+    if any(verb in getattr(module, "VERBS", ()) for _, module in modules):
+        modules = [(name, module) for name, module in modules
+                   if verb in getattr(module, "VERBS", (verb,))]  # (a module without VERBS may have it)
     for _name, module in modules:
         module.register(sub)
     return p
@@ -42,7 +51,8 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``hilbench`` command."""
     try:
-        parser = build_parser()
+        argv = sys.argv[1:] if argv is None else list(argv)
+        parser = build_parser(argv)
         args = parser.parse_args(argv)
     except KeyboardInterrupt:  # Ctrl-C while the verbs load (half a second): no traceback
         return 130

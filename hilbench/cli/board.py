@@ -118,6 +118,7 @@ def cmd_board(args: argparse.Namespace) -> int:
 
 
 ORDER = 50
+VERBS = ("board",)  # what register() adds (see hilbench.cli)
 
 
 def register(sub: argparse._SubParsersAction) -> None:

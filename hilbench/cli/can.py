@@ -374,6 +374,7 @@ def cmd_control(args: argparse.Namespace) -> int:
 # --------------------------------------------------------------------------- parser
 
 ORDER = 45
+VERBS = ("can",)  # what register() adds (see hilbench.cli)
 
 HELP = """\
 The CAN side of a bench (the rover board as CANopen node) and small CAN tools:

@@ -60,6 +60,7 @@ def cmd_profiles(args: argparse.Namespace) -> int:
 
 
 ORDER = 70
+VERBS = ("demo", "profiles")  # what register() adds (see hilbench.cli)
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -83,6 +83,7 @@ def cmd_dxl_write(args: argparse.Namespace) -> int:
 
 
 ORDER = 30
+VERBS = ("dxl",)  # what register() adds (see hilbench.cli)
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -108,6 +108,7 @@ def _serve_help() -> str:
 
 
 ORDER = 10
+VERBS = ("emulate",)  # what register() adds (see hilbench.cli)
 
 
 def register(sub: argparse._SubParsersAction) -> None:

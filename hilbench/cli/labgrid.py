@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 ORDER = 75
+VERBS = ("labgrid",)  # what register() adds (see hilbench.cli)
 
 
 def cmd_exporter_config(args: argparse.Namespace) -> int:

@@ -265,6 +265,7 @@ def _run(drv, target: Target, args: argparse.Namespace) -> int:
 
 
 ORDER = 45
+VERBS = ("lidar",)  # what register() adds (see hilbench.cli)
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -313,6 +313,7 @@ def _watch_args(p: argparse.ArgumentParser) -> None:
 
 
 ORDER = 20
+VERBS = ("monitor", "record", "tap")  # what register() adds (see hilbench.cli)
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -9,6 +9,7 @@ import re
 from hilbench import registry
 
 ORDER = 90
+VERBS = ("plugins",)  # what register() adds (see hilbench.cli)
 
 
 def _describe(kind: registry.Kind, name: str, obj) -> str:

@@ -259,6 +259,7 @@ def cmd_profile(args: argparse.Namespace) -> int:
 
 
 ORDER = 60
+VERBS = ("profile",)  # what register() adds (see hilbench.cli)
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -107,6 +107,7 @@ def cmd_teleop(args: argparse.Namespace) -> int:
 
 
 ORDER = 40
+VERBS = ("send-vel", "teleop")  # what register() adds (see hilbench.cli)
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -76,6 +76,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 
 ORDER = 15
+VERBS = ("run",)  # what register() adds (see hilbench.cli)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
