@@ -10,6 +10,7 @@ import sys
 
 import pytest
 
+from hilbench.pytest_plugin import wait_until
 from tests.conftest import REPO
 from tests.dashboard.test_tmux import Terminal, hilbench, terminal  # noqa: F401 (the fixture)
 
@@ -41,9 +42,12 @@ def test_can_viewer_over_socketcand(terminal, started):  # noqa: F811
     screen = term.wait_for("0x482")  # the 100 ms status PDO: the slowest one has arrived, all have
     for cob in ("0x182", "0x282", "0x382"):
         assert cob in screen
-    row = next(line for line in screen.splitlines() if "0x182" in line)
-    dt = float(row.split()[2])
-    assert 0.01 < dt < 0.04  # the encoder PDO's 20 ms period, as the viewer measures it
+
+    def encoder_dt() -> float:  # the time between the encoder PDO's last two frames, as the viewer shows it
+        return float(next(line for line in term.screen().splitlines() if "0x182" in line).split()[2])
+
+    # its 20 ms period (one late frame on a busy machine shows a longer gap: the next ones are on time again)
+    wait_until(lambda: 0.01 < encoder_dt() < 0.04, timeout=10)
     term.keys("q")
     term.wait_for("EXITED 0")
 
