@@ -115,6 +115,8 @@ class TableServo(ControlTableServo):
         start = position if position is not None else self._actual(self._role("present_position"))
         self.profile = Profile(t, float(start))
         self._hold(t)
+        if self.torque:  # on at power-on (Feetech): holding the horn, warming from now
+            self._set_torque(True, t)
         self._refresh(t)
 
     # ------------------------------------------------------------------ register access by role

@@ -8,6 +8,14 @@ offsets and positions (sign bit 11 for the Homing Offset, 15 for goal and
 present positions and speeds, 10 for the load); the SCS stores them
 big-endian without signs. Where no vendor table gives a default, the value is
 the one LeRobot configures or a plausible one (noted in the sheet's §10).
+
+Torque Enable is 1 at power-on (the sheet's §4.3 said 0, from no vendor
+table): the servo holds where its horn is, and a goal moves it with no torque
+write first. Feetech's own examples (FTServo_Python's ``sms_sts`` and
+``scscl`` ping/write/read_write/sync_write) never write Torque Enable and
+expect motion, and integrators of real SO-101 arms report the servos stiff at
+power-on and a goal sent after Torque Enable 0 not moving them, so a goal
+does not switch the torque on again (unlike Dynamixel Protocol 1.0).
 """
 
 from __future__ import annotations
@@ -70,7 +78,7 @@ def _sts3215() -> Model:
         Field(37, 1, "Velocity P Coefficient", "RW", 10, 0, 100),
         Field(38, 1, "Over Current Protection Time", "RW", 200, 0, 254),
         Field(39, 1, "Velocity I Coefficient", "RW", 200, 0, 254),
-        Field(40, 1, "Torque Enable", "RW", 0, 0, 128),
+        Field(40, 1, "Torque Enable", "RW", 1, 0, 128),  # on at power-on, holding the horn (see the docstring)
         Field(41, 1, "Acceleration", "RW", 0, 0, 254),
         Field(42, 2, "Goal Position", "RW", 2048, -32767, 32767, "deg", _STEP_DEG, sign_bit=15),
         Field(44, 2, "Goal Time", "RW", 0, 0, 65535),
@@ -110,7 +118,7 @@ def _scs0009() -> Model:
     fields = _head(1284, big=big, firmware=(1, 8), position_max=1023) + [
         Field(37, 1, "Protective Torque", "RW", 20, 0, 100),
         Field(38, 1, "Protection Time", "RW", 200, 0, 254),
-        Field(40, 1, "Torque Enable", "RW", 0, 0, 1),
+        Field(40, 1, "Torque Enable", "RW", 1, 0, 1),
         Field(41, 1, "Acceleration", "RW", 0, 0, 254),
         Field(42, 2, "Goal Position", "RW", 512, 0, 1023, "deg", 300 / 1024, big_endian=big),
         Field(44, 2, "Running Time", "RW", 0, 0, 65535, big_endian=big),

@@ -110,3 +110,25 @@ def test_reg_write_action_and_state_across_a_reopen(ftsdk, bench):
     finally:
         again.closePort()
         port.openPort()
+
+
+def test_a_servo_powers_on_holding_and_a_goal_moves_it_with_no_torque_write(ftsdk, bench):
+    """What Feetech's own examples do (sms_sts.WritePosEx: Acceleration, Goal Position, Goal Time, Goal
+    Velocity in one write at 41, no Torque Enable first): the servo powers on with its torque on, holding
+    where its horn is, and goes to the goal."""
+    port, ph = ftsdk
+    assert ph.read1ByteTxRx(port, 3, 40)[:2] == (1, OK)
+    assert ph.read2ByteTxRx(port, 3, 42)[:2] == ph.read2ByteTxRx(port, 3, 56)[:2] == (2048, OK)
+    assert ph.writeTxRx(port, 3, 41, 7, [50, 3000 & 0xFF, 3000 >> 8, 0, 0, 2400 & 0xFF, 2400 >> 8]) == (OK, 0)
+    assert ph.read1ByteTxRx(port, 3, 66)[:2] == (1, OK)  # Moving
+    wait_until(lambda: ph.read1ByteTxRx(port, 3, 66)[0] == 0, timeout=10)  # read_write.py's loop: until it stops
+    assert ph.read2ByteTxRx(port, 3, 56)[:2] == (3000, OK)
+
+
+def test_a_goal_does_not_switch_the_torque_on_again(ftsdk, bench):
+    port, ph = ftsdk
+    assert ph.write1ByteTxRx(port, 2, 40, 0) == (OK, 0)
+    assert ph.write2ByteTxRx(port, 2, 42, 1000) == (OK, 0)
+    assert ph.read1ByteTxRx(port, 2, 40)[:2] == (0, OK)
+    profile = bench.device(2).profile
+    assert profile.at(bench.now() + 60).position == 2048  # no motion planned, ever
