@@ -74,6 +74,19 @@ class ServoSpec(ServoBusSpec):
     fast_read: bool | None = None
 
 
+
+def speaks_protocol1(model) -> bool:
+    """Whether ``model`` can sit on a Protocol 1.0 bus: 1.0 firmware, or 2.0 firmware whose Protocol Type
+    (address 13) may be set to 1, as the X series and the MX 2.0 firmware allow (ROBOTIS's own Protocol
+    1.0 examples drive X-series servos at their X-series addresses)."""
+    if model.protocol == 1:
+        return True
+    try:
+        f = model.field_named("protocol_type")
+    except KeyError:
+        return False
+    return f.min is not None and f.min <= 1
+
 class DynamixelFamily(ServoBusFamily):
     """Dynamixel Protocol 2.0 servos and boards on one bus per endpoint."""
 
@@ -120,7 +133,7 @@ class DynamixelFamily(ServoBusFamily):
     def check_devices(self, c: Checker, key: str, dev: dict[str, Any], endpoint, profile) -> list[ServoSpec]:
         version = endpoint.options.get("protocol_version", 2)
         model = self.check_model(c, key, dev, protocol=version)
-        if model.protocol != version:
+        if model.protocol != version and not (version == 1 and speaks_protocol1(model)):
             c.fail(f"{key}.model", f"{model.name} speaks Protocol {model.protocol}.0 but endpoint "
                                    f"{endpoint.name!r} is a Protocol {version}.0 bus (protocol_version)")
         ids = self.check_ids(c, key, dev, 252)
@@ -192,6 +205,8 @@ class DynamixelFamily(ServoBusFamily):
         init = dict(dev.init)
         if model.kind == "servo":
             init = initial_values(init, P1_NOMINAL_BAUDS if model.protocol == 1 else model.baud_codes, spec.baud)
+        if model.protocol == 2 and spec.options.get("protocol_version", 2) == 1:
+            init["protocol_type"] = 1  # an X-series (or MX 2.0 firmware) servo switched to Protocol 1.0
         cls = TableServo if model.motion is not None else Servo  # the classic tables (AX, MX 1.0, XL-320)
         servo = cls(
             model,

@@ -228,7 +228,7 @@ class Protocol1Bus(ServoLine):
         p = pkt.params
         if not p or p[0] != 0 or (len(p) - 1) % 3:
             raise ValueError("BULK_READ entries are LEN, ID, ADDRESS")
-        by_id = {s.id: s for s in hearing if s.model.name.startswith("MX")}  # the AX has no BULK_READ
+        by_id = {s.id: s for s in hearing if not s.model.name.startswith("AX")}  # the AX has no BULK_READ
         seen = set()
         replies = []
         for k in range(1, len(p), 3):

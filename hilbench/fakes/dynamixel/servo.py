@@ -139,6 +139,11 @@ class Servo(ControlTableServo):
         """Ping reply data: model number and firmware version."""
         return self.mem[0:2] + self.mem[self.model.firmware_address : self.model.firmware_address + 1]
 
+    def condition_bits(self) -> int:
+        """The Protocol 1.0 status bits of its condition, when its Protocol Type is 1: Hardware Error Status's
+        input voltage (bit 0), overheating (bit 2) and overload (bit 5) sit where Protocol 1.0 has them."""
+        return self.hardware_error & 0x25
+
     def read(self, address: int, length: int, t: float) -> tuple[int, bytes]:
         """A Read: (error number, data). Leaving the table is an Access Error with no data."""
         self._touch(t)
