@@ -40,6 +40,9 @@ class ServoLine:
     #: What happens to a chain of replies after one that is dropped: "continue", or "stall" (the rest stay
     #: unsent, as a daisy chain waiting for the silent device does).
     chain_policy = "continue"
+    #: The Dynamixel protocol (1 or 2) the line carries, for servos whose Protocol Type register chooses one;
+    #: None where no servo chooses (Feetech).
+    protocol_type: ClassVar[int | None] = None
 
     def __init__(self, servos: list, *, name: str) -> None:
         self.name = name
@@ -60,8 +63,14 @@ class ServoLine:
         raise KeyError(servo_id)
 
     def _hearing(self, t: float, baud: int | None) -> list:
-        """Devices that receive this transmission: awake, and at the sender's baud."""
-        return [s for s in self.servos if s.listens(t, baud)]
+        """Devices that receive this transmission: awake, at the sender's baud, and (where a servo's Protocol
+        Type register chooses) speaking this line's protocol: a servo switched to the other one goes quiet."""
+        v = self.protocol_type
+        if v is None:
+            return [s for s in self.servos if s.listens(t, baud)]
+        # (the register read inline: this runs for every packet, a property call per servo showed in the cycle)
+        return [s for s in self.servos if s.listens(t, baud)
+                and ((a := s.protocol_type_address) is None or s.mem[a] == v)]
 
     def _send(self, replies: list[tuple[Any, int, bytes, int]], t: float) -> None:
         """Put status packets on the line in order: ``(device, err, data, reply id)``.

@@ -328,3 +328,10 @@ def test_a_silent_device_in_a_sync_read(sdk_port, bench):
     assert reader.txRxPacket() == sdk.COMM_RX_TIMEOUT
     bench.device(2).revive()
     assert reader.txRxPacket() == OK
+
+
+def test_a_servo_switched_to_protocol_1_goes_quiet_on_a_protocol_2_bus(sdk_port):
+    port, ph = sdk_port
+    assert ph.write1ByteTxRx(port, 1, 13, 1) == (OK, 0)  # Protocol Type (EEPROM, torque off): answered in 2.0
+    assert ph.ping(port, 1)[1] == sdk.COMM_RX_TIMEOUT
+    assert ph.ping(port, 3) == (1060, OK, 0)  # the others are untouched

@@ -72,3 +72,17 @@ def test_a_servo_with_no_protocol_1_firmware_is_refused_on_a_protocol_1_bus():
            "devices": [{"model": "XL-320", "id": 1}]}
     with pytest.raises(HilbenchError, match=r"devices\[0\]\.model: XL-320 speaks Protocol 2\.0"):
         parse_profile(raw, "x.toml")
+
+
+def test_a_servo_switched_to_protocol_2_or_factory_reset_goes_quiet_on_the_protocol_1_bus(sdk1, bench):
+    """The write is answered in 1.0, then the servo speaks 2.0 (whose packets this bus does not carry); a
+    factory reset brings Protocol Type back to 2 as well (what ROBOTIS's protocol1_0/factory_reset.py would
+    meet on an X-series servo)."""
+    port, ph = sdk1
+    assert ph.write1ByteTxRx(port, 2, 13, 2) == (OK, 0)
+    assert ph.ping(port, 2)[1] == sdk.COMM_RX_TIMEOUT
+    assert ph.factoryReset(port, 1) == (OK, 0)  # (the 1.0 handler takes no mode)
+    servo = bench.device(1)
+    wait_until(lambda: not servo.silent(bench.now()), timeout=5)  # past the reboot after the reset
+    assert servo.get("protocol_type") == 2
+    assert ph.ping(port, 1)[1] == sdk.COMM_RX_TIMEOUT

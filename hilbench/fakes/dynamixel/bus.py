@@ -43,6 +43,7 @@ class DynamixelBus(ServoLine):
     """
 
     status_frame: ClassVar = staticmethod(dxl.status_packet)
+    protocol_type: ClassVar[int | None] = 2
     checksum_size: ClassVar = 2
 
     def __init__(

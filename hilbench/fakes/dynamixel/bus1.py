@@ -68,6 +68,7 @@ class Protocol1Bus(ServoLine):
     """Emulated servos sharing one Protocol 1.0 line (see the module docstring)."""
 
     status_frame: ClassVar = staticmethod(p1.frame)
+    protocol_type: ClassVar[int | None] = 1
 
     #: Every servo answers a broadcast PING (Feetech) or none does (Dynamixel Protocol 1.0).
     broadcast_ping = False

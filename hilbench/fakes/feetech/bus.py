@@ -27,6 +27,7 @@ class FeetechBus(Protocol1Bus):
     """Emulated Feetech servos sharing one line (see the module docstring)."""
 
     broadcast_ping = True
+    protocol_type = None  # Feetech servos have no Protocol Type register
     reply_checksum_errors = False
     read_level = 0
     write_level = 1
