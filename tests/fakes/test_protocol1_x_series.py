@@ -17,7 +17,7 @@ from tests.fakes.test_protocol1_bus import exchange
 PROFILE = str(Path(__file__).resolve().parents[1] / "data" / "protocol1_x_bus.toml")
 pytestmark = pytest.mark.hilbench_profile(PROFILE)
 OK = sdk.COMM_SUCCESS
-TORQUE_ENABLE, GOAL_POSITION, MOVING, PRESENT_POSITION = 64, 116, 122, 132
+TORQUE_ENABLE, GOAL_POSITION, PRESENT_POSITION = 64, 116, 132
 
 
 @pytest.fixture
@@ -61,7 +61,7 @@ def test_sync_write_and_bulk_read(sdk1):
         writer.addParam(i, list((3000).to_bytes(4, "little")))
     assert writer.txPacket() == OK
     request = p1.build_instruction(0xFE, p1.Instruction1.BULK_READ, zero=None, entries=[
-        {"length": 4, "id": 1, "address": GOAL_POSITION}, {"length": 1, "id": 2, "address": MOVING}])
+        {"length": 4, "id": 1, "address": GOAL_POSITION}, {"length": 1, "id": 2, "address": TORQUE_ENABLE}])
     assert exchange(port, request, 10 + 7) == p1.frame(1, 0, (3000).to_bytes(4, "little")) + p1.frame(2, 0, b"\x01")
     wait_until(lambda: all(abs(ph.read4ByteTxRx(port, i, PRESENT_POSITION)[0] - 3000) <= 20 for i in (1, 2)),
                timeout=10)
