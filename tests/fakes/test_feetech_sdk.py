@@ -119,7 +119,7 @@ def test_a_servo_powers_on_holding_and_a_goal_moves_it_with_no_torque_write(ftsd
     port, ph = ftsdk
     assert ph.read1ByteTxRx(port, 3, 40)[:2] == (1, OK)
     assert ph.read2ByteTxRx(port, 3, 42)[:2] == ph.read2ByteTxRx(port, 3, 56)[:2] == (2048, OK)
-    assert ph.writeTxRx(port, 3, 41, 7, [50, 3000 & 0xFF, 3000 >> 8, 0, 0, 2400 & 0xFF, 2400 >> 8]) == (OK, 0)
+    assert ph.writeTxRx(port, 3, 41, 7, [50, 3000 & 0xFF, 3000 >> 8, 0, 0, 600 & 0xFF, 600 >> 8]) == (OK, 0)
     assert ph.read1ByteTxRx(port, 3, 66)[:2] == (1, OK)  # Moving
     wait_until(lambda: ph.read1ByteTxRx(port, 3, 66)[0] == 0, timeout=10)  # read_write.py's loop: until it stops
     assert ph.read2ByteTxRx(port, 3, 56)[:2] == (3000, OK)
