@@ -32,6 +32,25 @@ def patient_sdk(monkeypatch):
     monkeypatch.setattr(port_handler, "LATENCY_TIMER", 100)
 
 
+@pytest.fixture
+def official_sdk(bench, patient_sdk):
+    """``open(protocol)``: the official SDK's PortHandler on the bench's only endpoint, opened at the
+    endpoint's baud, and its PacketHandler for ``protocol`` (1.0 or 2.0); closed at the end."""
+    import dynamixel_sdk as sdk
+
+    ports = []
+
+    def open_(protocol: float):
+        port = sdk.PortHandler(bench.endpoint().path)
+        assert port.openPort() and port.setBaudRate(bench.endpoint().spec.baud)
+        ports.append(port)
+        return port, sdk.PacketHandler(protocol)
+
+    yield open_
+    for port in ports:
+        port.closePort()
+
+
 def interrupt(proc: subprocess.Popen, timeout: float = 20) -> tuple[str, str]:
     """Ctrl-C a hilbench command and collect its output; one that does not end within ``timeout`` fails
     with every thread's stack (the CLI dumps them on SIGUSR1), so a hang says where it is."""

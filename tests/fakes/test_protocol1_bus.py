@@ -17,12 +17,8 @@ OK = sdk.COMM_SUCCESS
 
 
 @pytest.fixture
-def sdk1(bench, patient_sdk):
-    port = sdk.PortHandler(bench.endpoint().path)
-    assert port.openPort()
-    assert port.setBaudRate(1_000_000)
-    yield port, sdk.PacketHandler(1.0)
-    port.closePort()
+def sdk1(official_sdk):
+    return official_sdk(1.0)
 
 
 def exchange(port, packet: bytes, expect: int, timeout: float = 2.0) -> bytes:

@@ -21,12 +21,8 @@ TORQUE_ENABLE, GOAL_POSITION, PRESENT_POSITION = 64, 116, 132
 
 
 @pytest.fixture
-def sdk1(bench, patient_sdk):
-    port = sdk.PortHandler(bench.endpoint().path)
-    assert port.openPort()
-    assert port.setBaudRate(57600)
-    yield port, sdk.PacketHandler(1.0)
-    port.closePort()
+def sdk1(official_sdk):
+    return official_sdk(1.0)
 
 
 def test_ping_and_the_protocol_type_register(sdk1):

@@ -11,11 +11,8 @@ OK = sdk.COMM_SUCCESS
 
 
 @pytest.fixture
-def sdk2(bench, patient_sdk):
-    port = sdk.PortHandler(bench.endpoint().path)
-    assert port.openPort() and port.setBaudRate(1_000_000)
-    yield port, sdk.PacketHandler(2.0)
-    port.closePort()
+def sdk2(official_sdk):
+    return official_sdk(2.0)
 
 
 @pytest.mark.hilbench_profile("poppy-ergo-jr")
