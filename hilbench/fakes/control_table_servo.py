@@ -95,8 +95,8 @@ class ControlTableServo:
         # the table at power-on: defaults, then what was configured once and saved (``initial``)
         self.mem = model.defaults()
         try:
-            #: Where its Protocol Type register is (None: the model has none): the X series and MX 2.0 firmware
-            #: speak the Dynamixel protocol it names, 1 or 2 (see ServoLine._hearing).
+            #: Where its Protocol Type register is (None: the model has none): a servo with one speaks the
+            #: protocol it names (see ServoLine._hearing).
             self.protocol_type_address: int | None = model.field_named("protocol_type").address
         except KeyError:
             self.protocol_type_address = None

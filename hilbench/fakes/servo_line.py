@@ -40,8 +40,8 @@ class ServoLine:
     #: What happens to a chain of replies after one that is dropped: "continue", or "stall" (the rest stay
     #: unsent, as a daisy chain waiting for the silent device does).
     chain_policy = "continue"
-    #: The Dynamixel protocol (1 or 2) the line carries, for servos whose Protocol Type register chooses one;
-    #: None where no servo chooses (Feetech).
+    #: The protocol number the line carries, for servos whose Protocol Type register chooses the one they
+    #: speak (a subclass sets it); None: no servo chooses.
     protocol_type: ClassVar[int | None] = None
 
     def __init__(self, servos: list, *, name: str) -> None:

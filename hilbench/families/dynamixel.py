@@ -74,7 +74,6 @@ class ServoSpec(ServoBusSpec):
     fast_read: bool | None = None
 
 
-
 def speaks_protocol1(model) -> bool:
     """Whether ``model`` can sit on a Protocol 1.0 bus: 1.0 firmware, or 2.0 firmware whose Protocol Type
     (address 13) may be set to 1, as the X series and the MX 2.0 firmware allow (ROBOTIS's own Protocol
@@ -86,6 +85,7 @@ def speaks_protocol1(model) -> bool:
     except KeyError:
         return False
     return f.min is not None and f.min <= 1
+
 
 class DynamixelFamily(ServoBusFamily):
     """Dynamixel Protocol 2.0 servos and boards on one bus per endpoint."""
