@@ -4,10 +4,12 @@ Verbs are plug-ins: every module named in the ``hilbench.verbs`` entry-point
 group (:mod:`hilbench.registry`) has a ``register(subparsers)`` function, an
 optional ``ORDER`` number for where ``--help`` lists it (built-ins use
 10-90; a lab's package adds its own verbs the same way), and an optional
-``VERBS`` tuple naming the verbs ``register`` adds: ``hilbench VERB ...`` then
-registers only the module that has VERB (and those without ``VERBS``), so a
-command does not pay for every other verb's help texts (``monitor``'s load
-every source kind and instrument: a third of a second). Every error is a
+``VERBS`` dict, each verb ``register`` adds and its one-line help. With it,
+``hilbench VERB ...`` registers only the module that has VERB (and those
+without ``VERBS``), and ``hilbench --help`` lists its verbs from ``VERBS``
+alone, so no command pays for every other verb's options and help texts
+(``monitor``'s load every source kind and instrument: a third of a second).
+Every error is a
 :class:`~hilbench.errors.HilbenchError`: one line on stderr and its exit
 status (2 for usage mistakes, 1 for devices or benches that fail).
 """
@@ -30,7 +32,8 @@ from hilbench.errors import HilbenchError
 
 def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
     """The argument parser: with ``argv`` naming a verb some module's ``VERBS`` has, that module's verbs
-    (and those of modules without ``VERBS``); else every registered verb (``--help``, a typo)."""
+    (and those of modules without ``VERBS``); else every verb, those of modules with ``VERBS`` by name and
+    help line only (enough for ``--help``, a typo's list of choices, and no verb at all)."""
     p = OneLineParser(
         prog="hilbench",
         description="Hardware-in-the-loop benches for robots: emulated devices on real ptys, CAN and UDP, and "
@@ -43,8 +46,16 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
     if any(verb in getattr(module, "VERBS", ()) for _, module in modules):
         modules = [(name, module) for name, module in modules
                    if verb in getattr(module, "VERBS", (verb,))]  # (a module without VERBS may have it)
+        for _name, module in modules:
+            module.register(sub)
+        return p
     for _name, module in modules:
-        module.register(sub)
+        listed = getattr(module, "VERBS", None)
+        if listed is None:
+            module.register(sub)
+        else:
+            for name, help_line in listed.items():
+                sub.add_parser(name, help=help_line)
     return p
 
 

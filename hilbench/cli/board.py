@@ -118,11 +118,13 @@ def cmd_board(args: argparse.Namespace) -> int:
 
 
 ORDER = 50
-VERBS = ("board",)  # what register() adds (see hilbench.cli)
+VERBS = {  # each verb register() adds and its line in `hilbench --help` (see hilbench.cli)
+    "board": "control an emulated board of a running bench (button, reset, faults)",
+}
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    b = sub.add_parser("board", help="control an emulated board of a running bench (button, reset, faults)",
+    b = sub.add_parser("board", help=VERBS["board"],
                        description="Talk to the control channel of `hilbench emulate`: press the user button "
                                    "(starts/stops a trace window), reset the board, turn fault knobs, read status.")
     where = b.add_mutually_exclusive_group()

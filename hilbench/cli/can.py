@@ -374,7 +374,9 @@ def cmd_control(args: argparse.Namespace) -> int:
 # --------------------------------------------------------------------------- parser
 
 ORDER = 45
-VERBS = ("can",)  # what register() adds (see hilbench.cli)
+VERBS = {  # each verb register() adds and its line in `hilbench --help` (see hilbench.cli)
+    "can": "CAN: the board's DBC/EDS, dump/send/nmt/sdo/drive, a CAN bench's control channel",
+}
 
 HELP = """\
 The CAN side of a bench (the rover board as CANopen node) and small CAN tools:
@@ -394,7 +396,7 @@ socketcan://vcan0."""
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("can", help="CAN: the board's DBC/EDS, dump/send/nmt/sdo/drive, a CAN bench's control channel",
+    p = sub.add_parser("can", help=VERBS["can"],
                        description=HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
     cs = p.add_subparsers(dest="can_cmd", required=True, metavar="COMMAND")
 

@@ -60,13 +60,16 @@ def cmd_profiles(args: argparse.Namespace) -> int:
 
 
 ORDER = 70
-VERBS = ("demo", "profiles")  # what register() adds (see hilbench.cli)
+VERBS = {  # each verb register() adds and its line in `hilbench --help` (see hilbench.cli)
+    "demo": "run the default bench, drive it with the official SDK, watch it live",
+    "profiles": "list the bundled profiles",
+}
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     from hilbench.dashboard.dynamixel_views import VIEWS
 
-    dm = sub.add_parser("demo", help="run the default bench, drive it with the official SDK, watch it live",
+    dm = sub.add_parser("demo", help=VERBS["demo"],
                         description="Start a bench, run a Sync Read / Sync Write control loop against it with the "
                                     "official dynamixel-sdk, and show the bus monitor's dashboard while one servo "
                                     "drops out and comes back and another reports overheating.")
@@ -76,5 +79,5 @@ def register(sub: argparse._SubParsersAction) -> None:
     dm.add_argument("--view", choices=VIEWS, default="devices", help="dashboard view to start with (keys: 1-4)")
     dm.set_defaults(func=cmd_demo)
 
-    pr = sub.add_parser("profiles", help="list the bundled profiles", description="List the bundled profiles.")
+    pr = sub.add_parser("profiles", help=VERBS["profiles"], description="List the bundled profiles.")
     pr.set_defaults(func=cmd_profiles)

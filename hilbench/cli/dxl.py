@@ -83,11 +83,13 @@ def cmd_dxl_write(args: argparse.Namespace) -> int:
 
 
 ORDER = 30
-VERBS = ("dxl",)  # what register() adds (see hilbench.cli)
+VERBS = {  # each verb register() adds and its line in `hilbench --help` (see hilbench.cli)
+    "dxl": "Dynamixel tools for any port, real or emulated (official SDK)",
+}
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    d = sub.add_parser("dxl", help="Dynamixel tools for any port, real or emulated (official SDK)",
+    d = sub.add_parser("dxl", help=VERBS["dxl"],
                        description="Talk to Dynamixel devices on a serial port through the official dynamixel-sdk.")
     dsub = d.add_subparsers(dest="dxl_verb", required=True, metavar="TOOL")
 

@@ -108,11 +108,13 @@ def _serve_help() -> str:
 
 
 ORDER = 10
-VERBS = ("emulate",)  # what register() adds (see hilbench.cli)
+VERBS = {  # each verb register() adds and its line in `hilbench --help` (see hilbench.cli)
+    "emulate": "run a bench from a profile until interrupted",
+}
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    e = sub.add_parser("emulate", help="run a bench from a profile until interrupted",
+    e = sub.add_parser("emulate", help=VERBS["emulate"],
                        description="Start the devices of a profile behind pseudo-terminals and run until Ctrl-C. "
                                    "Once every endpoint is ready, the manifest (JSON) is written.")
     e.add_argument("profile", nargs="?", default=DEFAULT_PROFILE,

@@ -7,7 +7,9 @@ import sys
 from pathlib import Path
 
 ORDER = 75
-VERBS = ("labgrid",)  # what register() adds (see hilbench.cli)
+VERBS = {  # each verb register() adds and its line in `hilbench --help` (see hilbench.cli)
+    "labgrid": "publish a served bench to labgrid (exporter config, environment)",
+}
 
 
 def cmd_exporter_config(args: argparse.Namespace) -> int:
@@ -43,7 +45,7 @@ def _write(output: str | None, text: str) -> None:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    lg = sub.add_parser("labgrid", help="publish a served bench to labgrid (exporter config, environment)",
+    lg = sub.add_parser("labgrid", help=VERBS["labgrid"],
                         description="Write labgrid configuration for a bench started with "
                                     "`hilbench emulate PROFILE --serve rfc2217 --manifest FILE`. Serial endpoints "
                                     "become NetworkSerialPort resources (protocol rfc2217, speed = the endpoint's "

@@ -265,12 +265,14 @@ def _run(drv, target: Target, args: argparse.Namespace) -> int:
 
 
 ORDER = 45
-VERBS = ("lidar",)  # what register() adds (see hilbench.cli)
+VERBS = {  # each verb register() adds and its line in `hilbench --help` (see hilbench.cli)
+    "lidar": "live scans of a laser scanner (RPLIDAR, SICK LMS 200, SCIP 2.0) in the terminal",
+}
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
-        "lidar", help="live scans of a laser scanner (RPLIDAR, SICK LMS 200, SCIP 2.0) in the terminal",
+        "lidar", help=VERBS["lidar"],
         description="Drive a laser scanner as its host and show its scans live: a polar plot (straight ahead up), "
                     "scan rate, points per scan, health. SOURCE: a serial port (/dev/ttyUSB0 or a bench pty), "
                     "tcp://HOST:PORT (SCIP 2.0 on Ethernet), a manifest of `hilbench emulate` (FILE.json#ENDPOINT) "

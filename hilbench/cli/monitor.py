@@ -313,12 +313,17 @@ def _watch_args(p: argparse.ArgumentParser) -> None:
 
 
 ORDER = 20
-VERBS = ("monitor", "record", "tap")  # what register() adds (see hilbench.cli)
+VERBS = {  # each verb register() adds and its line in `hilbench --help` (see hilbench.cli)
+    "monitor": "watch a bus: live dashboard, or a summary (--summary --json)",
+    "record": "record a bus to a capture file",
+    "tap": "sit between an application and a serial port (or UDP clients and a target), forwarding and "
+           "decoding both ways",
+}
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     m = sub.add_parser(
-        "monitor", help="watch a bus: live dashboard, or a summary (--summary --json)",
+        "monitor", help=VERBS["monitor"],
         description="Decode and track traffic from SOURCE with the instrument of its protocol: a capture file "
                     "(hilbench format or raw dump), '-' (stdin), a serial port (receive-only), "
                     "tcp://127.0.0.1:PORT or a manifest.json of `hilbench emulate` (its traffic tap), or "
@@ -333,7 +338,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     m.set_defaults(func=cmd_monitor)
 
     r = sub.add_parser(
-        "record", help="record a bus to a capture file",
+        "record", help=VERBS["record"],
         description="Store every byte from SOURCE (as for `hilbench monitor`) with its time and direction in FILE "
                     "(hilbench capture format, see docs/capture-format.md; '-' for stdout" + _formats() + "). Stops "
                     "when the source ends, on Ctrl-C / SIGTERM, or after --seconds. Converts raw dumps too.")
@@ -345,8 +350,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     r.set_defaults(func=cmd_record)
 
     t = sub.add_parser(
-        "tap", help="sit between an application and a serial port (or UDP clients and a target), forwarding and "
-                    "decoding both ways",
+        "tap", help=VERBS["tap"],
         usage="%(prog)s [options] PORT | %(prog)s [options] udp LISTEN TARGET",
         description="Create a pty for the application, forward every byte between it and PORT as soon as it is "
                     "read, and decode both directions: dashboard (in a terminal), --summary/--json at the end "

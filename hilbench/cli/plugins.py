@@ -9,7 +9,9 @@ import re
 from hilbench import registry
 
 ORDER = 90
-VERBS = ("plugins",)  # what register() adds (see hilbench.cli)
+VERBS = {  # each verb register() adds and its line in `hilbench --help` (see hilbench.cli)
+    "plugins": "list the device families, endpoint types, sources, instruments and verbs",
+}
 
 
 def _describe(kind: registry.Kind, name: str, obj) -> str:
@@ -44,7 +46,7 @@ def cmd_plugins(args: argparse.Namespace) -> int:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("plugins", help="list the device families, endpoint types, sources, instruments and verbs",
+    p = sub.add_parser("plugins", help=VERBS["plugins"],
                        description="List every plug-in this installation has (hilbench's own and other packages' "
                                    "entry points) and the package that registered it; plug-ins that failed to "
                                    "load are listed with the reason.")

@@ -259,12 +259,14 @@ def cmd_profile(args: argparse.Namespace) -> int:
 
 
 ORDER = 60
-VERBS = ("profile",)  # what register() adds (see hilbench.cli)
+VERBS = {  # each verb register() adds and its line in `hilbench --help` (see hilbench.cli)
+    "profile": "trace profiler: per-task timing, periods, jitter, Gantt, Perfetto export",
+}
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
-        "profile", help="trace profiler: per-task timing, periods, jitter, Gantt, Perfetto export",
+        "profile", help=VERBS["profile"],
         description="Analyse a board's trace stamps (text in either dialect, or hilbench's binary words, mixed "
                     "with logs and run-time statistics reports): per task and function count, total, mean, min, "
                     "observed max, share of the window, gross and net time, frequency, period, jitter, "

@@ -107,11 +107,14 @@ def cmd_teleop(args: argparse.Namespace) -> int:
 
 
 ORDER = 40
-VERBS = ("send-vel", "teleop")  # what register() adds (see hilbench.cli)
+VERBS = {  # each verb register() adds and its line in `hilbench --help` (see hilbench.cli)
+    "send-vel": "send Vel2d velocity frames to a rover board (serial port or UDP)",
+    "teleop": "drive a rover board from the keyboard (teleop_twist_keyboard keys)",
+}
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    s = sub.add_parser("send-vel", help="send Vel2d velocity frames to a rover board (serial port or UDP)",
+    s = sub.add_parser("send-vel", help=VERBS["send-vel"],
                        description="Send one 28-byte Vel2d frame (x, y in m/s, z in rad/s, CRC-32/MPEG-2) with one "
                                    "write, as the ROS bridge vel2d_bridge does, or stream it with --rate.")
     s.add_argument("port", help="serial port (/dev/ttyACM0, an emulated pty) or udp://127.0.0.1:PORT")
@@ -127,7 +130,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="with --echo: how long to listen after the last frame (default: 0.5)")
     s.set_defaults(func=cmd_send_vel)
 
-    t = sub.add_parser("teleop", help="drive a rover board from the keyboard (teleop_twist_keyboard keys)",
+    t = sub.add_parser("teleop", help=VERBS["teleop"],
                        description="Keyboard teleoperation with teleop_twist_keyboard's keys (u i o / j k l / "
                                    "m , . and shift for strafing; q/z w/x e/c change speeds; anything else stops). "
                                    "Every key sends one Vel2d frame; Ctrl-C sends a stop frame and quits.")

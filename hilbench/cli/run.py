@@ -76,11 +76,13 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 
 ORDER = 15
-VERBS = ("run",)  # what register() adds (see hilbench.cli)
+VERBS = {  # each verb register() adds and its line in `hilbench --help` (see hilbench.cli)
+    "run": "run a client with a real serial adapter's modem lines, BREAK and flushes",
+}
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("run", help="run a client with a real serial adapter's modem lines, BREAK and flushes",
+    p = sub.add_parser("run", help=VERBS["run"],
                        description=DESCRIPTION, epilog=EPILOG,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--manifest", metavar="FILE", action="append",
