@@ -65,7 +65,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         argv = sys.argv[1:] if argv is None else list(argv)
         parser = build_parser(argv)
         args = parser.parse_args(argv)
-    except KeyboardInterrupt:  # Ctrl-C while the verbs load (half a second): no traceback
+    except KeyboardInterrupt:  # Ctrl-C while the verbs load: no traceback
         return 130
     func: Callable[[argparse.Namespace], int] = args.func
     if hasattr(signal, "SIGUSR1"):  # `kill -USR1 PID`: every thread's stack on stderr (a command that hangs)
