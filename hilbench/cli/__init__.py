@@ -9,9 +9,9 @@ optional ``ORDER`` number for where ``--help`` lists it (built-ins use
 without ``VERBS``), and ``hilbench --help`` lists its verbs from ``VERBS``
 alone, so no command pays for every other verb's options and help texts
 (``monitor``'s load every source kind and instrument: a third of a second).
-Every error is a
-:class:`~hilbench.errors.HilbenchError`: one line on stderr and its exit
-status (2 for usage mistakes, 1 for devices or benches that fail).
+
+Every error is a :class:`~hilbench.errors.HilbenchError`: one line on stderr
+and its exit status (2 for usage mistakes, 1 for devices or benches that fail).
 """
 
 from __future__ import annotations

@@ -128,7 +128,8 @@ class Waiter:
         if leave_cpu and sleep < self.MIN_SLEEP and deadline > now:
             return select.select(fds, [], [], deadline - now)[0]  # (not measured: not an early sleep)
         if sleep > 0:
-            if idle is not None and sleep >= idle:  # a far deadline: look again after ``idle`` (never spin the rest of the way)
+            if idle is not None and sleep >= idle:
+                # a far deadline: look again after ``idle`` (never spin the rest of the way)
                 return select.select(fds, [], [], idle)[0]
             ready = select.select(fds, [], [], sleep)[0]
             if ready:
