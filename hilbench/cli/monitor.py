@@ -22,6 +22,7 @@ from collections.abc import Callable
 
 from hilbench.cli.common import CliError, int_arg, open_cli_source, terminate_on_sigterm
 from hilbench.rules import LINE_BAUD, SECONDS, SPEED
+from hilbench.transports.atomic_file import WriteError
 
 
 def _monitor_instruments() -> list:
@@ -58,22 +59,34 @@ def _view(text: str) -> str:
     return text
 
 
-def _writer(path: str | None, source, description: str | None = None):
+def _writer(path: str | None, source, description: str | None = None, *, force: bool = False):
+    """The recording of ``--record`` / ``record``'s FILE: streamed into FILE's ``.partial`` file, renamed into
+    place when it ends (:func:`hilbench.cli.outputs.start_recording`)."""
     if not path:
         return None
     from hilbench import registry
+    from hilbench.cli.outputs import start_recording
     from hilbench.transports.capture_file import CaptureWriter
 
-    if path != "-":  # a recording format of a plug-in (python-can logs for CAN), else the hilbench capture
-        for fmt in registry.recorders.values():
-            if fmt.accepts(path, source.protocol):
-                return fmt.open(path, source=source, description=description or source.name)
+    def open_writer(write_path: str):
+        if path != "-":  # a recording format of a plug-in (python-can logs for CAN), else the hilbench capture
+            for fmt in registry.recorders.values():
+                if fmt.accepts(path, source.protocol):  # (the .partial name keeps the suffix it decides by)
+                    return fmt.open(write_path, source=source, description=description or source.name)
+        info = getattr(getattr(source, "reader", None), "info", None)
+        return CaptureWriter(write_path, baud=source.baud, protocol=source.protocol or "",
+                             description=description or source.name, timestamps=source.timestamps,
+                             t0_wall=info.t0_wall if info is not None and info.measured else None,
+                             wall_offset=getattr(source, "wall_offset", None))
 
-    info = getattr(getattr(source, "reader", None), "info", None)
-    return CaptureWriter(path, baud=source.baud, protocol=source.protocol or "",
-                         description=description or source.name, timestamps=source.timestamps,
-                         t0_wall=info.t0_wall if info is not None and info.measured else None,
-                         wall_offset=getattr(source, "wall_offset", None))
+    return start_recording(path, open_writer, force=force)
+
+
+def _check_record(args: argparse.Namespace, label: str, path: str | None, inputs: list[str]) -> None:
+    """Refuse a recording onto an input or an existing recording, before anything is opened."""
+    from hilbench.cli.outputs import check_outputs
+
+    check_outputs([(label, path)], inputs=inputs, recordings=(label,), force=args.force)
 
 
 #: Exit status of ``--strict`` when the input is damaged (as ``hilbench profile --strict``).
@@ -107,6 +120,8 @@ def _watch(monitor, args: argparse.Namespace, label: str, status: Callable[[], s
     except KeyboardInterrupt:
         pass
     monitor.stop()
+    if isinstance(monitor.error, WriteError):
+        raise monitor.error  # the recording's file could not be written (it names the file; exit status 1)
     if monitor.error is not None:
         raise CliError(f"{label}: {monitor.error}")
     report = monitor.summary()
@@ -135,16 +150,19 @@ def _watch(monitor, args: argparse.Namespace, label: str, status: Callable[[], s
 
 
 def cmd_monitor(args: argparse.Namespace) -> int:
+    from hilbench.cli.outputs import source_files
     from hilbench.monitor import Monitor
 
     terminate_on_sigterm()
     speed = args.speed if args.speed is not None else (1.0 if args.realtime else None)
     options = _options(args)
+    _check_record(args, "--record", args.record, source_files(args.source))
     with open_cli_source(args.source, baud=args.baud, speed=speed) as source:
         instrument = _instrument(args, source)
         if args.baud and source.baud != args.baud:
             source.baud = args.baud  # the user knows the line rate better than the source
-        mon = Monitor(source, instrument=instrument, record=_writer(args.record, source), options=options)
+        mon = Monitor(source, instrument=instrument, record=_writer(args.record, source, force=args.force),
+                      options=options)
         mon.start()
 
         def status() -> str:
@@ -158,17 +176,21 @@ def cmd_monitor(args: argparse.Namespace) -> int:
 
 
 def cmd_record(args: argparse.Namespace) -> int:
+    from hilbench.cli.outputs import source_files
     from hilbench.transports.capture_file import CaptureError
 
     terminate_on_sigterm()
     speed = args.speed if args.speed is not None else None
     deadline = time.monotonic() + args.seconds if args.seconds else None
+    _check_record(args, "FILE", args.file, source_files(args.source))
     with open_cli_source(args.source, baud=args.baud, speed=speed) as source:
-        writer = _writer(args.file, source)
+        writer = _writer(args.file, source, force=args.force)
         stop = threading.Event()
         try:
             for chunk in source.chunks(0.1 if source.live else None):
-                if chunk is not None:
+                if chunk is None:
+                    writer.tick()  # flushed at least every half second: a kill loses at most that
+                else:
                     try:
                         writer.chunk(chunk)
                     except CaptureError as exc:
@@ -208,6 +230,7 @@ def cmd_tap_udp(args: argparse.Namespace) -> int:
         raise CliError(f"tap udp: {exc}") from None
     terminate_on_sigterm()
     options = _options(args)
+    _check_record(args, "--record", args.record, [])
     try:
         relay = UdpRelay(listen, target)
     except OSError as exc:
@@ -215,8 +238,8 @@ def cmd_tap_udp(args: argparse.Namespace) -> int:
     try:
         label = f"udp relay {relay.listen[0]}:{relay.listen[1]} -> {target[0]}:{target[1]}"
         instrument = _instrument(args, relay.source)
-        mon = Monitor(relay.source, instrument=instrument, record=_writer(args.record, relay.source, label),
-                      options=options)
+        mon = Monitor(relay.source, instrument=instrument,
+                      record=_writer(args.record, relay.source, label, force=args.force), options=options)
         mon.start()
         relay.start()
         print(f"hilbench tap: clients send to udp://{relay.listen[0]}:{relay.listen[1]}, relayed to "
@@ -244,6 +267,7 @@ def cmd_tap(args: argparse.Namespace) -> int:
 
     terminate_on_sigterm()
     options = _options(args)
+    _check_record(args, "--record", args.record, [args.port])
     # The forwarding thread must get the interpreter as soon as its read returns, not when the
     # decoding thread's time slice ends (5 ms by default): a tap must not make the SDK time out.
     sys.setswitchinterval(1e-4)
@@ -254,8 +278,8 @@ def cmd_tap(args: argparse.Namespace) -> int:
     try:
         label = f"tap {args.port} <-> app {tap.app_path}"
         instrument = _instrument(args, tap.source)
-        mon = Monitor(tap.source, instrument=instrument, record=_writer(args.record, tap.source, label),
-                      options=options)
+        mon = Monitor(tap.source, instrument=instrument, record=_writer(args.record, tap.source, label,
+                                                                        force=args.force), options=options)
         mon.start()
         tap.start()
         print(f"hilbench tap: application port {tap.app_path} <-> {args.port}", flush=True)
@@ -288,6 +312,10 @@ def _formats() -> str:
     return "; " + "; ".join(extra) if extra else ""
 
 
+FORCE_HELP = ("record even over an existing non-empty file (replaced when the recording ends) or the "
+              ".partial file of a recording that did not end")
+
+
 def _watch_args(p: argparse.ArgumentParser) -> None:
     protocols = [i.protocol for i in _monitor_instruments()]
     p.add_argument("--protocol", choices=protocols,
@@ -307,7 +335,8 @@ def _watch_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--once", action="store_true",
                    help="leave the dashboard when the source ends, even in a terminal")
     p.add_argument("--record", metavar="FILE", help="also record everything to FILE (hilbench capture format"
-                                                    f"{_formats()})")
+                                                    f"{_formats()}; see --force)")
+    p.add_argument("--force", action="store_true", help=FORCE_HELP)
     for inst in _monitor_instruments():
         inst.add_arguments(p)
 
@@ -347,6 +376,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     r.add_argument("--baud", type=LINE_BAUD, help="line rate in bit/s (a serial port's rate; a raw dump's byte time)")
     r.add_argument("--seconds", type=SECONDS, help="stop after this many seconds")
     r.add_argument("--speed", type=SPEED, help="read a capture at this multiple of its recorded speed")
+    r.add_argument("--force", action="store_true", help=FORCE_HELP)
     r.set_defaults(func=cmd_record)
 
     t = sub.add_parser(

@@ -29,6 +29,7 @@ from typing import Any
 from hilbench.monitor.detect import choose, detect
 from hilbench.monitor.instrument import Instrument, Tracker
 from hilbench.transports.capture_file import CaptureWriter
+from hilbench.transports.recording_file import Recording
 from hilbench.transports.sources import Source
 
 #: A live line silent this long ends a partial packet (it was cut off).
@@ -59,7 +60,7 @@ class Monitor:
         tracker: Tracker | None = None,
         instrument: Instrument | None = None,
         protocol: str | None = None,
-        record: CaptureWriter | None = None,
+        record: CaptureWriter | Recording | None = None,
         options: Callable[[Instrument], dict[str, Any]] | None = None,
         **tracker_options: Any,
     ) -> None:
@@ -154,9 +155,14 @@ class Monitor:
             if tracker is not None:
                 with lock:
                     tracker.finish()
-            if rec is not None:
-                rec.flush()
-            self.ended.set()
+            try:
+                if rec is not None:
+                    rec.flush()
+            except BaseException as exc:  # a write that failed (disk full): reported, and the monitor still ends
+                if self.error is None:
+                    self.error = exc
+            finally:
+                self.ended.set()
 
     def wait(self, timeout: float | None = None) -> bool:
         """Wait for the source to end; re-raises what stopped the reading thread, if anything."""

@@ -28,15 +28,28 @@ def _suffix(path: str) -> str:
     return suffixes[-1] if suffixes else ""
 
 
+def _logger(path: str) -> Any:
+    """python-can's writer for ``path``'s format; a ``.gz`` name with more dots than ``run.log.gz`` (such as a
+    running recording's ``run.partial.log.gz``) too, which ``can.Logger`` refuses."""
+    import gzip
+
+    import can
+
+    writer = can.io.MESSAGE_WRITERS.get(_suffix(path))
+    if not path.lower().endswith(".gz") or writer is None or _suffix(path) in (".blf", ".db"):
+        return can.Logger(path)  # (python-can's own message for what it cannot write)
+    binary = issubclass(writer, can.io.generic.BinaryIOMessageWriter)
+    return writer(file=gzip.open(path, "wb" if binary else "wt"))
+
+
 class CanLogRecorder:
     """Writes chunks of CAN frame records through python-can's ``can.Logger``."""
 
     def __init__(self, path: str, *, wall_offset: float = 0.0) -> None:
-        import can
 
         self.path = path
         self.wall_offset = wall_offset
-        self.logger = can.Logger(path)
+        self.logger = _logger(path)
         self.bytes = 0
         self.records = 0
         self.frames = 0

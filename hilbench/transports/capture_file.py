@@ -1024,7 +1024,8 @@ class CaptureWriter:
             self.write(chunk.t, chunk.source, chunk.data, chunk.addr)
 
     def flush(self) -> None:
-        with contextlib.suppress(ValueError, OSError):
+        """Hand what was written to the system; a failed write (disk full) raises :class:`OSError`."""
+        with contextlib.suppress(ValueError):  # closed already
             self._f.flush()
 
     def close(self) -> None:

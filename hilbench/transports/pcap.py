@@ -180,26 +180,40 @@ class PcapWriter:
     ``offset`` turns a chunk's time into Unix time (``t + offset``): 0 for Unix
     times, ``t0_wall - t0_monotonic`` for a recording's monotonic times. A chunk
     without addresses (serial bytes) cannot be a UDP frame: :class:`CaptureError`.
+    A file named by its path is created at the first datagram (or at
+    :meth:`close`), so a recording refused at its first chunk leaves no file.
     """
 
     def __init__(self, target: str | os.PathLike[str] | BinaryIO, *, offset: float = 0.0, ng: bool | None = None,
                  description: str = "") -> None:
         name = str(target) if isinstance(target, str | os.PathLike) else getattr(target, "name", "pcap")
-        if isinstance(target, str | os.PathLike):
-            self._f = sys.stdout.buffer if str(target) == "-" else open(target, "wb")  # noqa: SIM115
-            self._owned = str(target) != "-"
-        else:
-            self._f, self._owned = target, False
+        self._target = target
+        self._f: BinaryIO | None = None
+        self._owned = False
+        if not isinstance(target, str | os.PathLike):
+            self._f = target
+        elif str(target) == "-":
+            self._f = sys.stdout.buffer
         self.name = name
         self.ng = name.lower().endswith(".pcapng") if ng is None else ng
         self.offset = offset
-        if self.ng:
-            self._w = dpkt.pcapng.Writer(self._f, snaplen=65535, linktype=dpkt.pcap.DLT_EN10MB)
-        else:
-            self._w = dpkt.pcap.Writer(self._f, snaplen=65535, linktype=dpkt.pcap.DLT_EN10MB, nano=True)
+        self._w: Any = None
+        self._closed = False
         self.records = 0
         self.bytes = 0
         self.gaps = 0
+
+    def _writer(self) -> Any:
+        """The dpkt writer (its file created, and its header written, on first use)."""
+        if self._w is None:
+            if self._f is None:
+                self._f = open(self._target, "wb")  # noqa: SIM115 (closed by close())
+                self._owned = True
+            if self.ng:
+                self._w = dpkt.pcapng.Writer(self._f, snaplen=65535, linktype=dpkt.pcap.DLT_EN10MB)
+            else:
+                self._w = dpkt.pcap.Writer(self._f, snaplen=65535, linktype=dpkt.pcap.DLT_EN10MB, nano=True)
+        return self._w
 
     def chunk(self, chunk: Chunk) -> None:
         """Store one datagram (a loss report is counted only: pcap has no record for it)."""
@@ -212,22 +226,27 @@ class PcapWriter:
         self.write(chunk.t, chunk.data, chunk.addr)
 
     def write(self, t: float, data: bytes, addr: tuple[str, int, str, int]) -> None:
-        self._w.writepkt(frame(data, addr), ts=t + self.offset)
+        self._writer().writepkt(frame(data, addr), ts=t + self.offset)
         self.records += 1
         self.bytes += len(data)
 
     def flush(self) -> None:
-        try:
+        """Hand what was written to the system; a failed write (disk full) raises :class:`OSError`."""
+        if self._f is not None and not self._f.closed:
             self._f.flush()
-        except (ValueError, OSError):
-            pass
 
     def close(self) -> None:
-        if self._f.closed:
+        """Finish the file (a recording of nothing still gets its header)."""
+        if self._closed:
             return
-        self.flush()
-        if self._owned:
-            self._f.close()
+        self._closed = True
+        self._writer()
+        assert self._f is not None
+        try:
+            self.flush()
+        finally:
+            if self._owned:
+                self._f.close()
 
     def __enter__(self) -> PcapWriter:
         return self
