@@ -47,12 +47,20 @@ def _boards(profile_name: str) -> list[tuple[str, Any]]:
     return boards
 
 
-def _write(text: str, out: str | None, *, crlf: bool = False) -> None:
-    if out is None or out == "-":
-        sys.stdout.write(text)
-        return
-    Path(out).write_bytes(text.encode())
-    print(f"wrote {out}", file=sys.stderr)
+def _check_output(args: argparse.Namespace) -> None:
+    """Refuse ``-o`` onto the profile read (or into no directory) before anything is read."""
+    from hilbench.cli.outputs import check_outputs
+
+    check_outputs([("-o", args.output)], inputs=[args.profile])
+
+
+def _write(text: str, out: str | None) -> None:
+    """To stdout, or replacing ``out`` in one step (a full disk leaves an old file whole)."""
+    from hilbench.cli.outputs import write_output
+
+    write_output(out, text)
+    if out not in (None, "-"):
+        print(f"wrote {out}", file=sys.stderr)
 
 
 def manifest_socketcand(path: str) -> str:
@@ -118,6 +126,7 @@ def _index(text: str) -> tuple[int, int]:
 def cmd_dbc(args: argparse.Namespace) -> int:
     from hilbench.protocols import board_can
 
+    _check_output(args)
     _write(board_can.dbc(_boards(args.profile)), args.output)
     return 0
 
@@ -125,6 +134,7 @@ def cmd_dbc(args: argparse.Namespace) -> int:
 def cmd_eds(args: argparse.Namespace) -> int:
     from hilbench.protocols import board_can
 
+    _check_output(args)
     boards = _boards(args.profile)
     if args.device:
         boards = [b for b in boards if b[0] == args.device]

@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import sys
-from pathlib import Path
 
 ORDER = 75
 VERBS = {  # each verb register() adds and its line in `hilbench --help` (see hilbench.cli)
@@ -15,6 +13,7 @@ VERBS = {  # each verb register() adds and its line in `hilbench --help` (see hi
 def cmd_exporter_config(args: argparse.Namespace) -> int:
     from hilbench.labgrid.config import dump, exporter_config, load_manifest
 
+    _check_output(args)
     manifest = load_manifest(args.manifest)
     data = exporter_config(manifest, host=args.host)
     group = manifest["name"]
@@ -29,6 +28,7 @@ def cmd_exporter_config(args: argparse.Namespace) -> int:
 def cmd_env(args: argparse.Namespace) -> int:
     from hilbench.labgrid.config import dump, environment, load_manifest
 
+    _check_output(args)
     manifest = load_manifest(args.manifest)
     data = environment(manifest, host=args.host, target=args.target)
     comment = (f"labgrid environment of hilbench bench {manifest['name']!r} ({args.manifest}), no coordinator needed.\n"
@@ -37,11 +37,18 @@ def cmd_env(args: argparse.Namespace) -> int:
     return 0
 
 
+def _check_output(args: argparse.Namespace) -> None:
+    """Refuse ``-o`` onto the manifest read (or into no directory) before anything is read."""
+    from hilbench.cli.outputs import check_outputs
+
+    check_outputs([("-o", args.output)], inputs=[args.manifest])
+
+
 def _write(output: str | None, text: str) -> None:
-    if output in (None, "-"):
-        sys.stdout.write(text)
-    else:
-        Path(output).write_text(text)
+    """To stdout, or replacing ``output`` in one step (a full disk leaves an old file whole)."""
+    from hilbench.cli.outputs import write_output
+
+    write_output(output, text)
 
 
 def register(sub: argparse._SubParsersAction) -> None:

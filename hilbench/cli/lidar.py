@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from hilbench.cli.common import CliError, terminate_on_sigterm
+from hilbench.cli.outputs import check_outputs, output_file, source_files
 
 PROTOCOLS = {"rplidar": "rplidar", "sick": "sick-lms200", "sick-lms200": "sick-lms200", "lms200": "sick-lms200",
              "scip": "scip2", "scip2": "scip2"}
@@ -186,11 +187,28 @@ def save_png(path: str, scan, target: Target) -> None:
     ax.legend(loc="upper right")
     ax.set_title(f"{target.label}: one scan")
     fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
+    try:
+        with output_file(path, "wb") as f:  # a full disk or a kill leaves an old picture whole
+            fig.savefig(f, format=_picture_format(path))
+    finally:
+        plt.close(fig)
+
+
+#: What ``--png`` writes, by the file's suffix (none: PNG).
+PICTURE_FORMATS = ("png", "svg", "pdf")
+
+
+def _picture_format(path: str) -> str:
+    suffix = Path(path).suffix.lstrip(".").lower()
+    if suffix and suffix not in PICTURE_FORMATS:
+        raise CliError(f"--png {path}: the scan is drawn as .png (or .svg, .pdf)")
+    return suffix or "png"
 
 
 def cmd_lidar(args: argparse.Namespace) -> int:
+    if args.png:
+        _picture_format(args.png)
+    check_outputs([("--png", args.png)], inputs=source_files(args.source))
     terminate_on_sigterm()
     target = resolve(args.source)
     try:

@@ -172,12 +172,23 @@ def _check_protocol(source) -> None:
         choose(source.protocol, verb="profile", name=source.name)
 
 
+def _check_outputs(args: argparse.Namespace) -> None:
+    """Refuse outputs that would write over an input or each other, before anything is read."""
+    from hilbench.cli.outputs import check_outputs, source_files
+
+    if args.gantt and not args.gantt.lower().endswith((".png", ".svg")):
+        raise CliError(f"{args.gantt}: the Gantt chart is written as .png or .svg")
+    check_outputs([("--json-out", args.json_out), ("--export", args.export), ("--gantt", args.gantt)],
+                  inputs=[*source_files(args.source), *source_files(args.compare)])
+
+
 def cmd_profile(args: argparse.Namespace) -> int:
     from hilbench.console import Console
     from hilbench.profiler import Profiler
     from hilbench.profiler.compare import compare, load_summary
     from hilbench.profiler.report import compare_table, full_report
 
+    _check_outputs(args)
     settings = settings_from(args)
     base = None
     if args.compare:
@@ -240,7 +251,9 @@ def cmd_profile(args: argparse.Namespace) -> int:
             raise CliError(str(exc)) from None
         print(f"wrote Gantt chart of {len(rows)} rows to {args.gantt}", file=sys.stderr)
     if args.json_out and args.json_out != "-":
-        with open(args.json_out, "w", encoding="utf-8") as f:
+        from hilbench.cli.outputs import output_file
+
+        with output_file(args.json_out) as f:
             json.dump(doc, f, indent=1)
     if args.json or args.json_out == "-":
         json.dump(doc, sys.stdout, indent=1)

@@ -20,6 +20,7 @@ from typing import IO
 import numpy as np
 
 from hilbench.profiler.analysis import Analysis
+from hilbench.transports.atomic_file import atomic_write
 
 BOARD_NAME = "stm32f767-rover"
 FUNCTION_TID_BASE = 101
@@ -154,7 +155,7 @@ def write_trace(a: Analysis, out: str | IO[str], **kwargs) -> int:
     """Write the JSON document to a path or text file; return the number of events."""
     doc = trace_document(a, **kwargs)
     if isinstance(out, str):
-        with open(out, "w", encoding="utf-8") as f:
+        with atomic_write(out, "w") as f:  # a full disk or a kill leaves an old trace whole
             json.dump(doc, f, separators=(",", ":"))
     else:
         json.dump(doc, out, separators=(",", ":"))

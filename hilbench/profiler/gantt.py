@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from hilbench.profiler.analysis import Analysis
+from hilbench.transports.atomic_file import atomic_write
 
 MAX_INTERVALS = 50_000
 #: Columns of the picture's time axis (about the plot area's width in pixels at the default size).
@@ -160,6 +161,9 @@ def render_gantt(a: Analysis, path: str | Path, *, window: tuple[float, float] |
         ax.grid(axis="x", alpha=0.3)
         ax.set_title(title or f"Trace {t0 / 1000:.3f}-{t1 / 1000:.3f} ms: {len(drawn)} rows")
         fig.tight_layout()
-        fig.savefig(path, format=fmt)
-        plt.close(fig)
+        try:
+            with atomic_write(path) as f:  # a full disk or a kill leaves an old chart whole
+                fig.savefig(f, format=fmt)
+        finally:
+            plt.close(fig)
     return drawn
