@@ -6,13 +6,15 @@ import contextlib
 import errno
 import fcntl
 import os
+import secrets
+import stat
 import struct
 import termios
 import tty
 from pathlib import Path
 from typing import Any
 
-from hilbench.errors import OptionError
+from hilbench.errors import OptionError, UsageError
 from hilbench.transports.host_port import HostPort
 from hilbench.transports.line import LineSettings, LineState
 
@@ -67,6 +69,29 @@ def _decode_settings(fd: int, cflag: int, ospeed: int, framing: int | None) -> L
     return LineSettings(baud, bytesize, parity, stopbits)
 
 
+class LinkRefused(UsageError):
+    """A stable link whose name is taken (by a file, a directory, or a link not left by a gone bench)."""
+
+
+def left_by_a_gone_pty(link: str | os.PathLike[str]) -> bool:
+    """Whether ``link`` is a symlink to a pty that no longer exists (left by a bench that was killed): a pty's
+    node goes away with its last descriptor, so such a link leads nowhere and may be replaced."""
+    try:
+        target = os.readlink(link)
+    except OSError:
+        return False
+    return target.startswith("/dev/pts/") and not os.path.lexists(target)
+
+
+def _what_is(path: Path, st: os.stat_result) -> str:
+    if stat.S_ISLNK(st.st_mode):
+        try:
+            return f"a symlink to {os.readlink(path)}"
+        except OSError:
+            return "a symlink"
+    return "a directory" if stat.S_ISDIR(st.st_mode) else "a file"
+
+
 class PtyEndpoint(HostPort):
     """One pseudo-terminal pair; the client side is :attr:`path` (and :attr:`link` if given).
 
@@ -79,7 +104,10 @@ class PtyEndpoint(HostPort):
 
     A pty has no modem lines of its own: :attr:`lines` holds the ones a host
     drives through ``hilbench run`` (or an RFC 2217 server) and the device drives.
-    Profile key: ``link`` (a stable symlink to the pty).
+    Profile key: ``link`` (a stable symlink to the pty). The link is made only
+    where nothing is, or in place of a dead link to a pty that is gone (a
+    killed bench's); anything else there is refused (:class:`LinkRefused`).
+    :meth:`close` removes the link only while it is still the one made.
     """
 
     kind = "pty"
@@ -93,6 +121,7 @@ class PtyEndpoint(HostPort):
         os.set_blocking(self.master_fd, False)
         self.path = os.ttyname(self.slave_fd)
         self.link: Path | None = None
+        self._link_id: tuple[int, int] | None = None  # (st_dev, st_ino) of the link made
         self.bytes_in = 0
         self.bytes_out = 0
         self.dropped = 0
@@ -103,14 +132,47 @@ class PtyEndpoint(HostPort):
             self._make_link(Path(link))
 
     def _make_link(self, link: Path) -> None:
-        if link.is_symlink():
-            link.unlink()  # a stale link from an earlier bench
-        elif link.exists():
+        """Make ``link`` a symlink to the pty; never in place of anything but a link a gone bench left."""
+        try:
+            st: os.stat_result | None = os.lstat(link)
+        except FileNotFoundError:
+            st = None
+        except OSError as exc:
             self.close()
-            raise FileExistsError(f"{link} exists and is not a symlink; refusing to replace it")
-        link.parent.mkdir(parents=True, exist_ok=True)
-        link.symlink_to(self.path)
+            raise LinkRefused(f"{link}: cannot make the link: {exc.strerror or exc}") from None
+        if st is not None and not left_by_a_gone_pty(link):
+            self.close()
+            raise LinkRefused(f"{link}: {_what_is(link, st)} is there; refusing to replace it (remove it, or "
+                              "choose another link path or --link-dir)")
+        try:
+            link.parent.mkdir(parents=True, exist_ok=True)
+            if st is None:
+                os.symlink(self.path, link)  # FileExistsError if something appeared since
+            else:  # a dead link of a bench that was killed: replaced in one step
+                tmp = link.with_name(f".{link.name}.{secrets.token_hex(4)}.tmp")
+                os.symlink(self.path, tmp)
+                try:
+                    os.replace(tmp, link)
+                except OSError:
+                    with contextlib.suppress(OSError):
+                        tmp.unlink()
+                    raise
+            made = os.lstat(link)
+        except OSError as exc:
+            self.close()
+            raise LinkRefused(f"{link}: cannot make the link: {exc.strerror or exc}") from None
         self.link = link
+        self._link_id = (made.st_dev, made.st_ino)
+
+    def _owns_link(self) -> bool:
+        """Whether :attr:`link` is still the link this endpoint made, pointing where it made it point."""
+        if self.link is None or self._link_id is None:
+            return False
+        try:
+            st = os.lstat(self.link)
+            return (st.st_dev, st.st_ino) == self._link_id and os.readlink(self.link) == self.path
+        except OSError:
+            return False
 
     @classmethod
     def check_options(cls, raw: dict[str, Any]) -> dict[str, Any]:
@@ -201,10 +263,11 @@ class PtyEndpoint(HostPort):
     def close(self) -> None:
         """Remove the link and close both descriptors."""
         if self.link is not None:
-            with contextlib.suppress(FileNotFoundError):
-                if self.link.is_symlink():
+            if self._owns_link():  # not a link the user (or another bench) put there since
+                with contextlib.suppress(OSError):
                     self.link.unlink()
             self.link = None
+            self._link_id = None
         for fd in (self.master_fd, self.slave_fd):
             with contextlib.suppress(OSError):
                 os.close(fd)
