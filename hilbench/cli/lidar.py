@@ -206,9 +206,9 @@ def _picture_format(path: str) -> str:
 
 
 def cmd_lidar(args: argparse.Namespace) -> int:
+    check_outputs([("--png", args.png)], inputs=source_files(args.source))
     if args.png:
         _picture_format(args.png)
-    check_outputs([("--png", args.png)], inputs=source_files(args.source))
     terminate_on_sigterm()
     target = resolve(args.source)
     try:

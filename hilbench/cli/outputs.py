@@ -112,7 +112,14 @@ def check_outputs(outputs: Iterable[Output], *, inputs: Iterable[str | None] = (
         if path == "-":
             continue
         if label in recordings:
-            RecordingFile(path, force=force).check()
+            recording = RecordingFile(path, force=force)
+            if recording.partial is not None:  # where it streams to until it ends: no input either
+                running = _named(str(recording.partial), stdio_fd=-1)
+                for inp in ins:
+                    if running.same(inp):
+                        raise CliError(f"{label} {path} records into {recording.partial}, the input: writing it "
+                                       "would destroy what is read; choose another file")
+            recording.check()
             continue
         if os.path.isdir(path):
             raise CliError(f"{label} {path}: is a directory")

@@ -83,6 +83,13 @@ def left_by_a_gone_pty(link: str | os.PathLike[str]) -> bool:
     return target.startswith("/dev/pts/") and not os.path.lexists(target)
 
 
+def _points_to(link: Path, target: str) -> bool:
+    try:
+        return os.readlink(link) == target
+    except OSError:
+        return False
+
+
 def _what_is(path: Path, st: os.stat_result) -> str:
     if stat.S_ISLNK(st.st_mode):
         try:
@@ -140,7 +147,8 @@ class PtyEndpoint(HostPort):
         except OSError as exc:
             self.close()
             raise LinkRefused(f"{link}: cannot make the link: {exc.strerror or exc}") from None
-        if st is not None and not left_by_a_gone_pty(link):
+        # A killed bench's link leads to a pty that is gone, or to the very number this pty was given.
+        if st is not None and not (left_by_a_gone_pty(link) or _points_to(link, self.path)):
             self.close()
             raise LinkRefused(f"{link}: {_what_is(link, st)} is there; refusing to replace it (remove it, or "
                               "choose another link path or --link-dir)")
