@@ -161,6 +161,30 @@ def test_a_refused_recording_creates_nothing(hb, capture, tmp_path):
     assert sorted(os.listdir(tmp_path)) == ["rec.hbcap"]
 
 
+def test_a_recording_refused_inside_monitor_creates_nothing(hb, tmp_path):
+    code, _, err = hb("monitor", WOLFGANG_TRACE, "--protocol", "dynamixel", "--record", tmp_path / "out.pcap",
+                      "--summary")
+    assert code == 2 and "out.pcap: bus is not UDP traffic" in err and "partial" not in err, err
+    assert os.listdir(tmp_path) == []
+
+
+def test_a_live_recording_stopped_by_a_signal_is_renamed_into_place(tmp_path):
+    out = tmp_path / "live.hbcap"
+    proc = subprocess.Popen([*HB, "record", "-", str(out)], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE)
+    data = WOLFGANG_TRACE.read_bytes()[:1000]
+    proc.stdin.write(data)
+    proc.stdin.flush()
+    wait_until(lambda: os.path.exists(tmp_path / "live.partial.hbcap")
+               and os.path.getsize(tmp_path / "live.partial.hbcap") > len(data), timeout=20)
+    proc.send_signal(signal.SIGTERM)  # the input stays open: the signal ends the recording
+    _, err = proc.communicate(timeout=20)
+    assert proc.returncode == 0, err
+    assert os.listdir(tmp_path) == ["live.hbcap"]
+    with CaptureReader(out) as reader:
+        assert b"".join(c.data for c in reader) == data
+
+
 def test_a_full_device_is_one_line_and_exit_1(hb, capture):
     code, _, err = hb("record", capture, "/dev/full")
     assert code == 1 and err == "hilbench: error: /dev/full: cannot write: No space left on device\n"

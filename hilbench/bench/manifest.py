@@ -224,6 +224,8 @@ def write_manifest(path: str | os.PathLike[str], data: dict[str, Any], *, token:
     try:
         with os.fdopen(fd, "w", encoding="utf-8") as fh:
             fh.write(text)
+            fh.flush()
+            os.fsync(fh.fileno())  # a crash after the rename leaves the whole manifest, not an empty file
         os.chmod(tmp, 0o644)
         if os.path.lexists(path):
             # Ours or stale (checked just now): replace it in one step.
