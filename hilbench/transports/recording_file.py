@@ -159,6 +159,15 @@ class RecordingFile:
             self._release()
         sync_directory(self.target.parent)
 
+    def holds_data(self) -> bool:
+        """Whether the ``.partial`` file has anything on disk (what a failed recording wrote before it failed)."""
+        if self._fd is None:
+            return False
+        try:
+            return os.fstat(self._fd).st_size > 0
+        except OSError:
+            return False
+
     def abandon(self, *, keep: bool) -> None:
         """Give up: keep the ``.partial`` file (it holds data) or remove it (it holds nothing)."""
         if self._fd is None or self.partial is None:
@@ -218,6 +227,7 @@ class Recording:
             self._fail(exc)
         except Exception as exc:  # refused by the format (pcap: not a datagram): nothing more is recorded
             self.failed = exc
+            self._salvage()
             written = self.file.write_path
             if written != self.path and len(exc.args) == 1 and isinstance(exc.args[0], str):
                 exc.args = (exc.args[0].replace(written, self.path),)  # the .partial file goes away: name the file
@@ -242,14 +252,20 @@ class Recording:
         except OSError as exc:
             self._fail(exc)
 
+    def _salvage(self) -> None:
+        """After a failure, hand what the writer still buffers to the file, as far as it goes."""
+        with contextlib.suppress(Exception):
+            self.writer.flush()
+
     def _fail(self, exc: OSError) -> None:
         """A write failed: stop, keep what was written, and say where (raises :class:`WriteError`)."""
         self.failed = exc
+        self._salvage()
         reason = exc.strerror or str(exc)
         f = self.file
         if f.partial is None:
             raise WriteError(f"{self.path}: cannot write: {reason}") from None
-        kept = f"what was written before is in {f.partial}" if self.records else "nothing was recorded"
+        kept = f"what was written before is in {f.partial}" if f.holds_data() else "nothing was recorded"
         old = f"; the old {self.path} is unchanged" if f.existed else ""
         raise WriteError(f"{self.path}: recording stopped: {reason}; {kept}{old}") from None
 
@@ -258,25 +274,27 @@ class Recording:
         if self._closed:
             return
         self._closed = True
+        if self.failed is not None:
+            keep = self.file.holds_data()  # judged before the writer's close adds to it (a pcap's header)
+            with contextlib.suppress(Exception):
+                self.writer.close()
+            self.file.abandon(keep=keep)
+            return
         try:
             self.writer.close()
         except BrokenPipeError:
-            self.file.abandon(keep=bool(self.records))
+            self.file.abandon(keep=self.file.holds_data())
             raise
         except OSError as exc:
-            if self.failed is None:
-                self.failed = exc
-                try:
-                    self._fail(exc)
-                finally:
-                    self.file.abandon(keep=bool(self.records))
-        except Exception:
-            self.failed = self.failed or RuntimeError("the writer failed")
-            self.file.abandon(keep=bool(self.records))
+            self.failed = exc
+            try:
+                self._fail(exc)
+            finally:
+                self.file.abandon(keep=self.file.holds_data())
+        except Exception as exc:
+            self.failed = exc
+            self.file.abandon(keep=self.file.holds_data())
             raise
-        if self.failed is not None:
-            self.file.abandon(keep=bool(self.records))
-            return
         self.file.finish()
 
     def __enter__(self) -> Recording:
