@@ -21,7 +21,6 @@ from pathlib import Path
 from typing import Any
 
 from hilbench.cli.common import CliError, terminate_on_sigterm
-from hilbench.cli.outputs import check_outputs, output_file, source_files
 
 PROTOCOLS = {"rplidar": "rplidar", "sick": "sick-lms200", "sick-lms200": "sick-lms200", "lms200": "sick-lms200",
              "scip": "scip2", "scip2": "scip2"}
@@ -187,6 +186,8 @@ def save_png(path: str, scan, target: Target) -> None:
     ax.legend(loc="upper right")
     ax.set_title(f"{target.label}: one scan")
     fig.tight_layout()
+    from hilbench.cli.outputs import output_file
+
     try:
         with output_file(path, "wb") as f:  # a full disk or a kill leaves an old picture whole
             fig.savefig(f, format=_picture_format(path))
@@ -206,6 +207,8 @@ def _picture_format(path: str) -> str:
 
 
 def cmd_lidar(args: argparse.Namespace) -> int:
+    from hilbench.cli.outputs import check_outputs, source_files
+
     check_outputs([("--png", args.png)], inputs=source_files(args.source))
     if args.png:
         _picture_format(args.png)

@@ -22,7 +22,6 @@ from collections.abc import Callable
 
 from hilbench.cli.common import CliError, int_arg, open_cli_source, terminate_on_sigterm
 from hilbench.rules import LINE_BAUD, SECONDS, SPEED
-from hilbench.transports.atomic_file import WriteError
 
 
 def _monitor_instruments() -> list:
@@ -97,6 +96,7 @@ def _watch(monitor, args: argparse.Namespace, label: str, status: Callable[[], s
            stop: Callable[[], bool] | None = None) -> int:
     """Show the dashboard (or, with --summary/--json, just wait), then print the summary; the exit status."""
     from hilbench.console import Console
+    from hilbench.transports.atomic_file import WriteError
 
     deadline = time.monotonic() + args.seconds if args.seconds else None
 

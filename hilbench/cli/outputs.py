@@ -30,7 +30,7 @@ from hilbench.transports.atomic_file import atomic_write, write_atomically
 from hilbench.transports.recording_file import Recording, RecordingFile
 
 #: An output: how the command line names it (``--json-out``, ``FILE``) and its path (None: not given).
-Output = tuple[str, "str | None"]
+Output = tuple[str, str | None]
 
 
 @dataclass(frozen=True)
