@@ -118,6 +118,7 @@ def test_every_verb_with_an_input_and_an_output_refuses_the_same_file(hb, captur
     refused(hb("labgrid", "env", manifest, "-o", manifest), "is the input")
     refused(hb("lidar", f"{manifest}#lms", "--png", manifest), "--png", "is the input")
     refused(hb("monitor", f"bench:{profile}", "--record", profile, "--summary"), "is the input")
+    refused(hb("tap", "/dev/null", "--record", "/dev/null", "--summary"), "--record /dev/null is the input")
     assert {p: snapshot(p) for p in files} == files
     assert sorted(os.listdir(tmp_path)) == ["bench.json", "rec.hbcap", "rover.toml", "trace.txt"]
 
