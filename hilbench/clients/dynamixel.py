@@ -19,6 +19,7 @@ from hilbench.errors import DeviceError, UsageError
 from hilbench.protocols.dynamixel import describe_error
 from hilbench.protocols.dynamixel_models import MODEL_NAMES, MODELS_BY_NUMBER, Field, Model
 from hilbench.protocols.dynamixel_protocol1 import ERROR_BITS as P1_ERROR_BITS
+from hilbench.transports.serial_url import open_url
 
 #: Baud rates tried by ``scan`` by default: the Dynamixel baud codes the SDK can open.
 SCAN_BAUDS = (57_600, 115_200, 1_000_000, 2_000_000, 3_000_000, 4_000_000, 9_600)
@@ -99,8 +100,8 @@ class UrlPortHandler(sdk.PortHandler):
         if self.is_open and self.ser is not None:
             self.ser.baudrate = self.baudrate
         else:
-            self.ser = serial.serial_for_url(self.port_name, baudrate=self.baudrate, bytesize=serial.EIGHTBITS,
-                                             timeout=URL_READ_WAIT)
+            self.ser = open_url(self.port_name, baudrate=self.baudrate, bytesize=serial.EIGHTBITS,
+                                timeout=URL_READ_WAIT)
             self.is_open = True
         self.ser.reset_input_buffer()
         self.tx_time_per_byte = (1000.0 / self.baudrate) * 10.0
