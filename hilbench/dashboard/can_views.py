@@ -18,7 +18,7 @@ from hilbench.dashboard.widgets import pad as _pad
 from hilbench.dashboard.widgets import row as _row
 from hilbench.monitor.can.summary import stamp
 from hilbench.monitor.can.tracker import CanTracker
-from hilbench.monitor.line_load import is_unpaced
+from hilbench.transports.line_load import is_unpaced
 
 VIEWS = ("ids", "nodes", "signals", "log")
 TITLES = {"ids": "Identifiers", "nodes": "CANopen nodes", "signals": "Signals", "log": "Event log"}

@@ -20,8 +20,8 @@ from hilbench.dashboard.widgets import pad as _pad
 from hilbench.dashboard.widgets import row as _row
 from hilbench.monitor.dynamixel.devices import CONNECTED, DISCONNECTED, UNKNOWN, DeviceState, FieldValue
 from hilbench.monitor.dynamixel.tracker import BusTracker
-from hilbench.monitor.line_load import is_unpaced
 from hilbench.protocols.dynamixel import describe_error
+from hilbench.transports.line_load import is_unpaced
 
 VIEWS = ("devices", "models", "details", "log")
 TITLES = {

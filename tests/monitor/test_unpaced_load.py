@@ -12,10 +12,10 @@ from hilbench.monitor.can.summary import summary as can_summary
 from hilbench.monitor.can.tracker import CanTracker
 from hilbench.monitor.dynamixel.summary import print_summary, summary
 from hilbench.monitor.dynamixel.tracker import BusTracker
-from hilbench.monitor.line_load import UNPACED_ABOVE, is_unpaced
 from hilbench.protocols import can_frame as cf
 from hilbench.protocols import dynamixel as dxl
 from hilbench.protocols.can_frame import data_frame
+from hilbench.transports.line_load import UNPACED_ABOVE, is_unpaced
 
 READ = dxl.instruction_packet(1, dxl.Instruction.READ, bytes((132, 0, 4, 0)))
 REPLY = dxl.status_packet(1, 0, bytes(4))

@@ -33,8 +33,8 @@ from __future__ import annotations
 from typing import Any
 
 from hilbench.monitor.can.tracker import CanTracker
-from hilbench.monitor.line_load import is_unpaced
 from hilbench.protocols import canopen as co
+from hilbench.transports.line_load import is_unpaced
 
 
 def _r(x: float | None, nd: int = 3) -> float | None:

@@ -28,7 +28,7 @@ from __future__ import annotations
 from typing import Any
 
 from hilbench.monitor.dynamixel.tracker import BusTracker
-from hilbench.monitor.line_load import is_unpaced
+from hilbench.transports.line_load import is_unpaced
 
 
 def _r(x: float | None, nd: int = 3) -> float | None:
