@@ -87,7 +87,11 @@ def _check_labgrid(config: pytest.Config) -> None:
     pytest plugin off) say what is missing once, as a usage error, not "fixture 'env' not found" per test."""
     import importlib.util
 
-    if importlib.util.find_spec("labgrid") is None:
+    try:  # labgrid's plugin module, not any directory called labgrid on sys.path
+        found = importlib.util.find_spec("labgrid.pytestplugin") is not None
+    except ImportError:
+        found = False
+    if not found:
         raise pytest.UsageError("--hilbench-labgrid needs labgrid, which is not installed: "
                                 "pip install 'hilbench[labgrid]'")
     if not any(config.pluginmanager.hasplugin(name) for name in ("labgrid", "labgrid.pytestplugin")):
