@@ -173,10 +173,13 @@ def test_demo_drives_each_servo_bus_with_its_own_protocol(profile, protocol, err
 
 
 @pytest.mark.parametrize("profile", ["mecarover", "scanners"])
-def test_demo_refuses_a_profile_without_a_servo_bus_in_one_line(profile):
-    proc = hb("demo", "--profile", profile, "--seconds", "1")
-    assert proc.returncode == 2 and proc.stdout == ""
-    (line,) = proc.stderr.splitlines()
+def test_demo_refuses_a_profile_without_a_servo_bus_in_one_line(profile, capsys):
+    from hilbench.cli import main
+
+    assert main(["demo", "--profile", profile, "--seconds", "1"]) == 2  # before any bench starts
+    out, err = capsys.readouterr()
+    assert out == ""
+    (line,) = err.splitlines()
     assert line.startswith(f"hilbench: error: demo drives a servo bus (Dynamixel or Feetech) and profile {profile!r}")
     assert f"hilbench emulate {profile}" in line
 
