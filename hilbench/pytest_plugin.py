@@ -78,6 +78,25 @@ def pytest_configure(config: pytest.Config) -> None:
         "markers",
         "hilbench_profile(name, paced=None, link_dir=None): profile the `bench` fixture starts",
     )
+    if config.getoption("hilbench_labgrid"):
+        _check_labgrid(config)
+
+
+def _check_labgrid(config: pytest.Config) -> None:
+    """``--hilbench-labgrid`` takes the bench from labgrid's ``env`` fixture: without labgrid (or with its
+    pytest plugin off) say what is missing once, as a usage error, not "fixture 'env' not found" per test."""
+    import importlib.util
+
+    try:  # labgrid's plugin module, not any directory called labgrid on sys.path
+        found = importlib.util.find_spec("labgrid.pytestplugin") is not None
+    except ImportError:
+        found = False
+    if not found:
+        raise pytest.UsageError("--hilbench-labgrid needs labgrid, which is not installed: "
+                                "pip install 'hilbench[labgrid]'")
+    if not any(config.pluginmanager.hasplugin(name) for name in ("labgrid", "labgrid.pytestplugin")):
+        raise pytest.UsageError("--hilbench-labgrid needs labgrid's pytest plugin (its `env` fixture and "
+                                "--lg-env), which is not loaded here (-p no:labgrid?)")
 
 
 def serve_lines_in_process(bench: Bench) -> list[int]:
@@ -138,11 +157,9 @@ def bench(request: pytest.FixtureRequest, hilbench_bench: Callable[..., Bench]) 
 
 
 def _labgrid_bench(request: pytest.FixtureRequest) -> Any:
-    try:
-        from hilbench.labgrid.remote import bench_from_target
-    except ImportError as exc:
-        pytest.fail(f"--hilbench-labgrid needs labgrid (pip install 'hilbench[labgrid]'): {exc}")
-    env = request.getfixturevalue("env")  # labgrid's own fixture (--lg-env)
+    from hilbench.labgrid.remote import bench_from_target
+
+    env = request.getfixturevalue("env")  # labgrid's own fixture (--lg-env); pytest_configure checked it exists
     role = request.config.getoption("hilbench_lg_role")
     target = env.get_target(role)
     if target is None:

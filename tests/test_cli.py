@@ -153,6 +153,46 @@ def test_demo_runs_the_sdk_against_the_default_bench():
     assert cycles > 100 and failed >= 5  # the Sync Reads that time out while ID 7 is gone
 
 
+@pytest.mark.parametrize("profile, protocol, error_line", [
+    ("poppy-humanoid", "dynamixel1", "the last: overheating"),  # Protocol 1.0: dynamixel-sdk's 1.0 handler
+    ("so101-follower", "feetech", "the last: overheat"),  # Feetech's own scservo_sdk
+])
+def test_demo_drives_each_servo_bus_with_its_own_protocol(profile, protocol, error_line):
+    pytest.importorskip("scservo_sdk", reason="feetech-servo-sdk is not installed (it is in the test extra)")
+    proc = hb("demo", "--profile", profile, "--seconds", "2", "--unpaced", timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    out = proc.stdout
+    assert f"demo {profile} on /dev/" in out and "Device overview" in out
+    assert " 0 disconnected" in out and "CRC 0" in out  # the dashboard: every servo answers, clean frames
+    assert "dropped out 1 time(s)" in out and "came back" in out
+    assert error_line in out  # the staged overheat, in the status error byte
+    summary = out.strip().splitlines()[-1]
+    cycles, failed = int(summary.split()[1]), int(summary.split(", ")[-1].split()[0])
+    # every read succeeds but those of the servo that drops out (a Protocol 2.0 loop failed every one)
+    assert cycles > 20 and 0 < failed < cycles / 2
+
+
+@pytest.mark.parametrize("profile", ["mecarover", "scanners"])
+def test_demo_refuses_a_profile_without_a_servo_bus_in_one_line(profile, capsys):
+    from hilbench.cli import main
+
+    assert main(["demo", "--profile", profile, "--seconds", "1"]) == 2  # before any bench starts
+    out, err = capsys.readouterr()
+    assert out == ""
+    (line,) = err.splitlines()
+    assert line.startswith(f"hilbench: error: demo drives a servo bus (Dynamixel or Feetech) and profile {profile!r}")
+    assert f"hilbench emulate {profile}" in line
+
+
+def test_demo_on_a_feetech_bus_without_feetechs_sdk_names_it(monkeypatch, capsys):
+    from hilbench.cli import main
+
+    monkeypatch.setitem(sys.modules, "scservo_sdk", None)  # an import of it fails
+    assert main(["demo", "--profile", "so101-follower", "--seconds", "1"]) == 2
+    assert capsys.readouterr().err.splitlines() == [
+        "hilbench: error: driving a Feetech bus needs Feetech's SDK: pip install feetech-servo-sdk"]
+
+
 def test_profiles_lists_the_bundled_ones():
     proc = hb("profiles")
     assert proc.returncode == 0

@@ -118,6 +118,19 @@ def can_bench(hilbench_emulator):
     return path, f"socketcand://{s['host']}:{s['port']}/{s['channel']}", manifest
 
 
+def test_sdo_to_an_absent_node_is_one_line_of_ours(can_bench):
+    """canopen logs its own abort ("Transfer aborted by client ...") first; the command says it once."""
+    pytest.importorskip("canopen", reason="canopen is not installed (it is in the can extra)")
+    manifest, _, _ = can_bench
+    out = hb("can", "sdo", manifest, "read", "1018:1", "--node", "5", "--timeout", "0.3")
+    assert out.returncode == 1 and out.stdout == ""
+    assert out.stderr.splitlines() == [
+        "hilbench: error: node 5 0x1018:01: no SDO response within 0.3 s (is node 5 on the bus?)"]
+    bad = hb("can", "sdo", manifest, "read", "1018:9", "--node", "2")  # the node's own abort: one line too
+    assert bad.returncode == 1 and bad.stderr.splitlines() == [
+        "hilbench: error: node 2 0x1018:09: SDO aborted: Code 0x06090011, Subindex does not exist"]
+
+
 @pytest.mark.slow  # a long CLI session against python-can and cantools: the slow real-client set
 def test_a_whole_session_decodes_with_the_exported_dbc(can_bench, tmp_path):
     manifest, url, data = can_bench

@@ -115,3 +115,51 @@ def test_mecarover_lidar_sees_the_lab():
     assert proc.returncode == 0, proc.stderr
     rep = json.loads(proc.stdout)
     assert rep["protocol"] == "rplidar" and rep["scans"] >= 3 and 5.0 <= rep["scan_rate_hz"] <= 6.0
+
+
+def test_lidar_finds_an_lms200_left_at_another_speed_and_leaves_it_at_9600(emulator):
+    """A host that switched the LMS 200 to 38 400 baud and died leaves it there (until power-off): the next
+    `lidar` finds the speed with status requests, as sicktoolbox does, and switches back when done."""
+    import serial
+
+    from hilbench.bench.control import ControlClient
+    from hilbench.protocols import sick_lms200 as lms
+
+    path, manifest = emulator
+    control = ControlClient(manifest["control"])
+    pty = next(e["path"] for e in manifest["endpoints"] if e["name"] == "lms")
+
+    def unit_baud() -> int:
+        return control.call("scanner_status", device="lms")["status"]["baud"]
+
+    with serial.Serial(pty, 9600, timeout=0.1) as host:  # the host that dies after switching
+        host.write(lms.mode_request(lms.Mode.BAUD_38400))
+        wait_until(lambda: unit_baud() == 38_400, timeout=5)
+    proc = hb("lidar", f"{path}#lms", "--scans", "3", "--json")
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads(proc.stdout)["scans"] >= 3
+    assert unit_baud() == 9600  # switched back, as sicktoolbox's Uninitialize does
+    proc = hb("lidar", f"{path}#lms", "--scans", "2", "--summary", "--lms-baud", "500000")
+    assert proc.returncode == 0, proc.stderr
+    assert unit_baud() == 9600
+
+
+def test_lidar_says_which_speeds_an_lms200_did_not_answer_at(monkeypatch, capsys):
+    import os
+
+    from hilbench.cli import main
+    from hilbench.clients.scanners import SickDriver
+
+    monkeypatch.setattr(SickDriver, "PROBE_TIMEOUT", 0.1)
+    master, slave = os.openpty()  # a port with nothing behind it
+    name = os.ttyname(slave)
+    try:
+        assert main(["lidar", name, "--protocol", "sick", "--json"]) == 1
+    finally:
+        os.close(slave)
+        os.close(master)
+    out, err = capsys.readouterr()
+    assert out == ""
+    assert err.splitlines() == [
+        f"hilbench: error: {name}: no LMS 200 answers a status request at 9600, 38400, 19200, 500000 baud "
+        "(is it powered, on this port, and not used by another program?)"]

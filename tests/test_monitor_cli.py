@@ -192,3 +192,28 @@ def test_monitor_refuses_a_line_that_is_not_dynamixel(hilbench_emulator, tmp_pat
     mine = "/".join(i.protocol for i in registry.instruments.values() if i.verb == "monitor")
     assert proc.stderr.strip() == (f"hilbench: error: {mfile}#rover carries vel2d, not {mine} "
                                    "(a board's trace output: use `hilbench profile`)")
+
+
+@pytest.mark.parametrize("size", [300, 100_000])
+def test_random_bytes_are_no_known_traffic(tmp_path, size):
+    """Noise is not called anyone's traffic (a board's trace decoder finds a few well-formed words in it)."""
+    import random
+
+    noise = tmp_path / "noise.bin"
+    noise.write_bytes(random.Random(size).randbytes(size))
+    proc = hb("monitor", str(noise), "--summary")
+    assert proc.returncode == 2 and proc.stdout == ""
+    (line,) = proc.stderr.splitlines()
+    assert line.startswith(f"hilbench: error: {noise}: no known traffic recognised in its first {min(size, 8192)} "
+                           "bytes (if it carries one of can, dynamixel")
+    assert line.endswith("say which: --protocol P)")
+
+
+def test_a_trace_is_still_told_from_its_bytes(tmp_path):
+    from tests.stm32_vectors import TRACE_64, lines
+
+    path = tmp_path / "t64.txt"
+    path.write_bytes(lines(TRACE_64))
+    proc = hb("monitor", str(path), "--summary")
+    assert proc.returncode == 2
+    assert "carries vel2d" in proc.stderr and "use `hilbench profile`" in proc.stderr

@@ -20,9 +20,12 @@ server is used) or a CAN bus URL (``socketcand://127.0.0.1:PORT/can0``,
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
+import logging
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -243,6 +246,26 @@ def cmd_sdo(args: argparse.Namespace) -> int:
     bus = open_target(args.target)
     canopen.Network.NOTIFIER_SHUTDOWN_TIMEOUT = 0.0
     net = canopen.Network(bus)
+    with _quiet_logger("canopen"):  # it logs its own abort ("Transfer aborted by client ...") before ours
+        return _sdo(canopen, net, args, index, sub)
+
+
+@contextlib.contextmanager
+def _quiet_logger(name: str) -> Iterator[None]:
+    """A library's log records go nowhere while the block runs (the command says what happened, once)."""
+    log = logging.getLogger(name)
+    saved = log.propagate
+    quiet = logging.NullHandler()
+    log.addHandler(quiet)
+    log.propagate = False
+    try:
+        yield
+    finally:
+        log.removeHandler(quiet)
+        log.propagate = saved
+
+
+def _sdo(canopen, net, args: argparse.Namespace, index: int, sub: int) -> int:
     try:
         net.connect()
         node = canopen.RemoteNode(args.node, canopen.ObjectDictionary())
@@ -257,6 +280,9 @@ def cmd_sdo(args: argparse.Namespace) -> int:
         except canopen.SdoAbortedError as exc:
             raise DeviceError(f"node {args.node} 0x{index:04X}:{sub:02X}: SDO aborted: {exc}") from None
         except canopen.SdoCommunicationError as exc:
+            if "No SDO response" in str(exc):
+                raise DeviceError(f"node {args.node} 0x{index:04X}:{sub:02X}: no SDO response within "
+                                  f"{args.timeout:g} s (is node {args.node} on the bus?)") from None
             raise DeviceError(f"node {args.node} 0x{index:04X}:{sub:02X}: {exc}") from None
     finally:
         net.disconnect()

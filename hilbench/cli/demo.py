@@ -28,9 +28,15 @@ def demo_report(result) -> list[str]:
                          f"missed {gone.get('misses', 0)} replies, {back}")
         else:  # a run too short to reach the staged drop-out
             lines.append(f"monitor: ID {sc.vanish_id} did not drop out (missed {gone.get('misses', 0)} replies)")
-    if hot:
+    if hot and getattr(result, "protocol", "dynamixel") == "dynamixel":
         bits = ", ".join(hot.get("hardware_error_bits") or []) or "none read"
         lines.append(f"monitor: ID {sc.error_id} alert {'on' if hot.get('alert') else 'off'}, hardware error: {bits}")
+    elif hot:  # Protocol 1.0 and Feetech: the servo's condition is in every status's error byte
+        from hilbench.registry import instrument_for
+
+        errors = hot.get("error_statuses", 0)
+        last = instrument_for(result.protocol).dialect.describe_error(hot.get("last_error") or 0)
+        lines.append(f"monitor: ID {sc.error_id} sent {errors} status(es) with an error, the last: {last}")
     never = [k for k, d in devices.items() if d.get("never_answered")]
     if never:
         lines.append(f"monitor: never answered: ID {', '.join(never)}")
@@ -61,7 +67,7 @@ def cmd_profiles(args: argparse.Namespace) -> int:
 
 ORDER = 70
 VERBS = {  # each verb register() adds and its line in `hilbench --help` (see hilbench.cli)
-    "demo": "run the default bench, drive it with the official SDK, watch it live",
+    "demo": "run a servo bench, drive it with its own SDK, watch it live",
     "profiles": "list the bundled profiles",
 }
 
@@ -70,9 +76,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     from hilbench.dashboard.dynamixel_views import VIEWS
 
     dm = sub.add_parser("demo", help=VERBS["demo"],
-                        description="Start a bench, run a Sync Read / Sync Write control loop against it with the "
-                                    "official dynamixel-sdk, and show the bus monitor's dashboard while one servo "
-                                    "drops out and comes back and another reports overheating.")
+                        description="Start a bench, run a control loop against its servo bus with that bus's own "
+                                    "SDK (dynamixel-sdk for Dynamixel Protocol 2.0 and 1.0, Feetech's scservo_sdk "
+                                    "for Feetech), and show the bus monitor's dashboard while one servo drops out "
+                                    "and comes back and another reports overheating.")
     dm.add_argument("--profile", default=DEFAULT_PROFILE, help=f"profile (default: {DEFAULT_PROFILE})")
     dm.add_argument("--seconds", type=SECONDS, default=10.0, help="how long to run (0: until Ctrl-C; default 10)")
     dm.add_argument("--unpaced", action="store_true", help="deliver bytes at once instead of at wire speed")

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import time
 
 from hilbench.cli.common import int_arg
 from hilbench.protocols.dynamixel_models import SDK_BAUDS
@@ -24,11 +25,50 @@ def dxl_id(text: str) -> int:
     return value
 
 
+class ScanCounter:
+    """``dxl scan``'s progress as one line on a terminal's stderr, rewritten in place (nothing elsewhere)."""
+
+    def __init__(self, stream=None, every: float = 0.1) -> None:
+        self.stream = stream if stream is not None else sys.stderr
+        self.active = self.stream.isatty()
+        self.every = every
+        self._last = -1.0
+
+    def __call__(self, baud: int, dev_id: int | None, found: int) -> None:
+        if not self.active:
+            return
+        now = time.monotonic()
+        if now - self._last < self.every and dev_id not in (0, None):
+            return
+        self._last = now
+        where = "broadcast ping" if dev_id is None else f"ID {dev_id}/252"
+        self.stream.write(f"\rscanning at {baud} baud: {where}, {found} found\x1b[K")
+        self.stream.flush()
+
+    def close(self) -> None:
+        if self.active and self._last >= 0:
+            self.stream.write("\r\x1b[K")
+            self.stream.flush()
+
+
+def found_line(found: list, bauds: tuple[int, ...]) -> str:
+    """What a scan found, in one line: ``3 devices: 2 at 57600 baud, 1 at 1000000 baud``."""
+    if not found:
+        return f"no device answered at {', '.join(map(str, bauds))} baud"
+    per = {b: sum(1 for f in found if f.baud == b) for b in bauds}
+    where = ", ".join(f"{n} at {b} baud" for b, n in per.items() if n)
+    return f"{len(found)} device{'s' if len(found) != 1 else ''}: {where}"
+
+
 def cmd_dxl_scan(args: argparse.Namespace) -> int:
     from hilbench.clients import dynamixel as dxl_client
 
     bauds = tuple(args.baud) if args.baud else dxl_client.SCAN_BAUDS
-    found = dxl_client.scan(args.port, bauds, protocol=float(args.protocol))
+    counter = ScanCounter()
+    try:
+        found = dxl_client.scan(args.port, bauds, protocol=float(args.protocol), progress=counter)
+    finally:
+        counter.close()
     if args.json:
         print(json.dumps([{"id": f.id, "model": f.model_number, "model_name": f.model_name,
                            "firmware": f.firmware, "baud": f.baud} for f in found]))
@@ -42,11 +82,12 @@ def cmd_dxl_scan(args: argparse.Namespace) -> int:
         table.add_column(col, justify="right")
     for f in found:
         table.add_row(str(f.id), f.model_name, str(f.model_number), str(f.firmware), str(f.baud))
-    Console().print(table)
-    if not found:
-        print(f"no device answered at {', '.join(map(str, bauds))} baud", file=sys.stderr)
-        return 1
-    return 0
+    if found:
+        Console().print(table)
+        print(found_line(found, bauds))
+        return 0
+    print(found_line(found, bauds), file=sys.stderr)
+    return 1
 
 
 def cmd_dxl_ping(args: argparse.Namespace) -> int:
@@ -63,7 +104,8 @@ def cmd_dxl_ping(args: argparse.Namespace) -> int:
 def cmd_dxl_read(args: argparse.Namespace) -> int:
     from hilbench.clients import dynamixel as dxl_client
 
-    address, raw, f = dxl_client.read(args.port, args.id, args.item, args.baud, args.length)
+    address, raw, f = dxl_client.read(args.port, args.id, args.item, args.baud, args.length,
+                                      protocol=float(args.protocol))
     if args.json:
         value = f.decode(raw[: f.size]) if f and len(raw) >= f.size else int.from_bytes(raw, "little")
         print(json.dumps({"id": args.id, "address": address, "item": f.key if f else None, "value": value,
@@ -77,7 +119,8 @@ def cmd_dxl_read(args: argparse.Namespace) -> int:
 def cmd_dxl_write(args: argparse.Namespace) -> int:
     from hilbench.clients import dynamixel as dxl_client
 
-    address, f = dxl_client.write(args.port, args.id, args.item, args.value, args.baud, args.length)
+    address, f = dxl_client.write(args.port, args.id, args.item, args.value, args.baud, args.length,
+                                  protocol=float(args.protocol))
     print(f"ID {args.id} {f.name if f else f'address {address}'} <- {args.value}")
     return 0
 
@@ -97,19 +140,21 @@ def register(sub: argparse._SubParsersAction) -> None:
         q.add_argument("port", help="serial port, e.g. /dev/ttyUSB0, an emulated pty or a remote rfc2217://HOST:PORT")
         if baud:
             q.add_argument("--baud", type=SDK_BAUD, default=57_600, help="baud rate (default: 57600)")
+        q.add_argument("--protocol", choices=("1", "2"), default="2",
+                       help="protocol version: 2, or 1 for AX/MX servos with 1.0 firmware (default: 2)")
 
     s = dsub.add_parser("scan", help="find IDs and models across baud rates",
-                        description="Broadcast-ping at each baud rate and list every device that answers.")
+                        description="Broadcast-ping at each baud rate (Protocol 1.0: ping IDs 0-252 one by one, "
+                                    "about 9 s per rate; a terminal shows the progress) and list every device "
+                                    "that answers.")
     port_args(s, baud=False)
     s.add_argument("--baud", type=SDK_BAUD, action="append", help="baud rate to try (repeatable; default: all)")
-    s.add_argument("--protocol", choices=("1", "2"), default="2", help="protocol version (default: 2)")
     s.add_argument("--json", action="store_true", help="print JSON instead of a table")
     s.set_defaults(func=cmd_dxl_scan)
 
     pg = dsub.add_parser("ping", help="ping one ID", description="Ping one ID and print its model and firmware.")
     port_args(pg)
     pg.add_argument("id", type=dxl_id, help="device ID (0-252)")
-    pg.add_argument("--protocol", choices=("1", "2"), default="2", help="protocol version (default: 2)")
     pg.add_argument("--json", action="store_true", help="print JSON")
     pg.set_defaults(func=cmd_dxl_ping)
 

@@ -123,7 +123,8 @@ def _watch(monitor, args: argparse.Namespace, label: str, status: Callable[[], s
     if isinstance(monitor.error, WriteError):
         raise monitor.error  # the recording's file could not be written (it names the file; exit status 1)
     if monitor.error is not None:
-        raise CliError(f"{label}: {monitor.error}")
+        message = str(monitor.error)  # detection's errors name the source already
+        raise CliError(message if message.startswith(label) else f"{label}: {message}")
     report = monitor.summary()
     findings = report["data_quality"]["findings"]
     if quiet:

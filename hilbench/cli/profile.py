@@ -136,6 +136,7 @@ def _read(args, profiler, source, console) -> int:
 
     view = LiveView(profiler, console, source=source.name, stats_us=args.live_window,
                     gantt_us=args.live_gantt) if args.live else None
+    cut = False  # the reading stopped before the source ended: what it cut in two is no damage
     try:
         if view is not None:
             view.__enter__()
@@ -152,15 +153,16 @@ def _read(args, profiler, source, console) -> int:
             if view is not None:
                 view.tick()
             if done():
+                cut = True
                 break
         if view is not None:
             view.tick(force=True)
     except KeyboardInterrupt:
-        pass  # Ctrl-C ends a live capture; the results still come
+        cut = True  # Ctrl-C ends a live capture; the results still come
     finally:
         if view is not None:
             view.__exit__(None, None, None)
-    profiler.finish()
+    profiler.finish(cut=cut)
     return lost
 
 
@@ -182,6 +184,39 @@ def _check_outputs(args: argparse.Namespace) -> None:
                   inputs=[*source_files(args.source), *source_files(args.compare)])
 
 
+def _is_json(path: str) -> bool:
+    """Whether ``--compare`` names a JSON document (by its name, or its first byte), not a capture."""
+    if path.endswith(".json"):
+        return True
+    try:
+        with open(path, "rb") as f:
+            return f.read(64).lstrip()[:1] in (b"{", b"[")
+    except OSError:
+        return False  # not a plain file: the capture sources say what it is
+
+
+def _check_baseline_capture(args: argparse.Namespace) -> None:
+    """``--compare`` names a capture: it must be a file that carries a board's trace output (one line if not)."""
+    from hilbench.errors import UsageError
+    from hilbench.profiler.instrument import INSTRUMENT
+    from hilbench.transports.sources import peek
+
+    name = args.compare
+    try:
+        with open_cli_source(name, baud=args.baud, default_baud=DEFAULT_BAUD) as source:
+            if source.live:
+                raise CliError(f"--compare {name}: give a file or a saved --json document")
+            _check_protocol(source)  # a capture that says it carries something else (a servo bus)
+            data, _ = peek(source, min_bytes=8192)
+            if source.protocol is None and not INSTRUMENT.sniff(data):
+                raise CliError(f"--compare {name}: neither a `hilbench profile --json` document nor a board's "
+                               f"trace (no stamps, logs or reports in its first {len(data)} bytes)")
+    except CliError as exc:
+        raise CliError(str(exc) if str(exc).startswith("--compare") else f"--compare {exc}") from None
+    except UsageError as exc:
+        raise CliError(f"--compare {exc}") from None
+
+
 def cmd_profile(args: argparse.Namespace) -> int:
     from hilbench.console import Console
     from hilbench.profiler import Profiler
@@ -194,9 +229,11 @@ def cmd_profile(args: argparse.Namespace) -> int:
     if args.compare:
         # The other run: a saved --json document, or another capture analysed with the same settings.
         try:
-            base = load_summary(args.compare) if args.compare.endswith(".json") else None
+            base = load_summary(args.compare) if _is_json(args.compare) else None
         except (OSError, ValueError) as exc:
-            raise CliError(str(exc)) from None
+            raise CliError(f"--compare {exc}") from None
+        if base is None:  # checked before a live capture is taken, read after it
+            _check_baseline_capture(args)
     terminate_on_sigterm()
     with open_cli_source(args.source, baud=args.baud, default_baud=DEFAULT_BAUD) as source:
         _check_protocol(source)

@@ -8,7 +8,7 @@ SDK result codes become :class:`DxlError` with the SDK's own wording.
 from __future__ import annotations
 
 import contextlib
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
 import dynamixel_sdk as sdk
@@ -18,6 +18,8 @@ from serial import rfc2217
 from hilbench.errors import DeviceError, UsageError
 from hilbench.protocols.dynamixel import describe_error
 from hilbench.protocols.dynamixel_models import MODEL_NAMES, MODELS_BY_NUMBER, Field, Model
+from hilbench.protocols.dynamixel_protocol1 import ERROR_BITS as P1_ERROR_BITS
+from hilbench.transports.serial_url import open_url
 
 #: Baud rates tried by ``scan`` by default: the Dynamixel baud codes the SDK can open.
 SCAN_BAUDS = (57_600, 115_200, 1_000_000, 2_000_000, 3_000_000, 4_000_000, 9_600)
@@ -98,8 +100,8 @@ class UrlPortHandler(sdk.PortHandler):
         if self.is_open and self.ser is not None:
             self.ser.baudrate = self.baudrate
         else:
-            self.ser = serial.serial_for_url(self.port_name, baudrate=self.baudrate, bytesize=serial.EIGHTBITS,
-                                             timeout=URL_READ_WAIT)
+            self.ser = open_url(self.port_name, baudrate=self.baudrate, bytesize=serial.EIGHTBITS,
+                                timeout=URL_READ_WAIT)
             self.is_open = True
         self.ser.reset_input_buffer()
         self.tx_time_per_byte = (1000.0 / self.baudrate) * 10.0
@@ -130,6 +132,11 @@ def open_port(path: str, baud: int) -> Iterator[sdk.PortHandler]:
             port.closePort()
 
 
+#: Protocol 1.0 status bits that say the instruction was refused or changed (angle limit: the goal was clamped);
+#: the others (input voltage, overheating, overload) describe the servo's condition, as Protocol 2.0's Alert bit.
+P1_REFUSALS = 0x02 | 0x08 | 0x10 | 0x40
+
+
 def packet_handler(protocol: float = 2.0):
     return sdk.PacketHandler(protocol)
 
@@ -137,7 +144,11 @@ def packet_handler(protocol: float = 2.0):
 def _check(ph, result: int, error: int, what: str) -> None:
     if result != sdk.COMM_SUCCESS:
         raise DxlError(f"{what}: {ph.getTxRxResult(result)}")
-    if error & 0x7F:
+    if ph.getProtocolVersion() == 1.0:
+        if error & P1_REFUSALS:
+            bits = ", ".join(name for bit, name in P1_ERROR_BITS.items() if error & P1_REFUSALS & bit)
+            raise DxlError(f"{what}: device reports {bits} error")
+    elif error & 0x7F:
         raise DxlError(f"{what}: device reports {describe_error(error)}")
 
 
@@ -147,21 +158,32 @@ def ping(path: str, dxl_id: int, baud: int, protocol: float = 2.0) -> Found:
     with open_port(path, baud) as port:
         model, result, error = ph.ping(port, dxl_id)
         _check(ph, result, error, f"ping ID {dxl_id} at {baud} baud")
-        firmware = 0
+        known = MODELS_BY_NUMBER.get(model)
         if protocol == 2.0:
             fw_address = 2 if model in (0xABBA, 0xAFFE, 0xBAFF) else 6
-            firmware, result, error = ph.read1ByteTxRx(port, dxl_id, fw_address)
-            _check(ph, result, error, f"read firmware of ID {dxl_id}")
+        else:  # Protocol 1.0 has no firmware in its Ping reply: read it where the model keeps it
+            fw_address = known.firmware_address if known is not None else 2
+        firmware, result, error = ph.read1ByteTxRx(port, dxl_id, fw_address)
+        _check(ph, result, error, f"read firmware of ID {dxl_id}")
         return Found(dxl_id, model, firmware, baud)
 
 
-def scan(path: str, bauds: tuple[int, ...] = SCAN_BAUDS, protocol: float = 2.0) -> list[Found]:
-    """Find devices at each baud rate with a broadcast ping (Protocol 2.0) or ID-by-ID pings (1.0)."""
+#: ``scan``'s progress callback: (baud, the ID being pinged or None for a broadcast, devices found so far).
+ScanProgress = Callable[[int, int | None, int], None]
+
+
+def scan(path: str, bauds: tuple[int, ...] = SCAN_BAUDS, protocol: float = 2.0,
+         progress: ScanProgress | None = None) -> list[Found]:
+    """Find devices at each baud rate with a broadcast ping (Protocol 2.0) or ID-by-ID pings (1.0, which
+    has no broadcast ping: 253 pings per rate, about 9 s each with the SDK's timeout); ``progress`` is
+    called before each ping."""
     ph = packet_handler(protocol)
     found: list[Found] = []
     for baud in bauds:
         with open_port(path, baud) as port:
             if protocol == 2.0:
+                if progress:
+                    progress(baud, None, len(found))
                 replies, result = ph.broadcastPing(port)
                 if result not in (sdk.COMM_SUCCESS, sdk.COMM_RX_TIMEOUT, sdk.COMM_RX_CORRUPT):
                     raise DxlError(f"broadcast ping at {baud}: {ph.getTxRxResult(result)}")
@@ -169,9 +191,13 @@ def scan(path: str, bauds: tuple[int, ...] = SCAN_BAUDS, protocol: float = 2.0) 
                     found.append(Found(dxl_id, model, firmware, baud))
             else:
                 for dxl_id in range(0, 253):
+                    if progress:
+                        progress(baud, dxl_id, len(found))
                     model, result, _ = ph.ping(port, dxl_id)
                     if result == sdk.COMM_SUCCESS:
-                        found.append(Found(dxl_id, model, 0, baud))
+                        known = MODELS_BY_NUMBER.get(model)
+                        fw, result, _ = ph.read1ByteTxRx(port, dxl_id, known.firmware_address if known else 2)
+                        found.append(Found(dxl_id, model, fw if result == sdk.COMM_SUCCESS else 0, baud))
     return found
 
 
@@ -193,9 +219,10 @@ def resolve_field(model: Model | None, item: str, length: int | None) -> tuple[i
     return f.address, length or f.size, f
 
 
-def read(path: str, dxl_id: int, item: str, baud: int, length: int | None = None) -> tuple[int, bytes, Field | None]:
+def read(path: str, dxl_id: int, item: str, baud: int, length: int | None = None,
+         protocol: float = 2.0) -> tuple[int, bytes, Field | None]:
     """Read an item (by name or address) with the SDK; returns (address, raw bytes, field)."""
-    ph = packet_handler(2.0)
+    ph = packet_handler(protocol)
     with open_port(path, baud) as port:
         number, result, error = ph.ping(port, dxl_id)
         _check(ph, result, error, f"ping ID {dxl_id} at {baud} baud")
@@ -205,9 +232,10 @@ def read(path: str, dxl_id: int, item: str, baud: int, length: int | None = None
         return address, bytes(data), f
 
 
-def write(path: str, dxl_id: int, item: str, value: int, baud: int, length: int | None = None) -> tuple[int, Field | None]:
+def write(path: str, dxl_id: int, item: str, value: int, baud: int, length: int | None = None,
+          protocol: float = 2.0) -> tuple[int, Field | None]:
     """Write an item (by name or address) with the SDK; returns (address, field)."""
-    ph = packet_handler(2.0)
+    ph = packet_handler(protocol)
     with open_port(path, baud) as port:
         number, result, error = ph.ping(port, dxl_id)
         _check(ph, result, error, f"ping ID {dxl_id} at {baud} baud")

@@ -1,17 +1,24 @@
-"""``hilbench demo``: a bench driven by the official SDK, watched by the bus monitor.
+"""``hilbench demo``: a bench driven by its servos' own SDK, watched by the bus monitor.
 
 The demo starts the profile's devices behind a pseudo-terminal and runs a
-control loop against that pty with the unmodified ``dynamixel-sdk``, the way a
-robot's own control software would (and the way the Wolfgang capture of the
-spec sheet shows it): a Ping of every device, torque on, then every cycle a
-Sync Read of Present Position and a Sync Write of Goal Position along a sine
-wave, and now and then a Sync Read of voltage and temperature, a Sync Read of
-Hardware Error Status and a Read of the foot sensor that never answers.
+control loop against the pty of its first servo bus with the SDK that bus's
+robots use, unmodified, the way a robot's own control software would: the
+official ``dynamixel-sdk`` on a Protocol 2.0 bus (as the Wolfgang capture of
+the spec sheet shows it: Sync Read of Present Position, Sync Write of Goal
+Position, now and then voltage, temperature, Hardware Error Status and the
+foot sensor that never answers), the same SDK's Protocol 1.0 handler on a
+Protocol 1.0 bus (a Read per servo: it has no Sync Read), Feetech's
+``scservo_sdk`` on a Feetech bus (Sync Read 0x82, as LeRobot does); see
+:mod:`hilbench.clients.servo_links`.
 
 Meanwhile the monitor taps the bench's line and the dashboard shows what it
 sees. Two things go wrong on purpose, so a newcomer sees every state: one
-servo drops off the bus for a while and comes back, and another reports an
-overheating error (Alert bit, Hardware Error Status).
+servo drops off the bus for a while and comes back, and another overheats
+(Alert bit and Hardware Error Status on Protocol 2.0; the overheating bit of
+every status on Protocol 1.0 and Feetech).
+
+A profile without a servo bus is refused before anything starts
+(:func:`check_profile`).
 """
 
 from __future__ import annotations
@@ -21,24 +28,37 @@ import threading
 import time
 from dataclasses import dataclass, field
 
-import dynamixel_sdk as sdk
-
 from hilbench.bench import Bench
-from hilbench.bench.profile import DEFAULT_PROFILE, load_profile
-from hilbench.clients.dynamixel import open_port
+from hilbench.bench.profile import DEFAULT_PROFILE, Profile, load_profile
+from hilbench.clients.servo_links import Layout, ServoLink, feetech_sdk, layout, link_for
 from hilbench.console import Console
 from hilbench.dashboard import Dashboard
+from hilbench.errors import UsageError
 from hilbench.monitor import Monitor
 from hilbench.transports.sources import MediumSource
 
-POSITION = 132
-GOAL = 116
-VOLT_TEMP = 144  # Present Input Voltage (2) + Present Temperature (1)
-HW_ERROR = 70
-TORQUE = 64
+#: Hardware Error Status bit of an overheating Protocol 2.0 servo.
 OVERHEATING = 0x04
 #: Every this many cycles: voltage/temperature, hardware error status, and the foot sensor.
 SLOW_EVERY = 25
+#: The endpoint protocols the demo drives (with the SDK :func:`~hilbench.clients.servo_links.link_for` picks).
+SERVO_PROTOCOLS = ("dynamixel", "feetech")
+
+
+class DemoUsageError(UsageError):
+    """A profile the demo cannot drive (exit status 2, one line)."""
+
+
+def check_profile(prof: Profile) -> None:
+    """Refuse a profile without a servo bus, or whose bus needs an SDK that is not installed (one line)."""
+    eps = [ep for ep in prof.endpoints.values() if ep.protocol in SERVO_PROTOCOLS]
+    if not eps:
+        kinds = ", ".join(f"{ep.name}: {ep.protocol}" for ep in prof.endpoints.values())
+        raise DemoUsageError(f"demo drives a servo bus (Dynamixel or Feetech) and profile {prof.name!r} has none "
+                             f"({kinds}); start it with `hilbench emulate {prof.name}` and drive it with your "
+                             f"own program")
+    if eps[0].protocol == "feetech":
+        feetech_sdk()
 
 
 @dataclass
@@ -67,29 +87,66 @@ class DemoResult:
     cycles: int = 0
     seconds: float = 0.0
     failed_reads: int = 0
-    pings: dict[int, int] = field(default_factory=dict)
+    #: IDs that answered the start-up Ping.
+    pings: list[int] = field(default_factory=list)
     scenario: Scenario | None = None
     summary: dict = field(default_factory=dict)
     sdk_packets: dict[str, int] = field(default_factory=dict)
+    #: The driven bus's traffic: ``dynamixel``, ``dynamixel1`` or ``feetech``.
+    protocol: str = "dynamixel"
 
     @property
     def rate(self) -> float:
         return self.cycles / self.seconds if self.seconds else 0.0
 
 
-class Controller:
-    """The robot's control software: the official SDK in a loop, in its own thread."""
+#: Every servo sweeps around the middle of its angle limits by this share of their span.
+SWEEP = 0.1
+#: Degrees C above its Temperature Limit an overheating servo of a table without Hardware Error Status reaches.
+OVERHEAT_MARGIN = 10
 
-    def __init__(self, bench: Bench, seconds: float, amplitude: int = 400, period: float = 2.0) -> None:
+
+def servo_endpoint(bench: Bench):
+    """The bench's first servo bus (a Dynamixel or Feetech endpoint with servos)."""
+    for name in bench.endpoints:
+        ep = bench.endpoint(name)
+        bus = ep.attrs.get("bus")
+        if bus is not None and any(getattr(s, "is_servo", False) for s in getattr(bus, "servos", ())):
+            return ep
+    raise DemoUsageError(f"profile {bench.profile.name!r} has no servo bus")
+
+
+class Controller:
+    """The robot's control software: the bus's own SDK in a loop, in its own thread.
+
+    Each cycle reads Present Position of every servo (one Sync Read per register layout, or a Read per
+    servo on Protocol 1.0) and writes Goal Position along a sine wave around the middle of each servo's
+    angle limits (one Sync Write per layout); now and then it reads voltage and temperature, Hardware
+    Error Status where the table has it, and the Wolfgang foot sensor's 16 bytes.
+    """
+
+    def __init__(self, bench: Bench, seconds: float, period: float = 2.0) -> None:
         self.bench = bench
-        self.ep = bench.endpoint(next(iter(bench.endpoints)))
+        self.ep = servo_endpoint(bench)
         self.seconds = seconds
-        self.amplitude = amplitude
         self.period = period
         servos = sorted((s for s in self.ep.bus.servos if s.is_servo), key=lambda s: s.id)
         self.ids = [s.id for s in servos]
-        self.others = sorted(s.id for s in self.ep.bus.servos if not s.is_servo)
-        self.result = DemoResult(scenario=Scenario.for_run(self.ids, seconds))
+        others = sorted((s for s in self.ep.bus.servos if not s.is_servo), key=lambda s: s.id)
+        self.others = [s.id for s in others]
+        self.feet = [s.id for s in others if s.model.name == "Wolfgang Foot"]
+        self.layouts: dict[int, Layout] = {}
+        groups: dict[Layout, list[int]] = {}
+        for s in servos:
+            lay = layout(s.model)
+            if lay is not None:
+                self.layouts[s.id] = lay
+                groups.setdefault(lay, []).append(s.id)
+        self.groups = list(groups.items())
+        opts = self.ep.spec.options
+        self.link = link_for(self.ep.spec.protocol, opts.get("protocol_version", 2), self.ep.path,
+                             self.ep.spec.baud, [s.model for s in servos])
+        self.result = DemoResult(scenario=Scenario.for_run(self.ids, seconds), protocol=self.link.protocol)
         self.stop = threading.Event()
         self.done = threading.Event()
         self.error: BaseException | None = None
@@ -116,28 +173,47 @@ class Controller:
         finally:
             self.done.set()
 
+    def _overheat(self, dev_id: int, now: float) -> None:
+        """The staged fault: Hardware Error Status where the table has it, else a servo hotter than its limit
+        (which Protocol 1.0 and Feetech servos report in every status's error byte)."""
+        servo = self.bench.device(dev_id, self.ep.name)
+        lay = self.layouts.get(dev_id)
+        if lay is None or lay.hardware_error is not None or lay.temperature_limit is None:
+            servo.raise_hardware_error(OVERHEATING, now)
+            return
+        servo.ambient_temperature = servo.get(lay.temperature_limit.key) + OVERHEAT_MARGIN
+
+    def _read(self, address: int, size: int, ids: list[int], what: str) -> dict[int, bytes]:
+        got, failed = self.link.group_read(address, size, ids)
+        self.result.failed_reads += failed if self.link.group_reads else len(ids) - len(got)
+        self._count(what, 1 if self.link.group_reads else len(ids))
+        return got
+
+    def _sweeps(self, link: ServoLink) -> dict[int, tuple[float, float]]:
+        """(middle, amplitude) of each servo that tells its angle limits (a servo in wheel mode sweeps not)."""
+        out = {}
+        for i, lay in self.layouts.items():
+            if lay.min_position is None or lay.max_position is None:
+                continue
+            lo, hi = link.read_field(i, lay.min_position), link.read_field(i, lay.max_position)
+            self._count("read", 2)
+            if lo is None or hi is None or hi <= lo:
+                continue
+            out[i] = ((lo + hi) / 2, (hi - lo) * SWEEP)
+        return out
+
     def _loop(self) -> None:
-        res, ids, sc, ep = self.result, self.ids, self.result.scenario, self.ep
-        ph = sdk.PacketHandler(2.0)
-        with open_port(ep.path, ep.spec.baud) as port:
-            for dev_id in ids + self.others:  # start-up: who is there (the foot sensor 101 is not)
-                model, result, _ = ph.ping(port, dev_id)
+        res, sc, ep = self.result, self.result.scenario, self.ep
+        kind = "sync_read" if self.link.group_reads else "read"
+        with self.link as link:
+            for dev_id in self.ids + self.others:  # start-up: who is there (the foot sensor 101 is not)
+                if link.ping(dev_id):
+                    res.pings.append(dev_id)
                 self._count("ping")
-                if result == sdk.COMM_SUCCESS:
-                    res.pings[dev_id] = model
-            torque = sdk.GroupSyncWrite(port, ph, TORQUE, 1)
-            for i in ids:
-                torque.addParam(i, [1])
-            torque.txPacket()
-            self._count("sync_write")
-            reader = sdk.GroupSyncRead(port, ph, POSITION, 4)
-            volt_temp = sdk.GroupSyncRead(port, ph, VOLT_TEMP, 3)
-            hw_error = sdk.GroupSyncRead(port, ph, HW_ERROR, 1)
-            for i in ids:
-                reader.addParam(i)
-                volt_temp.addParam(i)
-                hw_error.addParam(i)
-            writer = sdk.GroupSyncWrite(port, ph, GOAL, 4)
+            sweeps = self._sweeps(link)
+            for lay, ids in self.groups:
+                link.sync_write(lay.torque, dict.fromkeys(ids, 1))
+                self._count("sync_write")
             start = time.monotonic()
             vanished = errored = False
             while not self.stop.is_set():
@@ -149,31 +225,33 @@ class Controller:
                     self.bench.device(sc.vanish_id, ep.name).vanish(now, sc.vanish_for)
                     vanished = True
                 if not errored and elapsed >= sc.error_at:
-                    self.bench.device(sc.error_id, ep.name).raise_hardware_error(OVERHEATING, now)
+                    self._overheat(sc.error_id, now)
                     errored = True
-                if reader.txRxPacket() != sdk.COMM_SUCCESS:
-                    res.failed_reads += 1
-                self._count("sync_read")
-                writer.clearParam()
-                for k, i in enumerate(ids):
-                    goal = int(2048 + self.amplitude * math.sin(2 * math.pi * elapsed / self.period + k * 0.3))
-                    writer.addParam(i, list(goal.to_bytes(4, "little")))
-                writer.txPacket()
-                self._count("sync_write")
+                for k, (lay, ids) in enumerate(self.groups):
+                    self._read(lay.present.address, lay.present.size, ids, kind)
+                    goals = {}
+                    for j, i in enumerate(ids):
+                        if i in sweeps:
+                            mid, amp = sweeps[i]
+                            phase = 2 * math.pi * elapsed / self.period + (k + j) * 0.3
+                            goals[i] = int(mid + amp * math.sin(phase))
+                    if goals:
+                        link.sync_write(lay.goal, goals)
+                        self._count("sync_write")
                 res.cycles += 1
                 if res.cycles % SLOW_EVERY == 1:
-                    for group in (volt_temp, hw_error):
-                        if group.txRxPacket() != sdk.COMM_SUCCESS:
-                            res.failed_reads += 1
-                        self._count("sync_read")
-                    ph.readTxRx(port, 101, 36, 16)  # the foot sensor of the Wolfgang capture: never answers
-                    self._count("read")
+                    for lay, ids in self.groups:
+                        if lay.voltage is not None:
+                            self._read(lay.voltage.address, lay.condition_size, ids, kind)
+                        if lay.hardware_error is not None:
+                            self._read(lay.hardware_error.address, lay.hardware_error.size, ids, kind)
+                    for foot in self.feet:  # the foot sensor of the Wolfgang capture: 101 never answers
+                        link.read(foot, 36, 16)
+                        self._count("read")
             res.seconds = time.monotonic() - start
-            torque.clearParam()
-            for i in ids:
-                torque.addParam(i, [0])
-            torque.txPacket()
-            self._count("sync_write")
+            for lay, ids in self.groups:
+                link.sync_write(lay.torque, dict.fromkeys(ids, 0))
+                self._count("sync_write")
 
 
 def run_demo(
@@ -187,11 +265,13 @@ def run_demo(
     """Run the demo for ``seconds`` (0 = until Ctrl-C or ``q``); returns what happened."""
     console = console or Console()
     prof = load_profile(profile)
+    check_profile(prof)
     with Bench(prof, paced=paced) as bench:
-        ep = bench.endpoint(next(iter(bench.endpoints)))
+        ctl = Controller(bench, seconds)
+        ep = ctl.ep
         source = MediumSource(ep.medium, name=f"demo {prof.name} on {ep.path}")
         monitor = Monitor(source, silence=0.5).start()
-        ctl = Controller(bench, seconds).start()
+        ctl.start()
         timing = "paced" if ep.medium.paced else "unpaced"
 
         def status() -> str:

@@ -18,6 +18,7 @@ from hilbench.dashboard.widgets import pad as _pad
 from hilbench.dashboard.widgets import row as _row
 from hilbench.monitor.can.summary import stamp
 from hilbench.monitor.can.tracker import CanTracker
+from hilbench.transports.line_load import is_unpaced
 
 VIEWS = ("ids", "nodes", "signals", "log")
 TITLES = {"ids": "Identifiers", "nodes": "CANopen nodes", "signals": "Signals", "log": "Event log"}
@@ -45,8 +46,11 @@ def header(tr: CanTracker, source: str, width: int, now: float | None) -> list[T
         bus.append(f"{frames / span:7.0f} frames/s ")
         if tr.baud:
             load = bits / (tr.baud * span)
-            bus.append(f"load {load:5.1%} ", style="bold yellow" if load > 0.7 else "")
-            bus.append(f"(peak {tr.peak_load:5.1%}) ")
+            if is_unpaced(load, tr.peak_load):
+                bus.append("unpaced ")
+            else:
+                bus.append(f"load {load:5.1%} ", style="bold yellow" if load > 0.7 else "")
+                bus.append(f"(peak {tr.peak_load:5.1%}) ")
     else:
         bus.append(f"{tr.frames} frames  ")
     bus.append(f"err frames {tr.error_frames}", style="red" if tr.error_frames else "")

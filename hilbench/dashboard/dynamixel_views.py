@@ -21,6 +21,7 @@ from hilbench.dashboard.widgets import row as _row
 from hilbench.monitor.dynamixel.devices import CONNECTED, DISCONNECTED, UNKNOWN, DeviceState, FieldValue
 from hilbench.monitor.dynamixel.tracker import BusTracker
 from hilbench.protocols.dynamixel import describe_error
+from hilbench.transports.line_load import is_unpaced
 
 VIEWS = ("devices", "models", "details", "log")
 TITLES = {
@@ -93,7 +94,10 @@ def header(fr: Frame) -> list[Text]:
         bus.append(f"{bps / 1000:6.1f} kB/s ")
         if tr.baud:
             load = bps * 10 / tr.baud
-            bus.append(f"load {load:4.0%} ", style="bold yellow" if load > 0.8 else "")
+            if is_unpaced(load):  # more than the line carries at its rate: no load to speak of
+                bus.append("unpaced ")
+            else:
+                bus.append(f"load {load:4.0%} ", style="bold yellow" if load > 0.8 else "")
         bus.append(f"{sum(packets.values()) / span:6.0f} pkt/s  ")
     else:
         bus.append(f"{tr.bytes / 1000:.1f} kB  {sum(tr.packet_counts().values())} packets  ")

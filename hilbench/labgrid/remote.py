@@ -29,6 +29,7 @@ from hilbench.bench.control import ControlClient
 from hilbench.errors import BenchError
 from hilbench.labgrid.config import CONTROL_RESOURCE, TAP_SUFFIX
 from hilbench.transports.pty import PtyEndpoint
+from hilbench.transports.serial_url import open_url
 
 
 class PtyBridge:
@@ -37,7 +38,7 @@ class PtyBridge:
     def __init__(self, url: str, baud: int | None) -> None:
         self.url = url
         self.pty = PtyEndpoint("bridge")
-        self.serial = serial.serial_for_url(url, baudrate=baud or 115_200, timeout=0.05)
+        self.serial = open_url(url, baudrate=baud or 115_200, timeout=0.05)
         self._stop = threading.Event()
         self.errors: list[str] = []
         self._threads = [threading.Thread(target=self._up, name="pty-bridge-up", daemon=True),

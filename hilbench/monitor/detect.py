@@ -60,8 +60,8 @@ def detect(source: Source, *, verb: str = "monitor", timeout: float | None = Non
     score, _, best = scored[0]
     if score <= 0:
         known = ", ".join(i.protocol for i in _for_verb(verb))
-        raise UsageError(f"{source.name}: cannot tell what it carries from its first {len(data)} bytes "
-                         f"(give --protocol: {known})")
+        raise UsageError(f"{source.name}: no known traffic recognised in its first {len(data)} bytes "
+                         f"(if it carries one of {known}, say which: --protocol P)")
     if best.verb != verb:
         raise _refuse(source.name, best, verb)
     peeked._protocol = best.protocol

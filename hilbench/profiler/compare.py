@@ -26,10 +26,16 @@ def summary_of(run) -> dict[str, dict]:
 def load_summary(path: str | Path) -> dict:
     """A ``--json`` document saved by ``hilbench profile --json``; ValueError (one line) otherwise."""
     try:
-        doc = json.loads(Path(path).read_text())
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"{path}: not JSON ({exc.msg} at line {exc.lineno})") from None
-    summary_of(doc)
+        doc = json.loads(Path(path).read_bytes())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        why = f"{exc.msg} at line {exc.lineno}" if isinstance(exc, json.JSONDecodeError) else "not text"
+        raise ValueError(f"{path}: not JSON ({why})") from None
+    try:
+        tasks = summary_of(doc)
+    except ValueError:
+        tasks = None
+    if tasks is None or not all(isinstance(v, dict) for v in tasks.values()):
+        raise ValueError(f"{path}: not a `hilbench profile --json` document (no 'tasks' table of figures)")
     return doc
 
 

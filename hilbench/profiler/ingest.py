@@ -47,6 +47,8 @@ class Profiler:
         self.windows_started = 0
         self.windows_stopped = 0
         self.finished = False
+        #: Bytes of a line, word or report cut in two where the reading stopped (see :meth:`finish`).
+        self.cut_bytes = 0
 
     @property
     def names(self) -> list[str]:
@@ -59,9 +61,15 @@ class Profiler:
         """Decode a chunk of the stream (any size, any split) and take in what it holds."""
         self.feed_items(self.decoder.feed_batch(data))
 
-    def finish(self) -> None:
-        """End of the stream: decode what the decoders still hold."""
+    def finish(self, *, cut: bool = False) -> None:
+        """End of the stream: decode what the decoders still hold.
+
+        ``cut``: the reader stopped (``--duration``, ``--reports``, Ctrl-C) rather than the stream ending, so
+        a line, word or report it cut in two is dropped (:attr:`cut_bytes`), not counted as damage.
+        """
         if not self.finished:
+            if cut:
+                self.cut_bytes = self.decoder.cut()
             self.feed_items(self.decoder.flush())
             self.finished = True
 

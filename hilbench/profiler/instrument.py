@@ -26,9 +26,13 @@ class TraceInstrument(Instrument):
 
         dec = StreamDecoder()
         items = dec.feed(data[:8192]) + dec.flush()
-        bad = sum(1 for i in items if isinstance(i, BadLine | WordProblem))
-        good = len(items) - bad
-        return good / (good + bad + 1) if good else 0.0
+        # A damaged-words report stands for all the words it covers: random bytes hold a few well-formed
+        # binary words (a 11xxxxxx byte then three 10xxxxxx: one in 256) among hundreds of broken ones.
+        bad = sum(i.count if isinstance(i, WordProblem) else 1 for i in items if isinstance(i, BadLine | WordProblem))
+        good = sum(1 for i in items if not isinstance(i, BadLine | WordProblem))
+        if good <= bad:  # more damage than trace: not a trace (--protocol vel2d still reads it)
+            return 0.0
+        return good / (good + bad + 1)
 
 
 INSTRUMENT = TraceInstrument()

@@ -39,6 +39,7 @@ def decoder_counters(profiler) -> dict:
     wp = profiler.word_problems
     return {
         "bytes": profiler.decoder.bytes_in,
+        "cut_bytes": profiler.cut_bytes,
         "lines": text.lines,
         "stamp_lines": text.stamp_lines,
         "log_lines": text.log_lines,

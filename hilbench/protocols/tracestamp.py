@@ -480,6 +480,15 @@ class TextDecoder:
         """Decode ``data``; like :meth:`feed` but runs of stamps come as :class:`StampBatch` columns."""
         return self._batched(self._decode(data))
 
+    def cut(self) -> int:
+        """The input was cut off where nobody chose (a capture stopped at a time limit): drop the unfinished
+        line and the open report instead of decoding them as damage; returns the bytes dropped."""
+        n = len(self._buf)
+        self._buf = b""
+        self._skipping = False
+        self._report = None
+        return n
+
     def flush(self) -> list[Item]:
         """End of input: decode a final unterminated line and return any open report."""
         out: list = []

@@ -382,6 +382,12 @@ class WordDecoder:
         self._decode(payloads, outs, broken, seg)
         return outs
 
+    def cut(self) -> int:
+        """The input was cut off (see :meth:`TextDecoder.cut`): drop an unfinished word; returns its bytes."""
+        n = len(self._pending)
+        self._pending = np.zeros(0, np.uint8)
+        return n
+
     def flush(self) -> list:
         """End of input: an unfinished word is a broken one."""
         if len(self._pending):

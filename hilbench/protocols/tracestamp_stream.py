@@ -169,6 +169,11 @@ class StreamDecoder:
         whole = leads[(nxt - leads) >= 4] + 3 - len(pending)  # index of each word's 4th byte in a[hidx]
         return hidx[whole[whole >= 0]]
 
+    def cut(self) -> int:
+        """The stream was cut off by the reader (a time limit), not ended: drop the unfinished line, report
+        and word rather than decode them as damage (:meth:`flush` still follows); returns the bytes dropped."""
+        return self.text.cut() + self.words.cut()
+
     def flush(self) -> list[StreamItem]:
         out = self.text.flush()
         for item in out:

@@ -44,6 +44,7 @@ from hilbench.protocols import can_frame as cf
 from hilbench.protocols.can_frame import CanFrame
 from hilbench.rules import FAULT_COUNT, PROBABILITY, SWITCH
 from hilbench.transports.clock import Waiter, awake_cpus, reduce_timer_slack, wait
+from hilbench.transports.line_load import is_unpaced
 from hilbench.transports.medium import DevicePort
 from hilbench.transports.medium_loop import LoopMedium
 
@@ -196,9 +197,12 @@ class CanMedium(LoopMedium):
         """The bus's figures for the manifest and the control channel (safe from any thread)."""
         s = self.stats
         tec, off = dict(self.tec), set(self._bus_off)  # copies: the bus thread changes them
+        load = self.load()
+        unpaced = is_unpaced(load)  # more bits than the bitrate carries: no load to speak of
         return {"bitrate": self.bitrate, "paced": self.paced, "frames": s.frames, "error_frames": s.error_frames,
                 "failed_attempts": s.attempts_failed, "dropped_bus_off": s.dropped_bus_off,
-                "dropped_queue_full": s.dropped_queue_full, "load": round(self.load(), 4),
+                "dropped_queue_full": s.dropped_queue_full, "load": None if unpaced else round(load, 4),
+                "unpaced": unpaced,
                 "faults": dict(self.faults),
                 "controllers": {src: {"tec": tec.get(src, 0),
                                       "state": "bus-off" if src in off else

@@ -34,10 +34,12 @@ class SerialTap:
                  max_buffer: int = 16 << 20) -> None:
         import serial  # pyserial
 
+        from hilbench.transports.serial_url import open_url
+
         self.real_port = real_port
         self.fixed_baud = baud
         try:
-            self._ser = serial.serial_for_url(real_port, baudrate=baud or 57_600, timeout=0, write_timeout=2)
+            self._ser = open_url(real_port, baudrate=baud or 57_600, timeout=0, write_timeout=2)
         except (serial.SerialException, ValueError) as exc:
             raise SourceError(f"cannot open {real_port}: {exc}") from None
         try:

@@ -315,3 +315,17 @@ def test_error_log_lists_the_newest_entries_in_time_order():
         log.add(t, "missed_reply", text)
     assert [e.t for e in log.newest(3)] == [2.650, 2.642, 2.638]  # the three detected last, by time
     assert log.lines(4)[-1] == "[+00:02.638] error: late detection of an earlier miss"
+
+
+def test_the_xl320s_hardware_error_status_is_read_at_its_own_address():
+    """The XL-320 keeps Hardware Error Status at 50 and Status Return Level at 17 (the X series: 70, 68)."""
+    bus = Bus()
+    tr = bus.send(
+        inst(6, I.PING), status(6, bytes((0x5E, 0x01, 0x1E))),  # model 350: the XL-320
+        inst(6, I.READ, h("11000100")), status(6, b"\x01"),  # Status Return Level 1
+        inst(6, I.READ, h("32000100")), status(6, b"\x04", err=0x80),  # Alert, Hardware Error Status: overheating
+    )
+    dev = tr.devices[6]
+    assert dev.model_name == "XL-320" and dev.status_return_level == 1
+    assert dev.hardware_error == 0x04 and dev.hardware_error_bits == ["overheating"]
+    assert "ID 6 hardware error: overheating" in [e.text for e in tr.log.entries]

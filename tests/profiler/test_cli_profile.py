@@ -4,6 +4,8 @@ windows, strict mode and one-line errors."""
 from __future__ import annotations
 
 import json
+import os
+import random
 import subprocess
 import sys
 
@@ -138,3 +140,43 @@ def test_a_dynamixel_bench_is_refused_not_profiled(hilbench_emulator, tmp_path):
         assert proc.stderr.decode().splitlines() == [
             f"hilbench: error: {name} carries dynamixel, not vel2d (Dynamixel Protocol 2.0 bus: use `hilbench "
             "monitor`)"]
+
+
+@pytest.mark.parametrize(("content", "message"), [
+    (random.Random(23).randbytes(4096), "neither a `hilbench profile --json` document nor a board's trace"),
+    (b'{"devices": {"1": {}}}', "not a `hilbench profile --json` document (no 'tasks' table of figures)"),
+    (b'{"tasks": {"IDLE": 3}}', "not a `hilbench profile --json` document (no 'tasks' table of figures)"),
+    (b"[1, 2]", "not a `hilbench profile --json` document"),
+    (b"{\xff\xfe", "not JSON"),
+])
+def test_compare_refuses_what_is_not_a_run_in_one_line(trace64, tmp_path, content, message):
+    other = tmp_path / "other.bin"
+    other.write_bytes(content)
+    proc = run(str(trace64), "--compare", str(other), "--json", check_rc=2)
+    assert proc.stdout == b""
+    (line,) = proc.stderr.decode().splitlines()
+    assert line.startswith(f"hilbench: error: --compare {other}: ") and message in line
+
+
+def test_a_duration_that_cuts_a_line_is_no_damage(spec, tmp_path):
+    """A live source stopped by --duration mid-line: the cut line is dropped, not counted as unreadable."""
+    fifo = tmp_path / "trace"
+    os.mkfifo(fifo)
+    data = spec.lines(spec.TRACE_64)
+    proc = subprocess.Popen([sys.executable, "-m", "hilbench.cli", "profile", str(fifo), "--duration", "1", "--json"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    fd = os.open(fifo, os.O_WRONLY)  # returns once the profiler has opened the FIFO
+    try:
+        os.write(fd, data[:-3])  # the last line, "tsink 3030 out", cut after "o"; the writer stays
+        out, err = proc.communicate(timeout=30)
+    finally:
+        os.close(fd)
+    assert proc.returncode == 0, err.decode()
+    q = json.loads(out)["quality"]
+    assert q["untrustworthy"] is False and q["parse_errors"] == 0 and q["reasons"] == []
+    assert q["cut_bytes"] == len(b"tsink 3030 o") and q["stamps"] == 31
+    # a file that ends mid-line is damaged: nobody chose to stop there
+    cut = tmp_path / "cut.txt"
+    cut.write_bytes(data[:-3])
+    q = json.loads(run(str(cut), "--json").stdout)["quality"]
+    assert q["untrustworthy"] is True and q["parse_errors"] == 1 and q["cut_bytes"] == 0

@@ -136,6 +136,18 @@ def test_bus_load_follows_the_traffic(bus):
     assert m.stats.bits == n * cf.frame_bits(frame)
 
 
+def test_an_unpaced_bus_faster_than_its_bitrate_reports_no_load(bus):
+    """Unpaced, frames go at once: a second's worth of 10 kbit/s in a moment is no load of 2 000 %."""
+    m = bus(paced=False, bitrate=10_000)
+    _, rx, port = sender_and_receiver(m)
+    frame = data_frame(0x555, bytes(8))
+    n = 200  # about 22 000 bits
+    m.call_at(None, lambda: [port.send(frame) for _ in range(n)])
+    wait_until(lambda: len(rx.data()) == n, timeout=10)
+    status = m.status()
+    assert status["unpaced"] is True and status["load"] is None and status["paced"] is False
+
+
 @pytest.mark.parametrize("paced", [False, True])
 def test_error_frames_and_retransmission(bus, paced):
     m = bus(paced=paced, error_next=3)

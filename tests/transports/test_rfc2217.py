@@ -9,6 +9,7 @@ client exposes.
 from __future__ import annotations
 
 import json
+import re
 import socket
 import subprocess
 import sys
@@ -220,6 +221,29 @@ def test_a_second_client_is_refused_with_a_reason_and_the_first_keeps_working(se
             serial.serial_for_url(url, baudrate=1_000_000, timeout=1)
         assert _ping(first).id == 1
     assert ep.services["rfc2217"].refused == 2
+
+
+def test_a_busy_port_is_reported_in_the_servers_words(served, capsys):
+    """Not pyserial's "Broken pipe": the server's line, through every hilbench client that opens URLs."""
+    from hilbench.cli import main
+    from hilbench.transports.serial_url import open_url
+    from hilbench.transports.sources import SourceError
+    from hilbench.transports.sources.serial import SerialSource
+
+    _, ep, url, _ = served
+    with serial.serial_for_url(url, baudrate=1_000_000, timeout=1) as first:
+        holder = f"127.0.0.1:{first._socket.getsockname()[1]}"
+        said = f"hilbench: port busy: arm:rfc2217 ({url}) is in use by {holder} since "
+        refusal = "^the server refused: " + re.escape(said) + r"\d\d:\d\d:\d\d; one client at a time$"
+        with pytest.raises(serial.SerialException, match=refusal):
+            open_url(url, baudrate=1_000_000, timeout=1)
+        with pytest.raises(SourceError, match="the server refused: hilbench: port busy"):
+            SerialSource(url, 1_000_000)
+        assert main(["dxl", "ping", url, "1", "--baud", "1000000"]) == 1
+        (line,) = capsys.readouterr().err.splitlines()
+        assert line.startswith(f"hilbench: error: cannot open {url}: the server refused: {said}")
+        assert _ping(first).id == 1  # the holder keeps the port
+    assert ep.services["rfc2217"].refused == 3
 
 
 def test_the_tap_sees_the_remote_clients_traffic(served):

@@ -34,6 +34,7 @@ from typing import Any
 
 from hilbench.monitor.can.tracker import CanTracker
 from hilbench.protocols import canopen as co
+from hilbench.transports.line_load import is_unpaced
 
 
 def _r(x: float | None, nd: int = 3) -> float | None:
@@ -145,9 +146,7 @@ def summary(tracker: CanTracker, *, source: str = "", timestamps: str | None = N
         "dropped_bytes": tr.dropped_bytes,
         "lost_frames": tr.lost_frames,
         "bus": {
-            "load": _r(tr.load(), 4),
-            "mean_load": _r(tr.mean_load(), 4),
-            "peak_load": _r(tr.peak_load, 4) if tr.baud and tr.timestamps else None,
+            **_loads(tr),
             "frames_per_s": _r(recent[2] / recent[0], 1) if recent else None,
             "peak_frames_per_s": _r(tr.peak_fps, 1) if tr.timestamps else None,
             "bits": tr.bits,
@@ -165,6 +164,15 @@ def summary(tracker: CanTracker, *, source: str = "", timestamps: str | None = N
     }
 
 
+def _loads(tr: CanTracker) -> dict[str, Any]:
+    """Load now, mean and peak; all null with ``unpaced`` true when one is more than the bus carries."""
+    loads = (tr.load(), tr.mean_load(), tr.peak_load if tr.baud and tr.timestamps else None)
+    unpaced = is_unpaced(*loads)
+    return {**{k: None if unpaced else _r(v, 4) for k, v in zip(("load", "mean_load", "peak_load"), loads,
+                                                                 strict=True)},
+            "unpaced": unpaced}
+
+
 def print_summary(report: dict[str, Any], console: Any) -> None:
     """The summary as a person reads it."""
     from rich.table import Table
@@ -174,7 +182,10 @@ def print_summary(report: dict[str, Any], console: Any) -> None:
     rate = f"{report['bitrate']} bit/s" if report["bitrate"] else "bitrate unknown (--baud)"
     console.print(f"[bold]{report['source']}[/]: CAN, {rate}, {f['total']} frames "
                   f"({f['error']} error frames) in {report['duration_s'] or 0:.3f} s", highlight=False)
-    if bus["mean_load"] is not None:
+    if bus.get("unpaced"):
+        console.print(f"bus unpaced (more bits per second than {rate}); {bus['frames_per_s'] or 0:.0f} frames/s",
+                      highlight=False)
+    elif bus["mean_load"] is not None:
         console.print(f"bus load {bus['load']:.1%} now, {bus['mean_load']:.1%} mean, {bus['peak_load']:.1%} peak; "
                       f"{bus['frames_per_s'] or 0:.0f} frames/s", highlight=False)
     if report["dropped_bytes"] or report["lost_frames"]:

@@ -28,6 +28,7 @@ from __future__ import annotations
 from typing import Any
 
 from hilbench.monitor.dynamixel.tracker import BusTracker
+from hilbench.transports.line_load import is_unpaced
 
 
 def _r(x: float | None, nd: int = 3) -> float | None:
@@ -109,9 +110,12 @@ def summary(
             "jitter_ms": _r(main.jitter * 1000, 4) if main.iv_n > 1 else None,
         }
     bps = tracker.bytes / duration if timed else None
+    load = bps * 10 / tracker.baud if bps is not None and tracker.baud else None
+    unpaced = is_unpaced(load)
     bus = {
         "bytes_per_s": _r(bps, 1),
-        "load": _r(bps * 10 / tracker.baud, 4) if bps is not None and tracker.baud else None,
+        "load": None if unpaced else _r(load, 4),
+        "unpaced": unpaced,
         "packets_per_s": {k: round(v / duration, 2) for k, v in counts.items() if v} if timed else None,
         "crc_errors": tracker.crc_errors,
         "unanswered": tracker.unanswered,
@@ -152,7 +156,7 @@ def print_summary(report: dict, console) -> None:
         when = f"{report['duration_s'] or 0:.3f} s ({report['timestamps']} times)"
     console.print(f"[bold]{report['source']}[/]: {report['bytes']} bytes, {when}", highlight=False)
     console.print(f"packets: {packets or 'none'}", highlight=False)
-    load = f", load {bus['load']:.1%}" if bus["load"] is not None else ""
+    load = ", unpaced" if bus.get("unpaced") else f", load {bus['load']:.1%}" if bus["load"] is not None else ""
     rate = f"{bus['bytes_per_s'] / 1000:.1f} kB/s{load}; " if bus["bytes_per_s"] is not None else ""
     console.print(f"bus: {rate}CRC errors {report['crc_errors']}, unanswered requests {bus['unanswered']}, "
                   f"unexpected replies {bus['unexpected_replies']}", highlight=False)

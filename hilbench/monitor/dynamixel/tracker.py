@@ -60,7 +60,10 @@ from hilbench.protocols.dynamixel import Instruction as I  # noqa: N814
 
 #: Control-table addresses whose values change what the monitor believes.
 MODEL_NUMBER, FIRMWARE_BOARD, FIRMWARE, STATUS_RETURN_LEVEL, HARDWARE_ERROR = 0, 2, 6, 68, 70
-_SPECIAL = (MODEL_NUMBER, MODEL_NUMBER + 1, FIRMWARE_BOARD, FIRMWARE, STATUS_RETURN_LEVEL, HARDWARE_ERROR)
+#: The XL-320 (a Protocol 2.0 servo with its own table) keeps Status Return Level at 17, the error at 50.
+XL320_STATUS_RETURN_LEVEL, XL320_HARDWARE_ERROR = 17, 50
+_SPECIAL = (MODEL_NUMBER, MODEL_NUMBER + 1, FIRMWARE_BOARD, FIRMWARE, XL320_STATUS_RETURN_LEVEL,
+            XL320_HARDWARE_ERROR, STATUS_RETURN_LEVEL, HARDWARE_ERROR)
 #: Instructions answered by a plain status when unicast (at Status Return Level 2).
 _NODATA_INSTRUCTIONS = frozenset({I.WRITE, I.REG_WRITE, I.ACTION, I.FACTORY_RESET, I.REBOOT, I.CLEAR, I.BACKUP})
 #: Multi-device reads; the most frequent one of these is the bus's main cycle.
@@ -579,10 +582,13 @@ class BusTracker(ServoBusState):
         if address <= fw < end and how == READ:
             dev.firmware = data[fw - address]
         servo = model is None or model.kind == "servo"
-        if address <= STATUS_RETURN_LEVEL < end and servo:
-            dev.status_return_level = data[STATUS_RETURN_LEVEL - address]
-        if address <= HARDWARE_ERROR < end and how == READ and servo:
-            bits = data[HARDWARE_ERROR - address]
+        roles = model.roles if model is not None else None
+        srl = roles.get("status_return_level", -1) if roles else STATUS_RETURN_LEVEL
+        hw = roles.get("hardware_error", -1) if roles else HARDWARE_ERROR
+        if address <= srl < end and servo:
+            dev.status_return_level = data[srl - address]
+        if address <= hw < end and how == READ and servo:
+            bits = data[hw - address]
             if bits and bits != dev.hardware_error:
                 names = ", ".join(describe_hardware_error(bits)) or f"bits 0x{bits:02x}"
                 self.log.add(t, "hardware_error", f"ID {dev.id} hardware error: {names}", dev.id)

@@ -17,10 +17,12 @@ class SerialSource(Source):
     def __init__(self, port: str, baud: int | None = None, *, read_timeout: float = 0.02) -> None:
         import serial  # pyserial; imported here so captures can be read without it
 
+        from hilbench.transports.serial_url import open_url
+
         self.name = port
         self.baud = baud or 57_600
         try:
-            self._ser = serial.serial_for_url(port, baudrate=self.baud, timeout=read_timeout)
+            self._ser = open_url(port, baudrate=self.baud, timeout=read_timeout)
         except (serial.SerialException, ValueError) as exc:
             raise SourceError(f"cannot open {port}: {exc}") from None
         self._stop = threading.Event()
