@@ -6,6 +6,7 @@ import argparse
 import json
 
 from hilbench.cli.common import CliError
+from hilbench.rules import RuleRef
 
 
 def _client(args: argparse.Namespace):
@@ -24,16 +25,9 @@ def _client(args: argparse.Namespace):
     raise CliError("tell me where the bench is: --manifest FILE (from hilbench emulate) or --control HOST:PORT")
 
 
-def _rule(name: str):
-    """An argparse type checking the board family's rule ``name`` (imported when an argument is parsed)."""
-
-    def parse(text: str):
-        from hilbench.families import stm32_rover
-
-        return getattr(stm32_rover, name)(text)
-
-    parse.__name__ = name.lower()
-    return parse
+def _rule(name: str) -> RuleRef:
+    """The board family's rule ``name`` as an argparse type (the family is imported when it is used)."""
+    return RuleRef("hilbench.families.stm32_rover", name)
 
 
 def _knob(text: str) -> tuple[str, float | int]:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import functools
 import signal
 from collections.abc import Iterator
 
@@ -17,11 +18,37 @@ class CliError(UsageError):
 class OneLineParser(argparse.ArgumentParser):
     """An argument parser whose usage errors are one line (exit 2), like every other hilbench error.
 
-    Sub-parsers inherit the class, so every verb behaves the same; ``--help`` still shows the usage.
+    Sub-parsers inherit the class, so every verb behaves the same; ``--help`` still shows the usage, and
+    every option whose type is a :class:`~hilbench.rules.Rule` shows its range there (:func:`with_ranges`).
     """
+
+    def __init__(self, *args, formatter_class: type[argparse.HelpFormatter] = argparse.HelpFormatter,
+                 **kwargs) -> None:
+        super().__init__(*args, formatter_class=with_ranges(formatter_class), **kwargs)
 
     def error(self, message: str) -> None:  # type: ignore[override]
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+@functools.cache
+def with_ranges(formatter: type[argparse.HelpFormatter]) -> type[argparse.HelpFormatter]:
+    """``formatter`` that ends each option's help with the range its rule checks (``[a number 0..1000]``),
+    so the range shown is the one enforced, for every verb (plug-ins' too) without restating it by hand."""
+    if getattr(formatter, "shows_ranges", False):
+        return formatter
+
+    class RangeHelp(formatter):  # type: ignore[valid-type, misc]
+        shows_ranges = True
+
+        def _get_help_string(self, action: argparse.Action) -> str | None:
+            text = super()._get_help_string(action)
+            expected = getattr(action.type, "expected", None)
+            if text and isinstance(expected, str) and action.choices is None:
+                text = f"{text} [{expected.replace('%', '%%')}]"
+            return text
+
+    RangeHelp.__name__ = f"RangeHelp{formatter.__name__}"
+    return RangeHelp
 
 
 def int_arg(text: str) -> int:

@@ -21,6 +21,10 @@ from pathlib import Path
 from typing import Any
 
 from hilbench.cli.common import CliError, terminate_on_sigterm
+from hilbench.rules import POSITIVE_COUNT, SECONDS, Rule
+
+#: ``--timeout``: how long to wait for the first scan (s).
+FIRST_SCAN_TIMEOUT = Rule(float, 0, 3600, above=True)
 
 PROTOCOLS = {"rplidar": "rplidar", "sick": "sick-lms200", "sick-lms200": "sick-lms200", "lms200": "sick-lms200",
              "scip": "scip2", "scip2": "scip2"}
@@ -284,9 +288,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--express", action="store_true", help="RPLIDAR: express scan (legacy capsules)")
     p.add_argument("--lms-baud", type=int, choices=(9600, 19200, 38400, 500_000), default=9600,
                    help="LMS 200: switch the link to this speed first (default 9600, the power-up rate)")
-    p.add_argument("--scans", type=int, help="stop after N scans")
-    p.add_argument("--seconds", type=float, help="stop after S seconds")
-    p.add_argument("--timeout", type=float, default=10.0, help="give up when no scan arrives within S seconds "
+    p.add_argument("--scans", type=POSITIVE_COUNT, help="stop after N scans")
+    p.add_argument("--seconds", type=SECONDS, help="stop after S seconds (0: no limit)")
+    p.add_argument("--timeout", type=FIRST_SCAN_TIMEOUT, default=10.0, help="give up when no scan arrives within S seconds "
                    "(without a terminal; default 10)")
     p.add_argument("--json", action="store_true", help="no live view: print the JSON summary at the end")
     p.add_argument("--summary", action="store_true", help="no live view: print one summary line at the end")

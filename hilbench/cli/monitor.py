@@ -20,8 +20,11 @@ import threading
 import time
 from collections.abc import Callable
 
-from hilbench.cli.common import CliError, int_arg, open_cli_source, terminate_on_sigterm
-from hilbench.rules import LINE_BAUD, SECONDS, SPEED
+from hilbench.cli.common import CliError, open_cli_source, terminate_on_sigterm
+from hilbench.rules import LINE_BAUD, SECONDS, SPEED, Rule
+
+#: ``--device``: a device's address on its bus (a servo ID 0..253, a CANopen node id 1..127).
+DEVICE_ADDRESS = Rule(int, 0, 255, what="a device ID")
 
 
 def _monitor_instruments() -> list:
@@ -303,7 +306,7 @@ def _watch_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seconds", type=SECONDS, help="stop after this many seconds")
     p.add_argument("--view", type=_view, help="dashboard view to start with (the instrument's, e.g. devices, models, details, "
                                   "log; keys 1-9)")
-    p.add_argument("--device", type=int_arg, help="device ID the details view shows first (keys: left/right)")
+    p.add_argument("--device", type=DEVICE_ADDRESS, help="device ID the details view shows first (keys: left/right)")
     p.add_argument("--once", action="store_true",
                    help="leave the dashboard when the source ends, even in a terminal")
     p.add_argument("--record", metavar="FILE", help="also record everything to FILE (hilbench capture format"

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import math
 import signal
 import time
 
@@ -12,7 +11,8 @@ from hilbench.rules import POSITIVE_COUNT, RATE_HZ, SECONDS, Rule
 
 #: ``teleop --repeat-rate``: 0 (only on key presses) or a rate in Hz.
 REPEAT_HZ = Rule(float, 0, 1000)
-#: ``teleop --speed`` / ``--turn``: m/s and rad/s (a Vel2d frame carries doubles; keep them sane).
+#: ``send-vel X Y Z``, ``teleop --speed`` / ``--turn``: m/s and rad/s (a Vel2d frame carries doubles; keep them
+#: sane).
 SPEED_LIMIT = Rule(float, -1000, 1000)
 
 
@@ -20,16 +20,6 @@ def _board_baud(text: str) -> int:
     from hilbench.families.stm32_rover import BOARD_BAUD
 
     return BOARD_BAUD(text)
-
-
-def _finite(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not math.isfinite(value):
-        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
-    return value
 
 
 def _print_logs(decoder, data: bytes) -> int:
@@ -118,9 +108,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                        description="Send one 28-byte Vel2d frame (x, y in m/s, z in rad/s, CRC-32/MPEG-2) with one "
                                    "write, as the ROS bridge vel2d_bridge does, or stream it with --rate.")
     s.add_argument("port", help="serial port (/dev/ttyACM0, an emulated pty) or udp://127.0.0.1:PORT")
-    s.add_argument("x", type=_finite, help="linear.x in m/s")
-    s.add_argument("y", type=_finite, help="linear.y in m/s")
-    s.add_argument("z", type=_finite, help="angular.z in rad/s")
+    s.add_argument("x", type=SPEED_LIMIT, help="linear.x in m/s")
+    s.add_argument("y", type=SPEED_LIMIT, help="linear.y in m/s")
+    s.add_argument("z", type=SPEED_LIMIT, help="angular.z in rad/s")
     s.add_argument("--baud", type=_board_baud, default=115_200, help="serial baud rate (default: 115200)")
     s.add_argument("--rate", type=RATE_HZ, metavar="HZ", help="stream the frame at HZ until Ctrl-C (or --count)")
     s.add_argument("--count", type=POSITIVE_COUNT, help="with --rate: stop after N frames")

@@ -21,6 +21,7 @@ drift. The layout comes from :mod:`hilbench.protocols.board_can`.
 
 from __future__ import annotations
 
+import math
 import threading
 import time
 from typing import Any
@@ -29,6 +30,17 @@ from hilbench.protocols import board_can as bc
 from hilbench.protocols import canopen as co
 
 SETPOINT_PERIOD = 0.05
+#: The rover's wheels (spec stm32_board §2.5, held equal to the emulated robot's by a test): radius (m), lever
+#: arm L = (length + width) / 2 (m), and the most a wheel turns (105 rpm, in rad/s).
+WHEEL_RADIUS = 0.050
+LEVER_ARM = 0.3125
+WHEEL_MAX = 105 * 2 * math.pi / 60
+
+
+def wheel_speed(vx: float, vy: float, omega: float) -> float:
+    """The fastest wheel's speed (rad/s) a velocity (m/s, m/s, rad/s) needs: above :data:`WHEEL_MAX` the
+    board saturates the wheels (the rover goes slower, and may turn, unlike the setpoint)."""
+    return (abs(vx) + abs(vy) + LEVER_ARM * abs(omega)) / WHEEL_RADIUS
 
 
 class RoverCanClient:
@@ -70,7 +82,12 @@ class RoverCanClient:
         self.nmt(co.NMT_START)
 
     def drive(self, vx: float, vy: float = 0.0, omega: float = 0.0) -> None:
-        """Command a velocity (m/s, m/s, rad/s); it is repeated every period until changed or :meth:`halt`."""
+        """Command a velocity (m/s, m/s, rad/s); it is repeated every period until changed or :meth:`halt`.
+
+        ValueError for a value the setpoint PDO cannot carry (NaN, infinite, beyond +-32.767)."""
+        for name, value in (("vx", vx), ("vy", vy), ("omega", omega)):
+            if not (math.isfinite(value) and -32.768 <= value <= 32.767):
+                raise ValueError(f"{name}: expected a number -32.768..32.767 (the setpoint PDO's range), got {value}")
         with self._cond:
             self._setpoint = (vx, vy, omega)
             self._cond.notify_all()
