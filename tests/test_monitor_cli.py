@@ -170,8 +170,8 @@ def test_tap_forwards_a_full_sdk_session_byte_exactly(hilbench_bench, tmp_path, 
 
 
 def test_monitor_errors_are_one_line(tmp_path):
-    proc = hb("monitor", str(tmp_path / "nothing.hbcap"), "--json")
-    assert proc.returncode == 2 and proc.stderr.strip() == (
+    proc = hb("monitor", str(tmp_path / "nothing.hbcap"), "--json")  # not there: exit 1 (errors.py's rule)
+    assert proc.returncode == 1 and proc.stderr.strip() == (
         f"hilbench: error: {tmp_path / 'nothing.hbcap'}: no such file, port or source")
     bad = tmp_path / "bad.json"
     bad.write_text("{}")

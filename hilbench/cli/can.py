@@ -77,11 +77,13 @@ def _write(text: str, out: str | None, *, crlf: bool = False) -> None:
 
 def manifest_socketcand(path: str) -> str:
     """The socketcand URL of a bench manifest's CAN endpoint (``file.json#endpoint`` picks one)."""
+    from hilbench.bench.manifest import ManifestError, read_manifest
+
     file, _, endpoint = path.partition("#")
     try:
-        data = json.loads(Path(file).read_text())
-    except (OSError, ValueError) as exc:
-        raise CliError(f"{file}: not a bench manifest ({exc})") from None
+        data = read_manifest(file)  # a bench that is not running (no manifest, a stale one): exit status 1
+    except ManifestError as exc:
+        raise CliError(str(exc)) from None
     eps = [e for e in data.get("endpoints", []) if isinstance(e, dict) and e.get("socketcand")]
     if endpoint:
         eps = [e for e in eps if e.get("name") == endpoint]
@@ -95,15 +97,11 @@ def manifest_socketcand(path: str) -> str:
 
 def open_target(target: str):
     """A python-can bus for TARGET (a manifest or a CAN bus URL); CliError in one line."""
-    from hilbench.transports.sources import SourceError
     from hilbench.transports.sources.can import open_bus
 
     if target.split("#", 1)[0].endswith(".json"):
         target = manifest_socketcand(target)
-    try:
-        bus, _channel, _bitrate = open_bus(target)
-    except SourceError as exc:
-        raise CliError(str(exc)) from None
+    bus, _channel, _bitrate = open_bus(target)  # SourceError: one line, 2 or 1 (not there, refused)
     return bus
 
 

@@ -74,9 +74,10 @@ def open_cli_source(spec: str, *, baud: int | None, speed: float | None = None,
                     default_baud: int = 57_600, endpoint: str | None = None) -> Iterator:
     """A byte source for a verb (:func:`hilbench.transports.sources.open_source`), or ``bench:PROFILE``,
     which starts that bench in this process and taps ``endpoint`` (default: the first). Errors become
-    one-line :class:`CliError` s; the source (and bench) close when the block ends."""
+    one line each (a source's own error keeps its exit status); the source (and bench) close when the block
+    ends."""
     from hilbench.transports.capture_file import CaptureError
-    from hilbench.transports.sources import MediumSource, SourceError, open_source
+    from hilbench.transports.sources import MediumSource, open_source
 
     bench = None
     try:
@@ -90,10 +91,14 @@ def open_cli_source(spec: str, *, baud: int | None, speed: float | None = None,
                                   protocol=ep.spec.protocol)
         else:
             source = open_source(spec, baud=baud, speed=speed, default_baud=default_baud)
-    except (SourceError, CaptureError) as exc:
+    except CaptureError as exc:  # a file that is not a readable capture
         if bench is not None:
             bench.stop()
         raise CliError(str(exc)) from None
+    except BaseException:
+        if bench is not None:
+            bench.stop()
+        raise
     try:
         yield source
     finally:

@@ -17,10 +17,10 @@ import json
 import math
 import sys
 import time
-from pathlib import Path
 from typing import Any
 
 from hilbench.cli.common import CliError, terminate_on_sigterm
+from hilbench.errors import DeviceError, UnavailableError
 from hilbench.rules import POSITIVE_COUNT, SECONDS, Rule
 
 #: ``--timeout``: how long to wait for the first scan (s).
@@ -100,10 +100,12 @@ def resolve(source: str) -> Target:
                       label=f"bench {bench.profile.name}#{ep['name']}")
     path, _, frag = source.partition("#")
     if path.endswith(".json"):
+        from hilbench.bench.manifest import ManifestError, read_manifest
+
         try:
-            manifest = json.loads(Path(path).read_text())
-        except (OSError, ValueError) as exc:
-            raise CliError(f"{path}: not a bench manifest ({exc})") from None
+            manifest = read_manifest(path)  # a bench that is not running (no manifest, a stale one): exit 1
+        except ManifestError as exc:
+            raise CliError(str(exc)) from None
         ep = _endpoint_of(manifest.get("endpoints", []), frag, path)
         dev = next((d for d in manifest.get("devices", []) if d.get("endpoint") == ep["name"]), {})
         scene = None
@@ -135,7 +137,9 @@ def _driver(target: Target, args: argparse.Namespace):
     baud = {"rplidar": 115_200, "sick-lms200": 9600}.get(protocol)
     try:
         link = ScannerLink.open(target.link, baud)
-    except (OSError, ValueError) as exc:
+    except OSError as exc:  # not there, refused, busy: exit status 1
+        raise UnavailableError(f"{target.link}: {getattr(exc, 'strerror', None) or exc}") from None
+    except ValueError as exc:
         raise CliError(f"{target.link}: {exc}") from None
     if protocol == "rplidar":
         return DRIVERS[protocol](link, express=args.express, motor=target.motor)
@@ -241,7 +245,7 @@ def _run(drv, target: Target, args: argparse.Namespace) -> int:
             while not done():
                 drv.pump(0.05)
                 if tr.scans == 0 and time.monotonic() > first_scan_timeout:
-                    raise CliError(f"{target.label}: no scan within {args.timeout:g} s ({_stats(tr)})")
+                    raise DeviceError(f"{target.label}: no scan within {args.timeout:g} s ({_stats(tr)})")
         else:
             with Live(frame(), auto_refresh=False, screen=True) as live:
                 last = 0.0
@@ -252,8 +256,8 @@ def _run(drv, target: Target, args: argparse.Namespace) -> int:
                         last = time.monotonic()
     except KeyboardInterrupt:
         pass
-    except ConnectionError as exc:
-        raise CliError(str(exc)) from None
+    except ConnectionError as exc:  # the scanner closed the connection
+        raise DeviceError(str(exc)) from None
     if args.png:
         if tr.last_scan is None:
             raise CliError(f"{target.label}: no scan to draw ({_stats(tr)})")

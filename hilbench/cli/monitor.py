@@ -21,6 +21,7 @@ import time
 from collections.abc import Callable
 
 from hilbench.cli.common import CliError, open_cli_source, terminate_on_sigterm
+from hilbench.errors import UnavailableError
 from hilbench.rules import LINE_BAUD, SECONDS, SPEED, Rule
 
 #: ``--device``: a device's address on its bus (a servo ID 0..253, a CANopen node id 1..127).
@@ -213,8 +214,9 @@ def cmd_tap_udp(args: argparse.Namespace) -> int:
     options = _options(args)
     try:
         relay = UdpRelay(listen, target)
-    except OSError as exc:
-        raise CliError(f"tap udp: cannot bind {listen[0]}:{listen[1]}: {exc.strerror or exc}") from None
+    except OSError as exc:  # taken (or not an address of this machine): exit status 1
+        raise UnavailableError(f"tap udp: cannot listen on udp://{listen[0]}:{listen[1]}: {exc.strerror or exc} "
+                               "(give another LISTEN port, or 0 for any free one)") from None
     try:
         label = f"udp relay {relay.listen[0]}:{relay.listen[1]} -> {target[0]}:{target[1]}"
         instrument = _instrument(args, relay.source)
@@ -222,8 +224,9 @@ def cmd_tap_udp(args: argparse.Namespace) -> int:
                       options=options)
         mon.start()
         relay.start()
+        # A banner, not a result: stderr, so stdout holds only the summary (one JSON document with --json).
         print(f"hilbench tap: clients send to udp://{relay.listen[0]}:{relay.listen[1]}, relayed to "
-              f"{target[0]}:{target[1]}", flush=True)
+              f"{target[0]}:{target[1]}", file=sys.stderr, flush=True)
         code = _watch(mon, args, label, lambda: "relaying" if relay.error is None else "failed",
                       stop=lambda: relay.error is not None)
     finally:
@@ -243,17 +246,13 @@ def cmd_tap(args: argparse.Namespace) -> int:
                        "`hilbench tap udp LISTEN TARGET`)")
     from hilbench.monitor import Monitor
     from hilbench.transports.serial_tap import SerialTap
-    from hilbench.transports.sources import SourceError
 
     terminate_on_sigterm()
     options = _options(args)
     # The forwarding thread must get the interpreter as soon as its read returns, not when the
     # decoding thread's time slice ends (5 ms by default): a tap must not make the SDK time out.
     sys.setswitchinterval(1e-4)
-    try:
-        tap = SerialTap(args.port, baud=args.baud, link=args.link)
-    except SourceError as exc:
-        raise CliError(str(exc)) from None
+    tap = SerialTap(args.port, baud=args.baud, link=args.link)  # SourceError: one line, its own exit status
     try:
         label = f"tap {args.port} <-> app {tap.app_path}"
         instrument = _instrument(args, tap.source)
@@ -261,7 +260,7 @@ def cmd_tap(args: argparse.Namespace) -> int:
                       options=options)
         mon.start()
         tap.start()
-        print(f"hilbench tap: application port {tap.app_path} <-> {args.port}", flush=True)
+        print(f"hilbench tap: application port {tap.app_path} <-> {args.port}", file=sys.stderr, flush=True)
         code = _watch(mon, args, label, lambda: "tapping" if not mon.ended.is_set() else "device gone",
                       stop=lambda: tap.error is not None)
     finally:

@@ -7,6 +7,7 @@ import signal
 import time
 
 from hilbench.cli.common import CliError
+from hilbench.errors import UnavailableError
 from hilbench.rules import POSITIVE_COUNT, RATE_HZ, SECONDS, Rule
 
 #: ``teleop --repeat-rate``: 0 (only on key presses) or a rate in Hz.
@@ -40,6 +41,8 @@ def cmd_send_vel(args: argparse.Namespace) -> int:
         link = HostLink.open(args.port, args.baud)
     except ValueError as exc:
         raise CliError(str(exc)) from None
+    except OSError as exc:  # not there, busy, refused: exit status 1
+        raise UnavailableError(f"cannot open {args.port}: {exc}") from None
     frame = vel2d.build(args.x, args.y, args.z)
     decoder = StreamDecoder()
     stop = []

@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from hilbench.bench.checks import Checker
-from hilbench.bench.control import ControlError
+from hilbench.bench.control import ControlError, ControlRequestError
 from hilbench.bench.family import DeviceFamily, DeviceSpec, bench_device
 
 #: The default domain: non-zero, so the nodes do not meet a real DDS on the machine (domain 0).
@@ -235,7 +235,7 @@ class FreeRtpsFamily(DeviceFamily):
         if cmd == "publish":
             topic, value = req.get("topic"), req.get("value", {})
             if not isinstance(value, dict):
-                raise ControlError("value: expected an object of the message's fields")
+                raise ControlRequestError("value: expected an object of the message's fields")
             done: dict[str, Any] = {}
             ev = __import__("threading").Event()
 
@@ -254,7 +254,7 @@ class FreeRtpsFamily(DeviceFamily):
             if "error" in done:
                 raise ControlError(done["error"])
             return {"readers": done["readers"]}
-        raise ControlError(f"unknown command {cmd!r}")
+        raise ControlRequestError(f"unknown command {cmd!r}")
 
 
 def _bench_node(bench, name: str | None = None):
