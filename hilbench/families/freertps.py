@@ -165,9 +165,9 @@ class FreeRtpsFamily(DeviceFamily):
     # ------------------------------------------------------------------ bench
 
     def build(self, bench, endpoint, devices: list[NodeSpec], t: float) -> None:
-        from hilbench.errors import BenchError
         from hilbench.fakes.rtps_node import FreeRtpsNode, TopicSpec
         from hilbench.protocols import rtps
+        from hilbench.transports.listener import BindError
 
         opts = endpoint.spec.options
         nodes = []
@@ -179,10 +179,11 @@ class FreeRtpsFamily(DeviceFamily):
                 node.attach(endpoint.medium)
             except OSError as exc:
                 ports = rtps.ports(opts["domain_id"], spec.participant_index)
-                raise BenchError(f"node {spec.name!r}: cannot bind 127.0.0.1 ports "
-                                 f"{ports['metatraffic_unicast']}/{ports['user_unicast']} (domain "
-                                 f"{opts['domain_id']}, participant index {spec.participant_index}): "
-                                 f"{exc.strerror or exc}") from None
+                reason = (f"{exc.reason if isinstance(exc, BindError) else exc.strerror or exc} (node {spec.name!r}: "
+                          f"domain {opts['domain_id']}, {spec.where}.participant_index {spec.participant_index} "
+                          f"use ports {ports['metatraffic_unicast']}/{ports['user_unicast']})")
+                raise BindError(getattr(exc, "address", ("127.0.0.1", ports["metatraffic_unicast"])), reason,
+                                exc.errno, "RTPS port", key="domain_id") from None
             endpoint.add_device(spec.name, node)
             nodes.append(node)
         endpoint.attrs["nodes"] = nodes
