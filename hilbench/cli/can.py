@@ -26,7 +26,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from hilbench.cli.common import CliError, open_cli_source, terminate_on_sigterm
+from hilbench.cli.common import CliError, add_set_option, open_cli_source, terminate_on_sigterm
 from hilbench.errors import DeviceError
 from hilbench.rules import POSITIVE_COUNT, SECONDS, SPEED, Rule
 
@@ -57,11 +57,11 @@ NMT = {"start": 0x01, "stop": 0x02, "preop": 0x80, "pre-operational": 0x80, "res
 
 # --------------------------------------------------------------------------- helpers
 
-def _boards(profile_name: str) -> list[tuple[str, Any]]:
+def _boards(profile_name: str, overrides: list[str] | None = None) -> list[tuple[str, Any]]:
     from hilbench.bench.profile import load_profile
     from hilbench.families.canopen_board import profile_boards
 
-    boards = profile_boards(load_profile(profile_name))
+    boards = profile_boards(load_profile(profile_name, overrides))
     if not boards:
         raise CliError(f"{profile_name}: the profile has no CANopen boards")
     return boards
@@ -141,14 +141,14 @@ def _index(text: str) -> tuple[int, int]:
 def cmd_dbc(args: argparse.Namespace) -> int:
     from hilbench.protocols import board_can
 
-    _write(board_can.dbc(_boards(args.profile)), args.output)
+    _write(board_can.dbc(_boards(args.profile, args.overrides)), args.output)
     return 0
 
 
 def cmd_eds(args: argparse.Namespace) -> int:
     from hilbench.protocols import board_can
 
-    boards = _boards(args.profile)
+    boards = _boards(args.profile, args.overrides)
     if args.device:
         boards = [b for b in boards if b[0] == args.device]
         if not boards:
@@ -171,7 +171,7 @@ def cmd_dump(args: argparse.Namespace) -> int:
     decoders = [load_dbc(d) for d in args.dbc] + [load_eds(e) for e in args.eds]
     deadline = time.monotonic() + args.seconds if args.seconds else None
     count = 0
-    with open_cli_source(args.source, baud=None, speed=args.speed) as source:
+    with open_cli_source(args.source, baud=None, speed=args.speed, overrides=args.overrides) as source:
         if source.protocol not in (None, "can"):
             raise CliError(f"{source.name} carries {source.protocol}, not CAN")
         offset = getattr(source, "wall_offset", None)
@@ -432,12 +432,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     d = cs.add_parser("dbc", help="export the DBC of a profile's CANopen boards (cantools reads it)")
     d.add_argument("profile", help="profile file or bundled profile name (e.g. mecarover-can)")
     d.add_argument("-o", "--output", metavar="FILE", help="write to FILE instead of stdout")
+    add_set_option(d)
     d.set_defaults(func=cmd_dbc)
 
     e = cs.add_parser("eds", help="export a board's EDS (the canopen package and CANopen tools import it)")
     e.add_argument("profile", help="profile file or bundled profile name")
     e.add_argument("--device", help="the board (when the profile has several)")
     e.add_argument("-o", "--output", metavar="FILE", help="write to FILE instead of stdout")
+    add_set_option(e)
     e.set_defaults(func=cmd_eds)
 
     u = cs.add_parser("dump", help="print frames as candump -L lines, decoded with --dbc/--eds",
@@ -452,6 +454,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     u.add_argument("--seconds", type=SECONDS, help="stop after this many seconds (0: no limit)")
     u.add_argument("-n", "--count", type=POSITIVE_COUNT, help="stop after this many frames")
     u.add_argument("--speed", type=SPEED, help="replay a file at this multiple of its recorded speed")
+    add_set_option(u, "bench:PROFILE: ")
     u.set_defaults(func=cmd_dump)
 
     target_help = "a bench manifest (its socketcand server) or a CAN bus URL (socketcand://, slcan://, socketcan://)"

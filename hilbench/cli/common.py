@@ -59,6 +59,18 @@ def int_arg(text: str) -> int:
         raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
 
 
+SET_HELP = ("change a key of the profile before the bench starts, checked as the file is: ENDPOINT.KEY "
+            "(dxl.baud=1000000, can.socketcand.port=29536, nodes.domain_id=3, rover.port=0), devices.NAME.KEY, "
+            "TABLE.KEY (defaults.supply_voltage=12); the value is read as TOML; repeatable")
+
+
+def add_set_option(parser: argparse.ArgumentParser, what: str = "") -> None:
+    """``--set KEY=VALUE`` (repeatable) into ``args.overrides``: profile overrides
+    (:func:`hilbench.bench.profile.apply_overrides`) for a verb that starts a bench from a profile."""
+    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                        help=f"{what}{SET_HELP}")
+
+
 def terminate_on_sigterm() -> None:
     """SIGTERM ends a verb like Ctrl-C does (summary printed, files closed)."""
 
@@ -71,21 +83,25 @@ def terminate_on_sigterm() -> None:
 
 @contextlib.contextmanager
 def open_cli_source(spec: str, *, baud: int | None, speed: float | None = None,
-                    default_baud: int = 57_600, endpoint: str | None = None) -> Iterator:
+                    default_baud: int = 57_600, endpoint: str | None = None,
+                    overrides: list[str] | None = None) -> Iterator:
     """A byte source for a verb (:func:`hilbench.transports.sources.open_source`), or ``bench:PROFILE``,
-    which starts that bench in this process and taps ``endpoint`` (default: the first). Errors become
+    which starts that bench (its profile changed by ``overrides``, ``--set``) in this process and taps
+    ``endpoint`` (default: the first). Errors become
     one line each (a source's own error keeps its exit status); the source (and bench) close when the block
     ends."""
     from hilbench.transports.capture_file import CaptureError
     from hilbench.transports.sources import MediumSource, open_source
 
     bench = None
+    if overrides and not spec.startswith("bench:"):
+        raise CliError(f"--set changes the profile of a bench this command starts: give bench:PROFILE, not {spec}")
     try:
         if spec.startswith("bench:"):
             from hilbench.bench import Bench
-            from hilbench.bench.profile import DEFAULT_PROFILE
+            from hilbench.bench.profile import DEFAULT_PROFILE, load_profile
 
-            bench = Bench(spec[len("bench:"):] or DEFAULT_PROFILE).start()
+            bench = Bench(load_profile(spec[len("bench:"):] or DEFAULT_PROFILE, overrides)).start()
             ep = bench.endpoint(endpoint or next(iter(bench.endpoints)))
             source = MediumSource(ep.medium, name=f"bench {bench.profile.name}: {ep.path}",
                                   protocol=ep.spec.protocol)

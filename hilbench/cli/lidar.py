@@ -19,7 +19,7 @@ import sys
 import time
 from typing import Any
 
-from hilbench.cli.common import CliError, terminate_on_sigterm
+from hilbench.cli.common import CliError, add_set_option, terminate_on_sigterm
 from hilbench.errors import DeviceError, UnavailableError
 from hilbench.rules import POSITIVE_COUNT, SECONDS, Rule
 
@@ -82,13 +82,16 @@ def _carry_lines(manifest: dict) -> None:
     pyserial_shim.install()
 
 
-def resolve(source: str) -> Target:
-    """A :class:`Target` from the command line's SOURCE."""
+def resolve(source: str, overrides: list[str] | None = None) -> Target:
+    """A :class:`Target` from the command line's SOURCE (``overrides``: ``--set`` of a ``bench:`` source)."""
+    if overrides and not source.startswith("bench:"):
+        raise CliError(f"--set changes the profile of a bench this command starts: give bench:PROFILE, not {source}")
     if source.startswith("bench:"):
         from hilbench.bench import Bench
+        from hilbench.bench.profile import load_profile
 
         spec, _, frag = source[len("bench:"):].partition("#")
-        bench = Bench(spec or "scanners").start()
+        bench = Bench(load_profile(spec or "scanners", overrides)).start()
         manifest = bench.manifest()
         ep = _endpoint_of(manifest["endpoints"], frag, source)
         dev = next((d for d in manifest["devices"] if d["endpoint"] == ep["name"]), {})
@@ -200,7 +203,7 @@ def save_png(path: str, scan, target: Target) -> None:
 
 def cmd_lidar(args: argparse.Namespace) -> int:
     terminate_on_sigterm()
-    target = resolve(args.source)
+    target = resolve(args.source, args.overrides)
     try:
         drv = _driver(target, args)
         try:
@@ -289,6 +292,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("source", help="what to read (see above)")
     p.add_argument("--protocol", choices=sorted(PROTOCOLS), help="the scanner's protocol (default: what a bench "
                    "says; a serial port: rplidar; tcp://: scip)")
+    add_set_option(p, "bench:PROFILE: ")
     p.add_argument("--express", action="store_true", help="RPLIDAR: express scan (legacy capsules)")
     p.add_argument("--lms-baud", type=int, choices=(9600, 19200, 38400, 500_000), default=9600,
                    help="LMS 200: switch the link to this speed first (default 9600, the power-up rate)")

@@ -20,7 +20,7 @@ import threading
 import time
 from collections.abc import Callable
 
-from hilbench.cli.common import CliError, open_cli_source, terminate_on_sigterm
+from hilbench.cli.common import CliError, add_set_option, open_cli_source, terminate_on_sigterm
 from hilbench.errors import UnavailableError
 from hilbench.rules import LINE_BAUD, SECONDS, SPEED, Rule
 
@@ -144,7 +144,7 @@ def cmd_monitor(args: argparse.Namespace) -> int:
     terminate_on_sigterm()
     speed = args.speed if args.speed is not None else (1.0 if args.realtime else None)
     options = _options(args)
-    with open_cli_source(args.source, baud=args.baud, speed=speed) as source:
+    with open_cli_source(args.source, baud=args.baud, speed=speed, overrides=args.overrides) as source:
         instrument = _instrument(args, source)
         if args.baud and source.baud != args.baud:
             source.baud = args.baud  # the user knows the line rate better than the source
@@ -167,7 +167,7 @@ def cmd_record(args: argparse.Namespace) -> int:
     terminate_on_sigterm()
     speed = args.speed if args.speed is not None else None
     deadline = time.monotonic() + args.seconds if args.seconds else None
-    with open_cli_source(args.source, baud=args.baud, speed=speed) as source:
+    with open_cli_source(args.source, baud=args.baud, speed=speed, overrides=args.overrides) as source:
         writer = _writer(args.file, source)
         stop = threading.Event()
         try:
@@ -336,6 +336,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     speed = m.add_mutually_exclusive_group()
     speed.add_argument("--realtime", action="store_true", help="replay a capture at its recorded speed")
     speed.add_argument("--speed", type=SPEED, help="replay a capture at this multiple of its recorded speed")
+    add_set_option(m, "bench:PROFILE: ")
     _watch_args(m)
     m.set_defaults(func=cmd_monitor)
 
@@ -349,6 +350,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     r.add_argument("--baud", type=LINE_BAUD, help="line rate in bit/s (a serial port's rate; a raw dump's byte time)")
     r.add_argument("--seconds", type=SECONDS, help="stop after this many seconds")
     r.add_argument("--speed", type=SPEED, help="read a capture at this multiple of its recorded speed")
+    add_set_option(r, "bench:PROFILE: ")
     r.set_defaults(func=cmd_record)
 
     t = sub.add_parser(
