@@ -8,7 +8,7 @@ import time
 
 from hilbench.cli.common import CliError
 from hilbench.errors import UnavailableError
-from hilbench.rules import POSITIVE_COUNT, RATE_HZ, SECONDS, Rule
+from hilbench.rules import POSITIVE_COUNT, RATE_HZ, SECONDS, Rule, RuleRef
 
 #: ``teleop --repeat-rate``: 0 (only on key presses) or a rate in Hz.
 REPEAT_HZ = Rule(float, 0, 1000)
@@ -17,10 +17,8 @@ REPEAT_HZ = Rule(float, 0, 1000)
 SPEED_LIMIT = Rule(float, -1000, 1000)
 
 
-def _board_baud(text: str) -> int:
-    from hilbench.families.stm32_rover import BOARD_BAUD
-
-    return BOARD_BAUD(text)
+#: ``--baud``: the board family's UART rule (the family is imported only when the option is used).
+_board_baud = RuleRef("hilbench.families.stm32_rover", "BOARD_BAUD")
 
 
 def _print_logs(decoder, data: bytes) -> int:
@@ -84,6 +82,8 @@ def cmd_send_vel(args: argparse.Namespace) -> int:
                 _print_logs(decoder, link.read(0.02))
     except KeyboardInterrupt:
         print(f"sent {sent} frames", flush=True)
+    except OSError as exc:  # a UDP target that refuses (nothing listens), a serial adapter unplugged: exit 1
+        raise UnavailableError(f"{args.port}: {exc.strerror or exc} (after {sent} frames)") from None
     finally:
         link.close()
     return 0
