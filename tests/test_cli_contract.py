@@ -116,7 +116,7 @@ def test_an_out_of_range_value_is_one_line_naming_option_value_and_range(argv, l
 
 def test_can_drive_ranges_are_the_setpoint_pdo_and_the_rover_wheels():
     from hilbench.cli.can import SETPOINT_VALUE
-    from hilbench.clients import can_rover
+    from hilbench.clients import can_rover, rover_speed
     from hilbench.fakes.stm32_board import robot
     from hilbench.protocols import board_can
 
@@ -124,9 +124,12 @@ def test_can_drive_ranges_are_the_setpoint_pdo_and_the_rover_wheels():
         if signal.name in ("vx", "vy", "omega"):
             lo, hi = signal.raw_range
             assert (lo * signal.scale, hi * signal.scale) == pytest.approx((SETPOINT_VALUE.lo, SETPOINT_VALUE.hi))
-    assert pytest.approx(robot.WHEEL_MAX) == can_rover.WHEEL_MAX
-    assert can_rover.WHEEL_RADIUS * 1000 == robot.WHEEL_RADIUS and can_rover.LEVER_ARM * 1000 == robot.L_W_HALF
-    assert can_rover.wheel_speed(0.5, 0, 0) < can_rover.WHEEL_MAX < can_rover.wheel_speed(0.3, 0.3, 0)
+    assert pytest.approx(robot.WHEEL_MAX) == rover_speed.WHEEL_MAX
+    assert rover_speed.WHEEL_RADIUS * 1000 == robot.WHEEL_RADIUS and rover_speed.LEVER_ARM * 1000 == robot.L_W_HALF
+    assert rover_speed.beyond_top_speed(0.5, 0, 0) is None and rover_speed.beyond_top_speed(0, 0, 1.7) is None
+    assert rover_speed.beyond_top_speed(0.3, 0.3, 0).endswith("needs a wheel at 12.00 rad/s; the rover's wheels turn "
+                                                              "at most 11.00 rad/s (105 rpm: |x| + |y| + 0.3125 m x "
+                                                              "|z| <= 0.55 m/s): the board saturates them")
     with pytest.raises(ValueError, match="vx: expected a number -32.768..32.767"):
         can_rover.RoverCanClient.drive(object.__new__(can_rover.RoverCanClient), float("nan"))
 
@@ -399,6 +402,7 @@ def test_set_moves_a_bench_and_is_checked_as_the_profile(hilbench_emulator, hilb
     m = hilbench_emulator("mecarover-udp", set={"rover.port": port, "rover.baud": 230_400})
     (ep,) = m["endpoints"]
     assert (ep["port"], ep["baud"]) == (port, 230_400)
+    assert m["set"] == {"rover.port": port, "rover.baud": 230_400}  # (readers of the profile file apply them)
     domain = free_domain(8)
     b = hilbench_bench("freertps", set={"nodes.domain_id": domain, "devices.echo.participant_index": 7})
     assert b.endpoint("nodes").spec.options["domain_id"] == domain and b.profile.devices[2].participant_index == 7

@@ -177,8 +177,8 @@ def test_monitor_errors_are_one_line(tmp_path):
     bad.write_text("{}")
     proc = hb("monitor", str(bad), "--json")
     assert proc.returncode == 2 and "not a bench manifest" in proc.stderr
-    proc = hb("tap", "/dev/no-such-port")
-    assert proc.returncode == 2 and len(proc.stderr.strip().splitlines()) == 1
+    proc = hb("tap", "/dev/no-such-port")  # not there: exit 1
+    assert proc.returncode == 1 and len(proc.stderr.strip().splitlines()) == 1
 
 
 def test_monitor_refuses_a_line_that_is_not_dynamixel(hilbench_emulator, tmp_path):

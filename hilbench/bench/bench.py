@@ -324,6 +324,8 @@ class Bench:
             "endpoints": eps,
             "devices": devs,
         }
+        if self.profile.overrides:  # --set: the profile file alone is not this bench
+            out["set"] = dict(self.profile.overrides)
         if self.control is not None:
             out["control"] = self.control.address_text
         for name, service in self.services.items():

@@ -93,6 +93,9 @@ class Profile:
     devices: list[DeviceSpec]
     defaults: dict[str, Any] = field(default_factory=dict)
     tables: dict[str, Any] = field(default_factory=dict)
+    #: The overrides applied to the file (``{"dxl.baud": 1000000}``; :func:`apply_overrides`), listed in the
+    #: bench's manifest (``"set"``) so a reader of the profile file can apply them too.
+    overrides: dict[str, Any] = field(default_factory=dict)
 
     def devices_on(self, endpoint: str) -> list[DeviceSpec]:
         """The device specs of one endpoint, in profile order."""
@@ -162,9 +165,11 @@ def load_profile(name_or_path: str | Path | Profile = DEFAULT_PROFILE, overrides
         return parse_profile(data, str(path))
     changed = apply_overrides(data, overrides, str(path))
     try:
-        return parse_profile(changed.data, str(path))
+        profile = parse_profile(changed.data, str(path))
     except ProfileError as exc:
         raise ProfileError(changed.explain(str(exc))) from None
+    profile.overrides = changed.values
+    return profile
 
 
 @dataclass
@@ -174,6 +179,7 @@ class Overridden:
     data: dict[str, Any]
     path: str
     keys: dict[str, str] = field(default_factory=dict)  # full key -> the override as given ("dxl.baud=1000000")
+    values: dict[str, Any] = field(default_factory=dict)  # key as given -> the value set (TOML text read)
 
     def explain(self, message: str) -> str:
         """A check's one-line message with the override that set the key it names (``(set: dxl.baud=1)``)."""
@@ -215,13 +221,14 @@ def apply_overrides(data: dict[str, Any], overrides: Overrides, path: str = "<pr
             value = _toml_value(value)
         table[keys[-1]] = value
         out.keys[_dotted(keys)] = given
+        out.values[key] = value
     return out
 
 
 def _split(text: Any, path: str) -> tuple[str, str]:
     key, sep, value = str(text).partition("=")
     if not sep or not key.strip():
-        raise ProfileError(f"{path}: override {text!r}: expected KEY=VALUE, e.g. dxl.baud=1000000")
+        raise ProfileError(f"{path}: override {text!r}: expected KEY=VALUE, e.g. ENDPOINT.baud=1000000")
     return key.strip(), value.strip()
 
 

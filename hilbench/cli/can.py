@@ -313,15 +313,13 @@ def _show(raw: bytes, kind: str) -> str:
 
 
 def cmd_drive(args: argparse.Namespace) -> int:
-    from hilbench.clients.can_rover import WHEEL_MAX, WHEEL_RADIUS, RoverCanClient, wheel_speed
+    from hilbench.clients.can_rover import RoverCanClient
+    from hilbench.clients.rover_speed import beyond_top_speed
 
     terminate_on_sigterm()
-    need = wheel_speed(args.vx, args.vy, args.omega)
-    if need > WHEEL_MAX * (1 + 1e-9):
-        # Sent as given, as a ROS driver would: the board saturates its wheels (the real one and ours).
-        print(f"hilbench can drive: warning: --vx {args.vx:g} --vy {args.vy:g} --omega {args.omega:g} needs a wheel "
-              f"at {need:.2f} rad/s; the rover's wheels turn at most {WHEEL_MAX:.2f} rad/s (105 rpm, "
-              f"{WHEEL_MAX * WHEEL_RADIUS:.2f} m/s straight ahead): the board saturates them", file=sys.stderr)
+    warning = beyond_top_speed(args.vx, args.vy, args.omega)
+    if warning:  # sent as given, as a ROS driver would: the board saturates its wheels (the real one and ours)
+        print(f"hilbench can drive: warning: {warning}", file=sys.stderr)
     bus = open_target(args.target)
     with RoverCanClient(bus, args.node, period=args.period, own_bus=True) as rover:
         if not args.no_start:

@@ -59,9 +59,9 @@ def int_arg(text: str) -> int:
         raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
 
 
-SET_HELP = ("change a key of the profile before the bench starts, checked as the file is: ENDPOINT.KEY "
-            "(dxl.baud=1000000, can.socketcand.port=29536, nodes.domain_id=3, rover.port=0), devices.NAME.KEY, "
-            "TABLE.KEY (defaults.supply_voltage=12); the value is read as TOML; repeatable")
+SET_HELP = ("change a key of the profile before the bench starts, checked as the file is: ENDPOINT.KEY[.SUBKEY] "
+            "(ENDPOINT.baud=1000000, ENDPOINT.port=0 for any free port), devices.NAME.KEY or TABLE.KEY; the value "
+            "is read as TOML; repeatable")
 
 
 def add_set_option(parser: argparse.ArgumentParser, what: str = "") -> None:

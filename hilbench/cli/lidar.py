@@ -116,7 +116,8 @@ def resolve(source: str, overrides: list[str] | None = None) -> Target:
             with contextlib.suppress(Exception):
                 from hilbench.bench.profile import load_profile
 
-                scene = load_profile(manifest["profile"]).tables.get("scene")
+                overrides = manifest.get("set") if isinstance(manifest.get("set"), dict) else None
+                scene = load_profile(manifest["profile"], overrides).tables.get("scene")
         link = f"{ep['host']}:{ep['port']}" if ep.get("type") == "tcp" else ep["path"]
         _carry_lines(manifest)
         return Target(link, ep.get("protocol"), scene=scene, pose=dev.get("pose"),

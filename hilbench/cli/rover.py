@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import signal
+import sys
 import time
 
 from hilbench.cli.common import CliError
@@ -41,6 +42,11 @@ def cmd_send_vel(args: argparse.Namespace) -> int:
         raise CliError(str(exc)) from None
     except OSError as exc:  # not there, busy, refused: exit status 1
         raise UnavailableError(f"cannot open {args.port}: {exc}") from None
+    from hilbench.clients.rover_speed import beyond_top_speed
+
+    warning = beyond_top_speed(args.x, args.y, args.z)
+    if warning:  # sent as given, as the ROS bridge would: the board saturates its wheels
+        print(f"hilbench send-vel: warning: {warning}", file=sys.stderr)
     frame = vel2d.build(args.x, args.y, args.z)
     decoder = StreamDecoder()
     stop = []
@@ -109,7 +115,9 @@ VERBS = {  # each verb register() adds and its line in `hilbench --help` (see hi
 def register(sub: argparse._SubParsersAction) -> None:
     s = sub.add_parser("send-vel", help=VERBS["send-vel"],
                        description="Send one 28-byte Vel2d frame (x, y in m/s, z in rad/s, CRC-32/MPEG-2) with one "
-                                   "write, as the ROS bridge vel2d_bridge does, or stream it with --rate.")
+                                   "write, as the ROS bridge vel2d_bridge does, or stream it with --rate. A velocity "
+                                   "the rover cannot follow (a wheel beyond 105 rpm: |x| + |y| + 0.3125 m x |z| "
+                                   "above 0.55 m/s) is sent as given, with a warning: the board saturates its wheels.")
     s.add_argument("port", help="serial port (/dev/ttyACM0, an emulated pty) or udp://127.0.0.1:PORT")
     s.add_argument("x", type=SPEED_LIMIT, help="linear.x in m/s")
     s.add_argument("y", type=SPEED_LIMIT, help="linear.y in m/s")

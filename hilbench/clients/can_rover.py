@@ -30,17 +30,6 @@ from hilbench.protocols import board_can as bc
 from hilbench.protocols import canopen as co
 
 SETPOINT_PERIOD = 0.05
-#: The rover's wheels (spec stm32_board §2.5, held equal to the emulated robot's by a test): radius (m), lever
-#: arm L = (length + width) / 2 (m), and the most a wheel turns (105 rpm, in rad/s).
-WHEEL_RADIUS = 0.050
-LEVER_ARM = 0.3125
-WHEEL_MAX = 105 * 2 * math.pi / 60
-
-
-def wheel_speed(vx: float, vy: float, omega: float) -> float:
-    """The fastest wheel's speed (rad/s) a velocity (m/s, m/s, rad/s) needs: above :data:`WHEEL_MAX` the
-    board saturates the wheels (the rover goes slower, and may turn, unlike the setpoint)."""
-    return (abs(vx) + abs(vy) + LEVER_ARM * abs(omega)) / WHEEL_RADIUS
 
 
 class RoverCanClient:
