@@ -201,6 +201,8 @@ def apply_overrides(data: dict[str, Any], overrides: Overrides, path: str = "<pr
     string; tables on the way are created. Nothing is checked here: :func:`parse_profile` checks the result
     as it checks a file.
     """
+    if isinstance(overrides, str):
+        overrides = [overrides]  # one KEY=VALUE, not its characters
     out = Overridden(copy.deepcopy(data), path)
     items = overrides.items() if isinstance(overrides, Mapping) else (_split(text, path) for text in overrides)
     for key, value in items:

@@ -87,9 +87,8 @@ def open_cli_source(spec: str, *, baud: int | None, speed: float | None = None,
                     overrides: list[str] | None = None) -> Iterator:
     """A byte source for a verb (:func:`hilbench.transports.sources.open_source`), or ``bench:PROFILE``,
     which starts that bench (its profile changed by ``overrides``, ``--set``) in this process and taps
-    ``endpoint`` (default: the first). Errors become
-    one line each (a source's own error keeps its exit status); the source (and bench) close when the block
-    ends."""
+    ``endpoint`` (default: the first). Errors are one line, a source's own keeping its exit status; the source
+    (and bench) close when the block ends."""
     from hilbench.transports.capture_file import CaptureError
     from hilbench.transports.sources import MediumSource, open_source
 

@@ -302,7 +302,7 @@ def _watch_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--strict", action="store_true",
                    help=f"exit {STRICT_EXIT} when the input is damaged (a capture cut short or corrupted, times out "
                         "of order: the data-quality findings)")
-    p.add_argument("--seconds", type=SECONDS, help="stop after this many seconds")
+    p.add_argument("--seconds", type=SECONDS, help="stop after this many seconds (0: no limit)")
     p.add_argument("--view", type=_view, help="dashboard view to start with (the instrument's, e.g. devices, models, details, "
                                   "log; keys 1-9)")
     p.add_argument("--device", type=DEVICE_ADDRESS, help="device ID the details view shows first (keys: left/right)")
@@ -348,7 +348,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     r.add_argument("source", help="what to record")
     r.add_argument("file", help="capture file to write ('-': stdout)")
     r.add_argument("--baud", type=LINE_BAUD, help="line rate in bit/s (a serial port's rate; a raw dump's byte time)")
-    r.add_argument("--seconds", type=SECONDS, help="stop after this many seconds")
+    r.add_argument("--seconds", type=SECONDS, help="stop after this many seconds (0: no limit)")
     r.add_argument("--speed", type=SPEED, help="read a capture at this multiple of its recorded speed")
     add_set_option(r, "bench:PROFILE: ")
     r.set_defaults(func=cmd_record)
