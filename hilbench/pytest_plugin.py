@@ -13,6 +13,11 @@ Fixtures
 ``hilbench_emulator``
     A factory that runs ``hilbench emulate`` in a separate process, as a user
     would, and returns its manifest once every endpoint is ready.
+
+Every factory and the marker take ``set={"dxl.baud": 1_000_000, "can.socketcand.port": 0}``: profile keys
+changed before the bench starts and checked as the file is, as ``hilbench emulate --set`` does
+(:func:`hilbench.bench.profile.apply_overrides`), so a test moves a bench's port, baud or domain without a
+copy of the profile.
 ``hilbench_run``
     Clients in other processes with a serial adapter's semantics (``hilbench
     run``) against a fixture bench or an emulator: ``hilbench_run.command(bench,
@@ -34,6 +39,7 @@ port. A test whose ``hilbench_profile`` marker names another bench is skipped.
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -48,7 +54,7 @@ import pytest
 from hilbench.bench import Bench
 from hilbench.bench.line_server import serve_lines
 from hilbench.bench.manifest import read_manifest
-from hilbench.bench.profile import DEFAULT_PROFILE
+from hilbench.bench.profile import DEFAULT_PROFILE, load_profile
 from hilbench.run import pyserial_shim
 
 
@@ -76,7 +82,8 @@ def pytest_addoption(parser: pytest.Parser) -> None:
 def pytest_configure(config: pytest.Config) -> None:
     config.addinivalue_line(
         "markers",
-        "hilbench_profile(name, paced=None, link_dir=None): profile the `bench` fixture starts",
+        "hilbench_profile(name, paced=None, link_dir=None, set=None): profile the `bench` fixture starts "
+        "(set: {KEY: VALUE} profile overrides, as hilbench emulate --set)",
     )
     if config.getoption("hilbench_labgrid"):
         _check_labgrid(config)
@@ -123,11 +130,15 @@ def stop_lines_in_process(rdevs: list[int]) -> None:
 
 @pytest.fixture
 def hilbench_bench() -> Iterator[Callable[..., Bench]]:
-    """Factory: ``hilbench_bench(profile, paced=None, link_dir=None, lines=True)`` starts a bench, stopped
-    after the test; ``lines`` serves its modem lines, BREAK and flushes (see the module's docstring)."""
+    """Factory: ``hilbench_bench(profile, paced=None, link_dir=None, lines=True, set=None)`` starts a bench,
+    stopped after the test; ``lines`` serves its modem lines, BREAK and flushes (see the module's docstring);
+    ``set`` changes profile keys first (``{"dxl.baud": 1_000_000}``, as ``hilbench emulate --set``)."""
     benches: list[tuple[Bench, list[int]]] = []
 
-    def start(profile: str | Path = DEFAULT_PROFILE, *, lines: bool = True, **kwargs: Any) -> Bench:
+    def start(profile: str | Path = DEFAULT_PROFILE, *, lines: bool = True, set: dict[str, Any] | None = None,
+              **kwargs: Any) -> Bench:
+        if set:
+            profile = load_profile(profile, set)
         b = Bench(profile, **kwargs).start()
         benches.append((b, serve_lines_in_process(b) if lines else []))
         return b
@@ -169,7 +180,8 @@ def _labgrid_bench(request: pytest.FixtureRequest) -> Any:
 
 @pytest.fixture
 def hilbench_emulator() -> Iterator[Callable[..., dict[str, Any]]]:
-    """Factory: run ``hilbench emulate PROFILE [ARGS]`` in a subprocess; returns its manifest.
+    """Factory: run ``hilbench emulate PROFILE [ARGS]`` in a subprocess (``set={KEY: VALUE}``: ``--set``
+    overrides); returns its manifest.
 
     The manifest also carries ``"process"`` (the :class:`subprocess.Popen`) and
     ``"manifest_path"`` (the file, for ``hilbench run --manifest``).
@@ -177,9 +189,12 @@ def hilbench_emulator() -> Iterator[Callable[..., dict[str, Any]]]:
     procs: list[subprocess.Popen] = []
     tmp = tempfile.TemporaryDirectory(prefix="hilbench-")
 
-    def start(profile: str | Path = DEFAULT_PROFILE, *args: str, timeout: float = 20.0) -> dict[str, Any]:
+    def start(profile: str | Path = DEFAULT_PROFILE, *args: str, timeout: float = 20.0,
+              set: dict[str, Any] | None = None) -> dict[str, Any]:
         manifest = Path(tmp.name) / f"manifest-{len(procs)}.json"
-        cmd = [sys.executable, "-m", "hilbench.cli", "emulate", str(profile), "--manifest", str(manifest), *args]
+        overrides = [a for key, value in (set or {}).items() for a in ("--set", f"{key}={_toml_text(value)}")]
+        cmd = [sys.executable, "-m", "hilbench.cli", "emulate", str(profile), "--manifest", str(manifest), *overrides,
+               *args]
         proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                                 env={**os.environ, "PYTHONUNBUFFERED": "1"})
         procs.append(proc)
@@ -216,6 +231,17 @@ def hilbench_emulator() -> Iterator[Callable[..., dict[str, Any]]]:
             if stream:
                 stream.close()
     tmp.cleanup()
+
+
+def _toml_text(value: Any) -> str:
+    """A Python value as TOML value text for ``--set`` (strings, numbers, booleans and arrays of them)."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, int | float):
+        return repr(value)
+    if isinstance(value, str | list | tuple):
+        return json.dumps(list(value) if isinstance(value, tuple) else value)  # JSON's are TOML's here
+    raise TypeError(f"set: {value!r}: give a string, number, boolean or array")
 
 
 class RunHelper:

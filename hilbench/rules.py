@@ -15,6 +15,7 @@ This module imports nothing from hilbench but :mod:`hilbench.errors`: every laye
 from __future__ import annotations
 
 import argparse
+import importlib
 import math
 from collections.abc import Iterable
 from typing import Any
@@ -148,6 +149,43 @@ class Switch:
         return "Switch()"
 
 
+class RuleRef:
+    """A :class:`Rule` defined in a module that is imported only when the rule is used: ``RuleRef(
+    "hilbench.families.stm32_rover", "WAIT_TIMEOUT")`` as argparse ``type=`` keeps a verb's registration from
+    importing a family (its option still shows and checks that family's range)."""
+
+    def __init__(self, module: str, name: str) -> None:
+        self.module = module
+        self.name = name
+        self.__name__ = name.lower()
+        self._rule: Rule | Switch | None = None
+
+    @property
+    def rule(self) -> Rule | Switch:
+        if self._rule is None:
+            self._rule = getattr(importlib.import_module(self.module), self.name)
+        return self._rule
+
+    @property
+    def expected(self) -> str:
+        return self.rule.expected
+
+    def ok(self, value: Any) -> bool:
+        return self.rule.ok(value)
+
+    def check(self, value: Any) -> Any:
+        return self.rule.check(value)
+
+    def parse(self, text: str) -> Any:
+        return self.rule.parse(text)
+
+    def __call__(self, text: str) -> Any:
+        return self.rule(text)
+
+    def __repr__(self) -> str:
+        return f"RuleRef({self.module!r}, {self.name!r})"
+
+
 def _num(x: float) -> str:
     return str(int(x)) if float(x).is_integer() and abs(x) < 1e15 else repr(x)
 
@@ -166,9 +204,11 @@ FAULT_COUNT = Rule(int, 0, 2**31)
 POSITIVE_COUNT = Rule(int, 1, 2**31)
 #: A replay speed: a positive multiple of the recorded speed.
 SPEED = Rule(float, 0, 1e6, above=True)
+#: A TCP or UDP port to listen on or send to (0, "any free port", is a separate rule where it is allowed).
+PORT = Rule(int, 1, 65535, what="a port number")
 #: A fault knob or setting that is on or off.
 SWITCH = Switch()
 
 
-__all__ = ["FAULT_COUNT", "LINE_BAUD", "POSITIVE_COUNT", "PROBABILITY", "RATE_HZ", "SECONDS", "SPEED", "SWITCH", "Rule",
-           "RuleError", "Switch"]
+__all__ = ["FAULT_COUNT", "LINE_BAUD", "PORT", "POSITIVE_COUNT", "PROBABILITY", "RATE_HZ", "SECONDS", "SPEED", "SWITCH",
+           "Rule", "RuleError", "RuleRef", "Switch"]

@@ -152,6 +152,11 @@ def test_a_whole_session_decodes_with_the_exported_dbc(can_bench, tmp_path):
         assert out.returncode == 0, out.stderr
         drive = json.loads(out.stdout)
         assert drive["pose"]["x"] > 0.12 and drive["nmt_state"] == 5
+        # faster than the wheels turn: sent as given (the board saturates them), with one warning line
+        out = hb("can", "drive", manifest, "--vx", "0.6", "--omega", "0.5", "--seconds", "0.2")
+        assert out.returncode == 0 and json.loads(out.stdout)["setpoints_sent"] >= 1, out.stderr
+        assert out.stderr.count("\n") == 1 and "warning: x 0.6 m/s, y 0 m/s, z 0.5 rad/s needs a wheel at 15.12 " \
+                                                "rad/s" in out.stderr, out.stderr
         out = hb("can", "emcy", "--manifest", manifest, "0x2310", "--data", "0102")
         assert out.returncode == 0, out.stderr
         status = json.loads(hb("can", "status", "--manifest", manifest).stdout)

@@ -65,7 +65,7 @@ def test_tap_udp_relays_and_decodes_both_ways(tmp_path: Path, hilbench_emulator)
                             "--summary", "--json", "--seconds", "6", "--record", str(pcap)],
                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        first = tap.stdout.readline()
+        first = tap.stderr.readline()  # the banner: stderr (stdout is the one JSON document)
         assert "clients send to udp://127.0.0.1:" in first, first + tap.stderr.read()
         port = int(first.split("udp://127.0.0.1:")[1].split(",")[0])
         got: list[str] = []

@@ -70,7 +70,11 @@ def test_lidar_png_over_the_scene(emulator, tmp_path):
 
 
 def test_lidar_errors_are_one_line(tmp_path):
-    proc = hb("lidar", str(tmp_path / "missing.json"))
+    proc = hb("lidar", str(tmp_path / "missing.json"))  # no manifest: the bench is not running (exit 1)
+    assert proc.returncode == 1 and proc.stderr.count("\n") == 1 and "no such manifest" in proc.stderr
+    bad = tmp_path / "bad.json"
+    bad.write_text("[1]")
+    proc = hb("lidar", str(bad))  # a file that is no manifest: what was asked (exit 2)
     assert proc.returncode == 2 and proc.stderr.count("\n") == 1 and "not a bench manifest" in proc.stderr
     proc = hb("lidar", "bench:scanners#nope")
     assert proc.returncode == 2 and "no endpoint named 'nope'" in proc.stderr

@@ -170,15 +170,15 @@ def test_tap_forwards_a_full_sdk_session_byte_exactly(hilbench_bench, tmp_path, 
 
 
 def test_monitor_errors_are_one_line(tmp_path):
-    proc = hb("monitor", str(tmp_path / "nothing.hbcap"), "--json")
-    assert proc.returncode == 2 and proc.stderr.strip() == (
+    proc = hb("monitor", str(tmp_path / "nothing.hbcap"), "--json")  # not there: exit 1 (errors.py's rule)
+    assert proc.returncode == 1 and proc.stderr.strip() == (
         f"hilbench: error: {tmp_path / 'nothing.hbcap'}: no such file, port or source")
     bad = tmp_path / "bad.json"
     bad.write_text("{}")
     proc = hb("monitor", str(bad), "--json")
     assert proc.returncode == 2 and "not a bench manifest" in proc.stderr
-    proc = hb("tap", "/dev/no-such-port")
-    assert proc.returncode == 2 and len(proc.stderr.strip().splitlines()) == 1
+    proc = hb("tap", "/dev/no-such-port")  # not there: exit 1
+    assert proc.returncode == 1 and len(proc.stderr.strip().splitlines()) == 1
 
 
 def test_monitor_refuses_a_line_that_is_not_dynamixel(hilbench_emulator, tmp_path):

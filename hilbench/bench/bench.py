@@ -23,6 +23,7 @@ from hilbench import registry
 from hilbench.bench.family import DeviceFamily
 from hilbench.bench.profile import EndpointSpec, Profile, load_profile
 from hilbench.errors import BenchError, UsageError
+from hilbench.transports.listener import BindError
 from hilbench.transports.medium import medium_timing
 from hilbench.transports.tap_server import TapServer
 
@@ -134,7 +135,12 @@ class Bench:
         try:
             for spec in prof.endpoints.values():
                 family = registry.family_for_protocol(spec.protocol)
-                port = registry.host_ports.get(spec.type).open(spec.name, spec.port_options, link_dir=self.link_dir)
+                try:
+                    port = registry.host_ports.get(spec.type).open(spec.name, spec.port_options,
+                                                                   link_dir=self.link_dir)
+                except BindError as exc:  # a UDP/TCP port's own keys, unless the port named another
+                    raise self._bind_error(exc, spec.name, exc.key or ("port" if exc.port_taken else "bind")) \
+                        from None
                 paced = spec.paced if self.paced is None else self.paced
                 try:
                     medium = registry.media.get(family.medium)(spec.name, spec.baud,
@@ -145,14 +151,22 @@ class Bench:
                 medium.protocol = spec.protocol
                 ep = Endpoint(spec, port, medium, family)
                 self.endpoints[spec.name] = ep
-                family.build(self, ep, prof.devices_on(spec.name), t)
+                try:
+                    family.build(self, ep, prof.devices_on(spec.name), t)
+                except BindError as exc:
+                    raise self._bind_error(exc, spec.name, exc.key) from None
                 self.devices.update(ep.devices)
                 medium.add_host(port)
                 if self.tap:
                     # the medium's protocol: what its traffic is, as the family may have refined it
                     # (a Protocol 1.0 Dynamixel bus carries "dynamixel1")
-                    ep.tap = TapServer(host=self.bind, baud=spec.baud, protocol=medium.protocol or spec.protocol,
-                                       description=f"bench {prof.name}, endpoint {spec.name}")
+                    try:
+                        ep.tap = TapServer(host=self.bind, baud=spec.baud, protocol=medium.protocol or spec.protocol,
+                                           description=f"bench {prof.name}, endpoint {spec.name}")
+                    except OSError as exc:  # (on a free port: only the bind address can be wrong)
+                        reason = os.strerror(exc.errno) if exc.errno else str(exc)
+                        raise self._bind_error(BindError((self.bind, 0), reason, exc.errno, "traffic tap (TCP port)"),
+                                               spec.name, None) from None
                     medium.add_tap(ep.tap.feed)
             self._start_servers()
             if on_endpoint is not None:
@@ -168,6 +182,21 @@ class Bench:
         self.started_at = t
         return self
 
+    def _bind_error(self, exc: BindError, endpoint: str | None, key: str | None) -> BindError:
+        """``exc`` in one line that names the profile, the endpoint, the address and the key to change."""
+        host, port = exc.address
+        where = f"{self.profile.path}: endpoint {endpoint!r}: " if endpoint else f"{self.profile.path}: "
+        text = f"{where}cannot listen on {exc.what} {host}:{port}: {exc.reason}"
+        if exc.port_taken:
+            text += " (another bench or program has it)"
+        if endpoint and key:
+            example = "0 (any free port)" if key.endswith("port") else "VALUE"
+            text += f"; change endpoints.{endpoint}.{key} in the profile, or --set {endpoint}.{key}={example}"
+        elif not exc.port_taken:
+            text += f"; {host} is the bench's bind address (--bind): give one of this machine's"
+        exc.key = key
+        return exc.with_message(text)
+
     def _start_servers(self) -> None:
         for name in self.serve:
             server = registry.servers.get(name)
@@ -176,7 +205,11 @@ class Bench:
                 raise UsageError(f"bench {self.profile.name!r} has no endpoint {name} can serve "
                                  f"({server.help or name})")
             for ep in served:
-                ep.services[name] = server.start(self, ep, self.bind)
+                try:
+                    ep.services[name] = server.start(self, ep, self.bind)
+                except BindError as exc:  # (servers listen on a free port of the bench's --bind address)
+                    exc.what = f"{name} server (TCP port)"
+                    raise self._bind_error(exc, ep.name, None) from None
 
     def stop(self) -> None:
         """Stop every device, medium and service; close every endpoint (once: stopping again does nothing)."""
@@ -236,7 +269,12 @@ class Bench:
         from hilbench.bench.control import ControlServer
 
         if self.control is None:
-            self.control = ControlServer(self, host or self.bind, port)
+            try:
+                self.control = ControlServer(self, host or self.bind, port)
+            except OSError as exc:
+                reason = os.strerror(exc.errno) if exc.errno else str(exc)
+                raise self._bind_error(BindError((host or self.bind, port), reason, exc.errno,
+                                                 "control channel (TCP port)"), None, None) from None
         return self.control
 
     @property
@@ -286,6 +324,8 @@ class Bench:
             "endpoints": eps,
             "devices": devs,
         }
+        if self.profile.overrides:  # --set: the profile file alone is not this bench
+            out["set"] = dict(self.profile.overrides)
         if self.control is not None:
             out["control"] = self.control.address_text
         for name, service in self.services.items():

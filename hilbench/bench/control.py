@@ -19,8 +19,11 @@ every other command belongs to a device family
 (:attr:`~hilbench.bench.family.DeviceFamily.control_commands`), e.g. the rover
 board's ``status``, ``button``, ``reset``, ``fault``, ``log`` and
 ``wait_report``. ``device`` may be left out when one device answers the
-command. Errors come back as ``{"ok": false, "error": "..."}``, malformed
-requests included: a line is at most :data:`MAX_LINE` bytes and JSON nested at
+command. Errors come back as ``{"ok": false, "error": "...", "exit": N}``,
+malformed requests included (``exit``: 2 for a request the bench cannot do as
+asked, such as an unknown device or a knob out of range, 1 when the bench or
+device failed, as :mod:`hilbench.errors`' rule says; the client raises a
+:class:`ControlError` with that exit status): a line is at most :data:`MAX_LINE` bytes and JSON nested at
 most :data:`MAX_DEPTH` levels, at most :data:`MAX_CLIENTS` connections are
 served at once and one idle for :data:`IDLE_TIMEOUT` s is closed, and nothing a
 client sends (or a client leaving early) puts a traceback on the bench's
@@ -75,6 +78,12 @@ class ControlError(BenchError):
 
 class ControlUnreachable(ControlError):
     """No bench answered at the control address (refused, closed, not JSON): exit status 1."""
+
+
+class ControlRequestError(ControlError):
+    """A request the bench cannot do as asked (unknown command or device, a bad argument): exit status 2."""
+
+    exit_code = 2
 
 
 class ControlServer:
@@ -146,16 +155,16 @@ class ControlServer:
         """The reply to one request line; never raises (a malformed request gets an error reply)."""
         try:
             if nesting(raw) > MAX_DEPTH:
-                raise ControlError(f"request nested too deeply (at most {MAX_DEPTH} levels)")
+                raise ControlRequestError(f"request nested too deeply (at most {MAX_DEPTH} levels)")
             try:
                 req = json.loads(raw)
             except (ValueError, RecursionError):  # UnicodeDecodeError is a ValueError
-                raise ControlError("request is not JSON (one object per line)") from None
+                raise ControlRequestError("request is not JSON (one object per line)") from None
             if not isinstance(req, dict):
-                raise ControlError("expected a JSON object")
+                raise ControlRequestError("expected a JSON object")
             return {"ok": True, **self._dispatch(req)}
-        except HilbenchError as exc:  # ControlError and the rules' one-line errors
-            return {"ok": False, "error": str(exc)}
+        except HilbenchError as exc:  # ControlError and the rules' one-line errors (their exit status too)
+            return {"ok": False, "error": str(exc), "exit": exc.exit_code}
         except Exception as exc:  # noqa: BLE001 (a command that broke must not break the channel)
             return {"ok": False, "error": f"command failed: {type(exc).__name__}: {exc}"}
 
@@ -173,21 +182,21 @@ class ControlServer:
         able = sorted(n for n, cmds in commands.items() if cmd in cmds)
         name = req.get("device")
         if name is not None and not isinstance(name, str):
-            raise ControlError(f"device: expected a device name, got {name!r:.40}")
+            raise ControlRequestError(f"device: expected a device name, got {name!r:.40}")
         if name is None:
             if len(able) != 1:
                 if not able:
                     known = sorted({c for cmds in commands.values() for c in cmds} | set(BENCH_COMMANDS))
-                    raise ControlError(f"unknown command {cmd!r} (expected {', '.join(known)})")
-                raise ControlError(f"name a device: the bench has {', '.join(able)} answering {cmd!r}")
+                    raise ControlRequestError(f"unknown command {cmd!r} (expected {', '.join(known)})")
+                raise ControlRequestError(f"name a device: the bench has {', '.join(able)} answering {cmd!r}")
             name = able[0]
         if name not in able:
             family = self.bench.family_of(name) if name in self.bench.devices else None
             if family is not None and family.control_commands:
-                raise ControlError(f"{name} ({family.name}) has no command {cmd!r} "
-                                   f"(expected {', '.join(family.control_commands)})")
+                raise ControlRequestError(f"{name} ({family.name}) has no command {cmd!r} "
+                                          f"(expected {', '.join(family.control_commands)})")
             word = self._word(cmd)
-            raise ControlError(f"no {word} named {name!r} ({word}s: {', '.join(able) or 'none'})")
+            raise ControlRequestError(f"no {word} named {name!r} ({word}s: {', '.join(able) or 'none'})")
         return name, self.bench.devices[name], self.bench.family_of(name)
 
     def _word(self, cmd: str) -> str:
@@ -198,7 +207,7 @@ class ControlServer:
     def _dispatch(self, req: dict[str, Any]) -> dict[str, Any]:
         cmd = req.get("cmd")
         if not isinstance(cmd, str):
-            raise ControlError("expected {\"cmd\": NAME, ...}")
+            raise ControlRequestError("expected {\"cmd\": NAME, ...}")
         if cmd == "devices":
             return {"devices": self._commands()}
         if cmd == "servers":
@@ -247,7 +256,7 @@ class ControlClient:
         if isinstance(address, str):
             host, _, port = address.rpartition(":")
             if not host or not port.isdigit():
-                raise ControlError(f"expected HOST:PORT, got {address!r}")
+                raise ControlRequestError(f"expected HOST:PORT, got {address!r}")
             address = (host, int(port))
         self.address = address
         self.timeout = timeout
@@ -261,9 +270,9 @@ class ControlClient:
         try:
             data = read_manifest(path)
         except ManifestError as exc:
-            raise ControlError(str(exc)) from None
+            raise ControlRequestError(str(exc)) from None
         if not isinstance(data.get("control"), str):
-            raise ControlError(f"{path}: the bench serves no control channel (run it with hilbench emulate)")
+            raise ControlRequestError(f"{path}: the bench serves no control channel (run it with hilbench emulate)")
         return cls(data["control"], timeout)
 
     def call(self, cmd: str, **args: Any) -> dict[str, Any]:
@@ -291,7 +300,10 @@ class ControlClient:
         if not isinstance(reply, dict):
             raise ControlUnreachable(f"the bench at {where} sent a reply that is not a JSON object")
         if not reply.get("ok"):
-            raise ControlError(str(reply.get("error", "command failed")))
+            error = ControlError(str(reply.get("error", "command failed")))
+            if reply.get("exit") in (1, 2):  # the bench's judgement (benches before it sent none: 1)
+                error.exit_code = reply["exit"]
+            raise error
         return reply
 
     def devices(self) -> dict[str, list[str]]:
@@ -316,4 +328,5 @@ class ControlClient:
         return self.call("taps")["taps"]
 
 
-__all__ = ["BENCH_COMMANDS", "MAX_LINE", "MAX_REPLY", "ControlClient", "ControlError", "ControlServer", "ControlUnreachable"]
+__all__ = ["BENCH_COMMANDS", "MAX_LINE", "MAX_REPLY", "ControlClient", "ControlError", "ControlRequestError",
+           "ControlServer", "ControlUnreachable"]

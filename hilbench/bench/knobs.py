@@ -14,7 +14,7 @@ from __future__ import annotations
 from typing import Any
 
 from hilbench.bench.checks import Checker
-from hilbench.bench.control import ControlError
+from hilbench.bench.control import ControlError, ControlRequestError
 from hilbench.errors import HilbenchError
 from hilbench.rules import Rule, Switch
 
@@ -56,7 +56,7 @@ def requested_knobs(req: dict[str, Any]) -> dict[str, Any]:
     """The ``knobs`` object of a control request (``{}`` when absent); ControlError if it is not an object."""
     knobs = req.get("knobs", {})
     if not isinstance(knobs, dict):
-        raise ControlError("knobs: expected an object")
+        raise ControlRequestError("knobs: expected an object")
     return knobs
 
 

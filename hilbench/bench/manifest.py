@@ -100,12 +100,16 @@ def pid_alive(pid: int, started: int | None = None) -> bool:
 # --------------------------------------------------------------------------- reading
 
 
+class _NoManifest(ManifestError):
+    """No file at the path (a reader reports it as :class:`BenchNotRunning`)."""
+
+
 def _load(path: Path) -> Any:
     """The JSON a path holds; ManifestError in one line for anything else."""
     try:
         st = os.stat(path)
     except FileNotFoundError:
-        raise ManifestError(f"{path}: no such manifest (is the bench running? start it with hilbench emulate "
+        raise _NoManifest(f"{path}: no such manifest (is the bench running? start it with hilbench emulate "
                             "--manifest)") from None
     except OSError as exc:
         raise ManifestError(f"{path}: cannot read: {exc.strerror}") from None
@@ -143,9 +147,13 @@ def stale_pid(data: dict[str, Any]) -> int | None:
 
 def read_manifest(path: str | os.PathLike[str]) -> dict[str, Any]:
     """A running bench's manifest; raises :class:`ManifestError` (not a manifest) or
-    :class:`BenchNotRunning` (``bench not running (stale manifest, pid N gone)``), each one line."""
+    :class:`BenchNotRunning` (no manifest there, or ``bench not running (stale manifest, pid N gone)``), each
+    one line."""
     path = Path(path)
-    data = _load(path)
+    try:
+        data = _load(path)
+    except _NoManifest as exc:  # a bench removes its manifest when it stops: it is not running
+        raise BenchNotRunning(str(exc)) from None
     if not isinstance(data, dict) or not isinstance(data.get("endpoints"), list):
         raise ManifestError(f"{path}: not a bench manifest (no endpoints)")
     pid = stale_pid(data)

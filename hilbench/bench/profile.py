@@ -27,12 +27,18 @@ device family of its ``protocol`` checks the baud rate, its own endpoint keys,
 every device entry on the endpoint, ``[defaults]`` keys and top-level tables
 it declares. An endpoint without ``protocol`` gets the one of the family
 whose models its devices name.
+
+Overrides (``hilbench emulate PROFILE --set dxl.baud=1000000``, the pytest
+fixtures' ``set={...}``) change the TOML data before it is checked, so they
+are checked exactly as the file is (:func:`apply_overrides`).
 """
 
 from __future__ import annotations
 
+import copy
 import importlib.resources
 import tomllib
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -87,6 +93,9 @@ class Profile:
     devices: list[DeviceSpec]
     defaults: dict[str, Any] = field(default_factory=dict)
     tables: dict[str, Any] = field(default_factory=dict)
+    #: The overrides applied to the file (``{"dxl.baud": 1000000}``; :func:`apply_overrides`), listed in the
+    #: bench's manifest (``"set"``) so a reader of the profile file can apply them too.
+    overrides: dict[str, Any] = field(default_factory=dict)
 
     def devices_on(self, endpoint: str) -> list[DeviceSpec]:
         """The device specs of one endpoint, in profile order."""
@@ -125,8 +134,20 @@ def resolve(name_or_path: str | Path) -> Path:
     raise ProfileError(f"{name_or_path}: no such profile (bundled: {', '.join(sorted(bundled))})")
 
 
-def load_profile(name_or_path: str | Path = DEFAULT_PROFILE) -> Profile:
-    """Read and check a profile; raises :class:`ProfileError` with one line on any mistake."""
+#: What overrides take: ``["dxl.baud=1000000", ...]`` (command-line text, values read as TOML) or
+#: ``{"dxl.baud": 1000000}`` (values as they are).
+Overrides = Iterable[str] | Mapping[str, Any]
+
+
+def load_profile(name_or_path: str | Path | Profile = DEFAULT_PROFILE, overrides: Overrides | None = None) -> Profile:
+    """Read and check a profile; raises :class:`ProfileError` with one line on any mistake.
+
+    ``overrides`` change keys before the check (:func:`apply_overrides`); a :class:`Profile` is returned as
+    it is (overrides need the file's data: give its path)."""
+    if isinstance(name_or_path, Profile):
+        if overrides:
+            raise ProfileError(f"{name_or_path.path}: overrides apply to a profile file, not a loaded Profile")
+        return name_or_path
     path = resolve(name_or_path)
     try:
         with open(path, "rb") as fh:
@@ -140,7 +161,127 @@ def load_profile(name_or_path: str | Path = DEFAULT_PROFILE) -> Profile:
         raise ProfileError(f"{path}: is a directory, not a profile file") from None
     except OSError as exc:
         raise ProfileError(f"{path}: cannot read: {exc.strerror}") from None
-    return parse_profile(data, str(path))
+    if not overrides:
+        return parse_profile(data, str(path))
+    changed = apply_overrides(data, overrides, str(path))
+    try:
+        profile = parse_profile(changed.data, str(path))
+    except ProfileError as exc:
+        raise ProfileError(changed.explain(str(exc))) from None
+    profile.overrides = changed.values
+    return profile
+
+
+@dataclass
+class Overridden:
+    """Profile data after :func:`apply_overrides`, and which full keys each override set."""
+
+    data: dict[str, Any]
+    path: str
+    keys: dict[str, str] = field(default_factory=dict)  # full key -> the override as given ("dxl.baud=1000000")
+    values: dict[str, Any] = field(default_factory=dict)  # key as given -> the value set (TOML text read)
+
+    def explain(self, message: str) -> str:
+        """A check's one-line message with the override that set the key it names (``(set: dxl.baud=1)``)."""
+        prefix = f"{self.path}: "
+        key = message[len(prefix):].split(": ", 1)[0] if message.startswith(prefix) else ""
+        given = [text for full, text in self.keys.items()
+                 if key and (key == full or key.startswith((f"{full}.", f"{full}[")) or full.startswith(f"{key}."))]
+        return f"{message} (set: {', '.join(given)})" if given else message
+
+
+def apply_overrides(data: dict[str, Any], overrides: Overrides, path: str = "<profile>") -> Overridden:
+    """A copy of profile ``data`` with ``overrides`` set; ProfileError (one line) for a key that names nothing.
+
+    A key is ``ENDPOINT.KEY[.SUBKEY...]`` (a key of ``[endpoints.ENDPOINT]``: ``dxl.baud``,
+    ``can.socketcand.port``, ``nodes.domain_id``), ``devices.NAME.KEY`` (the device entry named NAME),
+    or ``TABLE.KEY`` / ``KEY`` for top-level tables and keys (``defaults.return_delay_us``,
+    ``scene.walls``, ``description``); the full form ``endpoints.ENDPOINT.KEY`` works too. Text values
+    (command line) are read as TOML values (``1000000``, ``true``, ``"x"``, ``[1, 2]``), else taken as a
+    string; tables on the way are created. Nothing is checked here: :func:`parse_profile` checks the result
+    as it checks a file.
+    """
+    if isinstance(overrides, str):
+        overrides = [overrides]  # one KEY=VALUE, not its characters
+    out = Overridden(copy.deepcopy(data), path)
+    items = overrides.items() if isinstance(overrides, Mapping) else (_split(text, path) for text in overrides)
+    for key, value in items:
+        if not isinstance(key, str):
+            raise ProfileError(f"{path}: override {key!r}: expected a KEY string")
+        given = f"{key}={value}" if not isinstance(overrides, Mapping) else f"{key}={value!r}"
+        keys = _full_key(out.data, key, path)
+        table: Any = out.data
+        for i, part in enumerate(keys[:-1]):
+            if isinstance(table, list):
+                table = table[int(part)]
+                continue
+            nxt = table.setdefault(part, {})
+            if not isinstance(nxt, dict | list):
+                raise ProfileError(f"{path}: {_dotted(keys[:i + 1])}: is {nxt!r}, not a table: cannot set {key}")
+            table = nxt
+        if isinstance(value, str) and not isinstance(overrides, Mapping):
+            value = _toml_value(value)
+        table[keys[-1]] = value
+        out.keys[_dotted(keys)] = given
+        out.values[key] = value
+    return out
+
+
+def _split(text: Any, path: str) -> tuple[str, str]:
+    key, sep, value = str(text).partition("=")
+    if not sep or not key.strip():
+        raise ProfileError(f"{path}: override {text!r}: expected KEY=VALUE, e.g. ENDPOINT.baud=1000000")
+    return key.strip(), value.strip()
+
+
+def _toml_value(text: str) -> Any:
+    """``1000000`` -> 1000000, ``true`` -> True, ``"a"``/``a`` -> "a", ``[1, 2]`` -> [1, 2] (TOML's own rules)."""
+    try:
+        return tomllib.loads(f"v = {text}")["v"]
+    except tomllib.TOMLDecodeError:
+        return text  # a bare word: a string (the check says if a string is wrong there)
+
+
+def _dotted(keys: list[str]) -> str:
+    out = ""
+    for k in keys:
+        out += f"[{k}]" if k.isdigit() and out.endswith(("devices", "]")) else (f".{k}" if out else k)
+    return out
+
+
+def _full_key(data: dict[str, Any], key: str, path: str) -> list[str]:
+    """The path of ``key`` in the TOML data (see :func:`apply_overrides`)."""
+    parts = key.split(".")
+    if any(not p for p in parts):
+        raise ProfileError(f"{path}: override {key!r}: expected KEY or TABLE.KEY (no empty parts)")
+    endpoints = data.get("endpoints") if isinstance(data.get("endpoints"), dict) else {}
+    tops = {*CORE_KEYS, *(name for fam in registry.families.values() for name in fam.profile_tables)}
+    head = parts[0]
+    if head == "devices":
+        if len(parts) < 3:
+            raise ProfileError(f"{path}: override {key!r}: expected devices.NAME.KEY")
+        devices = data.get("devices") if isinstance(data.get("devices"), list) else []
+        names = [d.get("name") if isinstance(d, dict) else None for d in devices]
+        if parts[1] in names:
+            return ["devices", str(names.index(parts[1])), *parts[2:]]
+        if parts[1].isdigit() and int(parts[1]) < len(devices):
+            return ["devices", parts[1], *parts[2:]]
+        known = ", ".join(n for n in names if n) or "none named"
+        raise ProfileError(f"{path}: override {key!r}: no device named {parts[1]!r} (devices: {known})")
+    if head in endpoints and head in tops:
+        raise ProfileError(f"{path}: override {key!r}: {head!r} is an endpoint and a table; write "
+                           f"endpoints.{key} or the table's key")
+    if head in endpoints:
+        if len(parts) < 2:
+            raise ProfileError(f"{path}: override {key!r}: expected {head}.KEY (a key of [endpoints.{head}])")
+        return ["endpoints", *parts]
+    if head in tops:
+        if head == "endpoints" and len(parts) >= 2 and parts[1] not in endpoints:
+            raise ProfileError(f"{path}: override {key!r}: no endpoint {parts[1]!r} (endpoints: "
+                               f"{', '.join(endpoints)})")
+        return parts
+    raise ProfileError(f"{path}: override {key!r}: no endpoint or table {head!r} (endpoints: "
+                       f"{', '.join(endpoints) or 'none'}; tables: {', '.join(sorted(tops - {'endpoints'}))})")
 
 
 def parse_profile(data: dict[str, Any], path: str = "<profile>") -> Profile:
@@ -262,5 +403,5 @@ def _devices(c: Checker, where: str, dev: dict[str, Any], profile: Profile) -> l
     return specs
 
 
-__all__ = ["DEFAULT_PROFILE", "SCHEMA", "Checker", "DeviceSpec", "EndpointSpec", "Profile", "ProfileError",
-           "bundled_profiles", "load_profile", "parse_profile", "resolve"]
+__all__ = ["DEFAULT_PROFILE", "SCHEMA", "Checker", "DeviceSpec", "EndpointSpec", "Overridden", "Overrides", "Profile",
+           "ProfileError", "apply_overrides", "bundled_profiles", "load_profile", "parse_profile", "resolve"]

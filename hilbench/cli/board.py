@@ -6,34 +6,23 @@ import argparse
 import json
 
 from hilbench.cli.common import CliError
+from hilbench.rules import RuleRef
 
 
 def _client(args: argparse.Namespace):
-    from hilbench.bench.control import ControlError, ControlUnreachable
     from hilbench.families.stm32_rover import BoardClient as ControlClient
 
-    try:
-        if args.control:
-            return ControlClient(args.control)
-        if args.manifest:
-            return ControlClient.from_manifest(args.manifest)
-    except ControlUnreachable:
-        raise
-    except ControlError as exc:
-        raise CliError(str(exc)) from None
+    # A ControlError's exit status is the bench's judgement (2: the request, 1: the bench or board failed).
+    if args.control:
+        return ControlClient(args.control)
+    if args.manifest:
+        return ControlClient.from_manifest(args.manifest)
     raise CliError("tell me where the bench is: --manifest FILE (from hilbench emulate) or --control HOST:PORT")
 
 
-def _rule(name: str):
-    """An argparse type checking the board family's rule ``name`` (imported when an argument is parsed)."""
-
-    def parse(text: str):
-        from hilbench.families import stm32_rover
-
-        return getattr(stm32_rover, name)(text)
-
-    parse.__name__ = name.lower()
-    return parse
+def _rule(name: str) -> RuleRef:
+    """The board family's rule ``name`` as an argparse type (the family is imported when it is used)."""
+    return RuleRef("hilbench.families.stm32_rover", name)
 
 
 def _knob(text: str) -> tuple[str, float | int]:
@@ -51,7 +40,6 @@ def _knob(text: str) -> tuple[str, float | int]:
 
 
 def cmd_board(args: argparse.Namespace) -> int:
-    from hilbench.bench.control import ControlError, ControlUnreachable
     from hilbench.families.stm32_rover import FAULT_RULES, check_fault_knobs
 
     if args.action == "fault":
@@ -61,59 +49,54 @@ def cmd_board(args: argparse.Namespace) -> int:
     elif args.knobs and args.action != "micro-ros":
         raise CliError(f"{args.action}: takes no KEY=VALUE knobs (only fault and micro-ros do)")
     client = _client(args)
-    try:
-        if args.action == "button":
-            st = client.button(args.device)
-            print(f"{st['name']}: button pressed (sampling {'on' if st['sampling'] else 'off'}, window {st['window']})")
-        elif args.action == "reset":
-            st = client.reset(args.device)
-            print(f"{st['name']}: reset (boot {st['boots']})")
-        elif args.action == "fault":
-            faults = client.fault(args.device, **knobs)
-            print(json.dumps(faults) if args.json else ", ".join(f"{k}={v:g}" for k, v in faults.items()))
-        elif args.action == "log":
-            for line in client.log(args.device):
-                print(line)
-        elif args.action == "micro-ros":
-            knobs = dict(args.knobs)
-            unknown = set(knobs) - {"zeroed_next"}
-            if unknown:
-                raise CliError(f"micro-ros: unknown knob {sorted(unknown)[0]!r} (expected zeroed_next=N)")
-            st = client.micro_ros(args.device, **{k: int(v) for k, v in knobs.items()})
-            if args.json:
-                print(json.dumps(st))
-            else:
-                c = st["counters"]
-                print(f"micro-ROS link to {st['agent']}: {st['state']}, key {st['client_key']}, from {st['local']}")
-                print(f"  sessions {c['sessions']}, samples out {c['samples_out']} in {c['samples_in']}, "
-                      f"cmd_vel {st['cmd_vel_received']}, zeroed {c['zeroed']}, creation failures "
-                      f"{c['creation_failures']}")
-        elif args.action == "wait-report":
-            reply = client.wait_report(args.device, timeout=args.timeout, after=args.after)
-            rep = reply["report"]
-            if args.json:
-                print(json.dumps(rep))
-            else:
-                print(f"report: ctx switches {rep['ctx_switches']}, {rep['closing']} {rep['closing_us']} us")
+    if args.action == "button":
+        st = client.button(args.device)
+        print(f"{st['name']}: button pressed (sampling {'on' if st['sampling'] else 'off'}, window {st['window']})")
+    elif args.action == "reset":
+        st = client.reset(args.device)
+        print(f"{st['name']}: reset (boot {st['boots']})")
+    elif args.action == "fault":
+        faults = client.fault(args.device, **knobs)
+        print(json.dumps(faults) if args.json else ", ".join(f"{k}={v:g}" for k, v in faults.items()))
+    elif args.action == "log":
+        for line in client.log(args.device):
+            print(line)
+    elif args.action == "micro-ros":
+        knobs = dict(args.knobs)
+        unknown = set(knobs) - {"zeroed_next"}
+        if unknown:
+            raise CliError(f"micro-ros: unknown knob {sorted(unknown)[0]!r} (expected zeroed_next=N)")
+        st = client.micro_ros(args.device, **{k: int(v) for k, v in knobs.items()})
+        if args.json:
+            print(json.dumps(st))
         else:
-            st = client.status(args.device)
-            if args.json:
-                print(json.dumps(st))
-            else:
-                tr = st["truth"]
-                print(f"{st['name']}: {st['preset']} ({'caches' if st['caches'] else 'no caches'}), output "
-                      f"{st['output']}, {st['baud']} baud, boot {st['boots']}, t={st['now_us'] / 1e6:.3f} s")
-                print(f"  sampling {'on' if st['sampling'] else 'off'}, window {st['window']}, frames ok "
-                      f"{tr['frames_ok']}, crc errors {tr['frames_crc_error']}, length errors "
-                      f"{tr['frames_length_error']}")
-                print(f"  stamps recorded {tr['stamps_recorded']}, sent {tr['stamps_sent']}, dropped "
-                      f"{tr['stamps_dropped']}, records lost {tr['records_lost']}")
-                for line in st["log"][-5:]:
-                    print(f"  {line}")
-    except ControlUnreachable:
-        raise  # the bench is not there: exit status 1
-    except ControlError as exc:
-        raise CliError(str(exc)) from None
+            c = st["counters"]
+            print(f"micro-ROS link to {st['agent']}: {st['state']}, key {st['client_key']}, from {st['local']}")
+            print(f"  sessions {c['sessions']}, samples out {c['samples_out']} in {c['samples_in']}, "
+                  f"cmd_vel {st['cmd_vel_received']}, zeroed {c['zeroed']}, creation failures "
+                  f"{c['creation_failures']}")
+    elif args.action == "wait-report":
+        reply = client.wait_report(args.device, timeout=args.timeout, after=args.after)
+        rep = reply["report"]
+        if args.json:
+            print(json.dumps(rep))
+        else:
+            print(f"report: ctx switches {rep['ctx_switches']}, {rep['closing']} {rep['closing_us']} us")
+    else:
+        st = client.status(args.device)
+        if args.json:
+            print(json.dumps(st))
+        else:
+            tr = st["truth"]
+            print(f"{st['name']}: {st['preset']} ({'caches' if st['caches'] else 'no caches'}), output "
+                  f"{st['output']}, {st['baud']} baud, boot {st['boots']}, t={st['now_us'] / 1e6:.3f} s")
+            print(f"  sampling {'on' if st['sampling'] else 'off'}, window {st['window']}, frames ok "
+                  f"{tr['frames_ok']}, crc errors {tr['frames_crc_error']}, length errors "
+                  f"{tr['frames_length_error']}")
+            print(f"  stamps recorded {tr['stamps_recorded']}, sent {tr['stamps_sent']}, dropped "
+                  f"{tr['stamps_dropped']}, records lost {tr['records_lost']}")
+            for line in st["log"][-5:]:
+                print(f"  {line}")
     return 0
 
 

@@ -26,25 +26,44 @@ import logging
 import sys
 import time
 from collections.abc import Iterator
-from pathlib import Path
 from typing import Any
 
-from hilbench.cli.common import CliError, int_arg, open_cli_source, terminate_on_sigterm
+from hilbench.cli.common import CliError, add_set_option, open_cli_source, terminate_on_sigterm
 from hilbench.errors import DeviceError
+from hilbench.rules import POSITIVE_COUNT, SECONDS, SPEED, Rule
 
 TYPES = {"u8": (1, False), "u16": (2, False), "u32": (4, False), "i8": (1, True), "i16": (2, True),
          "i32": (4, True)}
+#: ``--node`` of sdo and drive: a CANopen node id.
+NODE_ID = Rule(int, 1, 127, what="a CANopen node id")
+#: ``--node`` of nmt: a node id, or 0 for every node.
+NMT_NODE = Rule(int, 0, 127, what="a CANopen node id, or 0 for all nodes")
+#: ``--vx``/``--vy`` (m/s) and ``--omega`` (rad/s): what the setpoint PDO carries (int16, 0.001 per count;
+#: :data:`hilbench.protocols.board_can.SETPOINT`, held equal by a test).
+SETPOINT_VALUE = Rule(float, -32.768, 32.767)
+#: ``drive --seconds``: how long to drive.
+DRIVE_SECONDS = Rule(float, 0, 1e9, above=True)
+#: ``drive --period``: the setpoint repeat (the board's setpoint timeout is 150 ms by default: longer periods
+#: rehearse timeouts).
+SETPOINT_PERIOD = Rule(float, 0.001, 60)
+#: ``send --gap`` (s).
+GAP = Rule(float, 0, 60)
+#: ``sdo --timeout`` (s).
+SDO_TIMEOUT = Rule(float, 0, 3600, above=True)
+#: ``emcy``: the error code and error register (CiA 301's EMCY frame: u16, u8).
+EMCY_CODE = Rule(int, 0, 0xFFFF, what="an EMCY error code")
+ERROR_REGISTER = Rule(int, 0, 0xFF, what="an error register")
 NMT = {"start": 0x01, "stop": 0x02, "preop": 0x80, "pre-operational": 0x80, "reset": 0x81, "reset-node": 0x81,
        "reset-comm": 0x82, "reset-communication": 0x82}
 
 
 # --------------------------------------------------------------------------- helpers
 
-def _boards(profile_name: str) -> list[tuple[str, Any]]:
+def _boards(profile_name: str, overrides: list[str] | None = None) -> list[tuple[str, Any]]:
     from hilbench.bench.profile import load_profile
     from hilbench.families.canopen_board import profile_boards
 
-    boards = profile_boards(load_profile(profile_name))
+    boards = profile_boards(load_profile(profile_name, overrides))
     if not boards:
         raise CliError(f"{profile_name}: the profile has no CANopen boards")
     return boards
@@ -68,11 +87,13 @@ def _write(text: str, out: str | None) -> None:
 
 def manifest_socketcand(path: str) -> str:
     """The socketcand URL of a bench manifest's CAN endpoint (``file.json#endpoint`` picks one)."""
+    from hilbench.bench.manifest import ManifestError, read_manifest
+
     file, _, endpoint = path.partition("#")
     try:
-        data = json.loads(Path(file).read_text())
-    except (OSError, ValueError) as exc:
-        raise CliError(f"{file}: not a bench manifest ({exc})") from None
+        data = read_manifest(file)  # a bench that is not running (no manifest, a stale one): exit status 1
+    except ManifestError as exc:
+        raise CliError(str(exc)) from None
     eps = [e for e in data.get("endpoints", []) if isinstance(e, dict) and e.get("socketcand")]
     if endpoint:
         eps = [e for e in eps if e.get("name") == endpoint]
@@ -86,15 +107,11 @@ def manifest_socketcand(path: str) -> str:
 
 def open_target(target: str):
     """A python-can bus for TARGET (a manifest or a CAN bus URL); CliError in one line."""
-    from hilbench.transports.sources import SourceError
     from hilbench.transports.sources.can import open_bus
 
     if target.split("#", 1)[0].endswith(".json"):
         target = manifest_socketcand(target)
-    try:
-        bus, _channel, _bitrate = open_bus(target)
-    except SourceError as exc:
-        raise CliError(str(exc)) from None
+    bus, _channel, _bitrate = open_bus(target)  # SourceError: one line, 2 or 1 (not there, refused)
     return bus
 
 
@@ -119,9 +136,14 @@ def parse_frame(text: str):
 def _index(text: str) -> tuple[int, int]:
     index, _, sub = text.partition(":")
     try:
-        return int(index, 16) if not index.lower().startswith("0x") else int(index, 0), int(sub or "0", 0)
+        i = int(index, 16) if not index.lower().startswith("0x") else int(index, 0)
+        s = int(sub or "0", 0)
+        if not (0 <= i <= 0xFFFF and 0 <= s <= 0xFF):
+            raise ValueError
     except ValueError:
-        raise CliError(f"{text!r}: expected INDEX[:SUB], e.g. 1018:1 or 0x1017") from None
+        raise CliError(f"{text!r}: expected INDEX[:SUB] (index 0..FFFF in hex, sub 0..255), e.g. 1018:1 or "
+                       "0x1017") from None
+    return i, s
 
 
 # --------------------------------------------------------------------------- artefacts
@@ -130,7 +152,7 @@ def cmd_dbc(args: argparse.Namespace) -> int:
     from hilbench.protocols import board_can
 
     _check_output(args)
-    _write(board_can.dbc(_boards(args.profile)), args.output)
+    _write(board_can.dbc(_boards(args.profile, args.overrides)), args.output)
     return 0
 
 
@@ -138,7 +160,7 @@ def cmd_eds(args: argparse.Namespace) -> int:
     from hilbench.protocols import board_can
 
     _check_output(args)
-    boards = _boards(args.profile)
+    boards = _boards(args.profile, args.overrides)
     if args.device:
         boards = [b for b in boards if b[0] == args.device]
         if not boards:
@@ -161,7 +183,7 @@ def cmd_dump(args: argparse.Namespace) -> int:
     decoders = [load_dbc(d) for d in args.dbc] + [load_eds(e) for e in args.eds]
     deadline = time.monotonic() + args.seconds if args.seconds else None
     count = 0
-    with open_cli_source(args.source, baud=None, speed=args.speed) as source:
+    with open_cli_source(args.source, baud=None, speed=args.speed, overrides=args.overrides) as source:
         if source.protocol not in (None, "can"):
             raise CliError(f"{source.name} carries {source.protocol}, not CAN")
         offset = getattr(source, "wall_offset", None)
@@ -327,8 +349,12 @@ def _show(raw: bytes, kind: str) -> str:
 
 def cmd_drive(args: argparse.Namespace) -> int:
     from hilbench.clients.can_rover import RoverCanClient
+    from hilbench.clients.rover_speed import beyond_top_speed
 
     terminate_on_sigterm()
+    warning = beyond_top_speed(args.vx, args.vy, args.omega)
+    if warning:  # sent as given, as a ROS driver would: the board saturates its wheels (the real one and ours)
+        print(f"hilbench can drive: warning: {warning}", file=sys.stderr)
     bus = open_target(args.target)
     with RoverCanClient(bus, args.node, period=args.period, own_bus=True) as rover:
         if not args.no_start:
@@ -396,7 +422,7 @@ def cmd_control(args: argparse.Namespace) -> int:
     elif args.cmd == "fault":
         out = {"faults": client.fault(args.device, **_knobs(args.knobs))}
     elif args.cmd == "emcy":
-        out = {"status": client.emcy(int(args.code, 0), int(args.register, 0), args.data, args.device)}
+        out = {"status": client.emcy(args.code, args.register, args.data, args.device)}
     elif args.cmd == "bus":
         out = {"bus": client.bus(args.device, **_knobs(args.knobs))}
     elif args.cmd == "reset":
@@ -439,12 +465,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     d = cs.add_parser("dbc", help="export the DBC of a profile's CANopen boards (cantools reads it)")
     d.add_argument("profile", help="profile file or bundled profile name (e.g. mecarover-can)")
     d.add_argument("-o", "--output", metavar="FILE", help="write to FILE instead of stdout")
+    add_set_option(d)
     d.set_defaults(func=cmd_dbc)
 
     e = cs.add_parser("eds", help="export a board's EDS (the canopen package and CANopen tools import it)")
     e.add_argument("profile", help="profile file or bundled profile name")
     e.add_argument("--device", help="the board (when the profile has several)")
     e.add_argument("-o", "--output", metavar="FILE", help="write to FILE instead of stdout")
+    add_set_option(e)
     e.set_defaults(func=cmd_eds)
 
     u = cs.add_parser("dump", help="print frames as candump -L lines, decoded with --dbc/--eds",
@@ -456,22 +484,23 @@ def register(sub: argparse._SubParsersAction) -> None:
     u.add_argument("--dbc", action="append", default=[], metavar="FILE", help="DBC file or profile name")
     u.add_argument("--eds", action="append", default=[], metavar="FILE:NODE", help="EDS and its node")
     u.add_argument("--channel", default="can0", help="channel name in the lines (default can0)")
-    u.add_argument("--seconds", type=float, help="stop after this many seconds")
-    u.add_argument("-n", "--count", type=int, help="stop after this many frames")
-    u.add_argument("--speed", type=float, help="replay a file at this multiple of its recorded speed")
+    u.add_argument("--seconds", type=SECONDS, help="stop after this many seconds (0: no limit)")
+    u.add_argument("-n", "--count", type=POSITIVE_COUNT, help="stop after this many frames")
+    u.add_argument("--speed", type=SPEED, help="replay a file at this multiple of its recorded speed")
+    add_set_option(u, "bench:PROFILE: ")
     u.set_defaults(func=cmd_dump)
 
     target_help = "a bench manifest (its socketcand server) or a CAN bus URL (socketcand://, slcan://, socketcan://)"
     s = cs.add_parser("send", help="send frames (cansend syntax: 123#DEADBEEF, 12345678#01, 123#R)")
     s.add_argument("target", help=target_help)
     s.add_argument("frames", nargs="+", metavar="ID#DATA")
-    s.add_argument("--gap", type=float, default=0.0, help="seconds between frames")
+    s.add_argument("--gap", type=GAP, default=0.0, help="seconds between frames (default 0)")
     s.set_defaults(func=cmd_send)
 
     n = cs.add_parser("nmt", help="send an NMT command")
     n.add_argument("target", help=target_help)
     n.add_argument("command", choices=sorted(NMT))
-    n.add_argument("--node", type=int_arg, default=0, help="node id (default 0: all nodes)")
+    n.add_argument("--node", type=NMT_NODE, default=0, help="node id (default 0: all nodes)")
     n.set_defaults(func=cmd_nmt)
 
     o = cs.add_parser("sdo", help="read or write an object over SDO (needs the canopen package)")
@@ -479,21 +508,26 @@ def register(sub: argparse._SubParsersAction) -> None:
     o.add_argument("action", choices=("read", "write"))
     o.add_argument("object", metavar="INDEX[:SUB]", help="e.g. 1018:1, 0x1017, 2002:1")
     o.add_argument("value", nargs="?", help="the value to write")
-    o.add_argument("--node", type=int_arg, required=True, help="node id")
+    o.add_argument("--node", type=NODE_ID, required=True, help="node id")
     o.add_argument("--type", default="auto", choices=("auto", "hex", "str", "f32", *TYPES),
                    help="how to show (read) or encode (write) the value (default: auto / hex)")
     o.add_argument("--segmented", action="store_true", help="write with a segmented transfer even when short")
-    o.add_argument("--timeout", type=float, default=1.0, help="SDO response timeout in seconds (default 1)")
+    o.add_argument("--timeout", type=SDO_TIMEOUT, default=1.0, help="SDO response timeout in seconds (default 1)")
     o.set_defaults(func=cmd_sdo)
 
-    v = cs.add_parser("drive", help="drive the rover board: NMT start, setpoints every 50 ms, the odometry after")
+    v = cs.add_parser("drive", help="drive the rover board: NMT start, setpoints every 50 ms, the odometry after",
+                      description="NMT start, then the velocity setpoint every --period until --seconds pass, then "
+                                  "a stop setpoint and the odometry as JSON. A setpoint the PDO cannot carry is "
+                                  "refused; one the rover cannot follow (a wheel beyond 105 rpm: |vx| + |vy| + "
+                                  "0.3125 m x |omega| above 0.55 m/s) is sent as given, with a warning: the board "
+                                  "saturates its wheels as the real one does.")
     v.add_argument("target", help=target_help)
-    v.add_argument("--node", type=int_arg, default=2, help="node id (default 2)")
-    v.add_argument("--vx", type=float, default=0.0, help="forward velocity in m/s")
-    v.add_argument("--vy", type=float, default=0.0, help="sideways velocity in m/s (left positive)")
-    v.add_argument("--omega", type=float, default=0.0, help="yaw rate in rad/s")
-    v.add_argument("--seconds", type=float, default=1.0, help="how long (default 1)")
-    v.add_argument("--period", type=float, default=0.05, help="setpoint repeat in seconds (default 0.05)")
+    v.add_argument("--node", type=NODE_ID, default=2, help="node id (default 2)")
+    v.add_argument("--vx", type=SETPOINT_VALUE, default=0.0, help="forward velocity in m/s")
+    v.add_argument("--vy", type=SETPOINT_VALUE, default=0.0, help="sideways velocity in m/s (left positive)")
+    v.add_argument("--omega", type=SETPOINT_VALUE, default=0.0, help="yaw rate in rad/s")
+    v.add_argument("--seconds", type=DRIVE_SECONDS, default=1.0, help="how long (default 1)")
+    v.add_argument("--period", type=SETPOINT_PERIOD, default=0.05, help="setpoint repeat in seconds (default 0.05)")
     v.add_argument("--no-start", action="store_true", help="do not send NMT start first")
     v.add_argument("-v", "--verbose", action="store_true", help="print the pose twice a second")
     v.set_defaults(func=cmd_drive)
@@ -512,8 +546,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         if name in ("fault", "bus"):
             c.add_argument("knobs", nargs="*", metavar="KEY=VALUE")
         if name == "emcy":
-            c.add_argument("code", help="error code, e.g. 0x2310")
-            c.add_argument("--register", default="0x80", help="error register bits (default 0x80)")
+            c.add_argument("code", type=EMCY_CODE, help="error code, e.g. 0x2310")
+            c.add_argument("--register", type=ERROR_REGISTER, default=0x80, help="error register bits (default 0x80)")
             c.add_argument("--data", default="", help="up to 5 vendor bytes in hex")
         if name == "state":
             c.add_argument("state", choices=("operational", "stopped", "pre-operational", "reset",

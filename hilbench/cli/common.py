@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import functools
 import signal
 from collections.abc import Iterator
 
@@ -17,11 +18,37 @@ class CliError(UsageError):
 class OneLineParser(argparse.ArgumentParser):
     """An argument parser whose usage errors are one line (exit 2), like every other hilbench error.
 
-    Sub-parsers inherit the class, so every verb behaves the same; ``--help`` still shows the usage.
+    Sub-parsers inherit the class, so every verb behaves the same; ``--help`` still shows the usage, and
+    every option whose type is a :class:`~hilbench.rules.Rule` shows its range there (:func:`with_ranges`).
     """
+
+    def __init__(self, *args, formatter_class: type[argparse.HelpFormatter] = argparse.HelpFormatter,
+                 **kwargs) -> None:
+        super().__init__(*args, formatter_class=with_ranges(formatter_class), **kwargs)
 
     def error(self, message: str) -> None:  # type: ignore[override]
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+@functools.cache
+def with_ranges(formatter: type[argparse.HelpFormatter]) -> type[argparse.HelpFormatter]:
+    """``formatter`` that ends each option's help with the range its rule checks (``[a number 0..1000]``),
+    so the range shown is the one enforced, for every verb (plug-ins' too) without restating it by hand."""
+    if getattr(formatter, "shows_ranges", False):
+        return formatter
+
+    class RangeHelp(formatter):  # type: ignore[valid-type, misc]
+        shows_ranges = True
+
+        def _get_help_string(self, action: argparse.Action) -> str | None:
+            text = super()._get_help_string(action)
+            expected = getattr(action.type, "expected", None)
+            if text and isinstance(expected, str) and action.choices is None:
+                text = f"{text} [{expected.replace('%', '%%')}]"
+            return text
+
+    RangeHelp.__name__ = f"RangeHelp{formatter.__name__}"
+    return RangeHelp
 
 
 def int_arg(text: str) -> int:
@@ -30,6 +57,18 @@ def int_arg(text: str) -> int:
         return int(text, 0)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+
+
+SET_HELP = ("change a key of the profile before the bench starts, checked as the file is: ENDPOINT.KEY[.SUBKEY] "
+            "(ENDPOINT.baud=1000000, ENDPOINT.port=0 for any free port), devices.NAME.KEY or TABLE.KEY; the value "
+            "is read as TOML; repeatable")
+
+
+def add_set_option(parser: argparse.ArgumentParser, what: str = "") -> None:
+    """``--set KEY=VALUE`` (repeatable) into ``args.overrides``: profile overrides
+    (:func:`hilbench.bench.profile.apply_overrides`) for a verb that starts a bench from a profile."""
+    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                        help=f"{what}{SET_HELP}")
 
 
 def terminate_on_sigterm() -> None:
@@ -44,29 +83,37 @@ def terminate_on_sigterm() -> None:
 
 @contextlib.contextmanager
 def open_cli_source(spec: str, *, baud: int | None, speed: float | None = None,
-                    default_baud: int = 57_600, endpoint: str | None = None) -> Iterator:
+                    default_baud: int = 57_600, endpoint: str | None = None,
+                    overrides: list[str] | None = None) -> Iterator:
     """A byte source for a verb (:func:`hilbench.transports.sources.open_source`), or ``bench:PROFILE``,
-    which starts that bench in this process and taps ``endpoint`` (default: the first). Errors become
-    one-line :class:`CliError` s; the source (and bench) close when the block ends."""
+    which starts that bench (its profile changed by ``overrides``, ``--set``) in this process and taps
+    ``endpoint`` (default: the first). Errors are one line, a source's own keeping its exit status; the source
+    (and bench) close when the block ends."""
     from hilbench.transports.capture_file import CaptureError
-    from hilbench.transports.sources import MediumSource, SourceError, open_source
+    from hilbench.transports.sources import MediumSource, open_source
 
     bench = None
+    if overrides and not spec.startswith("bench:"):
+        raise CliError(f"--set changes the profile of a bench this command starts: give bench:PROFILE, not {spec}")
     try:
         if spec.startswith("bench:"):
             from hilbench.bench import Bench
-            from hilbench.bench.profile import DEFAULT_PROFILE
+            from hilbench.bench.profile import DEFAULT_PROFILE, load_profile
 
-            bench = Bench(spec[len("bench:"):] or DEFAULT_PROFILE).start()
+            bench = Bench(load_profile(spec[len("bench:"):] or DEFAULT_PROFILE, overrides)).start()
             ep = bench.endpoint(endpoint or next(iter(bench.endpoints)))
             source = MediumSource(ep.medium, name=f"bench {bench.profile.name}: {ep.path}",
                                   protocol=ep.spec.protocol)
         else:
             source = open_source(spec, baud=baud, speed=speed, default_baud=default_baud)
-    except (SourceError, CaptureError) as exc:
+    except CaptureError as exc:  # a file that is not a readable capture
         if bench is not None:
             bench.stop()
         raise CliError(str(exc)) from None
+    except BaseException:
+        if bench is not None:
+            bench.stop()
+        raise
     try:
         yield source
     finally:

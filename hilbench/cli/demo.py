@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 
 from hilbench.bench.profile import DEFAULT_PROFILE, bundled_profiles, load_profile
+from hilbench.cli.common import add_set_option
 from hilbench.errors import DeviceError
 from hilbench.rules import SECONDS
 
@@ -46,7 +47,8 @@ def demo_report(result) -> list[str]:
 def cmd_demo(args: argparse.Namespace) -> int:
     from hilbench.clients.dynamixel_demo import run_demo
 
-    result = run_demo(args.profile, args.seconds, paced=not args.unpaced, view=args.view)
+    result = run_demo(load_profile(args.profile, args.overrides), args.seconds, paced=not args.unpaced,
+                      view=args.view)
     print()
     for line in demo_report(result):
         print(line)
@@ -81,6 +83,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                                     "for Feetech), and show the bus monitor's dashboard while one servo drops out "
                                     "and comes back and another reports overheating.")
     dm.add_argument("--profile", default=DEFAULT_PROFILE, help=f"profile (default: {DEFAULT_PROFILE})")
+    add_set_option(dm)
     dm.add_argument("--seconds", type=SECONDS, default=10.0, help="how long to run (0: until Ctrl-C; default 10)")
     dm.add_argument("--unpaced", action="store_true", help="deliver bytes at once instead of at wire speed")
     dm.add_argument("--view", choices=VIEWS, default="devices", help="dashboard view to start with (keys: 1-4)")

@@ -12,6 +12,7 @@ from pathlib import Path
 from hilbench import registry
 from hilbench.bench.control import BENCH_COMMANDS
 from hilbench.bench.profile import DEFAULT_PROFILE, load_profile
+from hilbench.cli.common import add_set_option
 from hilbench.transports.host_port import DEFAULT_BIND, bind_address, is_loopback
 
 
@@ -19,7 +20,7 @@ def cmd_emulate(args: argparse.Namespace) -> int:
     from hilbench.bench import Bench
     from hilbench.bench.line_server import serve_lines
 
-    profile = load_profile(args.profile)
+    profile = load_profile(args.profile, args.overrides)
     paced = True if args.paced else (False if args.unpaced else None)
     serve = _server_names(args.serve)
     bench = Bench(profile, paced=paced, link_dir=args.link_dir, tap=not args.no_tap, serve=serve, bind=args.bind)
@@ -120,6 +121,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     e.add_argument("profile", nargs="?", default=DEFAULT_PROFILE,
                    help=f"profile file or bundled profile name (default: {DEFAULT_PROFILE})")
     e.add_argument("--manifest", metavar="FILE", help="write where every endpoint and device is to FILE (JSON)")
+    add_set_option(e)
     timing = e.add_mutually_exclusive_group()
     timing.add_argument("--paced", action="store_true", help="model wire time and Return Delay Time on every line")
     timing.add_argument("--unpaced", action="store_true", help="deliver bytes at once on every line")

@@ -20,7 +20,12 @@ import time
 from pathlib import Path
 from typing import Any
 
-from hilbench.cli.common import CliError, terminate_on_sigterm
+from hilbench.cli.common import CliError, add_set_option, terminate_on_sigterm
+from hilbench.errors import DeviceError, UnavailableError
+from hilbench.rules import POSITIVE_COUNT, SECONDS, Rule
+
+#: ``--timeout``: how long to wait for the first scan (s).
+FIRST_SCAN_TIMEOUT = Rule(float, 0, 3600, above=True)
 
 PROTOCOLS = {"rplidar": "rplidar", "sick": "sick-lms200", "sick-lms200": "sick-lms200", "lms200": "sick-lms200",
              "scip": "scip2", "scip2": "scip2"}
@@ -78,13 +83,16 @@ def _carry_lines(manifest: dict) -> None:
     pyserial_shim.install()
 
 
-def resolve(source: str) -> Target:
-    """A :class:`Target` from the command line's SOURCE."""
+def resolve(source: str, overrides: list[str] | None = None) -> Target:
+    """A :class:`Target` from the command line's SOURCE (``overrides``: ``--set`` of a ``bench:`` source)."""
+    if overrides and not source.startswith("bench:"):
+        raise CliError(f"--set changes the profile of a bench this command starts: give bench:PROFILE, not {source}")
     if source.startswith("bench:"):
         from hilbench.bench import Bench
+        from hilbench.bench.profile import load_profile
 
         spec, _, frag = source[len("bench:"):].partition("#")
-        bench = Bench(spec or "scanners").start()
+        bench = Bench(load_profile(spec or "scanners", overrides)).start()
         manifest = bench.manifest()
         ep = _endpoint_of(manifest["endpoints"], frag, source)
         dev = next((d for d in manifest["devices"] if d["endpoint"] == ep["name"]), {})
@@ -96,10 +104,12 @@ def resolve(source: str) -> Target:
                       label=f"bench {bench.profile.name}#{ep['name']}")
     path, _, frag = source.partition("#")
     if path.endswith(".json"):
+        from hilbench.bench.manifest import ManifestError, read_manifest
+
         try:
-            manifest = json.loads(Path(path).read_text())
-        except (OSError, ValueError) as exc:
-            raise CliError(f"{path}: not a bench manifest ({exc})") from None
+            manifest = read_manifest(path)  # a bench that is not running (no manifest, a stale one): exit 1
+        except ManifestError as exc:
+            raise CliError(str(exc)) from None
         ep = _endpoint_of(manifest.get("endpoints", []), frag, path)
         dev = next((d for d in manifest.get("devices", []) if d.get("endpoint") == ep["name"]), {})
         scene = None
@@ -107,7 +117,8 @@ def resolve(source: str) -> Target:
             with contextlib.suppress(Exception):
                 from hilbench.bench.profile import load_profile
 
-                scene = load_profile(manifest["profile"]).tables.get("scene")
+                overrides = manifest.get("set") if isinstance(manifest.get("set"), dict) else None
+                scene = load_profile(manifest["profile"], overrides).tables.get("scene")
         link = f"{ep['host']}:{ep['port']}" if ep.get("type") == "tcp" else ep["path"]
         _carry_lines(manifest)
         return Target(link, ep.get("protocol"), scene=scene, pose=dev.get("pose"),
@@ -131,7 +142,9 @@ def _driver(target: Target, args: argparse.Namespace):
     baud = {"rplidar": 115_200, "sick-lms200": 9600}.get(protocol)
     try:
         link = ScannerLink.open(target.link, baud)
-    except (OSError, ValueError) as exc:
+    except OSError as exc:  # not there, refused, busy: exit status 1
+        raise UnavailableError(f"{target.link}: {getattr(exc, 'strerror', None) or exc}") from None
+    except ValueError as exc:
         raise CliError(f"{target.link}: {exc}") from None
     if protocol == "rplidar":
         return DRIVERS[protocol](link, express=args.express, motor=target.motor)
@@ -213,7 +226,7 @@ def cmd_lidar(args: argparse.Namespace) -> int:
     if args.png:
         _picture_format(args.png)
     terminate_on_sigterm()
-    target = resolve(args.source)
+    target = resolve(args.source, args.overrides)
     try:
         drv = _driver(target, args)
         try:
@@ -258,7 +271,7 @@ def _run(drv, target: Target, args: argparse.Namespace) -> int:
             while not done():
                 drv.pump(0.05)
                 if tr.scans == 0 and time.monotonic() > first_scan_timeout:
-                    raise CliError(f"{target.label}: no scan within {args.timeout:g} s ({_stats(tr)})")
+                    raise DeviceError(f"{target.label}: no scan within {args.timeout:g} s ({_stats(tr)})")
         else:
             with Live(frame(), auto_refresh=False, screen=True) as live:
                 last = 0.0
@@ -269,8 +282,8 @@ def _run(drv, target: Target, args: argparse.Namespace) -> int:
                         last = time.monotonic()
     except KeyboardInterrupt:
         pass
-    except ConnectionError as exc:
-        raise CliError(str(exc)) from None
+    except ConnectionError as exc:  # the scanner closed the connection
+        raise DeviceError(str(exc)) from None
     if args.png:
         if tr.last_scan is None:
             raise CliError(f"{target.label}: no scan to draw ({_stats(tr)})")
@@ -302,12 +315,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("source", help="what to read (see above)")
     p.add_argument("--protocol", choices=sorted(PROTOCOLS), help="the scanner's protocol (default: what a bench "
                    "says; a serial port: rplidar; tcp://: scip)")
+    add_set_option(p, "bench:PROFILE: ")
     p.add_argument("--express", action="store_true", help="RPLIDAR: express scan (legacy capsules)")
     p.add_argument("--lms-baud", type=int, choices=(9600, 19200, 38400, 500_000), default=9600,
                    help="LMS 200: switch the link to this speed first (default 9600, the power-up rate)")
-    p.add_argument("--scans", type=int, help="stop after N scans")
-    p.add_argument("--seconds", type=float, help="stop after S seconds")
-    p.add_argument("--timeout", type=float, default=10.0, help="give up when no scan arrives within S seconds "
+    p.add_argument("--scans", type=POSITIVE_COUNT, help="stop after N scans")
+    p.add_argument("--seconds", type=SECONDS, help="stop after S seconds (0: no limit)")
+    p.add_argument("--timeout", type=FIRST_SCAN_TIMEOUT, default=10.0, help="give up when no scan arrives within S seconds "
                    "(without a terminal; default 10)")
     p.add_argument("--json", action="store_true", help="no live view: print the JSON summary at the end")
     p.add_argument("--summary", action="store_true", help="no live view: print one summary line at the end")

@@ -20,8 +20,12 @@ import threading
 import time
 from collections.abc import Callable
 
-from hilbench.cli.common import CliError, int_arg, open_cli_source, terminate_on_sigterm
-from hilbench.rules import LINE_BAUD, SECONDS, SPEED
+from hilbench.cli.common import CliError, add_set_option, open_cli_source, terminate_on_sigterm
+from hilbench.errors import UnavailableError
+from hilbench.rules import LINE_BAUD, SECONDS, SPEED, Rule
+
+#: ``--device``: a device's address on its bus (a servo ID 0..253, a CANopen node id 1..127).
+DEVICE_ADDRESS = Rule(int, 0, 255, what="a device ID")
 
 
 def _monitor_instruments() -> list:
@@ -158,7 +162,7 @@ def cmd_monitor(args: argparse.Namespace) -> int:
     speed = args.speed if args.speed is not None else (1.0 if args.realtime else None)
     options = _options(args)
     _check_record(args, "--record", args.record, source_files(args.source))
-    with open_cli_source(args.source, baud=args.baud, speed=speed) as source:
+    with open_cli_source(args.source, baud=args.baud, speed=speed, overrides=args.overrides) as source:
         instrument = _instrument(args, source)
         if args.baud and source.baud != args.baud:
             source.baud = args.baud  # the user knows the line rate better than the source
@@ -184,7 +188,7 @@ def cmd_record(args: argparse.Namespace) -> int:
     speed = args.speed if args.speed is not None else None
     deadline = time.monotonic() + args.seconds if args.seconds else None
     _check_record(args, "FILE", args.file, source_files(args.source))
-    with open_cli_source(args.source, baud=args.baud, speed=speed) as source:
+    with open_cli_source(args.source, baud=args.baud, speed=speed, overrides=args.overrides) as source:
         writer = _writer(args.file, source, force=args.force)
         stop = threading.Event()
         try:
@@ -234,8 +238,9 @@ def cmd_tap_udp(args: argparse.Namespace) -> int:
     _check_record(args, "--record", args.record, [])
     try:
         relay = UdpRelay(listen, target)
-    except OSError as exc:
-        raise CliError(f"tap udp: cannot bind {listen[0]}:{listen[1]}: {exc.strerror or exc}") from None
+    except OSError as exc:  # taken (or not an address of this machine): exit status 1
+        raise UnavailableError(f"tap udp: cannot listen on udp://{listen[0]}:{listen[1]}: {exc.strerror or exc} "
+                               "(give another LISTEN port, or 0 for any free one)") from None
     try:
         label = f"udp relay {relay.listen[0]}:{relay.listen[1]} -> {target[0]}:{target[1]}"
         instrument = _instrument(args, relay.source)
@@ -243,8 +248,9 @@ def cmd_tap_udp(args: argparse.Namespace) -> int:
                       record=_writer(args.record, relay.source, label, force=args.force), options=options)
         mon.start()
         relay.start()
+        # A banner, not a result: stderr, so stdout holds only the summary (one JSON document with --json).
         print(f"hilbench tap: clients send to udp://{relay.listen[0]}:{relay.listen[1]}, relayed to "
-              f"{target[0]}:{target[1]}", flush=True)
+              f"{target[0]}:{target[1]}", file=sys.stderr, flush=True)
         code = _watch(mon, args, label, lambda: "relaying" if relay.error is None else "failed",
                       stop=lambda: relay.error is not None)
     finally:
@@ -264,7 +270,6 @@ def cmd_tap(args: argparse.Namespace) -> int:
                        "`hilbench tap udp LISTEN TARGET`)")
     from hilbench.monitor import Monitor
     from hilbench.transports.serial_tap import SerialTap
-    from hilbench.transports.sources import SourceError
 
     terminate_on_sigterm()
     options = _options(args)
@@ -272,10 +277,7 @@ def cmd_tap(args: argparse.Namespace) -> int:
     # The forwarding thread must get the interpreter as soon as its read returns, not when the
     # decoding thread's time slice ends (5 ms by default): a tap must not make the SDK time out.
     sys.setswitchinterval(1e-4)
-    try:
-        tap = SerialTap(args.port, baud=args.baud, link=args.link)
-    except SourceError as exc:
-        raise CliError(str(exc)) from None
+    tap = SerialTap(args.port, baud=args.baud, link=args.link)  # SourceError: one line, its own exit status
     try:
         label = f"tap {args.port} <-> app {tap.app_path}"
         instrument = _instrument(args, tap.source)
@@ -283,7 +285,7 @@ def cmd_tap(args: argparse.Namespace) -> int:
                                                                         force=args.force), options=options)
         mon.start()
         tap.start()
-        print(f"hilbench tap: application port {tap.app_path} <-> {args.port}", flush=True)
+        print(f"hilbench tap: application port {tap.app_path} <-> {args.port}", file=sys.stderr, flush=True)
         code = _watch(mon, args, label, lambda: "tapping" if not mon.ended.is_set() else "device gone",
                       stop=lambda: tap.error is not None)
     finally:
@@ -329,10 +331,10 @@ def _watch_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--strict", action="store_true",
                    help=f"exit {STRICT_EXIT} when the input is damaged (a capture cut short or corrupted, times out "
                         "of order: the data-quality findings)")
-    p.add_argument("--seconds", type=SECONDS, help="stop after this many seconds")
+    p.add_argument("--seconds", type=SECONDS, help="stop after this many seconds (0: no limit)")
     p.add_argument("--view", type=_view, help="dashboard view to start with (the instrument's, e.g. devices, models, details, "
                                   "log; keys 1-9)")
-    p.add_argument("--device", type=int_arg, help="device ID the details view shows first (keys: left/right)")
+    p.add_argument("--device", type=DEVICE_ADDRESS, help="device ID the details view shows first (keys: left/right)")
     p.add_argument("--once", action="store_true",
                    help="leave the dashboard when the source ends, even in a terminal")
     p.add_argument("--record", metavar="FILE", help="also record everything to FILE (hilbench capture format"
@@ -364,6 +366,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     speed = m.add_mutually_exclusive_group()
     speed.add_argument("--realtime", action="store_true", help="replay a capture at its recorded speed")
     speed.add_argument("--speed", type=SPEED, help="replay a capture at this multiple of its recorded speed")
+    add_set_option(m, "bench:PROFILE: ")
     _watch_args(m)
     m.set_defaults(func=cmd_monitor)
 
@@ -375,9 +378,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     r.add_argument("source", help="what to record")
     r.add_argument("file", help="capture file to write ('-': stdout)")
     r.add_argument("--baud", type=LINE_BAUD, help="line rate in bit/s (a serial port's rate; a raw dump's byte time)")
-    r.add_argument("--seconds", type=SECONDS, help="stop after this many seconds")
+    r.add_argument("--seconds", type=SECONDS, help="stop after this many seconds (0: no limit)")
     r.add_argument("--speed", type=SPEED, help="read a capture at this multiple of its recorded speed")
     r.add_argument("--force", action="store_true", help=FORCE_HELP)
+    add_set_option(r, "bench:PROFILE: ")
     r.set_defaults(func=cmd_record)
 
     t = sub.add_parser(

@@ -19,7 +19,7 @@ import re
 import sys
 import time
 
-from hilbench.cli.common import CliError, open_cli_source, terminate_on_sigterm
+from hilbench.cli.common import CliError, add_set_option, open_cli_source, terminate_on_sigterm
 from hilbench.rules import LINE_BAUD, POSITIVE_COUNT, SECONDS, Rule
 
 #: ``--bins``: linear histogram bins (each is an array slot: bounded).
@@ -235,7 +235,7 @@ def cmd_profile(args: argparse.Namespace) -> int:
         if base is None:  # checked before a live capture is taken, read after it
             _check_baseline_capture(args)
     terminate_on_sigterm()
-    with open_cli_source(args.source, baud=args.baud, default_baud=DEFAULT_BAUD) as source:
+    with open_cli_source(args.source, baud=args.baud, default_baud=DEFAULT_BAUD, overrides=args.overrides) as source:
         _check_protocol(source)
         endless = source.live and not (args.source == "-" and not sys.stdin.isatty())  # a pipe ends by itself
         if endless and not args.live and not args.duration and not args.reports:
@@ -331,6 +331,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                                   "udp://HOST:PORT[?peer=HOST:PORT], tcp://HOST:PORT (a bench tap), a bench "
                                   "manifest.json[#endpoint], or bench:PROFILE")
     p.add_argument("--baud", type=LINE_BAUD, help="serial baud rate (default 115200)")
+    add_set_option(p, "bench:PROFILE: ")
     p.add_argument("--from", dest="from_", metavar="GLOB,...",
                    help="read only these chunk sources of a capture or tap (default: on a board line, the "
                         "board's side, '*-board'; elsewhere everything)")

@@ -3,33 +3,23 @@
 from __future__ import annotations
 
 import argparse
-import math
 import signal
+import sys
 import time
 
 from hilbench.cli.common import CliError
-from hilbench.rules import POSITIVE_COUNT, RATE_HZ, SECONDS, Rule
+from hilbench.errors import UnavailableError
+from hilbench.rules import POSITIVE_COUNT, RATE_HZ, SECONDS, Rule, RuleRef
 
 #: ``teleop --repeat-rate``: 0 (only on key presses) or a rate in Hz.
 REPEAT_HZ = Rule(float, 0, 1000)
-#: ``teleop --speed`` / ``--turn``: m/s and rad/s (a Vel2d frame carries doubles; keep them sane).
+#: ``send-vel X Y Z``, ``teleop --speed`` / ``--turn``: m/s and rad/s (a Vel2d frame carries doubles; keep them
+#: sane).
 SPEED_LIMIT = Rule(float, -1000, 1000)
 
 
-def _board_baud(text: str) -> int:
-    from hilbench.families.stm32_rover import BOARD_BAUD
-
-    return BOARD_BAUD(text)
-
-
-def _finite(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not math.isfinite(value):
-        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
-    return value
+#: ``--baud``: the board family's UART rule (the family is imported only when the option is used).
+_board_baud = RuleRef("hilbench.families.stm32_rover", "BOARD_BAUD")
 
 
 def _print_logs(decoder, data: bytes) -> int:
@@ -50,6 +40,13 @@ def cmd_send_vel(args: argparse.Namespace) -> int:
         link = HostLink.open(args.port, args.baud)
     except ValueError as exc:
         raise CliError(str(exc)) from None
+    except OSError as exc:  # not there, busy, refused: exit status 1
+        raise UnavailableError(f"cannot open {args.port}: {exc}") from None
+    from hilbench.clients.rover_speed import beyond_top_speed
+
+    warning = beyond_top_speed(args.x, args.y, args.z)
+    if warning:  # sent as given, as the ROS bridge would: the board saturates its wheels
+        print(f"hilbench send-vel: warning: {warning}", file=sys.stderr)
     frame = vel2d.build(args.x, args.y, args.z)
     decoder = StreamDecoder()
     stop = []
@@ -91,6 +88,8 @@ def cmd_send_vel(args: argparse.Namespace) -> int:
                 _print_logs(decoder, link.read(0.02))
     except KeyboardInterrupt:
         print(f"sent {sent} frames", flush=True)
+    except OSError as exc:  # a UDP target that refuses (nothing listens), a serial adapter unplugged: exit 1
+        raise UnavailableError(f"{args.port}: {exc.strerror or exc} (after {sent} frames)") from None
     finally:
         link.close()
     return 0
@@ -116,11 +115,13 @@ VERBS = {  # each verb register() adds and its line in `hilbench --help` (see hi
 def register(sub: argparse._SubParsersAction) -> None:
     s = sub.add_parser("send-vel", help=VERBS["send-vel"],
                        description="Send one 28-byte Vel2d frame (x, y in m/s, z in rad/s, CRC-32/MPEG-2) with one "
-                                   "write, as the ROS bridge vel2d_bridge does, or stream it with --rate.")
+                                   "write, as the ROS bridge vel2d_bridge does, or stream it with --rate. A velocity "
+                                   "the rover cannot follow (a wheel beyond 105 rpm: |x| + |y| + 0.3125 m x |z| "
+                                   "above 0.55 m/s) is sent as given, with a warning: the board saturates its wheels.")
     s.add_argument("port", help="serial port (/dev/ttyACM0, an emulated pty) or udp://127.0.0.1:PORT")
-    s.add_argument("x", type=_finite, help="linear.x in m/s")
-    s.add_argument("y", type=_finite, help="linear.y in m/s")
-    s.add_argument("z", type=_finite, help="angular.z in rad/s")
+    s.add_argument("x", type=SPEED_LIMIT, help="linear.x in m/s")
+    s.add_argument("y", type=SPEED_LIMIT, help="linear.y in m/s")
+    s.add_argument("z", type=SPEED_LIMIT, help="angular.z in rad/s")
     s.add_argument("--baud", type=_board_baud, default=115_200, help="serial baud rate (default: 115200)")
     s.add_argument("--rate", type=RATE_HZ, metavar="HZ", help="stream the frame at HZ until Ctrl-C (or --count)")
     s.add_argument("--count", type=POSITIVE_COUNT, help="with --rate: stop after N frames")

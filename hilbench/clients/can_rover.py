@@ -21,6 +21,7 @@ drift. The layout comes from :mod:`hilbench.protocols.board_can`.
 
 from __future__ import annotations
 
+import math
 import threading
 import time
 from typing import Any
@@ -70,7 +71,12 @@ class RoverCanClient:
         self.nmt(co.NMT_START)
 
     def drive(self, vx: float, vy: float = 0.0, omega: float = 0.0) -> None:
-        """Command a velocity (m/s, m/s, rad/s); it is repeated every period until changed or :meth:`halt`."""
+        """Command a velocity (m/s, m/s, rad/s); it is repeated every period until changed or :meth:`halt`.
+
+        ValueError for a value the setpoint PDO cannot carry (NaN, infinite, beyond +-32.767)."""
+        for name, value in (("vx", vx), ("vy", vy), ("omega", omega)):
+            if not (math.isfinite(value) and -32.768 <= value <= 32.767):
+                raise ValueError(f"{name}: expected a number -32.768..32.767 (the setpoint PDO's range), got {value}")
         with self._cond:
             self._setpoint = (vx, vy, omega)
             self._cond.notify_all()

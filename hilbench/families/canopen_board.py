@@ -41,7 +41,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from hilbench.bench.checks import Checker
-from hilbench.bench.control import ControlClient, ControlError
+from hilbench.bench.control import ControlClient, ControlError, ControlRequestError
 from hilbench.bench.family import DeviceFamily, DeviceSpec
 from hilbench.bench.knobs import KnobRules, check_fault_table, check_knobs, requested_knobs
 from hilbench.rules import SWITCH, Rule
@@ -266,7 +266,7 @@ class CanopenBoardFamily(DeviceFamily):
         if cmd == "nmt":
             state = str(req.get("state", "")).lower()
             if state not in NMT_STATES:
-                raise ControlError(f"nmt: state must be one of {', '.join(NMT_STATES)}, got {state!r}")
+                raise ControlRequestError(f"nmt: state must be one of {', '.join(NMT_STATES)}, got {state!r}")
             code = NMT_STATES[state]
             in_bus_thread(lambda: node._nmt(bytes([code, node.node_id]), time.monotonic()))
             return {"status": in_bus_thread(node.status)}
@@ -282,9 +282,9 @@ class CanopenBoardFamily(DeviceFamily):
                 register = int(req.get("register", 0x80))
                 data = bytes.fromhex(str(req.get("data", "")))
             except (TypeError, ValueError):
-                raise ControlError("emcy: code and register are integers, data is hex") from None
+                raise ControlRequestError("emcy: code and register are integers, data is hex") from None
             if not 0 <= code <= 0xFFFF or not 0 <= register <= 0xFF or len(data) > 5:
-                raise ControlError("emcy: code 0..0xFFFF, register 0..0xFF, at most 5 data bytes")
+                raise ControlRequestError("emcy: code 0..0xFFFF, register 0..0xFF, at most 5 data bytes")
             in_bus_thread(lambda: node.emcy(code, register, data.ljust(5, b"\0")))
             return {"status": in_bus_thread(node.status)}
         if cmd == "bus":
@@ -294,11 +294,11 @@ class CanopenBoardFamily(DeviceFamily):
                 try:
                     medium.set_faults(**check_knobs(knobs, BUS_FAULT_RULES, "bus fault"))
                 except ValueError as exc:
-                    raise ControlError(str(exc)) from None
+                    raise ControlRequestError(str(exc)) from None
             if bus_off is not None:
                 medium.force_bus_off(str(bus_off))
             return {"bus": medium.status()}
-        raise ControlError(f"unknown command {cmd!r}")
+        raise ControlRequestError(f"unknown command {cmd!r}")
 
 
 def profile_boards(profile) -> list[tuple[str, Any]]:

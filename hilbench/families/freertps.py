@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from hilbench.bench.checks import Checker
-from hilbench.bench.control import ControlError
+from hilbench.bench.control import ControlError, ControlRequestError
 from hilbench.bench.family import DeviceFamily, DeviceSpec, bench_device
 
 #: The default domain: non-zero, so the nodes do not meet a real DDS on the machine (domain 0).
@@ -165,9 +165,9 @@ class FreeRtpsFamily(DeviceFamily):
     # ------------------------------------------------------------------ bench
 
     def build(self, bench, endpoint, devices: list[NodeSpec], t: float) -> None:
-        from hilbench.errors import BenchError
         from hilbench.fakes.rtps_node import FreeRtpsNode, TopicSpec
         from hilbench.protocols import rtps
+        from hilbench.transports.listener import BindError
 
         opts = endpoint.spec.options
         nodes = []
@@ -179,10 +179,11 @@ class FreeRtpsFamily(DeviceFamily):
                 node.attach(endpoint.medium)
             except OSError as exc:
                 ports = rtps.ports(opts["domain_id"], spec.participant_index)
-                raise BenchError(f"node {spec.name!r}: cannot bind 127.0.0.1 ports "
-                                 f"{ports['metatraffic_unicast']}/{ports['user_unicast']} (domain "
-                                 f"{opts['domain_id']}, participant index {spec.participant_index}): "
-                                 f"{exc.strerror or exc}") from None
+                reason = (f"{exc.reason if isinstance(exc, BindError) else exc.strerror or exc} (node {spec.name!r}: "
+                          f"domain {opts['domain_id']}, {spec.where}.participant_index {spec.participant_index} "
+                          f"use ports {ports['metatraffic_unicast']}/{ports['user_unicast']})")
+                raise BindError(getattr(exc, "address", ("127.0.0.1", ports["metatraffic_unicast"])), reason,
+                                exc.errno, "RTPS port", key="domain_id") from None
             endpoint.add_device(spec.name, node)
             nodes.append(node)
         endpoint.attrs["nodes"] = nodes
@@ -235,7 +236,7 @@ class FreeRtpsFamily(DeviceFamily):
         if cmd == "publish":
             topic, value = req.get("topic"), req.get("value", {})
             if not isinstance(value, dict):
-                raise ControlError("value: expected an object of the message's fields")
+                raise ControlRequestError("value: expected an object of the message's fields")
             done: dict[str, Any] = {}
             ev = __import__("threading").Event()
 
@@ -254,7 +255,7 @@ class FreeRtpsFamily(DeviceFamily):
             if "error" in done:
                 raise ControlError(done["error"])
             return {"readers": done["readers"]}
-        raise ControlError(f"unknown command {cmd!r}")
+        raise ControlRequestError(f"unknown command {cmd!r}")
 
 
 def _bench_node(bench, name: str | None = None):

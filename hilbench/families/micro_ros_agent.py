@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from hilbench.bench.checks import Checker
-from hilbench.bench.control import ControlError
+from hilbench.bench.control import ControlRequestError
 from hilbench.bench.family import DeviceFamily, DeviceSpec, bench_device
 from hilbench.bench.knobs import check_fault_table, requested_knobs
 from hilbench.rules import FAULT_COUNT
@@ -180,8 +180,8 @@ class MicroRosAgentFamily(DeviceFamily):
             try:
                 return {"faults": agent.set_faults(**{k: int(v) for k, v in knobs.items()})}
             except (KeyError, TypeError, ValueError) as exc:
-                raise ControlError(str(exc)) from None
-        raise ControlError(f"unknown command {cmd!r}")
+                raise ControlRequestError(str(exc)) from None
+        raise ControlRequestError(f"unknown command {cmd!r}")
 
 
 def _bench_agent(bench, name: str | None = None):

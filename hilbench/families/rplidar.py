@@ -35,7 +35,7 @@ from __future__ import annotations
 from typing import Any
 
 from hilbench.bench.checks import Checker
-from hilbench.bench.control import ControlError
+from hilbench.bench.control import ControlRequestError
 from hilbench.families.scanner import (
     COMMON_DEVICE_KEYS,
     ScannerFamily,
@@ -133,7 +133,7 @@ class RplidarFamily(ScannerFamily):
         if cmd == "dtr":
             value = req.get("dtr")
             if not isinstance(value, bool):
-                raise ControlError("dtr: expected true or false")
+                raise ControlRequestError("dtr: expected true or false")
             # The same path as hilbench run's shim: the host port's modem lines, heard by the device.
             ports = [h for h in device.port.medium.hosts if getattr(h, "lines", None) is not None]
             if not ports:

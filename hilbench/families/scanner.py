@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from hilbench.bench.checks import Checker
-from hilbench.bench.control import ControlError
+from hilbench.bench.control import ControlRequestError
 from hilbench.bench.family import DeviceFamily, DeviceSpec
 from hilbench.bench.knobs import KnobRules, check_fault_table, check_knobs, requested_knobs
 
@@ -245,7 +245,7 @@ class ScannerFamily(DeviceFamily):
             knobs = check_knobs(requested_knobs(req), self.fault_knobs, whole_counts=False)
             device.port.call_at(None, lambda: self.apply_faults(device, knobs))
             return {"faults": {**{k: getattr(device.faults, k) for k in self.fault_knobs}, **knobs}}
-        raise ControlError(f"unknown command {cmd!r}")
+        raise ControlRequestError(f"unknown command {cmd!r}")
 
     def apply_faults(self, device, knobs: dict[str, Any]) -> None:
         """Turn checked fault knobs of ``device`` (in its medium's thread)."""

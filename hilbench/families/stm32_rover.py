@@ -37,7 +37,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from hilbench.bench.checks import Checker
-from hilbench.bench.control import ControlClient, ControlError
+from hilbench.bench.control import ControlClient, ControlError, ControlRequestError
 from hilbench.bench.family import DeviceFamily, DeviceSpec, bench_device
 from hilbench.bench.knobs import check_fault_table, check_knobs
 from hilbench.rules import FAULT_COUNT, PROBABILITY, Rule, RuleError
@@ -258,29 +258,29 @@ class Stm32RoverFamily(DeviceFamily):
         if cmd == "fault":
             knobs = req.get("knobs", {})
             if not isinstance(knobs, dict):
-                raise ControlError("knobs: expected an object")
+                raise ControlRequestError("knobs: expected an object")
             try:
                 return {"faults": board.set_faults(**check_fault_knobs(knobs))}
             except RuleError as exc:
-                raise ControlError(str(exc)) from None
+                raise ControlRequestError(str(exc)) from None
         if cmd == "log":
             return {"log": board.status()["log"]}
         if cmd == "micro_ros":
             links = [link for link in board.links if hasattr(link, "client")]
             if not links:
-                raise ControlError(f"board {board.name!r} has no micro-ROS link (set agent = \"HOST:PORT\")")
+                raise ControlRequestError(f"board {board.name!r} has no micro-ROS link (set agent = \"HOST:PORT\")")
             zeroed = req.get("zeroed_next")
             if zeroed is not None:
                 if isinstance(zeroed, bool) or not isinstance(zeroed, int) or not 0 <= zeroed <= 1000:
-                    raise ControlError(f"zeroed_next: expected an integer 0..1000, got {zeroed!r}")
+                    raise ControlRequestError(f"zeroed_next: expected an integer 0..1000, got {zeroed!r}")
                 links[0].client.zero_next(zeroed)
             return {"micro_ros": links[0].status()}
         if cmd == "wait_report":
             timeout, start = req.get("timeout", 10.0), req.get("after")
             if not WAIT_TIMEOUT.ok(timeout):
-                raise ControlError(f"wait_report: timeout: expected {WAIT_TIMEOUT.expected} (s), got {timeout!r}")
+                raise ControlRequestError(f"wait_report: timeout: expected {WAIT_TIMEOUT.expected} (s), got {timeout!r}")
             if start is not None and not REPORT_COUNT.ok(start):
-                raise ControlError(f"wait_report: after: expected {REPORT_COUNT.expected}, got {start!r}")
+                raise ControlRequestError(f"wait_report: after: expected {REPORT_COUNT.expected}, got {start!r}")
             start = len(board.reports) if start is None else start
             deadline = time.monotonic() + timeout
             while len(board.reports) <= start:
@@ -289,7 +289,7 @@ class Stm32RoverFamily(DeviceFamily):
                 time.sleep(0.01)
             rep = board.reports[-1]
             return {"report": rep._asdict(), "status": board.status()}
-        raise ControlError(f"unknown command {cmd!r}")
+        raise ControlRequestError(f"unknown command {cmd!r}")
 
 
 def _check_micro_ros(c: Checker, key: str, dev: dict[str, Any], preset: str) -> dict[str, Any]:

@@ -31,7 +31,7 @@ from pathlib import Path
 from typing import Any
 
 from hilbench import registry
-from hilbench.errors import UsageError
+from hilbench.errors import UnavailableError, UsageError
 from hilbench.transports.host_port import url_host
 
 #: Resource names besides the endpoints'.
@@ -45,8 +45,11 @@ def load_manifest(path: str | Path) -> dict[str, Any]:
     """A bench manifest (JSON), with a one-line error naming the file when it is not one."""
     try:
         data = json.loads(Path(path).read_text())
+    except FileNotFoundError:  # its bench writes it, and removes it when it stops: exit status 1
+        raise UnavailableError(f"{path}: no such manifest (is the bench running? start it with hilbench emulate "
+                               "--manifest)") from None
     except OSError as exc:
-        raise UsageError(f"{path}: cannot read the manifest ({exc.strerror or exc})") from None
+        raise UnavailableError(f"{path}: cannot read the manifest ({exc.strerror or exc})") from None
     except ValueError as exc:
         raise UsageError(f"{path}: not a bench manifest (invalid JSON: {exc})") from None
     if not isinstance(data, dict) or not isinstance(data.get("endpoints"), list) or "name" not in data:

@@ -49,6 +49,7 @@ from hilbench.errors import OptionError
 from hilbench.protocols import socketcand as sc
 from hilbench.protocols.can_frame import CanFrame
 from hilbench.transports.host_port import HostPort, bind_address, port_number
+from hilbench.transports.listener import BindError
 
 log = logging.getLogger(__name__)
 
@@ -154,9 +155,14 @@ class CanHostPort(HostPort):
             if socketcand is not None:
                 from hilbench.transports.socketcand_server import SocketcandServer
 
-                self.socketcand = SocketcandServer(name, bind=socketcand["bind"], port=socketcand["port"],
-                                                   channel=socketcand["channel"], beacon=socketcand["beacon"],
-                                                   rawmode_delay=socketcand["rawmode_delay_ms"] / 1000)
+                try:
+                    self.socketcand = SocketcandServer(name, bind=socketcand["bind"], port=socketcand["port"],
+                                                       channel=socketcand["channel"], beacon=socketcand["beacon"],
+                                                       rawmode_delay=socketcand["rawmode_delay_ms"] / 1000)
+                except BindError as exc:  # the profile keys that chose the address
+                    exc.what = "socketcand server (TCP port)"
+                    exc.key = "socketcand.port" if exc.port_taken else "socketcand.bind"
+                    raise
                 self.doors.append(self.socketcand)
             if slcan:
                 from hilbench.transports.slcan_port import SlcanAdapter

@@ -21,7 +21,7 @@ import threading
 import time
 
 from hilbench.transports.pty import PtyEndpoint
-from hilbench.transports.sources import PushSource, SourceError
+from hilbench.transports.sources import PushSource, SourceError, SourceUnavailable
 
 APP = "app"
 DEVICE = "device"
@@ -40,7 +40,9 @@ class SerialTap:
         self.fixed_baud = baud
         try:
             self._ser = open_url(real_port, baudrate=baud or 57_600, timeout=0, write_timeout=2)
-        except (serial.SerialException, ValueError) as exc:
+        except serial.SerialException as exc:  # not there, busy, refused (an OSError in pyserial)
+            raise SourceUnavailable(f"cannot open {real_port}: {exc}") from None
+        except ValueError as exc:  # a malformed URL or setting
             raise SourceError(f"cannot open {real_port}: {exc}") from None
         try:
             self.pty = PtyEndpoint(APP, link=link)

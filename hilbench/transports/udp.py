@@ -23,6 +23,7 @@ from typing import Any
 
 from hilbench.errors import OptionError
 from hilbench.transports.host_port import HostPort, bind_address, port_number
+from hilbench.transports.listener import bind as bind_socket
 
 #: Largest payload sent in one datagram; longer writes are split.
 MAX_DATAGRAM = 8192
@@ -76,7 +77,7 @@ class UdpEndpoint(HostPort):
     def __init__(self, name: str = "udp", bind: str = "127.0.0.1", port: int = 0, peer: str | None = None) -> None:
         self.name = name
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.sock.bind((bind, port))
+        bind_socket(self.sock, (bind, port), "UDP port")  # BindError: taken, or not this machine's address
         self.sock.setblocking(False)
         self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, 1 << 20)
         # Room for bursts while the medium's thread is busy (the kernel drops what does not fit).

@@ -10,7 +10,7 @@ import pytest
 
 from hilbench.bench import Bench
 from hilbench.bench.profile import ProfileError, load_profile, parse_profile
-from hilbench.errors import BenchError
+from hilbench.errors import UnavailableError
 from hilbench.protocols import rtps
 from hilbench.pytest_plugin import wait_until
 from tests.helpers.domains import free_domain
@@ -95,8 +95,13 @@ def test_a_taken_port_is_a_one_line_bench_error() -> None:
     blocker = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     blocker.bind(("127.0.0.1", rtps.ports(domain, 0)["metatraffic_unicast"]))
     try:
-        with pytest.raises(BenchError, match=r"node 'talker': cannot bind 127.0.0.1 ports"):
+        with pytest.raises(UnavailableError) as err:  # exit status 1, one line naming what to change
             Bench(parse_profile(_profile(domain), "n.toml")).start()
+        port = rtps.ports(domain, 0)["metatraffic_unicast"]
+        assert str(err.value).startswith(f"n.toml: endpoint 'n': cannot listen on RTPS port 127.0.0.1:{port}: "
+                                         "Address already in use (node 'talker': domain "), err.value
+        assert str(err.value).endswith("; change endpoints.n.domain_id in the profile, or --set "
+                                       "n.domain_id=VALUE"), err.value
     finally:
         blocker.close()
 

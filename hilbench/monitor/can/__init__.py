@@ -12,11 +12,14 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from hilbench.errors import UsageError
 from hilbench.monitor.can.summary import summary
 from hilbench.monitor.can.tracker import CanTracker
 from hilbench.monitor.instrument import Instrument
 from hilbench.protocols import can_frame as cf
+from hilbench.rules import Rule
+
+#: ``--miss-factor``: a heartbeat gap longer than this many periods is a miss.
+MISS_FACTOR = Rule(float, 1, 1000, above=True)
 
 
 class CanInstrument(Instrument):
@@ -48,14 +51,12 @@ class CanInstrument(Instrument):
                             "mapping; repeatable")
         g.add_argument("--no-canopen", action="store_true",
                        help="do not read frames as CANopen (NMT, heartbeat, SDO, EMCY by COB-ID)")
-        g.add_argument("--miss-factor", type=float, default=1.5,
+        g.add_argument("--miss-factor", type=MISS_FACTOR, default=1.5,
                        help="a heartbeat gap longer than this many periods is a miss (default 1.5)")
 
     def tracker_options(self, args: argparse.Namespace) -> dict[str, Any]:
         from hilbench.monitor.can.decoders import load_dbc, load_eds
 
-        if args.miss_factor <= 1.0:
-            raise UsageError(f"--miss-factor must be above 1, got {args.miss_factor}")
         decoders = [load_dbc(spec) for spec in args.dbc] + [load_eds(spec) for spec in args.eds]
         return {"decoders": decoders, "canopen": not args.no_canopen, "miss_factor": args.miss_factor}
 

@@ -13,9 +13,9 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from hilbench.errors import UsageError
 from hilbench.monitor.instrument import Instrument
 from hilbench.monitor.udp.tracker import UdpTracker
+from hilbench.rules import PORT
 
 
 class UdpInstrument(Instrument):
@@ -37,7 +37,7 @@ class UdpInstrument(Instrument):
 
     def add_arguments(self, parser: argparse.ArgumentParser) -> None:
         g = parser.add_argument_group("UDP (micro-ROS, RTPS)")
-        g.add_argument("--agent-port", type=int, action="append", metavar="PORT",
+        g.add_argument("--agent-port", type=PORT, action="append", metavar="PORT",
                        help="a UDP port where an XRCE agent listens (default 8888; repeatable; agents are also "
                             "learned from their replies)")
 
@@ -45,9 +45,6 @@ class UdpInstrument(Instrument):
         ports = getattr(args, "agent_port", None)
         if ports is None:
             return {}
-        for p in ports:
-            if not 0 < p < 65536:
-                raise UsageError(f"--agent-port must be 1..65535, got {p}")
         return {"agent_ports": tuple(ports)}
 
     def make_tracker(self, *, baud: int | None, timestamps: bool, **options: Any) -> UdpTracker:

@@ -47,6 +47,7 @@ from hilbench.transports.sources.base import (
     Source,
     SourceError,
     SourceOpener,
+    SourceUnavailable,
     peek,
 )
 from hilbench.transports.sources.file import FileSource
@@ -88,7 +89,10 @@ def open_source(spec: str, *, baud: int | None = None, speed: float | None = Non
     path_text, _, fragment = spec.partition("#")
     path = Path(path_text)
     if not path.exists():
-        raise SourceError(f"{spec}: no such file, port or source")
+        if path.suffix.lower() == ".json":  # a manifest: its bench writes it, and removes it when it stops
+            raise SourceUnavailable(f"{spec}: no such manifest (is the bench running? start it with hilbench "
+                                    "emulate --manifest)")
+        raise SourceUnavailable(f"{spec}: no such file, port or source")
     mode = os.stat(path).st_mode
     if stat.S_ISDIR(mode):
         raise SourceError(f"{spec}: is a directory, not a capture, port or source")
@@ -109,6 +113,7 @@ __all__ = [
     "SerialSource",
     "Source",
     "SourceError",
+    "SourceUnavailable",
     "SourceOpener",
     "StreamSource",
     "TcpSource",

@@ -18,12 +18,22 @@ from collections.abc import Callable, Generator, Iterator
 from dataclasses import dataclass
 from typing import Any
 
-from hilbench.errors import UsageError
+from hilbench.errors import HilbenchError, UnavailableError
 from hilbench.transports.capture_file import Chunk, sound_quality
 
 
-class SourceError(UsageError, ValueError):
-    """A source string that cannot be opened; the message is one line."""
+class SourceError(HilbenchError, ValueError):
+    """A source string that cannot be opened; the message is one line. Exit status 2 (a malformed source, a
+    file that is not a capture); :class:`SourceUnavailable` is what is not there or did not answer (1)."""
+
+    exit_code = 2
+
+
+class SourceUnavailable(SourceError, UnavailableError):
+    """A source that is not there, is taken or did not answer: no such file or port, a refused connection,
+    an address in use, a timeout (exit status 1)."""
+
+    exit_code = 1
 
 
 class Source:
@@ -305,4 +315,4 @@ class SourceOpener:
 
 
 __all__ = ["Chunk", "MediumSource", "PeekedSource", "PushSource", "ReplaySource", "Source", "SourceError",
-           "SourceOpener", "peek"]
+           "SourceOpener", "SourceUnavailable", "peek"]

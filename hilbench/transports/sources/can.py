@@ -32,7 +32,14 @@ from urllib.parse import parse_qs, urlparse
 
 from hilbench.protocols import can_frame as cf
 from hilbench.transports.capture_file import Chunk
-from hilbench.transports.sources.base import PushSource, ReplaySource, Source, SourceError, SourceOpener
+from hilbench.transports.sources.base import (
+    PushSource,
+    ReplaySource,
+    Source,
+    SourceError,
+    SourceOpener,
+    SourceUnavailable,
+)
 
 #: python-can log formats read by suffix.
 LOG_SUFFIXES = (".asc", ".blf", ".trc", ".log")
@@ -66,10 +73,19 @@ def open_bus(spec: str) -> tuple[Any, str, int | None]:
                 raise SourceError(f"{spec}: expected socketcand://HOST:PORT/CHANNEL")
             import socket
 
-            try:  # python-can retries a refused connection for 10 s; say at once when nothing listens
-                socket.create_connection((url.hostname, url.port), timeout=2).close()
+            # python-can retries a refused connection for 10 s and then waits for the greeting forever: say at
+            # once when nothing listens, or when what listens does not greet as socketcand does (< hi >).
+            try:
+                with socket.create_connection((url.hostname, url.port), timeout=2) as probe:
+                    greeting = probe.recv(64)
+            except TimeoutError:
+                raise SourceUnavailable(f"{spec}: no socketcand greeting within 2 s (a socketcand server says "
+                                        "< hi > at once)") from None
             except OSError as exc:
-                raise SourceError(f"{spec}: no socketcand server there ({exc.strerror or exc})") from None
+                raise SourceUnavailable(f"{spec}: no socketcand server there ({exc.strerror or exc})") from None
+            if not greeting.startswith(b"< hi >"):
+                said = greeting.decode("ascii", "replace").strip() or "nothing (closed)"
+                raise SourceUnavailable(f"{spec}: the server said {said[:60]!r}, not socketcand's < hi >")
             bus = can.Bus(interface="socketcand", host=url.hostname, port=url.port, channel=channel)
             return bus, channel, bitrate
         if scheme == "slcan":
@@ -162,7 +178,7 @@ class CanLogSource(ReplaySource):
         import can
 
         if not Path(path).exists():
-            raise SourceError(f"{path}: no such file")
+            raise SourceUnavailable(f"{path}: no such file")
         self.check_speed(speed)
         self.name = path
         self.baud = baud

@@ -8,7 +8,13 @@ import sys
 from collections.abc import Iterator
 
 from hilbench.transports.capture_file import CaptureError, CaptureReader, Chunk, sound_quality
-from hilbench.transports.sources.base import ReplaySource, Source, SourceError, SourceOpener
+from hilbench.transports.sources.base import (
+    ReplaySource,
+    Source,
+    SourceError,
+    SourceOpener,
+    SourceUnavailable,
+)
 
 
 class FileSource(ReplaySource):
@@ -22,7 +28,7 @@ class FileSource(ReplaySource):
         try:
             self.reader = CaptureReader(target, raw_baud=baud)
         except FileNotFoundError:
-            raise SourceError(f"{target}: no such file") from None
+            raise SourceUnavailable(f"{target}: no such file") from None
         self.name = self.reader.name
         self.baud = self.reader.baud or baud
         info = self.reader.info

@@ -5,7 +5,13 @@ from __future__ import annotations
 from collections.abc import Iterator
 
 from hilbench.transports.capture_file import CaptureError, Chunk
-from hilbench.transports.sources.base import ReplaySource, Source, SourceError, SourceOpener
+from hilbench.transports.sources.base import (
+    ReplaySource,
+    Source,
+    SourceError,
+    SourceOpener,
+    SourceUnavailable,
+)
 
 
 class PcapSource(ReplaySource):
@@ -25,7 +31,7 @@ class PcapSource(ReplaySource):
         try:
             self.reader = PcapReader(target)
         except FileNotFoundError:
-            raise SourceError(f"{target}: no such file") from None
+            raise SourceUnavailable(f"{target}: no such file") from None
         except CaptureError as exc:
             raise SourceError(str(exc)) from None
         if speed is not None and speed <= 0:

@@ -8,7 +8,7 @@ from collections.abc import Iterator
 from urllib.parse import parse_qs, urlparse
 
 from hilbench.transports.capture_file import Chunk
-from hilbench.transports.sources.base import Source, SourceError, SourceOpener
+from hilbench.transports.sources.base import Source, SourceError, SourceOpener, SourceUnavailable
 
 
 class SerialSource(Source):
@@ -23,7 +23,9 @@ class SerialSource(Source):
         self.baud = baud or 57_600
         try:
             self._ser = open_url(port, baudrate=self.baud, timeout=read_timeout)
-        except (serial.SerialException, ValueError) as exc:
+        except serial.SerialException as exc:  # not there, busy, refused (an OSError in pyserial)
+            raise SourceUnavailable(f"cannot open {port}: {exc}") from None
+        except ValueError as exc:  # a malformed URL or setting
             raise SourceError(f"cannot open {port}: {exc}") from None
         self._stop = threading.Event()
 

@@ -12,7 +12,7 @@ from collections.abc import Iterator
 from urllib.parse import urlparse
 
 from hilbench.transports.capture_file import READ_SIZE, CaptureParser, Chunk, sound_quality
-from hilbench.transports.sources.base import Source, SourceError, SourceOpener
+from hilbench.transports.sources.base import Source, SourceError, SourceOpener, SourceUnavailable
 
 
 class StreamSource(Source):
@@ -101,7 +101,7 @@ class TcpSource(StreamSource):
         try:
             self._sock = socket.create_connection((host, port), timeout=timeout)
         except OSError as exc:
-            raise SourceError(f"cannot connect to {name}: {exc.strerror or exc}") from None
+            raise SourceUnavailable(f"cannot connect to {name}: {exc.strerror or exc}") from None
         super().__init__(self._sock.fileno(), name=name, own=False)
         try:
             while not self.parser.decided:
@@ -109,9 +109,13 @@ class TcpSource(StreamSource):
                 if not data:
                     break
                 self._early += self.parser.feed(data)
+        except TimeoutError:
+            self._sock.close()
+            raise SourceUnavailable(f"{self.name}: sent nothing within {timeout:g} s (a bench's traffic tap sends "
+                                    "its header at once)") from None
         except OSError as exc:
             self._sock.close()
-            raise SourceError(f"{self.name}: {exc}") from None
+            raise SourceUnavailable(f"{self.name}: {exc.strerror or exc}") from None
         if self.parser.info is None:
             self._sock.close()
             raise SourceError(f"{self.name} does not speak the hilbench capture format")

@@ -11,7 +11,7 @@ from collections.abc import Iterator
 from urllib.parse import parse_qs, urlparse
 
 from hilbench.transports.capture_file import Chunk
-from hilbench.transports.sources.base import Source, SourceError, SourceOpener
+from hilbench.transports.sources.base import Source, SourceError, SourceOpener, SourceUnavailable
 
 
 class UdpSource(Source):
@@ -34,7 +34,7 @@ class UdpSource(Source):
             self._sock.bind((host, port))
         except OSError as exc:
             self._sock.close()
-            raise SourceError(f"cannot bind udp://{host}:{port}: {exc.strerror or exc}") from None
+            raise SourceUnavailable(f"cannot bind udp://{host}:{port}: {exc.strerror or exc}") from None
         self._sock.setblocking(False)
         self.address: tuple[str, int] = self._sock.getsockname()[:2]
         self.name = f"udp://{self.address[0]}:{self.address[1]}"
