@@ -110,13 +110,16 @@ class Listener:
 
     ``refusal(reason)`` is what a refused client is sent (the protocol's own
     error: ``< error ... >`` for socketcand, a line of text for RFC 2217);
-    ``reason`` says why, in words. Counters: :attr:`accepted`, :attr:`refused`
-    (beyond the limit), :attr:`exhausted` (accept found no descriptor left).
+    ``reason`` says why, in words. ``send_buffer`` fixes each client's kernel
+    send buffer (SO_SNDBUF): autotuned, the kernel holds up to megabytes for a
+    client that reads nothing (2.8 MB measured on loopback), on top of what the
+    server queues itself. Counters: :attr:`accepted`, :attr:`refused` (beyond
+    the limit), :attr:`exhausted` (accept found no descriptor left).
     """
 
     def __init__(self, bind: str, port: int, backlog: int, *, max_clients: int,
                  refusal: Callable[[str], bytes], family: socket.AddressFamily | None = None,
-                 sock: socket.socket | None = None) -> None:
+                 sock: socket.socket | None = None, send_buffer: int | None = None) -> None:
         if sock is not None:  # a listening socket made elsewhere (a Unix socket)
             sock.setblocking(False)
             self.sock = sock
@@ -126,6 +129,7 @@ class Listener:
             self.sock = listen(bind, port, backlog, family)
         self.max_clients = max_clients
         self.refusal = refusal
+        self.send_buffer = send_buffer
         self.accepted = 0
         self.refused = 0
         self.exhausted = 0
@@ -175,6 +179,8 @@ class Listener:
                 continue
             try:
                 serve(sock)
+                if self.send_buffer:
+                    sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, self.send_buffer)
             except OSError:
                 sock.close()
                 continue

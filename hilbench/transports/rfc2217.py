@@ -66,6 +66,8 @@ log = logging.getLogger(__name__)
 
 #: Bytes held for a client that suspended the flow or reads too slowly; beyond this, data is dropped.
 MAX_HELD = 1 << 20
+#: The client's kernel send buffer (bytes; the kernel holds up to megabytes for a client that reads nothing).
+SEND_BUFFER = 256 << 10
 #: Commands and data items of the client waiting for the line; the client is not read beyond this.
 MAX_INBOX = 1024
 #: Seconds of wire time the client's bytes may still need on a paced line before it is read again.
@@ -98,7 +100,7 @@ class Rfc2217Port(HostPort):
         self.line_state = line_state
         self.medium = medium
         self.signature = signature or f"hilbench {__version__}"
-        self.listener = Listener(bind, port, 4, max_clients=1, refusal=self._refusal)
+        self.listener = Listener(bind, port, 4, max_clients=1, refusal=self._refusal, send_buffer=SEND_BUFFER)
         self.bind = bind
         self._ready = WakePipe()  # readable while parsed input waits for the next read()
         self._lock = threading.RLock()  # socket output: the medium's thread and line watchers

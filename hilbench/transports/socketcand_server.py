@@ -79,6 +79,8 @@ MAX_PENDING_TOTAL = 16 << 20
 STALL_TIMEOUT = 30.0
 #: Cyclic jobs, and subscriptions, one client may have.
 MAX_BCM_ENTRIES = 256
+#: Each client's kernel send buffer (bytes; the kernel holds up to megabytes for a client that reads nothing).
+SEND_BUFFER = 64 << 10
 #: While a client has bytes waiting, the bus thread retries sending them this often (seconds).
 FLUSH_RETRY = 0.005
 BEACON_INTERVAL = 2.0
@@ -142,7 +144,8 @@ class SocketcandServer(CanDoor):
         self.name = name
         self.channel = channel
         self.rawmode_delay = rawmode_delay
-        self.listener = Listener(bind, port, 16, max_clients=MAX_CLIENTS, refusal=self._refusal)
+        self.listener = Listener(bind, port, 16, max_clients=MAX_CLIENTS, refusal=self._refusal,
+                                 send_buffer=SEND_BUFFER)
         self.clients: list[_Client] = []
         self.connections = 0
         self.malformed = 0

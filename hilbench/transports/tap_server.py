@@ -40,6 +40,8 @@ log = logging.getLogger(__name__)
 MAX_CLIENTS = 32
 #: Bytes buffered for one client that reads slower than the line sends; beyond, data is dropped (a GAP record).
 MAX_BUFFER = 1 << 20
+#: Each client's kernel send buffer (bytes; the kernel holds up to megabytes for a client that reads nothing).
+SEND_BUFFER = 256 << 10
 #: A client that takes nothing for this long while its buffer is full is disconnected (seconds).
 STALL_TIMEOUT = 60.0
 #: What a refused client reads first instead of a capture header, then why (a reader recognises the prefix).
@@ -80,7 +82,8 @@ class TapServer:
             protocol=protocol,
             description=description,
         )
-        self._listener = Listener(host, port, 16, max_clients=max_clients, refusal=self._refusal)
+        self._listener = Listener(host, port, 16, max_clients=max_clients, refusal=self._refusal,
+                                  send_buffer=SEND_BUFFER)
         self.host, self.port = self._listener.getsockname()[:2]
         self._lock = threading.Lock()
         self._clients: list[_Client] = []
