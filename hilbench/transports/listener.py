@@ -28,6 +28,10 @@ from collections.abc import Callable, Iterator
 
 #: accept() errors that mean "no descriptor or memory left": the connection stays pending.
 _EXHAUSTED = frozenset({errno.EMFILE, errno.ENFILE, errno.ENOBUFS, errno.ENOMEM})
+#: Connections the kernel completes and holds for a server before it accepts them: a burst of clients
+#: (a team's test runs starting together) beyond it has its connection attempts dropped and retried a
+#: second later. Holding them takes no descriptor.
+BACKLOG = 128
 #: Seconds a listener stops listening when the process has no descriptor left even for a refusal.
 PAUSE = 0.25
 #: What a client refused for lack of descriptors is told (with the server's own refusal around it).
@@ -209,4 +213,4 @@ def accepted(listener: socket.socket) -> Iterator[tuple[socket.socket, tuple]]:
         yield conn
 
 
-__all__ = ["NO_DESCRIPTORS", "PAUSE", "Listener", "accepted", "listen", "refuse", "serve"]
+__all__ = ["BACKLOG", "NO_DESCRIPTORS", "PAUSE", "Listener", "accepted", "listen", "refuse", "serve"]

@@ -64,7 +64,7 @@ from hilbench.protocols import can_frame as cf
 from hilbench.protocols import socketcand as sc
 from hilbench.protocols.can_frame import CanFrame
 from hilbench.transports.can_port import CanDoor
-from hilbench.transports.listener import Listener
+from hilbench.transports.listener import BACKLOG, Listener
 
 log = logging.getLogger(__name__)
 
@@ -144,7 +144,7 @@ class SocketcandServer(CanDoor):
         self.name = name
         self.channel = channel
         self.rawmode_delay = rawmode_delay
-        self.listener = Listener(bind, port, 16, max_clients=MAX_CLIENTS, refusal=self._refusal,
+        self.listener = Listener(bind, port, BACKLOG, max_clients=MAX_CLIENTS, refusal=self._refusal,
                                  send_buffer=SEND_BUFFER)
         self.clients: list[_Client] = []
         self.connections = 0

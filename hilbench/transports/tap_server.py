@@ -32,7 +32,7 @@ import time
 
 from hilbench.protocols import capture as cap
 from hilbench.protocols.capture import MAX_PAYLOAD, Flags, RecordKind
-from hilbench.transports.listener import Listener
+from hilbench.transports.listener import BACKLOG, Listener
 
 log = logging.getLogger(__name__)
 
@@ -82,7 +82,7 @@ class TapServer:
             protocol=protocol,
             description=description,
         )
-        self._listener = Listener(host, port, 16, max_clients=max_clients, refusal=self._refusal,
+        self._listener = Listener(host, port, BACKLOG, max_clients=max_clients, refusal=self._refusal,
                                   send_buffer=SEND_BUFFER)
         self.host, self.port = self._listener.getsockname()[:2]
         self._lock = threading.Lock()
