@@ -540,4 +540,4 @@ class Rfc2217Port(HostPort):
         self._reply(p.Command.NOTIFY_MODEMSTATE, bytes((value,)))
 
 
-__all__ = ["MAX_BACKLOG", "MAX_BAUD", "MAX_HELD", "MAX_INBOX", "MIN_BAUD", "Rfc2217Port"]
+__all__ = ["MAX_BACKLOG", "MAX_BAUD", "MAX_HELD", "MAX_INBOX", "MIN_BAUD", "RECV_SIZE", "Rfc2217Port"]
