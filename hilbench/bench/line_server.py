@@ -350,9 +350,12 @@ def _int_arg(args: list[str]) -> int:
     if len(args) != 1:
         raise LineRequestError("expected one integer argument")
     try:
-        return int(args[0], 0)
+        value = int(args[0], 0)
     except ValueError:
         raise LineRequestError(f"expected an integer, got {args[0]!r}") from None
+    if not -(1 << 31) <= value < 1 << 32:  # a modem-line mask or a c_cflag: 32 bits
+        raise LineRequestError("integer out of range (32 bits)")
+    return value
 
 
 def _private_dir() -> str:

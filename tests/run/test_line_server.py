@@ -155,6 +155,7 @@ def test_requests_and_errors_on_the_socket(arm):
     assert ask(server, f"{rdev} jump").startswith("err unknown request 'jump'")
     assert ask(server, f"{rdev} break 99").startswith("err break duration 99.0 s is outside")
     assert ask(server, f"{rdev} mset lots").startswith("err expected an integer")
+    assert ask(server, f"{rdev} sync {'9' * 200}") == "err integer out of range (32 bits)\n"
     assert ask(server, "nonsense").startswith("err expected: RDEV VERB")
     assert ask(server, "1" * 300).startswith("err request too long")
     # Nothing above stopped the server.
