@@ -179,7 +179,7 @@ class SocketcandServer(CanDoor):
 
     def describe(self) -> dict[str, Any]:
         host, port = self.address
-        return {"host": host, "port": port, "channel": self.channel, "max_clients": MAX_CLIENTS}
+        return {"host": host, "port": port, "channel": self.channel, "max_clients": self.listener.max_clients}
 
     def status(self) -> dict[str, Any]:
         """Clients, limits and what was refused or dropped, for status reports (control ``media``)."""
