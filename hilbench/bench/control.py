@@ -8,10 +8,11 @@ per line each way::
     <- {"ok": true, "status": {...}}
 
 The bench answers ``devices`` (each device that takes commands, with them),
-``taps`` (each endpoint's traffic tap and how many clients it serves),
+``taps`` (each endpoint's traffic tap: its clients, limits and what it dropped),
 ``media`` (each endpoint's line or bus: kind, paced, what its thread is scheduled
 under and its counters, e.g. how late a paced serial line handed transmissions
-over against its wire model),
+over against its wire model; ``host``: the host port's own, e.g. a socketcand
+server's clients and what it refused or dropped),
 ``servers`` (each endpoint's network servers, e.g. RFC 2217, with their
 client and counters) and ``manifest`` (the bench's manifest, for programs that reach the bench only
 through this channel, e.g. over labgrid);
@@ -217,10 +218,11 @@ class ControlServer:
         if cmd == "manifest":
             return {"manifest": self.bench.manifest()}
         if cmd == "media":
-            return {"media": {ep.name: medium_status(ep.medium) for ep in self.bench.endpoints.values()
-                              if ep.medium is not None}}
+            return {"media": {ep.name: {**medium_status(ep.medium),
+                                        **({"host": ep.port.status()} if hasattr(ep.port, "status") else {})}
+                              for ep in self.bench.endpoints.values() if ep.medium is not None}}
         if cmd == "taps":
-            return {"taps": {ep.name: {"url": ep.tap.url, "clients": ep.tap.clients}
+            return {"taps": {ep.name: {"url": ep.tap.url, **ep.tap.status()}
                              for ep in self.bench.endpoints.values() if ep.tap is not None}}
         _name, device, family = self._device(cmd, req)
         return family.control(self.bench, device, cmd, req)

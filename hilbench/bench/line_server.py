@@ -38,14 +38,15 @@ real adapter whose client did not wait with ``tcdrain``.
 
 Hand-written over the standard library's socket module: socketserver's
 shutdown polls (up to half a second per bench stop), too slow for test suites
-that start hundreds of benches.
+that start hundreds of benches. At most :data:`MAX_CLIENTS` connections are
+served at once (one more is answered ``err too many clients`` and closed) and
+one idle for :data:`IDLE_TIMEOUT` seconds is closed (clients connect anew).
 """
 
 from __future__ import annotations
 
 import contextlib
 import os
-import select
 import socket
 import tempfile
 import termios
@@ -56,11 +57,17 @@ from typing import Any
 
 from hilbench.bench.delivery_board import FILE_NAME as BOARD_FILE
 from hilbench.bench.delivery_board import DeliveryBoard
+from hilbench.transports.listener import Listener
+from hilbench.transports.readiness import readable
 
 #: How long a request may wait for the medium's thread before the client is told to give up.
 MEDIUM_TIMEOUT = 5.0
 #: The longest request line; anything longer is refused.
 MAX_REQUEST = 256
+#: Connections served at once (a thread each); one more is answered ``err too many clients`` and closed.
+MAX_CLIENTS = 64
+#: A connection that sends no request for this long is closed (seconds); clients then connect anew.
+IDLE_TIMEOUT = 60.0
 
 TIOCM = {"dtr": termios.TIOCM_DTR, "rts": termios.TIOCM_RTS, "cts": termios.TIOCM_CTS,
          "dsr": termios.TIOCM_DSR, "ri": termios.TIOCM_RNG, "cd": termios.TIOCM_CAR}
@@ -116,6 +123,8 @@ class LineServer:
                       lambda _rdev=rdev: self.board.draining(_rdev))
         self._conns: set[socket.socket] = set()
         self._conns_lock = threading.Lock()
+        self._listener = Listener("", 0, 0, max_clients=MAX_CLIENTS, sock=self._sock,
+                                  refusal=lambda reason: f"err too many clients ({reason})\n".encode())
         self._wake_r, self._wake_w = os.pipe()
         self._thread = threading.Thread(target=self._accept, name="line-server", daemon=True)
         self._thread.start()
@@ -269,26 +278,26 @@ class LineServer:
     # ------------------------------------------------------------------ socket
 
     def _accept(self) -> None:
+        listener = self._listener
         while not self._closed.is_set():
+            pause = listener.deadline()  # (out of descriptors: see Listener)
             try:
-                ready = select.select([self._sock, self._wake_r], [], [])[0]
-            except (OSError, ValueError):
-                return
-            if self._sock not in ready:
-                continue
-            try:
-                conn, _ = self._sock.accept()
+                ready = readable([*listener.filenos(), self._wake_r],
+                                 None if pause is None else pause - time.monotonic())
             except OSError:
-                continue
-            threading.Thread(target=self._serve, args=(conn,), name="line-request", daemon=True).start()
+                return
+            if self._wake_r in ready and self._closed.is_set():
+                return
+            with self._conns_lock:
+                if self._closed.is_set():
+                    return
+                for conn, _ in listener.accept(len(self._conns)):
+                    conn.settimeout(IDLE_TIMEOUT)  # (blocking, with a timeout: one thread per connection)
+                    self._conns.add(conn)
+                    threading.Thread(target=self._serve, args=(conn,), name="line-request", daemon=True).start()
 
     def _serve(self, conn: socket.socket) -> None:
-        """Answer requests on one connection, one line each, until the client closes it."""
-        with self._conns_lock:
-            if self._closed.is_set():
-                conn.close()
-                return
-            self._conns.add(conn)
+        """Answer requests on one connection, one line each, until the client closes it (or idles)."""
         data = b""
         try:
             while not self._closed.is_set():
@@ -341,9 +350,12 @@ def _int_arg(args: list[str]) -> int:
     if len(args) != 1:
         raise LineRequestError("expected one integer argument")
     try:
-        return int(args[0], 0)
+        value = int(args[0], 0)
     except ValueError:
         raise LineRequestError(f"expected an integer, got {args[0]!r}") from None
+    if not -(1 << 31) <= value < 1 << 32:  # a modem-line mask or a c_cflag: 32 bits
+        raise LineRequestError("integer out of range (32 bits)")
+    return value
 
 
 def _private_dir() -> str:

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import select
 import signal
 import sys
 from pathlib import Path
@@ -72,7 +71,7 @@ def cmd_emulate(args: argparse.Namespace) -> int:
         if manifest:
             print(f"  manifest: {manifest}")
         sys.stdout.flush()
-        select.select([wake_r], [], [])  # (retried after each signal's handler: PEP 475)
+        os.read(wake_r, 1)  # a signal's byte (the read is retried after each signal's handler: PEP 475)
     finally:
         bench.stop()
         bench.remove_manifest()  # only our own, and only while it is still ours

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import contextlib
 import os
-import select
 import sys
 import termios
 import time
@@ -22,6 +21,7 @@ from dataclasses import dataclass
 from hilbench.protocols import vel2d
 from hilbench.protocols.tracestamp_stream import StreamDecoder
 from hilbench.transports.host_link import HostLink
+from hilbench.transports.readiness import readable
 
 HELP = """\
 Reading from the keyboard and sending Vel2d frames!
@@ -121,7 +121,7 @@ def run(port: str, baud: int = 115_200, speed: float = 0.5, turn: float = 1.0, r
         next_repeat = time.monotonic() + (1 / repeat_rate if repeat_rate > 0 else 1e9)
         while True:
             timeout = max(0.0, min(0.05, next_repeat - time.monotonic()))
-            ready = select.select([fd, link.fileno()], [], [], timeout)[0]
+            ready = readable([fd, link.fileno()], timeout)
             if link.fileno() in ready:
                 for item in decoder.feed(link.read()):
                     if type(item).__name__ == "LogLine":

@@ -10,10 +10,11 @@ terminal there are no keys: the dashboard is then steered by its options.
 from __future__ import annotations
 
 import os
-import select
 import sys
 import termios
 import tty
+
+from hilbench.transports.readiness import readable
 
 _SEQUENCES = {
     "\x1b[A": "up",
@@ -86,7 +87,7 @@ class KeyReader:
         """Keys typed within ``timeout`` seconds (waits at most that long; [] if none)."""
         if not self.active:
             return []
-        if not select.select([self.fd], [], [], max(0.0, timeout))[0]:
+        if not readable([self.fd], timeout):
             return []
         try:
             data = os.read(self.fd, 1024)

@@ -18,7 +18,6 @@ The devices' Python objects stay on the bench machine:
 from __future__ import annotations
 
 import contextlib
-import select
 import threading
 from types import SimpleNamespace
 from typing import Any
@@ -29,6 +28,7 @@ from hilbench.bench.control import ControlClient
 from hilbench.errors import BenchError
 from hilbench.labgrid.config import CONTROL_RESOURCE, TAP_SUFFIX
 from hilbench.transports.pty import PtyEndpoint
+from hilbench.transports.readiness import readable
 from hilbench.transports.serial_url import open_url
 
 
@@ -54,7 +54,7 @@ class PtyBridge:
         """pty -> remote: follow the client's baud rate before forwarding what it wrote."""
         try:
             while not self._stop.is_set():
-                ready, _, _ = select.select([self.pty.master_fd], [], [], 0.05)
+                ready = readable([self.pty.master_fd], 0.05)
                 baud = self.pty.client_baud()
                 if baud and baud != self.serial.baudrate:
                     self.serial.baudrate = baud

@@ -31,11 +31,22 @@ MAX_BUS_NAME = 16
 #: Longest message kept while waiting for its ``>`` (the daemon's command buffer is 4096 bytes).
 MAX_MESSAGE = 4096
 
+#: Longest BCM timer the kernel takes (``BCM_TIMER_SEC_MAX``: 400 days); a longer one is refused.
+BCM_TIMER_SEC_MAX = 400 * 24 * 60 * 60
+#: Largest ``statistics`` interval in ms (the daemon reads it with ``%u``).
+MAX_STATISTICS_MS = 0xFFFF_FFFF
+
 HI = "< hi >"
 OK = "< ok >"
 ECHO = "< echo >"
 ERROR_UNKNOWN = "< error unknown command >"
 ERROR_OPEN = "< error could not open bus >"
+
+
+def error_out_of_range(what: str) -> str:
+    """The reply to a number out of range, e.g. ``< error interval out of range >`` (``what`` starts with a
+    letter beyond ``f``: python-can reads ``< error HEX ...`` as an error frame)."""
+    return f"< error {what} out of range >"
 
 
 class MessageSplitter:
@@ -122,7 +133,9 @@ class Command(NamedTuple):
     for ``add``/``filter``/``subscribe``; ``can_id``/``extended`` for
     ``delete``/``unsubscribe``/``subscribe``; ``value`` is the bus name of ``open``
     or the interval of ``statistics`` (ms). ``name`` is ``"invalid"`` for a
-    malformed command of a known name, ``"unknown"`` for anything else.
+    malformed command of a known name, ``"range"`` for one with a number out of range
+    (``value`` says which: ``interval``, ``identifier``, ``statistics interval``), ``"unknown"`` for
+    anything else.
     """
 
     name: str
@@ -137,12 +150,26 @@ class Command(NamedTuple):
 MODE_COMMANDS = ("rawmode", "bcmmode", "controlmode", "isotpmode")
 
 
+class _OutOfRange(ValueError):
+    """A number the protocol bounds is beyond its bounds (``args[0]`` names it)."""
+
+
 def _hex(word: str) -> int:
     return int(word, 16)
 
 
+def _can_id(word: str) -> int:
+    """An identifier word: eight digits mean an extended frame (the daemon's rule); raises _OutOfRange if too
+    large for its kind (the daemon would pass it on truncated; a wider ID is a client error)."""
+    can_id = _hex(word)
+    if not 0 <= can_id <= (CAN_EFF_MASK if len(word) == 8 else CAN_SFF_MASK):
+        raise _OutOfRange("identifier")
+    return can_id
+
+
 def _frame_from(args: list[str]) -> CanFrame | None:
-    """``ID DLC B0 B1 ...`` as the daemon's ``sscanf("%x %hhu %hhx...")`` reads it; None if malformed."""
+    """``ID DLC B0 B1 ...`` as the daemon's ``sscanf("%x %hhu %hhx...")`` reads it; None if malformed
+    (raises _OutOfRange for an identifier beyond its kind's range)."""
     if len(args) < 2:
         return None
     try:
@@ -153,17 +180,16 @@ def _frame_from(args: list[str]) -> CanFrame | None:
         return None
     if not 0 <= dlc <= 8 or len(data) != dlc:
         return None
-    extended = len(args[0]) == 8  # the daemon's rule: eight ID digits mean an extended frame
-    if not 0 <= can_id <= (CAN_EFF_MASK if extended else CAN_SFF_MASK):
-        # The daemon would send the value truncated to the SocketCAN mask; a wider ID is a client error.
-        return None
-    return CanFrame(can_id, data, extended, False, False, dlc)
+    can_id = _can_id(args[0])
+    return CanFrame(can_id, data, len(args[0]) == 8, False, False, dlc)
 
 
 def _interval(sec: str, usec: str) -> float:
+    """A BCM interval: what the kernel takes (``bcm_is_invalid_tv``: seconds up to 400 days, microseconds
+    below a million); raises _OutOfRange beyond, ValueError if not numbers."""
     s, u = int(sec, 10), int(usec, 10)
-    if s < 0 or u < 0:
-        raise ValueError
+    if not (0 <= s <= BCM_TIMER_SEC_MAX and 0 <= u < 1_000_000):
+        raise _OutOfRange("interval")
     return s + u / 1e6
 
 
@@ -195,20 +221,24 @@ def parse_command(message: str) -> Command:
         if name in ("subscribe", "muxfilter"):
             if len(args) < 3:
                 return Command("invalid")
-            return Command("subscribe", interval=_interval(args[0], args[1]), can_id=_hex(args[2]),
-                           extended=len(args[2]) == 8)
+            interval = _interval(args[0], args[1])
+            return Command("subscribe", interval=interval, can_id=_can_id(args[2]), extended=len(args[2]) == 8)
         if name in ("delete", "unsubscribe"):
             if len(args) != 1:
                 return Command("invalid")
-            return Command(name, can_id=_hex(args[0]), extended=len(args[0]) == 8)
+            return Command(name, can_id=_can_id(args[0]), extended=len(args[0]) == 8)
         if name == "statistics":
             if len(args) != 1:
                 return Command("invalid")
             ms = int(args[0], 10)
-            return Command("statistics", value=str(max(0, ms)))
+            if not 0 <= ms <= MAX_STATISTICS_MS:
+                raise _OutOfRange("statistics interval")
+            return Command("statistics", value=str(ms))
         if len(args) >= 1 and args[0] in ("B", "C"):
             return Command("configure", value=name)  # "< can0 B bitrate ... >": bus settings in NO_BUS mode
-    except ValueError:
+    except _OutOfRange as exc:
+        return Command("range", value=exc.args[0])
+    except ValueError:  # not a number (or one of more than 4300 digits)
         return Command("invalid")
     return Command("unknown")
 
@@ -259,6 +289,6 @@ def beacon(name: str, host: str, port: int, buses: list[str], description: str =
             f"<URL>can://{host}:{port}</URL>{bus_xml}</CANBeacon>").encode()
 
 
-__all__ = ["BEACON_PORT", "DEFAULT_PORT", "ECHO", "ERROR_OPEN", "ERROR_UNKNOWN", "HI", "MAX_BUS_NAME", "OK",
-           "Command", "MessageSplitter", "ServerMessage", "beacon", "frame_message", "parse_command",
+__all__ = ["BCM_TIMER_SEC_MAX", "BEACON_PORT", "DEFAULT_PORT", "ECHO", "ERROR_OPEN", "ERROR_UNKNOWN", "HI", "MAX_BUS_NAME", "OK",
+           "MAX_STATISTICS_MS", "Command", "MessageSplitter", "ServerMessage", "beacon", "error_out_of_range", "frame_message", "parse_command",
            "parse_server_message", "send_message", "stat_message", "words"]

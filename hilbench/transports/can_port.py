@@ -296,6 +296,10 @@ class CanHostPort(HostPort):
             "socketcan_error": self.socketcan_error,
         }
 
+    def status(self) -> dict[str, Any]:
+        """Each door's counters that has any (the socketcand server's clients, refusals and drops)."""
+        return {door.kind: door.status() for door in self.doors if hasattr(door, "status")}
+
     def close(self) -> None:
         for door in self.doors:
             try:

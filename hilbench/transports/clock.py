@@ -4,7 +4,7 @@ A paced line must hand bytes over at their wire time, tens of microseconds
 apart, on machines where other programs want the CPU too. Spinning on the
 clock gets the precision but makes the line a CPU hog that the scheduler
 then preempts for milliseconds as soon as a neighbour is busy. So the line
-sleeps in ``select`` (woken at once by input), with the kernel's timer slack
+sleeps in ``ppoll`` (woken at once by input; :mod:`~hilbench.transports.readiness`), with the kernel's timer slack
 cut to a microsecond, asks for each wake-up as much earlier as this
 machine's wake-ups are late (:class:`Waiter`) and polls the last few
 microseconds. Where the OS allows it the line's thread also runs under
@@ -20,12 +20,13 @@ import contextlib
 import ctypes
 import ctypes.util
 import os
-import select
 import struct
 import threading
 import time
 from collections import deque
 from collections.abc import Iterator
+
+from hilbench.transports.readiness import Readiness
 
 #: SCHED_FIFO priority of a paced line's thread: the lowest band, above every normal process but
 #: below the kernel's own real-time threads and audio/IRQ threads that use 50 and more.
@@ -72,13 +73,21 @@ def wait(fds: list[int], deadline: float | None, idle: float | None = 0.5, *, le
     """Wait until one of ``fds`` is readable or ``time.monotonic()`` reaches ``deadline`` (give or take
     the kernel's wake-up lateness; :class:`Waiter` keeps deadlines precisely). Returns the readable
     descriptors (possibly none). Input ends the wait at once; with no deadline it ends after ``idle``
-    seconds (None: only input ends it). (``leave_cpu`` is :class:`Waiter`'s: this wait always sleeps.)"""
+    seconds (None: only input ends it). A deadline already passed still looks at the descriptors.
+    (``leave_cpu`` is :class:`Waiter`'s: this wait always sleeps.) Each thread keeps the last list of
+    descriptors it waited on ready for the next wait."""
+    r = getattr(_local, "readiness", None)
+    if r is None or fds != r.key:
+        r = _local.readiness = Readiness(fds)
     if deadline is None:
-        timeout = idle
-    else:
-        left = max(0.0, deadline - time.monotonic())
-        timeout = left if idle is None else min(left, idle)
-    return select.select(fds, [], [], timeout)[0]
+        return r.idle(idle)
+    left = deadline - time.monotonic()
+    if idle is not None and left >= idle:
+        return r.idle(idle)
+    return r.wait(left)
+
+
+_local = threading.local()
 
 
 class Waiter:
@@ -89,7 +98,7 @@ class Waiter:
     did first) gets the precision too, but at 20 replies per Sync Read it kept
     the line on a CPU the client and the kernel's tty worker needed.
 
-    A timed ``select`` wakes late by an amount that hardly varies on a given
+    A timed wait wakes late by an amount that hardly varies on a given
     machine (measured on a 2-core Firecracker VM: 22 - 27 us, p50 to p90
     within 1 us; 11 - 15 us with idle CPUs polling, see :class:`CpuLatency`),
     so a deadline kept by sleeping alone is always that late. The waiter
@@ -115,23 +124,31 @@ class Waiter:
         self.early = 0.0  # seconds to ask early; 0 until the first timed wake-ups are measured
         self.polls = 0  # non-blocking looks in the last microseconds before deadlines, in all
         self._seen: deque[float] = deque(maxlen=self.WINDOW)
+        self._readiness = Readiness([])
 
     def __call__(self, fds: list[int], deadline: float | None, idle: float | None = 0.5, *,
                  leave_cpu: bool = False) -> list[int]:
         """Like :func:`wait`: the readable descriptors, or none once ``deadline`` has come (never before).
         ``leave_cpu``: sleep rather than poll if the deadline is too near for an early sleep to leave the
         CPU (see the class notes); the wait may then end a wake-up's lateness after the deadline."""
+        r = self._readiness
+        if fds != r.key:  # (a line's list stays the same object; a bus rebuilds an equal one each round)
+            r = self._readiness = Readiness(fds)
         if deadline is None:
-            return select.select(fds, [], [], idle)[0]
+            return r.idle(idle)
         now = time.monotonic()
+        if deadline <= now:
+            # Still look: a thread whose deadlines are always behind (timed work it cannot keep up with)
+            # must go on hearing its clients.
+            return r.look()
         sleep = deadline - now - self.early
-        if leave_cpu and sleep < self.MIN_SLEEP and deadline > now:
-            return select.select(fds, [], [], deadline - now)[0]  # (not measured: not an early sleep)
+        if leave_cpu and sleep < self.MIN_SLEEP:
+            return r.wait(deadline - now)  # (not measured: not an early sleep)
         if sleep > 0:
             if idle is not None and sleep >= idle:
                 # a far deadline: look again after ``idle`` (never spin the rest of the way)
-                return select.select(fds, [], [], idle)[0]
-            ready = select.select(fds, [], [], sleep)[0]
+                return r.idle(idle)
+            ready = r.wait(sleep)
             if ready:
                 return ready
             seen = self._seen
@@ -139,7 +156,7 @@ class Waiter:
             self.early = min(seen)
         while time.monotonic() < deadline:
             self.polls += 1
-            ready = select.select(fds, [], [], 0)[0]
+            ready = r.look()
             if ready:
                 return ready
         return []

@@ -11,9 +11,9 @@ like the bridge; :meth:`read` returns whatever the board sent.
 from __future__ import annotations
 
 import contextlib
-import select
 import socket
 
+from hilbench.transports.readiness import readable
 from hilbench.transports.udp import parse_address
 
 
@@ -66,7 +66,7 @@ class HostLink:
     def read(self, timeout: float = 0.0) -> bytes:
         """Bytes the board sent, waiting up to ``timeout`` seconds for the first of them."""
         fd = self.fileno()
-        if timeout > 0 and not select.select([fd], [], [], timeout)[0]:
+        if timeout > 0 and not readable([fd], timeout):
             return b""
         if self._sock is not None:
             out = []

@@ -30,6 +30,18 @@ saying who holds the port and is disconnected (ser2net does the same). When
 the client leaves, DTR and RTS drop, as closing a real port does (HUPCL).
 Everything runs in the medium's thread; the socket binds 127.0.0.1 unless
 told otherwise.
+
+Bounds (a client must not take the line, or the bench's memory, from the
+others): what waits for the client (the devices' bytes, replies) is at most
+:data:`MAX_HELD` bytes: beyond, data is dropped (``dropped``) and so are
+replies (``replies_dropped``; an ``IAC AYT`` while the last answer still
+waits is answered by that one: 32 MiB of them from a client that reads
+nothing cost 276 MB before); the client's input is read only while fewer
+than :data:`MAX_INBOX` commands wait and while what it sent before is no more
+than :data:`MAX_BACKLOG` seconds of wire time from delivered on a paced line
+(TCP holds the client back meanwhile, as a UART's full FIFO holds a writer);
+a baud rate outside :data:`MIN_BAUD`..:data:`MAX_BAUD` is not applied (the
+answer is the rate kept, as a real port's server answers an impossible one).
 """
 
 from __future__ import annotations
@@ -47,13 +59,25 @@ from hilbench import __version__
 from hilbench.protocols import rfc2217 as p
 from hilbench.transports.host_port import DEFAULT_BIND, HostPort, url_host
 from hilbench.transports.line import LineSettings, LineState
-from hilbench.transports.listener import accepted, listen, serve
+from hilbench.transports.listener import NO_DESCRIPTORS, Listener
 from hilbench.transports.medium_loop import WakePipe
 
 log = logging.getLogger(__name__)
 
 #: Bytes held for a client that suspended the flow or reads too slowly; beyond this, data is dropped.
 MAX_HELD = 1 << 20
+#: The client's kernel send buffer (bytes; the kernel holds up to megabytes for a client that reads nothing).
+SEND_BUFFER = 256 << 10
+#: Commands and data items of the client waiting for the line; the client is not read beyond this.
+MAX_INBOX = 1024
+#: Seconds of wire time the client's bytes may still need on a paced line before it is read again.
+MAX_BACKLOG = 0.1
+#: Bytes read from the client at a time: parsing a chunk of telnet commands holds the line's thread (~25 ms
+#: for 16 KiB of IAC AYT on a 2-core VM), and a chunk of data becomes one transmission.
+RECV_SIZE = 16384
+#: Baud rates a client may set (the lowest termios rate; far beyond any UART).
+MIN_BAUD = 50
+MAX_BAUD = 20_000_000
 _OURS = (p.BINARY, p.ECHO, p.SGA, p.COM_PORT_OPTION)  # options we do (WILL) when asked
 _THEIRS = (p.BINARY, p.SGA, p.COM_PORT_OPTION)  # options we let the client do (DO)
 
@@ -76,7 +100,7 @@ class Rfc2217Port(HostPort):
         self.line_state = line_state
         self.medium = medium
         self.signature = signature or f"hilbench {__version__}"
-        self.listener = listen(bind, port, 4, socket.AF_INET6 if ":" in bind else socket.AF_INET)
+        self.listener = Listener(bind, port, 4, max_clients=1, refusal=self._refusal, send_buffer=SEND_BUFFER)
         self.bind = bind
         self._ready = WakePipe()  # readable while parsed input waits for the next read()
         self._lock = threading.RLock()  # socket output: the medium's thread and line watchers
@@ -91,6 +115,7 @@ class Rfc2217Port(HostPort):
         self.bytes_in = 0
         self.bytes_out = 0
         self.dropped = 0
+        self.replies_dropped = 0
         self.problems = 0
         self._reset_session()
         line_state.add_watcher(self._device_lines_changed)
@@ -121,7 +146,9 @@ class Rfc2217Port(HostPort):
         """Counters and the current client, for status reports."""
         return {"url": self.url, "client": f"{self.peer[0]}:{self.peer[1]}" if self.peer else None,
                 "connections": self.connections, "refused": self.refused, "bytes_in": self.bytes_in,
-                "bytes_out": self.bytes_out, "dropped": self.dropped, "problems": self.problems,
+                "bytes_out": self.bytes_out, "dropped": self.dropped, "replies_dropped": self.replies_dropped,
+                "problems": self.problems, "out_of_descriptors": self.listener.exhausted,
+                "held_bytes": len(self._out) + len(self._held), "max_held": MAX_HELD,
                 "baud": self.settings.baud, "flow": self.flow}
 
     def __repr__(self) -> str:
@@ -133,10 +160,17 @@ class Rfc2217Port(HostPort):
         return self.listener.fileno()
 
     def filenos(self) -> list[int]:
-        fds = [self.listener.fileno(), self._ready.fd]
-        if self.client is not None and not self._eof:
+        fds = [*self.listener.filenos(), self._ready.fd]
+        if self.client is not None and not self._eof and self._may_receive():
             fds.append(self.client.fileno())
         return fds
+
+    def _may_receive(self) -> bool:
+        """Whether to read the client now (see the module docstring's bounds)."""
+        if len(self._inbox) >= MAX_INBOX:
+            return False  # (the ready pipe keeps the line reading the inbox meanwhile)
+        backlog = getattr(self.medium, "backlog", None)
+        return backlog is None or backlog(self.name) <= MAX_BACKLOG
 
     def client_baud(self) -> int | None:
         """The baud rate the client set (SET-BAUDRATE); the endpoint's rate before it set one."""
@@ -147,7 +181,7 @@ class Rfc2217Port(HostPort):
         self._ready.drain(64)
         if not self._inbox:  # a new client only once the last one's input (and hang-up) is done
             self._accept()
-        if self.client is not None and not self._eof:
+        if self.client is not None and not self._eof and self._may_receive():
             self._receive()
         self._flush()
         out = b""
@@ -200,11 +234,7 @@ class Rfc2217Port(HostPort):
         self._eof = False
 
     def _accept(self) -> None:
-        for sock, addr in accepted(self.listener):
-            if self.client is not None:
-                self._refuse(sock, addr)
-                continue
-            serve(sock)
+        for sock, addr in self.listener.accept(0 if self.client is None else 1):
             with self._lock:
                 self._reset_session()
                 self.client, self.peer, self.since = sock, addr[:2], time.time()
@@ -217,25 +247,21 @@ class Rfc2217Port(HostPort):
             self._asked_them.add(p.BINARY)
             self._send(hello)
 
-    def _refuse(self, sock: socket.socket, addr: tuple) -> None:
-        """A busy port: say who holds it, then hang up (what ser2net does)."""
+    def _refusal(self, reason: str) -> bytes:
+        """What a refused client reads: a busy port says who holds it, then hangs up (what ser2net does)."""
         self.refused += 1
+        if reason == NO_DESCRIPTORS:
+            log.warning("%s: refused a client (%s)", self.name, reason)
+            return f"hilbench: {self.name} ({self.url}): {reason}\r\n".encode()
         held = time.strftime("%H:%M:%S", time.localtime(self.since))
         who = f"{self.peer[0]}:{self.peer[1]}" if self.peer else "another client"
-        reason = (f"hilbench: port busy: {self.name} ({self.url}) is in use by {who} since {held}; "
-                  "one client at a time\r\n")
-        log.warning("%s: refused %s:%s (%s holds the port)", self.name, addr[0], addr[1], who)
-        with contextlib.suppress(OSError):
-            sock.setblocking(True)
-            sock.settimeout(0.5)
-            sock.sendall(reason.encode())
-            sock.shutdown(socket.SHUT_RDWR)
-        with contextlib.suppress(OSError):
-            sock.close()
+        log.warning("%s: refused a client (%s holds the port)", self.name, who)
+        return (f"hilbench: port busy: {self.name} ({self.url}) is in use by {who} since {held}; "
+                "one client at a time\r\n").encode()
 
     def _receive(self) -> None:
         try:
-            chunk = self.client.recv(65536)
+            chunk = self.client.recv(RECV_SIZE)
         except (BlockingIOError, InterruptedError):
             return
         except OSError:
@@ -258,7 +284,10 @@ class Rfc2217Port(HostPort):
                 if item.command == p.BRK:  # a plain telnet client's break key
                     self._inbox.append(lambda: self.line_state.host_break(True, duration=0.25))
                 elif item.command == p.AYT:
-                    self._send(b"[hilbench: yes]\r\n")
+                    if self._out:  # the last answer is not even sent: this one joins it (counted)
+                        self.replies_dropped += 1
+                    else:
+                        self._send(b"[hilbench: yes]\r\n")
             else:  # Problem
                 self.problems += 1
 
@@ -312,8 +341,11 @@ class Rfc2217Port(HostPort):
                 self.dropped += droppable
                 return 0
             if self._out:
-                if droppable and len(self._out) > MAX_HELD:
-                    self.dropped += droppable
+                if len(self._out) > MAX_HELD:
+                    if droppable:
+                        self.dropped += droppable
+                    else:
+                        self.replies_dropped += 1
                     return 0
                 self._out += raw
                 self._schedule_flush()
@@ -343,7 +375,7 @@ class Rfc2217Port(HostPort):
             except OSError:
                 self._out.clear()
                 return
-            del self._out[:sent]
+            del self._out[:sent]  # (a bytearray shrinks its buffer once it is less than half full)
             if self._out:
                 self._schedule_flush()
 
@@ -418,7 +450,9 @@ class Rfc2217Port(HostPort):
             return
         s = self.settings
         if cmd == p.Command.SET_BAUDRATE:
-            if value:
+            if value and not MIN_BAUD <= value <= MAX_BAUD:
+                self.problems += 1  # not applied: the answer is the rate kept
+            elif value:
                 self._apply(LineSettings(value, s.bytesize, s.parity, s.stopbits))
             self._reply(cmd, p.build_value(cmd, self.settings.baud or 0))
         elif cmd == p.Command.SET_DATASIZE:
@@ -506,4 +540,4 @@ class Rfc2217Port(HostPort):
         self._reply(p.Command.NOTIFY_MODEMSTATE, bytes((value,)))
 
 
-__all__ = ["MAX_HELD", "Rfc2217Port"]
+__all__ = ["MAX_BACKLOG", "MAX_BAUD", "MAX_HELD", "MAX_INBOX", "MIN_BAUD", "RECV_SIZE", "Rfc2217Port"]

@@ -167,6 +167,11 @@ class SerialMedium(Medium):
             self._wake()
         return end
 
+    def backlog(self, source: str) -> float:
+        """Seconds until everything ``source`` transmitted is delivered (0 when it is, and on an unpaced line):
+        a host port that reads its client only while this is small bounds what waits on a paced line."""
+        return max(0.0, self._last_end.get(source, 0.0) - time.monotonic())
+
     def call_at(self, t: float | None, fn: Callable[[], None]) -> None:
         """Run ``fn`` in the line's thread at time ``t`` (None: at once; thread-safe)."""
         with self._lock:

@@ -16,11 +16,11 @@ from __future__ import annotations
 
 import contextlib
 import os
-import select
 import threading
 import time
 
 from hilbench.transports.pty import PtyEndpoint
+from hilbench.transports.readiness import Readiness
 from hilbench.transports.sources import PushSource, SourceError, SourceUnavailable
 
 APP = "app"
@@ -91,9 +91,10 @@ class SerialTap:
         ser = self._ser
         push = self.source.push
         self._follow_baud()
+        readiness = Readiness([app_fd, dev_fd, self._wake_r])
         while not self._stop.is_set():
             try:
-                ready = select.select([app_fd, dev_fd, self._wake_r], [], [], 0.5)[0]
+                ready = readiness.idle(0.5)
             except (OSError, ValueError):
                 break
             if app_fd in ready:

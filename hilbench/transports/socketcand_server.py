@@ -28,6 +28,27 @@ What the daemon does and clients rely on:
 
 With ``beacon`` the server announces itself every 2 s to 127.0.0.1:42000,
 where python-can's ``detect_beacon()`` listens (never broadcast).
+
+Limits (the daemon forks a process per client and lets the kernel bound the
+rest; one bad client must not take the bus from the others here):
+
+- at most :data:`MAX_CLIENTS` clients at once; one more gets
+  ``< error too many clients >`` instead of ``< hi >`` and is closed (python-can
+  then raises ``CanError`` with that message);
+- a number out of its range (an interval beyond the kernel's 400 days or a
+  million microseconds, an identifier beyond 11/29 bits, a statistics interval
+  beyond 32 bits) is answered with ``< error interval out of range >`` (or
+  ``identifier``, ``statistics interval``) and counted;
+- at most :data:`MAX_BCM_ENTRIES` cyclic jobs and as many subscriptions per
+  client (``< error too many jobs >``, ``< error too many subscriptions >``);
+  a job never sends faster than its frame takes on the bus (an interval of
+  1 us makes it fill the bus, as on the wire), a job that falls behind skips
+  the periods it missed, and a client's jobs end when it leaves;
+- what waits for a client (frames, replies) is at most :data:`MAX_PENDING`
+  bytes, and :data:`MAX_PENDING_TOTAL` for all clients: beyond, frames for it
+  are dropped and counted, and its commands are left unread (TCP then holds
+  the client back, as the daemon's blocking ``send`` does); a client that
+  takes nothing for :data:`STALL_TIMEOUT` seconds while full is disconnected.
 """
 
 from __future__ import annotations
@@ -35,30 +56,49 @@ from __future__ import annotations
 import contextlib
 import logging
 import socket
+import time
 from dataclasses import dataclass, field
 from typing import Any
 
+from hilbench.protocols import can_frame as cf
 from hilbench.protocols import socketcand as sc
 from hilbench.protocols.can_frame import CanFrame
 from hilbench.transports.can_port import CanDoor
-from hilbench.transports.listener import accepted, listen, serve
+from hilbench.transports.listener import BACKLOG, Listener
 
 log = logging.getLogger(__name__)
 
-#: Bytes waiting for one client before its newest frames are dropped (a client that stopped reading).
-MAX_PENDING = 4 << 20
-#: Frames held for a client between rawmode and the end of the handshake delay.
-MAX_HELD = 100_000
+#: Clients served at once; one more is refused with ``< error too many clients >``.
+MAX_CLIENTS = 64
+#: Bytes waiting for one client (frames, replies, frames held during the rawmode delay) beyond which its
+#: newest frames are dropped and its commands left unread (a client that stopped reading).
+MAX_PENDING = 512 << 10
+#: The same bound for all clients together.
+MAX_PENDING_TOTAL = 16 << 20
+#: A client that takes nothing for this long while its queue is full is disconnected (seconds).
+STALL_TIMEOUT = 30.0
+#: Cyclic jobs, and subscriptions, one client may have.
+MAX_BCM_ENTRIES = 256
+#: Each client's kernel send buffer (bytes; the kernel holds up to megabytes for a client that reads nothing).
+SEND_BUFFER = 64 << 10
+#: While a client has bytes waiting, the bus thread retries sending them this often (seconds).
+FLUSH_RETRY = 0.005
 BEACON_INTERVAL = 2.0
 #: Largest write to a client (python-can's socketcand client reads 1024 bytes at a time).
 SEND_CHUNK = 1024
 
 
+ERROR_TOO_MANY_CLIENTS = "< error too many clients >"
+ERROR_TOO_MANY_JOBS = "< error too many jobs >"
+ERROR_TOO_MANY_SUBSCRIPTIONS = "< error too many subscriptions >"
+
+
 @dataclass
 class _Job:
     frame: CanFrame
-    interval: float
+    interval: float  # as asked (0: send once)
     next_t: float
+    period: float = 0.0  # as run: never shorter than the frame takes on the bus
 
 
 @dataclass
@@ -78,6 +118,8 @@ class _Client:
     out: bytearray = field(default_factory=bytearray)
     raw_at: float | None = None  # when frames may start flowing after rawmode
     held: list[str] = field(default_factory=list)
+    held_bytes: int = 0
+    full_since: float | None = None  # when its queue last became full (None: not full)
     jobs: dict[tuple[int, bool], _Job] = field(default_factory=dict)
     subs: dict[tuple[int, bool], _Sub] = field(default_factory=dict)
     stat_interval: float = 0.0
@@ -102,19 +144,29 @@ class SocketcandServer(CanDoor):
         self.name = name
         self.channel = channel
         self.rawmode_delay = rawmode_delay
-        self.listener = listen(bind, port, 16)
+        self.listener = Listener(bind, port, BACKLOG, max_clients=MAX_CLIENTS, refusal=self._refusal,
+                                 send_buffer=SEND_BUFFER)
         self.clients: list[_Client] = []
         self.connections = 0
         self.malformed = 0
+        self.out_of_range = 0
+        self.too_many = 0
+        self.frames_dropped = 0
+        self.stalled = 0
+        self.queued = 0  # bytes waiting for all clients
+        self.bitrate = 500_000
         self.wall_offset = 0.0
+        self._due = float("inf")  # the earliest timed work of any client (poll() does nothing before it)
+        self._backlog = False  # some client has bytes waiting: retry sending soon
         self._beacon_sock: socket.socket | None = None
         self._beacon_next = 0.0
         if beacon:
             self._beacon_sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
 
     def attach(self, medium: Any) -> None:
-        """Learn the bus clock's mapping to Unix time (frames carry Unix time stamps)."""
+        """Learn the bus clock's mapping to Unix time (frames carry Unix time stamps) and its bitrate."""
         self.wall_offset = medium.wall_offset
+        self.bitrate = getattr(medium, "bitrate", self.bitrate)
 
     @property
     def address(self) -> tuple[str, int]:
@@ -127,17 +179,29 @@ class SocketcandServer(CanDoor):
 
     def describe(self) -> dict[str, Any]:
         host, port = self.address
-        return {"host": host, "port": port, "channel": self.channel}
+        return {"host": host, "port": port, "channel": self.channel, "max_clients": self.listener.max_clients}
+
+    def status(self) -> dict[str, Any]:
+        """Clients, limits and what was refused or dropped, for status reports (control ``media``)."""
+        return {"url": self.url, "clients": len(self.clients), **self.listener.status(),
+                "malformed": self.malformed, "out_of_range": self.out_of_range, "too_many": self.too_many,
+                "frames_dropped": self.frames_dropped, "stalled": self.stalled, "queued_bytes": self.queued,
+                "max_pending": MAX_PENDING, "max_pending_total": MAX_PENDING_TOTAL}
+
+    @staticmethod
+    def _refusal(reason: str) -> bytes:
+        return ERROR_TOO_MANY_CLIENTS.encode()
 
     # ------------------------------------------------------------------ host port duties
 
     def filenos(self) -> list[int]:
-        return [self.listener.fileno()] + [c.sock.fileno() for c in self.clients]
+        # A client whose queue is full is not read (see the module docstring): not waited on either.
+        return self.listener.filenos() + [c.sock.fileno() for c in self.clients if len(c.out) <= MAX_PENDING]
 
     def _accept(self) -> None:
-        for sock, addr in accepted(self.listener):
+        for sock, addr in self.listener.accept(len(self.clients)):
             self.connections += 1
-            client = _Client(serve(sock), f"socketcand {addr[0]}:{addr[1]}")
+            client = _Client(sock, f"socketcand {addr[0]}:{addr[1]}")
             self.clients.append(client)
             self._reply(client, sc.HI)
 
@@ -146,6 +210,8 @@ class SocketcandServer(CanDoor):
         self._accept()
         out: list[tuple[str, CanFrame]] = []
         for client in list(self.clients):
+            if len(client.out) > MAX_PENDING:
+                continue  # it reads nothing: neither do we (TCP holds it back)
             try:
                 data = client.sock.recv(65536)
             except (BlockingIOError, InterruptedError):
@@ -178,10 +244,10 @@ class SocketcandServer(CanDoor):
                 if raw_text is None:
                     raw_text = sc.frame_message(frame, wall)
                 if client.raw_at is not None:
-                    if len(client.held) < MAX_HELD:
+                    if self._room(client, len(raw_text)):
                         client.held.append(raw_text)
-                    else:
-                        client.dropped += 1
+                        client.held_bytes += len(raw_text)
+                        self.queued += len(raw_text)
                     continue
                 self._queue(client, raw_text)
             elif client.mode == "bcm" and client.subs and not frame.error:
@@ -198,16 +264,29 @@ class SocketcandServer(CanDoor):
                 sub.last_data, sub.last_sent = frame.data, t
                 self._queue(client, sc.frame_message(frame, wall, bcm=True))
 
+    def _room(self, client: _Client, n: int) -> bool:
+        """Whether ``n`` more bytes may wait for ``client`` (else the frame is dropped and counted)."""
+        if len(client.out) + client.held_bytes + n <= MAX_PENDING and self.queued + n <= MAX_PENDING_TOTAL:
+            return True
+        client.dropped += 1
+        self.frames_dropped += 1
+        if client.full_since is None:
+            client.full_since = time.monotonic()
+            self._schedule(client.full_since + STALL_TIMEOUT)
+        return False
+
     def _queue(self, client: _Client, text: str) -> None:
-        if len(client.out) > MAX_PENDING:
-            client.dropped += 1
-            return
-        client.out += text.encode()
+        if self._room(client, len(text)):
+            client.out += text.encode()
+            self.queued += len(text)
 
     def flush(self) -> None:
+        backlog = False
         for client in list(self.clients):
             if client.out:
                 self._send(client)
+                backlog = backlog or bool(client.out)
+        self._backlog = backlog
 
     def _send(self, client: _Client) -> None:
         # Whole messages in writes of at most SEND_CHUNK bytes: python-can reads 1024 bytes at a time and logs a
@@ -225,7 +304,10 @@ class SocketcandServer(CanDoor):
             except OSError:
                 self._drop(client)
                 return
-            del out[:sent]
+            del out[:sent]  # (a bytearray shrinks its buffer once it is less than half full)
+            self.queued -= sent
+            if client.full_since is not None:
+                client.full_since = None  # it reads again
             if sent < cut:
                 return
 
@@ -233,39 +315,72 @@ class SocketcandServer(CanDoor):
         """A handshake or command reply in a write of its own (python-can reads replies whole)."""
         if client.out:
             self._send(client)
-        client.out += text.encode()
+        client.out += text.encode()  # (replies are not dropped: a full client's commands are not read)
+        self.queued += len(text)
         self._send(client)
+        if len(client.out) > MAX_PENDING and client.full_since is None:
+            client.full_since = time.monotonic()
+            self._schedule(client.full_since + STALL_TIMEOUT)
 
     def deadline(self) -> float | None:
-        times = []
-        for c in self.clients:
-            if c.raw_at is not None:
-                times.append(c.raw_at)
-            times.extend(j.next_t for j in c.jobs.values())
-            if c.stat_interval:
-                times.append(c.stat_next)
+        times = [self._due]
+        if self._backlog:
+            times.append(time.monotonic() + FLUSH_RETRY)
+        pause = self.listener.deadline()
+        if pause is not None:
+            times.append(pause)
         if self._beacon_sock is not None:
             times.append(self._beacon_next)
-        return min(times) if times else None
+        t = min(times)
+        return t if t != float("inf") else None
+
+    def _schedule(self, t: float) -> None:
+        """Timed work of a client at ``t``: poll() must run then."""
+        if t < self._due:
+            self._due = t
 
     def poll(self, now: float) -> list[tuple[str, CanFrame]]:
-        """Timed work: end handshake delays, run cyclic BCM jobs, statistics and the beacon."""
+        """Timed work: end handshake delays, run cyclic BCM jobs, statistics and the beacon; disconnect a
+        client stalled with a full queue."""
         out: list[tuple[str, CanFrame]] = []
-        for c in self.clients:
-            if c.raw_at is not None and now >= c.raw_at:
-                c.raw_at = None
-                for text in c.held:
-                    self._queue(c, text)
-                c.held.clear()
-            for job in c.jobs.values():
-                if now >= job.next_t:
-                    out.append((c.name, job.frame))
-                    c.tx_frames += 1
-                    c.tx_bytes += job.frame.length
-                    job.next_t = max(job.next_t + job.interval, now) if job.interval > 0 else float("inf")
-            if c.stat_interval and now >= c.stat_next:
-                self._queue(c, sc.stat_message(c.rx_bytes, c.rx_frames, c.tx_bytes, c.tx_frames))
-                c.stat_next = now + c.stat_interval
+        if now >= self._due:
+            due = float("inf")
+            for c in list(self.clients):
+                if c.full_since is not None:
+                    if now - c.full_since >= STALL_TIMEOUT:
+                        self.stalled += 1
+                        log.warning("%s: read nothing for %.0f s with %d bytes waiting; disconnected",
+                                    c.name, STALL_TIMEOUT, len(c.out))
+                        self._drop(c)
+                        continue
+                    due = min(due, c.full_since + STALL_TIMEOUT)
+                if c.raw_at is not None:
+                    if now >= c.raw_at:
+                        c.raw_at = None
+                        self.queued -= c.held_bytes
+                        c.held_bytes = 0
+                        held, c.held = c.held, []
+                        for text in held:
+                            self._queue(c, text)
+                    else:
+                        due = min(due, c.raw_at)
+                for job in c.jobs.values():
+                    if now >= job.next_t:
+                        out.append((c.name, job.frame))
+                        c.tx_frames += 1
+                        c.tx_bytes += job.frame.length
+                        if job.period > 0:
+                            nxt = job.next_t + job.period
+                            job.next_t = nxt if nxt > now else now + job.period  # behind: skip what it missed
+                        else:
+                            job.next_t = float("inf")  # an interval of 0: sent once, as the BCM does
+                    due = min(due, job.next_t)
+                if c.stat_interval:
+                    if now >= c.stat_next:
+                        self._queue(c, sc.stat_message(c.rx_bytes, c.rx_frames, c.tx_bytes, c.tx_frames))
+                        c.stat_next = now + c.stat_interval
+                    due = min(due, c.stat_next)
+            self._due = due
         if self._beacon_sock is not None and now >= self._beacon_next:
             self._beacon_next = now + BEACON_INTERVAL
             host, port = self.address
@@ -278,6 +393,10 @@ class SocketcandServer(CanDoor):
 
     def _command(self, client: _Client, message: str, now: float, out: list[tuple[str, CanFrame]]) -> None:
         cmd = sc.parse_command(message)
+        if cmd.name == "range":
+            self.out_of_range += 1
+            self._reply(client, sc.error_out_of_range(cmd.value))
+            return
         mode = client.mode
         if mode == "nobus":
             if cmd.name == "open":
@@ -306,11 +425,14 @@ class SocketcandServer(CanDoor):
             client.stat_interval = 0.0
             client.mode = new
             self._reply(client, sc.OK)
-            if new == "raw":
-                client.raw_at = now + self.rawmode_delay if self.rawmode_delay > 0 else None
+            self.queued -= client.held_bytes
+            client.held_bytes = 0
+            client.held.clear()
+            if new == "raw" and self.rawmode_delay > 0:
+                client.raw_at = now + self.rawmode_delay
+                self._schedule(client.raw_at)
             else:
                 client.raw_at = None
-                client.held.clear()
             return
         if cmd.name == "echo":
             self._reply(client, sc.ECHO)
@@ -323,30 +445,39 @@ class SocketcandServer(CanDoor):
         if mode == "bcm":
             key = (cmd.can_id, cmd.extended)
             if cmd.name == "add":
-                client.jobs[key] = _Job(cmd.frame, cmd.interval, now)  # type: ignore[arg-type]
+                if key not in client.jobs and len(client.jobs) >= MAX_BCM_ENTRIES:
+                    self.too_many += 1
+                    self._reply(client, ERROR_TOO_MANY_JOBS)
+                    return
+                client.jobs[key] = self._job(cmd.frame, cmd.interval, now)  # type: ignore[arg-type]
+                self._schedule(now)
                 return
             if cmd.name == "update":
                 frame = cmd.frame
                 job = client.jobs.get((frame.can_id, frame.extended))  # type: ignore[union-attr]
-                if job is not None:
-                    job.frame = frame  # type: ignore[assignment]
+                if job is not None:  # (the timer is not touched; the new frame may take longer on the bus)
+                    updated = self._job(frame, job.interval, job.next_t)  # type: ignore[arg-type]
+                    job.frame, job.period = updated.frame, updated.period
                 return
             if cmd.name == "delete":
                 client.jobs.pop(key, None)
                 return
-            if cmd.name == "subscribe":
-                client.subs[key] = _Sub(cmd.interval, None)
-                return
-            if cmd.name == "filter":
-                client.subs[key] = _Sub(cmd.interval, cmd.mask)
+            if cmd.name in ("subscribe", "filter"):
+                if key not in client.subs and len(client.subs) >= MAX_BCM_ENTRIES:
+                    self.too_many += 1
+                    self._reply(client, ERROR_TOO_MANY_SUBSCRIPTIONS)
+                    return
+                client.subs[key] = _Sub(cmd.interval, cmd.mask if cmd.name == "filter" else None)
                 return
             if cmd.name == "unsubscribe":
                 client.subs.pop(key, None)
                 return
         if mode == "control" and cmd.name == "statistics":
-            ms = int(cmd.value)
+            ms = int(cmd.value)  # (bounded by parse_command)
             client.stat_interval = ms / 1000.0
             client.stat_next = now + client.stat_interval
+            if ms:
+                self._schedule(client.stat_next)
             return
         if cmd.name == "invalid":
             self.malformed += 1  # the daemon drops a malformed command and only logs it
@@ -354,11 +485,22 @@ class SocketcandServer(CanDoor):
             return
         self._reply(client, sc.ERROR_UNKNOWN)
 
+    def _job(self, frame: CanFrame, interval: float, now: float) -> _Job:
+        """A cyclic job sent first now; it never repeats faster than its frame takes on the bus."""
+        period = max(interval, cf.frame_bits(frame) / self.bitrate) if interval > 0 else 0.0
+        return _Job(frame, interval, now, period)
+
     # ------------------------------------------------------------------ closing
 
     def _drop(self, client: _Client) -> None:
+        """Disconnect a client: its jobs, subscriptions and queue go with it."""
         if client in self.clients:
             self.clients.remove(client)
+            self.queued -= len(client.out) + client.held_bytes
+        client.out = bytearray()
+        client.held = []
+        client.held_bytes = 0
+        client.jobs.clear()
         with contextlib.suppress(OSError):
             client.sock.close()
 

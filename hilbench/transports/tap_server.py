@@ -10,8 +10,14 @@ exactly like a capture file (``hilbench monitor tcp://127.0.0.1:PORT``, or the
 ``tap`` address in a bench's manifest).
 
 The line thread never waits for a client: what a client cannot take at once
-is buffered, and beyond ``max_buffer`` bytes per client new data is dropped
-and reported to that client as a GAP record once it catches up.
+is buffered, and beyond ``max_buffer`` bytes (:data:`MAX_BUFFER`) per client
+new data is dropped and reported to that client as a GAP record once it
+catches up (a monitor counts it as lost input). A client that takes nothing
+for :data:`STALL_TIMEOUT` seconds while its buffer is full is disconnected.
+At most :data:`MAX_CLIENTS` clients are served at once; one more reads a
+line of text starting with :data:`REFUSAL_PREFIX` instead of a capture
+header, then the end of the stream (``hilbench monitor`` reports the line).
+Counters: :meth:`TapServer.status`.
 """
 
 from __future__ import annotations
@@ -26,17 +32,30 @@ import time
 
 from hilbench.protocols import capture as cap
 from hilbench.protocols.capture import MAX_PAYLOAD, Flags, RecordKind
+from hilbench.transports.listener import BACKLOG, Listener
 
 log = logging.getLogger(__name__)
 
+#: Clients served at once; one more reads :data:`REFUSAL` and is closed.
+MAX_CLIENTS = 32
+#: Bytes buffered for one client that reads slower than the line sends; beyond, data is dropped (a GAP record).
+MAX_BUFFER = 1 << 20
+#: Each client's kernel send buffer (bytes; the kernel holds up to megabytes for a client that reads nothing).
+SEND_BUFFER = 256 << 10
+#: A client that takes nothing for this long while its buffer is full is disconnected (seconds).
+STALL_TIMEOUT = 60.0
+#: What a refused client reads first instead of a capture header, then why (a reader recognises the prefix).
+REFUSAL_PREFIX = b"hilbench tap: refused: "
+
 
 class _Client:
-    __slots__ = ("sock", "pending", "lost")
+    __slots__ = ("sock", "pending", "lost", "full_since")
 
     def __init__(self, sock: socket.socket) -> None:
         self.sock = sock
         self.pending = bytearray()
         self.lost: dict[int, int] = {}
+        self.full_since: float | None = None
 
 
 class TapServer:
@@ -50,7 +69,8 @@ class TapServer:
         baud: int | None = None,
         protocol: str | None = None,
         description: str = "",
-        max_buffer: int = 8 << 20,
+        max_buffer: int = MAX_BUFFER,
+        max_clients: int = MAX_CLIENTS,
     ) -> None:
         self.t0 = time.monotonic()
         self.max_buffer = max_buffer
@@ -62,8 +82,8 @@ class TapServer:
             protocol=protocol,
             description=description,
         )
-        self._listener = socket.create_server((host, port))
-        self._listener.setblocking(False)
+        self._listener = Listener(host, port, BACKLOG, max_clients=max_clients, refusal=self._refusal,
+                                  send_buffer=SEND_BUFFER)
         self.host, self.port = self._listener.getsockname()[:2]
         self._lock = threading.Lock()
         self._clients: list[_Client] = []
@@ -74,6 +94,8 @@ class TapServer:
         os.set_blocking(self._wake_w, False)
         self._stop = threading.Event()
         self.clients_served = 0
+        self.bytes_dropped = 0  # data no client could take (each client learns of its share by a GAP record)
+        self.stalled = 0
         self._thread = threading.Thread(target=self._run, name=f"tap-{self.port}", daemon=True)
         self._thread.start()
 
@@ -85,6 +107,18 @@ class TapServer:
     @property
     def clients(self) -> int:
         return len(self._clients)
+
+    def status(self) -> dict[str, int]:
+        """Clients, limits and what was refused or dropped, for status reports (control ``taps``)."""
+        with self._lock:
+            buffered = sum(len(c.pending) for c in self._clients)
+        return {"clients": len(self._clients), "served": self.clients_served, **self._listener.status(),
+                "bytes_dropped": self.bytes_dropped, "stalled": self.stalled, "buffered_bytes": buffered,
+                "max_buffer": self.max_buffer}
+
+    @staticmethod
+    def _refusal(reason: str) -> bytes:
+        return REFUSAL_PREFIX + reason.encode() + b"\n"
 
     def feed(self, t: float, source: str, data: bytes, addr: tuple[str, int, str, int] | None = None) -> None:
         """A transmission on the line (a :data:`~hilbench.transports.serial_medium.Tap`); never blocks.
@@ -110,6 +144,11 @@ class TapServer:
             for c in self._clients:
                 if len(c.pending) > self.max_buffer:
                     c.lost[sid] = c.lost.get(sid, 0) + len(data)
+                    self.bytes_dropped += len(data)
+                    if c.full_since is None:
+                        c.full_since = t
+                    elif t - c.full_since >= STALL_TIMEOUT:
+                        wake = True  # the server thread disconnects it
                     continue
                 if c.lost:
                     for lost_sid, n in c.lost.items():
@@ -133,22 +172,44 @@ class TapServer:
                 os.write(self._wake_w, b"x")
 
     def _run(self) -> None:
-        sel = selectors.DefaultSelector()
-        sel.register(self._listener, selectors.EVENT_READ, "accept")
+        sel = selectors.DefaultSelector()  # (epoll: no limit on descriptor numbers)
+        sel.register(self._listener.sock, selectors.EVENT_READ, "accept")
         sel.register(self._wake_r, selectors.EVENT_READ, "wake")
+        listening = True
         try:
             while not self._stop.is_set():
                 with self._lock:
-                    for c in self._clients:
+                    for c in list(self._clients):
+                        if c.full_since is not None and time.monotonic() - c.full_since >= STALL_TIMEOUT \
+                                and len(c.pending) > self.max_buffer:
+                            self.stalled += 1
+                            log.warning("tap %s: a client took nothing for %.0f s; disconnected", self.port,
+                                        STALL_TIMEOUT)
+                            self._clients.remove(c)
+                            with contextlib.suppress(KeyError, ValueError):
+                                sel.unregister(c.sock)
+                            c.sock.close()
+                            continue
                         events = selectors.EVENT_READ | (selectors.EVENT_WRITE if c.pending else 0)
                         try:
                             sel.modify(c.sock, events, c)
                         except KeyError:
                             sel.register(c.sock, events, c)
-                # no timeout: a thread that wakes on its own takes the GIL now and then, and a paced
-                # line's real-time thread would wait whenever it was preempted holding it (feed() and
-                # close() wake it through the pipe)
-                for key, mask in sel.select(timeout=None):
+                # A listener out of descriptors pauses (see listener.py): no waiting on it meanwhile.
+                timeout = None
+                pause = self._listener.deadline()
+                if pause is not None:
+                    if listening:
+                        sel.unregister(self._listener.sock)
+                        listening = False
+                    timeout = max(0.0, pause - time.monotonic())
+                elif not listening:
+                    sel.register(self._listener.sock, selectors.EVENT_READ, "accept")
+                    listening = True
+                # otherwise no timeout: a thread that wakes on its own takes the GIL now and then, and a
+                # paced line's real-time thread would wait whenever it was preempted holding it (feed()
+                # and close() wake it through the pipe)
+                for key, mask in sel.select(timeout=timeout):
                     if key.data == "accept":
                         self._accept()
                     elif key.data == "wake":
@@ -160,18 +221,12 @@ class TapServer:
             sel.close()
 
     def _accept(self) -> None:
-        try:
-            sock, _ = self._listener.accept()
-        except (BlockingIOError, InterruptedError):
-            return
-        sock.setblocking(False)
-        with contextlib.suppress(OSError):
-            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        c = _Client(sock)
-        with self._lock:
-            c.pending += self._header + self._names
-            self._clients.append(c)
-            self.clients_served += 1
+        for sock, _ in self._listener.accept(len(self._clients)):
+            c = _Client(sock)
+            with self._lock:
+                c.pending += self._header + self._names
+                self._clients.append(c)
+                self.clients_served += 1
 
     def _serve(self, sel: selectors.BaseSelector, c: _Client, mask: int) -> None:
         try:
@@ -180,7 +235,9 @@ class TapServer:
             if mask & selectors.EVENT_WRITE:
                 with self._lock:
                     sent = c.sock.send(c.pending)
-                    del c.pending[:sent]
+                    del c.pending[:sent]  # (a bytearray shrinks its buffer once it is less than half full)
+                    if sent:
+                        c.full_since = None
         except (BlockingIOError, InterruptedError):
             return
         except OSError:

@@ -3,7 +3,8 @@
 :class:`TcpEndpoint` listens on 127.0.0.1 (unless told otherwise) and serves
 one client at a time, as an embedded device's single TCP server does: a
 second client while one is connected is accepted and closed at once (and
-counted), and when the client leaves the port listens again. To a medium it
+counted), and when the client leaves the port listens again (also when the
+bench runs out of descriptors: :class:`~hilbench.transports.listener.Listener`). To a medium it
 is a host port like a pty: bytes the client sends are read, the devices'
 bytes are written to the client (or dropped and counted while nobody is
 connected, as a device's output is lost without a peer).
@@ -16,7 +17,7 @@ import socket
 from typing import Any
 
 from hilbench.transports.host_port import HostPort, bind_address, port_number
-from hilbench.transports.listener import accepted, listen, serve
+from hilbench.transports.listener import Listener
 
 
 class TcpEndpoint(HostPort):
@@ -27,14 +28,14 @@ class TcpEndpoint(HostPort):
 
     def __init__(self, name: str = "tcp", bind: str = "127.0.0.1", port: int = 0) -> None:
         self.name = name
-        self.listener = listen(bind, port, 4)
+        # a device's protocol has no refusal message: a newcomer is closed at once
+        self.listener = Listener(bind, port, 4, max_clients=1, refusal=lambda reason: b"")
         self.client: socket.socket | None = None
         self.peer: tuple[str, int] | None = None
         self.bytes_in = 0
         self.bytes_out = 0
         self.dropped = 0
         self.connections = 0
-        self.refused = 0
 
     @classmethod
     def check_options(cls, raw: dict[str, Any]) -> dict[str, Any]:
@@ -65,20 +66,21 @@ class TcpEndpoint(HostPort):
         return self.client.fileno() if self.client is not None else self.listener.fileno()
 
     def filenos(self) -> list[int]:
-        fds = [self.listener.fileno()]
+        fds = self.listener.filenos()
         if self.client is not None:
             fds.append(self.client.fileno())
         return fds
 
     def _accept(self) -> None:
-        for sock, addr in accepted(self.listener):
-            if self.client is not None:  # busy: a real single-connection device refuses the newcomer
-                self.refused += 1
-                with contextlib.suppress(OSError):
-                    sock.close()
-                continue
-            self.client, self.peer = serve(sock), addr[:2]
+        busy = self.client is not None  # busy: a real single-connection device refuses the newcomer
+        for sock, addr in self.listener.accept(1 if busy else 0):
+            self.client, self.peer = sock, addr[:2]
             self.connections += 1
+
+    @property
+    def refused(self) -> int:
+        """Connections closed at once (another client held the port, or no descriptor was left)."""
+        return self.listener.refused + self.listener.exhausted
 
     def _drop_client(self) -> None:
         if self.client is not None:

@@ -12,6 +12,7 @@ import time
 import pytest
 import serial
 
+from hilbench.bench import line_server
 from hilbench.bench.line_server import TIOCM
 from hilbench.pytest_plugin import wait_until
 from hilbench.run import pyserial_shim
@@ -154,6 +155,7 @@ def test_requests_and_errors_on_the_socket(arm):
     assert ask(server, f"{rdev} jump").startswith("err unknown request 'jump'")
     assert ask(server, f"{rdev} break 99").startswith("err break duration 99.0 s is outside")
     assert ask(server, f"{rdev} mset lots").startswith("err expected an integer")
+    assert ask(server, f"{rdev} sync {'9' * 200}") == "err integer out of range (32 bits)\n"
     assert ask(server, "nonsense").startswith("err expected: RDEV VERB")
     assert ask(server, "1" * 300).startswith("err request too long")
     # Nothing above stopped the server.
@@ -182,3 +184,26 @@ def test_patch_is_removed_when_the_bench_stops(hilbench_bench):
     stop_lines_in_process([rdev])
     assert rdev not in pyserial_shim.PORTS
     assert posix.termios is termios
+
+
+def test_connections_beyond_the_limit_are_refused_and_idle_ones_closed(hilbench_bench, monkeypatch):
+    monkeypatch.setattr(line_server, "MAX_CLIENTS", 2)
+    monkeypatch.setattr(line_server, "IDLE_TIMEOUT", 0.5)
+    server = hilbench_bench("arm").services["lines"]
+    held = []
+    for _ in range(2):
+        s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        s.settimeout(5)
+        s.connect(server.path)
+        s.sendall(b"0 ping\n")
+        assert s.recv(256) == b"ok 1\n"
+        held.append(s)
+    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as extra:
+        extra.settimeout(5)
+        extra.connect(server.path)
+        assert extra.recv(256) == b"err too many clients (2 clients at most)\n"  # what the shim fails open on
+        assert extra.recv(256) == b""
+    for s in held:  # idle for IDLE_TIMEOUT: closed (clients connect anew for their next request)
+        assert s.recv(256) == b""
+        s.close()
+    assert ask(server, "0 ping") == "ok 1\n"

@@ -3,13 +3,15 @@
 from __future__ import annotations
 
 import os
+import resource
 import struct
 import threading
 import time
 
 import pytest
 
-from hilbench.transports.clock import CPU_DMA_LATENCY, CpuLatency, Waiter
+from hilbench.transports.clock import CPU_DMA_LATENCY, CpuLatency, Waiter, wait
+from hilbench.transports.readiness import Readiness, readable
 
 
 @pytest.fixture
@@ -29,7 +31,7 @@ def test_waiter_never_returns_before_its_deadline_and_learns_to_ask_early(pipe):
         assert waiter([r], deadline) == []
         late.append(time.monotonic() - deadline)
     assert min(late) >= 0  # at the deadline or after, never before
-    # A timed select is always somewhat late: the waiter has measured that and now asks early by it
+    # A timed wait is always somewhat late: the waiter has measured that and now asks early by it
     assert 0 < waiter.early <= Waiter.MAX_EARLY
 
 
@@ -118,3 +120,63 @@ def test_a_waiter_leaving_the_cpu_sleeps_to_a_near_deadline_instead_of_polling(p
     deadline = time.monotonic() + 0.002
     assert waiter([r], deadline, leave_cpu=True) == []
     assert time.monotonic() >= deadline
+
+
+def test_a_deadline_already_passed_still_looks_at_the_descriptors(pipe):
+    # A loop whose timed work is always behind (a cyclic job it cannot keep up with) calls every wait with a
+    # deadline in the past: it must still hear its clients (it went deaf once: no greeting for a minute).
+    r, w = pipe
+    os.write(w, b"x")
+    past = time.monotonic() - 1.0
+    waiter = Waiter()
+    assert waiter([r], past) == [r]
+    assert wait([r], past) == [r]
+    os.read(r, 1)
+    assert waiter([r], past) == []  # and returns at once when nothing is there
+    assert wait([r], past) == []
+
+
+@pytest.fixture
+def high_pipe():
+    """A pipe whose read end is numbered above select()'s FD_SETSIZE (1024)."""
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    if hard != resource.RLIM_INFINITY and hard < 1400:
+        pytest.skip(f"the descriptor limit ({hard}) is below 1400")
+    if soft < 1400:
+        resource.setrlimit(resource.RLIMIT_NOFILE, (1400, hard))
+    r, w = os.pipe()
+    high = os.dup2(r, 1300)
+    os.close(r)
+    try:
+        yield high, w
+    finally:
+        os.close(high)
+        os.close(w)
+        resource.setrlimit(resource.RLIMIT_NOFILE, (soft, hard))
+
+
+def test_waits_work_for_descriptors_beyond_1023(high_pipe):
+    r, w = high_pipe
+    waiter = Waiter()
+    assert waiter([r], time.monotonic() + 300e-6) == []
+    assert wait([r], time.monotonic() + 300e-6) == []
+    assert waiter([r], None, idle=0.01) == []
+    os.write(w, b"x")
+    assert waiter([r], time.monotonic() + 5) == [r]
+    assert waiter([r], time.monotonic() + 0.001, leave_cpu=True) == [r]
+    assert wait([r], None) == [r]
+    assert readable([r], 0) == [r]
+
+
+def test_readiness_rebuilt_for_a_new_list_and_reports_each_descriptor_once(pipe):
+    r, w = pipe
+    r2, w2 = os.pipe()
+    try:
+        waiter = Waiter()
+        assert waiter([r], time.monotonic() + 0.001) == []
+        os.write(w2, b"x")
+        assert waiter([r, r2, r2], time.monotonic() + 1) == [r2]  # the new list counts (once per descriptor)
+        assert Readiness([r, r2]).wait(0.5) == [r2]
+    finally:
+        os.close(r2)
+        os.close(w2)

@@ -8,11 +8,13 @@ client exposes.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import re
 import socket
 import subprocess
 import sys
+import time
 
 import dynamixel_sdk as sdk
 import pytest
@@ -23,6 +25,7 @@ from hilbench.protocols import dynamixel as dxl
 from hilbench.protocols import rfc2217 as p
 from hilbench.pytest_plugin import wait_until
 from hilbench.transports.line import BreakCondition, LineSettings, ModemLines
+from hilbench.transports.rfc2217 import MAX_BACKLOG, MAX_HELD, RECV_SIZE
 
 OK = sdk.COMM_SUCCESS
 PING_1 = dxl.instruction_packet(1, dxl.Instruction.PING)
@@ -334,6 +337,71 @@ def test_flow_suspend_holds_the_devices_bytes_until_resume(served):
         c.command(p.Command.FLOWCONTROL_RESUME)
         reply = dxl.Decoder().feed(c.data(14))
         assert reply[0].id == 1
+    finally:
+        c.close()
+
+
+# ---------------------------------------------------------------------- hostile clients: bounds
+
+
+def test_an_ayt_flood_from_a_client_that_reads_nothing_is_bounded_and_counted(served):
+    # 32 MiB of IAC AYT from a client that read nothing grew the bench by 276 MB: every AYT queued an answer.
+    _, ep, url, _ = served
+    service = ep.services["rfc2217"]
+    host, port = url[len("rfc2217://"):].rsplit(":", 1)
+    client = socket.socket()
+    client.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+    client.connect((host, int(port)))
+    try:
+        client.sendall(bytes([p.IAC, p.AYT]) * (256 << 10))  # 256 Ki of them: more than the kernel holds
+        wait_until(lambda: service.bytes_in == 0 and service.replies_dropped > 100_000, timeout=30)
+        status = service.status()
+        assert status["held_bytes"] <= MAX_HELD  # what waits for the client stays bounded
+        client.setblocking(False)
+        answers = b""
+        with contextlib.suppress(BlockingIOError):
+            while chunk := client.recv(1 << 16):
+                answers += chunk
+        assert b"[hilbench: yes]" in answers  # answered, the rest coalesced
+    finally:
+        client.close()
+    wait_until(lambda: service.client is None)
+    with serial.serial_for_url(url, baudrate=1_000_000, timeout=1) as again:  # the next client is served
+        assert _ping(again).id == 1
+
+
+def test_a_baud_rate_no_port_has_is_not_applied(served):
+    _, ep, url, recorder = served
+    c = RawClient(url)
+    try:
+        for rate in (0xFFFF_FFFF, 20_000_001, 49):
+            c.command(p.Command.SET_BAUDRATE, rate.to_bytes(4, "big"))
+            assert c.answer(p.Command.SET_BAUDRATE) == (1_000_000).to_bytes(4, "big")  # the rate kept
+        assert ep.services["rfc2217"].status()["problems"] == 3
+        c.command(p.Command.SET_BAUDRATE, (50).to_bytes(4, "big"))  # the lowest termios rate is taken
+        assert c.answer(p.Command.SET_BAUDRATE) == (50).to_bytes(4, "big")
+    finally:
+        c.close()
+
+
+def test_a_paced_line_reads_the_client_only_as_fast_as_the_wire_takes_its_bytes(hilbench_bench):
+    # A client writing faster than the baud rate was read at once and its bytes queued at wire pace without
+    # bound; now TCP holds it back, as a UART's full FIFO holds a writer.
+    bench = hilbench_bench("arm", serve=["rfc2217"], paced=True)
+    ep = bench.endpoint()
+    service = ep.services["rfc2217"]
+    c = RawClient(service.url)
+    try:
+        c.command(p.Command.SET_BAUDRATE, (1_000_000).to_bytes(4, "big"))
+        c.answer(p.Command.SET_BAUDRATE)
+        c.sock.setblocking(False)
+        block, pushed = bytes(4096), 0
+        deadline = time.monotonic() + 1.0
+        while time.monotonic() < deadline:  # ~8 MB offered within a second: 80 s of wire time at 1 Mbaud
+            with contextlib.suppress(BlockingIOError):
+                pushed += c.sock.send(block)
+            assert ep.medium.backlog(service.name) <= MAX_BACKLOG + RECV_SIZE * 10 / 1_000_000 + 0.05
+        assert service.bytes_in < pushed  # the rest waits in TCP, not in the bench
     finally:
         c.close()
 

@@ -4,6 +4,7 @@ processes exchanging frames with the bus both ways."""
 from __future__ import annotations
 
 import json
+import logging
 import socket
 import subprocess
 import sys
@@ -12,9 +13,11 @@ import time
 
 import pytest
 
+from hilbench.protocols import can_frame as cf
 from hilbench.protocols import socketcand as sc
 from hilbench.protocols.can_frame import data_frame
 from hilbench.pytest_plugin import wait_until
+from hilbench.transports import socketcand_server
 from tests.conftest import REPO
 
 
@@ -194,3 +197,152 @@ def test_python_can_clients_in_other_processes_both_ways(can_bus, paced):
     # A client never hears its own frames back.
     assert 0x300 not in {g["id"] for g in results[0]["received"]}
     assert 0x301 not in {g["id"] for g in results[1]["received"]}
+
+
+# ---------------------------------------------------------------------- hostile clients: limits and bounds
+
+
+def test_clients_beyond_the_limit_get_the_daemons_error_and_python_can_still_works(can_bus, monkeypatch):
+    import can
+
+    monkeypatch.setattr(socketcand_server, "MAX_CLIENTS", 3)
+    _m, port, dev, _dport, (host, tcp) = can_bus()
+    server = port.socketcand
+    held = [Raw((host, tcp)) for _ in range(3)]
+    for raw in held:
+        assert raw.read() == sc.HI
+    extra = Raw((host, tcp))
+    assert extra.read() == "< error too many clients >"  # instead of "< hi >", then the end
+    with pytest.raises(ConnectionError):
+        extra.read()
+    with pytest.raises(can.CanError, match="too many clients"):  # what python-can says: one clear line
+        can.Bus(interface="socketcand", host=host, port=tcp, channel="can0")
+    assert server.listener.refused == 2 and len(server.clients) == 3
+    held[0].send("< open can0 >")
+    assert held[0].read() == sc.OK  # the others are served as before
+    held.pop().close()
+    wait_until(lambda: len(server.clients) == 2)
+    bus = can.Bus(interface="socketcand", host=host, port=tcp, channel="can0")
+    try:
+        bus.send(can.Message(arbitration_id=0x321, data=[7], is_extended_id=False))
+        wait_until(lambda: data_frame(0x321, b"\x07") in dev.frames)
+    finally:
+        bus.shutdown()
+    for raw in held:
+        raw.close()
+
+
+HUGE = "9" * 400
+
+
+@pytest.mark.parametrize("command, what", [
+    (f"< add {HUGE} 0 123 1 aa >", "interval"),
+    (f"< add 0 {HUGE} 123 1 aa >", "interval"),
+    ("< add 0 1000000 123 1 aa >", "interval"),  # the kernel's bound: fewer than a million microseconds
+    (f"< add 0 1 {HUGE} 1 aa >", "identifier"),
+    (f"< subscribe {HUGE} 0 123 >", "interval"),
+    (f"< subscribe 0 0 {HUGE} >", "identifier"),
+    (f"< filter 0 {HUGE} 123 1 ff >", "interval"),
+    (f"< muxfilter {HUGE} 0 123 >", "interval"),
+    (f"< delete {HUGE} >", "identifier"),
+    (f"< send {HUGE} 1 aa >", "identifier"),
+    ("< send 800 0 >", "identifier"),  # 3 digits: a standard identifier, at most 7FF
+])
+def test_numbers_out_of_range_are_answered_with_an_error_and_counted(can_bus, caplog, command, what):
+    *_, port, _dev, _dport, address = can_bus()
+    raw = Raw(address)
+    raw.read()
+    raw.send("< open can0 >")
+    assert raw.read() == sc.OK
+    raw.send(command)
+    assert raw.read() == f"< error {what} out of range >"
+    raw.send("< echo >")
+    assert raw.read() == sc.ECHO  # still served
+    assert port.socketcand.out_of_range == 1
+    assert not [r for r in caplog.records if r.levelno >= logging.WARNING]  # no traceback, no log
+    raw.close()
+
+
+def test_a_statistics_interval_out_of_range_is_answered_with_an_error(can_bus):
+    *_, address = can_bus()
+    raw = Raw(address)
+    raw.read()
+    raw.send(f"< open can0 >< controlmode >< statistics {HUGE} >< statistics -5 >< statistics 4294967295 >")
+    assert [raw.read() for _ in range(4)] == [sc.OK, sc.OK, "< error statistics interval out of range >",
+                                              "< error statistics interval out of range >"]
+    raw.send("< echo >")
+    assert raw.read() == sc.ECHO  # 2^32 - 1 ms is the daemon's largest: taken, nothing due for 49 days
+    raw.close()
+
+
+def test_a_job_of_one_microsecond_fills_the_bus_but_never_deafens_it(can_bus):
+    medium, port, dev, _dport, address = can_bus(paced=True)
+    server = port.socketcand
+    raw = Raw(address)
+    raw.read()
+    raw.send("< open can0 >< add 0 1 123 8 1 2 3 4 5 6 7 8 >")
+    assert raw.read() == sc.OK
+    wait_until(lambda: len(dev.frames) >= 200)
+    t0, n0 = time.monotonic(), len(dev.frames)
+    time.sleep(0.2)
+    rate = (len(dev.frames) - n0) / (time.monotonic() - t0)
+    frame_time = cf.frame_bits(data_frame(0x123, bytes(range(1, 9)))) / 500_000
+    assert rate <= 1.1 / frame_time  # as fast as the bus carries it (about 4 400 frames/s), never faster
+    # New clients are greeted at once while the job runs (a loop always behind its deadlines went deaf)
+    other = Raw(address)
+    assert other.read(timeout=1) == sc.HI
+    raw.close()
+    wait_until(lambda: len(server.clients) == 1)  # the job's client left: its job goes with it
+    time.sleep(0.05)
+    n = len(dev.frames)
+    time.sleep(0.1)
+    assert len(dev.frames) == n
+    other.close()
+
+
+def test_jobs_and_subscriptions_per_client_are_bounded(can_bus, monkeypatch):
+    monkeypatch.setattr(socketcand_server, "MAX_BCM_ENTRIES", 2)
+    *_, port, dev, _dport, address = can_bus()
+    raw = Raw(address)
+    raw.read()
+    raw.send("< open can0 >< add 1 0 101 0 >< add 1 0 102 0 >< add 1 0 101 1 aa >< add 1 0 103 0 >")
+    assert raw.read() == sc.OK
+    assert raw.read() == "< error too many jobs >"  # 101 again is an update of its job, 103 one too many
+    raw.send("< subscribe 0 0 201 >< subscribe 0 0 202 >< filter 0 0 203 1 ff >")
+    assert raw.read() == "< error too many subscriptions >"
+    assert port.socketcand.too_many == 2
+    raw.close()
+
+
+def test_a_client_that_reads_nothing_is_bounded_then_disconnected(can_bus, monkeypatch):
+    monkeypatch.setattr(socketcand_server, "MAX_PENDING", 16 << 10)
+    monkeypatch.setattr(socketcand_server, "STALL_TIMEOUT", 0.5)
+    _m, port, _dev, dport, address = can_bus(rawmode_delay_ms=0)
+    server = port.socketcand
+    sleeper = socket.socket()
+    sleeper.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+    sleeper.connect(address)
+    sleeper.sendall(b"< open can0 >< rawmode >")
+    reader = Raw(address)
+    reader.read()
+    reader.send("< open can0 >< rawmode >")
+    assert reader.read() == sc.OK and reader.read() == sc.OK
+    wait_until(lambda: all(c.mode == "raw" for c in server.clients) and len(server.clients) == 2)
+    got = sent = 0
+    deadline = time.monotonic() + 20
+    while not server.stalled:  # the kernel holds ~100 kB for the sleeper, then its own 16 KiB fill up
+        assert time.monotonic() < deadline
+        for _ in range(100):
+            dport.send(data_frame(0x100, (sent % 65536).to_bytes(2, "big")))
+            sent += 1
+        while reader.pending or got < sent - 200:  # the reader keeps up
+            reader.read()
+            got += 1
+        assert server.queued <= 2 * (16 << 10) + 4096
+    assert server.frames_dropped > 0  # the sleeper's share, dropped and counted, before it was disconnected
+    assert len(server.clients) == 1 and server.queued < 4096
+    reader.send("< echo >")
+    while reader.read() != sc.ECHO:
+        pass
+    reader.close()
+    sleeper.close()

@@ -19,6 +19,7 @@ import pytest
 from hilbench.bench import Bench
 from hilbench.protocols import dynamixel as dxl
 from hilbench.pytest_plugin import wait_until
+from hilbench.transports import tap_server
 from hilbench.transports.capture_file import CaptureParser, Chunk
 from hilbench.transports.sources import (
     FileSource,
@@ -320,3 +321,40 @@ def test_a_udp_burst_is_taken_in_bounded_bites_and_in_order():
     finally:
         sender.close()
         src.close()
+
+
+def test_a_tap_refuses_clients_beyond_its_limit_and_the_reader_says_why():
+    server = TapServer(max_clients=2)
+    try:
+        first, second = TcpSource(server.host, server.port), TcpSource(server.host, server.port)
+        wait_until(lambda: server.clients == 2)
+        with pytest.raises(SourceError, match=r"refused: 2 clients at most$"):
+            TcpSource(server.host, server.port)
+        assert server.status()["refused"] == 1
+        server.feed(time.monotonic(), "bus", b"still here")  # the others are served as before
+        for src in (first, second):
+            assert next(c for c in src.chunks(idle=1.0) if c is not None).data == b"still here"
+            src.close()
+    finally:
+        server.close()
+
+
+def test_a_tap_client_that_takes_nothing_is_disconnected(monkeypatch):
+    monkeypatch.setattr(tap_server, "STALL_TIMEOUT", 0.3)
+    server = TapServer(max_buffer=16 << 10)
+    sleeper = socket.socket()
+    sleeper.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+    try:
+        sleeper.connect((server.host, server.port))
+        wait_until(lambda: server.clients == 1)
+        deadline = time.monotonic() + 20
+        while not server.stalled:  # the kernel holds a few hundred kB first, then its 16 KiB fill up
+            assert time.monotonic() < deadline
+            server.feed(time.monotonic(), "bus", bytes(1024))
+            assert server.status()["buffered_bytes"] <= (16 << 10) + 2048
+            time.sleep(0.0005)
+        wait_until(lambda: server.clients == 0)
+        assert server.bytes_dropped > 0
+    finally:
+        sleeper.close()
+        server.close()

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import contextlib
 import os
-import select
 import socket
 import threading
 import time
@@ -12,7 +11,9 @@ from collections.abc import Iterator
 from urllib.parse import urlparse
 
 from hilbench.transports.capture_file import READ_SIZE, CaptureParser, Chunk, sound_quality
+from hilbench.transports.readiness import Readiness
 from hilbench.transports.sources.base import Source, SourceError, SourceOpener, SourceUnavailable
+from hilbench.transports.tap_server import REFUSAL_PREFIX as TAP_REFUSAL
 
 
 class StreamSource(Source):
@@ -66,10 +67,10 @@ class StreamSource(Source):
     def chunks(self, idle: float | None = None) -> Iterator[Chunk | None]:
         early, self._early = self._early, []
         yield from early
-        fd = self._fd
+        readiness = Readiness([self._fd])
         while not self._stop.is_set():
             try:
-                if not select.select([fd], [], [], idle if idle is not None else 0.5)[0]:
+                if not readiness.idle(idle if idle is not None else 0.5):
                     if idle is not None:
                         yield None
                     continue
@@ -103,11 +104,14 @@ class TcpSource(StreamSource):
         except OSError as exc:
             raise SourceUnavailable(f"cannot connect to {name}: {exc.strerror or exc}") from None
         super().__init__(self._sock.fileno(), name=name, own=False)
+        head = b""  # the first bytes: a refusal is a line of text
         try:
             while not self.parser.decided:
                 data = self._sock.recv(65536)
                 if not data:
                     break
+                if len(head) < 256:
+                    head += data[:256]
                 self._early += self.parser.feed(data)
         except TimeoutError:
             self._sock.close()
@@ -115,9 +119,13 @@ class TcpSource(StreamSource):
                                     "its header at once)") from None
         except OSError as exc:
             self._sock.close()
+            if head.startswith(TAP_REFUSAL):  # (the reset came after the server's message)
+                raise SourceUnavailable(f"{self.name}: {_line(head)}") from None
             raise SourceUnavailable(f"{self.name}: {exc.strerror or exc}") from None
         if self.parser.info is None:
             self._sock.close()
+            if head.startswith(TAP_REFUSAL):
+                raise SourceUnavailable(f"{self.name}: {_line(head)}")
             raise SourceError(f"{self.name} does not speak the hilbench capture format")
         self._sock.settimeout(None)
 
@@ -131,8 +139,12 @@ class TcpSource(StreamSource):
         self._sock.close()
 
 
+def _line(head: bytes) -> str:
+    return head.split(b"\n", 1)[0].decode("ascii", "replace").strip()
+
+
 def open_fifo(spec: str, target: str, fragment: str, *, baud: int | None = None, **_: object) -> Source:
-    # O_NONBLOCK so the open does not wait for a writer; reads then wait in select.
+    # O_NONBLOCK so the open does not wait for a writer; reads then wait in poll.
     return StreamSource(os.open(target, os.O_RDONLY | os.O_NONBLOCK), name=target, baud=baud)
 
 
