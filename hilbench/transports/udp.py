@@ -136,10 +136,11 @@ class UdpEndpoint(HostPort):
         return data, addr[:2]
 
     def send_to(self, data: bytes, addr: tuple[str, int]) -> bool:
-        """Send one datagram to ``addr``; False (counted in :attr:`dropped`) if the socket refused it."""
+        """Send one datagram to ``addr``; False (counted in :attr:`dropped`) if the socket refused it or
+        the address is not one (a port outside 0..65535: OverflowError)."""
         try:
             self.sock.sendto(data, addr)
-        except OSError:
+        except (OSError, OverflowError, ValueError, TypeError):
             self.dropped += len(data)
             return False
         self.bytes_out += len(data)
