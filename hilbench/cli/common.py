@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import signal
+import sys
 from collections.abc import Iterator
 
 from hilbench.errors import UsageError
@@ -30,6 +31,18 @@ def int_arg(text: str) -> int:
         return int(text, 0)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+
+
+def warn_beyond_machine(host: str, what: str, why: str) -> bool:
+    """Warn on stderr when ``what`` listens on ``host`` and that is not loopback: reachable from other
+    machines (``why`` says what that means or how to avoid it). Returns whether it warned. Every verb that
+    opens a listening socket says it the same way."""
+    from hilbench.transports.host_port import is_loopback
+
+    if is_loopback(host):
+        return False
+    print(f"hilbench: warning: {what} listens on {host}, beyond this machine ({why})", file=sys.stderr)
+    return True
 
 
 def terminate_on_sigterm() -> None:

@@ -20,7 +20,7 @@ import threading
 import time
 from collections.abc import Callable
 
-from hilbench.cli.common import CliError, int_arg, open_cli_source, terminate_on_sigterm
+from hilbench.cli.common import CliError, int_arg, open_cli_source, terminate_on_sigterm, warn_beyond_machine
 from hilbench.rules import LINE_BAUD, SECONDS, SPEED
 
 
@@ -212,6 +212,9 @@ def cmd_tap_udp(args: argparse.Namespace) -> int:
         relay = UdpRelay(listen, target)
     except OSError as exc:
         raise CliError(f"tap udp: cannot bind {listen[0]}:{listen[1]}: {exc.strerror or exc}") from None
+    warn_beyond_machine(relay.listen[0], f"the relay (LISTEN {listen_text})",
+                        "anyone who reaches this machine can send through it to the target; 127.0.0.1:PORT or "
+                        "PORT alone keeps it here")
     try:
         label = f"udp relay {relay.listen[0]}:{relay.listen[1]} -> {target[0]}:{target[1]}"
         instrument = _instrument(args, relay.source)
@@ -227,8 +230,10 @@ def cmd_tap_udp(args: argparse.Namespace) -> int:
         relay.close()
     if relay.error is not None:
         raise CliError(f"tap udp: {relay.error}")
-    print(f"hilbench tap: relayed {relay.datagrams_up} datagrams to the target, {relay.datagrams_down} back",
-          file=sys.stderr)
+    c = relay.counters()
+    print(f"hilbench tap: relayed {c['datagrams_up']} datagrams to the target, {c['datagrams_down']} back; "
+          f"{c['send_errors']} not sent, {c['clients_dropped']} clients dropped (beyond {relay.max_clients}), "
+          f"{c['unwatched_bytes']} bytes relayed unwatched", file=sys.stderr)
     return code
 
 

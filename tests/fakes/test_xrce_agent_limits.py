@@ -157,3 +157,31 @@ def test_reliable_input_waiting_behind_a_gap_is_bounded(agent_bench) -> None:
         assert ack.fields.first_unacked == held + 1 and session.input_bytes() == 0
     finally:
         c.close()
+
+
+def test_the_board_client_hears_only_its_agent_and_bounds_fragment_nests(agent_bench) -> None:
+    from hilbench.fakes.xrce_client import XrceClient
+    from hilbench.protocols import cdr
+
+    string = cdr.ros_type("std_msgs/String")
+    b = agent_bench()
+    got: list[str] = []
+    c = XrceClient(tuple(b.endpoint().port.address), name="board")
+    sub = c.subscribe("rt/t", string.dds_name, lambda d, le: got.append(string.decode(d).data))
+    w = c.publish_on("rt/t", string.dds_name)
+    stranger = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        c.start()
+        wait_until(lambda: c.state == "running" and any(s.reads for s in b.agent().sessions.values()), 10)
+        # A sample for its reader from another address: the connected socket never hears it (as the
+        # client library's UDP transport, which connects to the agent).
+        stranger.sendto(x.build_message(0x81, x.STREAM_BEST_EFFORT, 1000, [(S.DATA, x.FLAG_E, x.data(
+            b"\x00\x01", sub.reader, string.encode({"data": "spoofed"})))]), c.local_address)
+        c.write(w, string.encode({"data": "from the agent"}))
+        wait_until(lambda: got, 5)
+        assert got == ["from the agent"]
+        c._process(nest(2000, seq=0))  # from the agent, it would be followed 4 levels deep, then dropped
+        assert not c._fragments and c._thread.is_alive()
+    finally:
+        stranger.close()
+        c.close()
