@@ -188,7 +188,10 @@ class MicroRosAgentFamily(DeviceFamily):
 
     def control(self, bench, agent, cmd: str, req: dict[str, Any]) -> dict[str, Any]:
         if cmd == "status":
-            return {"status": agent.status()}
+            st = agent.status()
+            if agent.bridge is not None:  # its RTPS participant: peers, limits and what it refused
+                st["bridge"] = {**agent.bridge.describe(), "counters": dict(agent.bridge.participant.counters)}
+            return {"status": st}
         if cmd == "fault":
             knobs = requested_knobs(req)
             try:
