@@ -92,7 +92,8 @@ def cmd_board(args: argparse.Namespace) -> int:
                   f"{st['output']}, {st['baud']} baud, boot {st['boots']}, t={st['now_us'] / 1e6:.3f} s")
             print(f"  sampling {'on' if st['sampling'] else 'off'}, window {st['window']}, frames ok "
                   f"{tr['frames_ok']}, crc errors {tr['frames_crc_error']}, length errors "
-                  f"{tr['frames_length_error']}")
+                  f"{tr['frames_length_error']}, receive overruns {tr.get('rx_overruns', 0)} "
+                  f"({tr.get('rx_overrun_bytes', 0)} bytes dropped)")
             print(f"  stamps recorded {tr['stamps_recorded']}, sent {tr['stamps_sent']}, dropped "
                   f"{tr['stamps_dropped']}, records lost {tr['records_lost']}")
             for line in st["log"][-5:]:

@@ -6,6 +6,7 @@ import argparse
 import contextlib
 import functools
 import signal
+import sys
 from collections.abc import Iterator
 
 from hilbench.errors import UsageError
@@ -69,6 +70,18 @@ def add_set_option(parser: argparse.ArgumentParser, what: str = "") -> None:
     (:func:`hilbench.bench.profile.apply_overrides`) for a verb that starts a bench from a profile."""
     parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                         help=f"{what}{SET_HELP}")
+
+
+def warn_beyond_machine(host: str, what: str, why: str) -> bool:
+    """Warn on stderr when ``what`` listens on ``host`` and that is not loopback: reachable from other
+    machines (``why`` says what that means or how to avoid it). Returns whether it warned. Every verb that
+    opens a listening socket says it the same way."""
+    from hilbench.transports.host_port import is_loopback
+
+    if is_loopback(host):
+        return False
+    print(f"hilbench: warning: {what} listens on {host}, beyond this machine ({why})", file=sys.stderr)
+    return True
 
 
 def terminate_on_sigterm() -> None:

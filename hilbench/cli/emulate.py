@@ -11,8 +11,8 @@ from pathlib import Path
 from hilbench import registry
 from hilbench.bench.control import BENCH_COMMANDS
 from hilbench.bench.profile import DEFAULT_PROFILE, load_profile
-from hilbench.cli.common import add_set_option
-from hilbench.transports.host_port import DEFAULT_BIND, bind_address, is_loopback
+from hilbench.cli.common import add_set_option, warn_beyond_machine
+from hilbench.transports.host_port import DEFAULT_BIND, bind_address
 
 
 def cmd_emulate(args: argparse.Namespace) -> int:
@@ -47,13 +47,11 @@ def cmd_emulate(args: argparse.Namespace) -> int:
         print(f"hilbench: bench {profile.name!r} running ({len(bench.devices)} devices); Ctrl-C stops it")
         for ep in bench.endpoints.values():
             address = getattr(ep.port, "address", None)
-            if address is not None and not is_loopback(address[0]):
-                print(f"hilbench: warning: endpoint {ep.name!r} listens on {address[0]}, beyond this machine "
-                      "(the profile's bind; the default is 127.0.0.1)", file=sys.stderr)
-        if not is_loopback(args.bind):
-            print(f"hilbench: warning: --bind {args.bind}: the servers, traffic taps and control channel listen "
-                  "beyond this machine, without authentication (labgrid's SSH proxying reaches a bench bound to "
-                  "127.0.0.1)", file=sys.stderr)
+            if address is not None:
+                warn_beyond_machine(address[0], f"endpoint {ep.name!r}",
+                                    "the profile's bind; the default is 127.0.0.1")
+        warn_beyond_machine(args.bind, f"--bind {args.bind}: every server, traffic tap and the control channel",
+                            "without authentication; labgrid's SSH proxying reaches a bench bound to 127.0.0.1")
         for ep in bench.endpoints.values():
             print(f"  {ep.name}: {_where(ep)}  ({ep.family.summary(ep)})")
             for name, service in ep.services.items():

@@ -20,7 +20,13 @@ import threading
 import time
 from collections.abc import Callable
 
-from hilbench.cli.common import CliError, add_set_option, open_cli_source, terminate_on_sigterm
+from hilbench.cli.common import (
+    CliError,
+    add_set_option,
+    open_cli_source,
+    terminate_on_sigterm,
+    warn_beyond_machine,
+)
 from hilbench.errors import UnavailableError
 from hilbench.rules import LINE_BAUD, SECONDS, SPEED, Rule
 
@@ -241,6 +247,9 @@ def cmd_tap_udp(args: argparse.Namespace) -> int:
     except OSError as exc:  # taken (or not an address of this machine): exit status 1
         raise UnavailableError(f"tap udp: cannot listen on udp://{listen[0]}:{listen[1]}: {exc.strerror or exc} "
                                "(give another LISTEN port, or 0 for any free one)") from None
+    warn_beyond_machine(relay.listen[0], f"the relay (LISTEN {listen_text})",
+                        "anyone who reaches this machine can send through it to the target; 127.0.0.1:PORT or "
+                        "PORT alone keeps it here")
     try:
         label = f"udp relay {relay.listen[0]}:{relay.listen[1]} -> {target[0]}:{target[1]}"
         instrument = _instrument(args, relay.source)
@@ -257,8 +266,10 @@ def cmd_tap_udp(args: argparse.Namespace) -> int:
         relay.close()
     if relay.error is not None:
         raise CliError(f"tap udp: {relay.error}")
-    print(f"hilbench tap: relayed {relay.datagrams_up} datagrams to the target, {relay.datagrams_down} back",
-          file=sys.stderr)
+    c = relay.counters()
+    print(f"hilbench tap: relayed {c['datagrams_up']} datagrams to the target, {c['datagrams_down']} back; "
+          f"{c['send_errors']} not sent, {c['clients_dropped']} clients dropped (beyond {relay.max_clients}), "
+          f"{c['unwatched_bytes']} bytes relayed unwatched", file=sys.stderr)
     return code
 
 

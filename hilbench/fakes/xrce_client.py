@@ -23,7 +23,7 @@ import contextlib
 import ipaddress
 import logging
 import random
-import select
+import selectors
 import socket
 import threading
 import time
@@ -40,6 +40,8 @@ S = x.SubmessageId
 #: The client library's reliable history and HEARTBEAT interval (UXR_CONFIG_MIN_HEARTBEAT_TIME_INTERVAL).
 HISTORY = 4
 HEARTBEAT_S = 0.1
+#: FRAGMENTs inside reassembled messages followed at most (deeper nests are dropped, never a RecursionError).
+MAX_FRAGMENT_DEPTH = 4
 #: micro-ROS's entity creation timeout.
 CREATION_TIMEOUT_S = 1.0
 
@@ -138,7 +140,13 @@ class XrceClient:
             local = ""
         self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self._sock.bind((local, 0))  # one source port for the whole session (the agent keys it)
+        # Connected, as the client library's UDP transport is: only the agent's datagrams are heard.
+        with contextlib.suppress(OSError):
+            self._sock.connect(self.agent)
         self._sock.setblocking(False)
+        self._sel = selectors.DefaultSelector()  # (poll, as the library: any descriptor number)
+        self._sel.register(self._sock, selectors.EVENT_READ)
+        self._sel.register(self._waker.fd, selectors.EVENT_READ)
         self._stop.clear()
         self._thread = threading.Thread(target=self._run, name=f"xrce-{self.name}", daemon=True)
         self._thread.start()
@@ -155,6 +163,7 @@ class XrceClient:
             self._thread.join(timeout=5)
             self._thread = None
         if self._sock is not None:
+            self._sel.close()
             self._sock.close()
             self._sock = None
         self.state = "stopped"
@@ -246,8 +255,8 @@ class XrceClient:
         if sock is None:
             return None
         try:
-            ready = select.select([sock, self._waker.fd], [], [], max(0.0, timeout))[0]
-        except (OSError, ValueError):
+            ready = [key.fileobj for key, _ in self._sel.select(max(0.0, timeout))]
+        except (OSError, ValueError, KeyError):
             return None
         if sock in ready:
             try:
@@ -448,13 +457,15 @@ class XrceClient:
         self._send_none(S.ACKNACK, x.acknack(first, bitmap, x.STREAM_RELIABLE))
         self.counters["acknacks"] += 1
 
-    def _process(self, data: bytes) -> None:
+    def _process(self, data: bytes, depth: int = 0) -> None:
         _, _, _, subs, _ = x.scan(data)
         for sub_id, flags, off, length in subs:
             payload = data[off:off + length]
             if len(payload) < length:
                 return
             if sub_id == S.FRAGMENT:
+                if depth >= MAX_FRAGMENT_DEPTH:
+                    return
                 if not self._fragments:
                     self._fragments += data[:4 if data[0] >= 0x80 else 8]
                 self._fragments += payload
@@ -463,7 +474,7 @@ class XrceClient:
                 elif flags & x.FLAG_LAST_FRAGMENT:
                     whole = bytes(self._fragments)
                     self._fragments.clear()
-                    self._process(whole)
+                    self._process(whole, depth + 1)
             elif sub_id == S.STATUS and length >= 6:
                 req, status = payload[0:2], payload[4]
                 if req in self._pending_status:

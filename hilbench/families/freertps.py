@@ -21,8 +21,11 @@ Profile schema (endpoint ``protocol = "rtps"``, ``type = "udp"``)::
 A topic is ``{name, type, direction = "pub" | "sub", rate_hz, value, reliable,
 echo_of}``: an output with ``echo_of = "INPUT"`` republishes what the input
 receives. The manifest's device entries give ``domain_id``,
-``participant_index``, ``guid_prefix``, ``ports`` and ``topics`` (each with
-its ``dds_name``). Control commands: ``status`` and ``publish``.
+``participant_index``, ``guid_prefix``, ``ports``, ``topics`` (each with
+its ``dds_name``) and ``limits`` (the remote participants, endpoints, locator
+ports and leases a node keeps: :mod:`hilbench.fakes.rtps_node.participant`).
+Control commands: ``status`` (with the participant's counters: refused,
+expired, invalid locators ...) and ``publish``.
 """
 
 from __future__ import annotations
@@ -204,6 +207,7 @@ class FreeRtpsFamily(DeviceFamily):
 
     def describe_device(self, spec: NodeSpec, device, endpoint, profile) -> dict[str, Any]:
         from hilbench.fakes.rtps_node.node import mac_prefix
+        from hilbench.fakes.rtps_node.participant import limits
         from hilbench.protocols import rtps
 
         ep = profile.endpoints[spec.endpoint]
@@ -214,7 +218,7 @@ class FreeRtpsFamily(DeviceFamily):
                 "domain_id": domain, "participant_index": spec.participant_index, "mac": spec.mac,
                 "guid_prefix": mac_prefix(spec.mac).hex(), "host": "127.0.0.1",
                 "ports": {"metatraffic_unicast": ports["metatraffic_unicast"], "user_unicast": ports["user_unicast"]},
-                "topics": topics}
+                "topics": topics, "limits": limits()}
 
     def summary(self, endpoint) -> str:
         nodes = endpoint.attrs.get("nodes", [])

@@ -15,11 +15,14 @@ Profile schema (endpoint ``protocol = "xrce-dds"``, ``type = "udp"``)::
     refs = { talker = { topic = "rt/chatter", type = "std_msgs::msg::dds_::String_", reliable = false } }
     bridge = { domain_id = 42, participant_index = 5 }   # optional: the samples on RTPS too
     faults = { drop_next = 0, corrupt_status_agent = 0 }
+    max_sessions = 64              # sessions at once (a client beyond: STATUS_AGENT ERR_RESOURCES)
+    session_timeout = 300          # seconds a silent session lives (0: for ever)
 
 The manifest's endpoint entry says ``"role": "agent"`` with its ``host`` and
-``port``; ``endpoint.agent`` (and ``bench.agent()``) is the
-:class:`~hilbench.fakes.xrce_agent.XrceAgent`. Control commands: ``status``
-(counters, sessions, entities, log) and ``fault``.
+``port``; its device entry the agent's ``limits``; ``endpoint.agent`` (and
+``bench.agent()``) is the :class:`~hilbench.fakes.xrce_agent.XrceAgent`.
+Control commands: ``status`` (counters, sessions, entities, limits, log) and
+``fault``.
 """
 
 from __future__ import annotations
@@ -34,7 +37,7 @@ from hilbench.bench.knobs import check_fault_table, requested_knobs
 from hilbench.rules import FAULT_COUNT
 
 AGENT_MODELS = ("micro-ros-agent", "micro-xrce-dds-agent")
-AGENT_KEYS = ("model", "name", "endpoint", "zeroed", "refs", "bridge", "faults")
+AGENT_KEYS = ("model", "name", "endpoint", "zeroed", "refs", "bridge", "faults", "max_sessions", "session_timeout")
 REF_KEYS = ("topic", "type", "reliable", "depth")
 FAULT_RULES = {"drop_next": FAULT_COUNT, "corrupt_status_agent": FAULT_COUNT}
 BRIDGE_KEYS = ("domain_id", "participant_index", "peers")
@@ -49,6 +52,8 @@ class AgentSpec(DeviceSpec):
     refs: dict[str, dict[str, Any]] = field(default_factory=dict)
     bridge: dict[str, Any] | None = None
     faults: dict[str, int] = field(default_factory=dict)
+    max_sessions: int = 64
+    session_timeout: float = 300.0
 
 
 def check_bridge(c: Checker, key: str, raw: Any) -> dict[str, Any] | None:
@@ -104,8 +109,14 @@ class MicroRosAgentFamily(DeviceFamily):
                          "reliable": c.boolean(body.get("reliable", True), f"{where}.reliable"),
                          "depth": c.integer(body.get("depth", 1), f"{where}.depth", 1, 1000)}
         faults = check_fault_table(c, f"{key}.faults", dev.get("faults", {}), FAULT_RULES)
+        from hilbench.fakes.xrce_agent.agent import MAX_SESSIONS, SESSION_TIMEOUT_S
+
         return [AgentSpec(name=name, endpoint=endpoint.name, model=model, zeroed=zeroed, refs=refs,
-                          bridge=check_bridge(c, f"{key}.bridge", dev.get("bridge")), faults=faults)]
+                          bridge=check_bridge(c, f"{key}.bridge", dev.get("bridge")), faults=faults,
+                          max_sessions=c.integer(dev.get("max_sessions", MAX_SESSIONS), f"{key}.max_sessions", 1,
+                                                 4096),
+                          session_timeout=c.number(dev.get("session_timeout", SESSION_TIMEOUT_S),
+                                                   f"{key}.session_timeout", 0, 86_400))]
 
     def check_profile(self, c: Checker, profile) -> None:
         seen: set[str] = set()
@@ -120,7 +131,8 @@ class MicroRosAgentFamily(DeviceFamily):
         from hilbench.fakes.xrce_agent import XrceAgent
 
         spec = devices[0] if devices else AgentSpec(name=endpoint.name, endpoint=endpoint.name)
-        agent = XrceAgent(spec.name, zeroed=spec.zeroed, refs=spec.refs)
+        agent = XrceAgent(spec.name, zeroed=spec.zeroed, refs=spec.refs, max_sessions=spec.max_sessions,
+                          session_timeout=spec.session_timeout)
         agent.set_faults(**spec.faults)
         agent.attach(endpoint.medium)
         endpoint.add_device(spec.name, agent)
@@ -159,6 +171,8 @@ class MicroRosAgentFamily(DeviceFamily):
         if endpoint is not None:
             host, port = endpoint.port.address
             out.update(host=host, port=port)
+        if device is not None:
+            out["limits"] = device.limits()
         return out
 
     def summary(self, endpoint) -> str:
@@ -174,7 +188,10 @@ class MicroRosAgentFamily(DeviceFamily):
 
     def control(self, bench, agent, cmd: str, req: dict[str, Any]) -> dict[str, Any]:
         if cmd == "status":
-            return {"status": agent.status()}
+            st = agent.status()
+            if agent.bridge is not None:  # its RTPS participant: peers, limits and what it refused
+                st["bridge"] = {**agent.bridge.describe(), "counters": dict(agent.bridge.participant.counters)}
+            return {"status": st}
         if cmd == "fault":
             knobs = requested_knobs(req)
             try:

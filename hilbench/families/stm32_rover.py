@@ -81,16 +81,19 @@ class BoardSpec(DeviceSpec):
     micro_ros: dict[str, Any] = field(default_factory=dict)
 
 
-def board_config(spec: BoardSpec, baud: int):
-    """The emulator configuration of a profile's board entry."""
+def board_config(spec: BoardSpec, baud: int, port_type: str = "pty"):
+    """The emulator configuration of a profile's board entry (behind a door of ``port_type``: a UDP door,
+    which has no flow control, holds at most :data:`~hilbench.fakes.stm32_board.firmware.RX_FIFO` bytes;
+    a pty door is not bounded, as over the real USB link its writer would wait)."""
     from hilbench.fakes.stm32_board import BoardConfig, make_preset
+    from hilbench.fakes.stm32_board.firmware import RX_FIFO
 
     preset = make_preset(spec.preset, spec.caches)
     for name, timing in spec.tasks.items():
         preset = preset.with_task_timing(name, **timing)
     return BoardConfig(preset, output=spec.output, baud=baud, dialect=spec.dialect, window_ms=spec.window_ms,
                        flush_ms=spec.flush_ms, seed=spec.seed, boot_banner=spec.boot_banner,
-                       faults=dict(spec.faults))
+                       faults=dict(spec.faults), rx_fifo=RX_FIFO if port_type == "udp" else None)
 
 
 def check_fault_knobs(knobs: dict[str, Any]) -> dict[str, float]:
@@ -197,7 +200,7 @@ class Stm32RoverFamily(DeviceFamily):
         from hilbench.fakes.stm32_board import Board
 
         for dev in devices:
-            board = Board(board_config(dev, endpoint.spec.baud), name=dev.name)
+            board = Board(board_config(dev, endpoint.spec.baud, endpoint.spec.type), name=dev.name)
             if dev.agent is not None:
                 from hilbench.fakes.stm32_board.micro_ros import MicroRosLink
 
@@ -232,7 +235,7 @@ class Stm32RoverFamily(DeviceFamily):
             "caches": spec.caches,
             "output": spec.output,
             "baud": profile.endpoints[spec.endpoint].baud,
-        } | extra
+        } | extra | _rx_fifo(profile.endpoints[spec.endpoint].type, device)
 
     def summary(self, endpoint) -> str:
         board = endpoint.attrs.get("board")
@@ -290,6 +293,17 @@ class Stm32RoverFamily(DeviceFamily):
             rep = board.reports[-1]
             return {"report": rep._asdict(), "status": board.status()}
         raise ControlRequestError(f"unknown command {cmd!r}")
+
+
+def _rx_fifo(port_type: str, board) -> dict[str, Any]:
+    """A UDP door's receive FIFO and what it dropped, for the manifest (a pty door has none)."""
+    if port_type != "udp":
+        return {}
+    from hilbench.fakes.stm32_board.firmware import RX_FIFO
+
+    truth = board.truth if board is not None else None
+    return {"rx_fifo": {"bytes": RX_FIFO, "overruns": truth.rx_overruns if truth else 0,
+                        "overrun_bytes": truth.rx_overrun_bytes if truth else 0}}
 
 
 def _check_micro_ros(c: Checker, key: str, dev: dict[str, Any], preset: str) -> dict[str, Any]:

@@ -166,8 +166,12 @@ PID_NAMES = {
     PID_BUILTIN_ENDPOINT_SET: "BUILTIN_ENDPOINT_SET", PID_ENDPOINT_GUID: "ENDPOINT_GUID",
     PID_ENTITY_NAME: "ENTITY_NAME", PID_KEY_HASH: "KEY_HASH", PID_STATUS_INFO: "STATUS_INFO",
 }
+LOCATOR_KIND_INVALID = -1
+LOCATOR_KIND_RESERVED = 0
 LOCATOR_KIND_UDPV4 = 1
 LOCATOR_KIND_UDPV6 = 2
+LOCATOR_KIND_TCPV4 = 4
+LOCATOR_KIND_TCPV6 = 8
 RELIABILITY_BEST_EFFORT = 1
 RELIABILITY_RELIABLE = 2
 DURABILITY_VOLATILE = 0
@@ -466,6 +470,26 @@ def parse_locator(value: bytes, le: bool = True) -> tuple[int, str, int] | None:
     return kind, text, port
 
 
+def locator_problem(value: bytes, le: bool = True) -> str | None:
+    """Why a locator parameter is invalid, or None: Cyclone DDS's rules (``do_locator``), under which one
+    invalid locator makes the whole parameter list, and so the SPDP or SEDP announcement, invalid.
+
+    IPv4 and IPv6 kinds need a port in 1..65535, IPv4 ones zeros in the first 12 address octets; an
+    explicit LOCATOR_INVALID must be all zeros. Other kinds are not judged (a receiver skips them).
+    """
+    if len(value) < 24:
+        return "locator shorter than 24 octets"
+    kind, port = struct.unpack_from("<iI" if le else ">iI", value, 0)
+    if kind in (LOCATOR_KIND_UDPV4, LOCATOR_KIND_TCPV4, LOCATOR_KIND_UDPV6, LOCATOR_KIND_TCPV6):
+        if not 0 < port <= 65535:
+            return f"locator port {port} outside 1..65535"
+        if kind in (LOCATOR_KIND_UDPV4, LOCATOR_KIND_TCPV4) and any(value[8:20]):
+            return "IPv4 locator with junk in its address prefix"
+    elif kind == LOCATOR_KIND_INVALID and (port or any(value[8:24])):
+        return "LOCATOR_INVALID that is not all zeros"
+    return None
+
+
 def _string(value: bytes, le: bool = True) -> str:
     if len(value) < 4:
         return ""
@@ -474,7 +498,9 @@ def _string(value: bytes, le: bool = True) -> str:
 
 
 def discovery_fields(params: list[Parameter], le: bool = True) -> dict[str, Any]:
-    """The fields of SPDP/SEDP parameters a monitor and a node need, by name."""
+    """The fields of SPDP/SEDP parameters a monitor and a node need, by name.
+
+    Invalid locators (:func:`locator_problem`) are left out and listed under ``locator_problems``."""
     out: dict[str, Any] = {}
     for p in params:
         pid, v = p.pid & 0x3FFF, p.value
@@ -485,6 +511,10 @@ def discovery_fields(params: list[Parameter], le: bool = True) -> dict[str, Any]
                  PID_KEY_HASH: "key_hash"}[pid]] = v[:16]
         elif pid in (PID_DEFAULT_UNICAST_LOCATOR, PID_METATRAFFIC_UNICAST_LOCATOR, PID_UNICAST_LOCATOR,
                      PID_DEFAULT_MULTICAST_LOCATOR, PID_METATRAFFIC_MULTICAST_LOCATOR, PID_MULTICAST_LOCATOR):
+            problem = locator_problem(v, le)
+            if problem is not None:
+                out.setdefault("locator_problems", []).append(problem)
+                continue
             loc = parse_locator(v, le)
             if loc is not None:
                 out.setdefault(PID_NAMES[pid].lower(), []).append(loc)
@@ -642,6 +672,8 @@ def _decode_data(msg: Message, sub: Submessage, le: bool) -> dict[str, Any]:
                 if problem:
                     _flag(msg, "rtps.no_sentinel")
                 out["parameters"] = discovery_fields(params, payload[1] == 3)
+                if "locator_problems" in out["parameters"]:
+                    _flag(msg, "rtps.bad_locator")
                 for loc in out["parameters"].get("default_unicast_locator", []) + \
                         out["parameters"].get("metatraffic_unicast_locator", []):
                     if loc[0] not in (LOCATOR_KIND_UDPV4, LOCATOR_KIND_UDPV6):
@@ -687,7 +719,7 @@ __all__ = [
     "SEDP_PUB_READER", "SEDP_PUB_WRITER", "SEDP_SUB_READER", "SEDP_SUB_WRITER", "SPDP_READER", "SPDP_WRITER",
     "Submessage", "SubmessageId", "VENDOR_FREERTPS", "acknack", "bitmap_members", "build_header", "data",
     "discovery_fields", "entity_text", "gap", "guid_text", "heartbeat", "info_dst", "info_ts", "is_reader",
-    "is_writer", "key_hash_qos", "locator", "looks_like_rtps", "message", "parameter", "parameter_list",
+    "is_writer", "key_hash_qos", "locator", "locator_problem", "looks_like_rtps", "message", "parameter", "parameter_list",
     "parse_locator", "parse_message", "parse_parameters", "port_owner", "ports", "scan", "sedp_payload", "sn_parts",
     "sn_set", "sn_value", "spdp_payload", "string_value", "submessage", "time_parts",
 ]

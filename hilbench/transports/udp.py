@@ -72,7 +72,14 @@ class UdpEndpoint(HostPort):
     def describe(self) -> dict[str, Any]:
         host, port = self.address
         # "pty" and "link" stay (as None) for manifest readers written before ports were plug-ins.
-        return {"path": self.url, "pty": None, "link": None, "address": [host, port], "host": host, "port": port}
+        return {"path": self.url, "pty": None, "link": None, "address": [host, port], "host": host, "port": port,
+                "counters": self.counters()}
+
+    def counters(self) -> dict[str, int]:
+        """Traffic and losses: datagrams and bytes in, bytes out, bytes the socket refused to send, the peers
+        receiving the output (at most :data:`MAX_PEERS`, the most recent senders)."""
+        return {"datagrams_in": self.datagrams_in, "bytes_in": self.bytes_in, "bytes_out": self.bytes_out,
+                "dropped_bytes": self.dropped, "peers": len(self.peers), "max_peers": MAX_PEERS}
 
     def __init__(self, name: str = "udp", bind: str = "127.0.0.1", port: int = 0, peer: str | None = None) -> None:
         self.name = name
@@ -137,10 +144,11 @@ class UdpEndpoint(HostPort):
         return data, addr[:2]
 
     def send_to(self, data: bytes, addr: tuple[str, int]) -> bool:
-        """Send one datagram to ``addr``; False (counted in :attr:`dropped`) if the socket refused it."""
+        """Send one datagram to ``addr``; False (counted in :attr:`dropped`) if the socket refused it or
+        the address is not one (a port outside 0..65535: OverflowError)."""
         try:
             self.sock.sendto(data, addr)
-        except OSError:
+        except (OSError, OverflowError, ValueError, TypeError):
             self.dropped += len(data)
             return False
         self.bytes_out += len(data)

@@ -145,9 +145,10 @@ class FreeRtpsNode:
     def _publish(self, t: TopicSpec, n: int) -> None:
         if not self._running:
             return
-        self.publish(t.name, t.sample(self.published[t.name] + 1))
-        # Release times from the start: no drift however late one tick ran.
+        # Release times from the start: no drift however late one tick ran. Queued first, so that nothing
+        # the publication meets can stop the timer.
         self.port.call_at(self._t0 + (n + 1) / t.rate_hz, lambda: self._publish(t, n + 1))
+        self.publish(t.name, t.sample(self.published[t.name] + 1))
 
     def publish(self, topic: str, value: dict[str, Any]) -> int:
         """Publish ``value`` on one of the node's output topics now; returns the readers it went to."""

@@ -19,8 +19,26 @@ talk to a FreeRTPS board, without multicast:
   what they no longer have); readers take DATA with or without INFO_TS and
   inline QoS and answer HEARTBEATs.
 
-Traffic goes only to loopback: a locator with another address is reached at
-127.0.0.1 on its port (and counted), multicast locators are never used.
+What a remote participant announces is checked before anything is sent to it:
+
+- an announcement with an invalid locator (port 0 or above 65535, junk in an
+  IPv4 address prefix: :func:`~hilbench.protocols.rtps.locator_problem`) is
+  dropped whole, as Cyclone DDS drops it (``invalid_locators``);
+- only UDPv4 unicast locators are used, at most :data:`MAX_LOCATORS` each, and
+  only on ports from :data:`LOCATOR_PORTS` (the RTPS port base up: below it are
+  the machine's services, never a participant's; ``locators_refused``); traffic
+  goes only to loopback: a participant that announces no loopback locator is
+  reached at 127.0.0.1 on its ports (a DDS on this machine announcing its LAN
+  address listens there too; ``non_loopback_locators``), multicast never;
+- at most :data:`MAX_REMOTES` participants are kept (a newcomer beyond is
+  ignored until a lease ends: ``participants_refused``) with at most
+  :data:`MAX_REMOTE_ENDPOINTS` writers and readers (:data:`MAX_REMOTE_ENDPOINTS_EACH`
+  per participant; ``endpoints_refused``); a participant is forgotten when it
+  has sent nothing for its lease duration (the SPDP's, :data:`DEFAULT_LEASE_S`
+  if it names none, at most :data:`MAX_LEASE_S`; ``participants_expired``);
+- SEDP, HEARTBEATs and ACKNACKs of participants it does not know are ignored
+  (``unknown_participant``), sequence numbers outside 1..2^62 are malformed.
+
 Everything runs in the datagram net's thread (no locks).
 """
 
@@ -42,6 +60,23 @@ Address = tuple[str, int]
 HISTORY = 32
 #: A reader's per-writer memory of received sequence numbers (for ACKNACK bitmaps).
 SEEN = 256
+#: Remote participants kept at once; a newcomer beyond is ignored until one's lease ends.
+MAX_REMOTES = 64
+#: Remote writers and readers (from SEDP) kept per remote participant, and in all.
+MAX_REMOTE_ENDPOINTS_EACH = 256
+MAX_REMOTE_ENDPOINTS = 2048
+#: Unicast locators kept per participant or endpoint (the first usable ones).
+MAX_LOCATORS = 4
+#: Longest topic, type or participant name kept; an endpoint with a longer one is refused.
+MAX_NAME = 256
+#: The lease of an SPDP that names none (the DDS default), and the longest one honoured.
+DEFAULT_LEASE_S = 100.0
+MAX_LEASE_S = 300.0
+#: Ports a remote locator may name: from the RTPS port base PB (7400) up, where the standard mapping and
+#: the ephemeral ports of participants that pick their own lie; below are the machine's services.
+LOCATOR_PORTS = (r.PB, 65535)
+#: Sequence numbers beyond this are not believed (they are signed 64-bit; ACKNACK windows need headroom).
+MAX_SN = 2**62
 
 
 def loopback(host: str) -> bool:
@@ -58,11 +93,13 @@ class Remote:
     prefix: bytes
     meta: list[Address]
     user: list[Address]
-    lease_s: float = 100.0
+    lease_s: float = DEFAULT_LEASE_S
     last_spdp: float = 0.0
+    last_seen: float = 0.0  # any message from it renews its lease, as in Cyclone DDS
     vendor_id: bytes = b""
     name: str | None = None
     spdp_count: int = 0
+    endpoints: set[bytes] = field(default_factory=set)  # guids of its writers and readers we keep
 
 
 @dataclass
@@ -138,7 +175,7 @@ class RtpsParticipant:
                  peers: list[Address | str] | None = None, vendor_id: bytes = r.VENDOR_FREERTPS,
                  pl_vendor_id: bytes = b"\x2c\x2f", max_index: int = 9, spdp_period: float = 1.0,
                  heartbeat_period: float = 0.1, lease_s: int = 100, clock: str = "freertps",
-                 entity_name: str | None = None) -> None:
+                 entity_name: str | None = None, max_remotes: int = MAX_REMOTES) -> None:
         self.name = name
         self.port = port
         self.domain_id = domain_id
@@ -152,6 +189,7 @@ class RtpsParticipant:
         self.lease_s = lease_s
         self.clock = clock
         self.entity_name = entity_name
+        self.max_remotes = max_remotes
         self.ports = r.ports(domain_id, participant_index)
         self.peers = list(peers if peers is not None else ["127.0.0.1"])
         self.meta_sock: Any = None
@@ -170,7 +208,9 @@ class RtpsParticipant:
         self.counters = dict.fromkeys(("datagrams", "malformed", "spdp_sent", "spdp_received", "sedp_sent",
                                        "sedp_received", "data_sent", "data_received", "acknacks_sent",
                                        "heartbeats_sent", "retransmissions", "non_loopback_locators",
-                                       "foreign"), 0)
+                                       "foreign", "invalid_locators", "locators_refused", "unreachable",
+                                       "participants_discovered", "participants_refused", "participants_expired",
+                                       "endpoints_refused", "unknown_participant", "send_refused"), 0)
         self._running = False
         self._vendor = b""
 
@@ -256,10 +296,38 @@ class RtpsParticipant:
 
     def _send(self, sock: Any, dst: Address, *subs: bytes) -> None:
         host, port_no = dst
+        if not 0 < port_no < 65536:  # (remote locators are checked when heard; this guards the rest)
+            self.counters["send_refused"] += 1
+            return
         if not loopback(host):
             self.counters["non_loopback_locators"] += 1
             host = "127.0.0.1"  # this bench talks to loopback only
         self.port.send(r.message(self.prefix, *subs, vendor_id=self.vendor_id), (host, port_no), via=sock)
+
+    def _usable(self, locators: list[tuple[int, str, int]]) -> list[Address]:
+        """The announced locators this participant sends to (see the module docstring); counts the rest."""
+        near: list[Address] = []
+        far: list[Address] = []
+        low, high = LOCATOR_PORTS
+        for kind, host, port_no in locators:
+            if kind != r.LOCATOR_KIND_UDPV4:
+                continue  # IPv6, TCP, vendor kinds: not ours to reach (a receiver skips them)
+            if not low <= port_no <= high:
+                self.counters["locators_refused"] += 1
+                continue
+            try:
+                addr = ipaddress.IPv4Address(host)
+            except ValueError:
+                continue
+            if addr.is_loopback:
+                near.append((host, port_no))
+            elif addr.is_multicast or addr.is_unspecified or addr.packed == b"\xff" * 4:
+                self.counters["locators_refused"] += 1
+            else:
+                far.append(("127.0.0.1", port_no))
+        if not near and far:
+            self.counters["non_loopback_locators"] += len(far)
+        return list(dict.fromkeys(near or far))[:MAX_LOCATORS]
 
     def _spdp_targets(self) -> list[Address]:
         out: list[Address] = []
@@ -290,6 +358,8 @@ class RtpsParticipant:
     def _spdp_tick(self) -> None:
         if not self._running:
             return
+        now = time.monotonic()
+        self.port.call_at(now + self.spdp_period, self._spdp_tick)  # first: nothing below can stop the timer
         subs = self._spdp_message()
         for dst in self._spdp_targets():
             self._send(self.meta_sock, dst, subs)
@@ -299,20 +369,22 @@ class RtpsParticipant:
             for w in self.sedp.values():
                 if w.history and w.matched.get(remote.prefix + _sedp_reader(w.entity_id), 0) < w.sn:
                     self._sedp_heartbeat(remote, w)
-        # Leases: a participant silent for its lease duration is gone.
-        now = time.monotonic()
+        self._expire(now)
+
+    def _expire(self, now: float) -> None:
+        """Forget every participant silent for its lease duration (as real participants do)."""
         for prefix, remote in list(self.remotes.items()):
-            if now - remote.last_spdp > remote.lease_s:
+            if now - remote.last_seen > remote.lease_s:
                 self._forget(prefix)
-        self.port.call_at(now + self.spdp_period, self._spdp_tick)
+                self.counters["participants_expired"] += 1
 
     def _heartbeat_tick(self) -> None:
         if not self._running:
             return
+        self.port.call_at(time.monotonic() + self.heartbeat_period, self._heartbeat_tick)
         for w in self.writers.values():
             if w.reliable and w.history and any(acked < w.sn for acked in w.matched.values()):
                 self._user_heartbeat(w)
-        self.port.call_at(time.monotonic() + self.heartbeat_period, self._heartbeat_tick)
 
     # ------------------------------------------------------------------ SEDP out
 
@@ -395,7 +467,9 @@ class RtpsParticipant:
             w.matched.pop(guid, None)
 
     def _forget(self, prefix: bytes) -> None:
-        self.remotes.pop(prefix, None)
+        remote = self.remotes.pop(prefix, None)
+        if remote is not None:
+            remote.endpoints.clear()
         for guid in [g for g in self.remote_endpoints if g[:12] == prefix]:
             self._unmatch(guid)
             del self.remote_endpoints[guid]
@@ -418,6 +492,9 @@ class RtpsParticipant:
         if msg.guid_prefix == self.prefix:
             return  # our own message (a receiver drops those, §2.3)
         src_prefix = msg.guid_prefix
+        known = self.remotes.get(src_prefix)
+        if known is not None:
+            known.last_seen = time.monotonic()
         self._vendor = msg.vendor_id
         dest = None
         ts: float | None = None
@@ -442,7 +519,7 @@ class RtpsParticipant:
                 self._on_acknack(src_prefix, f)
             elif sub.id == r.SubmessageId.GAP:
                 state = self._remote_writers.get((src_prefix + f["writer_id"], f["reader_id"]))
-                if state is not None:
+                if state is not None and 0 < f["list_base"] < MAX_SN:
                     state.skip_to(f["list_base"])
 
     def _on_data(self, src_prefix: bytes, f: dict[str, Any], src: Address, ts: float | None, flags: int) -> None:
@@ -450,7 +527,13 @@ class RtpsParticipant:
         if writer_id == r.SPDP_WRITER:
             self._on_spdp(src_prefix, f, src)
             return
+        if not 0 < f["sn"] < MAX_SN:
+            self.counters["malformed"] += 1
+            return
         if writer_id in (r.SEDP_PUB_WRITER, r.SEDP_SUB_WRITER):
+            if src_prefix not in self.remotes:
+                self.counters["unknown_participant"] += 1  # (it announces itself first; SEDP is resent)
+                return
             key = (src_prefix + writer_id, _sedp_reader(writer_id))
             state = self._remote_writers.setdefault(key, _WriterState())
             state.add(f["sn"])
@@ -487,21 +570,34 @@ class RtpsParticipant:
         if "domain_id" in p and p["domain_id"] != self.domain_id:
             return
         self.counters["spdp_received"] += 1
-
-        def locs(key: str) -> list[Address]:
-            return [(a, port) for kind, a, port in p.get(key, []) if kind == r.LOCATOR_KIND_UDPV4]
-
-        meta = locs("metatraffic_unicast_locator") or [src]
-        user = locs("default_unicast_locator") or meta
+        if p.get("locator_problems"):
+            self.counters["invalid_locators"] += 1  # the whole announcement is invalid (Cyclone DDS)
+            return
+        announced = p.get("metatraffic_unicast_locator")
+        # Without a metatraffic locator, answers go where it spoke from (the same rules apply).
+        meta = self._usable(announced if announced else [(r.LOCATOR_KIND_UDPV4, src[0], src[1])])
+        user = self._usable(p.get("default_unicast_locator", [])) or meta
+        if not meta:
+            self.counters["unreachable"] += 1
+            return
+        now = time.monotonic()
         remote = self.remotes.get(prefix)
         new = remote is None
         if new:
+            if len(self.remotes) >= self.max_remotes:
+                self._expire(now)
+            if len(self.remotes) >= self.max_remotes:
+                self.counters["participants_refused"] += 1
+                return
             remote = self.remotes[prefix] = Remote(prefix, meta, user)
+            self.counters["participants_discovered"] += 1
         remote.meta, remote.user = meta, user
-        remote.lease_s = p.get("lease_s", remote.lease_s) or remote.lease_s
+        lease = p.get("lease_s")
+        remote.lease_s = min(lease, MAX_LEASE_S) if lease is not None and lease > 0 else DEFAULT_LEASE_S
         remote.vendor_id = self._vendor  # the header's (FreeRTPS's PL vendor id differs, §2.3)
-        remote.name = p.get("name")
-        remote.last_spdp = time.monotonic()
+        name = p.get("name")
+        remote.name = name[:MAX_NAME] if name else None
+        remote.last_spdp = remote.last_seen = now
         remote.spdp_count += 1
         if new:
             # Answer a newcomer at once, then tell it our endpoints (FreeRTPS's unicast catch-up).
@@ -517,26 +613,46 @@ class RtpsParticipant:
         if p is None:
             # A key-only DATA (dispose/unregister): the endpoint is gone.
             kh = (f.get("inline_qos") or {}).get("key_hash")
-            if kh is not None and kh in self.remote_endpoints:
+            if kh is not None and kh[:12] == prefix and kh in self.remote_endpoints:
                 self._unmatch(kh)
                 del self.remote_endpoints[kh]
+                if (remote := self.remotes.get(prefix)) is not None:
+                    remote.endpoints.discard(kh)
             return
         guid = p.get("endpoint_guid") or (f.get("inline_qos") or {}).get("key_hash")
         if guid is None or "topic" not in p or "type" not in p:
             return
-        locs = [(a, port) for kind, a, port in p.get("unicast_locator", []) if kind == r.LOCATOR_KIND_UDPV4]
+        remote = self.remotes.get(guid[:12])
+        if remote is None:
+            self.counters["unknown_participant"] += 1  # an endpoint of a participant nobody announced
+            return
+        if p.get("locator_problems"):
+            self.counters["invalid_locators"] += 1
+            return
+        full = len(remote.endpoints) >= MAX_REMOTE_ENDPOINTS_EACH or len(self.remote_endpoints) >= MAX_REMOTE_ENDPOINTS
+        if (full and guid not in self.remote_endpoints) or max(len(p["topic"]), len(p["type"])) > MAX_NAME:
+            self.counters["endpoints_refused"] += 1
+            return
+        locs = self._usable(p.get("unicast_locator", []))  # none usable: the participant's own
         ep = RemoteEndpoint(guid, p["topic"], p["type"], bool(p.get("reliable", publication)), publication, locs)
         if not publication and "reliable" not in p:
             ep.reliable = False  # a reader's default reliability is best effort
         self.remote_endpoints[guid] = ep
+        remote.endpoints.add(guid)
         self._unmatch(guid)
         self._match(ep)
 
     def _on_heartbeat(self, src_prefix: bytes, f: dict[str, Any], src: Address) -> None:
         writer_id, reader_id = f["writer_id"], f["reader_id"]
+        if not (0 < f["first_sn"] < MAX_SN and f["first_sn"] - 1 <= f["last_sn"] < MAX_SN):
+            self.counters["malformed"] += 1  # (Cyclone DDS's validity rules for a HEARTBEAT)
+            return
         wguid = src_prefix + writer_id
         targets: list[bytes] = []
         if writer_id in (r.SEDP_PUB_WRITER, r.SEDP_SUB_WRITER):
+            if src_prefix not in self.remotes:
+                self.counters["unknown_participant"] += 1
+                return
             targets = [_sedp_reader(writer_id)]
         else:
             targets = [rd.entity_id for rd in self.readers.values() if wguid in rd.matched and
@@ -550,8 +666,9 @@ class RtpsParticipant:
                        if sn not in state.seen]
             state.count += 1
             remote = self.remotes.get(src_prefix)
-            dsts = (remote.meta if writer_id in (r.SEDP_PUB_WRITER, r.SEDP_SUB_WRITER) else remote.user) \
-                if remote is not None else [src]
+            if remote is None:
+                continue  # (a matched writer's participant expired meanwhile)
+            dsts = remote.meta if writer_id in (r.SEDP_PUB_WRITER, r.SEDP_SUB_WRITER) else remote.user
             sock = self.meta_sock if writer_id in (r.SEDP_PUB_WRITER, r.SEDP_SUB_WRITER) else self.user_sock
             for dst in dsts[:1]:
                 self._send(sock, dst, r.info_dst(src_prefix),
@@ -560,18 +677,24 @@ class RtpsParticipant:
 
     def _on_acknack(self, src_prefix: bytes, f: dict[str, Any]) -> None:
         writer_id = f["writer_id"]
-        rguid = src_prefix + f["reader_id"]
         w = self.sedp.get(writer_id) or self.writers.get(writer_id)
-        if w is None:
+        remote = self.remotes.get(src_prefix)
+        if w is None or remote is None:
+            if w is not None:
+                self.counters["unknown_participant"] += 1
+            return
+        if not 0 < f["base"] < MAX_SN:
+            self.counters["malformed"] += 1
+            return
+        sedp = writer_id in self.sedp
+        # A SEDP writer keeps one state per participant; a user writer only for readers it matched.
+        rguid = src_prefix + (_sedp_reader(writer_id) if sedp else f["reader_id"])
+        if not sedp and rguid not in w.matched:
             return
         w.matched[rguid] = max(w.matched.get(rguid, 0), f["base"] - 1)
         if not f["missing"]:
             return
         have = dict(w.history)
-        remote = self.remotes.get(src_prefix)
-        if remote is None:
-            return
-        sedp = writer_id in self.sedp
         dsts = remote.meta if sedp else self._locators(self.remote_endpoints.get(rguid) or
                                                        RemoteEndpoint(rguid, "", "", False, False))
         sock = self.meta_sock if sedp else self.user_sock
@@ -592,11 +715,21 @@ class RtpsParticipant:
         return {"guid_prefix": self.prefix.hex(), "domain_id": self.domain_id, "participant_index": self.index,
                 "ports": {"metatraffic_unicast": self.ports["metatraffic_unicast"],
                           "user_unicast": self.ports["user_unicast"]},
-                "peers": [r.guid_text(p) for p in self.remotes]}
+                "peers": [r.guid_text(p) for p in list(self.remotes)],
+                "remote_endpoints": len(self.remote_endpoints), "limits": limits(self.max_remotes)}
+
+
+def limits(max_remotes: int = MAX_REMOTES) -> dict[str, Any]:
+    """A participant's bounds, as the manifest and ``status`` show them."""
+    return {"participants": max_remotes, "endpoints": MAX_REMOTE_ENDPOINTS,
+            "endpoints_per_participant": MAX_REMOTE_ENDPOINTS_EACH, "locators_per_participant": MAX_LOCATORS,
+            "locator_ports": list(LOCATOR_PORTS), "default_lease_s": DEFAULT_LEASE_S, "max_lease_s": MAX_LEASE_S}
 
 
 def _sedp_reader(writer_id: bytes) -> bytes:
     return writer_id[:3] + b"\xc7"
 
 
-__all__ = ["LocalReader", "LocalWriter", "Remote", "RemoteEndpoint", "RtpsParticipant", "loopback"]
+__all__ = ["DEFAULT_LEASE_S", "LOCATOR_PORTS", "MAX_LEASE_S", "MAX_LOCATORS", "MAX_REMOTES", "MAX_REMOTE_ENDPOINTS",
+           "MAX_REMOTE_ENDPOINTS_EACH", "LocalReader", "LocalWriter", "Remote", "RemoteEndpoint", "RtpsParticipant",
+           "limits", "loopback"]

@@ -55,7 +55,15 @@ from hilbench.fakes.stm32_board.presets import (
     Timing,
 )
 from hilbench.fakes.stm32_board.robot import Robot
-from hilbench.fakes.stm32_board.sink import BinaryWriter, OutputFaults, RecordBuffer, Ring, Truth, Wire
+from hilbench.fakes.stm32_board.sink import (
+    RING_SIZE,
+    BinaryWriter,
+    OutputFaults,
+    RecordBuffer,
+    Ring,
+    Truth,
+    Wire,
+)
 from hilbench.protocols import tracestamp as ts
 from hilbench.protocols import tracestamp_binary as tb
 from hilbench.protocols import vel2d
@@ -66,6 +74,14 @@ RECORD_RING = 512
 BINARY_MIN_CHUNK = 256
 RECORD_ARRAY = 32_768
 LOG_HISTORY = 200
+#: The receive FIFO of the board's UDP door: host bytes not yet on the UART that it holds (the size of the
+#: firmware's ring buffer, spec §3.4: 73 frames, 17.8 ms at 1,152,000 baud). A datagram that does not fit
+#: is dropped whole and counted, as a UART drops what its FIFO cannot hold and the board counts it.
+RX_FIFO = RING_SIZE
+#: Received frames waiting for recv_vel. The firmware has one DMA buffer that the next frame overwrites
+#: (spec §1.4, a race not emulated): every frame is kept, up to this many while recv_vel is busy (writing
+#: its log line into a full ring, under a flood); a frame beyond is lost and counted (``frames_lost``).
+RX_PENDING = 64
 CYCLES_PER_US = SYSTEM_CLOCK_HZ / 1_000_000
 
 
@@ -418,6 +434,14 @@ class Firmware:
             self.truth.rx_bytes_ignored += len(data)
             return
         t_us = max(t_us, self.kernel.now)
+        fifo = self.cfg.rx_fifo
+        if fifo is not None:
+            # Bytes still waiting for the wire when these arrive (they go out back to back, 10 bits each).
+            waiting = (self.framer.line_free_at - t_us / 1e6) * self.cfg.baud / 10
+            if waiting + len(data) > fifo:
+                self.truth.rx_overruns += 1
+                self.truth.rx_overrun_bytes += len(data)
+                return
         for raw, t_end in self.framer.feed(data, t_us / 1e6):
             self.kernel.at(t_end * 1e6, lambda k, raw=raw: self._rx_event(k, raw))
         deadline = self.framer.idle_deadline()
@@ -429,6 +453,9 @@ class Firmware:
             self._rx_event(k, raw)
 
     def _rx_event(self, k: Kernel, raw: bytes) -> None:
+        if len(self.rx_pending) >= RX_PENDING:
+            self.truth.frames_lost += 1
+            return
         self.rx_pending.append((raw, k.now))
         k.notify_from_isr(self.tasks["recv_vel"])
 

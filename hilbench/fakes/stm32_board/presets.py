@@ -268,6 +268,9 @@ class BoardConfig:
     seed: int = 0
     boot_banner: bool = True
     faults: dict[str, float] = field(default_factory=dict)
+    #: Bytes a door without flow control (UDP) holds for the UART: beyond, a write is dropped and counted
+    #: (``Truth.rx_overruns``). None: unbounded (a pty door: over the real USB link the writer would wait).
+    rx_fifo: int | None = None
 
     @property
     def edge_dialect(self) -> str:

@@ -43,7 +43,10 @@ class Truth:
     frames_crc_error: int = 0
     frames_length_error: int = 0
     setpoints_dropped: int = 0  # vel_sp_queue full
+    frames_lost: int = 0  # received while recv_vel had RX_PENDING frames still to take
     rx_bytes_ignored: int = 0  # host bytes on a board without a UART receiver (micro-ROS build)
+    rx_overruns: int = 0  # host writes (datagrams) that found the receive FIFO full, dropped
+    rx_overrun_bytes: int = 0
 
 
 @dataclass

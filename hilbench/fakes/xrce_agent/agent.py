@@ -22,6 +22,26 @@ of a live session (Xu's zeroed datagram) deletes that session first. The
 ``zeroed`` setting ``"keep"`` keeps the session when that CREATE_CLIENT is
 invalid anyway (key 0, bad cookie or version). Everything is counted
 (:attr:`XrceAgent.counters`) and logged the way the agent logs it.
+
+What a client may hold is bounded (the real agent's limits, and where it has
+none, hilbench's; :func:`limits`): at most ``max_sessions`` sessions
+(:data:`MAX_SESSIONS`; a CREATE_CLIENT beyond takes the place of the session
+idle longest if that one has been silent for :data:`CLIENT_DEAD_S`, the real
+agent's CLIENT_DEAD_TIME, and is otherwise answered STATUS_AGENT
+ERR_RESOURCES); a session silent for ``session_timeout`` seconds
+(:data:`SESSION_TIMEOUT_S`; 0: never) is deleted, and one silent for
+:data:`CLIENT_DEAD_S` gets no HEARTBEATs, as the real agent's dead clients;
+a client that comes back creates its session again (micro-ROS's
+``rmw_uros_ping_agent`` and CREATE_CLIENT). Per session: :data:`MAX_ENTITIES`
+objects (:data:`MAX_ENTITIES_TOTAL` in all) with representations of at most
+:data:`MAX_REPRESENTATION` bytes (a CREATE beyond either: STATUS ERR_RESOURCES),
+:data:`SESSION_INPUT_BYTES` of reliable input waiting behind a gap or being
+reassembled, :data:`SESSION_OUTPUT_BYTES` of reliable output unacknowledged
+or waiting, :data:`SESSION_QUEUE_BYTES` of samples waiting for a READ_DATA;
+beyond, messages and samples are dropped and counted. A FRAGMENT inside a
+reassembled message (the real agent recurses into it) is followed
+:data:`MAX_FRAGMENT_DEPTH` levels deep; a deeper one is dropped
+(``fragment_nesting``): FRAGMENT has no request to answer with a STATUS.
 """
 
 from __future__ import annotations
@@ -46,6 +66,24 @@ HEARTBEAT_PERIOD = 0.2
 MAX_QUEUED = 64
 #: Requests whose reply is still awaited (their sample identity -> requester): oldest forgotten first.
 MAX_PENDING_REQUESTS = 1024
+#: Sessions at once (the real agent has no limit over UDP; each one costs memory).
+MAX_SESSIONS = 64
+#: A client silent this long is dead: no HEARTBEATs, and its place may go to a new client when all are taken
+#: (the real agent's UAGENT_CONFIG_CLIENT_DEAD_TIME, 30 000 ms).
+CLIENT_DEAD_S = 30.0
+#: A session silent this long is deleted (0: never).
+SESSION_TIMEOUT_S = 300.0
+#: Objects per session and in all, and the longest representation a CREATE may carry (bytes).
+MAX_ENTITIES = 256
+MAX_ENTITIES_TOTAL = 2048
+MAX_REPRESENTATION = 4096
+#: Bytes a session may hold: reliable input behind a gap or in reassembly, reliable output unacknowledged
+#: or waiting for room, samples waiting for a READ_DATA.
+SESSION_INPUT_BYTES = 256 * 1024
+SESSION_OUTPUT_BYTES = 1024 * 1024
+SESSION_QUEUE_BYTES = 256 * 1024
+#: Levels of FRAGMENTs inside reassembled messages followed.
+MAX_FRAGMENT_DEPTH = 4
 
 
 @dataclass
@@ -72,6 +110,7 @@ class Session:
     rel_out: dict[int, ReliableOutput] = field(default_factory=dict)
     reads: dict[bytes, Read] = field(default_factory=dict)
     queued: dict[bytes, deque[bytes]] = field(default_factory=dict)
+    queued_bytes: int = 0
     created: float = 0.0
     last_seen: float = 0.0
     samples_in: int = 0
@@ -80,6 +119,12 @@ class Session:
 
     def header(self, stream_id: int, seq: int = 0) -> bytes:
         return x.build_header(self.session_id, stream_id, seq, self.key if self.session_id < 0x80 else None)
+
+    def input_bytes(self) -> int:
+        return sum(r.bytes for r in self.rel_in.values())
+
+    def output_bytes(self) -> int:
+        return sum(o.bytes for o in self.rel_out.values())
 
     def reset_streams(self) -> None:
         self.be_in.clear()
@@ -95,22 +140,29 @@ class Session:
                 return topic.topic, topic.type_name
         return ent.topic, ent.type_name
 
-    def describe(self) -> dict[str, Any]:
-        return {"client_key": self.key.hex().upper(), "session_id": self.session_id,
-                "address": f"{self.address[0]}:{self.address[1]}", "mtu": self.mtu,
-                "entities": [e.describe() for e in self.entities.values()],
-                "reading": [oid.hex().upper() for oid in self.reads], "samples_in": self.samples_in,
-                "samples_out": self.samples_out}
+    def describe(self, now: float | None = None) -> dict[str, Any]:
+        out = {"client_key": self.key.hex().upper(), "session_id": self.session_id,
+               "address": f"{self.address[0]}:{self.address[1]}", "mtu": self.mtu,
+               "entities": [e.describe() for e in list(self.entities.values())],
+               "reading": [oid.hex().upper() for oid in list(self.reads)], "samples_in": self.samples_in,
+               "samples_out": self.samples_out,
+               "buffered": {"input": self.input_bytes(), "output": self.output_bytes(), "queued": self.queued_bytes}}
+        if now is not None:
+            out["idle_s"] = round(max(0.0, now - self.last_seen), 3)
+        return out
 
 
 class XrceAgent:
     """The agent as a device on a :class:`~hilbench.transports.datagram_medium.DatagramMedium`."""
 
     def __init__(self, name: str = "agent", *, zeroed: str = "teardown", refs: dict[str, dict[str, Any]] | None = None,
-                 heartbeat_s: float = HEARTBEAT_PERIOD, log_size: int = 500) -> None:
+                 heartbeat_s: float = HEARTBEAT_PERIOD, log_size: int = 500, max_sessions: int = MAX_SESSIONS,
+                 session_timeout: float = SESSION_TIMEOUT_S) -> None:
         if zeroed not in ("teardown", "keep"):
             raise ValueError(f"zeroed must be teardown or keep, got {zeroed!r}")
         self.name = name
+        self.max_sessions = max_sessions
+        self.session_timeout = session_timeout
         self.zeroed = zeroed
         self.refs = dict(refs or {})
         self.heartbeat_s = heartbeat_s
@@ -123,7 +175,8 @@ class XrceAgent:
             "datagrams", "replies", "malformed", "zero_fill", "zero_fill_foreign", "orphan", "takeovers",
             "sessions_created", "sessions_deleted", "invalid_create_client", "samples_routed", "samples_bridged",
             "retransmissions", "fragments_in", "fragments_out", "dropped_out", "too_big", "requests", "replies_routed",
-            "replies_unmatched"), 0)
+            "replies_unmatched", "sessions_refused", "sessions_evicted", "sessions_expired", "fragment_nesting",
+            "fragments_dropped", "input_dropped", "output_dropped", "samples_dropped", "entities_refused"), 0)
         self.faults = {"drop_next": 0, "corrupt_status_agent": 0}
         # sample identity of a request -> (requester's client key, requester object id, WRITE_DATA request id)
         self._pending: OrderedDict[bytes, tuple[bytes, bytes, bytes]] = OrderedDict()
@@ -177,8 +230,11 @@ class XrceAgent:
             self._send(s.header(stream_id, seq) + x.build_submessage(sub_id, payload), s.address)
             return True
         out = s.rel_out.setdefault(stream_id, ReliableOutput())
-        if not out.room() or out.backlog:
-            out.queue((sub_id, payload))
+        fits = s.output_bytes() + len(payload) <= SESSION_OUTPUT_BYTES
+        if not out.room() or out.backlog or not fits:
+            if not out.queue((sub_id, payload), room=fits):
+                self.counters["output_dropped"] += 1
+                return False
             return True
         self._send_reliable(s, stream_id, out, sub_id, payload)
         return True
@@ -207,18 +263,33 @@ class XrceAgent:
     def _flush_backlog(self, s: Session, stream_id: int) -> None:
         out = s.rel_out.get(stream_id)
         while out is not None and out.backlog and out.room():
-            sub_id, payload = out.backlog.popleft()
+            sub_id, payload = out.unqueue()
             self._send_reliable(s, stream_id, out, sub_id, payload)
 
     def _heartbeats(self) -> None:
         if not self._running:
             return
+        now = time.monotonic()
+        self.port.call_at(now + self.heartbeat_s, self._heartbeats)  # first: nothing below can stop the timer
+        self.expire(now)
         for s in list(self.by_key.values()):
+            if now - s.last_seen >= CLIENT_DEAD_S:
+                continue  # a dead client (the real agent sends it no HEARTBEATs)
             for stream_id, out in s.rel_out.items():
                 hb = out.heartbeat()
                 if hb is not None:
                     self._send_none(s, S.HEARTBEAT, x.heartbeat(hb[0], hb[1], stream_id))
-        self.port.call_at(time.monotonic() + self.heartbeat_s, self._heartbeats)
+
+    def expire(self, now: float) -> int:
+        """Delete the sessions silent for ``session_timeout`` seconds; returns how many (the net's thread)."""
+        if not self.session_timeout:
+            return 0
+        gone = [s for s in self.by_key.values() if now - s.last_seen > self.session_timeout]
+        for s in gone:
+            self.counters["sessions_expired"] += 1
+            self._drop_session(s)
+            self._log(f"destroy_session | client_key: 0x{s.key.hex().upper()}, idle {now - s.last_seen:.0f} s")
+        return len(gone)
 
     # ------------------------------------------------------------------ input
 
@@ -265,7 +336,12 @@ class XrceAgent:
                 self._process(s, data, hs, t)
         else:
             rel = s.rel_in.setdefault(stream, ReliableInput())
-            rel.push(seq, data)
+            # A message ahead of a gap waits in the stream, within the session's budget (the next one in
+            # order is handled at once and always taken, so a full budget never blocks the stream).
+            if rel.next_in_order(seq) or s.input_bytes() + len(data) <= SESSION_INPUT_BYTES:
+                rel.push(seq, data)
+            else:
+                self.counters["input_dropped"] += 1  # NACKed below: the client sends it again
             while (msg := rel.pop()) is not None:
                 self._process(s, msg, hs, t)
             first, bitmap = rel.acknack()
@@ -282,8 +358,9 @@ class XrceAgent:
         else:
             self.counters["orphan"] += 1
 
-    def _process(self, s: Session, msg: bytes, hs: int, t: float) -> None:
-        """Every submessage of one message in order; stops at the first the agent cannot process."""
+    def _process(self, s: Session, msg: bytes, hs: int, t: float, depth: int = 0) -> None:
+        """Every submessage of one message in order; stops at the first the agent cannot process. ``depth``:
+        how many reassemblies or HEARTBEAT deliveries led here (bounded, see :data:`MAX_FRAGMENT_DEPTH`)."""
         _, stream, _, subs, _ = x.scan(msg)
         for sub_id, flags, off, length in subs:
             if off + length > len(msg):
@@ -292,21 +369,28 @@ class XrceAgent:
             payload = msg[off:off + length]
             if s.little_endian is None:
                 s.little_endian = bool(flags & x.FLAG_E)
-            if not self._submessage(s, stream, sub_id, flags, payload, msg, off, t):
+            if not self._submessage(s, stream, sub_id, flags, payload, msg, off, t, depth):
                 return
 
     def _submessage(self, s: Session, stream: int, sub_id: int, flags: int, payload: bytes, msg: bytes, off: int,
-                    t: float) -> bool:
+                    t: float, depth: int = 0) -> bool:
         if sub_id == S.WRITE_DATA:
             return self._write_data(s, flags, payload)
         if sub_id == S.FRAGMENT:
             rel = s.rel_in.get(stream)
             if rel is None:
                 return False
+            if depth >= MAX_FRAGMENT_DEPTH:
+                self.counters["fragment_nesting"] += 1
+                return False  # no request to answer: dropped with the rest of its message
             self.counters["fragments_in"] += 1
-            whole = rel.fragment(msg[:x.header_size(msg[0])], payload, bool(flags & x.FLAG_LAST_FRAGMENT))
+            limit = rel.bytes + SESSION_INPUT_BYTES - s.input_bytes()  # what this stream may still grow to
+            dropped = rel.fragments_dropped
+            whole = rel.fragment(msg[:x.header_size(msg[0])], payload, bool(flags & x.FLAG_LAST_FRAGMENT), limit)
+            if rel.fragments_dropped != dropped:
+                self.counters["fragments_dropped"] += 1
             if whole is not None:
-                self._process(s, whole, x.header_size(whole[0]), t)
+                self._process(s, whole, x.header_size(whole[0]), t, depth + 1)
             return True
         if sub_id == S.RESET:
             s.reset_streams()
@@ -318,7 +402,7 @@ class XrceAgent:
             self.counters["malformed"] += 1
             return False
         if sub_id == S.CREATE:
-            self._create(s, stream, flags, fields)
+            self._create(s, stream, flags, fields, len(payload))
         elif sub_id == S.DELETE:
             self._delete(s, stream, fields)
         elif sub_id == S.READ_DATA:
@@ -333,10 +417,12 @@ class XrceAgent:
                 out.acknowledge(fields.first_unacked)
                 self._flush_backlog(s, fields.stream_id)
         elif sub_id == S.HEARTBEAT:
+            if fields.stream_id < 0x80:
+                return True  # only reliable streams have HEARTBEATs (the agent ignores the rest)
             rel = s.rel_in.setdefault(fields.stream_id, ReliableInput())
             rel.heartbeat(fields.first_unacked, fields.last_unacked)
-            while (m := rel.pop()) is not None:
-                self._process(s, m, x.header_size(m[0]), t)
+            while depth < MAX_FRAGMENT_DEPTH and (m := rel.pop()) is not None:
+                self._process(s, m, x.header_size(m[0]), t, depth + 1)
             first, bitmap = rel.acknack()
             self._send_none(s, S.ACKNACK, x.acknack(first, bitmap, fields.stream_id))
         elif sub_id == S.TIMESTAMP:
@@ -397,8 +483,13 @@ class XrceAgent:
                 if self.sessions.get(existing.address) is existing:
                     del self.sessions[existing.address]  # the client moved (a new socket after a restart)
                 existing.address = src
-                existing.mtu = fields.mtu
+                existing.mtu = max(64, fields.mtu)
+                existing.last_seen = t
                 self.sessions[src] = existing
+            elif existing is None and len(self.by_key) >= self.max_sessions and not self._evict(t):
+                result = x.Status.ERR_RESOURCES
+                self.counters["sessions_refused"] += 1
+                self._log(f"create_client | too many clients ({self.max_sessions}) 0x{key.hex().upper()}")
             else:
                 if existing is not None:
                     self._drop_session(existing)
@@ -416,6 +507,16 @@ class XrceAgent:
         header = x.build_header(session_id, 0, 0, key if session_id < 0x80 else None)
         self._send(header + x.build_submessage(S.STATUS_AGENT, x.status_agent(result)), src)
 
+    def _evict(self, now: float) -> bool:
+        """Make room for a new client: delete the session silent longest if it is dead (:data:`CLIENT_DEAD_S`)."""
+        oldest = min(self.by_key.values(), key=lambda s: s.last_seen, default=None)
+        if oldest is None or now - oldest.last_seen < CLIENT_DEAD_S:
+            return False
+        self.counters["sessions_evicted"] += 1
+        self._drop_session(oldest)
+        self._log(f"destroy_session | client_key: 0x{oldest.key.hex().upper()}, dead, its place taken")
+        return True
+
     def _drop_session(self, s: Session) -> None:
         if self.sessions.get(s.address) is s:
             del self.sessions[s.address]
@@ -425,15 +526,28 @@ class XrceAgent:
             self._bridge_entity(s, ent, removed=True)
         s.entities.clear()
         s.reads.clear()
+        s.queued.clear()
+        s.queued_bytes = 0
+        s.reset_streams()
+        for k in [k for k in self._request_seq if k[0] == s.key]:
+            del self._request_seq[k]
         self.counters["sessions_deleted"] += 1
 
     # ------------------------------------------------------------------ entities
 
-    def _create(self, s: Session, stream: int, flags: int, fields: Any) -> None:
+    def _create(self, s: Session, stream: int, flags: int, fields: Any, size: int = 0) -> None:
         rep = fields.object_representation
         oid = bytes((fields.object_id[0], (fields.object_id[1] & 0xF0) | (rep.kind & 0x0F)))
         reply_stream = x.STREAM_RELIABLE if stream >= 0x80 else x.STREAM_BEST_EFFORT
         status = x.Status.OK
+        crowded = oid not in s.entities and (len(s.entities) >= MAX_ENTITIES or sum(
+            len(o.entities) for o in self.by_key.values()) >= MAX_ENTITIES_TOTAL)
+        if crowded or size > MAX_REPRESENTATION:
+            self.counters["entities_refused"] += 1
+            self._log(f"create_object | no resources for object_id: 0x{oid.hex().upper()}")
+            self._send_stream(s, reply_stream, S.STATUS, x.status(bytes(fields.request_id), oid,
+                                                                   x.Status.ERR_RESOURCES))
+            return
         try:
             ent = entity_from_create(oid, rep, bool(flags & x.FLAG_E), self.refs)
             status = self._check_parent(s, ent)
@@ -490,7 +604,8 @@ class XrceAgent:
                 self._remove_entity(s, child)
         ent = s.entities.pop(oid, None)
         s.reads.pop(oid, None)
-        s.queued.pop(oid, None)
+        s.queued_bytes -= sum(len(c) for c in s.queued.pop(oid, ()))
+        self._request_seq.pop((s.key, oid), None)
         if ent is not None:
             self._bridge_entity(s, ent, removed=True)
 
@@ -601,8 +716,15 @@ class XrceAgent:
     def _deliver(self, s: Session, reader: Entity, cdr: bytes) -> None:
         read = s.reads.get(reader.object_id)
         if read is None:
+            # Kept for its next READ_DATA: its history depth (KEEP_LAST drops the oldest), within the session's
+            # budget (beyond it, the new sample is dropped).
             q = s.queued.setdefault(reader.object_id, deque(maxlen=min(MAX_QUEUED, max(1, reader.depth))))
+            out = len(q[0]) if len(q) == q.maxlen else 0
+            if s.queued_bytes - out + len(cdr) > SESSION_QUEUE_BYTES:
+                self.counters["samples_dropped"] += 1
+                return
             q.append(cdr)
+            s.queued_bytes += len(cdr) - out
             return
         if self._send_stream(s, read.stream_id, S.DATA, x.data(read.request_id, reader.object_id, cdr)):
             s.samples_out += 1
@@ -627,7 +749,9 @@ class XrceAgent:
         if remaining == 0:
             return
         s.reads[oid] = Read(bytes(fields.request_id), fields.preferred_stream_id, remaining)
-        for cdr in list(s.queued.pop(oid, ())):
+        waiting = list(s.queued.pop(oid, ()))
+        s.queued_bytes -= sum(len(c) for c in waiting)
+        for cdr in waiting:
             if oid in s.reads:
                 self._deliver(s, ent, cdr)
 
@@ -649,10 +773,21 @@ class XrceAgent:
             self.faults[key] = int(value)
         return dict(self.faults)
 
+    def limits(self) -> dict[str, Any]:
+        """The agent's bounds (see the module docstring), as the manifest and ``status`` show them."""
+        return {"sessions": self.max_sessions, "session_timeout_s": self.session_timeout,
+                "client_dead_s": CLIENT_DEAD_S, "entities_per_session": MAX_ENTITIES, "entities": MAX_ENTITIES_TOTAL,
+                "representation_bytes": MAX_REPRESENTATION, "session_input_bytes": SESSION_INPUT_BYTES,
+                "session_output_bytes": SESSION_OUTPUT_BYTES, "session_queue_bytes": SESSION_QUEUE_BYTES,
+                "fragment_depth": MAX_FRAGMENT_DEPTH}
+
     def status(self) -> dict[str, Any]:
+        now = time.monotonic()
         return {"name": self.name, "zeroed": self.zeroed, "counters": dict(self.counters),
-                "sessions": [s.describe() for s in self.sessions.values()], "faults": dict(self.faults),
-                "log": list(self.log)[-30:]}
+                "sessions": [s.describe(now) for s in list(self.sessions.values())], "faults": dict(self.faults),
+                "limits": self.limits(), "log": list(self.log)[-30:]}
 
 
-__all__ = ["HEARTBEAT_PERIOD", "Read", "Session", "XrceAgent"]
+__all__ = ["CLIENT_DEAD_S", "HEARTBEAT_PERIOD", "MAX_ENTITIES", "MAX_ENTITIES_TOTAL", "MAX_FRAGMENT_DEPTH",
+           "MAX_REPRESENTATION", "MAX_SESSIONS", "SESSION_INPUT_BYTES", "SESSION_OUTPUT_BYTES", "SESSION_QUEUE_BYTES",
+           "SESSION_TIMEOUT_S", "Read", "Session", "XrceAgent"]

@@ -141,6 +141,8 @@ class PushSource(Source):
         self._q: collections.deque[Chunk] = collections.deque()
         self._bytes = 0
         self._lost: dict[str, int] = {}
+        #: Bytes dropped beyond ``max_bytes`` so far (reported in the stream as loss chunks too).
+        self.lost_bytes = 0
         self._cond = threading.Condition()
         self._closed = False
 
@@ -152,6 +154,7 @@ class PushSource(Source):
                 return
             if self._bytes + len(data) > self.max_bytes:
                 self._lost[source] = self._lost.get(source, 0) + len(data)
+                self.lost_bytes += len(data)
                 return
             if self._lost:
                 for src, n in self._lost.items():

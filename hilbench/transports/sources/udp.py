@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import contextlib
-import select
+import selectors
 import socket
 import threading
 import time
@@ -11,6 +11,7 @@ from collections.abc import Iterator
 from urllib.parse import parse_qs, urlparse
 
 from hilbench.transports.capture_file import Chunk
+from hilbench.transports.medium_loop import WakePipe
 from hilbench.transports.sources.base import Source, SourceError, SourceOpener, SourceUnavailable
 
 
@@ -36,6 +37,12 @@ class UdpSource(Source):
             self._sock.close()
             raise SourceUnavailable(f"cannot bind udp://{host}:{port}: {exc.strerror or exc}") from None
         self._sock.setblocking(False)
+        self._sel = selectors.DefaultSelector()  # (epoll: any descriptor number, unlike select())
+        self._sel.register(self._sock, selectors.EVENT_READ)
+        self._waker = WakePipe()  # close() ends a wait at once
+        self._sel.register(self._waker.fd, selectors.EVENT_READ)
+        self._iterating = False
+        self._released = threading.Lock()  # held once the selector and wake-up pipe are closed
         self.address: tuple[str, int] = self._sock.getsockname()[:2]
         self.name = f"udp://{self.address[0]}:{self.address[1]}"
         self.peer = peer
@@ -79,25 +86,43 @@ class UdpSource(Source):
         return out
 
     def chunks(self, idle: float | None = None) -> Iterator[Chunk | None]:
-        sock = self._sock
+        sel = self._sel
+        self._iterating = True
+        try:
+            yield from self._chunks(sel, idle)
+        finally:
+            self._iterating = False
+            self._release()
+
+    def _chunks(self, sel: selectors.BaseSelector, idle: float | None) -> Iterator[Chunk | None]:
         while not self._stop.is_set():
             self._announce()
             try:
-                ready = select.select([sock], [], [], min(idle if idle is not None else 0.5, self.announce_s))[0]
-            except (OSError, ValueError):
+                ready = sel.select(min(idle if idle is not None else 0.5, self.announce_s))
+            except (OSError, ValueError, KeyError):  # (closed under us)
                 if self._stop.is_set():
                     return
                 raise
+            if self._stop.is_set():
+                break
             if not ready:
                 if idle is not None:
                     yield None
                 continue
             yield from self._drain()
 
+    def _release(self) -> None:
+        if self._stop.is_set() and self._released.acquire(blocking=False):
+            self._sel.close()
+            self._waker.close()
+
     def close(self) -> None:
         self._stop.set()
+        self._waker.wake()
         with contextlib.suppress(OSError):
             self._sock.close()
+        if not self._iterating:
+            self._release()  # (else the iteration does, once its wait has ended)
 
 
 def _host_port(text: str, what: str) -> tuple[str, int]:
