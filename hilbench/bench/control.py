@@ -110,7 +110,36 @@ class ClientGone(ControlError):
     """The client of a running command closed its connection: the command stops (nobody reads its reply)."""
 
 
+class RequestTooLong(ControlError):
+    """:data:`MAX_LINE` bytes arrived without a newline."""
+
+
 _request = threading.local()  # .gone: the threading.Event of the connection whose command this thread runs
+
+
+@contextlib.contextmanager
+def serving(gone: threading.Event):
+    """Run commands (:meth:`ControlServer.handle`) in this thread for a connection whose client is gone once
+    ``gone`` is set: :func:`client_waits` then stops waiting."""
+    _request.gone = gone
+    try:
+        yield
+    finally:
+        _request.gone = None
+
+
+def next_request(buf: bytearray) -> bytes | None:
+    """Take the next request line (up to and with its newline) from a connection's input ``buf``; None while
+    it is still arriving. :class:`RequestTooLong` (and ``buf`` emptied) when :data:`MAX_LINE` bytes hold none."""
+    end = buf.find(b"\n", 0, MAX_LINE)
+    if end < 0:
+        if len(buf) >= MAX_LINE:
+            buf.clear()
+            raise RequestTooLong(f"request too long (at most {MAX_LINE} bytes)")
+        return None
+    line = bytes(buf[:end + 1])
+    del buf[:end + 1]
+    return line
 
 
 def client_waits(done: Callable[[], bool], timeout: float, poll: float = 0.01) -> bool:
@@ -404,21 +433,19 @@ class ControlServer:
             if len(conn.inbuf) > MAX_LINE and conn.events & selectors.EVENT_READ:
                 self._want(conn, conn.events & ~selectors.EVENT_READ)
             return
-        end = conn.inbuf.find(b"\n", 0, MAX_LINE)
-        if end < 0:
-            if len(conn.inbuf) >= MAX_LINE:
-                self.stats["too_long"] += 1
-                conn.inbuf.clear()
-                conn.closing = True  # the rest of that line is not worth reading
-                self._reply(conn, _refusal(f"request too long (at most {MAX_LINE} bytes)"), now)
-                return
+        try:
+            line = next_request(conn.inbuf)
+        except RequestTooLong as exc:
+            self.stats["too_long"] += 1
+            conn.closing = True  # the rest of that line is not worth reading
+            self._reply(conn, _refusal(str(exc)), now)
+            return
+        if line is None:
             if not conn.inbuf:
                 conn.started = None
             if not conn.events & selectors.EVENT_READ and not conn.closing:
                 self._want(conn, selectors.EVENT_READ)
             return
-        line = bytes(conn.inbuf[:end + 1])
-        del conn.inbuf[:end + 1]
         conn.started = now if conn.inbuf else None
         self._start(conn, line, now)
 
@@ -434,17 +461,11 @@ class ControlServer:
 
     def _run(self, conn: _Conn, line: bytes) -> None:
         """One command, in a thread of its own; the reply goes back to the loop."""
-        _request.gone = conn.gone
         try:
-            answer = self.handle(line)
-            try:
-                reply = (json.dumps(answer, default=str) + "\n").encode()
-            except (ValueError, TypeError, RecursionError) as exc:
-                reply = _refusal(f"command failed: its reply is not JSON ({exc})")
-        except BaseException:  # noqa: BLE001 (handle() never raises; this keeps the connection's state sane)
+            with serving(conn.gone):
+                reply = self.reply(line)
+        except BaseException:  # noqa: BLE001 (reply() never raises; this keeps the connection's state sane)
             reply = _refusal("command failed")
-        finally:
-            _request.gone = None
         # (sent even to a client that closed its side: one that only half-closed still reads it)
         self._done.append((conn, reply))
         self._wake.wake()
@@ -525,6 +546,14 @@ class ControlServer:
             conn.sock.close()
 
     # ------------------------------------------------------------------ commands
+
+    def reply(self, raw: bytes) -> bytes:
+        """The reply line to one request line, as the channel sends it; never raises."""
+        answer = self.handle(raw)
+        try:
+            return (json.dumps(answer, default=str) + "\n").encode()
+        except (ValueError, TypeError, RecursionError) as exc:
+            return _refusal(f"command failed: its reply is not JSON ({exc})")
 
     def handle(self, raw: bytes) -> dict[str, Any]:
         """The reply to one request line; never raises (a malformed request gets an error reply)."""
@@ -704,4 +733,4 @@ class ControlClient:
 
 __all__ = ["BACKLOG", "BENCH_COMMANDS", "IDLE_TIMEOUT", "MAX_CLIENTS", "MAX_DEPTH", "MAX_LINE", "MAX_REPLY",
            "REQUEST_TIMEOUT", "ClientGone", "ControlClient", "ControlError", "ControlServer", "ControlUnreachable",
-           "client_waits"]
+           "RequestTooLong", "client_waits", "next_request", "serving"]
