@@ -641,8 +641,23 @@ def exhaust_count(bench: BenchProcess, scale: float) -> int:
 def exhaust(bench: BenchProcess, address: tuple[str, int], scale: float) -> Attack:
     """Idle connections up to the bench's descriptor limit plus a few hundred, held; the note says how many
     descriptors the bench itself took (a connection the client sees made may wait in the kernel's queue)."""
-    fds0 = bench.fds()
-    done = hold(address, exhaust_count(bench, scale))
+    fds0 = fds = bench.fds()
+    n, held, failed, accepting = exhaust_count(bench, scale), [], 0, True
+    t_end = time.monotonic() + 90
+    # In batches the size of a small listen() queue, each given the time the server takes to accept it: a
+    # connection the kernel completed for the client but the server's queue dropped is no descriptor of its.
+    while len(held) < n and time.monotonic() < t_end:
+        batch = hold(address, min(16, n - len(held)), stall_s=2.0)
+        held += batch.held
+        failed += batch.inputs - len(batch.held)
+        if not batch.held:
+            break
+        wait_end = time.monotonic() + (1.0 if accepting else 0.05)
+        while time.monotonic() < wait_end and bench.fds() < fds + len(batch.held):
+            time.sleep(0.005)
+        now = bench.fds()
+        accepting, fds = now > fds, now
+    done = Attack(n, "connections", held, note=f"{len(held)} held, {failed} refused or not taken")
     fds, deadline, still = bench.fds(), time.monotonic() + 30, 0
     while time.monotonic() < deadline and still < 4:  # the server takes the queued ones at its pace
         time.sleep(0.5)
