@@ -868,7 +868,7 @@ def settle(bench: BenchProcess, seconds: float) -> float:
 
 
 def run_server(name: str, server: Server, attacks: list[str] | None, scale: float, settle_s: float,
-               results: list[dict[str, Any]], nofile: int = BENCH_NOFILE) -> None:
+               results: list[dict[str, Any]], nofile: int = BENCH_NOFILE, retry_s: float = RETRY_S) -> None:
     bench = BenchProcess(server.profile, server.serve, nofile)
 
     def check(bench: BenchProcess = bench) -> tuple[bool, str, float]:
@@ -879,7 +879,7 @@ def run_server(name: str, server: Server, attacks: list[str] | None, scale: floa
             if not bench.alive():
                 return False, "the bench process died", time.monotonic() - t0
             ok, detail, _ = in_time(lambda: server.check(bench), 25)
-            if ok or time.monotonic() - t0 > RETRY_S:
+            if ok or time.monotonic() - t0 > retry_s:
                 return ok, detail, time.monotonic() - t0
             time.sleep(0.5)
 
@@ -936,7 +936,8 @@ def main() -> int:
     ap.add_argument("--servers", help=f"comma-separated, of {', '.join(SERVERS)} (default: all)")
     ap.add_argument("--attacks", help="comma-separated attack names (default: each server's all)")
     ap.add_argument("--scale", type=float, default=1.0, help="multiply connection counts and flood sizes")
-    ap.add_argument("--quick", action="store_true", help="--scale 0.03 and a short settle (for tests)")
+    ap.add_argument("--quick", action="store_true", help="--scale 0.03, a short settle and 2 s of retries "
+                                                           "(for tests)")
     ap.add_argument("--settle", type=float, default=3.0, help="seconds the bench gets to give memory back")
     ap.add_argument("--bench-nofile", type=int, default=BENCH_NOFILE,
                     help=f"the benches' descriptor limit (default {BENCH_NOFILE}; 'exhaust' opens it plus 300)")
@@ -946,13 +947,14 @@ def main() -> int:
     unknown = [n for n in names if n not in SERVERS]
     if unknown:
         ap.error(f"no server named {', '.join(unknown)} (servers: {', '.join(SERVERS)})")
-    scale, settle_s = (0.03, 0.5) if args.quick else (args.scale, args.settle)
+    scale, settle_s, retry_s = (0.03, 0.5, 2.0) if args.quick else (args.scale, args.settle, RETRY_S)
     # The attacker may hold more sockets than a bench (which keeps the limit users get).
     resource.setrlimit(resource.RLIMIT_NOFILE, (HARD_NOFILE, HARD_NOFILE))
     attacks = args.attacks.split(",") if args.attacks else None
     results: list[dict[str, Any]] = []
     for name in names:
-        run_server(name, SERVERS[name], attacks, scale, settle_s, results, min(args.bench_nofile, HARD_NOFILE))
+        run_server(name, SERVERS[name], attacks, scale, settle_s, results, min(args.bench_nofile, HARD_NOFILE),
+                   retry_s)
     if args.json:
         Path(args.json).write_text(json.dumps(results, indent=1) + "\n")
     bad = [r for r in results if r["tracebacks"] or not r["served"]]
