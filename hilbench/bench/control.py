@@ -13,8 +13,8 @@ The bench answers ``devices`` (each device that takes commands, with them),
 under and its counters, e.g. how late a paced serial line handed transmissions
 over against its wire model),
 ``servers`` (each endpoint's network servers, e.g. RFC 2217, with their
-client and counters) and ``manifest`` (the bench's manifest, for programs that reach the bench only
-through this channel, e.g. over labgrid);
+client and counters), ``control`` (this channel's limits and counters) and ``manifest`` (the bench's
+manifest, for programs that reach the bench only through this channel, e.g. over labgrid);
 every other command belongs to a device family
 (:attr:`~hilbench.bench.family.DeviceFamily.control_commands`), e.g. the rover
 board's ``status``, ``button``, ``reset``, ``fault``, ``log`` and
@@ -725,6 +725,10 @@ class ControlClient:
     def servers(self) -> dict[str, dict[str, Any]]:
         """Each served endpoint's servers: ``{"arm": {"rfc2217": {"url": ..., "client": ..., ...}}}``."""
         return self.call("servers")["servers"]
+
+    def control(self) -> dict[str, Any]:
+        """The channel's own limits and counters: ``{"clients": 1, "max_clients": 64, "refused": 0, ...}``."""
+        return self.call("control")["control"]
 
     def taps(self) -> dict[str, dict[str, Any]]:
         """Each endpoint's traffic tap: ``{"rover": {"url": "tcp://...", "clients": 1}}``."""

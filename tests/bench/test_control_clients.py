@@ -140,5 +140,5 @@ def test_a_half_closed_client_still_gets_its_reply(small):
 
 def test_the_control_command_reports_the_limits_and_what_was_turned_away(small):
     ask(small.address, b"x" * 70_000)
-    status = ControlClient(small.address_text).call("control")["control"]
+    status = ControlClient(small.address_text).control()
     assert status["max_clients"] == 3 and status["request_timeout"] == 0.4 and status["too_long"] == 1
