@@ -16,12 +16,23 @@ garbage, resynchronises in linear time and counts what it dropped; on pure
 noise and on mutated captures it keeps up with at least ten times its fastest
 line (``tools/bench_*.py`` measure it, ``tools/fuzz.py`` hunts for exceptions).
 
+Servers join the same registry with ``kind = "server"``: their input is a
+client's session (the bytes it sends over one connection, or its datagrams
+framed by :func:`frame_datagram`), driven through the code the bench runs
+(the socketcand daemon, the RFC 2217 server, a SCIP unit over TCP, the XRCE
+agent, an RTPS participant, the control channel). For them a traceback the
+server only logs (``log.exception``) counts as much as one it raises:
+:class:`TracebackWatch` turns the first into :class:`LoggedTraceback`.
+
 This module imports nothing from hilbench but :mod:`hilbench.registry`.
 """
 
 from __future__ import annotations
 
+import logging
 import random
+import threading
+import traceback
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Protocol
@@ -51,7 +62,8 @@ class DecoderTarget:
     second of the fastest line it reads (``line`` says which: the target is ten
     times that on noise and mutated input); ``sample(rng, size)`` makes about
     ``size`` bytes of clean traffic (the seed of mutated inputs); ``kind`` is
-    ``decoder`` or ``instrument``; ``frame(noise)`` puts noise where the reader
+    ``decoder``, ``instrument`` or ``server`` (a client's session; see the
+    module docstring); ``frame(noise)`` puts noise where the reader
     would meet it (a capture's after a sound header; default: as it is);
     ``refuses`` are the exception types it raises by design, in one line, for
     input it must not read (a capture of a newer format version): counted as
@@ -67,6 +79,9 @@ class DecoderTarget:
     kind: str = "decoder"
     frame: Callable[[bytes], bytes] | None = None
     refuses: tuple[type[Exception], ...] = ()
+    #: Longest input worth feeding it (0: as long as the fuzzer's own bound): a server's session of a kB
+    #: already walks its states, and some cost a fraction of a millisecond per datagram.
+    max_input: int = 0
 
     def noise(self, rng: random.Random, size: int) -> bytes:
         """``size`` random bytes, framed as the reader meets them."""
@@ -151,4 +166,137 @@ class Counting:
         return self._dropped()
 
 
-__all__ = ["Counting", "DecoderTarget", "Reader", "mutate", "noise", "run", "targets"]
+# --------------------------------------------------------------------------- servers
+
+
+class LoggedTraceback(Exception):
+    """A server logged a traceback (``log.exception``) while it served an input: as bad as raising one."""
+
+
+class TracebackWatch(logging.Handler):
+    """Collects the tracebacks a server would print on the bench's stderr while it keeps serving: records
+    with a traceback that hilbench's loggers emit, and exceptions that end a thread (a bench's line thread),
+    while installed (:meth:`start`). :meth:`check` raises :class:`LoggedTraceback` with the first one, and
+    forgets them."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.DEBUG)
+        self.records: list[str] = []
+        self._hook: Callable[[Any], None] | None = None
+
+    def _keep(self, text: str) -> None:
+        if len(self.records) < 16:
+            self.records.append(text)
+
+    def emit(self, record: logging.LogRecord) -> None:
+        if record.exc_info:
+            text = "".join(traceback.format_exception(*record.exc_info))  # type: ignore[misc]
+            self._keep(f"{record.name}: {record.getMessage()}\n{text}")
+
+    def _thread_died(self, args: Any) -> None:
+        name = args.thread.name if args.thread is not None else "?"
+        self._keep(f"thread {name} ended: " + "".join(traceback.format_exception(
+            args.exc_type, args.exc_value, args.exc_traceback)))
+        if self._hook is not None:
+            self._hook(args)
+
+    @classmethod
+    def shared(cls) -> TracebackWatch:
+        """The process's watch, started on first use and never stopped (a reader that raised never finishes,
+        so its own watch would never be taken down); each session :meth:`clear` s it when it begins."""
+        global _shared_watch
+        with _watch_lock:
+            if _shared_watch is None:
+                _shared_watch = cls().start()
+            return _shared_watch
+
+    def clear(self) -> None:
+        self.records.clear()
+
+    def start(self) -> TracebackWatch:
+        logging.getLogger("hilbench").addHandler(self)
+        self._hook, threading.excepthook = threading.excepthook, self._thread_died
+        return self
+
+    def stop(self) -> None:
+        logging.getLogger("hilbench").removeHandler(self)
+        if threading.excepthook == self._thread_died and self._hook is not None:
+            threading.excepthook = self._hook
+        self._hook = None
+
+    def check(self) -> None:
+        if self.records:
+            first = self.records[0]
+            self.records.clear()
+            raise LoggedTraceback(first)
+
+
+_watch_lock = threading.Lock()
+_shared_watch: TracebackWatch | None = None
+
+#: Starts every datagram of a framed session (:func:`frame_datagram`).
+DATAGRAM_MAGIC = b"\xa5\x5a"
+#: The longest datagram a framed session carries (a jumbo frame's payload).
+MAX_DATAGRAM = 9000
+
+
+def frame_datagram(datagram: bytes, source: int = 0) -> bytes:
+    """One datagram of a session in a byte stream: :data:`DATAGRAM_MAGIC`, the sender's number (which of the
+    target's clients sent it), a 16-bit big-endian length, the datagram."""
+    return DATAGRAM_MAGIC + bytes((source & 0xFF,)) + len(datagram).to_bytes(2, "big") + datagram
+
+
+class DatagramFrames:
+    """Cuts a byte stream of :func:`frame_datagram` frames into ``(source, datagram)``; split anywhere, a damaged
+    length or header loses one datagram (the reader resynchronises at the next magic), never raises."""
+
+    HEADER = len(DATAGRAM_MAGIC) + 3
+
+    def __init__(self) -> None:
+        self._buf = bytearray()
+        self.skipped = 0
+
+    def feed(self, data: bytes, final: bool = False) -> list[tuple[int, bytes]]:
+        buf = self._buf
+        buf += data
+        out: list[tuple[int, bytes]] = []
+        pos = 0
+        magic, header = DATAGRAM_MAGIC, self.HEADER
+        while True:
+            start = buf.find(magic, pos)
+            if start < 0:
+                keep = len(buf) if final else max(pos, len(buf) - len(magic) + 1)  # (a magic split across feeds)
+                self.skipped += keep - pos
+                pos = keep
+                break
+            self.skipped += start - pos
+            pos = start
+            if len(buf) - pos < header:
+                if final:
+                    self.skipped += len(buf) - pos
+                    pos = len(buf)
+                break
+            n = int.from_bytes(buf[pos + 3:pos + 5], "big")
+            end = pos + header + n
+            if n > MAX_DATAGRAM:
+                pos += 1
+                self.skipped += 1
+                continue
+            if end + len(magic) > len(buf) and not (final and end <= len(buf)):
+                if final:  # cut short at the end of the session: what is there is skipped
+                    pos += 1
+                    self.skipped += 1
+                    continue
+                break  # the frame, or the next one's magic, is still to come
+            if end < len(buf) and buf[end:end + len(magic)] != magic:
+                pos += 1
+                self.skipped += 1
+                continue
+            out.append((buf[pos + 2], bytes(buf[pos + header:end])))
+            pos = end
+        del buf[:pos]
+        return out
+
+
+__all__ = ["DATAGRAM_MAGIC", "MAX_DATAGRAM", "Counting", "DatagramFrames", "DecoderTarget", "LoggedTraceback",
+           "Reader", "TracebackWatch", "frame_datagram", "mutate", "noise", "run", "targets"]

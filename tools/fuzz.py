@@ -20,10 +20,18 @@ and whatever a family registers later (one entry-point line). Each target gets t
    A decoder that resynchronises one byte after a bad candidate loses about the item a
    damaged byte hits; a length field that swallowed the next items would cost more.
 
-Prints one line per target and, at the end, one JSON document (``--json FILE`` writes it
-too). Exit status 1 if any input raised.
+Servers (targets of kind ``server``: the socketcand daemon, the RFC 2217 server, a SCIP unit
+over TCP, the XRCE agent, an RTPS participant, the control channel) get the first phase only:
+each input is a client's session, mutated, driven through the code the bench runs; a traceback
+the server merely logs, or a thread it loses, counts as one raised. Inputs are cut to the
+target's own bound where it has one (``max_input``: a kB of a session walks its states).
 
-Usage: tools/fuzz.py [--inputs N] [--targets A,B] [--engine atheris|random] [--jobs J]
+Prints one line per target, one JSON figure per target and kind (``fuzz_<target>_inputs``:
+inputs tried against those asked for; ``fuzz_<target>_tracebacks``: inputs that raised, against
+the inputs tried; the rule is 0), as the other tools print them, then a table and, last, one
+JSON document (``--json FILE`` writes it too). Exit status 1 if any input raised.
+
+Usage: tools/fuzz.py [--inputs N] [--targets A,B|servers] [--engine atheris|random] [--jobs J]
                      [--max-len BYTES] [--measure N] [--seed S] [--json FILE]
 """
 
@@ -41,6 +49,9 @@ import traceback
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from benchlib import emit  # noqa: E402 (the tools' shared figure line)
+
 FINDINGS = REPO / "fuzz-findings"
 WOLFGANG = REPO / "tests/data/dynamixel/wolfgang_trace.bin"
 
@@ -123,14 +134,35 @@ class Stats:
                 "refusals": self.refusals, "seconds": round(self.seconds, 1), "first_exception": self.first}
 
 
+def bound(target, max_len: int) -> int:
+    """The longest input for ``target``: the fuzzer's bound, or the target's own if smaller."""
+    return min(max_len, target.max_input) if target.max_input else max_len
+
+
 def fuzz_random(target, inputs: int, max_len: int, seed: int) -> Stats:
     rng = random.Random(seed)
-    pool = seeds(target, rng)
+    max_len = bound(target, max_len)
+    pool = seeds(target, rng, size=max(65, min(2048, max_len)))
     stats = Stats(target.name)
     t0 = time.monotonic()
     for _ in range(inputs):
         stats.run(target, random_input(rng, pool, target, max_len), rng)
     stats.seconds = time.monotonic() - t0
+    return stats
+
+
+def fuzz_random_in_worker(name: str, inputs: int, max_len: int, seed: int) -> dict:
+    """:func:`fuzz_random` in a worker process (``--jobs`` with the random engine): its figures as a dict."""
+    from hilbench.decoders import targets
+
+    target = next(t for t in targets() if t.name == name)
+    return fuzz_random(target, inputs, max_len, seed).doc()
+
+
+def stats_from(name: str, doc: dict) -> Stats:
+    stats = Stats(name)
+    stats.inputs, stats.bytes, stats.exceptions = doc["inputs"], doc["bytes"], doc["exceptions"]
+    stats.refusals, stats.seconds, stats.first = doc["refusals"], doc["seconds"], doc["first_exception"]
     return stats
 
 
@@ -175,6 +207,7 @@ def fuzz_atheris(name: str, inputs: int, max_len: int, seed: int) -> Stats:
     from hilbench.decoders import mutate, targets
 
     target = next(t for t in targets() if t.name == name)
+    max_len = bound(target, max_len)
     stats = Stats(name)
     with tempfile.TemporaryDirectory() as tmp:
         corpus = Path(tmp) / "corpus"
@@ -253,9 +286,10 @@ def measure(target, count: int, seed: int, size: int = 1 << 20) -> dict:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--inputs", type=int, default=120_000, help="fuzz inputs per target (default 120000)")
-    ap.add_argument("--targets", help="comma-separated target names (default: every registered one)")
+    ap.add_argument("--targets", help="comma-separated target names, or 'servers' for every server target "
+                                      "(default: every registered one)")
     ap.add_argument("--engine", choices=("atheris", "random"), help="default: atheris if installed")
-    ap.add_argument("--jobs", type=int, default=1, help="targets fuzzed at once (atheris workers)")
+    ap.add_argument("--jobs", type=int, default=1, help="targets fuzzed at once (worker processes)")
     ap.add_argument("--max-len", type=int, default=4096, help="largest input in bytes")
     ap.add_argument("--measure", type=int, default=200, help="samples for the resync cost (0: no figures)")
     ap.add_argument("--size", type=int, default=1 << 20, help="bytes of noise and of damaged traffic for the "
@@ -272,7 +306,11 @@ def main() -> int:
 
     from hilbench.decoders import targets
 
-    chosen = [t for t in targets() if not args.targets or t.name in args.targets.split(",")]
+    names = set(args.targets.split(",")) if args.targets else None
+    chosen = [t for t in targets() if names is None or t.name in names or ("servers" in names and t.kind == "server")]
+    unknown = (names or set()) - {t.name for t in targets()} - {"servers"}
+    if unknown:
+        ap.error(f"no target named {', '.join(sorted(unknown))} (targets: {', '.join(t.name for t in targets())})")
     engine = args.engine
     if engine is None:
         try:
@@ -289,6 +327,20 @@ def main() -> int:
         with ThreadPoolExecutor(args.jobs) as pool:
             found = dict(zip([t.name for t in chosen], pool.map(
                 lambda t: fuzz_atheris(t.name, args.inputs, args.max_len, args.seed), chosen), strict=True))
+    elif args.jobs > 1:
+        from concurrent.futures import ProcessPoolExecutor
+
+        with ProcessPoolExecutor(args.jobs) as pool:
+            futures = {t.name: pool.submit(fuzz_random_in_worker, t.name, args.inputs, args.max_len, args.seed)
+                       for t in chosen}
+            found = {}
+            for name, future in futures.items():
+                found[name] = stats_from(name, future.result())
+                s = found[name]
+                print(f"  {name}: {s.inputs} inputs, {s.bytes / 1e6:.1f} MB, exceptions {s.exceptions} "
+                      f"({s.seconds:.0f} s)", file=sys.stderr, flush=True)
+                if s.first:
+                    print(f"{name}: first exception:\n{s.first}", file=sys.stderr, flush=True)
     else:
         found = {}
         for t in chosen:
@@ -299,8 +351,13 @@ def main() -> int:
                   f"({s.seconds:.0f} s)", file=sys.stderr, flush=True)
     for t in chosen:
         results[t.name] = {"kind": t.kind, **found[t.name].doc()}
-        if args.measure:
+        if args.measure and t.kind != "server":  # (a session's throughput against a line says little)
             results[t.name].update(measure(t, args.measure, args.seed, args.size))
+    for name, r in results.items():
+        tried = r["inputs"]
+        emit(f"fuzz_{name}_inputs", tried, "inputs", args.inputs, tried / max(args.inputs, 1),
+             seconds=r["seconds"], per_second=round(tried / max(r["seconds"], 1e-9)))
+        emit(f"fuzz_{name}_tracebacks", r["exceptions"], "inputs", tried, r["exceptions"] / max(tried, 1))
     total = sum(r["inputs"] for r in results.values())
     exceptions = sum(r["exceptions"] for r in results.values())
     doc = {"engine": engine, "inputs": total, "exceptions": exceptions, "seconds": round(time.monotonic() - t0),

@@ -14,8 +14,8 @@ under and its counters, e.g. how late a paced serial line handed transmissions
 over against its wire model; ``host``: the host port's own, e.g. a socketcand
 server's clients and what it refused or dropped),
 ``servers`` (each endpoint's network servers, e.g. RFC 2217, with their
-client and counters) and ``manifest`` (the bench's manifest, for programs that reach the bench only
-through this channel, e.g. over labgrid);
+client and counters), ``control`` (this channel's limits and counters) and ``manifest`` (the bench's
+manifest, for programs that reach the bench only through this channel, e.g. over labgrid);
 every other command belongs to a device family
 (:attr:`~hilbench.bench.family.DeviceFamily.control_commands`), e.g. the rover
 board's ``status``, ``button``, ``reset``, ``fault``, ``log`` and
@@ -24,29 +24,52 @@ command. Errors come back as ``{"ok": false, "error": "...", "exit": N}``,
 malformed requests included (``exit``: 2 for a request the bench cannot do as
 asked, such as an unknown device or a knob out of range, 1 when the bench or
 device failed, as :mod:`hilbench.errors`' rule says; the client raises a
-:class:`ControlError` with that exit status): a line is at most :data:`MAX_LINE` bytes and JSON nested at
-most :data:`MAX_DEPTH` levels, at most :data:`MAX_CLIENTS` connections are
-served at once and one idle for :data:`IDLE_TIMEOUT` s is closed, and nothing a
-client sends (or a client leaving early) puts a traceback on the bench's
-stderr.
+:class:`ControlError` with that exit status), and nothing a client sends (or a
+client leaving early) puts a traceback on the bench's stderr.
+
+Many clients are served at once by one thread that waits on every socket
+(epoll) and starts a thread per command, so no client can hold up another:
+
+- a request line is at most :data:`MAX_LINE` bytes and JSON nested at most
+  :data:`MAX_DEPTH` levels;
+- a request line must arrive whole within :data:`REQUEST_TIMEOUT` s of its
+  first byte, and a reply must be taken within as long, or the connection is
+  closed (a client that stalls halfway holds nothing);
+- a connection with nothing to do for :data:`IDLE_TIMEOUT` s is closed;
+- at most :data:`MAX_CLIENTS` connections are kept: a newcomer beyond that
+  closes the connection that has been waiting longest without a command
+  running (it is told so in a JSON error line), and is itself refused with
+  ``{"ok": false, "error": "too many control clients ..."}`` only when every
+  kept connection is running a command;
+- a command that waits (``wait_report``) ends when its client closes the
+  connection (:func:`client_waits`);
+- the kernel's queue of connections not yet accepted holds :data:`BACKLOG`.
+
 :class:`ControlClient` is the Python side; ``hilbench board`` a command line.
 """
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import dataclasses
+import errno
 import json
+import os
 import re
+import selectors
 import socket
-import socketserver
 import threading
+import time
+from collections.abc import Callable
 from itertools import accumulate
 from pathlib import Path
 from typing import Any
 
 from hilbench.errors import BenchError, HilbenchError
+from hilbench.transports.listener import listen
 from hilbench.transports.medium import medium_timing
+from hilbench.transports.medium_loop import WakePipe
 
 #: Longest request line the bench reads (bytes); longer ones are answered with an error and dropped.
 MAX_LINE = 65536
@@ -54,13 +77,19 @@ MAX_LINE = 65536
 MAX_REPLY = 16 << 20
 #: Deepest nesting of arrays and objects a request may have.
 MAX_DEPTH = 32
-#: Connections served at once; more are answered with an error and closed.
-MAX_CLIENTS = 32
-#: A connection that sends nothing for this long is closed (seconds).
+#: Connections kept at once (each may run one command); see the module docstring for who gives way.
+MAX_CLIENTS = 64
+#: Seconds a request line may take to arrive whole (from its first byte), and a reply to be taken.
+REQUEST_TIMEOUT = 10.0
+#: A connection with no request, command or reply under way for this long is closed (seconds).
 IDLE_TIMEOUT = 300.0
+#: Kernel send buffer of a control connection (bytes): bounds what a client that never reads costs.
+SEND_BUFFER = 64 << 10
+#: Connections the kernel queues before the server accepts them (``listen()``; capped by somaxconn).
+BACKLOG = 1024
 
 #: What every bench answers, whatever its devices.
-BENCH_COMMANDS = ("devices", "manifest", "media", "servers", "taps")
+BENCH_COMMANDS = ("control", "devices", "manifest", "media", "servers", "taps")
 
 _JSON_STRING = re.compile(rb'"(?:[^"\\]|\\.)*"')
 _NESTING = bytes.maketrans(b"[{]}", b"\x01\x01\x02\x02")
@@ -87,70 +116,454 @@ class ControlRequestError(ControlError):
     exit_code = 2
 
 
+class ClientGone(ControlError):
+    """The client of a running command closed its connection: the command stops (nobody reads its reply)."""
+
+
+class RequestTooLong(ControlError):
+    """:data:`MAX_LINE` bytes arrived without a newline."""
+
+
+_request = threading.local()  # .gone: the threading.Event of the connection whose command this thread runs
+
+
+@contextlib.contextmanager
+def serving(gone: threading.Event):
+    """Run commands (:meth:`ControlServer.handle`) in this thread for a connection whose client is gone once
+    ``gone`` is set: :func:`client_waits` then stops waiting."""
+    _request.gone = gone
+    try:
+        yield
+    finally:
+        _request.gone = None
+
+
+def next_request(buf: bytearray) -> bytes | None:
+    """Take the next request line (up to and with its newline) from a connection's input ``buf``; None while
+    it is still arriving. :class:`RequestTooLong` (and ``buf`` emptied) when :data:`MAX_LINE` bytes hold none."""
+    end = buf.find(b"\n", 0, MAX_LINE)
+    if end < 0:
+        if len(buf) >= MAX_LINE:
+            buf.clear()
+            raise RequestTooLong(f"request too long (at most {MAX_LINE} bytes)")
+        return None
+    line = bytes(buf[:end + 1])
+    del buf[:end + 1]
+    return line
+
+
+def client_waits(done: Callable[[], bool], timeout: float, poll: float = 0.01) -> bool:
+    """Wait up to ``timeout`` s, checking ``done()`` every ``poll`` s; True once it is true, False at the timeout.
+
+    A family command that waits (``wait_report``) waits with this, so it ends when the client that asked
+    closes its connection: then it raises :class:`ClientGone`. Called outside a control connection (a test
+    calling :meth:`ControlServer.handle`) it only waits.
+    """
+    gone: threading.Event | None = getattr(_request, "gone", None)
+    deadline = time.monotonic() + timeout
+    while not done():
+        left = deadline - time.monotonic()
+        if left <= 0:
+            return False
+        if gone is None:
+            time.sleep(min(poll, left))
+        elif gone.wait(min(poll, left)):
+            raise ClientGone("the control client left")
+    return True
+
+
+class _Conn:
+    """One control connection as the server's loop keeps it."""
+
+    __slots__ = ("sock", "fd", "inbuf", "out", "busy", "gone", "last", "started", "out_since", "closing", "events")
+
+    def __init__(self, sock: socket.socket, now: float) -> None:
+        self.sock = sock
+        self.fd = sock.fileno()
+        self.inbuf = bytearray()  # received, not yet taken as a request (bounded: see _read)
+        self.out = bytearray()  # one reply (or error line) not yet sent
+        self.busy = False  # a command of this connection is running
+        self.gone = threading.Event()  # the client closed while its command ran: the command may stop
+        self.last = now  # last sign of life (bytes in, a reply taken, the connection made)
+        self.started: float | None = None  # first byte of the request line still arriving
+        self.out_since: float | None = None  # when self.out started waiting for the client
+        self.closing = False  # close once self.out is sent
+        self.events = selectors.EVENT_READ
+
+
+def _refusal(text: str) -> bytes:
+    return (json.dumps({"ok": False, "error": text}) + "\n").encode()
+
+
 class ControlServer:
     """Serves the control channel of a running bench in a background thread.
 
     :data:`BENCH_COMMANDS` are the bench's own commands; every other command
     goes to the family of the device it names (or of the only device whose
-    family answers it): :attr:`DeviceFamily.control_commands`.
+    family answers it): :attr:`DeviceFamily.control_commands`. The limits
+    (clients, timeouts) are the module's constants unless given here.
     """
 
-    def __init__(self, bench, host: str = "127.0.0.1", port: int = 0) -> None:
+    def __init__(self, bench, host: str = "127.0.0.1", port: int = 0, *, max_clients: int = MAX_CLIENTS,
+                 request_timeout: float = REQUEST_TIMEOUT, idle_timeout: float = IDLE_TIMEOUT) -> None:
         self.bench = bench
-        server = self
-
-        clients = threading.BoundedSemaphore(MAX_CLIENTS)
-
-        class Handler(socketserver.StreamRequestHandler):
-            timeout = IDLE_TIMEOUT
-
-            def handle(self) -> None:
-                # A client that leaves early, stalls or resets is no error of the bench's: OSError covers
-                # them all (BrokenPipeError, ConnectionResetError, TimeoutError).
-                with contextlib.suppress(OSError):
-                    if not clients.acquire(blocking=False):
-                        self.wfile.write(b'{"ok": false, "error": "too many control clients"}\n')
-                        return
-                    try:
-                        self._serve()
-                    finally:
-                        clients.release()
-
-            def _serve(self) -> None:
-                while raw := self.rfile.readline(MAX_LINE + 1):  # bounded: a line never grows past this
-                    if len(raw) > MAX_LINE:
-                        self.wfile.write(b'{"ok": false, "error": "request too long (at most %d bytes)"}\n'
-                                         % MAX_LINE)
-                        return  # the rest of that line is not worth reading
-                    reply = server.handle(raw)
-                    self.wfile.write((json.dumps(reply, default=str) + "\n").encode())
-                    self.wfile.flush()
-
-        class Server(socketserver.ThreadingTCPServer):
-            daemon_threads = True
-            allow_reuse_address = True
-
-            def handle_error(self, request, client_address) -> None:
-                pass  # Handler.handle lets nothing escape; this is the last guard against a traceback
-
-        self._server = Server((host, port), Handler)
-        self._thread = threading.Thread(target=self._server.serve_forever, name="hilbench-control", daemon=True)
+        self.max_clients = max_clients
+        self.request_timeout = request_timeout
+        self.idle_timeout = idle_timeout
+        #: What the channel did: connections accepted, requests answered, and every connection it
+        #: closed or turned away, by reason (``control`` command: ``{"control": {...}}``).
+        self.stats: dict[str, int] = dict.fromkeys((
+            "connections", "requests", "refused", "evicted", "request_timeouts", "reply_timeouts", "idle_closed",
+            "too_long", "clients_gone", "accept_errors", "errors"), 0)
+        family = socket.AF_INET6 if ":" in host else socket.AF_INET
+        self._listener = listen(host, port, BACKLOG, family)
+        self._sel = selectors.DefaultSelector()
+        self._wake = WakePipe()
+        self._conns: dict[int, _Conn] = {}
+        self._done: collections.deque[tuple[_Conn, bytes]] = collections.deque()
+        self._stop = False
+        self._listening = True
+        self._listen_again = 0.0
+        self._reserve: int | None = self._open_reserve()
+        self._sel.register(self._listener, selectors.EVENT_READ, None)
+        self._sel.register(self._wake.fd, selectors.EVENT_READ, "wake")
+        self._thread = threading.Thread(target=self._loop, name="hilbench-control", daemon=True)
         self._thread.start()
 
     @property
     def address(self) -> tuple[str, int]:
-        return self._server.server_address[:2]
+        return self._listener.getsockname()[:2]
 
     @property
     def address_text(self) -> str:
         host, port = self.address
         return f"{host}:{port}"
 
+    @property
+    def clients(self) -> int:
+        """Connections kept now."""
+        return len(self._conns)
+
+    def status(self) -> dict[str, Any]:
+        """The channel's limits, its connections now and :attr:`stats` (the ``control`` command)."""
+        return {"address": self.address_text, "clients": len(self._conns),
+                "running": sum(c.busy for c in list(self._conns.values())), "max_clients": self.max_clients,
+                "request_timeout": self.request_timeout, "idle_timeout": self.idle_timeout, **self.stats}
+
     def close(self) -> None:
-        self._server.shutdown()
-        self._server.server_close()
+        """Stop serving: running commands are told their clients are gone, every connection is closed."""
+        self._stop = True
+        self._wake.wake()
+        self._thread.join(timeout=5)
+        for conn in list(self._conns.values()):
+            conn.gone.set()
+            with contextlib.suppress(OSError):
+                conn.sock.close()
+        self._conns.clear()
+        with contextlib.suppress(OSError):
+            self._listener.close()
+        self._sel.close()
+        self._wake.close()
+        if self._reserve is not None:
+            with contextlib.suppress(OSError):
+                os.close(self._reserve)
+            self._reserve = None
+
+    # ------------------------------------------------------------------ the connections' loop
+
+    def _loop(self) -> None:
+        while not self._stop:
+            try:
+                ready = self._sel.select(self._timeout())
+            except OSError:  # (closed under us)
+                return
+            for key, mask in ready:
+                if self._stop:
+                    return
+                if key.data is None:
+                    self._accept()
+                elif key.data == "wake":
+                    self._wake.drain()
+                else:
+                    conn = key.data
+                    if self._conns.get(conn.fd) is not conn:
+                        continue  # closed by an earlier event of this round
+                    try:
+                        if mask & selectors.EVENT_WRITE:
+                            self._write(conn)
+                        if mask & selectors.EVENT_READ and self._conns.get(conn.fd) is conn:
+                            self._read(conn)
+                    except Exception:  # noqa: BLE001 (a bug must cost one connection, never the channel)
+                        self.stats["errors"] += 1
+                        self._close(conn)
+            self._finish_commands()
+            self._expire(time.monotonic())
+
+    def _timeout(self) -> float | None:
+        """Seconds until the next deadline (None: none)."""
+        now = time.monotonic()
+        times = [] if self._listening else [self._listen_again]
+        for c in self._conns.values():
+            if c.busy:
+                continue
+            if c.out_since is not None:
+                times.append(c.out_since + self.request_timeout)
+            elif c.started is not None:
+                times.append(c.started + self.request_timeout)
+            else:
+                times.append(c.last + self.idle_timeout)
+        return max(0.0, min(times) - now) if times else None
+
+    def _want(self, conn: _Conn, events: int) -> None:
+        """Wait for these events on the connection (0: none for now)."""
+        if events == conn.events:
+            return
+        if not conn.events:
+            self._sel.register(conn.sock, events, conn)
+        elif not events:
+            self._sel.unregister(conn.sock)
+        else:
+            self._sel.modify(conn.sock, events, conn)
+        conn.events = events
+
+    # ------------------------------------------------------------------ accepting
+
+    @staticmethod
+    def _open_reserve() -> int | None:
+        """A descriptor kept spare, so a full descriptor table still lets us answer and close a newcomer."""
+        try:
+            return os.open(os.devnull, os.O_RDONLY)
+        except OSError:
+            return None
+
+    def _accept(self) -> None:
+        while True:
+            try:
+                sock, _addr = self._listener.accept()
+            except (BlockingIOError, InterruptedError):
+                return
+            except OSError as exc:
+                self.stats["accept_errors"] += 1
+                if exc.errno in (errno.EMFILE, errno.ENFILE, errno.ENOBUFS, errno.ENOMEM):
+                    self._shed()
+                return
+            self._admit(sock)
+
+    def _shed(self) -> None:
+        """Out of descriptors: answer the waiting newcomer through the spare descriptor, or stop listening a
+        moment (the listener stays readable, and waiting on it would spin)."""
+        if self._reserve is not None:
+            os.close(self._reserve)
+            self._reserve = None
+            try:
+                sock, _addr = self._listener.accept()
+            except OSError:
+                sock = None
+            if sock is not None:
+                self.stats["refused"] += 1
+                self._turn_away(sock, "too many control clients (the bench is out of file descriptors)")
+            self._reserve = self._open_reserve()
+        if self._reserve is None and self._listening:
+            self._listening = False
+            self._listen_again = time.monotonic() + 0.1
+            self._sel.unregister(self._listener)
+
+    def _admit(self, sock: socket.socket) -> None:
+        self.stats["connections"] += 1
+        sock.setblocking(False)
+        # What the kernel holds for a client that does not read: replies are small, the default grows to MBs.
+        with contextlib.suppress(OSError):
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, SEND_BUFFER)
+        if len(self._conns) >= self.max_clients:
+            idle = [c for c in self._conns.values() if not c.busy]
+            if not idle:
+                self.stats["refused"] += 1
+                self._turn_away(sock, f"too many control clients (at most {self.max_clients}, all running commands)")
+                return
+            oldest = min(idle, key=lambda c: c.last)
+            self.stats["evicted"] += 1
+            self._send_and_close(oldest, f"connection closed: the bench keeps at most {self.max_clients} control "
+                                         "clients and this one had waited longest")
+        now = time.monotonic()
+        conn = _Conn(sock, now)
+        self._conns[conn.fd] = conn
+        self._sel.register(sock, selectors.EVENT_READ, conn)
+
+    @staticmethod
+    def _turn_away(sock: socket.socket, text: str) -> None:
+        """A one-line JSON error to a connection we do not keep, then close it."""
+        with contextlib.suppress(OSError):
+            sock.setblocking(False)
+            with contextlib.suppress(OSError):
+                sock.recv(MAX_LINE)  # what it sent already: closing over unread bytes would reset the connection
+            sock.send(_refusal(text))
+            sock.shutdown(socket.SHUT_WR)
+        with contextlib.suppress(OSError):
+            sock.close()
+
+    def _send_and_close(self, conn: _Conn, text: str) -> None:
+        self._forget(conn)
+        self._turn_away(conn.sock, text)
+
+    # ------------------------------------------------------------------ requests and replies
+
+    def _read(self, conn: _Conn) -> None:
+        try:
+            data = conn.sock.recv(65536)
+        except (BlockingIOError, InterruptedError):
+            return
+        except OSError:  # reset
+            data = b""
+        now = time.monotonic()
+        if not data:
+            if conn.busy:  # its command may stop; the reply still goes out if it comes (a half-closed client)
+                self.stats["clients_gone"] += 1
+                conn.gone.set()
+                conn.closing = True
+                self._want(conn, 0 if not conn.out else selectors.EVENT_WRITE)
+                return
+            if conn.inbuf.strip() and not conn.out:  # a last request without its newline
+                conn.closing = True
+                self._want(conn, 0)
+                self._start(conn, bytes(conn.inbuf), now)
+                conn.inbuf.clear()
+                return
+            self._close(conn)
+            return
+        conn.last = now
+        if conn.started is None:
+            conn.started = now
+        conn.inbuf += data
+        self._next(conn, now)
+
+    def _next(self, conn: _Conn, now: float) -> None:
+        """Take the next request line of a connection with nothing running and nothing to send."""
+        if conn.busy or conn.out:
+            # Pipelined requests wait; the connection is not read further than one whole line meanwhile.
+            if len(conn.inbuf) > MAX_LINE and conn.events & selectors.EVENT_READ:
+                self._want(conn, conn.events & ~selectors.EVENT_READ)
+            return
+        try:
+            line = next_request(conn.inbuf)
+        except RequestTooLong as exc:
+            self.stats["too_long"] += 1
+            conn.closing = True  # the rest of that line is not worth reading
+            self._reply(conn, _refusal(str(exc)), now)
+            return
+        if line is None:
+            if not conn.inbuf:
+                conn.started = None
+            if not conn.events & selectors.EVENT_READ and not conn.closing:
+                self._want(conn, selectors.EVENT_READ)
+            return
+        conn.started = now if conn.inbuf else None
+        self._start(conn, line, now)
+
+    def _start(self, conn: _Conn, line: bytes, now: float) -> None:
+        conn.busy = True
+        conn.last = now
+        try:
+            threading.Thread(target=self._run, args=(conn, line), name="hilbench-control-command",
+                             daemon=True).start()
+        except RuntimeError:  # no thread to be had
+            conn.busy = False
+            self._reply(conn, _refusal("the bench cannot start a thread for this command now"), now)
+
+    def _run(self, conn: _Conn, line: bytes) -> None:
+        """One command, in a thread of its own; the reply goes back to the loop."""
+        try:
+            with serving(conn.gone):
+                reply = self.reply(line)
+        except BaseException:  # noqa: BLE001 (reply() never raises; this keeps the connection's state sane)
+            reply = _refusal("command failed")
+        # (sent even to a client that closed its side: one that only half-closed still reads it)
+        self._done.append((conn, reply))
+        self._wake.wake()
+
+    def _finish_commands(self) -> None:
+        now = time.monotonic()
+        while self._done:
+            conn, reply = self._done.popleft()
+            conn.busy = False
+            conn.last = now
+            if self._conns.get(conn.fd) is not conn:
+                continue  # closed meanwhile
+            self.stats["requests"] += 1
+            self._reply(conn, reply, now)
+
+    def _reply(self, conn: _Conn, data: bytes, now: float) -> None:
+        conn.out += data
+        conn.out_since = now
+        self._write(conn)
+
+    def _write(self, conn: _Conn) -> None:
+        if conn.out:
+            try:
+                sent = conn.sock.send(conn.out)
+            except (BlockingIOError, InterruptedError):
+                sent = 0
+            except OSError:
+                self._close(conn)
+                return
+            del conn.out[:sent]
+        now = time.monotonic()
+        if conn.out:
+            self._want(conn, (conn.events | selectors.EVENT_WRITE) if not conn.closing else selectors.EVENT_WRITE)
+            return
+        conn.out_since = None
+        conn.last = now
+        if conn.closing:
+            if not conn.busy:
+                self._close(conn)
+            return
+        self._want(conn, selectors.EVENT_READ)
+        self._next(conn, now)
+
+    def _expire(self, now: float) -> None:
+        if not self._listening and now >= self._listen_again:
+            self._listening = True
+            self._sel.register(self._listener, selectors.EVENT_READ, None)
+            if self._reserve is None:
+                self._reserve = self._open_reserve()
+        for conn in list(self._conns.values()):
+            if conn.busy:
+                continue
+            if conn.out_since is not None:
+                if now - conn.out_since >= self.request_timeout:
+                    self.stats["reply_timeouts"] += 1  # it does not read: nothing more to tell it
+                    self._close(conn)
+            elif conn.started is not None:
+                if now - conn.started >= self.request_timeout:
+                    self.stats["request_timeouts"] += 1
+                    self._send_and_close(conn, f"request timed out (a request line must arrive within "
+                                               f"{self.request_timeout:g} s)")
+            elif now - conn.last >= self.idle_timeout:
+                self.stats["idle_closed"] += 1
+                self._close(conn)
+
+    def _forget(self, conn: _Conn) -> None:
+        if self._conns.get(conn.fd) is conn:
+            del self._conns[conn.fd]
+            if conn.events:
+                with contextlib.suppress(KeyError, ValueError, OSError):
+                    self._sel.unregister(conn.sock)
+                conn.events = 0
+        conn.gone.set()  # (a command still running for it may stop)
+
+    def _close(self, conn: _Conn) -> None:
+        self._forget(conn)
+        with contextlib.suppress(OSError):
+            conn.sock.close()
 
     # ------------------------------------------------------------------ commands
+
+    def reply(self, raw: bytes) -> bytes:
+        """The reply line to one request line, as the channel sends it; never raises."""
+        answer = self.handle(raw)
+        try:
+            return (json.dumps(answer, default=str) + "\n").encode()
+        except (ValueError, TypeError, RecursionError) as exc:
+            return _refusal(f"command failed: its reply is not JSON ({exc})")
 
     def handle(self, raw: bytes) -> dict[str, Any]:
         """The reply to one request line; never raises (a malformed request gets an error reply)."""
@@ -221,6 +634,8 @@ class ControlServer:
             return {"media": {ep.name: {**medium_status(ep.medium),
                                         **({"host": ep.port.status()} if hasattr(ep.port, "status") else {})}
                               for ep in self.bench.endpoints.values() if ep.medium is not None}}
+        if cmd == "control":
+            return {"control": self.status()}
         if cmd == "taps":
             return {"taps": {ep.name: {"url": ep.tap.url, **ep.tap.status()}
                              for ep in self.bench.endpoints.values() if ep.tap is not None}}
@@ -325,10 +740,15 @@ class ControlClient:
         """Each served endpoint's servers: ``{"arm": {"rfc2217": {"url": ..., "client": ..., ...}}}``."""
         return self.call("servers")["servers"]
 
+    def control(self) -> dict[str, Any]:
+        """The channel's own limits and counters: ``{"clients": 1, "max_clients": 64, "refused": 0, ...}``."""
+        return self.call("control")["control"]
+
     def taps(self) -> dict[str, dict[str, Any]]:
         """Each endpoint's traffic tap: ``{"rover": {"url": "tcp://...", "clients": 1}}``."""
         return self.call("taps")["taps"]
 
 
-__all__ = ["BENCH_COMMANDS", "MAX_LINE", "MAX_REPLY", "ControlClient", "ControlError", "ControlRequestError",
-           "ControlServer", "ControlUnreachable"]
+__all__ = ["BACKLOG", "BENCH_COMMANDS", "IDLE_TIMEOUT", "MAX_CLIENTS", "MAX_DEPTH", "MAX_LINE", "MAX_REPLY",
+           "REQUEST_TIMEOUT", "ClientGone", "ControlClient", "ControlError", "ControlRequestError", "ControlServer",
+           "ControlUnreachable", "RequestTooLong", "client_waits", "next_request", "serving"]

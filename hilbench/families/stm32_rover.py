@@ -32,12 +32,11 @@ button, reset, fault, log, wait_report.
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass, field
 from typing import Any
 
 from hilbench.bench.checks import Checker
-from hilbench.bench.control import ControlClient, ControlError, ControlRequestError
+from hilbench.bench.control import ControlClient, ControlError, ControlRequestError, client_waits
 from hilbench.bench.family import DeviceFamily, DeviceSpec, bench_device
 from hilbench.bench.knobs import check_fault_table, check_knobs
 from hilbench.rules import FAULT_COUNT, PROBABILITY, Rule, RuleError
@@ -285,11 +284,9 @@ class Stm32RoverFamily(DeviceFamily):
             if start is not None and not REPORT_COUNT.ok(start):
                 raise ControlRequestError(f"wait_report: after: expected {REPORT_COUNT.expected}, got {start!r}")
             start = len(board.reports) if start is None else start
-            deadline = time.monotonic() + timeout
-            while len(board.reports) <= start:
-                if time.monotonic() > deadline:
-                    raise ControlError(f"no report within {timeout} s")
-                time.sleep(0.01)
+            # (ends with its client: a client that gave up does not leave a waiting thread behind)
+            if not client_waits(lambda: len(board.reports) > start, timeout):
+                raise ControlError(f"no report within {timeout} s")
             rep = board.reports[-1]
             return {"report": rep._asdict(), "status": board.status()}
         raise ControlRequestError(f"unknown command {cmd!r}")

@@ -278,6 +278,12 @@ class RequestDecoder:
         self.dropped = 0
         self._skip_lf = False
 
+    def reset(self) -> None:
+        """Forget a request line begun but not ended (a new connection starts with an empty buffer)."""
+        self.dropped += len(self._buf)
+        self._buf.clear()
+        self._skip_lf = False
+
     def feed(self, data: bytes) -> list[Request | Problem]:
         out: list = []
         for b in data:

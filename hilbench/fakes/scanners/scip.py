@@ -8,6 +8,12 @@ every 60000/rpm ms on the unit's clock whether anyone asks or not; a GD is
 answered with the next whole scan, MD sends one reply per scan (skipping K),
 each reply written whole with one send. Timestamps come from a 24-bit
 millisecond clock with a configurable start offset (wrap-around tests).
+
+Over TCP the unit holds one client (the host port turns others away), and
+each connection starts afresh: a request line the last client began but did
+not end is forgotten, a first ``RB`` it sent no longer arms a reboot, and
+the continuous scans it asked for stop when it leaves, so a new client never
+hears an answer to another client's bytes.
 """
 
 from __future__ import annotations
@@ -84,7 +90,7 @@ class ScipScanner(Scanner):
 
     def __init__(self, name: str, scene: Scene, pose: Pose, model: RangeModel | None, unit: ScipModel,
                  config: ScipConfig | None = None, *, t0: float | None = None,
-                 connected=None) -> None:
+                 connected=None, session=None) -> None:
         super().__init__(name, scene, pose,
                          model or RangeModel(unit.dmin / 1000, unit.dmax / 1000, unit.sigma0, 0.0), t0=t0)
         self.unit = unit
@@ -100,6 +106,9 @@ class ScipScanner(Scanner):
         self.md_epoch = 0
         self.scans_sent = 0
         self.connected = connected or (lambda: True)
+        # Which connection the host port serves (a TCP port counts them; None on a pty, which has no sessions).
+        self.session = session or (lambda: None)
+        self._session = self.session()
         self._held: bytes = b""
 
     def attach(self, medium) -> None:
@@ -127,6 +136,13 @@ class ScipScanner(Scanner):
     # ------------------------------------------------------------------ host bytes
 
     def on_bytes(self, data: bytes, t: float, baud: int | None) -> None:
+        session = self.session()
+        if session != self._session:  # the first bytes of a new connection (the medium keeps their order)
+            self._session = session
+            self.decoder.reset()
+            self.reboot_armed = False
+            if self.md is not None and self.md.get("session") != session:
+                self._stop_md()
         for item in self.decoder.feed(data):
             if isinstance(item, scip.Request):
                 self.note_request(item.cmd)
@@ -267,7 +283,7 @@ class ScipScanner(Scanner):
         self._stop_md()
         self.laser = True
         self.sleeping = False
-        self.md = {"req": req, "fields": f, "remaining": f["scans"], "skip": f["skip"]}
+        self.md = {"req": req, "fields": f, "remaining": f["scans"], "skip": f["skip"], "session": self._session}
         self.md_epoch += 1
         self._answer(req, "00", t=t)
         epoch = self.md_epoch
@@ -283,8 +299,8 @@ class ScipScanner(Scanner):
         md = self.md
         if epoch != self.md_epoch or md is None:
             return
-        if not self.connected():
-            self._stop_md()  # the client left: the unit stops streaming to nobody
+        if not self.connected() or md.get("session") != self.session():
+            self._stop_md()  # the client left (another may have come): the unit stops streaming
             return
         req, f = md["req"], md["fields"]
         p = req.params

@@ -1,0 +1,42 @@
+"""tools/stress_servers.py stays working: a quick run against the control channel (every attack, a real bench in
+another process) prints its figures, with no traceback and the well-behaved clients served."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+from tests.conftest import REPO
+
+ATTACKS = ("churn", "slow", "exhaust", "unread", "flood")
+
+
+def test_a_quick_run_against_the_control_channel(tmp_path):
+    out = tmp_path / "stress.json"
+    proc = subprocess.run([sys.executable, str(REPO / "tools/stress_servers.py"), "--quick", "--servers", "control",
+                           "--json", str(out)], capture_output=True, text=True, timeout=300, cwd=REPO)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    figures = {f["name"]: f for f in map(json.loads, proc.stdout.splitlines()) if "name" in f}
+    for attack in ATTACKS:
+        key = f"stress_control_{attack}"
+        assert {f"{key}_{kind}" for kind in ("inputs", "tracebacks", "served", "rss")} <= set(figures)
+        assert figures[f"{key}_inputs"]["value"] > 0
+        assert figures[f"{key}_tracebacks"]["value"] == 0, proc.stderr[-3000:]
+        assert figures[f"{key}_served"]["value"] == 1, figures[f"{key}_served"]
+        rss = figures[f"{key}_rss"]
+        assert rss["unit"] == "MB" and 0 < rss["before"] <= rss["value"] and rss["after"] > 0
+    rows = json.loads(out.read_text())
+    assert [r["attack"] for r in rows] == list(ATTACKS) and all(r["alive"] for r in rows)
+
+
+def test_it_reports_an_attack_that_fails_instead_of_failing(tmp_path):
+    """RTPS 'locators' (an SPDP naming port 70000) still breaks the node's announcements on this branch: the
+    script says so in its figures (and would say 0 once fixed) and exits 0."""
+    proc = subprocess.run([sys.executable, str(REPO / "tools/stress_servers.py"), "--quick", "--servers", "rtps",
+                           "--attacks", "locators"], capture_output=True, text=True, timeout=300, cwd=REPO)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    figures = {f["name"]: f for f in map(json.loads, proc.stdout.splitlines()) if "name" in f}
+    served, tracebacks = figures["stress_rtps_locators_served"], figures["stress_rtps_locators_tracebacks"]
+    assert served["value"] in (0, 1) and served["client"] and tracebacks["value"] >= 0
+    assert served["value"] == 1 or served["detail"]  # not served: it says why
