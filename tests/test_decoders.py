@@ -17,13 +17,6 @@ BUILT_IN = {"dynamixel", "dynamixel1", "vel2d", "tracestamp-text", "tracestamp-b
             "capture", "monitor-dynamixel", "profiler", "rplidar", "sick-lms200", "scip2", "slcan",
             "socketcand-client", "socketcand-server", "monitor-udp"}
 SERVERS = {"server-control", "server-scip", "server-socketcand", "server-rfc2217", "server-xrce", "server-rtps"}
-#: Server targets whose fuzzing finds a bug another branch of issue 23 fixes (remove each once it is merged).
-KNOWN = {
-    "server-scip": "the UST's line thread dies (EBADF in select) when a client leaves while the unit answers: "
-                   "TCP host port / serial medium",
-    "server-rtps": "a locator port beyond 65535 in an SPDP raises OverflowError in the announcement timer",
-    "server-socketcand": "a number of hundreds of digits raises OverflowError in socketcand's parse_command",
-}
 
 
 def test_every_built_in_reader_is_registered():
@@ -60,12 +53,7 @@ def test_the_fuzz_script_runs_every_decoder():
     assert all(r["noise_ratio"] > 0 and "items_lost_per_damaged_byte" in r for r in doc["targets"].values())
 
 
-def servers_known_to_fail():
-    return [pytest.param(n, marks=pytest.mark.xfail(reason=KNOWN[n], strict=False)) if n in KNOWN else n
-            for n in sorted(SERVERS)]
-
-
-@pytest.mark.parametrize("name", servers_known_to_fail())
+@pytest.mark.parametrize("name", sorted(SERVERS))
 def test_a_clean_session_is_served_and_a_damaged_one_survived(name):
     target = next(t for t in targets() if t.name == name)
     rng = random.Random(5)
@@ -90,7 +78,7 @@ def server_fuzz(tmp_path_factory):
     return proc, figures, json.loads(out.read_text())
 
 
-@pytest.mark.parametrize("name", servers_known_to_fail())
+@pytest.mark.parametrize("name", sorted(SERVERS))
 def test_the_fuzz_script_drives_each_server_without_a_traceback(server_fuzz, name):
     proc, figures, doc = server_fuzz
     assert set(doc["targets"]) == SERVERS, proc.stderr[-3000:]
