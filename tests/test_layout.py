@@ -116,7 +116,6 @@ def modules() -> dict[str, Module]:
 #: path imports Kernel/Task for annotations only (TYPE_CHECKING); `motion.py` moves out of the Dynamixel
 #: package (`fakes/motion.py`); `CanDoor` moves to `transports/can_door.py`, which the doors import.
 KNOWN_CYCLES = {
-    frozenset({"hilbench.protocols.tracestamp_binary", "hilbench.protocols.tracestamp_stream"}),
     frozenset({"hilbench.fakes.stm32_board.fast_path", "hilbench.fakes.stm32_board.kernel"}),
     frozenset({"hilbench.fakes.control_table_servo", "hilbench.fakes.dynamixel", "hilbench.fakes.dynamixel.bus",
                "hilbench.fakes.dynamixel.servo"}),
@@ -227,7 +226,7 @@ def test_no_import_cycles():
 #: bench's servers). The base is what every layer may use: errors, value rules, the registry (it loads
 #: plug-ins by name, importing none of them), fuzz-target types, the console.
 LAYERS: dict[str, tuple[int, set[str]]] = {
-    "base": (0, {"hilbench", "hilbench._compat", "hilbench.errors", "hilbench.rules", "hilbench.registry",
+    "base": (0, {"hilbench", "hilbench.errors", "hilbench.rules", "hilbench.registry",
                  "hilbench.decoders", "hilbench.console"}),
     "protocols": (1, {"hilbench.protocols"}),
     "transports": (2, {"hilbench.transports"}),
@@ -363,11 +362,6 @@ NAMES_A_FAMILY: dict[str, set[str]] = {
     # board in its Perfetto export (P8c moves the trace instrument's defaults, P9 renames the verb `trace`)
     "profiler/instrument.py": {"'vel2d'"},
     "profiler/export_perfetto.py": {"'stm32f767-rover'"},
-    # P1: removed
-    "_compat.py": {"import hilbench.clients.dynamixel", "import hilbench.dashboard.dynamixel_views",
-                   "import hilbench.families.dynamixel", "import hilbench.families.stm32_rover",
-                   "import hilbench.monitor.dynamixel.devices", "import hilbench.monitor.dynamixel.summary",
-                   "import hilbench.monitor.dynamixel.tracker"},
 }
 
 
