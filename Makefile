@@ -74,3 +74,4 @@ bench: $(VENV)/.installed $(SDK3)/.installed
 	$(PY) tools/bench_lidar.py
 	$(PY) tools/bench_can.py
 	$(PY) tools/bench_udp.py
+	$(PY) tools/bench_startup.py

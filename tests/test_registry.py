@@ -1,14 +1,12 @@
 """The plug-in registry: built-ins come from entry points, broken plug-ins are skipped with a warning,
-the core knows no family by name, and old import paths still work with a deprecation warning."""
+the core knows no family by name."""
 
 from __future__ import annotations
 
-import importlib
 import re
 import subprocess
 import sys
 import tokenize
-import warnings
 from pathlib import Path
 
 import pytest
@@ -130,25 +128,3 @@ def test_an_unknown_name_is_a_usage_error_naming_the_known_ones():
     with pytest.raises(UsageError, match="no device family speaks 'canbus'"):
         registry.family_for_protocol("canbus")
 
-
-@pytest.mark.parametrize("old,name,new", [
-    ("hilbench.profile", "load_profile", "hilbench.bench.profile"),
-    ("hilbench.profile", "DeviceSpec", "hilbench.families.dynamixel"),
-    ("hilbench.control", "ControlClient", "hilbench.families.stm32_rover"),
-    ("hilbench.dxl_client", "DxlError", "hilbench.clients.dynamixel"),
-    ("hilbench.teleop", "Teleop", "hilbench.clients.teleop"),
-    ("hilbench.demo", "run_demo", "hilbench.clients.dynamixel_demo"),
-    ("hilbench.monitor.tracker", "BusTracker", "hilbench.monitor.dynamixel.tracker"),
-    ("hilbench.monitor", "BusTracker", "hilbench.monitor.dynamixel.tracker"),
-    ("hilbench.bench", "board_config", "hilbench.families.stm32_rover"),
-    ("hilbench.dashboard", "VIEWS", "hilbench.dashboard.dynamixel_views"),
-])
-def test_old_import_paths_work_with_a_deprecation_warning(old, name, new):
-    if old not in ("hilbench.monitor", "hilbench.bench", "hilbench.dashboard"):  # packages that still exist
-        sys.modules.pop(old, None)
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        obj = getattr(importlib.import_module(old), name)
-    assert any(w.category is DeprecationWarning and new in str(w.message) for w in caught)
-    moved = {"DeviceSpec": "ServoSpec", "ControlClient": "BoardClient"}.get(name, name)
-    assert obj is getattr(importlib.import_module(new), moved)

@@ -7,13 +7,10 @@
 - :mod:`~hilbench.bench.control`: the control channel for other processes.
 """
 
-from hilbench import _compat
 from hilbench.bench.bench import Bench, Endpoint
 from hilbench.bench.checks import Checker, ProfileError
 from hilbench.bench.family import DeviceFamily, DeviceSpec
 from hilbench.bench.profile import DEFAULT_PROFILE, EndpointSpec, Profile, load_profile
-
-__getattr__ = _compat.module_getattr(__name__)
 
 __all__ = ["DEFAULT_PROFILE", "Bench", "Checker", "DeviceFamily", "DeviceSpec", "Endpoint", "EndpointSpec",
            "Profile", "ProfileError", "load_profile"]

@@ -14,9 +14,13 @@ Data safety comes first, because ``--manifest`` names a path the user typed:
   while it is still that one (same file, same token).
 - :func:`read_manifest` is the one reader every client uses (the ``manifest``
   source of ``monitor``/``profile``/``record``, :meth:`ControlClient.from_manifest
-  <hilbench.bench.control.ControlClient.from_manifest>`, the pytest plug-in,
-  the benchmarks): a manifest whose bench is gone gives one line,
-  ``bench not running (stale manifest, pid N gone)``.
+  <hilbench.bench.control.ControlClient.from_manifest>`, the ``can``, ``lidar``,
+  ``labgrid`` and ``run`` verbs, the pytest plug-in, the benchmarks): a file
+  that is not a manifest gives one line (exit status 2), a manifest whose bench
+  is gone too, ``bench not running (stale manifest, pid N gone)`` (exit status 1).
+- :func:`endpoint_of` is the one ``FILE.json#NAME`` rule: the endpoint named
+  ``NAME``, else the only one of the kind a verb wants; :func:`devices_on` the
+  devices on an endpoint.
 
 The manifest source lives here rather than in :mod:`hilbench.transports.sources`:
 the manifest is the bench layer's format, and transports must not import the
@@ -34,6 +38,7 @@ import os
 import secrets
 import stat
 import tempfile
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -160,6 +165,40 @@ def read_manifest(path: str | os.PathLike[str]) -> dict[str, Any]:
     if pid is not None:
         raise BenchNotRunning(f"{path}: bench not running (stale manifest, pid {pid} gone)")
     return data
+
+
+def endpoint_of(data: Mapping[str, Any], fragment: str | None, where: str,
+                predicate: Callable[[dict[str, Any]], bool] | None = None,
+                what: str = "endpoints") -> dict[str, Any]:
+    """The endpoint a verb works on: the one named ``fragment`` (``FILE.json#NAME``), else the only one
+    ``predicate`` accepts (every endpoint without one).
+
+    ``where`` starts the messages (the manifest's path, ``bench:PROFILE``); ``what`` names the endpoints
+    ``predicate`` accepts, in the plural (``"scanner endpoints"``). Raises :class:`~hilbench.errors.UsageError`
+    in one line (exit status 2: the bench has no such endpoint) when no endpoint has that name, the named
+    one is not among ``what``, none is, or several are and no name says which.
+    """
+    endpoints = [e for e in data.get("endpoints") or [] if isinstance(e, dict) and isinstance(e.get("name"), str)]
+    names = ", ".join(e["name"] for e in endpoints) or "none"
+    if fragment:
+        found = next((e for e in endpoints if e["name"] == fragment), None)
+        if found is None:
+            raise UsageError(f"{where}: no endpoint named {fragment!r} (endpoints: {names})")
+        if predicate is not None and not predicate(found):
+            raise UsageError(f"{where}: endpoint {fragment!r} is not among the {what}")
+        return found
+    fitting = [e for e in endpoints if predicate is None or predicate(e)]
+    if not fitting:
+        raise UsageError(f"{where}: no {what} (endpoints: {names})")
+    if len(fitting) > 1:
+        raise UsageError(f"{where}: several {what} ({', '.join(e['name'] for e in fitting)}); add #NAME")
+    return fitting[0]
+
+
+def devices_on(data: Mapping[str, Any], endpoint: str | Mapping[str, Any]) -> list[dict[str, Any]]:
+    """The devices a manifest lists on ``endpoint`` (its name, or its entry), in manifest order."""
+    name = endpoint if isinstance(endpoint, str) else endpoint.get("name")
+    return [d for d in data.get("devices") or [] if isinstance(d, dict) and d.get("endpoint") == name]
 
 
 # --------------------------------------------------------------------------- writing
@@ -319,5 +358,5 @@ SOURCE = SourceOpener("manifest", open_manifest, suffixes=(".json",), usage="/tm
                       what="the traffic tap of a running hilbench emulate, found through its manifest")
 
 __all__ = ["FORMAT", "MARKER", "SOURCE", "BenchNotRunning", "ManifestBusy", "ManifestClaim", "ManifestError",
-           "check_path", "is_manifest", "manifest_tap", "new_token", "open_manifest", "pid_alive", "process_start",
+           "check_path", "devices_on", "endpoint_of", "is_manifest", "manifest_tap", "new_token", "open_manifest", "pid_alive", "process_start",
            "read_manifest", "remove_manifest", "stale_pid", "write_manifest"]

@@ -87,21 +87,14 @@ def _write(text: str, out: str | None) -> None:
 
 def manifest_socketcand(path: str) -> str:
     """The socketcand URL of a bench manifest's CAN endpoint (``file.json#endpoint`` picks one)."""
-    from hilbench.bench.manifest import ManifestError, read_manifest
+    from hilbench.bench.manifest import endpoint_of, read_manifest
 
     file, _, endpoint = path.partition("#")
-    try:
-        data = read_manifest(file)  # a bench that is not running (no manifest, a stale one): exit status 1
-    except ManifestError as exc:
-        raise CliError(str(exc)) from None
-    eps = [e for e in data.get("endpoints", []) if isinstance(e, dict) and e.get("socketcand")]
-    if endpoint:
-        eps = [e for e in eps if e.get("name") == endpoint]
-    if not eps:
-        raise CliError(f"{path}: no CAN endpoint with a socketcand server in the manifest")
-    if len(eps) > 1:
-        raise CliError(f"{path}: several CAN endpoints ({', '.join(e['name'] for e in eps)}); add #NAME")
-    s = eps[0]["socketcand"]
+    # not a manifest: exit status 2; a bench that is not running (no manifest, a stale one): 1
+    data = read_manifest(file)
+    ep = endpoint_of(data, endpoint, file, lambda e: isinstance(e.get("socketcand"), dict),
+                     "CAN endpoints with a socketcand server")
+    s = ep["socketcand"]
     return f"socketcand://{s['host']}:{s['port']}/{s['channel']}"
 
 

@@ -45,16 +45,12 @@ class Target:
         self.label = label or link
 
 
-def _endpoint_of(endpoints: list[dict], fragment: str, where: str) -> dict:
-    scanners = [e for e in endpoints if e.get("protocol") in PROTOCOLS.values()]
-    if fragment:
-        found = [e for e in endpoints if e.get("name") == fragment]
-        if not found:
-            raise CliError(f"{where}: no endpoint named {fragment!r}")
-        return found[0]
-    if not scanners:
-        raise CliError(f"{where}: no scanner endpoint (give #ENDPOINT)")
-    return scanners[0]
+def _endpoint_of(manifest: dict, fragment: str, where: str) -> dict:
+    """The manifest's scanner endpoint: ``#NAME``, else its only one (:func:`~hilbench.bench.manifest.endpoint_of`)."""
+    from hilbench.bench.manifest import endpoint_of
+
+    return endpoint_of(manifest, fragment, where, lambda e: e.get("protocol") in PROTOCOLS.values(),
+                       "scanner endpoints")
 
 
 def _control_motor(address: str | None, device: str | None):
@@ -89,13 +85,18 @@ def resolve(source: str, overrides: list[str] | None = None) -> Target:
         raise CliError(f"--set changes the profile of a bench this command starts: give bench:PROFILE, not {source}")
     if source.startswith("bench:"):
         from hilbench.bench import Bench
+        from hilbench.bench.manifest import devices_on
         from hilbench.bench.profile import load_profile
 
         spec, _, frag = source[len("bench:"):].partition("#")
         bench = Bench(load_profile(spec or "scanners", overrides)).start()
         manifest = bench.manifest()
-        ep = _endpoint_of(manifest["endpoints"], frag, source)
-        dev = next((d for d in manifest["devices"] if d["endpoint"] == ep["name"]), {})
+        try:
+            ep = _endpoint_of(manifest, frag, source)
+        except Exception:
+            bench.stop()  # a bench without the endpoint asked for: stopped before the one-line error
+            raise
+        dev = next(iter(devices_on(manifest, ep)), {})
         port = bench.endpoint(ep["name"]).port
         lines = getattr(port, "lines", None)
         motor = (lambda on: lines.host_sets(dtr=not on)) if lines is not None else None
@@ -104,14 +105,12 @@ def resolve(source: str, overrides: list[str] | None = None) -> Target:
                       label=f"bench {bench.profile.name}#{ep['name']}")
     path, _, frag = source.partition("#")
     if path.endswith(".json"):
-        from hilbench.bench.manifest import ManifestError, read_manifest
+        from hilbench.bench.manifest import devices_on, read_manifest
 
-        try:
-            manifest = read_manifest(path)  # a bench that is not running (no manifest, a stale one): exit 1
-        except ManifestError as exc:
-            raise CliError(str(exc)) from None
-        ep = _endpoint_of(manifest.get("endpoints", []), frag, path)
-        dev = next((d for d in manifest.get("devices", []) if d.get("endpoint") == ep["name"]), {})
+        # not a manifest: exit status 2; a bench that is not running (no manifest, a stale one): 1
+        manifest = read_manifest(path)
+        ep = _endpoint_of(manifest, frag, path)
+        dev = next(iter(devices_on(manifest, ep)), {})
         scene = None
         if manifest.get("profile"):
             with contextlib.suppress(Exception):

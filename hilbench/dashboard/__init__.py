@@ -6,9 +6,6 @@ of the tracker's instrument, e.g. :mod:`hilbench.dashboard.dynamixel_views`
 (device overview, model overview, device details, error log).
 """
 
-from hilbench import _compat
 from hilbench.dashboard.app import MAX_FPS, Dashboard, ViewSet
-
-__getattr__ = _compat.module_getattr(__name__)
 
 __all__ = ["MAX_FPS", "Dashboard", "ViewSet"]

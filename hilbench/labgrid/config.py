@@ -31,7 +31,7 @@ from pathlib import Path
 from typing import Any
 
 from hilbench import registry
-from hilbench.errors import UnavailableError, UsageError
+from hilbench.errors import UsageError
 from hilbench.transports.host_port import url_host
 
 #: Resource names besides the endpoints'.
@@ -42,18 +42,13 @@ DRIVERS_MODULE = "hilbench.labgrid.drivers"
 
 
 def load_manifest(path: str | Path) -> dict[str, Any]:
-    """A bench manifest (JSON), with a one-line error naming the file when it is not one."""
-    try:
-        data = json.loads(Path(path).read_text())
-    except FileNotFoundError:  # its bench writes it, and removes it when it stops: exit status 1
-        raise UnavailableError(f"{path}: no such manifest (is the bench running? start it with hilbench emulate "
-                               "--manifest)") from None
-    except OSError as exc:
-        raise UnavailableError(f"{path}: cannot read the manifest ({exc.strerror or exc})") from None
-    except ValueError as exc:
-        raise UsageError(f"{path}: not a bench manifest (invalid JSON: {exc})") from None
-    if not isinstance(data, dict) or not isinstance(data.get("endpoints"), list) or "name" not in data:
-        raise UsageError(f"{path}: not a bench manifest (expected \"name\" and \"endpoints\")")
+    """A running bench's manifest (:func:`~hilbench.bench.manifest.read_manifest`: one-line errors, exit status
+    2 for a file that is not one, 1 for a bench that is not running), with the name labgrid's groups take."""
+    from hilbench.bench.manifest import ManifestError, read_manifest
+
+    data = read_manifest(path)
+    if not isinstance(data.get("name"), str):
+        raise ManifestError(f"{path}: not a bench manifest (no name)")
     return data
 
 

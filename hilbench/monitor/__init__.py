@@ -8,11 +8,8 @@
 - :mod:`hilbench.monitor.dynamixel`: the Dynamixel Protocol 2.0 bus tracker.
 """
 
-from hilbench import _compat
 from hilbench.monitor.errorlog import ErrorLog
 from hilbench.monitor.instrument import Instrument
 from hilbench.monitor.live import Monitor
-
-__getattr__ = _compat.module_getattr(__name__)
 
 __all__ = ["ErrorLog", "Instrument", "Monitor"]

@@ -572,16 +572,3 @@ class WordDecoder:
         t_word = np.where(k >= 0, rel[np.maximum(k, 0)], before)
         return t_word
 
-
-def __getattr__(name: str):
-    # decode_words moved to tracestamp_stream (it needs the StreamDecoder, which imports this module);
-    # the old name still works, imported lazily so the two modules do not import each other.
-    if name == "decode_words":
-        import warnings
-
-        from hilbench.protocols.tracestamp_stream import decode_words
-
-        warnings.warn("hilbench.protocols.tracestamp_binary.decode_words moved to "
-                      "hilbench.protocols.tracestamp_stream.decode_words", DeprecationWarning, stacklevel=2)
-        return decode_words
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -2,13 +2,11 @@
 
 from __future__ import annotations
 
-import json
 import os
 import socket
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from importlib import resources
-from pathlib import Path
 from typing import Any
 
 from hilbench.errors import BenchError, UsageError
@@ -46,22 +44,19 @@ def manifest_paths(given: Iterable[str] | None, environ: Mapping[str, str] | Non
 def read_bench(manifest: str | os.PathLike[str] | Mapping[str, Any], *, check: bool = True) -> BenchLines:
     """The line server of the bench a manifest (a file, or its parsed content) describes.
 
-    With ``check``, the bench must answer on its socket. Raises :class:`BenchError`
-    (not running, no line server) or :class:`UsageError` (not a manifest).
+    A file is read with :func:`~hilbench.bench.manifest.read_manifest`. With ``check``, the bench must
+    answer on its socket. Raises :class:`BenchError` (not running, no line server) or :class:`UsageError`
+    (not a manifest), one line each.
     """
     if isinstance(manifest, Mapping):
         data, name = manifest, str(manifest.get("manifest_path") or "the manifest")
+        if not isinstance(data.get("endpoints"), list):
+            raise UsageError(f"{name}: not a bench manifest (no endpoints)")
     else:
+        from hilbench.bench.manifest import read_manifest
+
         name = str(manifest)
-        try:
-            data = json.loads(Path(manifest).read_text())
-        except FileNotFoundError:
-            raise BenchError(f"{name}: no such manifest; is the bench running "
-                             f"(`hilbench emulate --manifest {name}`)?") from None
-        except (OSError, ValueError) as exc:
-            raise UsageError(f"{name}: not a bench manifest ({exc})") from None
-    if not isinstance(data, Mapping) or "endpoints" not in data:
-        raise UsageError(f"{name}: not a bench manifest (no 'endpoints')")
+        data = read_manifest(manifest)
     lines = data.get("lines")
     if not isinstance(lines, Mapping) or not isinstance(lines.get("socket"), str):
         raise BenchError(f"{name}: the bench serves no modem lines (no 'lines' entry: no pty endpoint, "

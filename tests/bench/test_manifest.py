@@ -15,10 +15,13 @@ from hilbench.bench.manifest import (
     BenchNotRunning,
     ManifestBusy,
     ManifestError,
+    devices_on,
+    endpoint_of,
     read_manifest,
     remove_manifest,
     write_manifest,
 )
+from hilbench.errors import UsageError
 from hilbench.pytest_plugin import wait_until
 from hilbench.transports.sources import SourceError, open_source
 from tests.conftest import interrupt
@@ -132,6 +135,64 @@ def test_readers_refuse_what_is_not_a_manifest(tmp_path):
         ControlClient.from_manifest(path)
     with pytest.raises(BenchNotRunning, match="no such manifest"):  # a bench removes it when it stops: exit 1
         read_manifest(tmp_path / "missing.json")
+
+
+#: The verbs that find a bench through its manifest: the manifest is read where MANIFEST stands.
+MANIFEST_VERBS = {
+    "can": ["can", "send", "MANIFEST", "123#00"],
+    "lidar": ["lidar", "MANIFEST"],
+    "labgrid": ["labgrid", "exporter-config", "MANIFEST"],
+    "run": ["run", "--manifest", "MANIFEST", "--", "true"],
+}
+
+
+@pytest.mark.parametrize("verb", sorted(MANIFEST_VERBS))
+@pytest.mark.parametrize("given", ["other JSON", "directory", "10 MB file", "missing", "stale"])
+def test_every_verb_reads_manifests_the_same_way(verb, given, tmp_path, dead_pid, capsys):
+    """Not a manifest: one line, exit status 2 (what was asked cannot work); no bench there: 1 (errors.py)."""
+    from hilbench.cli import main
+
+    path = tmp_path / "bench.json"
+    if given == "other JSON":  # e.g. a `hilbench profile --json` document
+        path.write_text('{"tasks": {}}')
+        want, code = "not a bench manifest (no endpoints)", 2
+    elif given == "directory":
+        path.mkdir()
+        want, code = "not a bench manifest (not a regular file)", 2
+    elif given == "10 MB file":
+        with open(path, "wb") as fh:
+            fh.truncate(10 << 20)  # sparse: no 10 MB written
+        want, code = f"not a bench manifest ({10 << 20} bytes)", 2
+    elif given == "missing":
+        want, code = "no such manifest (is the bench running? start it with hilbench emulate --manifest)", 1
+    else:
+        path.write_text(json.dumps({MARKER: 1, **doc(dead_pid), "name": "arm", "token": "x"}))
+        want, code = f"bench not running (stale manifest, pid {dead_pid} gone)", 1
+    argv = [str(path) if a == "MANIFEST" else a for a in MANIFEST_VERBS[verb]]
+    assert main(argv) == code
+    out, err = capsys.readouterr()
+    assert err.splitlines() == [f"hilbench: error: {path}: {want}"] and out == ""
+
+
+def test_endpoint_of_is_the_one_name_rule():
+    data = {"endpoints": [{"name": "lidar", "protocol": "rplidar"}, {"name": "lms", "protocol": "sick-lms200"},
+                          {"name": "arm", "protocol": "dynamixel"}],
+            "devices": [{"name": "a1", "endpoint": "lidar"}, {"name": "s1", "endpoint": "arm"},
+                        {"name": "s2", "endpoint": "arm"}]}
+    scanner = lambda e: e["protocol"] != "dynamixel"  # noqa: E731
+    assert endpoint_of(data, "lms", "b.json", scanner, "scanners")["name"] == "lms"
+    assert endpoint_of(data, "", "b.json", lambda e: e["name"] == "arm", "servo buses")["name"] == "arm"
+    for fragment, predicate, message in (
+        ("nope", scanner, "b.json: no endpoint named 'nope' (endpoints: lidar, lms, arm)"),
+        ("arm", scanner, "b.json: endpoint 'arm' is not among the scanners"),
+        ("", scanner, "b.json: several scanners (lidar, lms); add #NAME"),
+        ("", lambda e: False, "b.json: no scanners (endpoints: lidar, lms, arm)"),
+    ):
+        with pytest.raises(UsageError) as exc:
+            endpoint_of(data, fragment, "b.json", predicate, "scanners")
+        assert str(exc.value) == message and exc.value.exit_code == 2
+    assert [d["name"] for d in devices_on(data, "arm")] == ["s1", "s2"]
+    assert devices_on(data, {"name": "lms"}) == [] and devices_on({}, "arm") == []
 
 
 def emulate(manifest, *args: str) -> subprocess.Popen:

@@ -2,15 +2,12 @@
 
 from __future__ import annotations
 
-import importlib
 import subprocess
 import sys
 
 import numpy as np
 import pytest
 
-from hilbench.fakes.stm32_board import kernel as kernel_module
-from hilbench.fakes.stm32_board.fast_path import fast_run
 from hilbench.fakes.stm32_board.kernel import DELAY_UNTIL, RUN, WAIT, Durations, Kernel, Periodic, Task
 from hilbench.fakes.stm32_board.presets import Timing
 
@@ -323,16 +320,3 @@ def test_the_kernel_does_not_import_the_fast_path_at_import_time():
             "import hilbench.fakes.stm32_board.fast_path")
     subprocess.run([sys.executable, "-W", "error::DeprecationWarning", "-c", code], check=True)
 
-
-def test_the_old_scheduler_module_still_works_and_warns():
-    name = "hilbench.fakes.stm32_board.scheduler"
-    sys.modules.pop(name, None)
-    try:
-        with pytest.warns(DeprecationWarning, match=r"stm32_board\.kernel"):
-            old = importlib.import_module(name)
-    finally:
-        sys.modules.pop(name, None)
-    for public in ("Kernel", "Task", "Durations", "Periodic", "ReadyList", "RUN", "DELAY_UNTIL", "DELAY", "WAIT",
-                   "NOTIFY", "FSTAMP", "CALL", "YIELD"):
-        assert getattr(old, public) is getattr(kernel_module, public)
-    assert old.fast_run is fast_run

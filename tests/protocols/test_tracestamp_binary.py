@@ -206,13 +206,8 @@ def test_decode_speed_is_vectorised():
     assert sum(b.count for part in batches for b in part if type(b) is StampBatch) == 100_000
 
 
-def test_decode_words_lives_in_the_stream_module_and_the_old_name_warns():
+def test_decode_words_decodes_a_stream():
     ids, begin, t, names = random_window(7, 200)
     data = build_stream(ids, begin, t, names)
     stamps = decode_words(data)
     assert len(stamps) == 200 and stamps == stamps_of(decode_all(data))
-    with pytest.warns(DeprecationWarning, match="tracestamp_stream.decode_words"):
-        old = tb.decode_words
-    assert old is decode_words
-    with pytest.raises(AttributeError):
-        tb.no_such_name  # noqa: B018

@@ -41,7 +41,7 @@ def test_no_bench_given_is_a_usage_error():
 
 def test_missing_manifest_and_stopped_bench(tmp_path):
     proc = run("run", "--manifest", str(tmp_path / "none.json"), "--", "true")
-    assert proc.returncode == 1 and "none.json: no such manifest; is the bench running" in proc.stderr
+    assert proc.returncode == 1 and "none.json: no such manifest (is the bench running?" in proc.stderr
     with Bench("arm") as bench:
         serve_lines(bench)
         path = str(tmp_path / "arm.json")
