@@ -23,6 +23,7 @@ from typing import NamedTuple
 
 from construct import Checksum, Float64l, Int32ul, RawCopy, Struct, this
 
+from hilbench.errors import FormatError
 from hilbench.protocols.checksums import crc32_mpeg2
 
 FRAME_SIZE = 28
@@ -77,7 +78,7 @@ class FrameProblem(NamedTuple):
         return MSG_CRC if self.kind == "crc" else MSG_INSUFFICIENT
 
 
-class Vel2dError(ValueError):
+class Vel2dError(FormatError):
     """Raised by :func:`parse` (the strict form); :func:`decode` never raises."""
 
 
