@@ -27,7 +27,7 @@ class TraceInstrument(Instrument):
         items = dec.feed(data[:8192]) + dec.flush()
         # A damaged-words report stands for all the words it covers: random bytes hold a few well-formed
         # binary words (a 11xxxxxx byte then three 10xxxxxx: one in 256) among hundreds of broken ones.
-        bad = sum(i.count for i in items if type(i) is Problem)  # lines or words
+        bad = sum(i.count or 1 for i in items if type(i) is Problem)  # words (count) or one line
         good = sum(1 for i in items if type(i) is not Problem)
         if good <= bad:  # more damage than trace: not a trace (--protocol vel2d still reads it)
             return 0.0

@@ -22,7 +22,7 @@ decoder documents; the other fields are filled where the decoder has them
 - :class:`hilbench.protocols.rfc2217.TelnetDecoder`: ``stray``, ``overlong``,
   ``empty``, ``unterminated`` (subnegotiations); count (bytes), detail.
 - :class:`hilbench.protocols.tracestamp.TextDecoder`: ``unreadable`` (a line no
-  format fits); raw, detail, count (1: a line).
+  format fits, one problem per line); raw (its first 80 bytes if overlong), detail.
 - :class:`hilbench.protocols.tracestamp_binary.WordDecoder`: ``broken_word``,
   ``reserved_id``, ``unknown_op``; count (words), t_us.
 - :func:`hilbench.protocols.vel2d.decode`: ``length``, ``crc``; raw, expected,
@@ -51,7 +51,8 @@ class Problem(NamedTuple):
     detail: str = ""
     #: When, in the time base of the ``t`` the decoder was fed (seconds); 0.0 if it had none.
     t: float = 0.0
-    #: How many bytes, words or lines the problem stands for where ``raw`` does not show them (0: ``raw`` does).
+    #: How many bytes or words the problem stands for where ``raw`` does not hold them (telnet's dropped bytes,
+    #: damaged trace words); 0 where ``raw`` is the whole of it (a packet, a line).
     count: int = 0
     #: The check value computed from the bytes (a CRC or checksum), where a decoder compares one.
     expected: int = 0

@@ -583,7 +583,7 @@ class TextDecoder:
             return rest
         self.lines += 1
         self.parse_errors += 1
-        out.append(Problem(UNREADABLE, rest[:80], f"line longer than {MAX_LINE} bytes", count=1))
+        out.append(Problem(UNREADABLE, rest[:80], f"line longer than {MAX_LINE} bytes"))
         self._skipping = True
         return b""
 
@@ -778,7 +778,7 @@ class TextDecoder:
 
     def _error(self, line: bytes, reason: str, out: list) -> None:
         self.parse_errors += 1
-        out.append(Problem(UNREADABLE, line, reason, count=1))
+        out.append(Problem(UNREADABLE, line, reason))  # positional: noise makes thousands per megabyte
 
     def _open(self, out: list, implicit: bool) -> _ReportBuilder:
         if self._report is None:

@@ -150,8 +150,8 @@ def test_log_lines_and_errors_never_raise():
     items, dec = decode(data)
     assert items[0] == LogLine("00:00:12", "INFO", "[recv vel] [100.000000 -200.000000 0.300000]")
     assert items[1].level == "ERROR"
-    assert [(type(i), i.kind, i.raw, i.count) for i in items[2:]] == [
-        (Problem, UNREADABLE, b"garbage here", 1), (Problem, UNREADABLE, b"\xff\xfe", 1)]
+    assert [(type(i), i.kind, i.raw) for i in items[2:]] == [
+        (Problem, UNREADABLE, b"garbage here"), (Problem, UNREADABLE, b"\xff\xfe")]
     assert items[2].detail == "not a stamp, log line or report line"
     assert dec.parse_errors == 2 and dec.log_lines == 2 and dec.lines == 4
 
