@@ -21,7 +21,9 @@ class                        exit   meaning
                                     file) or one that fails its checks (``--set``
                                     included), a file that is not what the verb
                                     reads (not a manifest, capture, profile), a
-                                    device or endpoint the bench does not have
+                                    device or endpoint the bench does not have, an
+                                    optional extra that is not installed
+                                    (:class:`MissingExtra`)
 :class:`UnavailableError`    1      the command is fine but something it needs is
                                     not there, is taken or did not answer in time:
                                     a file, port or manifest that does not exist
@@ -41,10 +43,26 @@ class                        exit   meaning
 ``hilbench run`` exits with its program's status (126 or 127 when the program
 cannot be run, as a shell does).
 
+Every exception class hilbench defines derives from :class:`HilbenchError`
+(a test walks the package): a family or a layer subclasses the one that says
+what went wrong, adding ``ValueError`` or ``OSError`` as a second base where
+callers catch those. Three more carry a meaning every layer shares:
+
+- :class:`FormatError` (a :class:`UsageError` and a ``ValueError``): bytes or
+  a file that are not the format they claim (a capture, a strict frame parse);
+- :class:`RequestRefused`: a bench-side server refuses a client's request and
+  answers it in its own protocol (never a traceback on the bench's stderr);
+- :class:`MissingExtra` (a :class:`UsageError`): an optional extra is not
+  installed; :func:`require` imports a module of one or raises it, naming
+  ``pip install 'hilbench[EXTRA]'``.
+
 This module imports nothing from hilbench: every layer may use it.
 """
 
 from __future__ import annotations
+
+import importlib
+from types import ModuleType
 
 
 class HilbenchError(Exception):
@@ -85,4 +103,50 @@ class OptionError(UsageError):
         self.message = message
 
 
-__all__ = ["BenchError", "DeviceError", "HilbenchError", "OptionError", "UnavailableError", "UsageError"]
+class FormatError(UsageError, ValueError):
+    """Bytes or a file that are not the format they claim (a damaged capture, a frame a strict parser refuses).
+
+    A ``ValueError`` too, so code that parses values catches it as it would any bad value.
+    """
+
+
+class RequestRefused(HilbenchError):
+    """A client's request that a bench-side server refuses; the server answers it in its own protocol
+    (``err MESSAGE``, a status code) and keeps serving: ``str()`` is what it tells the client."""
+
+
+class MissingExtra(UsageError):
+    """An optional extra of hilbench is not installed; ``str()`` names the ``pip install`` that brings it.
+
+    :attr:`module` is the module that could not be imported, :attr:`extra` the extra that provides it.
+    """
+
+    def __init__(self, message: str, module: str = "", extra: str = "") -> None:
+        super().__init__(message)
+        self.module = module
+        self.extra = extra
+
+
+def require(module: str, extra: str, purpose: str = "") -> ModuleType:
+    """Import ``module``, which the optional extra ``extra`` installs, or raise :class:`MissingExtra`.
+
+    ``purpose`` starts the one-line message: ``require("cantools", "can", "decoding with a DBC")`` raises
+    "decoding with a DBC needs cantools: pip install 'hilbench[can]'"; without it the message says the
+    module is not installed.
+
+    >>> require("json", "none").__name__
+    'json'
+    """
+    try:
+        return importlib.import_module(module)
+    except ImportError as exc:
+        top = module.partition(".")[0]
+        missing = (exc.name or "").partition(".")[0]
+        # The extra's module is there but something it imports is not: say which, as pip would not.
+        why = "" if missing in ("", top) else f" ({exc})"
+        head = f"{purpose} needs {top}" if purpose else f"{top} is not installed"
+        raise MissingExtra(f"{head}{why}: pip install 'hilbench[{extra}]'", module, extra) from None
+
+
+__all__ = ["BenchError", "DeviceError", "FormatError", "HilbenchError", "MissingExtra", "OptionError",
+           "RequestRefused", "UnavailableError", "UsageError", "require"]

@@ -57,6 +57,7 @@ from typing import Any
 
 from hilbench.bench.delivery_board import FILE_NAME as BOARD_FILE
 from hilbench.bench.delivery_board import DeliveryBoard
+from hilbench.errors import RequestRefused
 from hilbench.transports.listener import Listener
 from hilbench.transports.readiness import readable
 
@@ -71,10 +72,6 @@ IDLE_TIMEOUT = 60.0
 
 TIOCM = {"dtr": termios.TIOCM_DTR, "rts": termios.TIOCM_RTS, "cts": termios.TIOCM_CTS,
          "dsr": termios.TIOCM_DSR, "ri": termios.TIOCM_RNG, "cd": termios.TIOCM_CAR}
-
-
-class LineRequestError(Exception):
-    """A request the server refuses (answered as ``err MESSAGE``)."""
 
 
 class _Port:
@@ -148,21 +145,21 @@ class LineServer:
         self.requests += 1
         try:
             return f"ok {self._handle(line.split())}"
-        except LineRequestError as exc:
+        except RequestRefused as exc:
             return f"err {exc}"
         except Exception as exc:  # a request must never take the server down; the client fails open
             return f"err {type(exc).__name__}: {exc}"
 
     def _handle(self, words: list[str]) -> int:
         if len(words) < 2:
-            raise LineRequestError("expected: RDEV VERB [ARG]")
+            raise RequestRefused("expected: RDEV VERB [ARG]")
         rdev_text, verb, args = words[0], words[1], words[2:]
         if verb == "ping":
             return len(self._ports)
         try:
             port = self._ports[int(rdev_text)]
         except (ValueError, KeyError):
-            raise LineRequestError(f"no pty of this bench has device number {rdev_text}") from None
+            raise RequestRefused(f"no pty of this bench has device number {rdev_text}") from None
         if verb == "mget":
             return self._mask(port)
         if verb in ("mset", "mbis", "mbic"):
@@ -180,7 +177,7 @@ class LineServer:
         if verb == "sync":
             framing = _int_arg(args) if args else None
             return self._after_taking(port, lambda: self._sync(port, framing))
-        raise LineRequestError(f"unknown request {verb!r}")
+        raise RequestRefused(f"unknown request {verb!r}")
 
     @staticmethod
     def _quiet(port: _Port) -> None:
@@ -211,15 +208,15 @@ class LineServer:
 
     def _break(self, port: _Port, args: list[str]) -> int:
         if len(args) != 1:
-            raise LineRequestError("expected: break on|off|SECONDS")
+            raise RequestRefused("expected: break on|off|SECONDS")
         if args[0] in ("on", "off"):
             return self._after_taking(port, lambda: port.lines.host_break(args[0] == "on"))
         try:
             duration = float(args[0])
         except ValueError:
-            raise LineRequestError(f"expected a break duration in seconds, got {args[0]!r}") from None
+            raise RequestRefused(f"expected a break duration in seconds, got {args[0]!r}") from None
         if not 0.0 < duration <= 60.0:
-            raise LineRequestError(f"break duration {duration} s is outside 0..60 s")
+            raise RequestRefused(f"break duration {duration} s is outside 0..60 s")
         self._after_taking(port, lambda: port.lines.host_break(True, duration))
         self._closed.wait(duration)  # tcsendbreak returns when the break is over, as on an adapter
         return 0
@@ -264,13 +261,13 @@ class LineServer:
             medium.call_at(box["end"] if delivered else time.monotonic(), finish)
 
         if medium.in_medium_thread():
-            raise LineRequestError("called from the bench's own line thread")
+            raise RequestRefused("called from the bench's own line thread")
         medium.call_at(None, take)
         if not took.wait(MEDIUM_TIMEOUT):
-            raise LineRequestError(f"the bench's line did not answer within {MEDIUM_TIMEOUT:g} s")
+            raise RequestRefused(f"the bench's line did not answer within {MEDIUM_TIMEOUT:g} s")
         wire = max(0.0, box.get("end", 0.0) - time.monotonic())  # a paced line's wire time
         if not done.wait(MEDIUM_TIMEOUT + wire):
-            raise LineRequestError(f"the bench's line did not answer within {MEDIUM_TIMEOUT:g} s")
+            raise RequestRefused(f"the bench's line did not answer within {MEDIUM_TIMEOUT:g} s")
         if "error" in box:
             raise box["error"]
         return box.get("taken", 0) if taken else int(box.get("value") or 0)
@@ -348,13 +345,13 @@ class LineServer:
 
 def _int_arg(args: list[str]) -> int:
     if len(args) != 1:
-        raise LineRequestError("expected one integer argument")
+        raise RequestRefused("expected one integer argument")
     try:
         value = int(args[0], 0)
     except ValueError:
-        raise LineRequestError(f"expected an integer, got {args[0]!r}") from None
+        raise RequestRefused(f"expected an integer, got {args[0]!r}") from None
     if not -(1 << 31) <= value < 1 << 32:  # a modem-line mask or a c_cflag: 32 bits
-        raise LineRequestError("integer out of range (32 bits)")
+        raise RequestRefused("integer out of range (32 bits)")
     return value
 
 
@@ -377,4 +374,4 @@ def serve_lines(bench: Any) -> LineServer | None:
     return server
 
 
-__all__ = ["TIOCM", "LineRequestError", "LineServer", "serve_lines"]
+__all__ = ["TIOCM", "LineServer", "serve_lines"]

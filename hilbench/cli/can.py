@@ -29,7 +29,7 @@ from collections.abc import Iterator
 from typing import Any
 
 from hilbench.cli.common import CliError, add_set_option, open_cli_source, terminate_on_sigterm
-from hilbench.errors import DeviceError
+from hilbench.errors import DeviceError, require
 from hilbench.rules import POSITIVE_COUNT, SECONDS, SPEED, Rule
 
 TYPES = {"u8": (1, False), "u16": (2, False), "u32": (4, False), "i8": (1, True), "i16": (2, True),
@@ -253,10 +253,7 @@ def cmd_nmt(args: argparse.Namespace) -> int:
 
 
 def cmd_sdo(args: argparse.Namespace) -> int:
-    try:
-        import canopen
-    except ImportError:
-        raise CliError("hilbench can sdo needs the canopen package: pip install 'hilbench[can]'") from None
+    canopen = require("canopen", "can", "hilbench can sdo")
     index, sub = _index(args.object)
     bus = open_target(args.target)
     canopen.Network.NOTIFIER_SHUTDOWN_TIMEOUT = 0.0

@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from hilbench.cli.common import CliError, add_set_option, terminate_on_sigterm
-from hilbench.errors import DeviceError, UnavailableError
+from hilbench.errors import DeviceError, UnavailableError, require
 from hilbench.rules import POSITIVE_COUNT, SECONDS, Rule
 
 #: ``--timeout``: how long to wait for the first scan (s).
@@ -162,13 +162,9 @@ def _stats(tr) -> str:
 
 def save_png(path: str, scan, target: Target) -> None:
     """One scan as a picture: over the scene in world coordinates when the pose is known, else sensor frame."""
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:
-        raise CliError("--png needs matplotlib (pip install 'hilbench[plot]')") from None
+    matplotlib = require("matplotlib", "plot", "--png")
+    matplotlib.use("Agg")
+    plt = require("matplotlib.pyplot", "plot", "--png")
     import numpy as np
 
     ok = scan.ranges > 0

@@ -24,7 +24,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
-from hilbench.errors import DeviceError, UsageError
+from hilbench.errors import DeviceError, UsageError, require
 from hilbench.protocols.control_table import Field, Model
 
 #: Register roles the demo uses, and their names in the X-series tables (which have no roles).
@@ -250,12 +250,8 @@ class FeetechLink(ServoLink):
 
 
 def feetech_sdk() -> Any:
-    """Feetech's ``scservo_sdk``, or a one-line :class:`UsageError` naming what to install."""
-    try:
-        import scservo_sdk
-    except ImportError:
-        raise UsageError("driving a Feetech bus needs Feetech's SDK: pip install feetech-servo-sdk") from None
-    return scservo_sdk
+    """Feetech's ``scservo_sdk``, or a one-line :class:`~hilbench.errors.MissingExtra` naming what to install."""
+    return require("scservo_sdk", "feetech", "driving a Feetech bus")
 
 
 def link_for(protocol: str, version: int, path: str, baud: int, models: Iterable[Model] = ()) -> ServoLink:

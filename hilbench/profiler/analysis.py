@@ -343,7 +343,7 @@ def _quality(profiler, p: Pairing, ids: np.ndarray, is_task: np.ndarray, n_stamp
         "backward_jumps": tl.backward_jumps,
         "estimated_drops": 0,
         "suspected_overruns": suspected,
-        "unreadable_lines": [{"line": b.raw[:80].decode("latin-1"), "reason": b.reason}
+        "unreadable_lines": [{"line": b.raw[:80].decode("latin-1"), "reason": b.detail}
                              for b in profiler.first_bad_lines],
         "discarded_stamps": tl.discarded,
         "windows": len(segments),

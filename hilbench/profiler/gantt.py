@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from hilbench.errors import require
 from hilbench.profiler.analysis import Analysis
 from hilbench.transports.atomic_file import atomic_write
 
@@ -24,10 +25,6 @@ MAX_INTERVALS = 50_000
 PIXELS = 1000
 #: Opacity of a pixel that holds any sub-pixel slice (more with how busy it is).
 MIN_ALPHA = 0.4
-
-
-class PlotUnavailable(RuntimeError):
-    """matplotlib is not installed (``pip install 'hilbench[plot]'``)."""
 
 
 def default_window(a: Analysis, window: tuple[float, float] | None = None) -> tuple[float, float]:
@@ -107,19 +104,15 @@ def render_gantt(a: Analysis, path: str | Path, *, window: tuple[float, float] |
                  names: list[str] | None = None, title: str | None = None) -> list[str]:
     """Write a PNG or SVG Gantt chart; return the row names drawn.
 
-    Raises :class:`PlotUnavailable` without matplotlib, ValueError for another suffix.
+    Raises :class:`~hilbench.errors.MissingExtra` without matplotlib, ValueError for another suffix.
     """
     path = Path(path)
     fmt = path.suffix.lower().lstrip(".")
     if fmt not in ("png", "svg"):
         raise ValueError(f"{path}: the Gantt chart is written as .png or .svg")
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg", force=False)
-        import matplotlib.pyplot as plt
-    except ImportError:
-        raise PlotUnavailable("Gantt charts need matplotlib: pip install 'hilbench[plot]'") from None
+    matplotlib = require("matplotlib", "plot", "a Gantt chart as PNG or SVG")
+    matplotlib.use("Agg", force=False)
+    plt = require("matplotlib.pyplot", "plot", "a Gantt chart as PNG or SVG")
     t0, t1 = default_window(a, window)
     drawn = rows(a, names)
     fig_h = 1.0 + 0.42 * max(1, len(drawn))

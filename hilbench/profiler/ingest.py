@@ -17,8 +17,9 @@ import numpy as np
 
 from hilbench.profiler.settings import ProfileSettings
 from hilbench.profiler.timeline import Timeline
-from hilbench.protocols.tracestamp import BadLine, LogLine, RuntimeReport, Stamp, StampBatch
-from hilbench.protocols.tracestamp_binary import Marker, WordProblem
+from hilbench.protocols.problem import Problem
+from hilbench.protocols.tracestamp import UNREADABLE, LogLine, RuntimeReport, Stamp, StampBatch
+from hilbench.protocols.tracestamp_binary import Marker
 from hilbench.protocols.tracestamp_stream import StreamDecoder
 
 #: Unreadable lines the quality report quotes (the first ones; the count is exact).
@@ -41,8 +42,8 @@ class Profiler:
         self.timeline = Timeline(self.settings.reorder_us, self.settings.max_stamps)
         self.reports: list[tuple[int, RuntimeReport]] = []  # (window index, report)
         self.log_lines: deque[LogLine] = deque(maxlen=50)
-        self.bad_lines: deque[BadLine] = deque(maxlen=20)  # the latest unreadable lines
-        self.first_bad_lines: list[BadLine] = []  # the first ones (what a damaged start looked like)
+        self.bad_lines: deque[Problem] = deque(maxlen=20)  # the latest unreadable lines
+        self.first_bad_lines: list[Problem] = []  # the first ones (what a damaged start looked like)
         self.word_problems: dict[str, int] = {}
         self.windows_started = 0
         self.windows_stopped = 0
@@ -101,13 +102,13 @@ class Profiler:
             if kind is LogLine:
                 self.log_lines.append(item)
                 continue
-            if kind is BadLine:
-                self.bad_lines.append(item)
-                if len(self.first_bad_lines) < FIRST_BAD_LINES:
-                    self.first_bad_lines.append(item)
-                continue
-            if kind is WordProblem:
-                self.word_problems[item.kind] = self.word_problems.get(item.kind, 0) + item.count
+            if kind is Problem:
+                if item.kind == UNREADABLE:
+                    self.bad_lines.append(item)
+                    if len(self.first_bad_lines) < FIRST_BAD_LINES:
+                        self.first_bad_lines.append(item)
+                else:  # damaged binary words
+                    self.word_problems[item.kind] = self.word_problems.get(item.kind, 0) + item.count
                 continue
             if stamps:
                 self._add_stamps(stamps, registry)

@@ -20,16 +20,15 @@ class TraceInstrument(Instrument):
     verb = "profile"
 
     def sniff(self, data: bytes) -> float:
-        from hilbench.protocols.tracestamp import BadLine
-        from hilbench.protocols.tracestamp_binary import WordProblem
+        from hilbench.protocols.problem import Problem
         from hilbench.protocols.tracestamp_stream import StreamDecoder
 
         dec = StreamDecoder()
         items = dec.feed(data[:8192]) + dec.flush()
         # A damaged-words report stands for all the words it covers: random bytes hold a few well-formed
         # binary words (a 11xxxxxx byte then three 10xxxxxx: one in 256) among hundreds of broken ones.
-        bad = sum(i.count if isinstance(i, WordProblem) else 1 for i in items if isinstance(i, BadLine | WordProblem))
-        good = sum(1 for i in items if not isinstance(i, BadLine | WordProblem))
+        bad = sum(i.count or 1 for i in items if type(i) is Problem)  # words (count) or one line
+        good = sum(1 for i in items if type(i) is not Problem)
         if good <= bad:  # more damage than trace: not a trace (--protocol vel2d still reads it)
             return 0.0
         return good / (good + bad + 1)

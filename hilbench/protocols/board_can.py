@@ -46,6 +46,7 @@ from hilbench.protocols import canopen as co
 from hilbench.protocols import canopen_od as od
 from hilbench.protocols.checksums import crc8_sae_j1850
 from hilbench.protocols.dbc import Message, Signal, dbc_text
+from hilbench.protocols.problem import Problem
 
 #: Encoder increments per wheel turn.
 INCREMENTS_PER_TURN = 3072
@@ -197,23 +198,18 @@ class Setpoint(NamedTuple):
     counter: int
 
 
-class SetpointProblem(NamedTuple):
-    """A setpoint frame the board rejects: ``kind`` ``length`` or ``checksum`` (``expected``/``got``)."""
+def check_setpoint(data: bytes) -> Setpoint | Problem:
+    """Check RPDO1's length and checksum as the board does; never raises.
 
-    kind: str
-    raw: bytes
-    expected: int = 0
-    got: int = 0
-
-
-def check_setpoint(data: bytes) -> Setpoint | SetpointProblem:
-    """Check RPDO1's length and checksum as the board does; never raises."""
+    A frame the board rejects is a :class:`~hilbench.protocols.problem.Problem`: ``kind`` ``length`` or
+    ``checksum`` (with the ``expected`` and the ``got`` checksum byte).
+    """
     data = bytes(data)
     if len(data) != SETPOINT.length:
-        return SetpointProblem("length", data)
+        return Problem("length", data)
     expected = setpoint_checksum(data)
     if data[7] != expected:
-        return SetpointProblem("checksum", data, expected, data[7])
+        return Problem("checksum", data, expected=expected, got=data[7])
     v = decode("setpoint", data)
     return Setpoint(v["vx"], v["vy"], v["omega"], int(v["counter"]))
 
@@ -420,5 +416,5 @@ def dbc(boards: list[tuple[str, BoardCanConfig]]) -> str:
 
 
 __all__ = ["BY_KEY", "ENCODERS", "INCREMENTS_PER_TURN", "LAYOUTS", "MODES", "ODOMETRY", "PDOS", "SETPOINT", "STATUS",
-           "VELOCITY", "BoardCanConfig", "Pdo", "Setpoint", "SetpointProblem", "build_setpoint", "check_setpoint",
+           "VELOCITY", "BoardCanConfig", "Pdo", "Setpoint", "build_setpoint", "check_setpoint",
            "dbc", "decode", "device_info", "eds", "encode", "messages", "object_dictionary", "setpoint_checksum"]

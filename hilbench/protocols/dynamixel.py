@@ -46,6 +46,7 @@ from construct import (
 )
 
 from hilbench.protocols.checksums import crc16_buypass, raw_crc_routine
+from hilbench.protocols.problem import Problem
 
 HEADER = b"\xff\xff\xfd\x00"
 #: The pattern that stuffing escapes, and its escaped form.
@@ -340,20 +341,6 @@ class StatusPacket(NamedTuple):
         return self.id == BROADCAST_ID
 
 
-class DecodeProblem(NamedTuple):
-    """Something the decoder had to throw away, reported instead of raised.
-
-    ``kind`` is one of ``crc`` (CRC mismatch), ``truncated`` (the stream ended or
-    went idle inside a packet), ``bad_length`` (LENGTH impossible or above the
-    cap), ``stuffing`` (strict mode: unescaped FF FF FD inside a packet).
-    """
-
-    kind: str
-    raw: bytes
-    t: float = 0.0
-    detail: str = ""
-
-
 class FastSlice(NamedTuple):
     """One device's part of a combined Fast Sync/Bulk Read reply."""
 
@@ -524,7 +511,7 @@ def check_instruction(pkt: InstructionPacket) -> str | None:
 
 # --------------------------------------------------------------------------- decoder
 
-Item = InstructionPacket | StatusPacket | DecodeProblem
+Item = InstructionPacket | StatusPacket | Problem
 
 
 class ReplySlots:
@@ -738,7 +725,7 @@ class Decoder:
                     others += 1
                     skipped += 1
                     pos = s + 1
-                    yield DecodeProblem("crc", raw, t, "mismatched checksum")
+                    yield Problem("crc", raw, "mismatched checksum", t)
             else:
                 nxt = self._candidate(buf, s, side, t, final)
                 if nxt < 0:
@@ -810,7 +797,7 @@ class Decoder:
                     whole = piece if p_len == length + 3 else piece[: length + 3]
                     if crc16(whole, _HEADER_CRC, table) != residue[piece[length + 1] ^ piece[length + 2]]:
                         self.problems["crc"] += 1
-                        append(DecodeProblem("crc", buf[here:end], t, "mismatched checksum"))
+                        append(Problem("crc", buf[here:end], "mismatched checksum", t))
                         skipped += 1
                         pos = here + 1
                         continue
@@ -876,7 +863,7 @@ class Decoder:
                     if b"\xff\xff\xfd" in body and (pid != BROADCAST_ID or body[0] != 0x55):
                         if self.strict_stuffing and _unescaped(body):
                             problems["stuffing"] += 1
-                            out.append(DecodeProblem("stuffing", raw, t, "unescaped FF FF FD"))
+                            out.append(Problem("stuffing", raw, "unescaped FF FF FD", t))
                             return start + 1
                         body = body.replace(STUFFED, STUFF_PATTERN)
                     if body[0] == 0x55:
@@ -885,7 +872,7 @@ class Decoder:
                         out.append(InstructionPacket(pid, body[0], body[1:], raw, t))
                     return end
         problems[kind] += 1
-        out.append(DecodeProblem(kind, raw, t, detail))
+        out.append(Problem(kind, raw, detail, t))
         return start + 1
 
 

@@ -39,6 +39,7 @@ from construct import (
 )
 
 from hilbench.protocols.checksums import dynamixel1_checksum
+from hilbench.protocols.problem import Problem
 
 HEADER = b"\xff\xff"
 BROADCAST_ID = 0xFE
@@ -140,14 +141,6 @@ class Packet1(NamedTuple):
         return PARAMS[self.code].parse(self.params)
 
 
-class DecodeProblem1(NamedTuple):
-    """A discarded candidate: ``kind`` is ``checksum``, ``bad_length`` or ``truncated``."""
-
-    kind: str
-    raw: bytes
-    t: float = 0.0
-
-
 def build(packet_id: int, code: int, params: bytes = b"") -> bytes:
     """Build a packet (instruction or status: ``code`` is the instruction or ERR)."""
     return Packet.build({"frame": {"value": {"id": packet_id, "code": code, "params": params}}})
@@ -179,9 +172,9 @@ class Decoder1:
         self.packets = 0
         self.problems: dict[str, int] = {"checksum": 0, "bad_length": 0, "truncated": 0}
 
-    def feed(self, data: bytes, t: float = 0.0) -> list[Packet1 | DecodeProblem1]:
+    def feed(self, data: bytes, t: float = 0.0) -> list[Packet1 | Problem]:
         """Decode ``data`` and return the packets and problems it completed."""
-        out: list[Packet1 | DecodeProblem1] = []
+        out: list[Packet1 | Problem] = []
         buf = self._buf + bytes(data)
         self._buf = buf[self._scan(buf, out, t, final=False) :]
         return out
@@ -198,9 +191,9 @@ class Decoder1:
         self._buf = b""
         return n
 
-    def flush(self, t: float = 0.0) -> list[Packet1 | DecodeProblem1]:
+    def flush(self, t: float = 0.0) -> list[Packet1 | Problem]:
         """End of stream: report a pending partial packet as truncated and decode the rest."""
-        out: list[Packet1 | DecodeProblem1] = []
+        out: list[Packet1 | Problem] = []
         buf, self._buf = self._buf, b""
         self._scan(buf, out, t, final=True)
         return out
@@ -224,7 +217,7 @@ class Decoder1:
             length = buf[start + 3] if start + 4 <= n else None
             if length is not None and length < 2:
                 self.problems["bad_length"] += 1
-                out.append(DecodeProblem1("bad_length", buf[start : start + 4], t))
+                out.append(Problem("bad_length", buf[start : start + 4], t=t))
                 self.bytes_skipped += 1
                 pos = start + 1
                 continue
@@ -232,7 +225,7 @@ class Decoder1:
                 if not final:
                     return start
                 self.problems["truncated"] += 1
-                out.append(DecodeProblem1("truncated", buf[start:], t))
+                out.append(Problem("truncated", buf[start:], t=t))
                 self.bytes_skipped += 1
                 pos = start + 1
                 continue
@@ -242,7 +235,7 @@ class Decoder1:
             # no copy of the body; the header's two FFs and the checksum byte taken back out
             if ~(sum(raw) - 0x1FE - raw[-1]) & 0xFF != raw[-1]:
                 self.problems["checksum"] += 1
-                append(DecodeProblem1("checksum", raw, t))
+                append(Problem("checksum", raw, t=t))
                 self.bytes_skipped += 1
                 pos = start + 1
                 continue

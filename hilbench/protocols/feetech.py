@@ -23,7 +23,6 @@ from construct import Struct
 from hilbench.protocols.dynamixel_protocol1 import (
     BROADCAST_ID,
     HEADER,
-    DecodeProblem1,
     Decoder1,
     Packet,
     Packet1,
@@ -103,7 +102,6 @@ __all__ = [
     "INSTRUCTION_NAMES",
     "MAX_ID",
     "PARAMS",
-    "DecodeProblem1",
     "Decoder1",
     "Instruction",
     "Packet",

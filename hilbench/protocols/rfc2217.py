@@ -14,8 +14,9 @@ The layouts of the command values are :data:`COMMAND_VALUE` (construct,
 used to build and to parse); the stream itself is :class:`TelnetDecoder`,
 hand-written because telnet framing is byte stuffing with a state machine
 that construct cannot express incrementally. The decoder never raises:
-malformed or oversized subnegotiations are reported as :class:`Problem`
-items and dropped.
+malformed or oversized subnegotiations are reported as
+:class:`~hilbench.protocols.problem.Problem` items (``count``: the bytes
+dropped) and dropped.
 """
 
 from __future__ import annotations
@@ -24,6 +25,8 @@ from dataclasses import dataclass
 from enum import IntEnum
 
 from construct import Int8ub, Int32ub
+
+from hilbench.protocols.problem import Problem
 
 # ---------------------------------------------------------------------- telnet (RFC 854)
 
@@ -208,14 +211,6 @@ class TelnetCommand:
     command: int
 
 
-@dataclass(frozen=True)
-class Problem:
-    """Something dropped: ``what`` says what, ``dropped`` how many bytes."""
-
-    what: str
-    dropped: int
-
-
 TelnetItem = Data | Negotiation | Subnegotiation | TelnetCommand | Problem
 
 _NORMAL, _IAC, _VERB, _SB, _SB_IAC = range(5)
@@ -269,7 +264,7 @@ class TelnetDecoder:
                     self._sb_overflow = 0
                     self._state = _SB
                 elif b == SE:  # an SE outside a subnegotiation: nothing to end
-                    items.append(self._problem("stray IAC SE", 2))
+                    items.append(self._problem("stray", "stray IAC SE", 2))
                     self._state = _NORMAL
                 else:
                     items.append(TelnetCommand(b))
@@ -288,9 +283,9 @@ class TelnetDecoder:
                     self._state = _SB
                 elif b == SE:
                     if self._sb_overflow:
-                        items.append(self._problem("subnegotiation too long", self._sb_overflow + len(self._sb)))
+                        items.append(self._problem("overlong", "subnegotiation too long", self._sb_overflow + len(self._sb)))
                     elif not self._sb:
-                        items.append(self._problem("empty subnegotiation", 4))
+                        items.append(self._problem("empty", "empty subnegotiation", 4))
                     else:
                         items.append(Subnegotiation(self._sb[0], bytes(self._sb[1:])))
                     self._sb.clear()
@@ -298,7 +293,7 @@ class TelnetDecoder:
                 else:
                     # RFC 854 leaves IAC <cmd> inside SB undefined: end the subnegotiation here
                     # (it lost its IAC SE) and treat the byte as a command after it.
-                    items.append(self._problem("unterminated subnegotiation", len(self._sb) + 2))
+                    items.append(self._problem("unterminated", "unterminated subnegotiation", len(self._sb) + 2))
                     self._sb.clear()
                     self._state = _IAC
                     i -= 1
@@ -312,16 +307,16 @@ class TelnetDecoder:
         else:
             self._sb.append(b)
 
-    def _problem(self, what: str, dropped: int) -> Problem:
+    def _problem(self, kind: str, detail: str, dropped: int) -> Problem:
         self.dropped += dropped
-        return Problem(what, dropped)
+        return Problem(kind, detail=detail, count=dropped)
 
 
 __all__ = [
     "AYT", "BINARY", "BRK", "COMMAND_VALUE", "COM_PORT_OPTION", "DO", "DONT", "ECHO", "IAC",
     "LINE_TRANSMITTER_EMPTY", "MAX_SUBNEGOTIATION", "MODEM_CD", "MODEM_CTS", "MODEM_DSR", "MODEM_RI", "NOP",
     "PARITY", "PARITY_CODE", "SB", "SE", "SERVER_OFFSET", "SGA", "STOPSIZE", "STOPSIZE_CODE", "WILL", "WONT",
-    "Command", "Control", "Data", "Negotiation", "Problem", "Purge", "Subnegotiation", "TelnetCommand",
+    "Command", "Control", "Data", "Negotiation", "Purge", "Subnegotiation", "TelnetCommand",
     "TelnetDecoder", "TelnetItem", "build_value", "escape", "modem_state", "negotiation", "parse_value",
     "subnegotiation", "with_deltas",
 ]

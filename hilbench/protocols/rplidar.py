@@ -42,6 +42,8 @@ from construct import (
     Struct,
 )
 
+from hilbench.protocols.problem import Problem
+
 SYNC = 0xA5
 SYNC2 = 0x5A
 BAUD = 115_200
@@ -297,14 +299,6 @@ class CapsuleItem(NamedTuple):
     raw: bytes
 
 
-class Problem(NamedTuple):
-    """Bytes a decoder dropped: ``kind`` is ``garbage``, ``checksum``, ``descriptor``, ``banner`` or ``truncated``."""
-
-    kind: str
-    raw: bytes
-    detail: str = ""
-
-
 def parse_node(raw: bytes) -> Node | None:
     """A node from 5 bytes, or None if its flags fail (S == S̄ or C == 0)."""
     b0, b1 = raw[0], raw[1]
@@ -367,7 +361,7 @@ MAX_SINGLE = 1024
 
 
 class RequestDecoder:
-    """Frames host requests as the device does; bad checksums and stray bytes become :class:`Problem` s."""
+    """Frames host requests as the device does; bad checksums and stray bytes become :class:`~hilbench.protocols.problem.Problem` s."""
 
     def __init__(self) -> None:
         self._buf = bytearray()
@@ -434,7 +428,7 @@ def _plausible_descriptor(buf: bytearray, i: int) -> bool:
 class ResponseDecoder:
     """Decodes what an RPLIDAR sends: descriptors with their payloads, node and capsule streams.
 
-    Emits :class:`Response`, :class:`Node`, :class:`CapsuleItem` and :class:`Problem`
+    Emits :class:`Response`, :class:`Node`, :class:`CapsuleItem` and :class:`~hilbench.protocols.problem.Problem`
     items. In a node stream every position is tried as a node (S != S̄ and C == 1)
     or as a new descriptor (``A5 5A``, which can never start a valid node); other
     bytes are dropped and counted. ASCII text (a RESET's banner) is reported as one

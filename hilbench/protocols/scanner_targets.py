@@ -10,6 +10,7 @@ from hilbench.decoders import Counting, DecoderTarget
 from hilbench.protocols import rplidar as rp
 from hilbench.protocols import scip
 from hilbench.protocols import sick_lms200 as lms
+from hilbench.protocols.problem import Problem
 
 #: An RPLIDAR A1's UART, 115 200 baud 8N1.
 RPLIDAR_LINE = 115_200 / 10
@@ -37,7 +38,7 @@ def rplidar_traffic(rng: random.Random, size: int) -> bytes:
 
 def _rplidar() -> Counting:
     dec = rp.ResponseDecoder()
-    return Counting(dec.feed, list, lambda i: not isinstance(i, rp.Problem), lambda: dec.dropped)
+    return Counting(dec.feed, list, lambda i: not isinstance(i, Problem), lambda: dec.dropped)
 
 
 RPLIDAR = DecoderTarget("rplidar", "RPLIDAR A1 response decoder (descriptors, nodes, capsules)", _rplidar,

@@ -12,7 +12,7 @@ Request parameters are fixed-width decimal ASCII; their construct layouts
 are built by :func:`reply` and parsed by :func:`parse_reply`;
 :class:`ReplyDecoder` cuts a host's byte stream into replies (each ends with
 an empty line) and :class:`RequestDecoder` a device's input into request
-lines. Neither raises: bad sums and stray bytes become :class:`Problem` s.
+lines. Neither raises: bad sums and stray bytes become :class:`~hilbench.protocols.problem.Problem` s.
 """
 
 from __future__ import annotations
@@ -22,6 +22,7 @@ from typing import Any, NamedTuple
 from construct import Adapter, Bytes, Struct
 
 from hilbench.protocols.checksums import scip_sum
+from hilbench.protocols.problem import Problem
 
 LF = b"\n"
 #: Data lines carry at most this many payload characters before their sum.
@@ -261,14 +262,6 @@ def parse_reply(raw: bytes) -> Reply:
     return Reply(echo, status, payloads, bad, bytes(raw))
 
 
-class Problem(NamedTuple):
-    """Dropped input: ``overlong`` (a line beyond the bound), ``garbage``."""
-
-    kind: str
-    raw: bytes
-    detail: str = ""
-
-
 class RequestDecoder:
     """Cuts a device's input into request lines (LF, CR or CR LF); bounded, never raises."""
 
@@ -349,7 +342,7 @@ class ReplyDecoder:
 
 __all__ = [
     "ENCODING", "INFO_COMMANDS", "LF", "LINE_PAYLOAD", "MAX_LINE", "PARAMS", "STATUS_TEXT", "TIMESTAMP_WRAP", "WITH_INTENSITY",
-    "ContinuousParams", "Problem", "Reply", "ReplyDecoder", "Request", "RequestDecoder", "ScanParams",
+    "ContinuousParams", "Reply", "ReplyDecoder", "Request", "RequestDecoder", "ScanParams",
     "check_line", "data_lines", "decode", "decode_values", "encode", "encode_values", "info_line",
     "parse_reply", "parse_request", "reply", "request", "status_line", "sum_char", "timestamp_line",
 ]

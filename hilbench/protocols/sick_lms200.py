@@ -36,6 +36,7 @@ from construct import (
 )
 
 from hilbench.protocols.checksums import sick_crc16
+from hilbench.protocols.problem import Problem
 
 STX = 0x02
 ACK = 0x06
@@ -225,14 +226,6 @@ class Handshake(NamedTuple):
     ack: bool
 
 
-class Problem(NamedTuple):
-    """Dropped bytes: ``garbage``, ``crc`` (a telegram with a bad CRC), ``length`` (LEN out of bounds)."""
-
-    kind: str
-    raw: bytes
-    detail: str = ""
-
-
 class Decoder:
     """Incremental telegram decoder for either direction; never raises.
 
@@ -303,7 +296,7 @@ class Decoder:
 __all__ = [
     "ACK", "BAUD_MODES", "CONFIG_SIZE", "CONFIG_UNITS", "MAX_LEN", "MIRROR_PERIOD", "NAK", "PASSWORD",
     "POWER_UP_BAUD", "REPLY_INVALID", "REPLY_POWER_ON", "REPLY_RESET", "REVOLUTIONS", "STATUS_OK", "STX", "UNITS",
-    "VARIANTS", "Cmd", "CountWord", "Decoder", "Frame", "Handshake", "Mode", "Problem", "Telegram",
+    "VARIANTS", "Cmd", "CountWord", "Decoder", "Frame", "Handshake", "Mode", "Telegram",
     "VariantReply", "VariantRequest", "count_word", "mode_request", "parse_count_word", "parse_scan", "reply",
     "request", "scan_data", "telegram", "variant_request",
 ]

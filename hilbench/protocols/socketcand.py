@@ -21,6 +21,7 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+from hilbench.errors import RequestRefused
 from hilbench.protocols.can_frame import CAN_EFF_MASK, CAN_SFF_MASK, CanFrame
 
 DEFAULT_PORT = 29536
@@ -150,8 +151,9 @@ class Command(NamedTuple):
 MODE_COMMANDS = ("rawmode", "bcmmode", "controlmode", "isotpmode")
 
 
-class _OutOfRange(ValueError):
-    """A number the protocol bounds is beyond its bounds (``args[0]`` names it)."""
+class _OutOfRange(RequestRefused, ValueError):
+    """A number the protocol bounds is beyond its bounds (``args[0]`` names it); the server answers it
+    with its ``< error >`` (see :func:`parse_command`)."""
 
 
 def _hex(word: str) -> int:

@@ -11,6 +11,7 @@ from hilbench.protocols import dynamixel_protocol1 as dxl1
 from hilbench.protocols import tracestamp as ts
 from hilbench.protocols import tracestamp_binary as tb
 from hilbench.protocols import vel2d
+from hilbench.protocols.problem import Problem
 from hilbench.protocols.tracestamp_stream import StreamDecoder
 
 #: A Dynamixel bus at 4.5 Mbaud (the fastest Baud Rate code the servos of both protocols share), 8N1.
@@ -50,7 +51,7 @@ def dynamixel_traffic(rng: random.Random, size: int) -> bytes:
 
 def _dynamixel() -> Counting:
     dec = dxl.Decoder()
-    return Counting(dec.feed, dec.flush, lambda i: not isinstance(i, dxl.DecodeProblem), lambda: dec.bytes_skipped)
+    return Counting(dec.feed, dec.flush, lambda i: not isinstance(i, Problem), lambda: dec.bytes_skipped)
 
 
 DYNAMIXEL = DecoderTarget("dynamixel", "Dynamixel Protocol 2.0 decoder", _dynamixel, DYNAMIXEL_LINE,
@@ -231,7 +232,7 @@ def _units(item) -> int:
     """Good units of a decoded item: the stamps of a batch, one for any other good item, none for damage."""
     if type(item) is ts.StampBatch:
         return item.count
-    return 0 if isinstance(item, ts.BadLine | tb.WordProblem) else 1
+    return 0 if type(item) is Problem else 1
 
 
 def _text() -> Counting:

@@ -7,11 +7,13 @@ run-time statistics report (vTaskGetRunTimeStats and vTaskList tables between
 separator lines, closed by ``output took N us`` or ``profiled for N us``).
 
 :class:`TextDecoder` separates them in one incremental pass and never raises:
-lines it cannot classify become :class:`BadLine` items and are counted. Two
+lines it cannot classify become :class:`~hilbench.protocols.problem.Problem`
+items of kind :data:`UNREADABLE` (``detail`` says why) and are counted. Two
 entry points share one state:
 
 - ``feed(data)`` returns small NamedTuples: :class:`Stamp`, :class:`LogLine`,
-  :class:`RuntimeReport`, :class:`NameEntry`, :class:`BadLine`;
+  :class:`RuntimeReport`, :class:`NameEntry`, :class:`TableStart`, and the
+  problems;
 - ``feed_batch(data)`` returns the same items in the same order, except that
   runs of consecutive stamps come as one :class:`StampBatch` of numpy columns.
   This is the fast path for a profiler: the stamp lines of a chunk are parsed
@@ -32,13 +34,17 @@ from typing import NamedTuple
 
 import numpy as np
 
+from hilbench.protocols.problem import Problem
+
 # --------------------------------------------------------------------------- constants
 
 #: Edge tokens per dialect: index 0 = end (switch-out / scope exit), 1 = begin.
 DIALECTS: dict[str, tuple[bytes, bytes]] = {"thesis": (b"0", b"1"), "branch": (b"out", b"in")}
 EDGE_TOKENS: dict[bytes, bool] = {b"1": True, b"0": False, b"in": True, b"out": False}
-#: Lines longer than this without a newline are dropped as one :class:`BadLine` (bounded memory).
+#: Lines longer than this without a newline are dropped as one :data:`UNREADABLE` problem (bounded memory).
 MAX_LINE = 4096
+#: The :class:`~hilbench.protocols.problem.Problem` kind of a line that fits no format (one per line).
+UNREADABLE = "unreadable"
 #: FreeRTOS ``configMAX_TASK_NAME_LEN`` 16: names are padded to 15 characters in report rows.
 NAME_FIELD = 15
 SEPARATOR_WIDTH = 45
@@ -150,13 +156,6 @@ class TableStart(NamedTuple):
     version: int
 
 
-class BadLine(NamedTuple):
-    """A line that fits no format (a parse error), kept for inspection; ``reason`` says why."""
-
-    raw: bytes
-    reason: str
-
-
 class StampBatch(NamedTuple):
     """Consecutive stamps as numpy columns (the fast path of ``feed_batch``).
 
@@ -182,7 +181,7 @@ class StampBatch(NamedTuple):
                 zip(self.ids.tolist(), self.t_us.tolist(), self.begin.tolist(), strict=True)]
 
 
-Item = Stamp | LogLine | RuntimeReport | NameEntry | TableStart | BadLine
+Item = Stamp | LogLine | RuntimeReport | NameEntry | TableStart | Problem
 
 
 # --------------------------------------------------------------------------- formatting (board side)
@@ -584,7 +583,7 @@ class TextDecoder:
             return rest
         self.lines += 1
         self.parse_errors += 1
-        out.append(BadLine(rest[:80], f"line longer than {MAX_LINE} bytes"))
+        out.append(Problem(UNREADABLE, rest[:80], f"line longer than {MAX_LINE} bytes"))
         self._skipping = True
         return b""
 
@@ -779,7 +778,7 @@ class TextDecoder:
 
     def _error(self, line: bytes, reason: str, out: list) -> None:
         self.parse_errors += 1
-        out.append(BadLine(line, reason))
+        out.append(Problem(UNREADABLE, line, reason))  # positional: noise makes thousands per megabyte
 
     def _open(self, out: list, implicit: bool) -> _ReportBuilder:
         if self._report is None:

@@ -34,6 +34,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from hilbench.protocols.problem import Problem
 from hilbench.protocols.tracestamp import NameRegistry, StampBatch
 
 VERSION = 1
@@ -77,15 +78,6 @@ class Marker(NamedTuple):
     kind: str
     value: int
     t_us: int
-
-
-class WordProblem(NamedTuple):
-    """Damage the decoder found: ``kind`` is ``broken_word`` (bytes lost or added), ``check`` (a
-    CHECK word disagreed with its block), ``reserved_id`` or ``unknown_op``; ``count`` words."""
-
-    kind: str
-    count: int
-    t_us: int | None
 
 
 # --------------------------------------------------------------------------- encoding
@@ -279,6 +271,11 @@ class WordDecoder:
     ``checks_failed``, ``drops`` (sum of DROPS words: stamps the board lost),
     ``windows_started``, ``windows_stopped``, ``unsynced_stamps`` (before the
     first TIME word), ``unnamed_stamps``, ``reserved_words``, ``unknown_ops``.
+
+    Damage comes out as :class:`~hilbench.protocols.problem.Problem` items: ``kind`` ``broken_word`` (bytes
+    lost or added), ``reserved_id`` or ``unknown_op``, ``count`` the words it covers, ``t_us`` the trace time
+    at the damage (None before the first TIME word). A CHECK word that disagrees with its block is counted
+    (``checks_failed``), not reported as an item.
     """
 
     def __init__(self, registry: NameRegistry | None = None) -> None:
@@ -339,7 +336,7 @@ class WordDecoder:
         return out
 
     def feed_batch(self, data: bytes | np.ndarray) -> list:
-        """Decode and return ``StampBatch``, ``Marker`` and ``WordProblem`` items in stream order."""
+        """Decode and return ``StampBatch``, ``Marker`` and ``Problem`` items in stream order."""
         a = np.frombuffer(data, dtype=np.uint8) if not isinstance(data, np.ndarray) else data
         a = a[a >= 0x80]
         if len(self._pending):
@@ -351,7 +348,7 @@ class WordDecoder:
             self.broken_words += broken
         if len(payloads) == 0:
             if broken:
-                out.append(WordProblem("broken_word", broken, self._t))
+                out.append(Problem("broken_word", count=broken, t_us=self._t))
             return out
         self._decode(payloads, out, broken)
         return out
@@ -376,7 +373,7 @@ class WordDecoder:
             self.broken_words += broken
         if len(payloads) == 0:
             if broken:
-                outs[0].append(WordProblem("broken_word", broken, self._t))
+                outs[0].append(Problem("broken_word", count=broken, t_us=self._t))
             return outs
         seg = np.searchsorted(starts, leads + (WORD_SIZE - 1), side="right")  # where each word completes
         self._decode(payloads, outs, broken, seg)
@@ -393,7 +390,7 @@ class WordDecoder:
         if len(self._pending):
             self._pending = np.zeros(0, np.uint8)
             self.broken_words += 1
-            return [WordProblem("broken_word", 1, self._t)]
+            return [Problem("broken_word", count=1, t_us=self._t)]
         return []
 
     # ------------------------------------------------------------------ internals
@@ -421,7 +418,7 @@ class WordDecoder:
         self.controls += int(is_ctrl.sum())
         first = out if seg is None else out[int(seg[0])]
         if broken:
-            first.append(WordProblem("broken_word", broken, int(t_full[0]) if self._t is not None else None))
+            first.append(Problem("broken_word", count=broken, t_us=int(t_full[0]) if self._t is not None else None))
         sp = np.flatnonzero(special)
         if seg is None:
             prev = 0
@@ -477,7 +474,7 @@ class WordDecoder:
     def _special(self, payload: int, wid: int, t: int, out: list) -> None:
         if wid != ID_CONTROL:
             self.reserved_words += 1
-            out.append(WordProblem("reserved_id", 1, t))
+            out.append(Problem("reserved_id", count=1, t_us=t))
             return
         op = (payload >> ARG_BITS) & 0x1F
         arg = payload & ARG_MASK
@@ -492,7 +489,7 @@ class WordDecoder:
             out.append(Marker("window_stop", arg, t))
         else:
             self.unknown_ops += 1
-            out.append(WordProblem("unknown_op", 1, t))
+            out.append(Problem("unknown_op", count=1, t_us=t))
 
     def _verify_checks(self, p: np.ndarray, is_check: np.ndarray, is_start: np.ndarray) -> None:
         f = fold13(p).astype(np.uint32)

@@ -31,18 +31,19 @@ from hilbench.protocols.tracestamp import (
     TableStart,
     TextDecoder,
 )
-from hilbench.protocols.tracestamp_binary import Marker, WordDecoder, WordProblem
+from hilbench.protocols.tracestamp_binary import Marker, WordDecoder
 
-StreamItem = Item | Marker | WordProblem
+StreamItem = Item | Marker
 
 
 class StreamDecoder:
     """Incremental decoder of a mixed text/binary board stream; never raises.
 
     ``feed(data)`` returns :class:`Stamp`, :class:`LogLine`, :class:`RuntimeReport`,
-    :class:`NameEntry`, :class:`TableStart`, :class:`BadLine`, :class:`Marker` and
-    :class:`WordProblem` items in arrival order; ``feed_batch(data)`` the same with
-    runs of stamps as :class:`StampBatch` columns. ``text`` and ``words`` are the
+    :class:`NameEntry`, :class:`TableStart`, :class:`Marker` and
+    :class:`~hilbench.protocols.problem.Problem` items (unreadable lines, damaged
+    words) in arrival order; ``feed_batch(data)`` the same with runs of stamps
+    as :class:`StampBatch` columns. ``text`` and ``words`` are the
     two decoders, with their counters.
     """
 

@@ -23,7 +23,9 @@ from typing import NamedTuple
 
 from construct import Checksum, Float64l, Int32ul, RawCopy, Struct, this
 
+from hilbench.errors import FormatError
 from hilbench.protocols.checksums import crc32_mpeg2
+from hilbench.protocols.problem import Problem
 
 FRAME_SIZE = 28
 PAYLOAD_SIZE = 24
@@ -57,27 +59,7 @@ class Velocity(NamedTuple):
         return self.x * MM_PER_M, self.y * MM_PER_M, self.z
 
 
-class FrameProblem(NamedTuple):
-    """A framed chunk the board drops.
-
-    ``kind`` is ``length`` (not 28 bytes: the firmware logs :data:`MSG_INSUFFICIENT`
-    and counts nothing) or ``crc`` (stored CRC differs from the computed one: it logs
-    :data:`MSG_CRC` and increments ``crc_err``). ``expected``/``got`` are the computed
-    and stored CRC for ``crc`` problems, else 0.
-    """
-
-    kind: str
-    raw: bytes
-    expected: int = 0
-    got: int = 0
-
-    @property
-    def message(self) -> str:
-        """The firmware's log message for this problem."""
-        return MSG_CRC if self.kind == "crc" else MSG_INSUFFICIENT
-
-
-class Vel2dError(ValueError):
+class Vel2dError(FormatError):
     """Raised by :func:`parse` (the strict form); :func:`decode` never raises."""
 
 
@@ -92,22 +74,28 @@ def build(x: float, y: float, z: float) -> bytes:
     return payload + crc32_mpeg2(payload).to_bytes(4, "little")
 
 
-def decode(raw: bytes) -> Velocity | FrameProblem:
-    """Check one framed chunk as ``recv_vel`` does; never raises."""
+def decode(raw: bytes) -> Velocity | Problem:
+    """Check one framed chunk as ``recv_vel`` does; never raises.
+
+    A chunk the board drops is a :class:`~hilbench.protocols.problem.Problem` whose ``detail`` is the
+    firmware's log message: ``kind`` ``length`` (not 28 bytes: :data:`MSG_INSUFFICIENT`, nothing counted) or
+    ``crc`` (the stored CRC, ``got``, differs from the computed one, ``expected``: :data:`MSG_CRC`, and the
+    firmware increments ``crc_err``).
+    """
     raw = bytes(raw)
     if len(raw) != FRAME_SIZE:
-        return FrameProblem("length", raw)
+        return Problem("length", raw, MSG_INSUFFICIENT)
     x, y, z, stored = _FRAME.unpack(raw)
     computed = crc32_mpeg2(raw[:PAYLOAD_SIZE])
     if computed != stored:
-        return FrameProblem("crc", raw, computed, stored)
+        return Problem("crc", raw, MSG_CRC, expected=computed, got=stored)
     return Velocity(x, y, z, stored)
 
 
 def parse(raw: bytes) -> Velocity:
     """Strict parse with the construct layout; raises :class:`Vel2dError` on a bad frame."""
     result = decode(raw)
-    if isinstance(result, FrameProblem):
+    if isinstance(result, Problem):
         if result.kind == "length":
             raise Vel2dError(f"expected {FRAME_SIZE} bytes, got {len(raw)}")
         raise Vel2dError(f"CRC mismatch: stored 0x{result.got:08X}, computed 0x{result.expected:08X}")
@@ -210,10 +198,10 @@ class IdleLineFramer:
         self._line_free = float("-inf")
 
 
-def frame_stream(chunks: list[tuple[bytes, float]], baud: int = 115_200) -> list[Velocity | FrameProblem]:
+def frame_stream(chunks: list[tuple[bytes, float]], baud: int = 115_200) -> list[Velocity | Problem]:
     """Frame and check a list of ``(bytes, start_time)`` writes; a convenience for tools and tests."""
     framer = IdleLineFramer(baud)
-    out: list[Velocity | FrameProblem] = []
+    out: list[Velocity | Problem] = []
     for data, t in chunks:
         out.extend(decode(raw) for raw, _ in framer.feed(data, t))
     out.extend(decode(raw) for raw, _ in framer.flush())

@@ -26,6 +26,7 @@ from typing import BinaryIO, NamedTuple
 
 import numpy as np
 
+from hilbench.errors import FormatError
 from hilbench.protocols import capture as cap
 from hilbench.protocols.capture import MAX_PAYLOAD, RECORD_HEADER_SIZE, CaptureInfo, Flags, RecordKind
 
@@ -52,7 +53,7 @@ class Chunk(NamedTuple):
     addr: tuple[str, int, str, int] | None = None
 
 
-class CaptureError(ValueError):
+class CaptureError(FormatError):
     """A capture that cannot be read; the message is one line."""
 
 

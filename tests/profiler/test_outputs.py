@@ -12,10 +12,11 @@ import numpy as np
 import pytest
 from rich.console import Console
 
+from hilbench.errors import MissingExtra
 from hilbench.profiler import Profiler, ProfileSettings
 from hilbench.profiler.compare import compare
 from hilbench.profiler.export_perfetto import trace_document
-from hilbench.profiler.gantt import PlotUnavailable, render_gantt, text_gantt
+from hilbench.profiler.gantt import render_gantt, text_gantt
 from hilbench.profiler.live import LiveView
 
 PH = {"X", "B", "E", "i", "I", "C", "M", "b", "e", "n", "s", "t", "f", "P", "O", "N", "D"}
@@ -160,7 +161,7 @@ def test_gantt_png_and_svg_contain_every_task(spec, tmp_path):
 def test_gantt_without_matplotlib_says_how_to_get_it(spec, tmp_path, monkeypatch):
     a, _ = spec.profile(spec.lines(spec.LISTING_39))
     monkeypatch.setitem(sys.modules, "matplotlib", None)  # as if hilbench[plot] were not installed
-    with pytest.raises(PlotUnavailable, match=r"hilbench\[plot\]"):
+    with pytest.raises(MissingExtra, match=r"needs matplotlib: pip install 'hilbench\[plot\]'$"):
         render_gantt(a, tmp_path / "g.png")
     assert any("█" in line or "▌" in line for line in text_gantt(a))  # the text Gantt needs nothing
 

@@ -9,6 +9,7 @@ from hypothesis import strategies as st
 from hilbench.protocols import dynamixel as dxl
 from hilbench.protocols.checksums import crc16_buypass
 from hilbench.protocols.dynamixel import Instruction as I  # noqa: N814
+from hilbench.protocols.problem import Problem
 
 
 def h(s: str) -> bytes:
@@ -307,7 +308,7 @@ def test_mutated_streams_keep_every_untouched_packet(specs, junk, seed):
     cut = seed % (len(stream) + 1)
     dec = dxl.Decoder()
     items = dec.feed(stream[:cut]) + dec.feed(stream[cut:]) + dec.flush()
-    got = [i.raw for i in items if not isinstance(i, dxl.DecodeProblem)]
+    got = [i.raw for i in items if not isinstance(i, Problem)]
     for raw in packets:
         assert raw in got
 
@@ -359,5 +360,5 @@ def test_split_fast_path_frames_exactly_like_the_reference(parts, flip, where, m
     dec = dxl.Decoder(max_length=max_length)
     cut = where % (len(stream) + 1)
     items = dec.feed(stream[:cut]) + dec.feed(stream[cut:]) + dec.flush()
-    got = [(i.kind, i.raw) if isinstance(i, dxl.DecodeProblem) else i for i in items]
+    got = [(i.kind, i.raw) if isinstance(i, Problem) else i for i in items]
     assert got == reference_frames(stream, max_length)

@@ -6,6 +6,7 @@ import hashlib
 from collections import Counter
 
 from hilbench.protocols import dynamixel as dxl
+from hilbench.protocols.problem import Problem
 
 MX64 = {1, 2, 3, 4, 5, 6, 19, 20}
 MX106 = {8, 9, 13, 14, 15, 17, 11, 16, 18}
@@ -23,7 +24,7 @@ def test_capture_is_the_published_one(wolfgang_capture):
 
 def test_packet_kinds_and_counts(wolfgang_capture):
     dec, items = decode(wolfgang_capture)
-    packets = [i for i in items if not isinstance(i, dxl.DecodeProblem)]
+    packets = [i for i in items if not isinstance(i, Problem)]
     assert dec.packets == len(packets) == 23_478
     kinds = Counter(p.name for p in packets)
     assert kinds == {"status": 21_069, "sync_read": 1_057, "read": 889, "sync_write": 426, "write": 17, "ping": 20}

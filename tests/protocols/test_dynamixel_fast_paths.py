@@ -8,6 +8,7 @@ from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from hilbench.protocols import dynamixel as dxl
+from hilbench.protocols.problem import Problem
 
 from .test_dynamixel import packet_bytes, reference_frames
 
@@ -79,7 +80,7 @@ def test_vector_framing_equals_plain_framing(parts, flip, where, cuts, max_lengt
     vector = decode(stream, cuts, "vector", **kw)
     assert vector == decode(stream, cuts, "plain", **kw)
     if not strict:
-        got = [(i.kind, i.raw) if isinstance(i, dxl.DecodeProblem) else i[:4] for i in vector[0]]
+        got = [(i.kind, i.raw) if isinstance(i, Problem) else i[:4] for i in vector[0]]
         assert got == [r if type(r) is tuple else r[:4] for r in reference_frames(stream, max_length)]
 
 

@@ -56,7 +56,7 @@ def test_bad_checksum_raises_in_parse_but_not_in_the_decoder():
         p1.parse(bad)
     dec = p1.Decoder1()
     items = dec.feed(bad + h("FF FF 01 02 01 FB"))
-    assert [type(i).__name__ for i in items] == ["DecodeProblem1", "Packet1"]
+    assert [type(i).__name__ for i in items] == ["Problem", "Packet1"]
     assert items[0].kind == "checksum" and dec.problems["checksum"] == 1
     assert dec.packets == 1
 

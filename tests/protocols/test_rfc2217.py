@@ -6,6 +6,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from hilbench.protocols import rfc2217 as p
+from hilbench.protocols.problem import Problem
 
 
 def _merge(items):
@@ -67,14 +68,14 @@ def test_an_oversized_subnegotiation_is_dropped_and_counted_without_buffering_it
     dec = p.TelnetDecoder()
     body = bytes([p.COM_PORT_OPTION, 0]) + b"x" * (p.MAX_SUBNEGOTIATION * 4)
     items = dec.feed(b"\xff\xfa" + body + b"\xff\xf0after")
-    assert isinstance(items[0], p.Problem) and items[0].dropped >= len(body)
+    assert isinstance(items[0], Problem) and items[0].kind == "overlong" and items[0].count >= len(body)
     assert items[-1] == p.Data(b"after")
     assert len(dec._sb) <= p.MAX_SUBNEGOTIATION
 
 
 def test_a_subnegotiation_that_loses_its_end_is_reported_and_parsing_goes_on():
     items = p.TelnetDecoder().feed(b"\xff\xfa\x2c\x01\x00\xff\xfb\x2cdata")
-    assert isinstance(items[0], p.Problem)
+    assert isinstance(items[0], Problem) and items[0].kind == "unterminated" and items[0].count == 5
     assert items[1:] == [p.Negotiation(p.WILL, p.COM_PORT_OPTION), p.Data(b"data")]
 
 

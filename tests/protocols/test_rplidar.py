@@ -7,6 +7,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from hilbench.protocols import rplidar as rp
+from hilbench.protocols.problem import Problem
 
 H = bytes.fromhex
 
@@ -78,7 +79,7 @@ def test_response_decoder_skips_banner_and_resyncs():
     items = dec.feed(stream)
     nodes = [i for i in items if isinstance(i, rp.Node)]
     assert [n.angle for n in nodes] == [1.0, 2.0]
-    assert {i.kind for i in items if isinstance(i, rp.Problem)} == {"banner", "garbage"}
+    assert {i.kind for i in items if isinstance(i, Problem)} == {"banner", "garbage"}
     assert dec.dropped == len(banner) + 2
 
 
@@ -87,7 +88,7 @@ def test_request_decoder_checks_xor():
     good = rp.request(rp.Cmd.EXPRESS_SCAN, bytes(5))
     items = dec.feed(b"\x00" + good[:4])
     items += dec.feed(good[4:] + good[:-1] + b"\x23" + rp.request(rp.Cmd.STOP))
-    kinds = [type(i).__name__ if not isinstance(i, rp.Problem) else i.kind for i in items]
+    kinds = [type(i).__name__ if not isinstance(i, Problem) else i.kind for i in items]
     assert kinds == ["garbage", "Request", "checksum", "Request"]
     assert dec.bad_checksum == 1
 
@@ -98,7 +99,7 @@ def test_decoders_never_raise(data, stream):
     dec = rp.ResponseDecoder()
     dec.expect_stream(stream)
     items = dec.feed(data)
-    assert sum(len(i.raw) for i in items if isinstance(i, rp.Problem)) <= len(data)
+    assert sum(len(i.raw) for i in items if isinstance(i, Problem)) <= len(data)
     rp.RequestDecoder().feed(data)
 
 

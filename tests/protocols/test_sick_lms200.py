@@ -7,6 +7,7 @@ from hypothesis import strategies as st
 
 from hilbench.protocols import sick_lms200 as lms
 from hilbench.protocols.checksums import sick_crc16
+from hilbench.protocols.problem import Problem
 
 H = bytes.fromhex
 
@@ -58,7 +59,7 @@ def test_decoder_frames_both_directions():
     bad = bytearray(lms.reply(0xB0, lms.scan_data([5, 6], True)))
     bad[-1] ^= 1
     items = dec.feed(stream + bytes(bad) + b"\x15")
-    kinds = [type(i).__name__ if not isinstance(i, lms.Problem) else i.kind for i in items]
+    kinds = [type(i).__name__ if not isinstance(i, Problem) else i.kind for i in items]
     assert kinds[:4] == ["Handshake", "Frame", "garbage", "Frame"]
     assert "crc" in kinds and dec.bad_crc == 1
     assert lms.Decoder().feed(b"\x15") == [lms.Handshake(False)]

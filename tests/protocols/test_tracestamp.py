@@ -11,7 +11,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from hilbench.protocols import tracestamp as ts
-from hilbench.protocols.tracestamp import BadLine, LogLine, RuntimeReport, Stamp, StampBatch, TextDecoder
+from hilbench.protocols.problem import Problem
+from hilbench.protocols.tracestamp import UNREADABLE, LogLine, RuntimeReport, Stamp, StampBatch, TextDecoder
 from tests.stm32_vectors import LISTING_34, LISTING_35, LISTING_38, LISTING_39, REPORT_65, TRACE_64, lines
 
 
@@ -149,14 +150,16 @@ def test_log_lines_and_errors_never_raise():
     items, dec = decode(data)
     assert items[0] == LogLine("00:00:12", "INFO", "[recv vel] [100.000000 -200.000000 0.300000]")
     assert items[1].level == "ERROR"
-    assert [type(i) for i in items[2:]] == [BadLine, BadLine]
+    assert [(type(i), i.kind, i.raw) for i in items[2:]] == [
+        (Problem, UNREADABLE, b"garbage here"), (Problem, UNREADABLE, b"\xff\xfe")]
+    assert items[2].detail == "not a stamp, log line or report line"
     assert dec.parse_errors == 2 and dec.log_lines == 2 and dec.lines == 4
 
 
 def test_overlong_line_is_dropped_with_bounded_memory():
     dec = TextDecoder()
     out = dec.feed(b"x" * (ts.MAX_LINE + 10))
-    assert [type(i) for i in out] == [BadLine] and dec.pending == 0
+    assert [(type(i), i.kind, len(i.raw)) for i in out] == [(Problem, UNREADABLE, 80)] and dec.pending == 0
     out = dec.feed(b"y" * 100 + b"\nIDLE 5 in\n")  # the rest of the long line is skipped
     assert out == [Stamp("IDLE", 5, True)] and dec.parse_errors == 1
 

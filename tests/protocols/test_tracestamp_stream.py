@@ -11,9 +11,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from hilbench.protocols import tracestamp_binary as tb
+from hilbench.protocols.problem import Problem
 from hilbench.protocols.targets import binary_traffic, stream_traffic, text_traffic
 from hilbench.protocols.tracestamp import NameEntry, NameRegistry, StampBatch, TableStart, TextDecoder
-from hilbench.protocols.tracestamp_binary import WordDecoder, WordProblem
+from hilbench.protocols.tracestamp_binary import WordDecoder
 from hilbench.protocols.tracestamp_stream import StreamDecoder
 
 
@@ -56,7 +57,7 @@ def normal(items: list) -> tuple[list, int]:
     for item in items:
         if type(item) is StampBatch:
             out.extend(item.stamps())
-        elif type(item) is WordProblem and item.kind == "broken_word":
+        elif type(item) is Problem and item.kind == "broken_word":
             broken += item.count
         else:
             out.append(item)

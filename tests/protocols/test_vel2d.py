@@ -12,7 +12,8 @@ from hypothesis import strategies as st
 
 from hilbench.protocols import vel2d
 from hilbench.protocols.checksums import crc32_mpeg2
-from hilbench.protocols.vel2d import FrameProblem, IdleLineFramer, Velocity
+from hilbench.protocols.problem import Problem
+from hilbench.protocols.vel2d import IdleLineFramer, Velocity
 from tests.stm32_vectors import crc32_mpeg2_bitwise
 
 
@@ -67,11 +68,10 @@ def test_b_prime_fails_crc_and_c_prime_is_short():
     b_prime = bytearray(h(VECTORS["B"][1]))
     b_prime[7] ^= 0x80
     got = vel2d.decode(bytes(b_prime))
-    assert got == FrameProblem("crc", bytes(b_prime), expected=0x4C99698E, got=0x8E4A0C6F)
-    assert got.message == "crc mismatch!"
+    assert got == Problem("crc", bytes(b_prime), "crc mismatch!", expected=0x4C99698E, got=0x8E4A0C6F)
     c_prime = h(VECTORS["C"][1])[:27]
     short = vel2d.decode(c_prime)
-    assert short.kind == "length" and short.message == "parsing velocity failed: insufficient bytes received"
+    assert short.kind == "length" and short.detail == "parsing velocity failed: insufficient bytes received"
     with pytest.raises(vel2d.Vel2dError, match="CRC mismatch"):
         vel2d.parse(bytes(b_prime))
     with pytest.raises(vel2d.Vel2dError, match="expected 28 bytes"):
@@ -88,7 +88,7 @@ def test_misconfigured_crcs_are_rejected(name, word_mode, zlib_crc):
     assert zlib.crc32(payload) == zlib_crc
     for wrong in {word_mode, zlib_crc} - {crc32_mpeg2(payload)}:
         got = vel2d.decode(payload + struct.pack("<I", wrong))
-        assert isinstance(got, FrameProblem) and got.kind == "crc"
+        assert isinstance(got, Problem) and got.kind == "crc"
     # A CRC over all 28 bytes has no constant residue: only recomputing over 0..23 is right.
     assert crc32_mpeg2(h(VECTORS[name][1])) != crc32_mpeg2(h(VECTORS["D"][1]))
 
@@ -97,7 +97,7 @@ BYTE = 10 / 115_200
 
 
 def kinds(results):
-    return [r.kind if isinstance(r, FrameProblem) else "ok" for r in results]
+    return [r.kind if isinstance(r, Problem) else "ok" for r in results]
 
 
 def test_idle_line_framer_cases_of_the_spec():
@@ -132,7 +132,7 @@ def test_framer_event_times_and_gap_threshold():
 @given(st.binary(max_size=200))
 def test_decode_never_raises(data):
     result = vel2d.decode(data)
-    assert isinstance(result, Velocity | FrameProblem)
+    assert isinstance(result, Velocity | Problem)
 
 
 @given(st.floats(allow_nan=False), st.floats(allow_nan=False), st.floats(allow_nan=False))

@@ -39,6 +39,7 @@ from hilbench.fakes.stm32_board.robot import INC2RAD, Robot
 from hilbench.protocols import board_can as bc
 from hilbench.protocols import canopen as co
 from hilbench.protocols.can_frame import CanFrame
+from hilbench.protocols.problem import Problem
 
 #: Pose (and wheel) control period of the CAN board's firmware model.
 CONTROL_PERIOD_US = 10_000
@@ -131,7 +132,7 @@ class RoverNode(CanopenNode):
         if frame.can_id != bc.SETPOINT.cob_id(self.node_id) or frame.remote or self.state != co.OPERATIONAL:
             return
         result = bc.check_setpoint(frame.data)
-        if isinstance(result, bc.SetpointProblem):
+        if isinstance(result, Problem):
             if result.kind == "length":
                 self.stats["length_errors"] += 1
                 self.emcy(co.ERR_PDO_LENGTH, co.REG_COMMUNICATION, bytes([len(frame.data)]))

@@ -18,8 +18,9 @@ from typing import ClassVar
 from hilbench.fakes.dynamixel.servo import Servo
 from hilbench.fakes.servo_line import ServoLine
 from hilbench.protocols import dynamixel as dxl
-from hilbench.protocols.dynamixel import BROADCAST_ID, DecodeProblem, ErrorNumber, InstructionPacket
+from hilbench.protocols.dynamixel import BROADCAST_ID, ErrorNumber, InstructionPacket
 from hilbench.protocols.dynamixel import Instruction as I  # noqa: N814
+from hilbench.protocols.problem import Problem
 
 log = logging.getLogger(__name__)
 
@@ -95,7 +96,7 @@ class DynamixelBus(ServoLine):
         for item in self.decoder.feed(data, t, t_first):
             if type(item) is InstructionPacket:
                 self._dispatch(item, t, baud)
-            elif type(item) is DecodeProblem and item.kind == "crc":
+            elif type(item) is Problem and item.kind == "crc":
                 self._crc_error(item, t, baud)
 
     def _dispatch(self, pkt: InstructionPacket, t: float, baud: int | None) -> None:
@@ -112,7 +113,7 @@ class DynamixelBus(ServoLine):
             return
         self._handlers[pkt.instruction](pkt, t, baud, hearing)
 
-    def _crc_error(self, problem: DecodeProblem, t: float, baud: int | None) -> None:
+    def _crc_error(self, problem: Problem, t: float, baud: int | None) -> None:
         """A unicast instruction that failed its CRC check gets a CRC Error status."""
         raw = problem.raw
         self.stats.crc_errors_received += 1

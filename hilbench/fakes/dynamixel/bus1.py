@@ -30,8 +30,9 @@ from typing import ClassVar
 from hilbench.fakes.servo_line import ServoLine
 from hilbench.protocols import dynamixel_protocol1 as p1
 from hilbench.protocols.dynamixel import ErrorNumber
-from hilbench.protocols.dynamixel_protocol1 import BROADCAST_ID, USB2AX_ID, DecodeProblem1, Packet1
+from hilbench.protocols.dynamixel_protocol1 import BROADCAST_ID, USB2AX_ID, Packet1
 from hilbench.protocols.dynamixel_protocol1 import Instruction1 as I  # noqa: N814
+from hilbench.protocols.problem import Problem
 
 log = logging.getLogger(__name__)
 
@@ -145,7 +146,7 @@ class Protocol1Bus(ServoLine):
                 self._send([(s, self.error_bits(s, ErrorNumber.INSTRUCTION_ERROR), b"", s.id)
                             for s in hearing if s.id == pkt.id and s.status_return_level >= 2], t)
 
-    def _checksum_error(self, problem: DecodeProblem1, t: float, baud: int | None) -> None:
+    def _checksum_error(self, problem: Problem, t: float, baud: int | None) -> None:
         self.stats.crc_errors_received += 1
         raw = problem.raw
         if not self.reply_checksum_errors or len(raw) < 6:

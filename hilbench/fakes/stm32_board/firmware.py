@@ -67,6 +67,7 @@ from hilbench.fakes.stm32_board.sink import (
 from hilbench.protocols import tracestamp as ts
 from hilbench.protocols import tracestamp_binary as tb
 from hilbench.protocols import vel2d
+from hilbench.protocols.problem import Problem
 from hilbench.protocols.tracestamp import RuntimeReport, RuntimeRow, TaskRow
 
 DEBOUNCE_MS = {"v1": 100.0, "v2": 50.0, "v3": 50.0, "binary": 50.0}
@@ -138,7 +139,7 @@ class Firmware:
         self.rx_pending: deque[tuple[bytes, float]] = deque()
         self.crc_err = 0
         self.log: deque[ts.LogLine] = deque(maxlen=LOG_HISTORY)
-        self.frames: deque[tuple[float, vel2d.Velocity | vel2d.FrameProblem]] = deque(maxlen=LOG_HISTORY)
+        self.frames: deque[tuple[float, vel2d.Velocity | Problem]] = deque(maxlen=LOG_HISTORY)
         self.reports: list[RuntimeReport] = []
         # Sampling state.
         self.sampling = False
@@ -467,13 +468,13 @@ class Firmware:
                 yield (RUN, task.durations.draw())
                 result = vel2d.decode(raw)
                 self.frames.append((t_rx, result))
-                if isinstance(result, vel2d.FrameProblem):
+                if isinstance(result, Problem):
                     if result.kind == "crc":
                         self.crc_err += 1
                         self.truth.frames_crc_error += 1
                     else:
                         self.truth.frames_length_error += 1
-                    yield from self.write_log(task, "ERROR", result.message)
+                    yield from self.write_log(task, "ERROR", result.detail)  # the firmware's message
                     continue
                 self.truth.frames_ok += 1
                 vx, vy, wz = result.firmware_units()

@@ -15,6 +15,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
+from hilbench.errors import RequestRefused
 from hilbench.protocols import xrce_dds as x
 
 K = x.ObjectKind
@@ -55,7 +56,7 @@ class Entity:
         return out
 
 
-class EntityError(ValueError):
+class EntityError(RequestRefused, ValueError):
     """A representation the agent cannot create; ``status`` is the XRCE result code to answer."""
 
     def __init__(self, status: int, message: str) -> None:

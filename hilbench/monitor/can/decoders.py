@@ -16,7 +16,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from hilbench.errors import UsageError
+from hilbench.errors import UsageError, require
 from hilbench.protocols.can_frame import CanFrame
 
 
@@ -66,11 +66,7 @@ class DbcDecoder(Decoder):
 
 
 def _cantools():
-    try:
-        import cantools
-    except ImportError:
-        raise UsageError("decoding with a DBC needs cantools: pip install 'hilbench[can]'") from None
-    return cantools
+    return require("cantools", "can", "decoding with a DBC")
 
 
 def load_dbc(spec: str) -> DbcDecoder:
@@ -177,10 +173,7 @@ class EdsDecoder(Decoder):
 
 def load_eds(spec: str) -> EdsDecoder:
     """``FILE:NODE`` (an EDS or DCF and the node it describes); UsageError in one line."""
-    try:
-        import canopen
-    except ImportError:
-        raise UsageError("decoding with an EDS needs canopen: pip install 'hilbench[can]'") from None
+    canopen = require("canopen", "can", "decoding with an EDS")
     path, sep, node_text = spec.rpartition(":")
     if not sep or not node_text.isdigit() or not 1 <= int(node_text) <= 127:
         raise UsageError(f"--eds {spec}: give the node the file describes: --eds FILE:NODE (node 1..127)")

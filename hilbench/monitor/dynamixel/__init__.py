@@ -33,10 +33,11 @@ class DynamixelInstrument(Instrument):
     views_path = "hilbench.dashboard.dynamixel_views:VIEW_SET"
 
     def sniff(self, data: bytes) -> float:
-        from hilbench.protocols.dynamixel import DecodeProblem, Decoder
+        from hilbench.protocols.dynamixel import Decoder
+        from hilbench.protocols.problem import Problem
 
         items = Decoder().feed(data[:8192])
-        packets = sum(1 for i in items if not isinstance(i, DecodeProblem))
+        packets = sum(1 for i in items if not isinstance(i, Problem))
         problems = len(items) - packets
         return packets / (packets + problems + 1) if packets else 0.0
 

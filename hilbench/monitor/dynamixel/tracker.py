@@ -46,7 +46,6 @@ from hilbench.protocols.dynamixel import (
     BROADCAST_ID,
     INSTRUCTION_NAMES,
     MAX_LENGTH,
-    DecodeProblem,
     Decoder,
     InstructionPacket,
     ReplySlots,
@@ -55,6 +54,7 @@ from hilbench.protocols.dynamixel import (
     describe_hardware_error,
 )
 from hilbench.protocols.dynamixel import Instruction as I  # noqa: N814
+from hilbench.protocols.problem import Problem
 
 # What a request expects back (bus_state): FAST is one combined Fast-read packet (ID FE) with a slice per ID.
 
@@ -769,7 +769,7 @@ class BusTracker(ServoBusState):
 
     # ------------------------------------------------------------------ problems
 
-    def _problem(self, pr: DecodeProblem) -> None:
+    def _problem(self, pr: Problem) -> None:
         self.problem_items += 1
         kind, raw, t = pr.kind, pr.raw, pr.t
         if kind == "crc":

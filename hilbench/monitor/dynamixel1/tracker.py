@@ -33,7 +33,8 @@ from typing import ClassVar
 from hilbench.monitor.dynamixel.bus_state import ANY_PING, DATA, NODATA, PING, Period, ServoBusState
 from hilbench.monitor.dynamixel.bus_state import COMBINED as USB2AX
 from hilbench.monitor.dynamixel.devices import READ, WRITTEN, DeviceState
-from hilbench.protocols.dynamixel_protocol1 import BROADCAST_ID, USB2AX_ID, DecodeProblem1, Decoder1, Packet1
+from hilbench.protocols.dynamixel_protocol1 import BROADCAST_ID, USB2AX_ID, Decoder1, Packet1
+from hilbench.protocols.problem import Problem
 
 # what a pending request expects (bus_state): USB2AX is the adapter's one combined reply to SYNC_READ 0x84
 #: Distinct multi-device read requests remembered for the main cycle (bounded memory).
@@ -380,7 +381,7 @@ class Bus1Tracker(ServoBusState):
 
     # ------------------------------------------------------------------ problems
 
-    def _problem(self, pr: DecodeProblem1) -> None:
+    def _problem(self, pr: Problem) -> None:
         kind, raw, t = pr.kind, pr.raw, pr.t
         if kind == "checksum":
             p = self._pending

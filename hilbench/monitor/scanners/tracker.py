@@ -23,6 +23,7 @@ import numpy as np
 from hilbench.protocols import rplidar as rp
 from hilbench.protocols import scip
 from hilbench.protocols import sick_lms200 as lms
+from hilbench.protocols.problem import Problem
 
 #: Entries kept in the request/reply log and the error log.
 LOG_SIZE = 500
@@ -233,7 +234,7 @@ class RplidarTracker(ScannerTracker):
                     text += " (stream)"
                     self.asm = rp.ScanAssembler(min_points=5)
                 self.note(t, "device", text)
-            elif isinstance(item, rp.Problem):
+            elif isinstance(item, Problem):
                 self.dropped_bytes += len(item.raw)
                 if item.kind == "checksum":
                     self.checksum_failures += 1
@@ -294,7 +295,7 @@ class SickTracker(ScannerTracker):
             else:
                 self._problem(t, "device", item)
 
-    def _problem(self, t: float, side: str, item: lms.Problem) -> None:
+    def _problem(self, t: float, side: str, item: Problem) -> None:
         self.dropped_bytes += len(item.raw) if item.kind == "garbage" else 1
         if item.kind == "crc":
             self.checksum_failures += 1
@@ -343,7 +344,7 @@ class ScipTracker(ScannerTracker):
 
     def feed_device(self, t: float, data: bytes) -> None:
         for item in self.rep_dec.feed(data):
-            if isinstance(item, scip.Problem):
+            if isinstance(item, Problem):
                 self.dropped_bytes += len(item.raw)
                 self.error(t, f"device: {item.kind} {item.detail}")
                 continue
