@@ -37,6 +37,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Protocol
 
+from hilbench.errors import HilbenchError
+
 
 class Reader(Protocol):
     """What a target makes: bytes in, counters out (one instance per input)."""
@@ -169,7 +171,7 @@ class Counting:
 # --------------------------------------------------------------------------- servers
 
 
-class LoggedTraceback(Exception):
+class LoggedTraceback(HilbenchError):
     """A server logged a traceback (``log.exception``) while it served an input: as bad as raising one."""
 
 

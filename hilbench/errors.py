@@ -127,8 +127,11 @@ class MissingExtra(UsageError):
         self.extra = extra
 
 
-def require(module: str, extra: str, purpose: str = "") -> ModuleType:
+def require(module: str, extra: str, purpose: str = "", *, package: str | None = None) -> ModuleType:
     """Import ``module``, which the optional extra ``extra`` installs, or raise :class:`MissingExtra`.
+
+    ``package``: the distribution to name instead of the extra, for a dependency of hilbench itself that
+    was uninstalled (``pip install PACKAGE``).
 
     ``purpose`` starts the one-line message: ``require("cantools", "can", "decoding with a DBC")`` raises
     "decoding with a DBC needs cantools: pip install 'hilbench[can]'"; without it the message says the
@@ -145,7 +148,8 @@ def require(module: str, extra: str, purpose: str = "") -> ModuleType:
         # The extra's module is there but something it imports is not: say which, as pip would not.
         why = "" if missing in ("", top) else f" ({exc})"
         head = f"{purpose} needs {top}" if purpose else f"{top} is not installed"
-        raise MissingExtra(f"{head}{why}: pip install 'hilbench[{extra}]'", module, extra) from None
+        fix = f"pip install {package}" if package else f"pip install 'hilbench[{extra}]'"
+        raise MissingExtra(f"{head}{why}: {fix}", module, extra) from None
 
 
 __all__ = ["BenchError", "DeviceError", "FormatError", "HilbenchError", "MissingExtra", "OptionError",

@@ -190,7 +190,7 @@ def test_demo_on_a_feetech_bus_without_feetechs_sdk_names_it(monkeypatch, capsys
     monkeypatch.setitem(sys.modules, "scservo_sdk", None)  # an import of it fails
     assert main(["demo", "--profile", "so101-follower", "--seconds", "1"]) == 2
     assert capsys.readouterr().err.splitlines() == [
-        "hilbench: error: driving a Feetech bus needs scservo_sdk: pip install 'hilbench[feetech]'"]
+        "hilbench: error: driving a Feetech bus needs scservo_sdk: pip install feetech-servo-sdk"]
 
 
 def test_profiles_lists_the_bundled_ones():

@@ -251,7 +251,7 @@ class FeetechLink(ServoLink):
 
 def feetech_sdk() -> Any:
     """Feetech's ``scservo_sdk``, or a one-line :class:`~hilbench.errors.MissingExtra` naming what to install."""
-    return require("scservo_sdk", "feetech", "driving a Feetech bus")
+    return require("scservo_sdk", "feetech", "driving a Feetech bus", package="feetech-servo-sdk")
 
 
 def link_for(protocol: str, version: int, path: str, baud: int, models: Iterable[Model] = ()) -> ServoLink:
