@@ -156,6 +156,7 @@ class SerialMedium(Medium):
         self._hosts_version = 0  # bumped when hosts change: the thread rebuilds its descriptor table
         self._out: dict[int, tuple] | None = None  # host writes held back while due deliveries run
         self._receivers: list = []  # devices pacing their own receiver (input_backlog)
+        self._sent_baud: dict[str, int | None] = {}  # by bounded host: the baud of its latest transmission
         self._held: dict[int, float] = {}  # id(host port) -> since when it is left unread (line thread)
         self._held_version = 0  # bumped (line thread) when _held changes: the descriptor table too
 
@@ -397,19 +398,25 @@ class SerialMedium(Medium):
         it; else hold the port back (unwatched) until they are."""
         if not bounded:
             data = endpoint.read()
-        else:
-            ahead = self._ahead(endpoint.name, now)
-            size = HOST_FIFO
-            if ahead > 0.0:  # (the host's own byte time: its bytes go out at its rate)
-                byte_time = self.byte_time(endpoint.client_baud())
-                size = HOST_FIFO - int(ahead / byte_time)
-                if size < HOST_FIFO // 2:
-                    self._hold(endpoint, now + ahead - (HOST_FIFO // 2) * byte_time)
-                    return 0, now
-            data = endpoint.read(size)
-        if data and not listen_only:
-            return len(data), self.transmit(endpoint.name, data, t=now, baud=endpoint.client_baud())
-        return len(data), now
+            if data and not listen_only:
+                return len(data), self.transmit(endpoint.name, data, t=now, baud=endpoint.client_baud())
+            return len(data), now
+        name = endpoint.name
+        ahead = self._last_end.get(name, 0.0) - now  # (_ahead, inlined: the paced line's hot path)
+        if self._receivers:
+            ahead = self._ahead(name, now)
+        size = HOST_FIFO
+        if ahead > 0.0:  # in the byte time its bytes ahead were sent at
+            byte_time = self.byte_time(self._sent_baud.get(name))
+            size = HOST_FIFO - int(ahead / byte_time)
+            if size < HOST_FIFO // 2:
+                self._hold(endpoint, now + ahead - (HOST_FIFO // 2) * byte_time)
+                return 0, now
+        data = endpoint.read(size)
+        if not data:
+            return 0, now
+        baud = self._sent_baud[name] = endpoint.client_baud()
+        return len(data), self.transmit(name, data, t=now, baud=baud)
 
     def _hold(self, endpoint, until: float) -> None:
         """Leave ``endpoint`` unread until ``until`` (line thread): its writer waits meanwhile."""
