@@ -38,9 +38,9 @@ stops watching the port until they do (:attr:`LineStats.held_back`), so the
 kernel's buffer fills and the client's write() blocks (or a non-blocking one
 returns EAGAIN). An unpaced line delivers at once; it holds a host back only
 for a device that paces its own receiver (``input_backlog``: the rover
-board's UART). What a pty itself buffers (about 64 KiB in the kernel) comes
-on top, as on any pty; ``hilbench run``'s drain and flush still take
-everything the client wrote (:meth:`SerialMedium.drain_host`).
+board's UART). What a pty itself buffers in the kernel (18 KiB on a Linux 6
+VM) comes on top, as on any pty; ``hilbench run``'s drain and flush still
+take everything the client wrote (:meth:`SerialMedium.drain_host`).
 """
 
 from __future__ import annotations
@@ -80,8 +80,6 @@ TAIL_JOIN = 45e-6
 #: waits. Linux's usb-serial drivers (FTDI, CH340, CP210x, PL2303) queue a write in a FIFO of one page,
 #: 4096 bytes; the chip's own buffer adds 32 (CH340) to 1024 (FT232H) bytes.
 HOST_FIFO = 4096
-#: What a host port's read takes at most when the line need not bound it.
-READ_SIZE = 65536
 
 
 class Device(Protocol):

@@ -99,12 +99,5 @@ class _Party:
     def on_line(self, event, t: float) -> None:
         self.scanner.on_line(event, t)
 
-    def input_backlog(self, now: float) -> float:
-        """Seconds of output the unit has queued on its UART: the line stops reading the host while that is
-        long, so a flood of requests waits in the host's write() instead of queueing replies without end
-        (:data:`~hilbench.transports.serial_medium.HOST_FIFO`)."""
-        tx = getattr(self.scanner, "tx", None)
-        return tx.busy_until - now if tx is not None else 0.0
-
 
 __all__ = ["Scanner", "TruthScan"]
