@@ -151,19 +151,21 @@ class SerialMedium(Medium):
         self._ident: int | None = None
         self._started = threading.Event()
         self._stop = threading.Event()
-        self._hosts_version = 0  # bumped when hosts change: the thread rebuilds its descriptor table
+        # Bumped (under the lock) when hosts change or one is held back or let go: the thread rebuilds its
+        # descriptor table.
+        self._hosts_version = 0
         self._out: dict[int, tuple] | None = None  # host writes held back while due deliveries run
         self._receivers: list = []  # devices pacing their own receiver (input_backlog)
         self._sent_baud: dict[str, int | None] = {}  # by bounded host: the baud of its latest transmission
         self._held: dict[int, float] = {}  # id(host port) -> since when it is left unread (line thread)
-        self._held_version = 0  # bumped (line thread) when _held changes: the descriptor table too
 
     # ------------------------------------------------------------------ wiring
 
     def add_host(self, endpoint, *, listen_only: bool = False) -> None:
         """Attach a host port (pty, UDP, TCP, ...); ``listen_only`` ignores what it sends."""
         super().add_host(endpoint, listen_only=listen_only)
-        self._hosts_version += 1
+        with self._lock:
+            self._hosts_version += 1
         self._wake()
 
     def add_device(self, device) -> DevicePort:
@@ -172,7 +174,7 @@ class SerialMedium(Medium):
         if callable(getattr(device, "input_backlog", None)):
             with self._lock:
                 self._receivers.append(device)
-            self._hosts_version += 1  # (which hosts are held back changes)
+                self._hosts_version += 1  # (which hosts are held back changes)
             self._wake()
         return port
 
@@ -310,7 +312,7 @@ class SerialMedium(Medium):
 
     def _loop(self) -> None:
         events, lock, stop, wake_r, paced = self._events, self._lock, self._stop, self._wake_r, self.paced
-        version = held_version = -1
+        version = -1
         waiter = Waiter() if paced else wait  # a paced line keeps its deliveries' times
         fds: list[int] = []
         by_fd: dict[int, tuple] = {}
@@ -318,12 +320,11 @@ class SerialMedium(Medium):
         held = self._held
         fixed = True  # every host's descriptors stay the same (a pty's do; a TCP port's follow its client)
         while not stop.is_set():
-            if version != self._hosts_version or held_version != self._held_version or not fixed:
+            if version != self._hosts_version or not fixed:
                 with lock:
                     version = self._hosts_version
                     hosts = list(self._hosts)
                     bounded = paced or bool(self._receivers)  # (else what is read is delivered at once)
-                held_version = self._held_version
                 # A host held back is not watched (its writer waits, see HOST_FIFO) until its timer ends it.
                 by_fd = {fd: (ep, listen_only, bounded and not listen_only and getattr(ep, "backpressure", False))
                          for ep, listen_only in hosts if id(ep) not in held for fd in ep.filenos()}
@@ -422,15 +423,16 @@ class SerialMedium(Medium):
         if key in self._held:
             return
         self._held[key] = time.monotonic()
-        self._held_version += 1
         self.stats.held_back += 1
         with self._lock:
+            self._hosts_version += 1
             self._push(until, lambda: self._release(key))
 
     def _release(self, key: int) -> None:
         since = self._held.pop(key, None)
         if since is not None:
-            self._held_version += 1
+            with self._lock:
+                self._hosts_version += 1
             self.stats.held_back_s += time.monotonic() - since
 
     def drain_host(self, port) -> tuple[int, float]:
