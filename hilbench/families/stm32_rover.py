@@ -83,7 +83,7 @@ class BoardSpec(DeviceSpec):
 def board_config(spec: BoardSpec, baud: int, port_type: str = "pty"):
     """The emulator configuration of a profile's board entry (behind a door of ``port_type``: a UDP door,
     which has no flow control, holds at most :data:`~hilbench.fakes.stm32_board.firmware.RX_FIFO` bytes;
-    a pty door is not bounded, as over the real USB link its writer would wait)."""
+    a pty door needs no bound: the line holds its writer back, as the real USB link does)."""
     from hilbench.fakes.stm32_board import BoardConfig, make_preset
     from hilbench.fakes.stm32_board.firmware import RX_FIFO
 

@@ -31,6 +31,10 @@ class HostPort:
     profile_keys: ClassVar[dict[str, Any]] = {}
     #: One word for what the port carries: ``"bytes"`` (a stream) or ``"datagrams"``.
     carries: ClassVar[str] = "bytes"
+    #: Whether the host's writes wait while the port is not read (a pty's kernel buffer, a TCP window fill),
+    #: so a line may leave it unread to hold a fast writer back as a USB adapter does; :meth:`read` then
+    #: takes ``size``. Not a datagram port: nothing holds its sender, what is not read is lost.
+    backpressure: ClassVar[bool] = False
 
     name: str
     lines: LineState | None = None
@@ -56,8 +60,9 @@ class HostPort:
         """Every descriptor to wait on (a TCP port waits on its listener and its client)."""
         return [self.fileno()]
 
-    def read(self) -> bytes:
-        """What the host sent since the last call (b'' if nothing)."""
+    def read(self, size: int = 65536) -> bytes:
+        """What the host sent since the last call (b'' if nothing): at most ``size`` bytes on a port with
+        :attr:`backpressure` (the rest waits for the next call)."""
         raise NotImplementedError
 
     def write(self, data: bytes) -> int:

@@ -119,6 +119,7 @@ class PtyEndpoint(HostPort):
 
     kind = "pty"
     profile_keys = {"link": None}
+    backpressure = True  # unread, the kernel's buffer fills and the client's write() waits
 
     def __init__(self, name: str = "pty", link: str | os.PathLike[str] | None = None) -> None:
         self.name = name
@@ -238,10 +239,10 @@ class PtyEndpoint(HostPort):
         """The baud the client set with termios (None if unknown); the medium asks on every read."""
         return self.client_settings().baud
 
-    def read(self) -> bytes:
-        """Bytes the client wrote, or b'' if none are waiting."""
+    def read(self, size: int = 65536) -> bytes:
+        """Bytes the client wrote (at most ``size``), or b'' if none are waiting."""
         try:
-            data = os.read(self.master_fd, 65536)
+            data = os.read(self.master_fd, size)
         except BlockingIOError:
             return b""
         except OSError as exc:  # EIO would mean no slave is open, which we prevent

@@ -27,6 +27,20 @@ wake-ups preempt CPU-bound neighbours, and that idle CPUs stay awake while it
 runs (:attr:`SerialMedium.cpu_latency`). ``HILBENCH_REALTIME=0`` in the
 environment keeps every line under the normal scheduler. :attr:`SerialMedium.stats`
 counts how late deliveries were against the model.
+
+A host that writes faster than the wire is held back as a USB adapter holds
+it: the adapter's driver takes :data:`HOST_FIFO` bytes (Linux's usb-serial
+write FIFO is one page) and then its writer waits. A paced line reads a host
+port with :attr:`~hilbench.transports.host_port.HostPort.backpressure` (a pty,
+a TCP port) only while its bytes not yet on the wire need less than half of
+that (in the host's own byte time), and then at most the rest; otherwise it
+stops watching the port until they do (:attr:`LineStats.held_back`), so the
+kernel's buffer fills and the client's write() blocks (or a non-blocking one
+returns EAGAIN). An unpaced line delivers at once; it holds a host back only
+for a device that paces its own receiver (``input_backlog``: the rover
+board's UART). What a pty itself buffers in the kernel (18 KiB on a Linux 6
+VM) comes on top, as on any pty; ``hilbench run``'s drain and flush still
+take everything the client wrote (:meth:`SerialMedium.drain_host`).
 """
 
 from __future__ import annotations
@@ -61,6 +75,11 @@ DELIVERY_GRANULE = float(os.environ.get("HILBENCH_GRANULE_US", "125")) * 1e-6
 #: a line thread about this long on a VM (see _next_wake), so an earlier wake-up of its own would only add
 #: one more preemption of the client while it parses the burst's tail.
 TAIL_JOIN = 45e-6
+#: A host port (with backpressure) is read while its bytes not yet on the wire are fewer than half of this,
+#: and then up to this many (see the module docstring): what a USB-serial adapter takes before its writer
+#: waits. Linux's usb-serial drivers (FTDI, CH340, CP210x, PL2303) queue a write in a FIFO of one page,
+#: 4096 bytes; the chip's own buffer adds 32 (CH340) to 1024 (FT232H) bytes.
+HOST_FIFO = 4096
 
 
 class Device(Protocol):
@@ -74,6 +93,10 @@ class Device(Protocol):
 
     def on_bytes(self, data: bytes, t: float, baud: int | None) -> None:
         """Bytes another party sent, as received at time ``t``; ``baud`` is the sender's line rate."""
+
+    # A device that paces its own receiver on an unpaced line (a UART in virtual time) may also have
+    # ``input_backlog(now) -> float``: seconds until it has taken in the bytes handed to it. Hosts are then
+    # held back while that exceeds their share of HOST_FIFO, as on a paced line (module docstring).
 
 
 @dataclass
@@ -90,6 +113,10 @@ class LineStats:
     late_total: float = 0.0
     late_max: float = 0.0
     late_over_1ms: int = 0
+    #: Times a host port was left unread because its bytes ahead of the wire had reached HOST_FIFO (its
+    #: writer then waits, as on a USB adapter), and the seconds it was left so, in all.
+    held_back: int = 0
+    held_back_s: float = 0.0
 
 
 class SerialMedium(Medium):
@@ -124,16 +151,32 @@ class SerialMedium(Medium):
         self._ident: int | None = None
         self._started = threading.Event()
         self._stop = threading.Event()
-        self._hosts_version = 0  # bumped when hosts change: the thread rebuilds its descriptor table
+        # Bumped (under the lock) when hosts change or one is held back or let go: the thread rebuilds its
+        # descriptor table.
+        self._hosts_version = 0
         self._out: dict[int, tuple] | None = None  # host writes held back while due deliveries run
+        self._receivers: list = []  # devices pacing their own receiver (input_backlog)
+        self._sent_baud: dict[str, int | None] = {}  # by bounded host: the baud of its latest transmission
+        self._held: dict[int, float] = {}  # id(host port) -> since when it is left unread (line thread)
 
     # ------------------------------------------------------------------ wiring
 
     def add_host(self, endpoint, *, listen_only: bool = False) -> None:
         """Attach a host port (pty, UDP, TCP, ...); ``listen_only`` ignores what it sends."""
         super().add_host(endpoint, listen_only=listen_only)
-        self._hosts_version += 1
+        with self._lock:
+            self._hosts_version += 1
         self._wake()
+
+    def add_device(self, device) -> DevicePort:
+        """Attach an in-process device (see :class:`Device`)."""
+        port = super().add_device(device)
+        if callable(getattr(device, "input_backlog", None)):
+            with self._lock:
+                self._receivers.append(device)
+                self._hosts_version += 1  # (which hosts are held back changes)
+            self._wake()
+        return port
 
     # ------------------------------------------------------------------ sending
 
@@ -168,9 +211,23 @@ class SerialMedium(Medium):
         return end
 
     def backlog(self, source: str) -> float:
-        """Seconds until everything ``source`` transmitted is delivered (0 when it is, and on an unpaced line):
-        a host port that reads its client only while this is small bounds what waits on a paced line."""
-        return max(0.0, self._last_end.get(source, 0.0) - time.monotonic())
+        """Seconds until everything ``source`` transmitted is delivered, and taken in by a device that paces
+        its own receiver (0 when it is; on an unpaced line without such a device always 0): a host port that
+        reads its client only while this is small bounds what waits for the wire."""
+        return max(0.0, self._ahead(source, time.monotonic()))
+
+    def _ahead(self, source: str, now: float) -> float:
+        ahead = self._last_end.get(source, 0.0) - now
+        for device in self._receivers:
+            try:
+                taking = device.input_backlog(now)
+            except Exception:  # one faulty device must not stop the line
+                self.stats.callback_errors += 1
+                log.exception("device %s failed to tell its input backlog", device.name)
+                continue
+            if taking > ahead:
+                ahead = taking
+        return ahead
 
     def call_at(self, t: float | None, fn: Callable[[], None]) -> None:
         """Run ``fn`` in the line's thread at time ``t`` (None: at once; thread-safe)."""
@@ -260,13 +317,17 @@ class SerialMedium(Medium):
         fds: list[int] = []
         by_fd: dict[int, tuple] = {}
         hosts: list[tuple] = []
+        held = self._held
         fixed = True  # every host's descriptors stay the same (a pty's do; a TCP port's follow its client)
         while not stop.is_set():
             if version != self._hosts_version or not fixed:
                 with lock:
                     version = self._hosts_version
                     hosts = list(self._hosts)
-                by_fd = {fd: (ep, listen_only) for ep, listen_only in hosts for fd in ep.filenos()}
+                    bounded = paced or bool(self._receivers)  # (else what is read is delivered at once)
+                # A host held back is not watched (its writer waits, see HOST_FIFO) until its timer ends it.
+                by_fd = {fd: (ep, listen_only, bounded and not listen_only and getattr(ep, "backpressure", False))
+                         for ep, listen_only in hosts if id(ep) not in held for fd in ep.filenos()}
                 fds = [*by_fd, wake_r]
                 fixed = all(type(ep).filenos is HostPort.filenos for ep, _ in hosts)
             # (stale is fine: pushes from other threads wake us)
@@ -292,7 +353,7 @@ class SerialMedium(Medium):
                     host = by_fd.get(fd)
                     if host is not None and id(host[0]) not in taken:  # (a port may have several descriptors)
                         taken.add(id(host[0]))
-                        self._take(host[0], host[1], now)
+                        self._take(host[0], host[1], now, host[2])
             self._run_due()
 
     def _next_wake(self) -> tuple[float, bool]:
@@ -330,12 +391,49 @@ class SerialMedium(Medium):
                 wake = max(joined) if joined else end
             return wake, wake >= end
 
-    def _take(self, endpoint, listen_only: bool, now: float) -> tuple[int, float]:
-        """Read what a host port has and put it on the line; returns (bytes, delivery time)."""
-        data = endpoint.read()
-        if data and not listen_only:
-            return len(data), self.transmit(endpoint.name, data, t=now, baud=endpoint.client_baud())
-        return len(data), now
+    def _take(self, endpoint, listen_only: bool, now: float, bounded: bool = False) -> tuple[int, float]:
+        """Read what a host port has and put it on the line; returns (bytes, delivery time). ``bounded``: read
+        only while its bytes ahead of the wire are under half of :data:`HOST_FIFO`, and at most the rest of
+        it; else hold the port back (unwatched) until they are."""
+        if not bounded:
+            data = endpoint.read()
+            if data and not listen_only:
+                return len(data), self.transmit(endpoint.name, data, t=now, baud=endpoint.client_baud())
+            return len(data), now
+        name = endpoint.name
+        ahead = self._last_end.get(name, 0.0) - now  # (_ahead, inlined: the paced line's hot path)
+        if self._receivers:
+            ahead = self._ahead(name, now)
+        size = HOST_FIFO
+        if ahead > 0.0:  # in the byte time its bytes ahead were sent at
+            byte_time = self.byte_time(self._sent_baud.get(name))
+            size = HOST_FIFO - int(ahead / byte_time)
+            if size < HOST_FIFO // 2:
+                self._hold(endpoint, now + ahead - (HOST_FIFO // 2) * byte_time)
+                return 0, now
+        data = endpoint.read(size)
+        if not data:
+            return 0, now
+        baud = self._sent_baud[name] = endpoint.client_baud()
+        return len(data), self.transmit(name, data, t=now, baud=baud)
+
+    def _hold(self, endpoint, until: float) -> None:
+        """Leave ``endpoint`` unread until ``until`` (line thread): its writer waits meanwhile."""
+        key = id(endpoint)
+        if key in self._held:
+            return
+        self._held[key] = time.monotonic()
+        self.stats.held_back += 1
+        with self._lock:
+            self._hosts_version += 1
+            self._push(until, lambda: self._release(key))
+
+    def _release(self, key: int) -> None:
+        since = self._held.pop(key, None)
+        if since is not None:
+            with self._lock:
+                self._hosts_version += 1
+            self.stats.held_back_s += time.monotonic() - since
 
     def drain_host(self, port) -> tuple[int, float]:
         """Take everything ``port`` already sent, in the line's thread; returns (bytes taken, when the
@@ -351,7 +449,7 @@ class SerialMedium(Medium):
         for endpoint, listen_only in list(self._hosts):
             if endpoint is not port:
                 continue
-            while True:
+            while True:  # (everything: a drain waits for all the client wrote, however much is ahead)
                 n, t = self._take(endpoint, listen_only, time.monotonic())
                 if not n:
                     break
@@ -404,8 +502,11 @@ class SerialMedium(Medium):
                                lambda: self.check_quiet(port, _retry + 1))
             return False
         for endpoint, listen_only in hosts:
-            if listen_only or self._take(endpoint, listen_only, time.monotonic())[0]:
-                return False  # new bytes (or a port whose bytes are never delivered): not quiet yet
+            if listen_only or id(endpoint) in self._held:
+                return False  # a port whose bytes are never delivered, or one held back with bytes waiting
+            bounded = getattr(endpoint, "backpressure", False) and (self.paced or bool(self._receivers))
+            if self._take(endpoint, listen_only, time.monotonic(), bounded)[0] or id(endpoint) in self._held:
+                return False  # new bytes (or some left unread, held back): not quiet yet
         try:
             watcher(t0)
         except Exception:

@@ -25,6 +25,7 @@ class TcpEndpoint(HostPort):
 
     kind = "tcp"
     profile_keys = {"bind": "127.0.0.1", "port": 0}
+    backpressure = True  # unread, the receive window fills and the client's send() waits
 
     def __init__(self, name: str = "tcp", bind: str = "127.0.0.1", port: int = 0) -> None:
         self.name = name
@@ -88,13 +89,13 @@ class TcpEndpoint(HostPort):
                 self.client.close()
         self.client = self.peer = None
 
-    def read(self) -> bytes:
-        """What the client sent (b'' if nothing); accepts a waiting client first."""
+    def read(self, size: int = 65536) -> bytes:
+        """What the client sent (at most ``size`` bytes; b'' if nothing); accepts a waiting client first."""
         self._accept()
         if self.client is None:
             return b""
         try:
-            data = self.client.recv(65536)
+            data = self.client.recv(size)
         except (BlockingIOError, InterruptedError):
             return b""
         except OSError:

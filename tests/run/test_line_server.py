@@ -101,6 +101,25 @@ def test_flush_drain_waits_until_the_bytes_are_delivered(hilbench_bench, paced):
         assert elapsed >= len(PAYLOAD) * 10 / 1_000_000  # 38 ms of wire time at 1 Mbaud
 
 
+def test_a_write_faster_than_the_wire_waits_and_a_drain_waits_for_all_of_it(hilbench_bench):
+    """A paced line holds a writer back as an adapter does (write() returns once the bytes beyond its FIFO and
+    the pty's buffer could be taken); tcdrain then waits until every byte is delivered, however far ahead."""
+    bench = hilbench_bench("arm", paced=True)
+    rec = LineRecorder().attach(bench.endpoint())
+    data = PAYLOAD * 17  # 64 600 bytes: 0.65 s at 1 Mbaud
+    wire = len(data) * 10 / 1_000_000
+    with serial.Serial(bench.endpoint().path, 1_000_000) as ser:
+        t0 = time.monotonic()
+        ser.write(data)
+        wrote = time.monotonic() - t0
+        ser.flush()
+        drained = time.monotonic() - t0
+        assert rec.received() == data  # every byte delivered before flush() returned
+    assert wrote >= 0.5 * wire  # held back: not read at once (the pty and the FIFO hold ~22 KiB of it)
+    assert drained >= wire
+    assert bench.endpoint().medium.stats.held_back > 0
+
+
 def test_break_events(arm):
     bench, rec = arm
     with serial.Serial(bench.endpoint().path, 1_000_000) as ser:

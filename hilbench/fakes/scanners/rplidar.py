@@ -132,7 +132,7 @@ class RplidarA1(Scanner):
 
     def attach(self, medium) -> None:
         super().attach(medium)
-        self.tx = UartTx(self.port, self.config.baud)
+        self.tx = UartTx(self.port, self.config.baud, counters=self.counters)
 
     # ------------------------------------------------------------------ motor
 

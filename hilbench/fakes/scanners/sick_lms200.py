@@ -93,7 +93,7 @@ class SickLms200(Scanner):
 
     def attach(self, medium) -> None:
         super().attach(medium)
-        self.tx = UartTx(self.port, self.baud)
+        self.tx = UartTx(self.port, self.baud, counters=self.counters)
 
     # ------------------------------------------------------------------ geometry
 

@@ -11,6 +11,12 @@ event on the medium's clock.
 Queued chunks can be cancelled (:meth:`cancel`: a STOP, a reset), so what a
 device has not yet put on the wire never reaches the host; the chunk being
 sent still completes, as on a real UART.
+
+The queue is bounded like a firmware's transmit ring (:data:`TX_QUEUE`): a
+write that finds it full is dropped whole and counted, so a host asking
+faster than the answers can go out (a flood of 2-byte requests each worth a
+27-byte reply) costs no memory and the unit answers again as soon as the
+ring has room.
 """
 
 from __future__ import annotations
@@ -20,12 +26,15 @@ from collections.abc import Callable
 
 #: Longest piece of one write handed to the medium as a unit (seconds of wire time).
 CHUNK_S = 0.001
+#: Bytes the transmit queue holds: a write that would not fit behind what is queued is dropped (counted).
+TX_QUEUE = 4096
 
 
 class UartTx:
     """The TX line of a device: ``send(data, t_ready)`` paces ``data`` at :attr:`baud` (10 bits a byte)."""
 
-    def __init__(self, port, baud: int | None, *, chunk_s: float = CHUNK_S) -> None:
+    def __init__(self, port, baud: int | None, *, chunk_s: float = CHUNK_S,
+                 counters: dict[str, int] | None = None) -> None:
         self.port = port
         self.baud = baud
         self.chunk_s = chunk_s
@@ -33,6 +42,9 @@ class UartTx:
         self.epoch = 0
         self.bytes_sent = 0
         self.bytes_cancelled = 0
+        self.bytes_dropped = 0
+        #: Where drops are also counted (the device's counters: ``tx_dropped``, ``tx_dropped_bytes``).
+        self.counters = counters
         self._pending = 0  # chunks scheduled and not yet handed over
         self.on_idle: Callable[[float], None] | None = None
 
@@ -49,6 +61,12 @@ class UartTx:
         now = time.monotonic() if t_ready is None else t_ready
         start = max(now, self.busy_until)
         bt = self.byte_time()
+        if bt and start > now and (start - now) / bt + len(data) > TX_QUEUE:  # the ring is full: dropped
+            self.bytes_dropped += len(data)
+            if self.counters is not None:
+                self.counters["tx_dropped"] += 1
+                self.counters["tx_dropped_bytes"] += len(data)
+            return start
         step = len(data) if whole or bt == 0 else max(1, int(self.chunk_s / bt))
         epoch = self.epoch
         t = start

@@ -229,6 +229,14 @@ class Board:
         self.receive(data, (t_first - self.wall0) * 1e6)
         self._wake.set()
 
+    def input_backlog(self, now: float) -> float:
+        """Seconds (from monotonic ``now``) until the UART has taken in every host byte handed to it: the
+        line holds the host back while this is long (a pty door: over the real USB link its writer waits)."""
+        if self.wall0 is None:
+            return 0.0
+        free_s = self.fw.framer.line_free_at  # seconds of the current boot (-inf: nothing received)
+        return self.wall0 + self.boot_offset / 1e6 + free_s - now
+
     def start(self, wall0: float | None = None) -> None:
         """Start the live thread; virtual time 0 (or the current virtual time) is now."""
         if self._thread is not None:
@@ -287,3 +295,6 @@ class _LineParty:
 
     def on_bytes(self, data: bytes, t: float, baud: int | None) -> None:
         self.board.on_bytes(data, t, baud)
+
+    def input_backlog(self, now: float) -> float:
+        return self.board.input_backlog(now)

@@ -269,7 +269,8 @@ class BoardConfig:
     boot_banner: bool = True
     faults: dict[str, float] = field(default_factory=dict)
     #: Bytes a door without flow control (UDP) holds for the UART: beyond, a write is dropped and counted
-    #: (``Truth.rx_overruns``). None: unbounded (a pty door: over the real USB link the writer would wait).
+    #: (``Truth.rx_overruns``). None: unbounded (a pty door, whose writer the line holds back while the UART
+    #: has more than half of HOST_FIFO to take in, as the real USB link does: :meth:`Board.input_backlog`).
     rx_fifo: int | None = None
 
     @property

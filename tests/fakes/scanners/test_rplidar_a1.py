@@ -218,3 +218,51 @@ def test_fault_knobs_reach_the_decoders(scanners):
     assert tr.scans >= 3  # the decoder resynchronised after every damaged node
     assert tr.dropped_bytes > 0 and dev.counters["dropped_bytes"] > 0 and dev.counters["bad_flag_nodes"] > 0
     assert tr.checksum_failures > 0 and dev.counters["corrupted_capsules"] > 0
+
+
+
+def test_a_request_flood_fills_the_units_transmit_ring_and_the_rest_is_dropped(scanners):
+    """Each 2-byte GET_INFO costs 27 bytes of reply at 115200 baud: replies that find the unit's transmit ring
+    (TX_QUEUE bytes) full are dropped whole and counted, instead of queueing without end (52 MB in 3 s before);
+    the unit answers again as soon as the ring has room."""
+    import os
+    import termios
+    import tty
+
+    from hilbench.fakes.scanners.uart import TX_QUEUE
+
+    dev = scanners.device("lidar")
+    fd = os.open(scanners.endpoint("lidar").path, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+    try:
+        tty.setraw(fd)
+        attrs = termios.tcgetattr(fd)
+        attrs[4] = attrs[5] = termios.B115200
+        termios.tcsetattr(fd, termios.TCSANOW, attrs)
+        requests, written, most = rp.request(rp.Cmd.GET_INFO) * 2048, 0, 0.0
+        end = time.monotonic() + 0.5
+        while time.monotonic() < end or written % 2:  # (whole requests: a write may take an odd count)
+            try:
+                written += os.write(fd, requests[written % 2:])
+            except BlockingIOError:
+                time.sleep(0.001)
+            most = max(most, dev.tx.busy_until - time.monotonic())
+
+        # Every request is answered or its reply dropped (counted), and the ring empties.
+        wait_until(lambda: dev.tx.bytes_sent // 27 + dev.counters["tx_dropped"] >= written // 2
+                   and dev.tx.busy_until < time.monotonic(), timeout=10)
+        dropped = dev.counters["tx_dropped"]
+        assert dev.tx.bytes_sent // 27 + dropped == written // 2, dict(dev.counters)
+        assert dropped > 0 and dev.counters["tx_dropped_bytes"] == 27 * dropped
+        assert most <= TX_QUEUE * 10 / 115200 + 0.05, most  # the ring's 0.36 s, not minutes of replies
+        termios.tcflush(fd, termios.TCIFLUSH)  # (the replies this client never read)
+        os.write(fd, rp.request(rp.Cmd.GET_HEALTH))
+        got = b""
+        deadline = time.monotonic() + 2
+        while len(got) < 10 and time.monotonic() < deadline:
+            try:
+                got += os.read(fd, 10 - len(got))
+            except BlockingIOError:
+                time.sleep(0.005)
+        assert got == H("A5 5A 03 00 00 00 06 00 00 00")
+    finally:
+        os.close(fd)
