@@ -227,7 +227,7 @@ def test_no_import_cycles():
 #: plug-ins by name, importing none of them), fuzz-target types, the console.
 LAYERS: dict[str, tuple[int, set[str]]] = {
     "base": (0, {"hilbench", "hilbench.errors", "hilbench.rules", "hilbench.registry",
-                 "hilbench.decoders", "hilbench.console"}),
+                 "hilbench.fuzzing", "hilbench.console"}),
     "protocols": (1, {"hilbench.protocols"}),
     "transports": (2, {"hilbench.transports"}),
     "fakes": (3, {"hilbench.fakes"}),

@@ -1,4 +1,4 @@
-"""Servers of a running bench as rough-input targets (:mod:`hilbench.decoders`, kind ``server``): a client's session.
+"""Servers of a running bench as rough-input targets (:mod:`hilbench.fuzzing`, kind ``server``): a client's session.
 
 Both drive a bench started once per process (on free ports, on 127.0.0.1, stopped at exit) with a
 device of each family that takes control commands.
@@ -27,7 +27,7 @@ import threading
 import time
 from typing import Any
 
-from hilbench.decoders import DecoderTarget, TracebackWatch
+from hilbench.fuzzing import FuzzTarget, TracebackWatch
 
 #: A bench with a device of each family that takes commands (every port a free one, on 127.0.0.1).
 PROFILE: dict[str, Any] = {
@@ -160,7 +160,7 @@ class _Session:
         return self.bad
 
 
-CONTROL = DecoderTarget("server-control", "control channel: a client's session of request lines on a running bench",
+CONTROL = FuzzTarget("server-control", "control channel: a client's session of request lines on a running bench",
                         _Session, LINE_RATE, LINE, control_session, kind="server", max_input=1024)
 
 
@@ -254,7 +254,7 @@ class _ScipSession:
         return self.unit.decoder.dropped - self.dropped0
 
 
-SCIP = DecoderTarget("server-scip", "Hokuyo UST-10LX over TCP: a client's SCIP 2.0 session through the bench's port",
+SCIP = FuzzTarget("server-scip", "Hokuyo UST-10LX over TCP: a client's SCIP 2.0 session through the bench's port",
                      _ScipSession, SCIP_LINE, "100 Mbit/s Ethernet", scip_session, kind="server",
                      max_input=1024)
 

@@ -1,4 +1,4 @@
-"""The laser scanners' decoders as rough-input targets (:mod:`hilbench.decoders`): what each unit sends, its
+"""The laser scanners' decoders as rough-input targets (:mod:`hilbench.fuzzing`): what each unit sends, its
 line, and clean traffic of its kind to mutate. Registered in ``pyproject.toml``; ``tools/fuzz.py`` and
 ``tools/rough.py`` drive them like the servo and board decoders (:mod:`hilbench.protocols.targets`)."""
 
@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import random
 
-from hilbench.decoders import Counting, DecoderTarget
+from hilbench.fuzzing import Counting, FuzzTarget
 from hilbench.protocols import rplidar as rp
 from hilbench.protocols import scip
 from hilbench.protocols import sick_lms200 as lms
@@ -41,7 +41,7 @@ def _rplidar() -> Counting:
     return Counting(dec.feed, list, lambda i: not isinstance(i, Problem), lambda: dec.dropped)
 
 
-RPLIDAR = DecoderTarget("rplidar", "RPLIDAR A1 response decoder (descriptors, nodes, capsules)", _rplidar,
+RPLIDAR = FuzzTarget("rplidar", "RPLIDAR A1 response decoder (descriptors, nodes, capsules)", _rplidar,
                         RPLIDAR_LINE, "115 200 baud UART", rplidar_traffic)
 
 
@@ -66,7 +66,7 @@ def _lms200() -> Counting:
     return Counting(dec.feed, list, lambda i: isinstance(i, lms.Frame), lambda: dec.dropped)
 
 
-LMS200 = DecoderTarget("sick-lms200", "SICK LMS 200 telegram decoder", _lms200, LMS200_LINE, "500 kbaud RS-422",
+LMS200 = FuzzTarget("sick-lms200", "SICK LMS 200 telegram decoder", _lms200, LMS200_LINE, "500 kbaud RS-422",
                        lms200_traffic)
 
 
@@ -92,7 +92,7 @@ def _scip() -> Counting:
                     lambda: dec.dropped + dec.bad_sums)
 
 
-SCIP = DecoderTarget("scip2", "Hokuyo SCIP 2.0 reply decoder", _scip, SCIP_LINE,
+SCIP = FuzzTarget("scip2", "Hokuyo SCIP 2.0 reply decoder", _scip, SCIP_LINE,
                      "UST-10LX MD stream, 40 scans/s", scip_traffic)
 
 

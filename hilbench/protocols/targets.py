@@ -1,11 +1,11 @@
-"""The protocol decoders as rough-input targets (:mod:`hilbench.decoders`): how to drive each with bytes,
+"""The protocol decoders as rough-input targets (:mod:`hilbench.fuzzing`): how to drive each with bytes,
 its fastest line, and clean traffic of its kind to mutate. Registered in ``pyproject.toml``."""
 
 from __future__ import annotations
 
 import random
 
-from hilbench.decoders import Counting, DecoderTarget
+from hilbench.fuzzing import Counting, FuzzTarget
 from hilbench.protocols import dynamixel as dxl
 from hilbench.protocols import dynamixel_protocol1 as dxl1
 from hilbench.protocols import tracestamp as ts
@@ -54,7 +54,7 @@ def _dynamixel() -> Counting:
     return Counting(dec.feed, dec.flush, lambda i: not isinstance(i, Problem), lambda: dec.bytes_skipped)
 
 
-DYNAMIXEL = DecoderTarget("dynamixel", "Dynamixel Protocol 2.0 decoder", _dynamixel, DYNAMIXEL_LINE,
+DYNAMIXEL = FuzzTarget("dynamixel", "Dynamixel Protocol 2.0 decoder", _dynamixel, DYNAMIXEL_LINE,
                           "4.5 Mbaud RS-485 bus", dynamixel_traffic)
 
 
@@ -83,7 +83,7 @@ def _dynamixel1() -> Counting:
     return Counting(dec.feed, dec.flush, lambda i: isinstance(i, dxl1.Packet1), lambda: dec.bytes_skipped)
 
 
-DYNAMIXEL1 = DecoderTarget("dynamixel1", "Dynamixel Protocol 1.0 decoder", _dynamixel1, DYNAMIXEL_LINE,
+DYNAMIXEL1 = FuzzTarget("dynamixel1", "Dynamixel Protocol 1.0 decoder", _dynamixel1, DYNAMIXEL_LINE,
                            "4.5 Mbaud RS-485 bus", dynamixel1_traffic)
 
 
@@ -128,7 +128,7 @@ class _Vel2dReader:
         return self.bad
 
 
-VEL2D = DecoderTarget("vel2d", "Vel2d velocity frames (idle-line framing, CRC-32/MPEG-2)", _Vel2dReader,
+VEL2D = FuzzTarget("vel2d", "Vel2d velocity frames (idle-line framing, CRC-32/MPEG-2)", _Vel2dReader,
                       BOARD_LINE, "12.5 Mbit/s UART", vel2d_traffic)
 
 
@@ -250,11 +250,11 @@ def _stream() -> Counting:
     return Counting(dec.feed_batch, dec.flush, _units, lambda: dec.text.parse_errors + dec.words.broken_words)
 
 
-TRACESTAMP_TEXT = DecoderTarget("tracestamp-text", "trace stamps as text (stamp lines, logs, reports)", _text,
+TRACESTAMP_TEXT = FuzzTarget("tracestamp-text", "trace stamps as text (stamp lines, logs, reports)", _text,
                                 BOARD_LINE, "12.5 Mbit/s UART", text_traffic)
-TRACESTAMP_BINARY = DecoderTarget("tracestamp-binary", "binary trace stamp words", _binary, BOARD_LINE,
+TRACESTAMP_BINARY = FuzzTarget("tracestamp-binary", "binary trace stamp words", _binary, BOARD_LINE,
                                   "12.5 Mbit/s UART", binary_traffic)
-TRACESTAMP_STREAM = DecoderTarget("tracestamp-stream", "text and binary stamps mixed on one UART", _stream,
+TRACESTAMP_STREAM = FuzzTarget("tracestamp-stream", "text and binary stamps mixed on one UART", _stream,
                                   BOARD_LINE, "12.5 Mbit/s UART", stream_traffic)
 
 __all__ = ["BOARD_LINE", "DYNAMIXEL", "DYNAMIXEL1", "DYNAMIXEL_LINE", "TRACESTAMP_BINARY", "TRACESTAMP_STREAM",

@@ -1,11 +1,11 @@
-"""The capture parser as a rough-input target (:mod:`hilbench.decoders`)."""
+"""The capture parser as a rough-input target (:mod:`hilbench.fuzzing`)."""
 
 from __future__ import annotations
 
 import io
 import random
 
-from hilbench.decoders import DecoderTarget
+from hilbench.fuzzing import FuzzTarget
 from hilbench.protocols.targets import BOARD_LINE, dynamixel_traffic
 from hilbench.transports.capture_file import CaptureError, CaptureParser, CaptureWriter
 
@@ -54,7 +54,7 @@ def after_header(noise: bytes) -> bytes:
 
 
 #: A capture of the fastest line hilbench records (its bytes plus 12 per record).
-CAPTURE = DecoderTarget("capture", "hilbench capture format (.hbcap, the TCP tap stream)", _CaptureReader,
+CAPTURE = FuzzTarget("capture", "hilbench capture format (.hbcap, the TCP tap stream)", _CaptureReader,
                         BOARD_LINE, "capture of a 12.5 Mbit/s line", capture_traffic, frame=after_header,
                         refuses=(CaptureError,))  # a header of a newer format version (2..16): one line
 

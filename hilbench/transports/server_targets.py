@@ -1,4 +1,4 @@
-"""The bench's TCP servers as rough-input targets (:mod:`hilbench.decoders`, kind ``server``): a client's session.
+"""The bench's TCP servers as rough-input targets (:mod:`hilbench.fuzzing`, kind ``server``): a client's session.
 
 - ``server-socketcand``: the socketcand daemon (:class:`~hilbench.transports.socketcand_server.SocketcandServer`)
   through its door interface, as the CAN bus thread drives it: a client connects to its listener on
@@ -25,7 +25,7 @@ import socket
 import threading
 from typing import Any
 
-from hilbench.decoders import DecoderTarget, TracebackWatch
+from hilbench.fuzzing import FuzzTarget, TracebackWatch
 from hilbench.protocols import rfc2217 as p
 from hilbench.protocols import socketcand as scd
 from hilbench.protocols.can_frame import CanFrame
@@ -194,7 +194,7 @@ class _SocketcandSession:
         return self.server.malformed - self.malformed0
 
 
-SOCKETCAND = DecoderTarget("server-socketcand", "socketcand daemon: a client's session (BCM, RAW, CONTROL modes)",
+SOCKETCAND = FuzzTarget("server-socketcand", "socketcand daemon: a client's session (BCM, RAW, CONTROL modes)",
                            _SocketcandSession, SOCKETCAND_LINE, "a saturated 1 Mbit/s bus in socketcand text",
                            socketcand_session, kind="server", max_input=2048)
 
@@ -324,7 +324,7 @@ class _Rfc2217Session:
         return self.port.problems - self.problems0
 
 
-RFC2217 = DecoderTarget("server-rfc2217", "RFC 2217 server: a pyserial client's session (telnet options, COM-PORT "
+RFC2217 = FuzzTarget("server-rfc2217", "RFC 2217 server: a pyserial client's session (telnet options, COM-PORT "
                         "commands, data)", _Rfc2217Session, RFC2217_LINE, "a 1 Mbaud serial line",
                         rfc2217_session, kind="server", max_input=2048)
 

@@ -1,7 +1,7 @@
-"""The emulated Micro XRCE-DDS agent as a rough-input target (:mod:`hilbench.decoders`, kind ``server``).
+"""The emulated Micro XRCE-DDS agent as a rough-input target (:mod:`hilbench.fuzzing`, kind ``server``).
 
 A session is the datagrams micro-ROS clients send the agent, framed in one byte stream
-(:func:`~hilbench.decoders.frame_datagram`; the frame's sender byte picks one of three client
+(:func:`~hilbench.fuzzing.frame_datagram`; the frame's sender byte picks one of three client
 addresses): pings, CREATE_CLIENT, entities created in binary on the reliable stream, READ_DATA,
 WRITE_DATA on both streams, a reliable message cut into FRAGMENTs, ACKNACKs, HEARTBEATs, time
 sync, a client deleted. Each session meets a fresh agent (:class:`~hilbench.fakes.xrce_agent.agent.XrceAgent`,
@@ -16,7 +16,7 @@ from __future__ import annotations
 import random
 from typing import Any
 
-from hilbench.decoders import DatagramFrames, DecoderTarget, TracebackWatch, frame_datagram
+from hilbench.fuzzing import DatagramFrames, FuzzTarget, TracebackWatch, frame_datagram
 from hilbench.protocols import xrce_dds as x
 
 K = x.ObjectKind
@@ -206,7 +206,7 @@ class _AgentSession:
         return self.frames.skipped + c["malformed"] + c["orphan"]
 
 
-AGENT_TARGET = DecoderTarget("server-xrce", "micro-ROS XRCE-DDS agent: clients' sessions of datagrams",
+AGENT_TARGET = FuzzTarget("server-xrce", "micro-ROS XRCE-DDS agent: clients' sessions of datagrams",
                              _AgentSession, LINE_RATE, "100 Mbit/s Ethernet link of 100-byte datagrams",
                              agent_session, kind="server", max_input=1024)
 

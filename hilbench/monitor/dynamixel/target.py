@@ -1,8 +1,8 @@
-"""The Dynamixel bus monitor's tracker as a rough-input target (:mod:`hilbench.decoders`)."""
+"""The Dynamixel bus monitor's tracker as a rough-input target (:mod:`hilbench.fuzzing`)."""
 
 from __future__ import annotations
 
-from hilbench.decoders import DecoderTarget
+from hilbench.fuzzing import FuzzTarget
 from hilbench.monitor.dynamixel.tracker import BusTracker
 from hilbench.protocols.targets import DYNAMIXEL_LINE, dynamixel_traffic
 
@@ -31,7 +31,7 @@ class _TrackerReader:
         return sum(d.bytes_skipped for d in self.tracker.decoders.values())
 
 
-TRACKER = DecoderTarget("monitor-dynamixel", "Dynamixel bus monitor (decoder, pairing, device state)",
+TRACKER = FuzzTarget("monitor-dynamixel", "Dynamixel bus monitor (decoder, pairing, device state)",
                         _TrackerReader, DYNAMIXEL_LINE, "4.5 Mbaud RS-485 bus", dynamixel_traffic,
                         kind="instrument")
 

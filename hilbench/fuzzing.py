@@ -1,15 +1,17 @@
-"""Rough input: every decoder and instrument that reads bytes from outside, for the fuzz script and benchmarks.
+"""Fuzz targets: every reader of outside bytes and every server a client talks to, for the fuzz script and the
+rough-input benchmarks.
 
-A :class:`DecoderTarget` says how to drive one reader of outside bytes
+A :class:`FuzzTarget` says how to drive one reader of outside bytes
 (a protocol decoder, the capture parser, a monitor's tracker, the profiler)
 with nothing but bytes, how fast its fastest line is, and how to make clean
-traffic of its kind to mutate. Targets register in the ``hilbench.decoders``
-entry-point group (:data:`hilbench.registry.decoders`), so a new family's
+traffic of its kind to mutate. Targets register in the ``hilbench.fuzz_targets``
+entry-point group (:data:`hilbench.registry.fuzz_targets`), so a new family's
 decoder joins ``tools/fuzz.py`` and the rough-input benchmarks with one line
-in its package's ``pyproject.toml``::
+in its package's ``pyproject.toml``; each family keeps its targets in its own
+modules (``protocols/<format>_targets.py``, ``<package>/targets.py``)::
 
-    [project.entry-points."hilbench.decoders"]
-    acme-frames = "acme_hilbench.protocol:ROUGH_INPUT"
+    [project.entry-points."hilbench.fuzz_targets"]
+    acme-frames = "acme_hilbench.targets:FRAMES"
 
 The rule the targets are held to (the project's): a decoder never raises on
 garbage, resynchronises in linear time and counts what it dropped; on pure
@@ -24,7 +26,8 @@ agent, an RTPS participant, the control channel). For them a traceback the
 server only logs (``log.exception``) counts as much as one it raises:
 :class:`TracebackWatch` turns the first into :class:`LoggedTraceback`.
 
-This module imports nothing from hilbench but :mod:`hilbench.registry`.
+This module imports nothing from hilbench but :mod:`hilbench.errors` (and
+:mod:`hilbench.registry` in :func:`targets`).
 """
 
 from __future__ import annotations
@@ -57,8 +60,9 @@ class Reader(Protocol):
 
 
 @dataclass(frozen=True)
-class DecoderTarget:
-    """One reader of outside bytes, as the fuzz script and the benchmarks drive it.
+class FuzzTarget:
+    """One reader of outside bytes (or a server, fed a client's session), as the fuzz script and the benchmarks
+    drive it.
 
     ``make()`` returns a fresh :class:`Reader`; ``line_rate`` is the bytes per
     second of the fastest line it reads (``line`` says which: the target is ten
@@ -91,11 +95,11 @@ class DecoderTarget:
         return self.frame(data) if self.frame is not None else data
 
 
-def targets() -> list[DecoderTarget]:
+def targets() -> list[FuzzTarget]:
     """Every registered target, in registration order (built-ins first)."""
     from hilbench import registry
 
-    return list(registry.decoders.values())
+    return list(registry.fuzz_targets.values())
 
 
 def noise(rng: random.Random, size: int) -> bytes:
@@ -300,5 +304,5 @@ class DatagramFrames:
         return out
 
 
-__all__ = ["DATAGRAM_MAGIC", "MAX_DATAGRAM", "Counting", "DatagramFrames", "DecoderTarget", "LoggedTraceback",
+__all__ = ["DATAGRAM_MAGIC", "MAX_DATAGRAM", "Counting", "DatagramFrames", "FuzzTarget", "LoggedTraceback",
            "Reader", "TracebackWatch", "frame_datagram", "mutate", "noise", "run", "targets"]

@@ -1,5 +1,5 @@
-"""The rough-input registry: every reader of outside bytes is registered, survives noise and damage, and the
-fuzz script and the rough-input benchmark drive them all."""
+"""The fuzz targets (:mod:`hilbench.fuzzing`): every reader of outside bytes and every server is registered and
+survives noise and damage, and the fuzz script and the rough-input benchmark drive them all."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import sys
 
 import pytest
 
-from hilbench.decoders import mutate, run, targets
+from hilbench.fuzzing import mutate, run, targets
 from tests.conftest import REPO
 
 BUILT_IN = {"dynamixel", "dynamixel1", "vel2d", "tracestamp-text", "tracestamp-binary", "tracestamp-stream",
