@@ -182,7 +182,7 @@ def bench_rough(ids, t, b) -> None:
     from rough import measure
 
     from hilbench.profiler.target import PROFILER
-    from hilbench.protocols.targets import TRACESTAMP_BINARY, TRACESTAMP_STREAM, TRACESTAMP_TEXT
+    from hilbench.protocols.tracestamp_targets import TRACESTAMP_BINARY, TRACESTAMP_STREAM, TRACESTAMP_TEXT
 
     text, binary = text_stream(ids, t, b)[:1_000_000], binary_stream(ids, t, b)[:1_000_000]
     measure(TRACESTAMP_TEXT, seed=text, seed_name="a text trace", prefix="profiler_rough_")

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from hilbench.fuzzing import FuzzTarget
 from hilbench.profiler import Profiler
-from hilbench.protocols.targets import BOARD_LINE, stream_traffic
+from hilbench.protocols.tracestamp_targets import BOARD_LINE, stream_traffic
 
 
 class _ProfilerReader:

@@ -1,7 +1,7 @@
-"""The CAN bridges' text parsers as rough-input targets (:mod:`hilbench.fuzzing`): what the SLCAN adapter reads
-from its host, what the socketcand server reads from its clients and what a socketcand client reads from the
-server. Registered in ``pyproject.toml``; ``tools/fuzz.py`` and the rough-input benchmarks drive them like the
-servo and board decoders (:mod:`hilbench.protocols.targets`)."""
+"""The CAN bridges' text parsers as fuzz targets (:mod:`hilbench.fuzzing`): what the SLCAN adapter reads from its
+host, what the socketcand server reads from its clients and what a socketcand client reads from the server.
+Registered in ``pyproject.toml`` (``hilbench.fuzz_targets``); ``tools/fuzz.py`` and the rough-input benchmarks
+drive them like every other fuzz target."""
 
 from __future__ import annotations
 

@@ -6,7 +6,8 @@ import io
 import random
 
 from hilbench.fuzzing import FuzzTarget
-from hilbench.protocols.targets import BOARD_LINE, dynamixel_traffic
+from hilbench.protocols.dynamixel_targets import dynamixel_traffic
+from hilbench.protocols.vel2d_targets import BOARD_LINE
 from hilbench.transports.capture_file import CaptureError, CaptureParser, CaptureWriter
 
 

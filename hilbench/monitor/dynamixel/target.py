@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from hilbench.fuzzing import FuzzTarget
 from hilbench.monitor.dynamixel.tracker import BusTracker
-from hilbench.protocols.targets import DYNAMIXEL_LINE, dynamixel_traffic
+from hilbench.protocols.dynamixel_targets import DYNAMIXEL_LINE, dynamixel_traffic
 
 
 class _TrackerReader:

@@ -1,138 +1,18 @@
-"""The protocol decoders as rough-input targets (:mod:`hilbench.fuzzing`): how to drive each with bytes,
-its fastest line, and clean traffic of its kind to mutate. Registered in ``pyproject.toml``."""
+"""The trace-stamp decoders (text, binary words, both mixed on one UART) as fuzz targets
+(:mod:`hilbench.fuzzing`), with a board's clean trace output of each kind to mutate. Registered in
+``pyproject.toml`` (``hilbench.fuzz_targets``); the trace profiler's own target
+(:mod:`hilbench.profiler.targets`) feeds on :func:`stream_traffic`."""
 
 from __future__ import annotations
 
 import random
 
 from hilbench.fuzzing import Counting, FuzzTarget
-from hilbench.protocols import dynamixel as dxl
-from hilbench.protocols import dynamixel_protocol1 as dxl1
 from hilbench.protocols import tracestamp as ts
 from hilbench.protocols import tracestamp_binary as tb
-from hilbench.protocols import vel2d
 from hilbench.protocols.problem import Problem
 from hilbench.protocols.tracestamp_stream import StreamDecoder
-
-#: A Dynamixel bus at 4.5 Mbaud (the fastest Baud Rate code the servos of both protocols share), 8N1.
-DYNAMIXEL_LINE = 4_500_000 / 10
-#: The rover board's UART at its fastest, 12.5 Mbit/s (STM32F767 USART at 108 MHz / 8), 8N1.
-BOARD_LINE = 12_500_000 / 10
-
-
-# --------------------------------------------------------------------------- Dynamixel 2.0
-
-
-def dynamixel_traffic(rng: random.Random, size: int) -> bytes:
-    """A servo bus's traffic: Sync Reads of present position with their replies, Sync Writes, Reads,
-    Pings, now and then an error status or a device that stays silent."""
-    out = bytearray()
-    ids = list(range(1, rng.randrange(2, 21)))
-    while len(out) < size:
-        kind = rng.random()
-        if kind < 0.5:
-            out += dxl.instruction_packet_unstuffed(dxl.BROADCAST_ID, dxl.Instruction.SYNC_READ,
-                                                    bytes((132, 0, 4, 0, *ids)))
-            for i in ids:
-                if rng.random() > 0.02:
-                    out += dxl.status_packet(i, 0x80 if rng.random() < 0.01 else 0, rng.randbytes(4))
-        elif kind < 0.8:
-            out += dxl.instruction_packet_unstuffed(dxl.BROADCAST_ID, dxl.Instruction.SYNC_WRITE, bytes(
-                (116, 0, 4, 0)) + b"".join(bytes((i,)) + rng.randbytes(4) for i in ids))
-        elif kind < 0.95:
-            i = rng.choice(ids)
-            out += dxl.instruction_packet(i, dxl.Instruction.READ, bytes((146, 0, 1, 0)))
-            out += dxl.status_packet(i, 0, rng.randbytes(1))
-        else:
-            i = rng.choice(ids)
-            out += dxl.instruction_packet(i, dxl.Instruction.PING) + dxl.status_packet(i, 0, b"\x1e\x04\x2a")
-    return bytes(out)
-
-
-def _dynamixel() -> Counting:
-    dec = dxl.Decoder()
-    return Counting(dec.feed, dec.flush, lambda i: not isinstance(i, Problem), lambda: dec.bytes_skipped)
-
-
-DYNAMIXEL = FuzzTarget("dynamixel", "Dynamixel Protocol 2.0 decoder", _dynamixel, DYNAMIXEL_LINE,
-                          "4.5 Mbaud RS-485 bus", dynamixel_traffic)
-
-
-# --------------------------------------------------------------------------- Dynamixel 1.0
-
-
-def dynamixel1_traffic(rng: random.Random, size: int) -> bytes:
-    """A Protocol 1.0 bus: Reads with their statuses, Writes, Sync Writes, Pings."""
-    out = bytearray()
-    while len(out) < size:
-        i = rng.randrange(0, 0xFE)
-        kind = rng.random()
-        if kind < 0.5:
-            out += dxl1.build(i, dxl1.Instruction1.READ, bytes((36, 2)))
-            out += dxl1.build(i, 0, rng.randbytes(2))
-        elif kind < 0.8:
-            out += dxl1.build(dxl1.BROADCAST_ID, dxl1.Instruction1.SYNC_WRITE,
-                              bytes((30, 2)) + b"".join(bytes((k,)) + rng.randbytes(2) for k in range(1, 7)))
-        else:
-            out += dxl1.build(i, dxl1.Instruction1.PING) + dxl1.build(i, 0)
-    return bytes(out)
-
-
-def _dynamixel1() -> Counting:
-    dec = dxl1.Decoder1()
-    return Counting(dec.feed, dec.flush, lambda i: isinstance(i, dxl1.Packet1), lambda: dec.bytes_skipped)
-
-
-DYNAMIXEL1 = FuzzTarget("dynamixel1", "Dynamixel Protocol 1.0 decoder", _dynamixel1, DYNAMIXEL_LINE,
-                           "4.5 Mbaud RS-485 bus", dynamixel1_traffic)
-
-
-# --------------------------------------------------------------------------- Vel2d
-
-
-def vel2d_traffic(rng: random.Random, size: int) -> bytes:
-    """Velocity frames back to back, as a host streaming commands sends them."""
-    frames = []
-    while len(frames) * vel2d.FRAME_SIZE < size:
-        frames.append(vel2d.build(rng.uniform(-2, 2), rng.uniform(-2, 2), rng.uniform(-3, 3)))
-    return b"".join(frames)
-
-
-class _Vel2dReader:
-    """The board's receiver: idle-line framing on a continuous line, then the CRC check."""
-
-    def __init__(self, baud: int = 12_500_000) -> None:
-        self.framer = vel2d.IdleLineFramer(baud)
-        self.t = 0.0
-        self.ok = 0
-        self.bad = 0
-
-    def _check(self, chunks) -> None:
-        for raw, _ in chunks:
-            if isinstance(vel2d.decode(raw), vel2d.Velocity):
-                self.ok += 1
-            else:
-                self.bad += len(raw)
-
-    def feed(self, data: bytes) -> None:
-        self._check(self.framer.feed(data, self.t))
-        self.t += len(data) * self.framer.char_time
-
-    def finish(self) -> None:
-        self._check(self.framer.flush())
-
-    def good(self) -> int:
-        return self.ok
-
-    def dropped(self) -> int:
-        return self.bad
-
-
-VEL2D = FuzzTarget("vel2d", "Vel2d velocity frames (idle-line framing, CRC-32/MPEG-2)", _Vel2dReader,
-                      BOARD_LINE, "12.5 Mbit/s UART", vel2d_traffic)
-
-
-# --------------------------------------------------------------------------- trace stamps
+from hilbench.protocols.vel2d_targets import BOARD_LINE
 
 NAMES = ["IDLE", "hal_fetch", "wheel_ctrl", "odometry", "pose_control", "tsink", "pid"]
 
@@ -257,6 +137,5 @@ TRACESTAMP_BINARY = FuzzTarget("tracestamp-binary", "binary trace stamp words", 
 TRACESTAMP_STREAM = FuzzTarget("tracestamp-stream", "text and binary stamps mixed on one UART", _stream,
                                   BOARD_LINE, "12.5 Mbit/s UART", stream_traffic)
 
-__all__ = ["BOARD_LINE", "DYNAMIXEL", "DYNAMIXEL1", "DYNAMIXEL_LINE", "TRACESTAMP_BINARY", "TRACESTAMP_STREAM",
-           "TRACESTAMP_TEXT", "VEL2D", "binary_traffic", "dynamixel1_traffic", "dynamixel_traffic", "stream_traffic",
-           "text_traffic", "vel2d_traffic"]
+__all__ = ["BOARD_LINE", "NAMES", "TRACESTAMP_BINARY", "TRACESTAMP_STREAM", "TRACESTAMP_TEXT", "binary_traffic",
+           "schedule", "stream_traffic", "text_traffic"]
