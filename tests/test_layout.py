@@ -327,8 +327,6 @@ NAMES_A_FAMILY: dict[str, set[str]] = {
     "clients/scanners.py": {"'rplidar'", "'scip2'", "'sick-lms200'"},
     "monitor/scanners/__init__.py": {"'lms200'", "'rplidar'", "'scip2'", "'sick-lms200'"},
     "monitor/scanners/tracker.py": {"'rplidar'", "'scip2'", "'sick-lms200'"},
-    # P8b: fuzz targets split per family; the capture target generic
-    "transports/capture_target.py": {"'dynamixel'"},
     # P8b: each family's server fuzz target with its family (issue 23 added them in one module)
     "bench/server_targets.py": {"'micro-ros-agent'", "'rplidar'", "'rplidar-a1'", "'scip2'", "'stm32f767-rover'",
                                 "'stm32f767-rover-canopen'", "'ust-10lx'", "'vel2d'", "'xrce-dds'"},

@@ -1,4 +1,4 @@
-"""The UDP monitor's tracker as a rough-input target (:mod:`hilbench.fuzzing`), and the datagram mix that
+"""The UDP monitor's tracker as a fuzz target (:mod:`hilbench.fuzzing`), and the datagram mix that
 ``tools/bench_udp.py`` measures it with.
 
 Rough-input targets read byte streams split anywhere, and the tracker reads whole datagrams with their

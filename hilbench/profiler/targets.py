@@ -1,4 +1,4 @@
-"""The trace profiler as a rough-input target (:mod:`hilbench.fuzzing`): decode, store and analyse."""
+"""The trace profiler as a fuzz target (:mod:`hilbench.fuzzing`): decode, store and analyse."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The Dynamixel bus monitor's tracker as a rough-input target (:mod:`hilbench.fuzzing`)."""
+"""The Dynamixel bus monitor's tracker as a fuzz target (:mod:`hilbench.fuzzing`)."""
 
 from __future__ import annotations
 
