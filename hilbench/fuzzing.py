@@ -25,6 +25,8 @@ framed by :func:`frame_datagram`), driven through the code the bench runs
 agent, an RTPS participant, the control channel). For them a traceback the
 server only logs (``log.exception``) counts as much as one it raises:
 :class:`TracebackWatch` turns the first into :class:`LoggedTraceback`.
+Datagram servers run without sockets: :class:`DatagramFrames` cuts a session
+into datagrams, :class:`NetPort` takes what the server sends.
 
 This module imports nothing from hilbench but :mod:`hilbench.errors` (and
 :mod:`hilbench.registry` in :func:`targets`).
@@ -304,5 +306,45 @@ class DatagramFrames:
         return out
 
 
-__all__ = ["DATAGRAM_MAGIC", "MAX_DATAGRAM", "Counting", "DatagramFrames", "FuzzTarget", "LoggedTraceback",
-           "Reader", "TracebackWatch", "frame_datagram", "mutate", "noise", "run", "targets"]
+#: A saturated 100 Mbit/s Ethernet link of 100-byte datagrams (166 byte times each on the wire), in framed bytes
+#: per second: the line of the datagram servers' targets.
+LINK_100M = 100e6 / (8 * 166) * (100 + DatagramFrames.HEADER)
+
+
+def check_address(dst: Any) -> None:
+    """What ``socket.sendto`` refuses in an address: raises as it would (a bad port is an OverflowError)."""
+    host, port = dst
+    if not isinstance(host, str):
+        raise TypeError(f"str, bytes or bytearray expected, not {type(host).__name__}")
+    if not isinstance(port, int):
+        raise TypeError(f"'{type(port).__name__}' object cannot be interpreted as an integer")
+    if not 0 <= port <= 65535:
+        raise OverflowError("getsockaddrarg: port must be 0-65535.")
+
+
+class NetPort:
+    """What a device on a datagram net holds (``send``, ``call_at``), for a target run without sockets:
+    datagrams are checked as ``sendto`` checks them and counted, timers kept to be run by the session."""
+
+    def __init__(self) -> None:
+        self.sent = 0
+        self.timers: list[Any] = []
+
+    def send(self, data: bytes, dst: Any, *, via: Any = None, t: float | None = None) -> None:
+        check_address(dst)
+        bytes(data)
+        self.sent += 1
+
+    def call_at(self, t: float | None, fn: Any) -> None:
+        if len(self.timers) < 1024:
+            self.timers.append(fn)
+
+    def run_timers(self) -> None:
+        timers, self.timers = self.timers, []
+        for fn in timers:
+            fn()
+
+
+__all__ = ["DATAGRAM_MAGIC", "LINK_100M", "MAX_DATAGRAM", "Counting", "DatagramFrames", "FuzzTarget",
+           "LoggedTraceback", "NetPort", "Reader", "TracebackWatch", "check_address", "frame_datagram", "mutate",
+           "noise", "run", "targets"]

@@ -330,7 +330,6 @@ NAMES_A_FAMILY: dict[str, set[str]] = {
     # P8b: each family's server fuzz target with its family (issue 23 added them in one module)
     "bench/server_targets.py": {"'micro-ros-agent'", "'rplidar'", "'rplidar-a1'", "'scip2'", "'stm32f767-rover'",
                                 "'stm32f767-rover-canopen'", "'ust-10lx'", "'vel2d'", "'xrce-dds'"},
-    "fakes/rtps_node/target.py": {"import hilbench.fakes.xrce_agent.target"},
     # P8d: the labgrid driver through the bus kind (labgrid/dynamixel.py)
     "labgrid/config.py": {"'dynamixel'"},
     "labgrid/drivers.py": {"'dynamixel'"},

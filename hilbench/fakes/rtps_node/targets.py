@@ -1,4 +1,4 @@
-"""A FreeRTPS node's RTPS participant as a rough-input target (:mod:`hilbench.fuzzing`, kind ``server``).
+"""A FreeRTPS node's RTPS participant as a fuzz target (:mod:`hilbench.fuzzing`, kind ``server``).
 
 A session is what another DDS participant sends a node over unicast, framed in one byte stream
 (:func:`~hilbench.fuzzing.frame_datagram`; the sender byte picks its metatraffic or user port, or a
@@ -16,8 +16,7 @@ from __future__ import annotations
 
 import random
 
-from hilbench.fakes.xrce_agent.target import LINE_RATE, NetPort
-from hilbench.fuzzing import DatagramFrames, FuzzTarget, TracebackWatch, frame_datagram
+from hilbench.fuzzing import LINK_100M, DatagramFrames, FuzzTarget, NetPort, TracebackWatch, frame_datagram
 from hilbench.protocols import rtps as r
 
 STRING = "std_msgs::msg::dds_::String_"
@@ -134,7 +133,7 @@ class _ParticipantSession:
 
 
 PARTICIPANT = FuzzTarget("server-rtps", "FreeRTPS node's RTPS participant: a peer's discovery and traffic",
-                            _ParticipantSession, LINE_RATE, "100 Mbit/s Ethernet link of 100-byte datagrams",
+                            _ParticipantSession, LINK_100M, "100 Mbit/s Ethernet link of 100-byte datagrams",
                             participant_session, kind="server", max_input=1024)
 
 __all__ = ["PARTICIPANT", "participant_session"]
