@@ -26,7 +26,9 @@ agent, an RTPS participant, the control channel). For them a traceback the
 server only logs (``log.exception``) counts as much as one it raises:
 :class:`TracebackWatch` turns the first into :class:`LoggedTraceback`.
 Datagram servers run without sockets: :class:`DatagramFrames` cuts a session
-into datagrams, :class:`NetPort` takes what the server sends.
+into datagrams, :class:`NetPort` takes what the server sends. A TCP server's
+session goes through a real connection (:func:`session_socket`, :func:`send_some`,
+:func:`drain`).
 
 This module imports nothing from hilbench but :mod:`hilbench.errors` (and
 :mod:`hilbench.registry` in :func:`targets`).
@@ -36,6 +38,7 @@ from __future__ import annotations
 
 import logging
 import random
+import socket
 import threading
 import traceback
 from collections.abc import Callable
@@ -306,6 +309,47 @@ class DatagramFrames:
         return out
 
 
+#: A TCP session's pieces are sent in writes of at least this many bytes: the server still meets every split
+#: the fuzzer makes at a write's end, and a session costs a few system calls, not hundreds.
+SESSION_WRITE = 512
+
+
+def session_socket(address: tuple[str, int]) -> socket.socket:
+    """A client's connection to a server under test, non-blocking once made."""
+    sock = socket.create_connection(address, timeout=5)
+    sock.setblocking(False)
+    return sock
+
+
+def send_some(sock: socket.socket, data: bytes) -> bool:
+    """Send one write of a session; False once the server closed the connection (the session ends there).
+    What the server does not read at once is lost, as a client's would be."""
+    view = memoryview(data)
+    while view:
+        try:
+            sent = sock.send(view)
+        except (BlockingIOError, InterruptedError):
+            return True
+        except OSError:
+            return False
+        view = view[sent:]
+    return True
+
+
+def drain(sock: socket.socket) -> bytes:
+    """Whatever the server sent that a non-blocking read gets now."""
+    out = bytearray()
+    while True:
+        try:
+            chunk = sock.recv(65536)
+        except OSError:  # (BlockingIOError: nothing more for now)
+            break
+        if not chunk:
+            break
+        out += chunk
+    return bytes(out)
+
+
 #: A saturated 100 Mbit/s Ethernet link of 100-byte datagrams (166 byte times each on the wire), in framed bytes
 #: per second: the line of the datagram servers' targets.
 LINK_100M = 100e6 / (8 * 166) * (100 + DatagramFrames.HEADER)
@@ -346,5 +390,5 @@ class NetPort:
 
 
 __all__ = ["DATAGRAM_MAGIC", "LINK_100M", "MAX_DATAGRAM", "Counting", "DatagramFrames", "FuzzTarget",
-           "LoggedTraceback", "NetPort", "Reader", "TracebackWatch", "check_address", "frame_datagram", "mutate",
-           "noise", "run", "targets"]
+           "LoggedTraceback", "NetPort", "Reader", "SESSION_WRITE", "TracebackWatch", "check_address", "drain",
+           "frame_datagram", "mutate", "noise", "run", "send_some", "session_socket", "targets"]
