@@ -21,7 +21,8 @@ and whatever a family registers later (one entry-point line). Each target gets t
    damaged byte hits; a length field that swallowed the next items would cost more.
 
 Servers (targets of kind ``server``: the socketcand daemon, the RFC 2217 server, a SCIP unit
-over TCP, the XRCE agent, an RTPS participant, the control channel) get the first phase only:
+over TCP, the XRCE agent, an RTPS participant, the control channel with each family's commands
+and with all of them on one bench) get the first phase only:
 each input is a client's session, mutated, driven through the code the bench runs; a traceback
 the server merely logs, or a thread it loses, counts as one raised. Inputs are cut to the
 target's own bound where it has one (``max_input``: a kB of a session walks its states).
@@ -362,10 +363,11 @@ def main() -> int:
     exceptions = sum(r["exceptions"] for r in results.values())
     doc = {"engine": engine, "inputs": total, "exceptions": exceptions, "seconds": round(time.monotonic() - t0),
            "max_len": args.max_len, "seed": args.seed, "targets": results}
-    print(f"{'target':20s} {'inputs':>9s} {'MB':>7s} {'exc':>4s} {'ref':>5s} {'noise x':>8s} {'damaged x':>9s} "
+    w = max([20, *map(len, results)])
+    print(f"{'target':{w}s} {'inputs':>9s} {'MB':>7s} {'exc':>4s} {'ref':>5s} {'noise x':>8s} {'damaged x':>9s} "
           f"{'lost/dmg':>8s} {'drop/dmg':>8s}")
     for name, r in results.items():
-        print(f"{name:20s} {r['inputs']:9d} {r['bytes'] / 1e6:7.1f} {r['exceptions']:4d} {r['refusals']:5d} "
+        print(f"{name:{w}s} {r['inputs']:9d} {r['bytes'] / 1e6:7.1f} {r['exceptions']:4d} {r['refusals']:5d} "
               f"{r.get('noise_ratio', float('nan')):8.1f} {r.get('damaged_ratio', float('nan')):9.1f} "
               f"{r.get('items_lost_per_damaged_byte', float('nan')):8.2f} "
               f"{r.get('bytes_dropped_per_damaged_byte', float('nan')):8.1f}")
