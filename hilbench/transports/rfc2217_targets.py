@@ -10,6 +10,7 @@ client leaves, the port must hang up. One port per process serves session after 
 
 from __future__ import annotations
 
+import atexit
 import random
 import socket
 import threading
@@ -85,6 +86,7 @@ def _rfc2217_port() -> tuple[Any, _Loop]:
             lines = LineState()
             lines.set_listener(lambda event: setattr(loop, "events", loop.events + 1))
             _server = (Rfc2217Port("fuzz:rfc2217", lines, loop, baud=115_200), loop)
+            atexit.register(close_server)
         return _server
 
 

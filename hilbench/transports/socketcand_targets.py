@@ -12,6 +12,7 @@ received, ``dropped`` what the daemon counted as malformed.
 
 from __future__ import annotations
 
+import atexit
 import random
 import socket
 import threading
@@ -81,6 +82,7 @@ def _socketcand_server() -> Any:
         if _server is None:
             _server = SocketcandServer("fuzz", channel="can0", rawmode_delay=0.05)
             _server.wall_offset = 1_700_000_000.0
+            atexit.register(close_server)
         return _server
 
 
