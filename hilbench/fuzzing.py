@@ -7,8 +7,10 @@ with nothing but bytes, how fast its fastest line is, and how to make clean
 traffic of its kind to mutate. Targets register in the ``hilbench.fuzz_targets``
 entry-point group (:data:`hilbench.registry.fuzz_targets`), so a new family's
 decoder joins ``tools/fuzz.py`` and the rough-input benchmarks with one line
-in its package's ``pyproject.toml``; each family keeps its targets in its own
-modules (``protocols/<format>_targets.py``, ``<package>/targets.py``)::
+in its package's ``pyproject.toml``. Each family keeps its targets in its own
+modules (hilbench's: ``protocols/<format>_targets.py``, ``families/<family>_targets.py``,
+a package's ``targets.py``); shared modules hold only generic ones (the capture
+parser, the CAN bridges, the control channel's kit)::
 
     [project.entry-points."hilbench.fuzz_targets"]
     acme-frames = "acme_hilbench.targets:FRAMES"
@@ -22,7 +24,8 @@ Servers join the same registry with ``kind = "server"``: their input is a
 client's session (the bytes it sends over one connection, or its datagrams
 framed by :func:`frame_datagram`), driven through the code the bench runs
 (the socketcand daemon, the RFC 2217 server, a SCIP unit over TCP, the XRCE
-agent, an RTPS participant, the control channel). For them a traceback the
+agent, an RTPS participant, the control channel with each family's commands:
+:mod:`hilbench.bench.control_targets`). For them a traceback the
 server only logs (``log.exception``) counts as much as one it raises:
 :class:`TracebackWatch` turns the first into :class:`LoggedTraceback`.
 Datagram servers run without sockets: :class:`DatagramFrames` cuts a session
