@@ -11,21 +11,21 @@ through Python entry points, built-ins exactly as an outside package would::
     [project.entry-points."hilbench.families"]
     acme-board = "acme_hilbench.family:FAMILY"
 
-=====================  ========================  =============================================
-kind                   entry-point group         the object an entry point names
-=====================  ========================  =============================================
-:data:`families`       ``hilbench.families``     a :class:`~hilbench.bench.family.DeviceFamily`
-:data:`host_ports`     ``hilbench.host_ports``   a host-port class (endpoint ``type``: pty, udp, tcp)
-:data:`media`          ``hilbench.media``        a :class:`~hilbench.transports.medium.Medium` class
-:data:`sources`        ``hilbench.sources``      a :class:`~hilbench.transports.sources.SourceOpener`
-:data:`instruments`    ``hilbench.instruments``  an :class:`~hilbench.monitor.instrument.Instrument`
-:data:`verbs`          ``hilbench.verbs``        a module with ``register(subparsers)``
-:data:`decoders`       ``hilbench.decoders``     a :class:`~hilbench.decoders.DecoderTarget` (fuzzing,
-                                                 rough-input benchmarks)
-:data:`servers`        ``hilbench.servers``      a :class:`~hilbench.bench.server.Server` (``emulate --serve``)
-:data:`recorders`      ``hilbench.recorders``    a recording format: ``accepts(path, protocol)``,
-                                                 ``open(path, source=..., description=...)``
-=====================  ========================  =============================================
+=====================  =========================  =============================================
+kind                   entry-point group          the object an entry point names
+=====================  =========================  =============================================
+:data:`families`       ``hilbench.families``      a :class:`~hilbench.bench.family.DeviceFamily`
+:data:`host_ports`     ``hilbench.host_ports``    a host-port class (endpoint ``type``: pty, udp, tcp)
+:data:`media`          ``hilbench.media``         a :class:`~hilbench.transports.medium.Medium` class
+:data:`sources`        ``hilbench.sources``       a :class:`~hilbench.transports.sources.SourceOpener`
+:data:`instruments`    ``hilbench.instruments``   an :class:`~hilbench.monitor.instrument.Instrument`
+:data:`verbs`          ``hilbench.verbs``         a module with ``register(subparsers)``
+:data:`fuzz_targets`   ``hilbench.fuzz_targets``  a :class:`~hilbench.fuzzing.FuzzTarget` (fuzzing,
+                                                  rough-input benchmarks)
+:data:`servers`        ``hilbench.servers``       a :class:`~hilbench.bench.server.Server` (``emulate --serve``)
+:data:`recorders`      ``hilbench.recorders``     a recording format: ``accepts(path, protocol)``,
+                                                  ``open(path, source=..., description=...)``
+=====================  =========================  =============================================
 
 Entry points load on first use of their kind. A plug-in that fails to load
 is skipped with one warning naming its package (a lab's broken package must
@@ -172,11 +172,12 @@ media = Kind("media", "hilbench.media", what="medium")
 sources = Kind("sources", "hilbench.sources", what="source kind")
 instruments = Kind("instruments", "hilbench.instruments", what="instrument")
 verbs = Kind("verbs", "hilbench.verbs", what="verb module")
-decoders = Kind("decoders", "hilbench.decoders", what="decoder target")
+fuzz_targets = Kind("fuzz_targets", "hilbench.fuzz_targets", what="fuzz target")
 servers = Kind("servers", "hilbench.servers", what="server")
 recorders = Kind("recorders", "hilbench.recorders", what="recording format")
 
-KINDS: tuple[Kind, ...] = (families, host_ports, media, sources, instruments, verbs, decoders, servers, recorders)
+KINDS: tuple[Kind, ...] = (families, host_ports, media, sources, instruments, verbs, fuzz_targets, servers,
+                            recorders)
 
 
 def reload() -> None:
@@ -203,5 +204,5 @@ def instrument_for(protocol: str) -> Any | None:
     return None
 
 
-__all__ = ["KINDS", "Kind", "PluginWarning", "decoders", "families", "family_for_protocol", "host_ports",
+__all__ = ["KINDS", "Kind", "PluginWarning", "families", "family_for_protocol", "fuzz_targets", "host_ports",
            "instrument_for", "instruments", "media", "recorders", "reload", "servers", "sources", "verbs"]

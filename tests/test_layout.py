@@ -227,7 +227,7 @@ def test_no_import_cycles():
 #: plug-ins by name, importing none of them), fuzz-target types, the console.
 LAYERS: dict[str, tuple[int, set[str]]] = {
     "base": (0, {"hilbench", "hilbench.errors", "hilbench.rules", "hilbench.registry",
-                 "hilbench.decoders", "hilbench.console"}),
+                 "hilbench.fuzzing", "hilbench.console"}),
     "protocols": (1, {"hilbench.protocols"}),
     "transports": (2, {"hilbench.transports"}),
     "fakes": (3, {"hilbench.fakes"}),
@@ -289,14 +289,14 @@ OWNED: dict[str, tuple[str, ...]] = {
     "dynamixel": ("protocols/dynamixel*.py", "fakes/dynamixel/*", "families/dynamixel.py", "monitor/dynamixel/*",
                   "monitor/dynamixel1/*", "dashboard/dynamixel_views.py", "clients/dynamixel.py", "cli/dxl.py"),
     "feetech": ("protocols/feetech*.py", "fakes/feetech/*", "families/feetech.py", "monitor/feetech/*"),
-    "stm32-rover": ("protocols/vel2d.py", "protocols/tracestamp*.py", "fakes/stm32_board/*",
-                    "families/stm32_rover.py"),
-    "rplidar": ("protocols/rplidar.py", "fakes/scanners/rplidar.py", "families/rplidar.py"),
-    "sick-lms200": ("protocols/sick_lms200.py", "fakes/scanners/sick_lms200.py", "families/sick_lms200.py"),
-    "scip2": ("protocols/scip.py", "fakes/scanners/scip.py", "families/scip2.py"),
-    "canopen": ("protocols/board_can.py", "fakes/canopen/rover.py", "families/canopen_board.py",
+    "stm32-rover": ("protocols/vel2d*.py", "protocols/tracestamp*.py", "fakes/stm32_board/*",
+                    "families/stm32_rover*.py"),
+    "rplidar": ("protocols/rplidar*.py", "fakes/scanners/rplidar.py", "families/rplidar*.py"),
+    "sick-lms200": ("protocols/sick_lms200*.py", "fakes/scanners/sick_lms200.py", "families/sick_lms200*.py"),
+    "scip2": ("protocols/scip*.py", "fakes/scanners/scip.py", "families/scip2*.py"),
+    "canopen": ("protocols/board_can.py", "fakes/canopen/rover.py", "families/canopen_board*.py",
                 "clients/can_rover.py"),
-    "micro-ros-agent": ("protocols/xrce_dds.py", "fakes/xrce_agent/*", "families/micro_ros_agent.py",
+    "micro-ros-agent": ("protocols/xrce_dds.py", "fakes/xrce_agent/*", "families/micro_ros_agent*.py",
                         "monitor/udp/xrce_state.py"),
     "freertps": ("protocols/rtps.py", "fakes/rtps_node/*", "families/freertps.py", "monitor/udp/rtps_state.py"),
 }
@@ -327,14 +327,6 @@ NAMES_A_FAMILY: dict[str, set[str]] = {
     "clients/scanners.py": {"'rplidar'", "'scip2'", "'sick-lms200'"},
     "monitor/scanners/__init__.py": {"'lms200'", "'rplidar'", "'scip2'", "'sick-lms200'"},
     "monitor/scanners/tracker.py": {"'rplidar'", "'scip2'", "'sick-lms200'"},
-    # P8b: fuzz targets split per family; the capture target generic
-    "protocols/scanner_targets.py": {"'LMS200'", "'rplidar'", "'scip2'", "'sick-lms200'"},
-    "protocols/targets.py": {"'dynamixel'", "'dynamixel1'", "'vel2d'"},
-    "transports/capture_target.py": {"'dynamixel'"},
-    # P8b: each family's server fuzz target with its family (issue 23 added them in one module)
-    "bench/server_targets.py": {"'micro-ros-agent'", "'rplidar'", "'rplidar-a1'", "'scip2'", "'stm32f767-rover'",
-                                "'stm32f767-rover-canopen'", "'ust-10lx'", "'vel2d'", "'xrce-dds'"},
-    "fakes/rtps_node/target.py": {"import hilbench.fakes.xrce_agent.target"},
     # P8d: the labgrid driver through the bus kind (labgrid/dynamixel.py)
     "labgrid/config.py": {"'dynamixel'"},
     "labgrid/drivers.py": {"'dynamixel'"},

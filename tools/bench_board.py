@@ -125,7 +125,7 @@ def bench_rough() -> None:
     lost a byte stays misaligned until the line idles, as on the board: few frames pass, none wrongly."""
     from rough import measure
 
-    from hilbench.protocols.targets import VEL2D
+    from hilbench.protocols.vel2d_targets import VEL2D
 
     measure(VEL2D, prefix="board_rough_")
 

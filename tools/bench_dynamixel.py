@@ -256,7 +256,7 @@ def bench_rough(capture: Path) -> None:
     damaged; Protocol 1.0 traffic of its own), against the 4.5 Mbaud line (tools/rough.py)."""
     from rough import measure
 
-    from hilbench.protocols.targets import DYNAMIXEL, DYNAMIXEL1
+    from hilbench.protocols.dynamixel_targets import DYNAMIXEL, DYNAMIXEL1
 
     measure(DYNAMIXEL, seed=capture.read_bytes(), seed_name="the Wolfgang capture", prefix="dxl_rough_")
     measure(DYNAMIXEL1, prefix="dxl_rough_")

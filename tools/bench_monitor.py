@@ -254,9 +254,9 @@ def bench_rough(capture: Path) -> None:
     its bytes damaged, raw (tracker) and as a .hbcap with byte times (capture parser) (tools/rough.py)."""
     from rough import measure
 
-    from hilbench.monitor.dynamixel.target import TRACKER
+    from hilbench.monitor.dynamixel.targets import TRACKER
     from hilbench.transports.capture_file import CaptureReader, CaptureWriter
-    from hilbench.transports.capture_target import CAPTURE
+    from hilbench.transports.capture_targets import CAPTURE
 
     raw = capture.read_bytes()
     measure(TRACKER, seed=raw, seed_name="the Wolfgang capture", prefix="monitor_rough_")

@@ -181,8 +181,8 @@ def bench_rough(ids, t, b) -> None:
     MB) with 1 % of the bytes damaged, against a 12.5 Mbit/s UART (tools/rough.py)."""
     from rough import measure
 
-    from hilbench.profiler.target import PROFILER
-    from hilbench.protocols.targets import TRACESTAMP_BINARY, TRACESTAMP_STREAM, TRACESTAMP_TEXT
+    from hilbench.profiler.targets import PROFILER
+    from hilbench.protocols.tracestamp_targets import TRACESTAMP_BINARY, TRACESTAMP_STREAM, TRACESTAMP_TEXT
 
     text, binary = text_stream(ids, t, b)[:1_000_000], binary_stream(ids, t, b)[:1_000_000]
     measure(TRACESTAMP_TEXT, seed=text, seed_name="a text trace", prefix="profiler_rough_")

@@ -32,7 +32,7 @@ from benchlib import emit
 
 from hilbench.bench import Bench
 from hilbench.bench.profile import parse_profile
-from hilbench.monitor.udp.target import datagrams
+from hilbench.monitor.udp.targets import datagrams
 from hilbench.monitor.udp.tracker import UdpTracker
 from hilbench.protocols import xrce_dds as x
 

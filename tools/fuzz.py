@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Long-running fuzzing of every decoder and instrument that reads outside bytes.
 
-The targets come from the ``hilbench.decoders`` registry (:mod:`hilbench.decoders`): the
+The targets come from the ``hilbench.fuzz_targets`` registry (:mod:`hilbench.fuzzing`): the
 Dynamixel 2.0 and 1.0 decoders, Vel2d framing, the text, binary and mixed trace-stamp
 decoders, the capture parser, the Dynamixel bus monitor's tracker and the trace profiler,
 and whatever a family registers later (one entry-point line). Each target gets two phases:
@@ -21,7 +21,8 @@ and whatever a family registers later (one entry-point line). Each target gets t
    damaged byte hits; a length field that swallowed the next items would cost more.
 
 Servers (targets of kind ``server``: the socketcand daemon, the RFC 2217 server, a SCIP unit
-over TCP, the XRCE agent, an RTPS participant, the control channel) get the first phase only:
+over TCP, the XRCE agent, an RTPS participant, the control channel with each family's commands
+and with all of them on one bench) get the first phase only:
 each input is a client's session, mutated, driven through the code the bench runs; a traceback
 the server merely logs, or a thread it loses, counts as one raised. Inputs are cut to the
 target's own bound where it has one (``max_input``: a kB of a session walks its states).
@@ -31,7 +32,7 @@ inputs tried against those asked for; ``fuzz_<target>_tracebacks``: inputs that 
 the inputs tried; the rule is 0), as the other tools print them, then a table and, last, one
 JSON document (``--json FILE`` writes it too). Exit status 1 if any input raised.
 
-Usage: tools/fuzz.py [--inputs N] [--targets A,B|servers] [--engine atheris|random] [--jobs J]
+Usage: tools/fuzz.py [--inputs N] [--targets A,B|servers|all] [--engine atheris|random] [--jobs J]
                      [--max-len BYTES] [--measure N] [--seed S] [--json FILE]
 """
 
@@ -80,7 +81,7 @@ def seeds(target, rng: random.Random, count: int = 8, size: int = 2048) -> list[
 
 def random_input(rng: random.Random, pool: list[bytes], target, max_len: int) -> bytes:
     """Noise, a damaged seed, two seeds spliced, or a seed cut short."""
-    from hilbench.decoders import mutate
+    from hilbench.fuzzing import mutate
 
     k = rng.random()
     if k < 0.25:
@@ -110,7 +111,7 @@ class Stats:
         self.seconds = 0.0
 
     def run(self, target, data: bytes, rng: random.Random) -> None:
-        from hilbench.decoders import run
+        from hilbench.fuzzing import run
 
         self.inputs += 1
         self.bytes += len(data)
@@ -153,7 +154,7 @@ def fuzz_random(target, inputs: int, max_len: int, seed: int) -> Stats:
 
 def fuzz_random_in_worker(name: str, inputs: int, max_len: int, seed: int) -> dict:
     """:func:`fuzz_random` in a worker process (``--jobs`` with the random engine): its figures as a dict."""
-    from hilbench.decoders import targets
+    from hilbench.fuzzing import targets
 
     target = next(t for t in targets() if t.name == name)
     return fuzz_random(target, inputs, max_len, seed).doc()
@@ -179,7 +180,7 @@ def atheris_worker(name: str, inputs: int, max_len: int, seed: int, out: Path, c
     import atheris
 
     with atheris.instrument_imports(include=["hilbench"]):
-        from hilbench.decoders import targets
+        from hilbench.fuzzing import targets
 
         target = next(t for t in targets() if t.name == name)
         target.make()  # import everything it uses while instrumenting
@@ -204,7 +205,7 @@ def atheris_worker(name: str, inputs: int, max_len: int, seed: int, out: Path, c
 def fuzz_atheris(name: str, inputs: int, max_len: int, seed: int) -> Stats:
     """``inputs`` coverage-guided inputs for one target, in workers of :data:`SEGMENT` inputs sharing a
     corpus (seeded with the target's own traffic, damaged copies and noise)."""
-    from hilbench.decoders import mutate, targets
+    from hilbench.fuzzing import mutate, targets
 
     target = next(t for t in targets() if t.name == name)
     max_len = bound(target, max_len)
@@ -252,7 +253,7 @@ def fuzz_atheris(name: str, inputs: int, max_len: int, seed: int) -> Stats:
 def measure(target, count: int, seed: int, size: int = 1 << 20) -> dict:
     """Throughput on ``size`` bytes of noise and of damaged traffic (1 % of the bytes), and the resync cost
     over ``count`` 16 KiB samples with 1-7 damaged bytes each."""
-    from hilbench.decoders import mutate, run
+    from hilbench.fuzzing import mutate, run
 
     rng = random.Random(seed)
     ratios = {}
@@ -286,8 +287,8 @@ def measure(target, count: int, seed: int, size: int = 1 << 20) -> dict:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--inputs", type=int, default=120_000, help="fuzz inputs per target (default 120000)")
-    ap.add_argument("--targets", help="comma-separated target names, or 'servers' for every server target "
-                                      "(default: every registered one)")
+    ap.add_argument("--targets", help="comma-separated target names, 'servers' for every server target, 'all' "
+                                      "for every registered one (the default)")
     ap.add_argument("--engine", choices=("atheris", "random"), help="default: atheris if installed")
     ap.add_argument("--jobs", type=int, default=1, help="targets fuzzed at once (worker processes)")
     ap.add_argument("--max-len", type=int, default=4096, help="largest input in bytes")
@@ -304,9 +305,9 @@ def main() -> int:
         atheris_worker(args.worker, args.inputs, args.max_len, args.seed, args.stats, args.corpus)
         return 0
 
-    from hilbench.decoders import targets
+    from hilbench.fuzzing import targets
 
-    names = set(args.targets.split(",")) if args.targets else None
+    names = set(args.targets.split(",")) if args.targets and args.targets != "all" else None
     chosen = [t for t in targets() if names is None or t.name in names or ("servers" in names and t.kind == "server")]
     unknown = (names or set()) - {t.name for t in targets()} - {"servers"}
     if unknown:
@@ -362,10 +363,11 @@ def main() -> int:
     exceptions = sum(r["exceptions"] for r in results.values())
     doc = {"engine": engine, "inputs": total, "exceptions": exceptions, "seconds": round(time.monotonic() - t0),
            "max_len": args.max_len, "seed": args.seed, "targets": results}
-    print(f"{'target':20s} {'inputs':>9s} {'MB':>7s} {'exc':>4s} {'ref':>5s} {'noise x':>8s} {'damaged x':>9s} "
+    w = max([20, *map(len, results)])
+    print(f"{'target':{w}s} {'inputs':>9s} {'MB':>7s} {'exc':>4s} {'ref':>5s} {'noise x':>8s} {'damaged x':>9s} "
           f"{'lost/dmg':>8s} {'drop/dmg':>8s}")
     for name, r in results.items():
-        print(f"{name:20s} {r['inputs']:9d} {r['bytes'] / 1e6:7.1f} {r['exceptions']:4d} {r['refusals']:5d} "
+        print(f"{name:{w}s} {r['inputs']:9d} {r['bytes'] / 1e6:7.1f} {r['exceptions']:4d} {r['refusals']:5d} "
               f"{r.get('noise_ratio', float('nan')):8.1f} {r.get('damaged_ratio', float('nan')):9.1f} "
               f"{r.get('items_lost_per_damaged_byte', float('nan')):8.2f} "
               f"{r.get('bytes_dropped_per_damaged_byte', float('nan')):8.1f}")

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Rough input at line rate: every registered decoder and instrument on noise and on mutated input.
 
-For each target of the ``hilbench.decoders`` registry (:mod:`hilbench.decoders`; a new
+For each target of the ``hilbench.fuzz_targets`` registry (:mod:`hilbench.fuzzing`; a new
 family's decoder joins with one entry-point line) this prints one JSON object per figure,
 as the other benchmarks do: the bytes per second it reads
 
@@ -31,12 +31,12 @@ import random
 import statistics
 import time
 
-from hilbench.decoders import DecoderTarget, mutate, run, targets
+from hilbench.fuzzing import FuzzTarget, mutate, run, targets
 
 TARGET_RATIO = 10
 
 
-def timed(target: DecoderTarget, data: bytes, chunk: int, repeats: int) -> tuple[list[float], list[float], object]:
+def timed(target: FuzzTarget, data: bytes, chunk: int, repeats: int) -> tuple[list[float], list[float], object]:
     """Wall and CPU seconds of ``repeats`` runs of a fresh reader over ``data``."""
     wall, cpu, reader = [], [], None
     for _ in range(repeats):
@@ -52,7 +52,7 @@ def emit(name: str, value: float, unit: str, reference: float, ratio: float, **e
                       "ratio": round(ratio, 2), **extra}), flush=True)
 
 
-def measure(target: DecoderTarget, *, seed: bytes | None = None, seed_name: str = "", size: int = 1_000_000,
+def measure(target: FuzzTarget, *, seed: bytes | None = None, seed_name: str = "", size: int = 1_000_000,
             repeats: int = 3, rate: float = 0.01, chunk: int = 65536, prefix: str = "",
             kinds: tuple[str, ...] = ("clean", "noise", "mutated")) -> dict[str, float]:
     """Print the figures of one target; returns ``{kind: ratio}`` (median)."""

@@ -10,7 +10,7 @@ from hilbench import registry
 
 ORDER = 90
 VERBS = {  # each verb register() adds and its line in `hilbench --help` (see hilbench.cli)
-    "plugins": "list the device families, endpoint types, sources, instruments and verbs",
+    "plugins": "list the device families, endpoint types, sources, instruments, verbs and fuzz targets",
 }
 
 
@@ -21,6 +21,8 @@ def _describe(kind: registry.Kind, name: str, obj) -> str:
         return f"{obj.title or obj.protocol} (hilbench {obj.verb})"
     if kind is registry.sources:
         return obj.usage or obj.what
+    if kind is registry.fuzz_targets:
+        return f"{obj.title} ({obj.kind})"
     doc = (getattr(obj, "__doc__", None) or "").strip().splitlines()
     # the first docstring line, without reST markup (:attr:`x` -> x, ``y`` -> y)
     return re.sub(r":\w+:`~?([^`]+)`|``([^`]+)``", lambda m: m[1] or m[2], doc[0]) if doc else ""
@@ -40,8 +42,9 @@ def cmd_plugins(args: argparse.Namespace) -> int:
         return 0
     for kind, entries in rows.items():
         print(f"{kind}  [entry points: {getattr(registry, kind).group}]")
+        width = max([14, *(len(e["name"]) for e in entries)])  # (fuzz targets' names run longer)
         for e in entries:
-            print(f"  {e['name']:<14} {e['package']:<18} {e['what']}")
+            print(f"  {e['name']:<{width}} {e['package']:<18} {e['what']}")
     return 0
 
 

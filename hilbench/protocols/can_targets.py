@@ -1,13 +1,13 @@
-"""The CAN bridges' text parsers as rough-input targets (:mod:`hilbench.decoders`): what the SLCAN adapter reads
-from its host, what the socketcand server reads from its clients and what a socketcand client reads from the
-server. Registered in ``pyproject.toml``; ``tools/fuzz.py`` and the rough-input benchmarks drive them like the
-servo and board decoders (:mod:`hilbench.protocols.targets`)."""
+"""The CAN bridges' text parsers as fuzz targets (:mod:`hilbench.fuzzing`): what the SLCAN adapter reads from its
+host, what the socketcand server reads from its clients and what a socketcand client reads from the server.
+Registered in ``pyproject.toml`` (``hilbench.fuzz_targets``); ``tools/fuzz.py`` and the rough-input benchmarks
+drive them like every other fuzz target."""
 
 from __future__ import annotations
 
 import random
 
-from hilbench.decoders import DecoderTarget
+from hilbench.fuzzing import FuzzTarget
 from hilbench.protocols import slcan
 from hilbench.protocols import socketcand as scd
 from hilbench.protocols.can_frame import CanFrame
@@ -76,7 +76,7 @@ def _slcan_understood(line: str) -> bool:
     return command.valid and command.op in SLCAN_OPS
 
 
-SLCAN_HOST = DecoderTarget(
+SLCAN_HOST = FuzzTarget(
     "slcan", "SLCAN host commands (the adapter's line splitter and command parser)",
     lambda: _LineReader(slcan.LineSplitter(), _slcan_understood, 1), SLCAN_LINE, "3 Mbaud USB-serial link",
     slcan_traffic)
@@ -128,12 +128,12 @@ def _server_understood(message: str) -> bool:
     return scd.parse_server_message(message).kind != "unknown"
 
 
-SOCKETCAND_CLIENT = DecoderTarget(
+SOCKETCAND_CLIENT = FuzzTarget(
     "socketcand-client", "socketcand client messages (the server's message splitter and command parser)",
     lambda: _LineReader(scd.MessageSplitter(), _client_understood, 0), SOCKETCAND_LINE,
     "a saturated 1 Mbit/s bus in socketcand text", socketcand_client_traffic)
 
-SOCKETCAND_SERVER = DecoderTarget(
+SOCKETCAND_SERVER = FuzzTarget(
     "socketcand-server", "socketcand server messages (a client's message splitter and parser)",
     lambda: _LineReader(scd.MessageSplitter(), _server_understood, 0), SOCKETCAND_LINE,
     "a saturated 1 Mbit/s bus in socketcand text", socketcand_server_traffic)

@@ -12,10 +12,10 @@ from hypothesis import strategies as st
 
 from hilbench.protocols import tracestamp_binary as tb
 from hilbench.protocols.problem import Problem
-from hilbench.protocols.targets import binary_traffic, stream_traffic, text_traffic
 from hilbench.protocols.tracestamp import NameEntry, NameRegistry, StampBatch, TableStart, TextDecoder
 from hilbench.protocols.tracestamp_binary import WordDecoder
 from hilbench.protocols.tracestamp_stream import StreamDecoder
+from hilbench.protocols.tracestamp_targets import binary_traffic, stream_traffic, text_traffic
 
 
 class RunDecoder:

@@ -1,7 +1,7 @@
-"""A FreeRTPS node's RTPS participant as a rough-input target (:mod:`hilbench.decoders`, kind ``server``).
+"""A FreeRTPS node's RTPS participant as a fuzz target (:mod:`hilbench.fuzzing`, kind ``server``).
 
 A session is what another DDS participant sends a node over unicast, framed in one byte stream
-(:func:`~hilbench.decoders.frame_datagram`; the sender byte picks its metatraffic or user port, or a
+(:func:`~hilbench.fuzzing.frame_datagram`; the sender byte picks its metatraffic or user port, or a
 second participant's): SPDP announcements, SEDP publications and subscriptions for the node's topic,
 user DATA (with INFO_TS) to its reader, HEARTBEATs, ACKNACKs for its writers, GAPs; now and then a
 locator a hostile peer would plant (a port beyond 65535). Each session meets
@@ -16,8 +16,7 @@ from __future__ import annotations
 
 import random
 
-from hilbench.decoders import DatagramFrames, DecoderTarget, TracebackWatch, frame_datagram
-from hilbench.fakes.xrce_agent.target import LINE_RATE, NetPort
+from hilbench.fuzzing import LINK_100M, DatagramFrames, FuzzTarget, NetPort, TracebackWatch, frame_datagram
 from hilbench.protocols import rtps as r
 
 STRING = "std_msgs::msg::dds_::String_"
@@ -133,8 +132,8 @@ class _ParticipantSession:
         return self.frames.skipped + c["malformed"] + c["foreign"]
 
 
-PARTICIPANT = DecoderTarget("server-rtps", "FreeRTPS node's RTPS participant: a peer's discovery and traffic",
-                            _ParticipantSession, LINE_RATE, "100 Mbit/s Ethernet link of 100-byte datagrams",
+PARTICIPANT = FuzzTarget("server-rtps", "FreeRTPS node's RTPS participant: a peer's discovery and traffic",
+                            _ParticipantSession, LINK_100M, "100 Mbit/s Ethernet link of 100-byte datagrams",
                             participant_session, kind="server", max_input=1024)
 
 __all__ = ["PARTICIPANT", "participant_session"]

@@ -1,15 +1,19 @@
-"""Rough input: every decoder and instrument that reads bytes from outside, for the fuzz script and benchmarks.
+"""Fuzz targets: every reader of outside bytes and every server a client talks to, for the fuzz script and the
+rough-input benchmarks.
 
-A :class:`DecoderTarget` says how to drive one reader of outside bytes
+A :class:`FuzzTarget` says how to drive one reader of outside bytes
 (a protocol decoder, the capture parser, a monitor's tracker, the profiler)
 with nothing but bytes, how fast its fastest line is, and how to make clean
-traffic of its kind to mutate. Targets register in the ``hilbench.decoders``
-entry-point group (:data:`hilbench.registry.decoders`), so a new family's
+traffic of its kind to mutate. Targets register in the ``hilbench.fuzz_targets``
+entry-point group (:data:`hilbench.registry.fuzz_targets`), so a new family's
 decoder joins ``tools/fuzz.py`` and the rough-input benchmarks with one line
-in its package's ``pyproject.toml``::
+in its package's ``pyproject.toml``. Each family keeps its targets in its own
+modules (hilbench's: ``protocols/<format>_targets.py``, ``families/<family>_targets.py``,
+a package's ``targets.py``); shared modules hold only generic ones (the capture
+parser, the CAN bridges, the control channel's kit)::
 
-    [project.entry-points."hilbench.decoders"]
-    acme-frames = "acme_hilbench.protocol:ROUGH_INPUT"
+    [project.entry-points."hilbench.fuzz_targets"]
+    acme-frames = "acme_hilbench.targets:FRAMES"
 
 The rule the targets are held to (the project's): a decoder never raises on
 garbage, resynchronises in linear time and counts what it dropped; on pure
@@ -20,17 +24,24 @@ Servers join the same registry with ``kind = "server"``: their input is a
 client's session (the bytes it sends over one connection, or its datagrams
 framed by :func:`frame_datagram`), driven through the code the bench runs
 (the socketcand daemon, the RFC 2217 server, a SCIP unit over TCP, the XRCE
-agent, an RTPS participant, the control channel). For them a traceback the
+agent, an RTPS participant, the control channel with each family's commands:
+:mod:`hilbench.bench.control_targets`). For them a traceback the
 server only logs (``log.exception``) counts as much as one it raises:
 :class:`TracebackWatch` turns the first into :class:`LoggedTraceback`.
+Datagram servers run without sockets: :class:`DatagramFrames` cuts a session
+into datagrams, :class:`NetPort` takes what the server sends. A TCP server's
+session goes through a real connection (:func:`session_socket`, :func:`send_some`,
+:func:`drain`).
 
-This module imports nothing from hilbench but :mod:`hilbench.registry`.
+This module imports nothing from hilbench but :mod:`hilbench.errors` (and
+:mod:`hilbench.registry` in :func:`targets`).
 """
 
 from __future__ import annotations
 
 import logging
 import random
+import socket
 import threading
 import traceback
 from collections.abc import Callable
@@ -57,8 +68,9 @@ class Reader(Protocol):
 
 
 @dataclass(frozen=True)
-class DecoderTarget:
-    """One reader of outside bytes, as the fuzz script and the benchmarks drive it.
+class FuzzTarget:
+    """One reader of outside bytes (or a server, fed a client's session), as the fuzz script and the benchmarks
+    drive it.
 
     ``make()`` returns a fresh :class:`Reader`; ``line_rate`` is the bytes per
     second of the fastest line it reads (``line`` says which: the target is ten
@@ -91,11 +103,11 @@ class DecoderTarget:
         return self.frame(data) if self.frame is not None else data
 
 
-def targets() -> list[DecoderTarget]:
+def targets() -> list[FuzzTarget]:
     """Every registered target, in registration order (built-ins first)."""
     from hilbench import registry
 
-    return list(registry.decoders.values())
+    return list(registry.fuzz_targets.values())
 
 
 def noise(rng: random.Random, size: int) -> bytes:
@@ -300,5 +312,86 @@ class DatagramFrames:
         return out
 
 
-__all__ = ["DATAGRAM_MAGIC", "MAX_DATAGRAM", "Counting", "DatagramFrames", "DecoderTarget", "LoggedTraceback",
-           "Reader", "TracebackWatch", "frame_datagram", "mutate", "noise", "run", "targets"]
+#: A TCP session's pieces are sent in writes of at least this many bytes: the server still meets every split
+#: the fuzzer makes at a write's end, and a session costs a few system calls, not hundreds.
+SESSION_WRITE = 512
+
+
+def session_socket(address: tuple[str, int]) -> socket.socket:
+    """A client's connection to a server under test, non-blocking once made."""
+    sock = socket.create_connection(address, timeout=5)
+    sock.setblocking(False)
+    return sock
+
+
+def send_some(sock: socket.socket, data: bytes) -> bool:
+    """Send one write of a session; False once the server closed the connection (the session ends there).
+    What the server does not read at once is lost, as a client's would be."""
+    view = memoryview(data)
+    while view:
+        try:
+            sent = sock.send(view)
+        except (BlockingIOError, InterruptedError):
+            return True
+        except OSError:
+            return False
+        view = view[sent:]
+    return True
+
+
+def drain(sock: socket.socket) -> bytes:
+    """Whatever the server sent that a non-blocking read gets now."""
+    out = bytearray()
+    while True:
+        try:
+            chunk = sock.recv(65536)
+        except OSError:  # (BlockingIOError: nothing more for now)
+            break
+        if not chunk:
+            break
+        out += chunk
+    return bytes(out)
+
+
+#: A saturated 100 Mbit/s Ethernet link of 100-byte datagrams (166 byte times each on the wire), in framed bytes
+#: per second: the line of the datagram servers' targets.
+LINK_100M = 100e6 / (8 * 166) * (100 + DatagramFrames.HEADER)
+
+
+def check_address(dst: Any) -> None:
+    """What ``socket.sendto`` refuses in an address: raises as it would (a bad port is an OverflowError)."""
+    host, port = dst
+    if not isinstance(host, str):
+        raise TypeError(f"str, bytes or bytearray expected, not {type(host).__name__}")
+    if not isinstance(port, int):
+        raise TypeError(f"'{type(port).__name__}' object cannot be interpreted as an integer")
+    if not 0 <= port <= 65535:
+        raise OverflowError("getsockaddrarg: port must be 0-65535.")
+
+
+class NetPort:
+    """What a device on a datagram net holds (``send``, ``call_at``), for a target run without sockets:
+    datagrams are checked as ``sendto`` checks them and counted, timers kept to be run by the session."""
+
+    def __init__(self) -> None:
+        self.sent = 0
+        self.timers: list[Any] = []
+
+    def send(self, data: bytes, dst: Any, *, via: Any = None, t: float | None = None) -> None:
+        check_address(dst)
+        bytes(data)
+        self.sent += 1
+
+    def call_at(self, t: float | None, fn: Any) -> None:
+        if len(self.timers) < 1024:
+            self.timers.append(fn)
+
+    def run_timers(self) -> None:
+        timers, self.timers = self.timers, []
+        for fn in timers:
+            fn()
+
+
+__all__ = ["DATAGRAM_MAGIC", "LINK_100M", "MAX_DATAGRAM", "Counting", "DatagramFrames", "FuzzTarget",
+           "LoggedTraceback", "NetPort", "Reader", "SESSION_WRITE", "TracebackWatch", "check_address", "drain",
+           "frame_datagram", "mutate", "noise", "run", "send_some", "session_socket", "targets"]

@@ -1,7 +1,7 @@
-"""The emulated Micro XRCE-DDS agent as a rough-input target (:mod:`hilbench.decoders`, kind ``server``).
+"""The emulated Micro XRCE-DDS agent as a fuzz target (:mod:`hilbench.fuzzing`, kind ``server``).
 
 A session is the datagrams micro-ROS clients send the agent, framed in one byte stream
-(:func:`~hilbench.decoders.frame_datagram`; the frame's sender byte picks one of three client
+(:func:`~hilbench.fuzzing.frame_datagram`; the frame's sender byte picks one of three client
 addresses): pings, CREATE_CLIENT, entities created in binary on the reliable stream, READ_DATA,
 WRITE_DATA on both streams, a reliable message cut into FRAGMENTs, ACKNACKs, HEARTBEATs, time
 sync, a client deleted. Each session meets a fresh agent (:class:`~hilbench.fakes.xrce_agent.agent.XrceAgent`,
@@ -16,7 +16,7 @@ from __future__ import annotations
 import random
 from typing import Any
 
-from hilbench.decoders import DatagramFrames, DecoderTarget, TracebackWatch, frame_datagram
+from hilbench.fuzzing import LINK_100M, DatagramFrames, FuzzTarget, NetPort, TracebackWatch, frame_datagram
 from hilbench.protocols import xrce_dds as x
 
 K = x.ObjectKind
@@ -24,43 +24,7 @@ S = x.SubmessageId
 #: The clients' addresses (a frame's sender byte picks one).
 CLIENTS = (("127.0.0.1", 40001), ("127.0.0.1", 40002), ("10.0.0.7", 2018))
 AGENT = ("127.0.0.1", 8888)
-#: A saturated 100 Mbit/s link of 100-byte datagrams, framed (as the UDP monitor's target counts it).
-LINE_RATE = 100e6 / (8 * 166) * 105
 STRING = "std_msgs::msg::dds_::String_"
-
-
-def check_address(dst: Any) -> None:
-    """What ``socket.sendto`` refuses in an address: raises as it would (a bad port is an OverflowError)."""
-    host, port = dst
-    if not isinstance(host, str):
-        raise TypeError(f"str, bytes or bytearray expected, not {type(host).__name__}")
-    if not isinstance(port, int):
-        raise TypeError(f"'{type(port).__name__}' object cannot be interpreted as an integer")
-    if not 0 <= port <= 65535:
-        raise OverflowError("getsockaddrarg: port must be 0-65535.")
-
-
-class NetPort:
-    """What a device on a datagram net holds (``send``, ``call_at``), for a target run without sockets:
-    datagrams are checked as ``sendto`` checks them and counted, timers kept to be run by the session."""
-
-    def __init__(self) -> None:
-        self.sent = 0
-        self.timers: list[Any] = []
-
-    def send(self, data: bytes, dst: Any, *, via: Any = None, t: float | None = None) -> None:
-        check_address(dst)
-        bytes(data)
-        self.sent += 1
-
-    def call_at(self, t: float | None, fn: Any) -> None:
-        if len(self.timers) < 1024:
-            self.timers.append(fn)
-
-    def run_timers(self) -> None:
-        timers, self.timers = self.timers, []
-        for fn in timers:
-            fn()
 
 
 def _binary(blob: str, fields: dict[str, Any]) -> dict[str, Any]:
@@ -206,8 +170,8 @@ class _AgentSession:
         return self.frames.skipped + c["malformed"] + c["orphan"]
 
 
-AGENT_TARGET = DecoderTarget("server-xrce", "micro-ROS XRCE-DDS agent: clients' sessions of datagrams",
-                             _AgentSession, LINE_RATE, "100 Mbit/s Ethernet link of 100-byte datagrams",
+AGENT_TARGET = FuzzTarget("server-xrce", "micro-ROS XRCE-DDS agent: clients' sessions of datagrams",
+                             _AgentSession, LINK_100M, "100 Mbit/s Ethernet link of 100-byte datagrams",
                              agent_session, kind="server", max_input=1024)
 
-__all__ = ["AGENT_TARGET", "CLIENTS", "NetPort", "agent_session", "check_address"]
+__all__ = ["AGENT_TARGET", "CLIENTS", "agent_session"]

@@ -1,5 +1,5 @@
-"""The rough-input registry: every reader of outside bytes is registered, survives noise and damage, and the
-fuzz script and the rough-input benchmark drive them all."""
+"""The fuzz targets (:mod:`hilbench.fuzzing`): every reader of outside bytes and every server is registered and
+survives noise and damage, and the fuzz script and the rough-input benchmark drive them all."""
 
 from __future__ import annotations
 
@@ -10,13 +10,19 @@ import sys
 
 import pytest
 
-from hilbench.decoders import mutate, run, targets
+from hilbench import registry
+from hilbench.bench.control_targets import ControlTarget, merge_profiles
+from hilbench.fuzzing import mutate, run, targets
 from tests.conftest import REPO
 
 BUILT_IN = {"dynamixel", "dynamixel1", "vel2d", "tracestamp-text", "tracestamp-binary", "tracestamp-stream",
             "capture", "monitor-dynamixel", "profiler", "rplidar", "sick-lms200", "scip2", "slcan",
             "socketcand-client", "socketcand-server", "monitor-udp"}
-SERVERS = {"server-control", "server-scip", "server-socketcand", "server-rfc2217", "server-xrce", "server-rtps"}
+#: Every built-in family that takes control commands brings its control target (``server-control-<family>``),
+#: but FreeRTPS: its nodes bind their domain's fixed UDP ports, which a fuzz run must not depend on.
+CONTROL_FAMILIES = {"canopen", "micro-ros-agent", "rplidar", "scip2", "sick-lms200", "stm32-rover"}
+SERVERS = {"server-control", "server-scip", "server-socketcand", "server-rfc2217", "server-xrce", "server-rtps",
+           *(f"server-control-{family}" for family in CONTROL_FAMILIES)}
 
 
 def test_every_built_in_reader_is_registered():
@@ -25,6 +31,30 @@ def test_every_built_in_reader_is_registered():
     assert {found[n].kind for n in SERVERS} == {"server"} and all(found[n].max_input for n in SERVERS)
     assert {found[n].kind for n in ("monitor-dynamixel", "monitor-udp", "profiler")} == {"instrument"}
     assert all(t.line_rate > 0 and t.line for t in found.values())
+
+
+def test_every_family_that_takes_commands_brings_its_control_target():
+    takes = {n for n, f in registry.families.items() if f.control_commands and registry.families.origin(n) == "hilbench"}
+    assert takes - CONTROL_FAMILIES == {"freertps"}
+    parts = {t.name: t for t in targets() if isinstance(t, ControlTarget)}
+    assert set(parts) == {f"server-control-{family}" for family in CONTROL_FAMILIES}
+    for target in parts.values():  # a family's requests name its own devices (or none)
+        names = {d["name"] for d in target.profile["devices"]}
+        asked = {target.request(random.Random(seed)).get("device") for seed in range(50)} - {None}
+        assert asked and asked <= names, target.name
+
+
+def test_server_control_puts_every_family_on_one_bench():
+    """The family-free control target: one bench with every family's devices, sent every family's requests."""
+    parts = [t for t in targets() if isinstance(t, ControlTarget)]
+    merged = merge_profiles([t.profile for t in parts], "all")
+    assert {d["name"] for d in merged["devices"]} == {d["name"] for t in parts for d in t.profile["devices"]}
+    assert len(merged["scene"]["walls"]) == 1  # two scanners' identical room, once
+    session = next(t for t in targets() if t.name == "server-control").sample(random.Random(1), 20_000)
+    asked = {json.loads(line).get("device") for line in session.splitlines()}
+    assert asked >= {d["name"] for d in merged["devices"]}
+    with pytest.raises(ValueError, match="endpoint 'x'"):
+        merge_profiles([{"endpoints": {"x": {}}}, {"endpoints": {"x": {}}}], "clash")
 
 
 @pytest.mark.parametrize("name", sorted(BUILT_IN))

@@ -1,4 +1,4 @@
-"""The UDP monitor's tracker as a rough-input target (:mod:`hilbench.decoders`), and the datagram mix that
+"""The UDP monitor's tracker as a fuzz target (:mod:`hilbench.fuzzing`), and the datagram mix that
 ``tools/bench_udp.py`` measures it with.
 
 Rough-input targets read byte streams split anywhere, and the tracker reads whole datagrams with their
@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import random
 
-from hilbench.decoders import DecoderTarget
+from hilbench.fuzzing import FuzzTarget
 from hilbench.monitor.udp import classify as cl
 from hilbench.monitor.udp.tracker import UdpTracker
 from hilbench.protocols import rtps as r
@@ -150,7 +150,7 @@ class _DatagramReader:
         return self.skipped + self.bad
 
 
-TRACKER = DecoderTarget("monitor-udp", "UDP monitor (classify, XRCE-DDS sessions, RTPS writers, flags)",
+TRACKER = FuzzTarget("monitor-udp", "UDP monitor (classify, XRCE-DDS sessions, RTPS writers, flags)",
                         _DatagramReader, LINK_100M, "100 Mbit/s Ethernet link of 100-byte datagrams", udp_traffic,
                         kind="instrument")
 

@@ -1,10 +1,10 @@
-"""The trace profiler as a rough-input target (:mod:`hilbench.decoders`): decode, store and analyse."""
+"""The trace profiler as a fuzz target (:mod:`hilbench.fuzzing`): decode, store and analyse."""
 
 from __future__ import annotations
 
-from hilbench.decoders import DecoderTarget
+from hilbench.fuzzing import FuzzTarget
 from hilbench.profiler import Profiler
-from hilbench.protocols.targets import BOARD_LINE, stream_traffic
+from hilbench.protocols.tracestamp_targets import BOARD_LINE, stream_traffic
 
 
 class _ProfilerReader:
@@ -28,7 +28,7 @@ class _ProfilerReader:
         return d.text.parse_errors + d.words.broken_words
 
 
-PROFILER = DecoderTarget("profiler", "trace profiler (hilbench profile: decode, pair, analyse)", _ProfilerReader,
+PROFILER = FuzzTarget("profiler", "trace profiler (hilbench profile: decode, pair, analyse)", _ProfilerReader,
                          BOARD_LINE, "12.5 Mbit/s UART", stream_traffic, kind="instrument")
 
 __all__ = ["PROFILER"]

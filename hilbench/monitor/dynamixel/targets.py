@@ -1,10 +1,10 @@
-"""The Dynamixel bus monitor's tracker as a rough-input target (:mod:`hilbench.decoders`)."""
+"""The Dynamixel bus monitor's tracker as a fuzz target (:mod:`hilbench.fuzzing`)."""
 
 from __future__ import annotations
 
-from hilbench.decoders import DecoderTarget
+from hilbench.fuzzing import FuzzTarget
 from hilbench.monitor.dynamixel.tracker import BusTracker
-from hilbench.protocols.targets import DYNAMIXEL_LINE, dynamixel_traffic
+from hilbench.protocols.dynamixel_targets import DYNAMIXEL_LINE, dynamixel_traffic
 
 
 class _TrackerReader:
@@ -31,7 +31,7 @@ class _TrackerReader:
         return sum(d.bytes_skipped for d in self.tracker.decoders.values())
 
 
-TRACKER = DecoderTarget("monitor-dynamixel", "Dynamixel bus monitor (decoder, pairing, device state)",
+TRACKER = FuzzTarget("monitor-dynamixel", "Dynamixel bus monitor (decoder, pairing, device state)",
                         _TrackerReader, DYNAMIXEL_LINE, "4.5 Mbaud RS-485 bus", dynamixel_traffic,
                         kind="instrument")
 
