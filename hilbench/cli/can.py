@@ -256,8 +256,11 @@ def cmd_sdo(args: argparse.Namespace) -> int:
     canopen = require("canopen", "can", "hilbench can sdo")
     index, sub = _index(args.object)
     bus = open_target(args.target)
-    canopen.Network.NOTIFIER_SHUTDOWN_TIMEOUT = 0.0
+    # The notifier's thread looks at the bus every 50 ms and is waited for at the end: not waited for, it
+    # could still be inside the bus's recv when the bus closes, and python-can prints that thread's failure.
     net = canopen.Network(bus)
+    net.NOTIFIER_CYCLE = 0.05
+    net.NOTIFIER_SHUTDOWN_TIMEOUT = 2.0
     with _quiet_logger("canopen"):  # it logs its own abort ("Transfer aborted by client ...") before ours
         return _sdo(canopen, net, args, index, sub)
 
