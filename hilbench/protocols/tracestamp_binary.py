@@ -1,6 +1,6 @@
 """Compact binary trace stamps: one tagged 32-bit word per stamp (hilbench's design for spec §3.9).
 
-Full description with a worked example: ``docs/tracestamp-binary.md``. In short:
+Full description with a worked example: ``docs/formats/tracestamp-binary.md``. In short:
 
 * **Word**: 4 bytes, little-endian. Every byte has bit 7 set, so words never
   look like the board's 7-bit ASCII text (logs, reports) and both share one
