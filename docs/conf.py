@@ -7,10 +7,13 @@ There is no intersphinx (the build needs no network): names of the standard libr
 third-party packages are let through by ``nitpick_ignore_regex`` below instead of being linked.
 """
 
+import importlib
 import importlib.metadata
 import re
 import sys
 from pathlib import Path
+
+import sphinx.ext.autosummary
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -56,6 +59,22 @@ autodoc_default_options = {
     "ignore-module-all": True,
 }
 autodoc_member_order = "bysource"
+
+
+def _modules_first(name, grouped_exception=True):
+    """A hilbench name that is a module is that module. ``hilbench.monitor.can`` imports the function
+    ``summary`` from its module ``summary``: the package's attribute hides the module, and autosummary
+    (which follows attributes) would make the module's page the function's."""
+    if name.startswith("hilbench."):
+        try:
+            return importlib.import_module(name), None, name
+        except ImportError:
+            pass
+    return _import_by_name(name, grouped_exception)
+
+
+_import_by_name = sphinx.ext.autosummary._import_by_name
+sphinx.ext.autosummary._import_by_name = _modules_first
 autodoc_typehints = "signature"
 # Optional packages the reference does not install (labgrid has a venv of its own: see the Makefile).
 autodoc_mock_imports = ["labgrid", "attr", "pexpect", "atheris"]
@@ -72,7 +91,7 @@ _OWN_MODULES = {p.stem for p in (ROOT / "hilbench").rglob("*.py")} | {
     p.name for p in (ROOT / "hilbench").rglob("*") if p.is_dir()}
 
 
-def _alternatives(names):  # noqa: ANN001, ANN202
+def _alternatives(names):
     return "|".join(sorted(map(re.escape, names)))
 
 
@@ -85,7 +104,7 @@ nitpick_ignore_regex = [
 _UNPARSABLE_DEFAULT = re.compile(r"=\s*<[^<>]*>")
 
 
-def _parsable_signature(app, what, name, obj, options, signature, return_annotation):  # noqa: ANN001, ANN201
+def _parsable_signature(app, what, name, obj, options, signature, return_annotation):
     """A dataclass field's default shows as ``<factory>``, which Sphinx cannot parse as Python: it then
     splits the signature at every comma (``dict[str`` and ``int]`` become two broken references)."""
     if signature and "<" in signature:
@@ -93,5 +112,5 @@ def _parsable_signature(app, what, name, obj, options, signature, return_annotat
     return signature, return_annotation
 
 
-def setup(app):  # noqa: ANN001, ANN201 (Sphinx's extension hook)
+def setup(app):
     app.connect("autodoc-process-signature", _parsable_signature)

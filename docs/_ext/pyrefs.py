@@ -8,7 +8,9 @@ it finds nothing (a warning under ``-n``), or, for annotations, it searches ever
 the same way and may pick a wrong one. Before the references are resolved, this extension follows each
 name from where it is written (the class, the module, its ``TYPE_CHECKING`` imports, the package, an
 absolute import path) to the object, and rewrites the reference to the object's documented (canonical)
-name. A name that leads to nothing documented is left as it was, so it still fails the build.
+name. A name that leads to nothing documented is left as it was, so it still fails the build; one that
+leads to a private object (``_run``, a private base class) is shown as text, as the reference has no
+private members.
 
 Builtins (``int``, ``bytes``, ``None``...) are left unlinked: there is no intersphinx, and Sphinx's search
 for them otherwise falls back to any hilbench attribute of that name (``bytes`` matched two properties).
@@ -31,6 +33,7 @@ from sphinx.application import Sphinx
 from sphinx.transforms.post_transforms import SphinxPostTransform
 
 BUILTINS = frozenset(dir(builtins))
+PRIVATE = "<private>"
 _MISSING = object()
 
 
@@ -42,34 +45,30 @@ def _import(name: str) -> types.ModuleType | None:
 
 
 @cache
-def _type_checking_names(modname: str) -> dict[str, str]:
-    """Names a module imports under ``if TYPE_CHECKING:``, each to its absolute dotted name."""
+def _imported_names(modname: str) -> dict[str, str]:
+    """Names a module imports (``from X import Y``, under ``if TYPE_CHECKING:`` too): each to its absolute
+    dotted name, so a constant re-exported by value is still found where it is documented."""
     module = sys.modules.get(modname)
     try:
-        source = inspect.getsource(module) if module is not None else ""
-        tree = ast.parse(source)
+        tree = ast.parse(inspect.getsource(module)) if module is not None else None
     except (OSError, TypeError, SyntaxError):
+        tree = None
+    if tree is None:
         return {}
     package = modname if hasattr(module, "__path__") else modname.rpartition(".")[0]
     names: dict[str, str] = {}
-    for node in ast.walk(tree):
-        test = getattr(node, "test", None)
-        if not isinstance(node, ast.If) or not (
-                (isinstance(test, ast.Name) and test.id == "TYPE_CHECKING")
-                or (isinstance(test, ast.Attribute) and test.attr == "TYPE_CHECKING")):
-            continue
-        for stmt in ast.walk(node):
-            if isinstance(stmt, ast.ImportFrom):
-                base = stmt.module or ""
-                if stmt.level:
-                    parent = package.rsplit(".", stmt.level - 1)[0] if stmt.level > 1 else package
-                    base = f"{parent}.{base}" if base else parent
-                for alias in stmt.names:
-                    names[alias.asname or alias.name] = f"{base}.{alias.name}"
-            elif isinstance(stmt, ast.Import):
-                for alias in stmt.names:
-                    bound = alias.asname or alias.name.split(".")[0]
-                    names[bound] = alias.name if alias.asname else bound
+    for stmt in ast.walk(tree):
+        if isinstance(stmt, ast.ImportFrom):
+            base = stmt.module or ""
+            if stmt.level:
+                parent = package.rsplit(".", stmt.level - 1)[0] if stmt.level > 1 else package
+                base = f"{parent}.{base}" if base else parent
+            for alias in stmt.names:
+                names.setdefault(alias.asname or alias.name, f"{base}.{alias.name}")
+        elif isinstance(stmt, ast.Import):
+            for alias in stmt.names:
+                bound = alias.asname or alias.name.split(".")[0]
+                names.setdefault(bound, alias.name if alias.asname else bound)
     return names
 
 
@@ -90,21 +89,30 @@ def _own_name(obj: Any) -> str | None:
 class _Resolver:
     def __init__(self, objects: dict[str, Any]) -> None:
         self.objects = objects
+        self.depth = 0  # nesting of absolute(): import chains are short, a cycle must not recurse forever
 
     def member(self, owner: Any, owner_name: str, part: str) -> tuple[Any, str | None]:
         """``owner.part``: the object (or _MISSING) and its documented name (or None)."""
         if isinstance(owner, types.ModuleType):
+            imported = _imported_names(owner.__name__).get(part)
+            if imported == f"{owner.__name__}.{part}":
+                imported = None
             if part in vars(owner):
                 obj = vars(owner)[part]
                 name = _own_name(obj)
-                if name is None or (name not in self.objects and f"{owner_name}.{part}" in self.objects):
-                    name = f"{owner_name}.{part}"
+                if name is None or name not in self.objects:
+                    local = f"{owner_name}.{part}"
+                    if local in self.objects:
+                        name = local
+                    elif imported is not None and self.depth < 8:
+                        return self.absolute(imported)
+                    else:
+                        name = name or local
                 return obj, name
             sub = _import(f"{owner.__name__}.{part}") if hasattr(owner, "__path__") else None
             if sub is not None:
                 return sub, sub.__name__
-            imported = _type_checking_names(owner.__name__).get(part)
-            if imported is not None:
+            if imported is not None and self.depth < 8:  # e.g. a name imported under TYPE_CHECKING
                 return self.absolute(imported)
             return _MISSING, None
         if isinstance(owner, type):
@@ -118,28 +126,30 @@ class _Resolver:
                     return _MISSING, f"{base_name}.{part}"  # an instance attribute, documented on the class
         return _MISSING, None
 
-    def walk(self, obj: Any, name: str, parts: list[str]) -> str | None:
+    def walk(self, obj: Any, name: str, parts: list[str]) -> tuple[Any, str | None]:
+        """Follow ``parts`` from ``obj`` (documented as ``name``): the object reached and its name."""
         for part in parts:
             if obj is _MISSING:
-                return None
+                return _MISSING, None
             obj, name = self.member(obj, name, part)
             if name is None:
-                return None
-        return name
+                return _MISSING, None
+        return obj, name
 
     def absolute(self, target: str) -> tuple[Any, str | None]:
         """An absolute dotted name: the longest importable module prefix, then attributes."""
         parts = target.split(".")
-        for i in range(len(parts), 0, -1):
-            module = _import(".".join(parts[:i])) if parts[0] == "hilbench" else None
-            if module is not None:
-                obj, name = module, module.__name__
-                for part in parts[i:]:
-                    obj, name = self.member(obj, name, part)
-                    if name is None:
-                        return _MISSING, None
-                return obj, name
-        return _MISSING, None
+        if parts[0] != "hilbench":
+            return _MISSING, None
+        self.depth += 1
+        try:
+            for i in range(len(parts), 0, -1):
+                module = _import(".".join(parts[:i]))
+                if module is not None:
+                    return self.walk(module, module.__name__, parts[i:])
+            return _MISSING, None
+        finally:
+            self.depth -= 1
 
     def canonical(self, target: str, typ: str, modname: str | None, clsname: str | None) -> str | None:
         parts = target.split(".")
@@ -150,19 +160,21 @@ class _Resolver:
             for part in clsname.split("."):
                 cls_obj, cls_name = self.member(cls_obj, cls_name, part)
             if cls_obj is not _MISSING and cls_name:
-                candidates.append(self.walk(cls_obj, cls_name, parts))
+                candidates.append(self.walk(cls_obj, cls_name, parts)[1])
         if module is not None:
-            candidates.append(self.walk(module, modname, parts))
+            candidates.append(self.walk(module, modname, parts)[1])
             if typ == "mod" or len(parts) > 1:
                 # a sibling module (``:mod:`tracker``` in monitor/dynamixel/summary.py), or a name in it
                 package = modname if hasattr(module, "__path__") else modname.rpartition(".")[0]
                 parent = _import(package) if package else None
                 if parent is not None:
-                    candidates.append(self.walk(parent, package, parts))
+                    candidates.append(self.walk(parent, package, parts)[1])
         candidates.append(self.absolute(target)[1])
         for name in candidates:
             if name and name in self.objects:
                 return name
+        if any(name and any(part.startswith("_") for part in name.split(".")) for name in candidates):
+            return PRIVATE  # exists, but private: not in the reference
         return None
 
 
@@ -184,7 +196,9 @@ class ResolvePythonNames(SphinxPostTransform):
                 node.replace_self(node.children[0] if node.children else nodes.literal(text=target))
                 continue
             name = resolver.canonical(target, typ, node.get("py:module"), node.get("py:class"))
-            if name is not None:
+            if name == PRIVATE:  # a private base class, a private method a docstring explains: plain text
+                node.replace_self(node.children[0] if node.children else nodes.literal(text=target))
+            elif name is not None:
                 node["reftarget"] = name
                 if "refspecific" in node:
                     del node["refspecific"]  # an exact name now: no search by suffix

@@ -39,8 +39,9 @@ StreamItem = Item | Marker | WordProblem
 class StreamDecoder:
     """Incremental decoder of a mixed text/binary board stream; never raises.
 
-    ``feed(data)`` returns :class:`Stamp`, :class:`LogLine`, :class:`RuntimeReport`,
-    :class:`NameEntry`, :class:`TableStart`, :class:`BadLine`, :class:`Marker` and
+    ``feed(data)`` returns :class:`Stamp`, :class:`~hilbench.protocols.tracestamp.LogLine`,
+    :class:`~hilbench.protocols.tracestamp.RuntimeReport`, :class:`NameEntry`, :class:`TableStart`,
+    :class:`~hilbench.protocols.tracestamp.BadLine`, :class:`Marker` and
     :class:`WordProblem` items in arrival order; ``feed_batch(data)`` the same with
     runs of stamps as :class:`StampBatch` columns. ``text`` and ``words`` are the
     two decoders, with their counters.

@@ -93,7 +93,7 @@ def _covers_special(address: int, length: int) -> bool:
 class Expectation(Period):
     """Who owes what for one distinct request; built once and reused while the request repeats.
 
-    It is the device's :class:`~hilbench.monitor.devices.RequestGroup` for
+    It is the device's :class:`~hilbench.monitor.dynamixel.devices.RequestGroup` for
     that request: it counts the requests, keeps each device's newest plain
     reply, and accumulates the request's period (the main cycle's rate).
     """
