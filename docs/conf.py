@@ -43,9 +43,27 @@ html_title = "hilbench"
 # navigation, and the build, many times slower.
 toc_object_entries = False
 
+
+def _navigation_but_on_source_pages(context):
+    """furo builds the whole site's navigation tree for every page, the ~230 highlighted module sources
+    (viewcode's ``_modules/``) too: a fifth of the build. Those pages get none (their "[docs]" links lead
+    back); every other page keeps it."""
+    if str(context.get("pagename", "")).startswith("_modules/"):
+        return ""
+    return _furo_navigation(context)
+
+
+try:
+    import furo
+
+    _furo_navigation = furo._compute_navigation_tree
+    furo._compute_navigation_tree = _navigation_but_on_source_pages
+except (ImportError, AttributeError):  # another furo: the full navigation everywhere, a slower build
+    pass
+
 # Markdown: GitHub-style heading anchors (so `page.md#a-heading` links work as they do on GitHub and are
 # checked), and the fences and roles the pages use.
-myst_heading_anchors = 4
+myst_heading_anchors = 6
 myst_enable_extensions = ["colon_fence", "deflist"]
 
 # API reference: one page per module (docs/_templates/autosummary/module.rst), members defined in that
@@ -65,7 +83,7 @@ def _modules_first(name, grouped_exception=True):
     """A hilbench name that is a module is that module. ``hilbench.monitor.can`` imports the function
     ``summary`` from its module ``summary``: the package's attribute hides the module, and autosummary
     (which follows attributes) would make the module's page the function's."""
-    if name.startswith("hilbench."):
+    if name.startswith("hilbench.") and "__main__" not in name:
         try:
             return importlib.import_module(name), None, name
         except ImportError:
@@ -78,6 +96,9 @@ sphinx.ext.autosummary._import_by_name = _modules_first
 autodoc_typehints = "signature"
 # Optional packages the reference does not install (labgrid has a venv of its own: see the Makefile).
 autodoc_mock_imports = ["labgrid", "attr", "pexpect", "atheris"]
+
+# README's output examples are abbreviated JSON (``...``), which Pygments cannot lex: shown unhighlighted.
+suppress_warnings = ["misc.highlighting_failure"]
 
 nitpicky = True
 # Outside names (standard library, third-party packages): not linked (no intersphinx), not errors. A

@@ -38,6 +38,8 @@ _MISSING = object()
 
 
 def _import(name: str) -> types.ModuleType | None:
+    if any(part.startswith("__") for part in name.split(".")):
+        return sys.modules.get(name)  # never run a __main__ (hilbench.cli.__main__ runs the command)
     try:
         return importlib.import_module(name)
     except Exception:  # noqa: BLE001 (any failure: the name is not a module)
