@@ -11,6 +11,7 @@ import importlib
 import importlib.metadata
 import re
 import sys
+import types
 from pathlib import Path
 
 import sphinx.ext.autosummary
@@ -18,6 +19,9 @@ import sphinx.ext.autosummary
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "docs" / "_ext"))
+# autosummary imports every submodule to list it, and importing hilbench.cli.__main__ runs the command
+# (with sphinx's arguments): an empty stand-in is imported instead (a private module: no page).
+sys.modules.setdefault("hilbench.cli.__main__", types.ModuleType("hilbench.cli.__main__"))
 
 project = "hilbench"
 author = "the hilbench authors"
