@@ -23,6 +23,8 @@ sys.path.insert(0, str(ROOT / "docs" / "_ext"))
 # (with sphinx's arguments): an empty stand-in is imported instead (a private module: no page).
 sys.modules.setdefault("hilbench.cli.__main__", types.ModuleType("hilbench.cli.__main__"))
 
+import labgrid_stand_ins  # noqa: E402 (docs/_ext, on the path just above)
+
 project = "hilbench"
 author = "the hilbench authors"
 copyright = "the hilbench authors"
@@ -98,8 +100,10 @@ def _modules_first(name, grouped_exception=True):
 _import_by_name = sphinx.ext.autosummary._import_by_name
 sphinx.ext.autosummary._import_by_name = _modules_first
 autodoc_typehints = "signature"
-# Optional packages the reference does not install (labgrid has a venv of its own: see the Makefile).
-autodoc_mock_imports = ["labgrid", "attr", "pexpect", "atheris"]
+# Optional packages the reference does not install: labgrid (it has a venv of its own, see the Makefile),
+# with attrs and pexpect, gets stand-ins (docs/_ext/labgrid_stand_ins.py), the rest autodoc's mocks.
+labgrid_stand_ins.install()
+autodoc_mock_imports = ["atheris"]
 
 # README's output examples are abbreviated JSON (``...``), which Pygments cannot lex: shown unhighlighted.
 suppress_warnings = ["misc.highlighting_failure"]
@@ -111,7 +115,7 @@ nitpicky = True
 # hilbench, plus `np` (numpy imported as np, in string annotations); a bare name that is also the name
 # of a hilbench module (`can`, `profile`, `serial`...) is not let through: it means the module.
 _OUTSIDE = (set(sys.stdlib_module_names) | set(importlib.metadata.packages_distributions())
-            | {"np"} | set(autodoc_mock_imports)) - {"hilbench"}
+            | {"np", "labgrid", "attr", "pexpect"} | set(autodoc_mock_imports)) - {"hilbench"}
 _OWN_MODULES = {p.stem for p in (ROOT / "hilbench").rglob("*.py")} | {
     p.name for p in (ROOT / "hilbench").rglob("*") if p.is_dir()}
 
