@@ -166,14 +166,23 @@ class Kind:
         return [o for o in self.values() if predicate(o)]
 
 
+#: Device families (:class:`~hilbench.bench.family.DeviceFamily`), by name.
 families = Kind("families", "hilbench.families", what="device family")
+#: Host-port classes, by endpoint ``type``.
 host_ports = Kind("host_ports", "hilbench.host_ports", what="endpoint type")
+#: Medium classes, by kind.
 media = Kind("media", "hilbench.media", what="medium")
+#: Source openers (:class:`~hilbench.transports.sources.SourceOpener`).
 sources = Kind("sources", "hilbench.sources", what="source kind")
+#: Instruments (:class:`~hilbench.monitor.instrument.Instrument`), by protocol.
 instruments = Kind("instruments", "hilbench.instruments", what="instrument")
+#: Verb modules of the ``hilbench`` command.
 verbs = Kind("verbs", "hilbench.verbs", what="verb module")
+#: Fuzz targets (:class:`~hilbench.fuzzing.FuzzTarget`): readers and servers the fuzzer and rough-input tools drive.
 fuzz_targets = Kind("fuzz_targets", "hilbench.fuzz_targets", what="fuzz target")
+#: Servers a bench can run (``emulate --serve``).
 servers = Kind("servers", "hilbench.servers", what="server")
+#: Recording formats.
 recorders = Kind("recorders", "hilbench.recorders", what="recording format")
 
 KINDS: tuple[Kind, ...] = (families, host_ports, media, sources, instruments, verbs, fuzz_targets, servers,

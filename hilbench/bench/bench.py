@@ -114,7 +114,7 @@ class Bench:
         self.started_at: float | None = None
         self._stopped = False
         self.control = None  # a ControlServer once serve_control() ran
-        self.services: dict[str, Any] = {}  # name -> object with close() and describe(): listed in the manifest
+        self.services: dict[str, Any] = {}  #: name -> object with close() and describe(): listed in the manifest
         self._manifest_token: str | None = None  # names this bench's manifests (see hilbench.bench.manifest)
         self._manifests: dict[Path, Any] = {}  # path -> ManifestClaim
 

@@ -7,12 +7,13 @@ entry-point group. It owns everything the core must not know:
 - its **profile schema**: which endpoint ``protocol`` values it serves, its
   endpoint keys and baud rates, its ``[[devices]]`` keys, ``[defaults]`` keys
   and top-level tables, each checked with one-line errors
-  (:meth:`check_endpoint`, :meth:`check_devices`, :meth:`check_profile`);
-- **building** its devices on an endpoint's medium (:meth:`build`), starting
+  (:meth:`~DeviceFamily.check_endpoint`, :meth:`~DeviceFamily.check_devices`,
+  :meth:`~DeviceFamily.check_profile`);
+- **building** its devices on an endpoint's medium (:meth:`~DeviceFamily.build`), starting
   and stopping them;
 - **describing** them for the manifest and ``hilbench emulate``'s listing;
 - **control commands** other processes send through the bench's control
-  channel (:meth:`control`).
+  channel (:meth:`~DeviceFamily.control`).
 
 The profile loader, :class:`~hilbench.bench.Bench`, ``emulate`` and the control
 server call these methods and nothing family-specific. A minimal family::

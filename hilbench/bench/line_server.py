@@ -5,7 +5,7 @@ it throws away bytes the bench has not read yet (on a USB adapter they are
 already on the wire). ``hilbench run`` makes unmodified clients ask this server
 instead, through an LD_PRELOAD shim or a pyserial patch (:mod:`hilbench.run`).
 
-One server per bench, a :attr:`Bench.services` entry named ``lines``: a Unix
+One server per bench, a :attr:`Bench.services <hilbench.bench.bench.Bench.services>` entry named ``lines``: a Unix
 socket in a private directory (mode 0700, so only this user's programs reach
 it), listed in the manifest with the device number (``st_rdev``) of every pty
 it serves. A client sends one line per request and reads one line back, on a
@@ -20,7 +20,7 @@ request                 what the bench does                                 ``ok
 ``mget``                read the modem lines (TIOCMGET)                     TIOCM_* mask
 ``mset|mbis|mbic M``    set / raise / clear DTR and RTS (TIOCMSET/BIS/BIC)  mask afterwards
 ``break on|off|SECS``   BREAK on, off, or for SECS (answered after them)    0
-``flush``               take the bytes the client wrote, then OutputFlushed bytes taken
+``flush``               take what the client wrote, then OutputFlushed      bytes taken
 ``drain``               take them and answer once they are delivered        bytes taken
 ``sync [CFLAG]``        re-read baud rate; CFLAG: the client's framing      baud (0: unknown)
 ``framing``             the framing the client last set (a pty forgets it)  c_cflag bits, -1: none

@@ -8,8 +8,8 @@ endpoint opens every door at once, each a party on the same emulated bus
 profile key          door                                                    who uses it
 ===================  ======================================================  =====================================
 ``socketcand``       socketcand server on 127.0.0.1 (default: on, port 0,    python-can ``socketcand``, can.viewer,
-                     channel ``can0``): :mod:`~hilbench.transports.           can.logger, cantools monitor, canopen,
-                     socketcand_server`                                      (SavvyCAN: untested)
+                     channel ``can0``):                                      can.logger, cantools monitor, canopen,
+                     :mod:`~hilbench.transports.socketcand_server`           (SavvyCAN: untested)
 ``slcan``            LAWICEL adapter on a pty (default: on; a path makes a   python-can ``slcan``, cantools monitor
                      stable link): :mod:`~hilbench.transports.slcan_port`    (slcand, SavvyCAN: untested)
 ``virtual``          python-can ``virtual`` channel (default: off; also      code in the bench's own process

@@ -175,9 +175,9 @@ class Listener:
         self.max_clients = max_clients
         self.refusal = refusal
         self.send_buffer = send_buffer
-        self.accepted = 0
-        self.refused = 0
-        self.exhausted = 0
+        self.accepted = 0  #: connections accepted
+        self.refused = 0  #: connections refused beyond the limit
+        self.exhausted = 0  #: accepts that found no descriptor left
         #: While ``time.monotonic()`` is below this, the listener is not waited on (see the module docstring).
         self.paused_until = 0.0
         _Spare.ensure()

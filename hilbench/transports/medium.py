@@ -9,7 +9,7 @@ hears traffic depends on the medium (``on_bytes`` on a serial line,
 goes through the :class:`DevicePort` the medium returned when it was added.
 
 Media register by kind in the ``hilbench.media`` entry-point group; a device
-family names the kind its endpoints need (:attr:`DeviceFamily.medium`).
+family names the kind its endpoints need (:attr:`DeviceFamily.medium <hilbench.bench.family.DeviceFamily.medium>`).
 
 Besides traffic, a serial host port has modem lines and BREAK
 (:mod:`hilbench.transports.line`): the medium hands the host's changes to each

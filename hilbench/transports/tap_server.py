@@ -36,7 +36,7 @@ from hilbench.transports.listener import BACKLOG, Listener
 
 log = logging.getLogger(__name__)
 
-#: Clients served at once; one more reads :data:`REFUSAL` and is closed.
+#: Clients served at once; one more reads a refusal (:data:`REFUSAL_PREFIX`) and is closed.
 MAX_CLIENTS = 32
 #: Bytes buffered for one client that reads slower than the line sends; beyond, data is dropped (a GAP record).
 MAX_BUFFER = 1 << 20
