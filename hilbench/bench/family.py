@@ -1,25 +1,31 @@
-"""Device families: what a kind of device is to a bench.
+"""Device families: what a kind of device is to a bench, on whichever bus it sits.
 
 A family (the Dynamixel servos, the STM32 rover board, a scanner, a lab's
 own board) is a :class:`DeviceFamily` registered in the ``hilbench.families``
-entry-point group. It owns everything the core must not know:
+entry-point group. It is chosen per device **model** (a ``[[devices]]``
+entry's ``model``), so one endpoint may carry devices of several families;
+the endpoint itself (its keys, medium, shared bus object, addresses) belongs
+to the :class:`~hilbench.bench.bus.BusKind` of its ``protocol``. A family
+owns everything about its devices the core must not know:
 
-- its **profile schema**: which endpoint ``protocol`` values it serves, its
-  endpoint keys and baud rates, its ``[[devices]]`` keys, ``[defaults]`` keys
-  and top-level tables, each checked with one-line errors
-  (:meth:`check_endpoint`, :meth:`check_devices`, :meth:`check_profile`);
-- **building** its devices on an endpoint's medium (:meth:`build`), starting
-  and stopping them;
-- **describing** them for the manifest and ``hilbench emulate``'s listing;
+- its **profile schema**: its models, which bus protocols they join
+  (:attr:`~DeviceFamily.joins`), its ``[[devices]]`` keys (each device entry
+  is checked by its own family), ``[defaults]`` keys and top-level tables,
+  each checked with one-line errors (:meth:`~DeviceFamily.check_devices`,
+  :meth:`~DeviceFamily.check_profile`);
+- **building** its devices on an endpoint (:meth:`~DeviceFamily.build`: each
+  goes onto the bus with ``endpoint.add_device``), starting and stopping them;
+- **describing** them for the manifest;
 - **control commands** other processes send through the bench's control
-  channel (:meth:`control`).
+  channel (:meth:`~DeviceFamily.control`).
 
 The profile loader, :class:`~hilbench.bench.Bench`, ``emulate`` and the control
 server call these methods and nothing family-specific. A minimal family::
 
     class AcmeFamily(DeviceFamily):
         name = "acme"
-        protocols = ("acme",)
+        models = ("acme-1",)
+        joins = ("acme",)                    # the bus protocols its devices sit on
         device_keys = ("model", "name", "endpoint", "gain")
 
         def check_devices(self, c, key, raw, endpoint, profile):
@@ -28,7 +34,7 @@ server call these methods and nothing family-specific. A minimal family::
 
         def build(self, bench, endpoint, devices, t):
             for spec in devices:
-                endpoint.add_device(spec.name, AcmeDevice(spec.name, spec.gain), endpoint.medium)
+                endpoint.add_device(spec.name, AcmeDevice(spec.name, spec.gain))
 
     FAMILY = AcmeFamily()
 """
@@ -52,7 +58,11 @@ class DeviceSpec:
     name: str
     endpoint: str
     model: str = ""
+    #: The family that checked it (set by the profile loader).
     family: str = field(default="", kw_only=True)
+    #: Its address on the endpoint's bus (a servo ID, a CANopen node id), filled by its family; None if the
+    #: bus addresses none. The bus kind refuses an address taken twice on one endpoint, across families.
+    address: int | None = field(default=None, kw_only=True)
     #: Where the profile declared it (``devices[3]``), for errors found later.
     where: str = field(default="", kw_only=True, repr=False)
 
@@ -62,21 +72,12 @@ class DeviceFamily:
 
     #: The family's name (its entry-point name).
     name: ClassVar[str] = ""
-    #: Endpoint ``protocol`` values whose devices this family builds.
-    protocols: ClassVar[tuple[str, ...]] = ()
-    #: Endpoint ``type`` values (host ports) its endpoints may have.
-    endpoint_types: ClassVar[tuple[str, ...]] = ("pty",)
-    #: The medium kind its endpoints need (``hilbench.media``).
-    medium: ClassVar[str] = "serial"
-    #: The profile key its endpoints give their line rate by (``baud``, or ``bitrate`` on a CAN bus); either
-    #: name is accepted and lands in ``EndpointSpec.baud``.
-    rate_key: ClassVar[str] = "baud"
-    #: Endpoint keys of its own (besides type, protocol, baud, paced and the host port's keys).
-    endpoint_keys: ClassVar[tuple[str, ...]] = ()
+    #: Model names (and aliases) it knows: a ``[[devices]]`` entry naming one is this family's.
+    models: ClassVar[tuple[str, ...]] = ()
+    #: Bus protocols (``hilbench.bus_kinds``) its devices may sit on (:meth:`joins_for` may narrow by model).
+    joins: ClassVar[tuple[str, ...]] = ()
     #: Keys of a ``[[devices]]`` entry (for unknown-key errors).
     device_keys: ClassVar[tuple[str, ...]] = ("model", "name", "endpoint")
-    #: Model names (and aliases) it knows, so a device on another family's endpoint gets a pointed error.
-    models: ClassVar[tuple[str, ...]] = ()
     #: ``[defaults]`` keys it owns: name -> (lo, hi, default).
     default_keys: ClassVar[dict[str, tuple[float, float, float]]] = {}
     #: Top-level profile tables it owns (e.g. a scene).
@@ -85,30 +86,22 @@ class DeviceFamily:
     profile_attrs: ClassVar[tuple[str, ...]] = ()
     #: How an error message names one of its devices (``"a stm32f767-rover board needs ..."``).
     device_word: ClassVar[str] = "device"
-    #: Attributes it sets on its endpoints (``endpoint.bus``); other families' endpoints read them as None.
+    #: Attributes it sets on its endpoints (``endpoint.board``); other families' endpoints read them as None.
     endpoint_attrs: ClassVar[tuple[str, ...]] = ()
     #: Methods it adds to :class:`~hilbench.bench.Bench` (``bench.board()``): name -> function(bench, ...).
     bench_methods: ClassVar[dict[str, Any]] = {}
-    #: Which verb reads an endpoint's traffic tap (printed by ``hilbench emulate``).
-    tap_reader: ClassVar[str] = "monitor"
-    #: Control commands it answers: name -> one-line help.
+    #: Control commands it answers for its devices: name -> one-line help.
     control_commands: ClassVar[dict[str, str]] = {}
 
     # ------------------------------------------------------------------ profile
 
     def knows_model(self, model: Any) -> bool:
-        """Whether ``model`` names one of this family's models (decides an endpoint's default protocol)."""
+        """Whether ``model`` names one of this family's models (the profile loader picks the family by it)."""
         return isinstance(model, str) and model in self.models
 
-    def check_baud(self, c: Checker, key: str, value: Any, port_type: str) -> int | None:
-        """The endpoint's ``baud`` (``value`` is None when the profile leaves it out)."""
-        from hilbench.rules import LINE_BAUD
-
-        return c.rule(115_200 if value is None else value, key, LINE_BAUD)
-
-    def check_endpoint(self, c: Checker, key: str, raw: dict[str, Any], port_type: str) -> dict[str, Any]:
-        """The family's own endpoint keys (:attr:`endpoint_keys`) of ``raw``, checked; stored as options."""
-        return {}
+    def joins_for(self, model: Any) -> tuple[str, ...]:
+        """The bus protocols a device of ``model`` may sit on (by default :attr:`joins`)."""
+        return self.joins
 
     def check_devices(self, c: Checker, key: str, raw: dict[str, Any], endpoint: EndpointSpec,
                       profile: Profile) -> list[DeviceSpec]:
@@ -116,7 +109,8 @@ class DeviceFamily:
         raise NotImplementedError
 
     def check_profile(self, c: Checker, profile: Profile) -> None:
-        """Checks across the whole profile, after every device was read (unique IDs, one per endpoint...)."""
+        """Checks of its own across the whole profile, after every device was read (the bus kinds checked
+        addresses and device counts per endpoint already)."""
 
     def check_table(self, c: Checker, name: str, raw: Any) -> Any:
         """A top-level table of :attr:`profile_tables`; the result is ``profile.tables[name]``."""
@@ -124,41 +118,25 @@ class DeviceFamily:
 
     # ------------------------------------------------------------------ bench
 
-    def paced(self, spec: EndpointSpec, requested: bool) -> bool:
-        """Whether the endpoint's medium paces its traffic (a device pacing itself says False)."""
-        return requested
-
     def build(self, bench: Bench, endpoint: Endpoint, devices: list[DeviceSpec], t: float) -> None:
-        """Make the devices of ``endpoint`` and attach them to ``endpoint.medium`` (``endpoint.add_device``)."""
+        """Make its devices of ``endpoint`` (``devices``: their specs, in profile order) and put each on the bus
+        with ``endpoint.add_device(name, device)``."""
         raise NotImplementedError
 
-    def start(self, endpoint: Endpoint, t: float) -> None:
-        """Start devices that run on their own (after every medium started)."""
+    def start(self, endpoint: Endpoint, devices: dict[str, Any], t: float) -> None:
+        """Start its devices on ``endpoint`` (name -> device) that run on their own, after every medium started."""
 
-    def stop(self, endpoint: Endpoint) -> None:
+    def stop(self, endpoint: Endpoint, devices: dict[str, Any]) -> None:
         """Stop what :meth:`start` started."""
 
     # ------------------------------------------------------------------ description
 
-    def describe_endpoint(self, endpoint: Endpoint) -> dict[str, Any]:
-        """Extra manifest fields of an endpoint."""
-        return {}
-
     def describe_device(self, spec: DeviceSpec, device: Any, endpoint: Endpoint | None,
                         profile: Profile) -> dict[str, Any]:
-        """A device's manifest entry (``name``, ``model``, ``endpoint``, ``protocol`` at least)."""
+        """A device's manifest entry (``name``, ``model``, ``endpoint``, ``protocol`` at least; the bench adds
+        ``family``)."""
         return {"name": spec.name, "model": spec.model, "endpoint": spec.endpoint,
                 "protocol": profile.endpoints[spec.endpoint].protocol}
-
-    def summary(self, endpoint: Endpoint) -> str:
-        """What ``hilbench emulate`` prints in brackets after the endpoint's path."""
-        spec = endpoint.spec
-        baud = f", {spec.baud} baud" if spec.baud else ""
-        return f"{spec.protocol}{baud}, {len(endpoint.devices)} devices"
-
-    def device_at(self, endpoint: Endpoint, address: int) -> Any:
-        """The device answering at ``address`` (an ID, a node id) on ``endpoint``; KeyError if none."""
-        raise KeyError(f"endpoint {endpoint.name!r} has no device at {address}")
 
     # ------------------------------------------------------------------ control channel
 

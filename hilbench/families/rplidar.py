@@ -38,6 +38,7 @@ from hilbench.bench.checks import Checker
 from hilbench.bench.control import ControlRequestError
 from hilbench.families.scanner import (
     COMMON_DEVICE_KEYS,
+    ScannerBusKind,
     ScannerFamily,
     ScannerSpec,
     check_scene,
@@ -55,12 +56,26 @@ FAULTS = {
 }
 
 
+class RplidarBusKind(ScannerBusKind):
+    """An RPLIDAR's UART (a pty)."""
+
+    protocol = "rplidar"
+    endpoint_types = ("pty",)
+
+    def check_baud(self, c: Checker, key: str, value: Any, port_type: str) -> int:
+        return c.integer(115_200 if value is None else value, key, 1200, 4_000_000)
+
+    def summary(self, endpoint) -> str:
+        dev = self.unit(endpoint)
+        motor = dev.config.motor if dev is not None else "?"
+        return f"rplidar A1, {endpoint.spec.baud} baud, motor {motor}"
+
+
 class RplidarFamily(ScannerFamily):
-    """One emulated RPLIDAR A1 per ``rplidar`` endpoint; owns the profile's ``[scene]`` table."""
+    """The emulated RPLIDAR A1, one per ``rplidar`` endpoint; owns the profile's ``[scene]`` table."""
 
     name = "rplidar"
-    protocols = ("rplidar",)
-    endpoint_types = ("pty",)
+    joins = ("rplidar",)
     device_keys = (*COMMON_DEVICE_KEYS, *RPLIDAR_KEYS)
     models = RPLIDAR_MODELS
     default_model = "rplidar-a1"
@@ -77,9 +92,6 @@ class RplidarFamily(ScannerFamily):
 
     def check_table(self, c: Checker, name: str, raw: Any) -> Any:
         return check_scene(c, raw, name)
-
-    def check_baud(self, c: Checker, key: str, value: Any, port_type: str) -> int:
-        return c.integer(115_200 if value is None else value, key, 1200, 4_000_000)
 
     def check_options(self, c: Checker, key: str, dev: dict[str, Any], endpoint,
                       common: dict[str, Any]) -> dict[str, Any]:
@@ -122,11 +134,6 @@ class RplidarFamily(ScannerFamily):
                     "baud": profile.endpoints[spec.endpoint].baud})
         return out
 
-    def summary(self, endpoint) -> str:
-        dev = endpoint.attrs.get("lidar")
-        motor = dev.config.motor if dev else "?"
-        return f"rplidar A1, {endpoint.spec.baud} baud, motor {motor}"
-
     # ------------------------------------------------------------------ control channel
 
     def control(self, bench, device, cmd: str, req: dict[str, Any]) -> dict[str, Any]:
@@ -149,6 +156,7 @@ class RplidarFamily(ScannerFamily):
             device.set_health(device.faults.health_status, device.faults.health_code)
 
 
+BUS_KIND = RplidarBusKind()
 FAMILY = RplidarFamily()
 
-__all__ = ["FAMILY", "RPLIDAR_MODELS", "RplidarFamily"]
+__all__ = ["BUS_KIND", "FAMILY", "RPLIDAR_MODELS", "RplidarBusKind", "RplidarFamily"]

@@ -160,7 +160,7 @@ def test_rejected_setpoints_and_emcy(rover):
     emcy = wait_until(lambda: next((e for e in node.emcy.log if e.code == co.ERR_PDO_LENGTH), None))
     assert emcy.register & co.REG_COMMUNICATION
     assert sum(e.code == co.ERR_PROTOCOL for e in node.emcy.log) == 1  # once per burst of bad checksums
-    ctl = bench.endpoint().family
+    ctl = bench.family_of("rover")
     ctl.control(bench, board, "fault", {"knobs": {"motor_fault": True}})
     emcy = wait_until(lambda: next((e for e in node.emcy.log if e.code == co.ERR_MOTOR_BLOCKED), None))
     assert emcy.register & co.REG_CURRENT and node.sdo[0x1001].raw & co.REG_CURRENT
@@ -241,7 +241,7 @@ def test_canopen_in_another_process_over_socketcand(tmp_path):
 def test_bus_off_and_recovery_raise_emcy(rover):
     bench, net, node = rover()
     board = bench.node(2)
-    family = bench.endpoint().family
+    ep = bench.endpoint()
     states = []
     original = board.on_bus_state
 
@@ -250,7 +250,7 @@ def test_bus_off_and_recovery_raise_emcy(rover):
         original(state, t)
 
     board.on_bus_state = spy
-    reply = family.control(bench, board, "bus", {"knobs": {"bus_off": "rover"}})
+    reply = ep.bus_kind.control(bench, ep, "bus", {"knobs": {"bus_off": "rover"}})
     assert reply["bus"]["bitrate"] == 500_000
     wait_until(lambda: "recovered" in states, timeout=2)  # 128 x 11 bits later
     assert states[0] == "bus-off"
@@ -258,4 +258,4 @@ def test_bus_off_and_recovery_raise_emcy(rover):
     assert emcy.register & co.REG_COMMUNICATION
     wait_until(lambda: any(e.code == 0 for e in node.emcy.log))  # and the error reset after it
     with pytest.raises(Exception, match="bus fault error_rate"):
-        family.control(bench, board, "bus", {"knobs": {"error_rate": 5}})
+        ep.bus_kind.control(bench, ep, "bus", {"knobs": {"error_rate": 5}})
