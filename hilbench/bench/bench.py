@@ -14,7 +14,6 @@ everything is. Nothing here knows a bus kind or device family by name: see
 
 from __future__ import annotations
 
-import functools
 import os
 import time
 from collections.abc import Callable
@@ -23,7 +22,7 @@ from typing import Any
 
 from hilbench import registry
 from hilbench.bench.bus import BusKind
-from hilbench.bench.family import DeviceFamily, DeviceSpec
+from hilbench.bench.family import DeviceFamily, DeviceSpec, FamilyAccess
 from hilbench.bench.profile import EndpointSpec, Profile, load_profile
 from hilbench.errors import BenchError, UsageError
 from hilbench.transports.listener import BindError
@@ -40,9 +39,9 @@ class Endpoint:
     devices share (the object that decodes a servo line once for every servo;
     None where they share only the medium); ``devices`` maps device names to
     the objects their families built, ``specs`` to their profile entries (in
-    profile order). Attributes a family declares (``endpoint.board``) read as
-    None on other endpoints, and ``endpoint.pty``/``endpoint.udp`` give the port
-    when it is of that type.
+    profile order); ``tap`` is its traffic tap server (or None) and
+    ``services`` its network servers. Nothing else is grown on it: a family's
+    own lookups are on ``bench.family(NAME)``.
     """
 
     def __init__(self, spec: EndpointSpec, port: Any, medium: Any, bus_kind: BusKind,
@@ -55,7 +54,6 @@ class Endpoint:
         self.specs: dict[str, DeviceSpec] = {s.name: s for s in specs or ()}
         self.devices: dict[str, Any] = {}
         self.tap: TapServer | None = None
-        self.attrs: dict[str, Any] = {}
         #: Running servers of this endpoint by server name (``--serve``), listed in its manifest entry.
         self.services: dict[str, Any] = {}
 
@@ -86,16 +84,15 @@ class Endpoint:
         """The devices of one family on this endpoint (name -> device), in profile order."""
         return {n: self.devices[n] for n, s in self.specs.items() if s.family == family and n in self.devices}
 
-    def __getattr__(self, key: str) -> Any:
-        attrs = self.__dict__.get("attrs", {})
-        if key in attrs:
-            return attrs[key]
-        if any(key in fam.endpoint_attrs for fam in registry.families.values()):
-            return None  # another family's attribute: this endpoint has none
-        if key in registry.host_ports:
-            port = self.__dict__.get("port")
-            return port if getattr(port, "kind", None) == key else None
-        raise AttributeError(f"endpoint has no attribute {key!r}")
+    def device(self, name: str | None = None) -> Any:
+        """A device on this endpoint by profile name, or its only one; KeyError naming them."""
+        if name is None:
+            if len(self.devices) != 1:
+                raise KeyError(f"endpoint {self.name!r} has devices {list(self.devices)}; name one")
+            return next(iter(self.devices.values()))
+        if name not in self.devices:
+            raise KeyError(f"endpoint {self.name!r} has no device {name!r} (devices: {list(self.devices)})")
+        return self.devices[name]
 
     def __repr__(self) -> str:
         return f"Endpoint({self.name!r}, {self.spec.protocol}, {self.path})"
@@ -137,6 +134,7 @@ class Bench:
         self.services: dict[str, Any] = {}  # name -> object with close() and describe(): listed in the manifest
         self._manifest_token: str | None = None  # names this bench's manifests (see hilbench.bench.manifest)
         self._manifests: dict[Path, Any] = {}  # path -> ManifestClaim
+        self._access: dict[str, FamilyAccess] = {}  # family name -> what family() returns
 
     # ------------------------------------------------------------------ lifecycle
 
@@ -283,6 +281,20 @@ class Bench:
         ep = self.endpoint(endpoint)
         return ep.bus_kind.device_at(ep, name_or_address)
 
+    def family(self, name: str) -> FamilyAccess:
+        """A family's devices on this bench with its typed lookups: ``bench.family("stm32-rover").board()``,
+        ``bench.family("canopen").node(2)`` (its :attr:`DeviceFamily.access`). UsageError when the bench has no
+        device of that family."""
+        access = self._access.get(name)
+        if access is None:
+            family = registry.families.get(name)  # (UsageError naming the known ones)
+            present = list(dict.fromkeys(s.family for s in self.profile.devices))
+            if name not in present:
+                raise UsageError(f"bench {self.profile.name!r} has no device of family {name!r} "
+                                 f"(families: {', '.join(present) or 'none'})")
+            access = self._access[name] = family.access(self, family)
+        return access
+
     def family_of(self, device_name: str) -> DeviceFamily:
         """The family that built a device."""
         for ep in self.endpoints.values():
@@ -315,12 +327,6 @@ class Bench:
     def now(self) -> float:
         """The bench's clock (the devices' ``t``)."""
         return time.monotonic()
-
-    def __getattr__(self, key: str) -> Any:
-        for fam in registry.families.values():
-            if key in fam.bench_methods:
-                return functools.partial(fam.bench_methods[key], self)
-        raise AttributeError(f"{type(self).__name__!r} object has no attribute {key!r}")
 
     # ------------------------------------------------------------------ manifest
 

@@ -17,7 +17,10 @@ owns everything about its devices the core must not know:
   goes onto the bus with ``endpoint.add_device``), starting and stopping them;
 - **describing** them for the manifest;
 - **control commands** other processes send through the bench's control
-  channel (:meth:`~DeviceFamily.control`).
+  channel (:meth:`~DeviceFamily.control`);
+- **typed access** to its devices on a running bench: a :class:`FamilyAccess`
+  subclass (:attr:`~DeviceFamily.access`) that ``bench.family(NAME)`` returns,
+  with lookups named after the family's devices (``bench.family("stm32-rover").board()``).
 
 The profile loader, :class:`~hilbench.bench.Bench`, ``emulate`` and the control
 server call these methods and nothing family-specific. A minimal family::
@@ -36,6 +39,11 @@ server call these methods and nothing family-specific. A minimal family::
             for spec in devices:
                 endpoint.add_device(spec.name, AcmeDevice(spec.name, spec.gain))
 
+    class AcmeDevices(FamilyAccess):
+        def amplifier(self, name: str | None = None) -> AcmeDevice:
+            return self.device(name)
+
+    AcmeFamily.access = AcmeDevices
     FAMILY = AcmeFamily()
 """
 
@@ -47,6 +55,8 @@ from typing import TYPE_CHECKING, Any, ClassVar
 from hilbench.bench.checks import Checker
 
 if TYPE_CHECKING:
+    from typing import Self
+
     from hilbench.bench.bench import Bench, Endpoint
     from hilbench.bench.profile import EndpointSpec, Profile
 
@@ -82,16 +92,12 @@ class DeviceFamily:
     default_keys: ClassVar[dict[str, tuple[float, float, float]]] = {}
     #: Top-level profile tables it owns (e.g. a scene).
     profile_tables: ClassVar[tuple[str, ...]] = ()
-    #: Lists of its device specs a :class:`~hilbench.bench.profile.Profile` offers (``profile.servos``).
-    profile_attrs: ClassVar[tuple[str, ...]] = ()
-    #: How an error message names one of its devices (``"a stm32f767-rover board needs ..."``).
+    #: How messages name one of its devices (``"no board named 'x'"``).
     device_word: ClassVar[str] = "device"
-    #: Attributes it sets on its endpoints (``endpoint.board``); other families' endpoints read them as None.
-    endpoint_attrs: ClassVar[tuple[str, ...]] = ()
-    #: Methods it adds to :class:`~hilbench.bench.Bench` (``bench.board()``): name -> function(bench, ...).
-    bench_methods: ClassVar[dict[str, Any]] = {}
     #: Control commands it answers for its devices: name -> one-line help.
     control_commands: ClassVar[dict[str, str]] = {}
+    #: What ``bench.family(name)`` returns for it: a :class:`FamilyAccess` (sub)class with its typed lookups.
+    access: ClassVar[type[FamilyAccess]]
 
     # ------------------------------------------------------------------ profile
 
@@ -145,15 +151,71 @@ class DeviceFamily:
         raise NotImplementedError
 
 
-def bench_device(bench: Bench, kind: type, word: str, name: str | None = None) -> Any:
-    """A bench's device of class ``kind`` named ``name``, or its only one (for :attr:`DeviceFamily.bench_methods`
-    such as ``bench.board()``); KeyError naming them (as ``word``, e.g. ``"boards"``) when it cannot tell."""
-    devices = {n: d for n, d in bench.devices.items() if isinstance(d, kind)}
-    if name is None:
-        if len(devices) != 1:
-            raise KeyError(f"bench has {word} {list(devices)}; name one")
-        return next(iter(devices.values()))
-    return devices[name]
+class FamilyAccess:
+    """One family's devices on a running bench: what ``bench.family(name)`` returns.
+
+    :meth:`devices` and :meth:`device` find them by profile name; a family subclasses this with lookups
+    named after its devices and typed by what they return (``board()``, ``node(2)``, ``servo(3)``) and names
+    the subclass in :attr:`DeviceFamily.access`. ``Subclass.of(bench)`` is ``bench.family(...)`` typed as the
+    subclass (it sets :attr:`family_name`).
+    """
+
+    #: The family :meth:`of` looks up (a subclass written for one family sets it).
+    family_name: ClassVar[str] = ""
+
+    def __init__(self, bench: Bench, family: DeviceFamily) -> None:
+        self.bench = bench
+        self.family = family
+
+    @classmethod
+    def of(cls, bench: Bench) -> Self:
+        """``bench.family(cls.family_name)``, checked to be this class."""
+        access = bench.family(cls.family_name)
+        if not isinstance(access, cls):
+            raise TypeError(f"family {cls.family_name!r} gives {type(access).__name__}, not {cls.__name__}")
+        return access
+
+    def specs(self) -> dict[str, DeviceSpec]:
+        """Its devices' profile entries, by name, in profile order."""
+        return {s.name: s for s in self.bench.profile.devices_of(self.family.name)}
+
+    def devices(self) -> dict[str, Any]:
+        """Its devices on the bench, by profile name, in profile order."""
+        return {name: self.bench.devices[name] for name in self.specs() if name in self.bench.devices}
+
+    def device(self, name: str | None = None) -> Any:
+        """Its device ``name``, or its only one; KeyError naming them (as its :attr:`~DeviceFamily.device_word`)."""
+        devices = self.devices()
+        word = self.family.device_word
+        if name is None:
+            if len(devices) != 1:
+                raise KeyError(f"bench has {word}s {list(devices)} of family {self.family.name}; name one")
+            return next(iter(devices.values()))
+        if name not in devices:
+            raise KeyError(f"no {word} named {name!r} of family {self.family.name} ({word}s: {list(devices)})")
+        return devices[name]
+
+    def endpoints(self) -> list[Endpoint]:
+        """The endpoints carrying its devices, in profile order."""
+        names = dict.fromkeys(s.endpoint for s in self.specs().values())
+        return [self.bench.endpoints[n] for n in names if n in self.bench.endpoints]
+
+    def endpoint(self, name: str | None = None) -> Endpoint:
+        """The endpoint ``name`` carrying its devices, or the only one; KeyError naming them."""
+        eps = {ep.name: ep for ep in self.endpoints()}
+        if name is None:
+            if len(eps) != 1:
+                raise KeyError(f"the {self.family.name} devices sit on endpoints {list(eps)}; name one")
+            return next(iter(eps.values()))
+        if name not in eps:
+            raise KeyError(f"endpoint {name!r} has no {self.family.name} devices (endpoints: {list(eps)})")
+        return eps[name]
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({self.family.name!r}: {list(self.specs())})"
 
 
-__all__ = ["DeviceFamily", "DeviceSpec", "bench_device"]
+DeviceFamily.access = FamilyAccess
+
+
+__all__ = ["DeviceFamily", "DeviceSpec", "FamilyAccess"]

@@ -45,7 +45,7 @@ import tomllib
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 from hilbench import registry
 from hilbench.bench.checks import Checker, ProfileError
@@ -58,13 +58,13 @@ CORE_ENDPOINT_KEYS = ("type", "protocol", "baud", "paced")
 #: Top-level keys the core reads itself.
 CORE_KEYS = ("schema", "description", "endpoints", "devices", "defaults")
 
+S = TypeVar("S", bound=DeviceSpec)
+
 
 @dataclass
 class EndpointSpec:
-    """One endpoint of a profile: the core keys, the host port's options and the bus kind's options.
-
-    Options read as attributes too (``spec.link``, ``spec.chain_policy``).
-    """
+    """One endpoint of a profile: the core keys, the host port's options (``port_options["link"]``) and the
+    bus kind's options (``options["chain_policy"]``), each as the plug-in that checked them made them."""
 
     name: str
     type: str
@@ -73,12 +73,6 @@ class EndpointSpec:
     paced: bool = False
     port_options: dict[str, Any] = field(default_factory=dict)
     options: dict[str, Any] = field(default_factory=dict)
-
-    def __getattr__(self, key: str) -> Any:
-        for table in (self.__dict__.get("port_options", {}), self.__dict__.get("options", {})):
-            if key in table:
-                return table[key]
-        raise AttributeError(f"endpoint {self.__dict__.get('name')!r} has no option {key!r}")
 
 
 @dataclass
@@ -100,18 +94,10 @@ class Profile:
         """The device specs of one endpoint, in profile order."""
         return [d for d in self.devices if d.endpoint == endpoint]
 
-    def devices_of(self, family: str) -> list[DeviceSpec]:
-        """The device specs of one family, in profile order."""
-        return [d for d in self.devices if d.family == family]
-
-    def __getattr__(self, key: str) -> Any:
-        defaults = self.__dict__.get("defaults", {})
-        if key in defaults:
-            return defaults[key]
-        for fam in registry.families.values():
-            if key in fam.profile_attrs:
-                return self.devices_of(fam.name)
-        raise AttributeError(f"profile has no attribute {key!r}")
+    def devices_of(self, family: str, kind: type[S] = DeviceSpec) -> list[S]:  # type: ignore[assignment]
+        """The device specs of one family, in profile order (``kind``: the family's spec class, for typing:
+        ``profile.devices_of("stm32-rover", BoardSpec)``)."""
+        return [d for d in self.devices if d.family == family and isinstance(d, kind)]
 
 
 def bundled_profiles() -> dict[str, Path]:

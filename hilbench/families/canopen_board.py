@@ -17,8 +17,9 @@ other families' nodes may share it, each at its own node id. Device entries::
                stuck_odometry = false, dlc_mismatch = false }
 
 Several boards may share an endpoint (one bus), each with its own node id.
-``bench.node(2)`` finds one (``bench.device(2)`` too, by node id),
-``bench.can_bus()`` opens a python-can bus on the endpoint in this process.
+``bench.family("canopen").node(2)`` finds one (:class:`CanopenNodes`; ``bench.device(2)`` finds any
+family's node by node id), ``bench.endpoint("can").port.open_bus()`` opens a python-can bus on the
+endpoint in this process.
 Control commands (``hilbench can status|nmt|reset|fault|emcy``): see
 :attr:`CanopenBoardFamily.control_commands`; ``hilbench can bus`` is the bus's own.
 """
@@ -28,13 +29,16 @@ from __future__ import annotations
 import threading
 import time
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from hilbench.bench.checks import Checker
 from hilbench.bench.control import ControlClient, ControlError, ControlRequestError
-from hilbench.bench.family import DeviceFamily, DeviceSpec
+from hilbench.bench.family import DeviceFamily, DeviceSpec, FamilyAccess
 from hilbench.bench.knobs import KnobRules, check_fault_table, check_knobs, requested_knobs
 from hilbench.rules import SWITCH, Rule
+
+if TYPE_CHECKING:
+    from hilbench.fakes.canopen import RoverNode
 
 MODELS = ("stm32f767-rover-canopen", "mecarover-canopen")
 DEVICE_KEYS = ("model", "name", "endpoint", "node_id", "heartbeat_ms", "setpoint_timeout_ms", "autostart",
@@ -82,7 +86,6 @@ class CanopenBoardFamily(DeviceFamily):
     joins = ("can",)
     device_keys = DEVICE_KEYS
     models = MODELS
-    profile_attrs = ("can_nodes",)
     device_word = "node"
     control_commands = {
         "status": "a node's NMT state, odometry, setpoint counters, errors and the bus figures",
@@ -223,35 +226,23 @@ def profile_boards(profile) -> list[tuple[str, Any]]:
             for spec in profile.devices_of(CanopenBoardFamily.name)]
 
 
-def _bench_node(bench, name_or_id: str | int | None = None):
-    """``bench.node(2)`` or ``bench.node("rover")``: an emulated CANopen node (or the only one)."""
-    from hilbench.fakes.canopen import CanopenNode
+class CanopenNodes(FamilyAccess):
+    """The CANopen rover boards of a running bench: ``bench.family("canopen")``."""
 
-    nodes = [d for d in bench.devices.values() if isinstance(d, CanopenNode)]
-    if name_or_id is None:
-        if len(nodes) != 1:
-            raise KeyError(f"bench has nodes {[n.name for n in nodes]}; name one")
-        return nodes[0]
-    for node in nodes:
-        if name_or_id in (node.name, node.node_id):
-            return node
-    raise KeyError(f"no CANopen node {name_or_id!r} (nodes: {[(n.node_id, n.name) for n in nodes]})")
+    family_name = "canopen"
 
-
-def _bench_can_bus(bench, endpoint: str | None = None, **kwargs: Any):
-    """``bench.can_bus()``: a python-can bus on a CAN endpoint, in this process (shut it down when done)."""
-    import can
-
-    eps = [ep for ep in bench.endpoints.values() if ep.spec.type == "can"]
-    if endpoint is not None:
-        eps = [ep for ep in eps if ep.name == endpoint]
-    if len(eps) != 1:
-        raise KeyError(f"bench has CAN endpoints {[ep.name for ep in eps]}; name one")
-    channel = eps[0].port.open_virtual()
-    return can.Bus(interface="virtual", channel=channel, **kwargs)
+    def node(self, name_or_id: str | int | None = None) -> RoverNode:
+        """A board by profile name or node id (``node(2)``, ``node("rover")``), or the only one."""
+        if name_or_id is None or isinstance(name_or_id, str):
+            return self.device(name_or_id)
+        for name, spec in self.specs().items():
+            if spec.node_id == name_or_id and name in self.bench.devices:
+                return self.bench.devices[name]
+        raise KeyError(f"no CANopen board at node id {name_or_id} "
+                       f"(boards: {[(s.node_id, n) for n, s in self.specs().items()]})")
 
 
-CanopenBoardFamily.bench_methods = {"node": _bench_node, "can_bus": _bench_can_bus}
+CanopenBoardFamily.access = CanopenNodes
 
 
 class CanClient(ControlClient):
@@ -278,5 +269,5 @@ class CanClient(ControlClient):
 
 FAMILY = CanopenBoardFamily()
 
-__all__ = ["FAMILY", "MODELS", "CanClient", "CanopenBoardFamily", "NodeSpec", "board_config",
+__all__ = ["FAMILY", "MODELS", "CanClient", "CanopenBoardFamily", "CanopenNodes", "NodeSpec", "board_config",
            "profile_boards"]

@@ -34,7 +34,9 @@ series, the MX(2.0), the XL-320 and the custom boards. Its traffic is
     fast_read = false
 
 Devices of one endpoint share one :class:`~hilbench.fakes.dynamixel.bus.DynamixelBus`
-(``endpoint.bus``); ``bench.device(3)`` is the device answering at ID 3.
+(``endpoint.bus``); ``bench.device(3)`` is the device answering at ID 3 (of any family),
+``bench.family("dynamixel").servo(3)`` the Dynamixel device there and ``.bus()`` the bus
+(:class:`~hilbench.families.servo_bus.ServoBusAccess`).
 """
 
 from __future__ import annotations
@@ -47,6 +49,7 @@ from hilbench.bench.knobs import check_fault_table
 from hilbench.fakes.dynamixel.bus import CHAIN_POLICIES, FAST_MISSING_POLICIES
 from hilbench.families.servo_bus import (
     SERVO_FAULT_RULES,
+    ServoBusAccess,
     ServoBusFamily,
     ServoBusKind,
     ServoBusSpec,
@@ -161,15 +164,21 @@ class DynamixelBusKind(ServoBusKind):
         return f"{endpoint.spec.protocol} ({version}), {endpoint.spec.baud} baud, {timing}, {n} devices"
 
 
+class DynamixelServos(ServoBusAccess):
+    """The Dynamixel servos and boards of a running bench: ``bench.family("dynamixel")``."""
+
+    family_name = "dynamixel"
+
+
 class DynamixelFamily(ServoBusFamily):
     """Dynamixel Protocol 2.0/1.0 servos and boards (the Wolfgang boards) on Dynamixel buses."""
 
     name = "dynamixel"
+    access = DynamixelServos
     joins = ("dynamixel",)
     device_keys = DEVICE_KEYS
     models = tuple(model_names())
     default_keys = {"supply_voltage": (0, 50, 12.0), "ambient_temperature": (-40, 100, 30.0)}
-    profile_attrs = ("servos",)
     example_model = "XM430-W350"
 
     # ------------------------------------------------------------------ profile
@@ -268,4 +277,5 @@ class DynamixelFamily(ServoBusFamily):
 BUS_KIND = DynamixelBusKind()
 FAMILY = DynamixelFamily()
 
-__all__ = ["BUS_KIND", "DYNAMIXEL_BAUDS", "FAMILY", "DynamixelBusKind", "DynamixelFamily", "ServoSpec"]
+__all__ = ["BUS_KIND", "DYNAMIXEL_BAUDS", "FAMILY", "DynamixelBusKind", "DynamixelFamily", "DynamixelServos",
+           "ServoSpec"]

@@ -16,7 +16,8 @@ Profile schema (endpoint ``protocol = "feetech"``, a pty)::
     faults = { drop_rate = 0.01, delay = 0.0, vanished = false, seed = 1 }
 
 Devices of one endpoint share one :class:`~hilbench.fakes.feetech.bus.FeetechBus`
-(``endpoint.bus``); ``bench.device(3)`` is the servo answering at ID 3.
+(``endpoint.bus``); ``bench.device(3)`` is the servo answering at ID 3,
+``bench.family("feetech").servo(3)`` too and ``.bus()`` the bus.
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ from hilbench.bench.checks import Checker
 from hilbench.bench.knobs import check_fault_table
 from hilbench.families.servo_bus import (
     SERVO_FAULT_RULES,
+    ServoBusAccess,
     ServoBusFamily,
     ServoBusKind,
     ServoBusSpec,
@@ -70,10 +72,17 @@ class FeetechBusKind(ServoBusKind):
         return f"feetech, {endpoint.spec.baud} baud, {timing}, {n} servos"
 
 
+class FeetechServos(ServoBusAccess):
+    """The Feetech servos of a running bench: ``bench.family("feetech")``."""
+
+    family_name = "feetech"
+
+
 class FeetechFamily(ServoBusFamily):
     """Feetech STS/SCS servos on Feetech buses."""
 
     name = "feetech"
+    access = FeetechServos
     joins = ("feetech",)
     device_keys = DEVICE_KEYS
     models = tuple(model_names())
@@ -147,4 +156,4 @@ class FeetechFamily(ServoBusFamily):
 BUS_KIND = FeetechBusKind()
 FAMILY = FeetechFamily()
 
-__all__ = ["BUS_KIND", "FAMILY", "FEETECH_BAUDS", "FeetechBusKind", "FeetechFamily", "FeetechSpec"]
+__all__ = ["BUS_KIND", "FAMILY", "FEETECH_BAUDS", "FeetechBusKind", "FeetechFamily", "FeetechServos", "FeetechSpec"]

@@ -34,12 +34,15 @@ expired, invalid locators ...) and ``publish``.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from hilbench.bench.bus import BusKind
 from hilbench.bench.checks import Checker
 from hilbench.bench.control import ControlError, ControlRequestError
-from hilbench.bench.family import DeviceFamily, DeviceSpec, bench_device
+from hilbench.bench.family import DeviceFamily, DeviceSpec, FamilyAccess
+
+if TYPE_CHECKING:
+    from hilbench.fakes.rtps_node import FreeRtpsNode
 
 #: The default domain: non-zero, so the nodes do not meet a real DDS on the machine (domain 0).
 DEFAULT_DOMAIN = 42
@@ -152,7 +155,6 @@ class FreeRtpsFamily(DeviceFamily):
     joins = ("rtps",)
     device_keys = NODE_KEYS
     models = NODE_MODELS
-    endpoint_attrs = ("nodes",)
     device_word = "node"
     control_commands = {
         "status": "what a node published and received, its discovered peers and counters",
@@ -189,7 +191,6 @@ class FreeRtpsFamily(DeviceFamily):
         from hilbench.transports.listener import BindError
 
         opts = endpoint.spec.options
-        nodes = []
         for spec in devices:
             node = FreeRtpsNode(spec.name, domain_id=opts["domain_id"], participant_index=spec.participant_index,
                                 mac=spec.mac, topics=[TopicSpec(**t) for t in spec.topics], peers=opts["peers"],
@@ -203,8 +204,6 @@ class FreeRtpsFamily(DeviceFamily):
                           f"use ports {ports['metatraffic_unicast']}/{ports['user_unicast']})")
                 raise BindError(getattr(exc, "address", ("127.0.0.1", ports["metatraffic_unicast"])), reason,
                                 exc.errno, "RTPS port", key="domain_id") from None
-            nodes.append(node)
-        endpoint.attrs["nodes"] = nodes
 
     def start(self, endpoint, devices: dict[str, Any], t: float) -> None:
         for node in devices.values():
@@ -261,15 +260,18 @@ class FreeRtpsFamily(DeviceFamily):
         raise ControlRequestError(f"unknown command {cmd!r}")
 
 
-def _bench_node(bench, name: str | None = None):
-    """``bench.node(name=None)``: an emulated FreeRTPS node by name (or the only one)."""
-    from hilbench.fakes.rtps_node import FreeRtpsNode
+class FreeRtpsNodes(FamilyAccess):
+    """The FreeRTPS nodes of a running bench: ``bench.family("freertps")``."""
 
-    return bench_device(bench, FreeRtpsNode, "nodes", name)
+    family_name = "freertps"
+
+    def node(self, name: str | None = None) -> FreeRtpsNode:
+        """A node by profile name (``node("echo")``), or the only one."""
+        return self.device(name)
 
 
-FreeRtpsFamily.bench_methods = {"node": _bench_node}
+FreeRtpsFamily.access = FreeRtpsNodes
 BUS_KIND = RtpsBusKind()
 FAMILY = FreeRtpsFamily()
 
-__all__ = ["BUS_KIND", "DEFAULT_DOMAIN", "FAMILY", "FreeRtpsFamily", "NodeSpec", "RtpsBusKind", "check_peers"]
+__all__ = ["BUS_KIND", "DEFAULT_DOMAIN", "FAMILY", "FreeRtpsFamily", "FreeRtpsNodes", "NodeSpec", "RtpsBusKind", "check_peers"]

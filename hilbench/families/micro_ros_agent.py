@@ -22,8 +22,9 @@ Profile schema (endpoint ``protocol = "xrce-dds"``, ``type = "udp"``)::
     session_timeout = 300          # seconds a silent session lives (0: for ever)
 
 The manifest's endpoint entry says ``"role": "agent"`` with its ``host`` and
-``port``; its device entry the agent's ``limits``; ``endpoint.agent`` (and
-``bench.agent()``) is the :class:`~hilbench.fakes.xrce_agent.XrceAgent`.
+``port``; its device entry the agent's ``limits``;
+``bench.family("micro-ros-agent").agent()`` (:class:`MicroRosAgents`) is the
+:class:`~hilbench.fakes.xrce_agent.XrceAgent`.
 Control commands: ``status`` (counters, sessions, entities, limits, log) and
 ``fault``.
 """
@@ -31,12 +32,16 @@ Control commands: ``status`` (counters, sessions, entities, limits, log) and
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from hilbench.bench.bus import BusKind
 from hilbench.bench.checks import Checker
 from hilbench.bench.control import ControlRequestError
-from hilbench.bench.family import DeviceFamily, DeviceSpec, bench_device
+from hilbench.bench.family import DeviceFamily, DeviceSpec, FamilyAccess
+
+if TYPE_CHECKING:
+    from hilbench.fakes.xrce_agent import XrceAgent
+    from hilbench.fakes.xrce_agent.bridge import RtpsBridge
 from hilbench.bench.knobs import check_fault_table, requested_knobs
 from hilbench.rules import FAULT_COUNT
 
@@ -118,7 +123,6 @@ class MicroRosAgentFamily(DeviceFamily):
     joins = ("xrce-dds",)
     device_keys = AGENT_KEYS
     models = AGENT_MODELS
-    endpoint_attrs = ("agent",)
     device_word = "agent"
     control_commands = {
         "status": "counters, sessions with their entities and streams, the agent's log",
@@ -161,11 +165,10 @@ class MicroRosAgentFamily(DeviceFamily):
                               session_timeout=spec.session_timeout)
             agent.set_faults(**spec.faults)
             endpoint.add_device(spec.name, agent)
-            endpoint.attrs["agent"] = agent
             if spec.bridge is not None:
                 from hilbench.fakes.xrce_agent.bridge import RtpsBridge
 
-                endpoint.attrs["bridge"] = RtpsBridge(agent, endpoint.medium, **spec.bridge)  # (agent.bridge)
+                RtpsBridge(agent, endpoint.medium, **spec.bridge)  # (it is agent.bridge from now on)
 
     def start(self, endpoint, devices: dict[str, Any], t: float) -> None:
         for agent in devices.values():
@@ -208,16 +211,23 @@ class MicroRosAgentFamily(DeviceFamily):
         raise ControlRequestError(f"unknown command {cmd!r}")
 
 
-def _bench_agent(bench, name: str | None = None):
-    """``bench.agent(name=None)``: an emulated XRCE agent by name (or the only one)."""
-    from hilbench.fakes.xrce_agent import XrceAgent
+class MicroRosAgents(FamilyAccess):
+    """The XRCE-DDS agents of a running bench: ``bench.family("micro-ros-agent")``."""
 
-    return bench_device(bench, XrceAgent, "agents", name)
+    family_name = "micro-ros-agent"
+
+    def agent(self, name: str | None = None) -> XrceAgent:
+        """An agent by profile name, or the only one."""
+        return self.device(name)
+
+    def bridge(self, name: str | None = None) -> RtpsBridge | None:
+        """The RTPS bridge of an agent (``bridge = {...}`` in its profile entry), or None."""
+        return self.agent(name).bridge
 
 
-MicroRosAgentFamily.bench_methods = {"agent": _bench_agent}
+MicroRosAgentFamily.access = MicroRosAgents
 BUS_KIND = XrceDdsBusKind()
 FAMILY = MicroRosAgentFamily()
 
-__all__ = ["AGENT_MODELS", "BUS_KIND", "FAMILY", "AgentSpec", "MicroRosAgentFamily", "XrceDdsBusKind",
+__all__ = ["AGENT_MODELS", "BUS_KIND", "FAMILY", "AgentSpec", "MicroRosAgentFamily", "MicroRosAgents", "XrceDdsBusKind",
            "check_bridge"]

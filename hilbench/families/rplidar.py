@@ -32,7 +32,7 @@ adapter's DTR as a host would: ``{"dtr": false}`` runs the motor).
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from hilbench.bench.checks import Checker
 from hilbench.bench.control import ControlRequestError
@@ -41,9 +41,13 @@ from hilbench.families.scanner import (
     ScannerBusKind,
     ScannerFamily,
     ScannerSpec,
+    ScannerUnits,
     check_scene,
 )
 from hilbench.rules import PROBABILITY, SWITCH, Rule
+
+if TYPE_CHECKING:
+    from hilbench.fakes.scanners.rplidar import RplidarA1
 
 RPLIDAR_MODELS = ("rplidar-a1", "A1M8", "rplidar-a1m8")
 RPLIDAR_KEYS = ("motor", "spin_up", "rpm", "speed_wander", "firmware", "typical_mode")
@@ -71,17 +75,25 @@ class RplidarBusKind(ScannerBusKind):
         return f"rplidar A1, {endpoint.spec.baud} baud, motor {motor}"
 
 
+class RplidarUnits(ScannerUnits):
+    """The emulated units of a running bench: ``bench.family("rplidar")``."""
+
+    family_name = "rplidar"
+
+    def unit(self, name: str | None = None) -> RplidarA1:
+        return self.device(name)
+
+
 class RplidarFamily(ScannerFamily):
     """The emulated RPLIDAR A1, one per ``rplidar`` endpoint; owns the profile's ``[scene]`` table."""
 
     name = "rplidar"
+    access = RplidarUnits
     joins = ("rplidar",)
     device_keys = (*COMMON_DEVICE_KEYS, *RPLIDAR_KEYS)
     models = RPLIDAR_MODELS
     default_model = "rplidar-a1"
     profile_tables = ("scene",)
-    profile_attrs = ("lidars",)
-    endpoint_attrs = ("lidar",)
     fault_knobs = FAULTS
     control_commands = {
         "scanner_status": "what the unit is doing (state, motor, health, revolutions)",
@@ -159,4 +171,4 @@ class RplidarFamily(ScannerFamily):
 BUS_KIND = RplidarBusKind()
 FAMILY = RplidarFamily()
 
-__all__ = ["BUS_KIND", "FAMILY", "RPLIDAR_MODELS", "RplidarBusKind", "RplidarFamily"]
+__all__ = ["BUS_KIND", "FAMILY", "RplidarUnits", "RPLIDAR_MODELS", "RplidarBusKind", "RplidarFamily"]

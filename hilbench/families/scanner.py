@@ -27,7 +27,7 @@ from typing import Any
 from hilbench.bench.bus import BusKind
 from hilbench.bench.checks import Checker
 from hilbench.bench.control import ControlRequestError
-from hilbench.bench.family import DeviceFamily, DeviceSpec
+from hilbench.bench.family import DeviceFamily, DeviceSpec, FamilyAccess
 from hilbench.bench.knobs import KnobRules, check_fault_table, check_knobs, requested_knobs
 
 SCENE_KEYS = ("walls", "wall_reflectivity", "boxes", "circles", "moving")
@@ -156,12 +156,21 @@ class ScannerBusKind(BusKind):
         return self.unit(endpoint)
 
 
+class ScannerUnits(FamilyAccess):
+    """A scanner family's units on a running bench: ``bench.family("rplidar").unit()``."""
+
+    def unit(self, name: str | None = None) -> Any:
+        """A unit by profile name, or the only one."""
+        return self.device(name)
+
+
 class ScannerFamily(DeviceFamily):
     """What scanner families share: the common device keys, building, the manifest entry and the control
     commands ``scanner_status`` and ``scanner_fault``; subclasses check their options
     (:meth:`check_options`) and make their devices (:meth:`make_scanner`)."""
 
     device_word = "scanner"
+    access = ScannerUnits
     #: Fault knobs and their rules (:mod:`hilbench.rules`: SWITCH, or a Rule for a count, rate or time).
     fault_knobs: KnobRules = {}
     #: The family's default model name.
@@ -223,7 +232,6 @@ class ScannerFamily(DeviceFamily):
         for spec in devices:
             dev = self.make_scanner(bench, endpoint, spec, t)
             endpoint.add_device(spec.name, dev)
-            endpoint.attrs[self.endpoint_attrs[0]] = dev
 
     def make_scanner(self, bench, endpoint, spec: ScannerSpec, t: float):
         """The emulated unit of ``spec`` (not yet attached to the endpoint's medium)."""
@@ -263,5 +271,5 @@ def pose_of(spec: ScannerSpec):
     return Pose(spec.x, spec.y, spec.heading)
 
 
-__all__ = ["COMMON_DEVICE_KEYS", "SCENE_KEYS", "ScannerBusKind", "ScannerFamily", "ScannerSpec", "check_scene",
-           "pose_of", "scene_of"]
+__all__ = ["COMMON_DEVICE_KEYS", "SCENE_KEYS", "ScannerBusKind", "ScannerFamily", "ScannerSpec", "ScannerUnits",
+           "check_scene", "pose_of", "scene_of"]

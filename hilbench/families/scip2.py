@@ -23,11 +23,20 @@ commands: ``scanner_status``, ``scanner_fault``.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from hilbench.bench.checks import Checker
-from hilbench.families.scanner import COMMON_DEVICE_KEYS, ScannerBusKind, ScannerFamily, ScannerSpec
+from hilbench.families.scanner import (
+    COMMON_DEVICE_KEYS,
+    ScannerBusKind,
+    ScannerFamily,
+    ScannerSpec,
+    ScannerUnits,
+)
 from hilbench.rules import SWITCH, Rule
+
+if TYPE_CHECKING:
+    from hilbench.fakes.scanners.scip import ScipScanner
 
 SCIP_MODELS = ("ust-10lx", "urg-04lx", "UST-10LX", "URG-04LX")
 SCIP_KEYS = ("clock_offset_ms",)
@@ -52,16 +61,24 @@ class Scip2BusKind(ScannerBusKind):
         return f"scip2, {dev.unit.name if dev is not None else '?'}"
 
 
+class ScipUnits(ScannerUnits):
+    """The emulated units of a running bench: ``bench.family("scip2")``."""
+
+    family_name = "scip2"
+
+    def unit(self, name: str | None = None) -> ScipScanner:
+        return self.device(name)
+
+
 class Scip2Family(ScannerFamily):
     """The emulated SCIP 2.0 units, one per ``scip2`` endpoint."""
 
     name = "scip2"
+    access = ScipUnits
     joins = ("scip2",)
     device_keys = (*COMMON_DEVICE_KEYS, *SCIP_KEYS)
     models = SCIP_MODELS
     default_model = "ust-10lx"
-    profile_attrs = ("scip_units",)
-    endpoint_attrs = ("scip",)
     fault_knobs = FAULTS
     control_commands = {"scanner_status": "what the unit is doing (laser, continuous scans, clock)",
                         "scanner_fault": "turn fault knobs: " + ", ".join(FAULTS)}
@@ -99,4 +116,4 @@ class Scip2Family(ScannerFamily):
 BUS_KIND = Scip2BusKind()
 FAMILY = Scip2Family()
 
-__all__ = ["BUS_KIND", "FAMILY", "SCIP_MODELS", "Scip2BusKind", "Scip2Family"]
+__all__ = ["BUS_KIND", "FAMILY", "ScipUnits", "SCIP_MODELS", "Scip2BusKind", "Scip2Family"]

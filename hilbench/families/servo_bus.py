@@ -17,7 +17,7 @@ from typing import Any
 
 from hilbench.bench.bus import BusKind
 from hilbench.bench.checks import Checker
-from hilbench.bench.family import DeviceFamily, DeviceSpec
+from hilbench.bench.family import DeviceFamily, DeviceSpec, FamilyAccess
 from hilbench.rules import FAULT_COUNT, PROBABILITY, SWITCH, Rule
 
 #: The fault knobs every emulated servo has (profile ``faults`` tables), with their rules; a family adds its own.
@@ -56,10 +56,32 @@ class ServoBusKind(BusKind):
         return endpoint.bus.servo(address)  # by its current ID: a host may have changed it
 
 
+class ServoBusAccess(FamilyAccess):
+    """A servo family's devices on a running bench: by profile name (:meth:`device`), by ID, and their bus."""
+
+    def servo(self, servo_id: int, endpoint: str | None = None) -> Any:
+        """The family's device answering at ``servo_id`` now (a host may have changed its ID) on ``endpoint``
+        (or the only endpoint carrying the family's devices); KeyError if there is none."""
+        ep = self.endpoint(endpoint)
+        try:
+            device = ep.bus.servo(servo_id)
+        except KeyError:
+            raise KeyError(f"no {self.family.device_word} at ID {servo_id} on endpoint {ep.name!r}") from None
+        if not any(d is device for d in ep.devices_of(self.family.name).values()):
+            raise KeyError(f"ID {servo_id} on endpoint {ep.name!r} is not a {self.family.name} device")
+        return device
+
+    def bus(self, endpoint: str | None = None) -> Any:
+        """The bus object of ``endpoint`` (or of the only endpoint carrying the family's devices):
+        its ``servos``, ``stats``, ``servo(id)``."""
+        return self.endpoint(endpoint).bus
+
+
 class ServoBusFamily(DeviceFamily):
     """Servos addressed by ID on servo buses (a subclass says how its models are found)."""
 
     device_word = "servo"
+    access = ServoBusAccess
     #: A model name the "missing model" error suggests.
     example_model = ""
 
@@ -145,4 +167,4 @@ def apply_faults(servo: Any, faults: dict[str, Any], t: float) -> None:
         servo.raise_hardware_error(faults["hardware_error"], t, sticky=True)
 
 
-__all__ = ["SERVO_FAULT_RULES", "ServoBusFamily", "ServoBusKind", "ServoBusSpec", "apply_faults", "initial_values"]
+__all__ = ["SERVO_FAULT_RULES", "ServoBusAccess", "ServoBusFamily", "ServoBusKind", "ServoBusSpec", "apply_faults", "initial_values"]

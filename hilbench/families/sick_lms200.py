@@ -23,11 +23,20 @@ The LMS paces its own UART at the current link speed. Control commands:
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from hilbench.bench.checks import Checker
-from hilbench.families.scanner import COMMON_DEVICE_KEYS, ScannerBusKind, ScannerFamily, ScannerSpec
+from hilbench.families.scanner import (
+    COMMON_DEVICE_KEYS,
+    ScannerBusKind,
+    ScannerFamily,
+    ScannerSpec,
+    ScannerUnits,
+)
 from hilbench.rules import PROBABILITY, SWITCH, Rule
+
+if TYPE_CHECKING:
+    from hilbench.fakes.scanners.sick_lms200 import SickLms200
 
 LMS_MODELS = ("lms200", "LMS200", "sick-lms200")
 LMS_KEYS = ("variant", "units", "no_echo")
@@ -59,16 +68,24 @@ class SickLms200BusKind(ScannerBusKind):
         return f"sick-lms200, {baud} baud now (9600 at power-up)"
 
 
+class LmsUnits(ScannerUnits):
+    """The emulated units of a running bench: ``bench.family("sick-lms200")``."""
+
+    family_name = "sick-lms200"
+
+    def unit(self, name: str | None = None) -> SickLms200:
+        return self.device(name)
+
+
 class SickLms200Family(ScannerFamily):
     """The emulated LMS 200, one per ``sick-lms200`` endpoint."""
 
     name = "sick-lms200"
+    access = LmsUnits
     joins = ("sick-lms200",)
     device_keys = (*COMMON_DEVICE_KEYS, *LMS_KEYS)
     models = LMS_MODELS
     default_model = "lms200"
-    profile_attrs = ("lms_units",)
-    endpoint_attrs = ("lms",)
     fault_knobs = FAULTS
     control_commands = {"scanner_status": "what the unit is doing (link speed, mode, variant, units)",
                         "scanner_fault": "turn fault knobs: " + ", ".join(FAULTS)}
@@ -103,4 +120,4 @@ class SickLms200Family(ScannerFamily):
 BUS_KIND = SickLms200BusKind()
 FAMILY = SickLms200Family()
 
-__all__ = ["BUS_KIND", "FAMILY", "LMS_MODELS", "SickLms200BusKind", "SickLms200Family"]
+__all__ = ["BUS_KIND", "FAMILY", "LmsUnits", "LMS_MODELS", "SickLms200BusKind", "SickLms200Family"]

@@ -27,8 +27,8 @@ Profile schema (endpoint ``protocol = "vel2d"``, a pty or UDP)::
                                    # xrce-dds endpoint of this profile); see fakes/stm32_board/micro_ros.py
     micro_ros = { client_key = 0x60C93570, domain_id = 0, zero_after_session = false }
 
-An endpoint carries one board (a UART is point to point): ``endpoint.board``,
-``bench.board()``. The board paces its own UART, so its medium delivers at
+An endpoint carries one board (a UART is point to point):
+``bench.family("stm32-rover").board()`` (:class:`RoverBoards`). The board paces its own UART, so its medium delivers at
 once. Control commands (``hilbench board``, :class:`BoardClient`): status,
 button, reset, fault, log, wait_report.
 """
@@ -36,14 +36,17 @@ button, reset, fault, log, wait_report.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from hilbench.bench.bus import BusKind
 from hilbench.bench.checks import Checker
 from hilbench.bench.control import ControlClient, ControlError, ControlRequestError, client_waits
-from hilbench.bench.family import DeviceFamily, DeviceSpec, bench_device
+from hilbench.bench.family import DeviceFamily, DeviceSpec, FamilyAccess
 from hilbench.bench.knobs import check_fault_table, check_knobs
 from hilbench.rules import FAULT_COUNT, PROBABILITY, Rule, RuleError
+
+if TYPE_CHECKING:
+    from hilbench.fakes.stm32_board import Board
 
 #: Line rates a board endpoint accepts (bit/s); a pty does not care, the board paces its UART by it.
 BOARD_BAUD_RANGE = (1200, 12_500_000)
@@ -145,8 +148,6 @@ class Stm32RoverFamily(DeviceFamily):
     joins = ("vel2d",)
     device_keys = BOARD_KEYS
     models = BOARD_MODELS
-    endpoint_attrs = ("board",)
-    profile_attrs = ("boards",)
     device_word = "board"
     control_commands = {
         "status": "what the board is doing (preset, output, counters, recent log)",
@@ -228,7 +229,6 @@ class Stm32RoverFamily(DeviceFamily):
 
                 board.attach_link(MicroRosLink(_agent_address(bench, dev.agent), **dev.micro_ros))
             endpoint.add_device(dev.name, board)
-            endpoint.attrs["board"] = board
 
     def start(self, endpoint, devices: dict[str, Any], t: float) -> None:
         for board in devices.values():
@@ -362,14 +362,17 @@ def _agent_address(bench, agent: str):
     return find
 
 
-def _bench_board(bench, name: str | None = None):
-    """``bench.board(name=None)``: an emulated rover board by name (or the only one)."""
-    from hilbench.fakes.stm32_board import Board
+class RoverBoards(FamilyAccess):
+    """The rover boards of a running bench: ``bench.family("stm32-rover")``."""
 
-    return bench_device(bench, Board, "boards", name)
+    family_name = "stm32-rover"
+
+    def board(self, name: str | None = None) -> Board:
+        """A board by profile name, or the only one."""
+        return self.device(name)
 
 
-Stm32RoverFamily.bench_methods = {"board": _bench_board}
+Stm32RoverFamily.access = RoverBoards
 
 
 class BoardClient(ControlClient):
@@ -402,4 +405,4 @@ BUS_KIND = Vel2dBusKind()
 FAMILY = Stm32RoverFamily()
 
 __all__ = ["BOARD_BAUD", "BOARD_MODELS", "BUS_KIND", "FAMILY", "FAULT_RULES", "BoardClient", "BoardSpec",
-           "Stm32RoverFamily", "Vel2dBusKind", "board_config", "check_fault_knobs"]
+           "RoverBoards", "Stm32RoverFamily", "Vel2dBusKind", "board_config", "check_fault_knobs"]

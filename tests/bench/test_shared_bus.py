@@ -154,12 +154,17 @@ def test_a_canopen_node_of_another_family_shares_the_bus_with_the_rover_board(fa
     with Bench(profile) as bench:
         assert bench.family_of("io").name == "acme-io" and bench.family_of("rover").name == "canopen"
         assert bench.device(5) is bench.devices["io"] and bench.device(2) is bench.devices["rover"]
+        # each family's own lookups see its own devices only
+        assert bench.family("canopen").node(2) is bench.devices["rover"]
+        with pytest.raises(KeyError, match="no CANopen board at node id 5"):
+            bench.family("canopen").node(5)
+        assert bench.family("acme-io").device() is bench.devices["io"]  # a family without lookups of its own
         manifest = bench.manifest()
         assert [(d["name"], d["family"]) for d in manifest["devices"]] == [("rover", "canopen"), ("io", "acme-io")]
         assert manifest["endpoints"][0]["nodes"] == [2, 5]
         eds = tmp_path / "rover.eds"
         eds.write_text(bc.eds(bc.BoardCanConfig()), newline="")
-        net = canopen.Network(bench.can_bus())
+        net = canopen.Network(bench.endpoint("can").port.open_bus())
         net.connect()
         try:
             rover = net.add_node(2, str(eds))
@@ -220,6 +225,10 @@ def test_a_sensor_board_of_another_family_shares_the_rs485_line_with_dynamixel_s
                                                               ("ranger", "acme-sensor")]
     with Bench(profile) as bench:
         assert bench.device(50) is bench.devices["ranger"]
+        servos = bench.family("dynamixel")
+        assert servos.servo(1) is bench.device(1) and servos.bus() is bench.endpoint().bus
+        with pytest.raises(KeyError, match="ID 50 on endpoint 'bus' is not a dynamixel device"):
+            servos.servo(50)
         assert [d["family"] for d in bench.manifest()["devices"]] == ["dynamixel", "dynamixel", "acme-sensor"]
         port = sdk.PortHandler(bench.endpoint().path)
         assert port.openPort() and port.setBaudRate(1_000_000)

@@ -120,6 +120,6 @@ def test_real_vcan0_both_ways():
                 msg = bus.recv(3)
                 assert msg is not None
                 seen.add(msg.arbitration_id)
-            wait_until(lambda: bench.node(2).state_name == "OPERATIONAL")
+            wait_until(lambda: bench.family("canopen").node(2).state_name == "OPERATIONAL")
         finally:
             bus.shutdown()

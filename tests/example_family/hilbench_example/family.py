@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from hilbench.bench.family import DeviceFamily, DeviceSpec
+from hilbench.bench.family import DeviceFamily, DeviceSpec, FamilyAccess
 
 
 @dataclass
@@ -54,4 +54,15 @@ class BlinkerFamily(DeviceFamily):
         return {"blinks": device.blinks}
 
 
+class Blinkers(FamilyAccess):
+    """``bench.family("blinker")``: the blinker boards of a running bench."""
+
+    family_name = "blinker"
+
+    def blinker(self, name: str | None = None):
+        """A board by profile name, or the only one."""
+        return self.device(name)
+
+
+BlinkerFamily.access = Blinkers
 FAMILY = BlinkerFamily()
