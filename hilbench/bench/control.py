@@ -22,8 +22,9 @@ every other command belongs to a device's family
 board's ``status``, ``button``, ``reset``, ``fault``, ``log`` and
 ``wait_report``, or to an endpoint's bus kind
 (:attr:`~hilbench.bench.bus.BusKind.control_commands`, e.g. a CAN bus's
-``bus``, addressed with ``"endpoint": NAME``). ``device`` (``endpoint``) may be
-left out when one device (one endpoint) answers the command. Errors come back as ``{"ok": false, "error": "...", "exit": N}``,
+``bus``, addressed with ``"endpoint": NAME`` or a device on it). ``device``
+(``endpoint``) may be left out when one device (one endpoint) answers the
+command. Errors come back as ``{"ok": false, "error": "...", "exit": N}``,
 malformed requests included (``exit``: 2 for a request the bench cannot do as
 asked, such as an unknown device or a knob out of range, 1 when the bench or
 device failed, as :mod:`hilbench.errors`' rule says; the client raises a
@@ -673,8 +674,8 @@ class ControlServer:
         if cmd == "taps":
             return {"taps": {ep.name: {"url": ep.tap.url, **ep.tap.status()}
                              for ep in self.bench.endpoints.values() if ep.tap is not None}}
-        if "endpoint" in req or (any(cmd in c for c in self._bus_commands().values())
-                                 and not any(cmd in c for c in self._commands().values())):
+        if any(cmd in c for c in self._bus_commands().values()) and (
+                "endpoint" in req or not any(cmd in c for c in self._commands().values())):
             ep = self._endpoint(cmd, req)
             return ep.bus_kind.control(self.bench, ep, cmd, req)
         _name, device, family = self._device(cmd, req)

@@ -162,6 +162,17 @@ def test_a_canopen_node_of_another_family_shares_the_bus_with_the_rover_board(fa
         manifest = bench.manifest()
         assert [(d["name"], d["family"]) for d in manifest["devices"]] == [("rover", "canopen"), ("io", "acme-io")]
         assert manifest["endpoints"][0]["nodes"] == [2, 5]
+        # control: each device's family's commands, and the bus's own addressed by endpoint (or a device on it)
+        control = bench.serve_control()
+        assert control.handle(b'{"cmd": "devices"}') == {
+            "ok": True, "devices": {"rover": list(bench.family_of("rover").control_commands)},
+            "endpoints": {"can": ["bus"]}}
+        for request in (b'{"cmd": "bus"}', b'{"cmd": "bus", "endpoint": "can"}', b'{"cmd": "bus", "device": "io"}'):
+            reply = control.handle(request)
+            assert reply["ok"] is True and reply["bus"]["bitrate"] == 500_000, reply
+        assert control.handle(b'{"cmd": "bus", "endpoint": "nope"}')["error"] == (
+            "endpoint 'nope' has no command 'bus' (endpoints answering it: can)")
+        assert control.handle(b'{"cmd": "status", "device": "rover"}')["ok"] is True
         eds = tmp_path / "rover.eds"
         eds.write_text(bc.eds(bc.BoardCanConfig()), newline="")
         net = canopen.Network(bench.endpoint("can").port.open_bus())
