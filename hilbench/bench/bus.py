@@ -8,16 +8,16 @@ itself:
 - its **endpoint keys**: which host ports (``type``) it runs on, its line rate
   (``baud``, or ``bitrate``) and its own keys (a Dynamixel bus's
   ``protocol_version``, a CAN bus's ``bus_faults``), checked with one-line
-  errors (:meth:`check_baud`, :meth:`check_endpoint`);
+  errors (:meth:`~BusKind.check_baud`, :meth:`~BusKind.check_endpoint`);
 - the checks **across the devices** on one endpoint, whatever their families:
-  at most :attr:`max_devices`, and no address (a servo ID, a node id) taken
-  twice (:meth:`check_devices`);
+  at most :attr:`~BusKind.max_devices`, and no address (a servo ID, a node id) taken
+  twice (:meth:`~BusKind.check_devices`);
 - the **medium** kind it needs and the **shared side** its devices join
-  (:meth:`open` makes the endpoint's ``bus``, e.g. the object that decodes a
-  servo line once for every servo; :meth:`join` adds a device to it);
-- finding a device by address (:meth:`device_at`), the endpoint's manifest
-  fields and listing line (:meth:`describe_endpoint`, :meth:`summary`), and
-  **bus-level control commands** (:meth:`control`, e.g. a CAN bus's error
+  (:meth:`~BusKind.open` makes the endpoint's ``bus``, e.g. the object that decodes a
+  servo line once for every servo; :meth:`~BusKind.join` adds a device to it);
+- finding a device by address (:meth:`~BusKind.device_at`), the endpoint's manifest
+  fields and listing line (:meth:`~BusKind.describe_endpoint`, :meth:`~BusKind.summary`), and
+  **bus-level control commands** (:meth:`~BusKind.control`, e.g. a CAN bus's error
   knobs) addressed by endpoint.
 
 Devices come from :class:`~hilbench.bench.family.DeviceFamily` plug-ins chosen

@@ -1,8 +1,8 @@
 """The Dynamixel family and bus: emulated servos and boards on a multi-drop RS-485 bus (Protocol 2.0 or 1.0).
 
-:data:`BUS_KIND` is the bus (endpoint ``protocol = "dynamixel"``): its keys, the
+:data:`~hilbench.families.dynamixel.BUS_KIND` is the bus (endpoint ``protocol = "dynamixel"``): its keys, the
 :class:`~hilbench.fakes.dynamixel.bus.DynamixelBus` (or Protocol 1.0 bus) every
-device on it joins, addressed by ID. :data:`FAMILY` is the Dynamixel devices
+device on it joins, addressed by ID. :data:`~hilbench.families.dynamixel.FAMILY` is the Dynamixel devices
 (chosen by model); a lab's own board family may join the same bus.
 
 Profile schema (endpoint ``protocol = "dynamixel"``, a pty)::
@@ -274,7 +274,9 @@ class DynamixelFamily(ServoBusFamily):
         }
 
 
+#: The bus kind this module registers (entry point ``hilbench.bus_kinds``).
 BUS_KIND = DynamixelBusKind()
+#: The device family this module registers (entry point ``hilbench.families``).
 FAMILY = DynamixelFamily()
 
 __all__ = ["BUS_KIND", "DYNAMIXEL_BAUDS", "FAMILY", "DynamixelBusKind", "DynamixelFamily", "DynamixelServos",

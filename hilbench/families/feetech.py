@@ -1,6 +1,6 @@
 """The Feetech family and bus: STS/SCS serial-bus servos (the SO-100/SO-101 arms) on one bus per endpoint.
 
-:data:`BUS_KIND` is the bus (endpoint ``protocol = "feetech"``), :data:`FAMILY` the servos on it.
+:data:`~hilbench.families.feetech.BUS_KIND` is the bus (endpoint ``protocol = "feetech"``), :data:`~hilbench.families.feetech.FAMILY` the servos on it.
 
 Profile schema (endpoint ``protocol = "feetech"``, a pty)::
 
@@ -153,7 +153,9 @@ class FeetechFamily(ServoBusFamily):
         }
 
 
+#: The bus kind this module registers (entry point ``hilbench.bus_kinds``).
 BUS_KIND = FeetechBusKind()
+#: The device family this module registers (entry point ``hilbench.families``).
 FAMILY = FeetechFamily()
 
 __all__ = ["BUS_KIND", "FAMILY", "FEETECH_BAUDS", "FeetechBusKind", "FeetechFamily", "FeetechServos", "FeetechSpec"]

@@ -1,7 +1,7 @@
 """The FreeRTPS family: microcontroller boards speaking minimal RTPS on 127.0.0.1 unicast.
 
-:data:`BUS_KIND` is the RTPS net (endpoint ``protocol = "rtps"``: domain, peers, naming; nodes addressed
-by participant index), :data:`FAMILY` the boards on it.
+:data:`~hilbench.families.freertps.BUS_KIND` is the RTPS net (endpoint ``protocol = "rtps"``: domain, peers, naming; nodes addressed
+by participant index), :data:`~hilbench.families.freertps.FAMILY` the boards on it.
 
 Profile schema (endpoint ``protocol = "rtps"``, ``type = "udp"``)::
 
@@ -271,7 +271,9 @@ class FreeRtpsNodes(FamilyAccess):
 
 
 FreeRtpsFamily.access = FreeRtpsNodes
+#: The bus kind this module registers (entry point ``hilbench.bus_kinds``).
 BUS_KIND = RtpsBusKind()
+#: The device family this module registers (entry point ``hilbench.families``).
 FAMILY = FreeRtpsFamily()
 
 __all__ = ["BUS_KIND", "DEFAULT_DOMAIN", "FAMILY", "FreeRtpsFamily", "FreeRtpsNodes", "NodeSpec", "RtpsBusKind", "check_peers"]

@@ -1,7 +1,7 @@
 """The Micro XRCE-DDS agent family: what ``micro_ros_agent udp4 --port 8888`` is, on UDP 127.0.0.1.
 
-:data:`BUS_KIND` is the agent's UDP port (endpoint ``protocol = "xrce-dds"``: one agent, a default one
-when the profile lists none), :data:`FAMILY` the agent.
+:data:`~hilbench.families.micro_ros_agent.BUS_KIND` is the agent's UDP port (endpoint ``protocol = "xrce-dds"``: one agent, a default one
+when the profile lists none), :data:`~hilbench.families.micro_ros_agent.FAMILY` the agent.
 
 Profile schema (endpoint ``protocol = "xrce-dds"``, ``type = "udp"``)::
 
@@ -226,7 +226,9 @@ class MicroRosAgents(FamilyAccess):
 
 
 MicroRosAgentFamily.access = MicroRosAgents
+#: The bus kind this module registers (entry point ``hilbench.bus_kinds``).
 BUS_KIND = XrceDdsBusKind()
+#: The device family this module registers (entry point ``hilbench.families``).
 FAMILY = MicroRosAgentFamily()
 
 __all__ = ["AGENT_MODELS", "BUS_KIND", "FAMILY", "AgentSpec", "MicroRosAgentFamily", "MicroRosAgents", "XrceDdsBusKind",

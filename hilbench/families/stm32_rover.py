@@ -1,7 +1,7 @@
 """The STM32 rover family: the mecanum rover's STM32F767 FreeRTOS board behind a UART (or UDP).
 
-:data:`BUS_KIND` is its UART (endpoint ``protocol = "vel2d"``: one board, which paces its own line),
-:data:`FAMILY` the board.
+:data:`~hilbench.families.stm32_rover.BUS_KIND` is its UART (endpoint ``protocol = "vel2d"``: one board, which paces its own line),
+:data:`~hilbench.families.stm32_rover.FAMILY` the board.
 
 Profile schema (endpoint ``protocol = "vel2d"``, a pty or UDP)::
 
@@ -401,7 +401,9 @@ class BoardClient(ControlClient):
         return self.call("wait_report", device=device, timeout=timeout, after=after)
 
 
+#: The bus kind this module registers (entry point ``hilbench.bus_kinds``).
 BUS_KIND = Vel2dBusKind()
+#: The device family this module registers (entry point ``hilbench.families``).
 FAMILY = Stm32RoverFamily()
 
 __all__ = ["BOARD_BAUD", "BOARD_MODELS", "BUS_KIND", "FAMILY", "FAULT_RULES", "BoardClient", "BoardSpec",
