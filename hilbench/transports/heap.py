@@ -32,8 +32,9 @@ DELAY = 0.2
 
 _lock = threading.Lock()
 _asked = threading.Event()
-_thread: threading.Thread | None = None
 _trim = None
+#: None until the first request; then whether this C library can trim (and the thread runs).
+_can_trim: bool | None = None
 #: Trims done (for tests and status reports).
 trims = 0
 
@@ -50,16 +51,14 @@ def _malloc_trim():
 
 def give_back() -> None:
     """Ask for freed memory to go back to the system soon (never blocks; coalesced with other requests)."""
-    global _thread, _trim
+    global _can_trim, _trim
     with _lock:
-        if _thread is None:
+        if _can_trim is None:
             _trim = _malloc_trim()
-            if _trim is None:
-                _thread = threading.Thread()  # (a stand-in never started: nothing to do here)
-                return
-            _thread = threading.Thread(target=_run, name="hilbench-heap", daemon=True)
-            _thread.start()
-        elif _trim is None:
+            _can_trim = _trim is not None
+            if _can_trim:
+                threading.Thread(target=_run, name="hilbench-heap", daemon=True).start()
+        if not _can_trim:
             return
     _asked.set()
 
