@@ -92,6 +92,11 @@ class UartTx:
     def idle(self) -> bool:
         return self._pending == 0
 
+    @property
+    def waiting(self) -> int:
+        """Pieces handed to :meth:`send` and not yet on the wire (a whole write is one)."""
+        return self._pending
+
     def cancel(self, now: float | None = None) -> None:
         """Drop everything queued and not yet on the wire; the line is free from ``now``."""
         self.epoch += 1
