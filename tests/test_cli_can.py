@@ -198,7 +198,10 @@ def test_monitor_a_live_bench_with_faults(can_bench):
     proc = subprocess.Popen([sys.executable, "-m", "hilbench.cli", "monitor", f"{url}?bitrate=500000", "--summary",
                              "--json", "--seconds", "4.5"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True, cwd=REPO)
-    time.sleep(1.0)
+    # The monitor's socketcand client must be in raw mode before the heartbeat (and the errors) come back.
+    control = ControlClient.from_manifest(manifest)
+    wait_until(lambda: control.media()["can"]["host"]["socketcand"]["modes"].get("raw", 0) >= 1, timeout=20,
+               interval=0.05)
     assert hb("can", "fault", "--manifest", manifest, "heartbeat_stop=false").returncode == 0
     out, err = proc.communicate(timeout=30)
     assert proc.returncode == 0, err

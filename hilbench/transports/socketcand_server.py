@@ -208,8 +208,12 @@ class SocketcandServer(CanDoor):
         return {"host": host, "port": port, "channel": self.channel, "max_clients": self.listener.max_clients}
 
     def status(self) -> dict[str, Any]:
-        """Clients, limits and what was refused or dropped, for status reports (control ``media``)."""
-        return {"url": self.url, "clients": len(self.clients), **self.listener.status(),
+        """Clients (and how many are in each mode: ``{"raw": 1}``), limits and what was refused or dropped, for
+        status reports (control ``media``)."""
+        modes: dict[str, int] = {}
+        for client in list(self.clients):  # (a copy: the medium's thread changes the list)
+            modes[client.mode] = modes.get(client.mode, 0) + 1
+        return {"url": self.url, "clients": len(self.clients), "modes": modes, **self.listener.status(),
                 "malformed": self.malformed, "out_of_range": self.out_of_range, "too_many": self.too_many,
                 "frames_dropped": self.frames_dropped, "stalled": self.stalled, "queued_bytes": self.queued,
                 "max_pending": MAX_PENDING, "max_pending_total": MAX_PENDING_TOTAL}
