@@ -22,13 +22,13 @@ import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
-from typing import BinaryIO, NamedTuple
+from typing import BinaryIO
 
 import numpy as np
 
-from hilbench.errors import FormatError
 from hilbench.protocols import capture as cap
 from hilbench.protocols.capture import MAX_PAYLOAD, RECORD_HEADER_SIZE, CaptureInfo, Flags, RecordKind
+from hilbench.transports.chunk import CaptureError, Chunk
 
 #: Read size for files; also the chunk size of raw dumps without a baud rate.
 READ_SIZE = 65536
@@ -36,25 +36,6 @@ READ_SIZE = 65536
 RAW_TIMED_CHUNK = 64
 #: Source name of a raw dump's bytes.
 RAW_SOURCE = "bus"
-
-
-class Chunk(NamedTuple):
-    """Bytes ``data`` that ``source`` put on the bus, complete at time ``t`` (seconds).
-
-    ``lost`` > 0 (with empty ``data``) reports that many bytes of ``source``
-    lost before they reached the reader. ``addr`` is set for a datagram:
-    ``(source host, source port, destination host, destination port)``.
-    """
-
-    t: float
-    source: str
-    data: bytes
-    lost: int = 0
-    addr: tuple[str, int, str, int] | None = None
-
-
-class CaptureError(FormatError):
-    """A capture that cannot be read; the message is one line."""
 
 
 def _open_in(target: str | os.PathLike[str] | BinaryIO) -> tuple[BinaryIO, bool]:
@@ -90,12 +71,6 @@ _ADDRESS = int(RecordKind.ADDRESS)
 _ADDRESS_SIZES = (13, 37)
 _HEAD = RECORD_HEADER_SIZE
 _MAX_STEP_NS = int(MAX_TIME_STEP * 1e9)
-
-
-def sound_quality() -> dict:
-    """The data quality of an input without damage (the shape of :meth:`CaptureParser.quality`)."""
-    return {"truncated_bytes": 0, "corrupt_bytes": 0, "corruptions": 0, "time_faults": 0, "time_resets": 0,
-            "unknown_records": 0, "findings": []}
 
 
 def _utf8(data: bytes) -> bool:

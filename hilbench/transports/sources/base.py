@@ -19,7 +19,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from hilbench.errors import HilbenchError, UnavailableError
-from hilbench.transports.capture_file import Chunk, sound_quality
+from hilbench.transports.chunk import Chunk, sound_quality
 
 
 class SourceError(HilbenchError, ValueError):
