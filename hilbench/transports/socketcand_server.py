@@ -63,7 +63,7 @@ from typing import Any
 from hilbench.protocols import can_frame as cf
 from hilbench.protocols import socketcand as sc
 from hilbench.protocols.can_frame import CanFrame
-from hilbench.transports.can_port import CanDoor
+from hilbench.transports.can_door import CanDoor
 from hilbench.transports.listener import BACKLOG, Listener
 
 log = logging.getLogger(__name__)
