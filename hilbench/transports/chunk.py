@@ -38,7 +38,7 @@ class CaptureError(FormatError):
 
 def sound_quality() -> dict:
     """The data quality of an input without damage (the shape of
-    :meth:`~hilbench.transports.capture_file.CaptureParser.quality`)."""
+    :meth:`~hilbench.transports.capture_parser.CaptureParser.quality`)."""
     return {"truncated_bytes": 0, "corrupt_bytes": 0, "corruptions": 0, "time_faults": 0, "time_resets": 0,
             "unknown_records": 0, "findings": []}
 

@@ -7,7 +7,8 @@ import io
 import pytest
 
 from hilbench.protocols import capture as cap
-from hilbench.transports.capture_file import CaptureParser, CaptureReader, CaptureWriter
+from hilbench.transports.capture_file import CaptureReader, CaptureWriter
+from hilbench.transports.capture_parser import CaptureParser
 from hilbench.transports.chunk import CaptureError, Chunk
 
 

@@ -62,7 +62,7 @@ class Source:
 
     def quality(self) -> dict[str, Any]:
         """Damage found in the input so far: counters and one-line ``findings`` (truncation, corruption,
-        times out of order; see :class:`~hilbench.transports.capture_file.CaptureParser`). Sources that
+        times out of order; see :class:`~hilbench.transports.capture_parser.CaptureParser`). Sources that
         carry no capture format have nothing to report."""
         return sound_quality()
 
