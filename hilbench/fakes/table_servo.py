@@ -13,7 +13,7 @@ error bits.
 What the registers do:
 
 - Goal Position moves the horn (velocity- and acceleration-limited, see
-  :mod:`hilbench.fakes.dynamixel.motion`); a goal outside the angle limits is
+  :mod:`hilbench.fakes.motion`); a goal outside the angle limits is
   clamped to them (and reported as an angle-limit error where the protocol
   has one). Both angle limits 0 (AX/MX) or a wheel Control/Operating Mode
   turn the speed register into a signed wheel speed.
