@@ -20,7 +20,7 @@ from hilbench.errors import UsageError
 from hilbench.protocols import board_can as bc
 from hilbench.protocols import can_frame as cf
 from hilbench.pytest_plugin import wait_until
-from hilbench.transports.capture_file import Chunk
+from hilbench.transports.chunk import Chunk
 from hilbench.transports.sources import open_source
 from tests.conftest import REPO, interrupt
 

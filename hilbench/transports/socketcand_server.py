@@ -72,7 +72,7 @@ from typing import Any
 from hilbench.protocols import can_frame as cf
 from hilbench.protocols import socketcand as sc
 from hilbench.protocols.can_frame import CanFrame
-from hilbench.transports.can_port import CanDoor
+from hilbench.transports.can_door import CanDoor
 from hilbench.transports.client_limit import Eviction, ReadWatch
 from hilbench.transports.heap import Ebb
 from hilbench.transports.listener import BACKLOG, Listener, refuse

@@ -20,7 +20,8 @@ from hilbench.bench import Bench
 from hilbench.protocols import dynamixel as dxl
 from hilbench.pytest_plugin import wait_until
 from hilbench.transports import tap_server
-from hilbench.transports.capture_file import CaptureParser, Chunk
+from hilbench.transports.capture_parser import CaptureParser
+from hilbench.transports.chunk import Chunk
 from hilbench.transports.sources import (
     FileSource,
     PushSource,

@@ -1,6 +1,6 @@
 """Byte sources for instruments: where traffic comes from, as timestamped chunks.
 
-Every source yields :class:`~hilbench.transports.capture_file.Chunk` s
+Every source yields :class:`~hilbench.transports.chunk.Chunk` s
 ``(t, source, data)``: the bytes one party put on the medium, complete at
 time ``t`` (seconds, ``time.monotonic()`` for live data, the recording's own
 clock for captures). The monitor, the recorder and the trace profiler consume
@@ -39,7 +39,7 @@ from pathlib import Path
 from urllib.parse import urlparse
 
 from hilbench import registry
-from hilbench.transports.capture_file import Chunk
+from hilbench.transports.chunk import Chunk
 from hilbench.transports.sources.base import (
     MediumSource,
     PeekedSource,

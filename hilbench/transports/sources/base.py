@@ -19,7 +19,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from hilbench.errors import HilbenchError, UnavailableError
-from hilbench.transports.capture_file import Chunk, sound_quality
+from hilbench.transports.chunk import Chunk, sound_quality
 
 
 class SourceError(HilbenchError, ValueError):
@@ -62,7 +62,7 @@ class Source:
 
     def quality(self) -> dict[str, Any]:
         """Damage found in the input so far: counters and one-line ``findings`` (truncation, corruption,
-        times out of order; see :class:`~hilbench.transports.capture_file.CaptureParser`). Sources that
+        times out of order; see :class:`~hilbench.transports.capture_parser.CaptureParser`). Sources that
         carry no capture format have nothing to report."""
         return sound_quality()
 

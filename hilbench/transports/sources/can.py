@@ -31,7 +31,7 @@ from typing import Any
 from urllib.parse import parse_qs, urlparse
 
 from hilbench.protocols import can_frame as cf
-from hilbench.transports.capture_file import Chunk
+from hilbench.transports.chunk import Chunk
 from hilbench.transports.sources.base import (
     PushSource,
     ReplaySource,
