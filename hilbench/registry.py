@@ -25,6 +25,9 @@ kind                   entry-point group          the object an entry point name
 :data:`servers`        ``hilbench.servers``       a :class:`~hilbench.bench.server.Server` (``emulate --serve``)
 :data:`recorders`      ``hilbench.recorders``     a recording format: ``accepts(path, protocol)``,
                                                   ``open(path, source=..., description=...)``
+:data:`inferrers`      ``hilbench.inferrers``     a :class:`~hilbench.bench.capture_profile.Inferrer`: a
+                                                  profile from a capture of its traffic
+                                                  (``profiles from-capture``)
 =====================  =========================  =============================================
 
 Entry points load on first use of their kind. A plug-in that fails to load
@@ -175,9 +178,10 @@ verbs = Kind("verbs", "hilbench.verbs", what="verb module")
 fuzz_targets = Kind("fuzz_targets", "hilbench.fuzz_targets", what="fuzz target")
 servers = Kind("servers", "hilbench.servers", what="server")
 recorders = Kind("recorders", "hilbench.recorders", what="recording format")
+inferrers = Kind("inferrers", "hilbench.inferrers", what="profile inferrer")
 
 KINDS: tuple[Kind, ...] = (families, host_ports, media, sources, instruments, verbs, fuzz_targets, servers,
-                            recorders)
+                            recorders, inferrers)
 
 
 def reload() -> None:
@@ -205,4 +209,4 @@ def instrument_for(protocol: str) -> Any | None:
 
 
 __all__ = ["KINDS", "Kind", "PluginWarning", "families", "family_for_protocol", "fuzz_targets", "host_ports",
-           "instrument_for", "instruments", "media", "recorders", "reload", "servers", "sources", "verbs"]
+           "inferrers", "instrument_for", "instruments", "media", "recorders", "reload", "servers", "sources", "verbs"]

@@ -1,0 +1,222 @@
+"""``--verify``: replay a capture's host requests against the bench a generated profile describes.
+
+An inferrer hands the core a :class:`Replay`: the host's requests in capture
+order, each with the replies the capture shows (:class:`Exchange`,
+:class:`Expected`). :meth:`Replay.run` sends the requests to a running bench
+at the captured pace (``speed`` 1.0; None: as fast as the bench answers) and
+compares what comes back: the same device, the same length, and the same
+bytes where the state can be the same (an :class:`Expected`'s ``mask`` says
+which bytes: a position that moved under the bench's motion model is compared
+by length only). :class:`SerialReplay` does it on a serial endpoint (a pty);
+a bus of frames brings its own :class:`Replay`.
+"""
+
+from __future__ import annotations
+
+import os
+import select
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+#: Mismatches kept for the report (the first ones).
+MAX_SHOWN = 10
+#: How long a reply the capture shows may take beyond its wire time (a bench thread waking up, a loaded machine).
+REPLY_TIMEOUT = 0.05
+#: How long to listen after a request the capture shows no reply to (the bench might answer it anyway).
+QUIET = 0.0005
+
+
+@dataclass(frozen=True)
+class Expected:
+    """A reply the capture shows: who sent it, its bytes, and which of them must match (``mask``: 0xFF where
+    the byte is compared; None: the length only)."""
+
+    device: Any
+    raw: bytes
+    mask: bytes | None = None
+
+
+@dataclass(frozen=True)
+class Exchange:
+    """A host request at capture time ``t`` and the replies the capture shows to it, in order."""
+
+    t: float
+    request: bytes
+    expected: tuple[Expected, ...]
+    label: str
+    #: Wire time of the request and its replies at the bus's rate (s), added to the reply timeout.
+    wire: float = 0.0
+
+
+class Splitter(Protocol):
+    """Splits what the bench sends back into ``(device, raw packet)`` pairs (keeps partial packets)."""
+
+    def feed(self, data: bytes) -> list[tuple[Any, bytes]]: ...
+
+
+@dataclass
+class VerifyReport:
+    """How the bench's replies compare with the captured ones."""
+
+    endpoint: str
+    requests: int = 0
+    #: Captured replies to the replayed requests (the denominator).
+    replies: int = 0
+    matched_content: int = 0
+    matched_length: int = 0
+    different: int = 0
+    missing: int = 0
+    #: Replies the bench gave where the capture shows none (not counted against the ratio).
+    extra: int = 0
+    seconds: float = 0.0
+    span: float | None = None
+    mismatches: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def matched(self) -> int:
+        return self.matched_content + self.matched_length
+
+    @property
+    def ratio(self) -> float:
+        return self.matched / self.replies if self.replies else 1.0
+
+    def mismatch(self, text: str) -> None:
+        if len(self.mismatches) < MAX_SHOWN:
+            self.mismatches.append(text)
+
+    def lines(self) -> list[str]:
+        """The report as a person reads it."""
+        out = [f"verify {self.endpoint}: {self.matched} of {self.replies} captured replies match "
+               f"({100 * self.ratio:.1f} %) after {self.requests} replayed requests: {self.matched_content} "
+               f"by content, {self.matched_length} by length where values move"]
+        if self.different or self.missing or self.extra:
+            out.append(f"  different {self.different}, missing {self.missing}, extra {self.extra} (the bench "
+                       "answered where the capture shows no reply)")
+        took = f"  took {self.seconds:.2f} s"
+        if self.span is not None:
+            took += f" (the capture spans {self.span:.2f} s)"
+        out.append(took)
+        out += [f"  {note}" for note in self.notes]
+        if self.mismatches:
+            out.append("  first mismatches:")
+            out += [f"    {m}" for m in self.mismatches]
+        return out
+
+    def to_json(self) -> dict[str, Any]:
+        return {"endpoint": self.endpoint, "requests": self.requests, "replies": self.replies,
+                "matched": self.matched, "matched_content": self.matched_content,
+                "matched_length": self.matched_length, "different": self.different, "missing": self.missing,
+                "extra": self.extra, "ratio": round(self.ratio, 4), "seconds": round(self.seconds, 3),
+                "mismatches": self.mismatches, "notes": self.notes}
+
+
+class Replay(Protocol):
+    """What an inferrer hands ``--verify``."""
+
+    def run(self, bench: Any, *, speed: float | None = 1.0) -> VerifyReport: ...
+
+
+def compare(report: VerifyReport, ex: Exchange, got: list[tuple[Any, bytes]], name: Callable[[Any], str]) -> None:
+    """Count one exchange's replies into ``report``: each expected reply against the first unused reply from
+    the same device."""
+    used = [False] * len(got)
+    for exp in ex.expected:
+        report.replies += 1
+        k = next((i for i, (dev, _) in enumerate(got) if not used[i] and dev == exp.device), None)
+        if k is None:
+            report.missing += 1
+            report.mismatch(f"{ex.label}: no reply from {name(exp.device)} (captured {len(exp.raw)} bytes: "
+                            f"{exp.raw.hex(' ')})")
+            continue
+        used[k] = True
+        raw = got[k][1]
+        if len(raw) != len(exp.raw):
+            report.different += 1
+            report.mismatch(f"{ex.label}: {name(exp.device)} sent {len(raw)} bytes, the capture {len(exp.raw)}: "
+                            f"{raw.hex(' ')} / {exp.raw.hex(' ')}")
+        elif exp.mask is None:
+            report.matched_length += 1
+        elif all((a ^ b) & m == 0 for a, b, m in zip(raw, exp.raw, exp.mask, strict=True)):
+            if 0 in exp.mask:
+                report.matched_length += 1  # the rest of its bytes matched
+            else:
+                report.matched_content += 1
+        else:
+            report.different += 1
+            report.mismatch(f"{ex.label}: {name(exp.device)} sent {raw.hex(' ')}, the capture {exp.raw.hex(' ')}")
+    report.extra += used.count(False)
+
+
+class SerialReplay:
+    """A capture's exchanges replayed on a serial endpoint of a bench (its pty, opened as a host would)."""
+
+    def __init__(self, endpoint: str, exchanges: list[Exchange], splitter: Callable[[], Splitter], *,
+                 name: Callable[[Any], str] = lambda dev: f"ID {dev}", span: float | None = None,
+                 notes: list[str] | None = None) -> None:
+        self.endpoint = endpoint
+        self.exchanges = exchanges
+        self.splitter = splitter
+        self.name = name
+        self.span = span
+        self.notes = list(notes or [])
+
+    def run(self, bench: Any, *, speed: float | None = 1.0) -> VerifyReport:
+        """Send every request at its captured time (divided by ``speed``; None: at once after the previous
+        exchange) to ``bench``'s endpoint and compare the replies."""
+        import serial
+
+        ep = bench.endpoint(self.endpoint)
+        report = VerifyReport(self.endpoint, span=self.span, notes=list(self.notes))
+        port = serial.Serial(ep.path, baudrate=ep.spec.baud or 9600, timeout=0)
+        split = self.splitter()
+        fd = port.fileno()
+        started = time.monotonic()
+        try:
+            port.reset_input_buffer()
+            t0 = self.exchanges[0].t if self.exchanges else 0.0
+            for k, ex in enumerate(self.exchanges):
+                if speed is not None:
+                    wait = started + (ex.t - t0) / speed - time.monotonic()
+                    if wait > 0:
+                        time.sleep(wait)
+                os.write(fd, ex.request)
+                report.requests += 1
+                now = time.monotonic()
+                if ex.expected:
+                    deadline = now + REPLY_TIMEOUT + ex.wire
+                else:  # listen until the next request is due, briefly
+                    nxt = self.exchanges[k + 1].t if k + 1 < len(self.exchanges) else ex.t
+                    due = started + (nxt - t0) / speed if speed is not None else now
+                    deadline = min(max(due, now + QUIET), now + QUIET + ex.wire)
+                got = _collect(fd, split, len(ex.expected), deadline)
+                compare(report, ex, got, self.name)
+        finally:
+            port.close()
+        report.seconds = time.monotonic() - started
+        return report
+
+
+def _collect(fd: int, split: Splitter, wanted: int, deadline: float) -> list[tuple[Any, bytes]]:
+    """Replies read from ``fd`` until ``wanted`` arrived (0: until ``deadline``) or ``deadline`` passed."""
+    got: list[tuple[Any, bytes]] = []
+    while True:
+        left = deadline - time.monotonic()
+        if left <= 0 or (wanted and len(got) >= wanted):
+            return got
+        ready, _, _ = select.select([fd], [], [], left)
+        if not ready:
+            return got
+        try:
+            data = os.read(fd, 65536)
+        except BlockingIOError:
+            continue
+        except OSError:  # the bench went away
+            return got
+        if data:
+            got.extend(split.feed(data))
+
+
+__all__ = ["Exchange", "Expected", "Replay", "SerialReplay", "Splitter", "VerifyReport", "compare"]
