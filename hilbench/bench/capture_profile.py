@@ -95,7 +95,15 @@ class Table:
         return next((e.value for e in self.entries if e.key == key), default)
 
     def as_dict(self) -> dict[str, Any]:
-        return {e.key: e.value for e in self.entries}
+        return {e.key: _plain(e.value) for e in self.entries}
+
+
+def _plain(value: Any) -> Any:
+    if isinstance(value, Commented):
+        return _plain(value.value)
+    if isinstance(value, list | tuple):
+        return [_plain(v) for v in value]
+    return value
 
 
 @dataclass
@@ -225,9 +233,23 @@ def toml_value(value: Any) -> str:
     if isinstance(value, dict):
         return "{ " + ", ".join(f"{toml_key(k)} = {toml_value(v)}" for k, v in value.items()) + " }" \
             if value else "{}"
+    if isinstance(value, Commented):
+        return toml_value(value.value)
     if isinstance(value, list | tuple):
         return "[" + ", ".join(toml_value(v) for v in value) + "]"
     raise TypeError(f"no TOML for {type(value).__name__}")
+
+
+class Commented:
+    """An array item with a comment after it (the array is then written one item a line)."""
+
+    def __init__(self, value: Any, note: str) -> None:
+        self.value = value
+        self.note = note
+
+
+#: An array whose one-line text is longer than this is written one item a line.
+WRAP = 100
 
 
 class Hex(int):
@@ -250,7 +272,18 @@ def _table_lines(header: str, table: Table) -> list[str]:
     body = [header]
     width = max((len(toml_key(e.key)) for e in table.entries), default=0)
     for e in table.entries:
-        text = f"{toml_key(e.key):<{width}} = {toml_value(e.value)}"
+        one = toml_value(e.value)
+        items = e.value if isinstance(e.value, list | tuple) else None
+        if items and (len(one) > WRAP or any(isinstance(v, Commented) for v in items)):
+            body.append(f"{toml_key(e.key):<{width}} = [" + (f"   # {e.note}" if e.note else ""))
+            for v in items:
+                line = f"  {toml_value(v)},"
+                if isinstance(v, Commented) and v.note:
+                    line += f"   # {v.note}"
+                body.append(line)
+            body.append("]")
+            continue
+        text = f"{toml_key(e.key):<{width}} = {one}"
         if e.note:
             text = f"{text}   # {e.note}"
         body.append(text)
@@ -330,5 +363,5 @@ def id_ranges(ids: Iterable[int]) -> str:
     return ", ".join(parts)
 
 
-__all__ = ["Entry", "Hex", "InferOptions", "InferenceSession", "Inferrer", "ProfileDraft", "SourceFacts", "Table",
+__all__ = ["Commented", "Entry", "Hex", "InferOptions", "InferenceSession", "Inferrer", "ProfileDraft", "SourceFacts", "Table",
            "check_profile_text", "describe_source", "id_ranges", "infer", "inferrer_for", "render", "toml_value"]

@@ -7,14 +7,19 @@ at the captured pace (``speed`` 1.0; None: as fast as the bench answers) and
 compares what comes back: the same device, the same length, and the same
 bytes where the state can be the same (an :class:`Expected`'s ``mask`` says
 which bytes: a position that moved under the bench's motion model is compared
-by length only). :class:`SerialReplay` does it on a serial endpoint (a pty);
-a bus of frames brings its own :class:`Replay`.
+by length only). :class:`SerialReplay` does it on a serial endpoint (a pty),
+:class:`FrameReplay` on a CAN endpoint (frames in and out through python-can's
+virtual interface), where it also checks the periodic frames the capture
+shows (:class:`Stream`: heartbeats, PDOs) for their period and length.
 """
 
 from __future__ import annotations
 
 import os
+import queue
 import select
+import statistics
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -155,8 +160,10 @@ class SerialReplay:
 
     def __init__(self, endpoint: str, exchanges: list[Exchange], splitter: Callable[[], Splitter], *,
                  name: Callable[[Any], str] = lambda dev: f"ID {dev}", span: float | None = None,
-                 notes: list[str] | None = None) -> None:
+                 notes: list[str] | None = None, t0: float | None = None) -> None:
         self.endpoint = endpoint
+        #: The capture's start: the first request waits as long after it as it came in the capture.
+        self.t0 = t0
         self.exchanges = exchanges
         self.splitter = splitter
         self.name = name
@@ -176,7 +183,7 @@ class SerialReplay:
         started = time.monotonic()
         try:
             port.reset_input_buffer()
-            t0 = self.exchanges[0].t if self.exchanges else 0.0
+            t0 = self.t0 if self.t0 is not None else self.exchanges[0].t if self.exchanges else 0.0
             for k, ex in enumerate(self.exchanges):
                 if speed is not None:
                     wait = started + (ex.t - t0) / speed - time.monotonic()
@@ -219,4 +226,133 @@ def _collect(fd: int, split: Splitter, wanted: int, deadline: float) -> list[tup
             got.extend(split.feed(data))
 
 
-__all__ = ["Exchange", "Expected", "Replay", "SerialReplay", "Splitter", "VerifyReport", "compare"]
+@dataclass(frozen=True)
+class Stream:
+    """A frame the capture shows at a steady period: its identifier, period (s), length, and payload where it
+    never changed (None: compared by length)."""
+
+    can_id: int
+    period: float
+    length: int
+    data: bytes | None
+    label: str
+
+
+#: A stream's period on the bench may differ from the captured one by this share (or 2 ms).
+PERIOD_TOLERANCE = 0.1
+
+
+class FrameReplay:
+    """A capture's exchanges replayed on a CAN endpoint of a bench: each request a 16-byte frame record
+    (:mod:`hilbench.protocols.can_frame`), each expected reply the data of a frame from identifier ``device``;
+    the periodic :class:`Stream` s are compared after the replay (each counts as one reply)."""
+
+    def __init__(self, endpoint: str, exchanges: list[Exchange], streams: list[Stream], *,
+                 span: float | None = None, notes: list[str] | None = None, settle: float = 0.0,
+                 t0: float | None = None) -> None:
+        self.endpoint = endpoint
+        #: The capture's start: the first request waits as long after it as it came in the capture.
+        self.t0 = t0
+        self.exchanges = exchanges
+        self.streams = streams
+        self.span = span
+        self.notes = list(notes or [])
+        #: Seconds to keep listening after the last request (so the slowest stream shows its period).
+        self.settle = settle
+
+    def run(self, bench: Any, *, speed: float | None = 1.0) -> VerifyReport:
+        import can
+
+        from hilbench.protocols import can_frame as cf
+        from hilbench.transports.can_messages import to_frame, to_message
+
+        ep = bench.endpoint(self.endpoint)
+        channel = ep.port.open_virtual()
+        bus = can.Bus(interface="virtual", channel=channel)
+        report = VerifyReport(self.endpoint, span=self.span, notes=list(self.notes))
+        frames: queue.Queue = queue.Queue()
+        seen: dict[int, list[tuple[float, bytes]]] = {}
+        stop = threading.Event()
+
+        def receive() -> None:
+            while not stop.is_set():
+                msg = bus.recv(0.05)
+                if msg is None:
+                    continue
+                frame = to_frame(msg)
+                if frame is None or frame.error:
+                    continue
+                now = time.monotonic()
+                frames.put((frame.can_id, frame.data))
+                times = seen.setdefault(frame.can_id, [])
+                if len(times) < 100_000:
+                    times.append((now, frame.data))
+
+        thread = threading.Thread(target=receive, name="verify-can", daemon=True)
+        thread.start()
+        started = time.monotonic()
+        try:
+            t0 = self.t0 if self.t0 is not None else self.exchanges[0].t if self.exchanges else 0.0
+            for ex in self.exchanges:
+                if speed is not None:
+                    wait = started + (ex.t - t0) / speed - time.monotonic()
+                    if wait > 0:
+                        time.sleep(wait)
+                wanted = {e.device for e in ex.expected}
+                while not frames.empty():  # what came before this request is no reply to it
+                    frames.get_nowait()
+                bus.send(to_message(cf.unpack(ex.request)))
+                report.requests += 1
+                got: list[tuple[Any, bytes]] = []
+                deadline = time.monotonic() + REPLY_TIMEOUT + ex.wire
+                while len(got) < len(ex.expected):
+                    left = deadline - time.monotonic()
+                    if left <= 0:
+                        break
+                    try:
+                        can_id, data = frames.get(timeout=left)
+                    except queue.Empty:
+                        break
+                    if can_id in wanted:
+                        got.append((can_id, data))
+                compare(report, ex, got, lambda dev: f"0x{dev:03X}")
+            longest = max((s.period for s in self.streams), default=0.0)
+            end = time.monotonic() + max(self.settle, 3 * longest) if self.streams else time.monotonic()
+            while time.monotonic() < end:
+                time.sleep(min(0.05, max(0.0, end - time.monotonic())))
+        finally:
+            stop.set()
+            thread.join(timeout=2)
+            bus.shutdown()
+        for st in self.streams:
+            self._stream(report, st, seen.get(st.can_id, []))
+        report.seconds = time.monotonic() - started
+        return report
+
+    @staticmethod
+    def _stream(report: VerifyReport, st: Stream, times: list[tuple[float, bytes]]) -> None:
+        report.replies += 1
+        if len(times) < 3:
+            report.missing += 1
+            report.mismatch(f"{st.label}: {len(times)} frame(s) on the bench, the capture shows one every "
+                            f"{1e3 * st.period:.1f} ms")
+            return
+        intervals = [b[0] - a[0] for a, b in zip(times, times[1:], strict=False)]
+        period = statistics.median(intervals)
+        lengths = {len(d) for _, d in times}
+        if abs(period - st.period) > max(PERIOD_TOLERANCE * st.period, 0.002) or lengths != {st.length}:
+            report.different += 1
+            report.mismatch(f"{st.label}: every {1e3 * period:.1f} ms with {sorted(lengths)} bytes on the bench, "
+                            f"every {1e3 * st.period:.1f} ms with {st.length} in the capture")
+        elif st.data is not None and any(d != st.data for _, d in times):
+            report.different += 1
+            report.mismatch(f"{st.label}: the bench sent {times[-1][1].hex(' ')}, the capture always "
+                            f"{st.data.hex(' ')}")
+        elif st.data is None:
+            report.matched_length += 1
+        else:
+            report.matched_content += 1
+
+
+__all__ = ["Exchange", "Expected", "FrameReplay", "Replay", "SerialReplay", "Splitter", "Stream", "VerifyReport",
+           "compare"]

@@ -79,11 +79,23 @@ def cmd_from_capture(args: argparse.Namespace) -> int:
         write_output(out, text)
         print(f"wrote {out}: {len(draft.devices)} device entr{'y' if len(draft.devices) == 1 else 'ies'} "
               f"from {facts.name} in {inferred:.2f} s", file=sys.stderr)
-    elif not args.verify or not args.json:
+    elif not args.json:
         write_output(None, text)
-    if not args.verify:
-        return 0
-    return _verify(args, draft, profile)
+    report = _verify(args, draft, profile) if args.verify else None
+    if args.json:
+        doc = {"capture": facts.name, "protocol": facts.protocol, "baud": facts.baud, "timestamps": facts.timestamps,
+               "profile": out if out not in (None, "-") else None, "devices": len(draft.devices),
+               "seen": draft.seen, "guessed": draft.guessed, "contradictions": draft.contradictions,
+               "unread": draft.unread, "pattern": draft.pattern, "seconds": round(inferred, 3),
+               "verify": report.to_json() if report is not None else None}
+        if out in (None, "-"):
+            doc["text"] = text
+        print(json.dumps(doc, indent=1))
+    if report is not None and report.ratio < args.min_ratio:
+        print(f"hilbench: verify: {100 * report.ratio:.1f} % of the replies match, less than "
+              f"{100 * args.min_ratio:.0f} %", file=sys.stderr)
+        return VERIFY_FAILED
+    return 0
 
 
 def _argv(args: argparse.Namespace) -> list[str]:
@@ -100,7 +112,8 @@ def _argv(args: argparse.Namespace) -> list[str]:
     return out
 
 
-def _verify(args: argparse.Namespace, draft, profile) -> int:
+def _verify(args: argparse.Namespace, draft, profile):
+    """Start the bench the profile describes and replay the capture against it; the report."""
     from hilbench.bench import Bench
 
     if draft.replay is None:
@@ -108,16 +121,10 @@ def _verify(args: argparse.Namespace, draft, profile) -> int:
     speed = None if args.speed == 0 else args.speed
     with Bench(profile).start() as bench:
         report = draft.replay.run(bench, speed=speed)
-    if args.json:
-        print(json.dumps(report.to_json(), indent=1))
-    else:
+    if not args.json:  # (the profile may be on stdout: the report goes where it does not mix with it)
         for line in report.lines():
             print(line, file=sys.stderr if args.output in (None, "-") else sys.stdout)
-    if report.ratio < args.min_ratio:
-        print(f"hilbench: verify: {100 * report.ratio:.1f} % of the replies match, less than "
-              f"{100 * args.min_ratio:.0f} %", file=sys.stderr)
-        return VERIFY_FAILED
-    return 0
+    return report
 
 
 def add_commands(profiles: argparse.ArgumentParser) -> None:
@@ -148,7 +155,8 @@ def add_commands(profiles: argparse.ArgumentParser) -> None:
                    help="--verify: replay speed (1: the captured pace; 0: as fast as the bench answers)")
     p.add_argument("--min-ratio", type=RATIO, default=0.0,
                    help=f"--verify: exit {VERIFY_FAILED} when fewer replies match (0..1)")
-    p.add_argument("--json", action="store_true", help="--verify: print the report as JSON")
+    p.add_argument("--json", action="store_true", help="print one JSON document: what was seen and guessed, the "
+                                                      "profile's text (without -o) and --verify's report")
     p.set_defaults(func=cmd_from_capture)
 
 

@@ -838,8 +838,7 @@ class _Drafter:
             if lvl != srl.default:
                 init[srl.key] = lvl
                 notes.append(f"{srl.key} = {lvl}: {why}")
-            else:
-                notes.append(f"{srl.key} {lvl} (the default): {why}")
+
         elif srl is not None and srl.address in first_by_field and level is not None:
             read = first_by_field[srl.address][1]
             lvl, why = level
@@ -873,7 +872,7 @@ class _Drafter:
             lo, hi = d.position_range(model)
             if lo <= actual <= hi:
                 table.set(d.position_key, actual, "the first Present Position read" +
-                          (f", less the Homing Offset {offset}" if offset else ""))
+                          (f", with its Homing Offset {offset}" if offset else ""))
             else:
                 draft.contradictions.append(f"ID {dev.id}: the first Present Position read ({pos}) is no position "
                                             f"this servo can have ({lo}..{hi}): not applied")
@@ -1105,6 +1104,16 @@ class _Drafter:
         self.endpoint_baud = baud
         return table
 
+    def _endpoint_name(self) -> str:
+        """The host's side's name in the capture (a bench's endpoint name), else the dialect's."""
+        import re
+
+        names = collections.Counter(p.req.source for p in self.s.exchanges[:1000])
+        name = names.most_common(1)[0][0] if names else ""
+        if re.fullmatch(r"[A-Za-z][A-Za-z0-9_-]{0,31}", name or "") and name != "bus":
+            return name
+        return self.d.endpoint_name
+
     def _baud_from_registers(self) -> tuple[int, str] | None:
         rates = collections.Counter()
         for dev_id, ch in self.choices.items():
@@ -1141,7 +1150,8 @@ class _Drafter:
             notes.append(f"only the first {len(exchanges)} requests are replayed ({s.dropped_exchanges} more)")
         if not timed:
             notes.append("the capture has no times: requests are replayed as fast as the bench answers")
-        return SerialReplay(d.endpoint_name, exchanges, d.splitter, span=s.facts.span, notes=notes)
+        return SerialReplay(self.endpoint_name, exchanges, d.splitter, span=s.facts.span, notes=notes,
+                            t0=s.facts.t_first if timed else None)
 
     def _label(self, req: Request) -> str:
         ranges = {(a, n) for _, a, n in req.reads}
@@ -1193,7 +1203,8 @@ class _Drafter:
         silent = sorted(i for i, dev in s.devices.items() if dev.silent and not dev.scanned_only)
         scanned = sorted(i for i, dev in s.devices.items() if dev.silent and dev.scanned_only)
         self._seen(answered, silent, scanned)
-        draft.endpoints[d.endpoint_name] = self._endpoint()
+        self.endpoint_name = self._endpoint_name()
+        draft.endpoints[self.endpoint_name] = self._endpoint()
         tables: list[tuple[int, Table]] = []
         for dev_id in answered + silent:
             ch = self.choices.get(dev_id)
@@ -1238,11 +1249,35 @@ def _grouped(tables: list[tuple[int, Table]]) -> list[Table]:
             g.entries = [e for e in g.entries if e.key != "id"]
             # (keep the ids key where id was: second)
             g.entries.sort(key=lambda e: 0 if e.key == "model" else 1 if e.key == "ids" else 2)
-            g.comment.extend(table.comment)
+            g.comment = _merged(g.comment, table.comment)
             continue
         groups[key] = table
         out.append(table)
     return out
+
+
+def _merged(mine: list[str], theirs: list[str]) -> list[str]:
+    """The comments of a group of devices: first lines that differ only in the ID become one line
+    (``ID 1-6: ...``), the other lines once each."""
+    import re
+
+    head = re.compile(r"^ID ([\d, -]+): (.*)$")
+    a, b = head.match(mine[0]) if mine else None, head.match(theirs[0]) if theirs else None
+    out = list(mine)
+    if a and b and a.group(2) == b.group(2):
+        ids = [int(x) for part in a.group(1).split(", ") for x in _expand(part)] + \
+              [int(x) for part in b.group(1).split(", ") for x in _expand(part)]
+        out[0] = f"ID {id_ranges(ids)}: {a.group(2)}"
+        rest = theirs[1:]
+    else:
+        rest = theirs
+    out += [line for line in rest if line not in out]
+    return out
+
+
+def _expand(part: str) -> list[int]:
+    lo, _, hi = part.partition("-")
+    return list(range(int(lo), int(hi or lo) + 1))
 
 
 def hex_number(value: int) -> Hex:
