@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, ClassVar, Protocol
 
 from hilbench import registry
-from hilbench.errors import UsageError
+from hilbench.errors import HilbenchError, UsageError
 
 if TYPE_CHECKING:
     from hilbench.bench.capture_replay import Replay
@@ -178,6 +178,23 @@ def inferrer_for(protocol: str) -> Inferrer:
     raise UsageError(f"no profile inferrer reads {protocol} traffic (known: {', '.join(known) or 'none'})")
 
 
+def traffic_of(source: Source, protocol: str | None = None) -> tuple[str, Source]:
+    """The protocol of ``source``'s traffic (``protocol`` if given, checked against what the capture says; else
+    the capture's, else told from its first bytes as the monitor does) and the source to read (the bytes read to
+    tell it come again). Raises :class:`~hilbench.errors.UsageError` in one line."""
+    from hilbench.monitor.detect import choose, detect
+
+    if protocol:
+        inst = choose(protocol, name=source.name)
+        if source.protocol and choose(source.protocol, name=source.name) is not inst:
+            raise UsageError(f"{source.name} carries {source.protocol}, not {protocol}")
+        return inst.protocol, source
+    inst, source = detect(source, timeout=None)
+    if inst is None:
+        raise UsageError(f"{source.name}: the capture is empty")
+    return inst.protocol, source
+
+
 def infer(source: Source, protocol: str, *, baud: int | None = None, options: InferOptions | None = None,
           baud_from: str = "") -> tuple[ProfileDraft, SourceFacts]:
     """Read ``source`` (its traffic is ``protocol``) to its end and return the inferred draft and the facts."""
@@ -185,17 +202,25 @@ def infer(source: Source, protocol: str, *, baud: int | None = None, options: In
                         baud_from=baud_from or ("the capture" if source.baud else ""),
                         timestamps=source.timestamps)
     session = inferrer_for(protocol).session(facts, options or InferOptions())
-    for chunk in source:
-        facts.chunks += 1
-        if chunk.lost:
-            facts.lost += chunk.lost
-        else:
-            facts.bytes += len(chunk.data)
-        if facts.t_first is None:
-            facts.t_first = chunk.t
-        facts.t_last = chunk.t
-        session.feed(chunk)
+    broken = None
+    try:
+        for chunk in source:
+            facts.chunks += 1
+            if chunk.lost:
+                facts.lost += chunk.lost
+            else:
+                facts.bytes += len(chunk.data)
+            if facts.t_first is None:
+                facts.t_first = chunk.t
+            facts.t_last = chunk.t
+            session.feed(chunk)
+    except (HilbenchError, OSError) as exc:  # a reader that gives up mid-file: keep what came before
+        if not facts.chunks:
+            raise
+        broken = f"the capture could not be read past record {facts.chunks}: {exc}"
     facts.findings = list(source.quality().get("findings", []))
+    if broken:
+        facts.findings.append(broken)
     draft = session.finish()
     if facts.lost:
         draft.unread.append(f"{facts.lost} bytes were lost before the recorder (loss records in the capture)")
@@ -364,4 +389,5 @@ def id_ranges(ids: Iterable[int]) -> str:
 
 
 __all__ = ["Commented", "Entry", "Hex", "InferOptions", "InferenceSession", "Inferrer", "ProfileDraft", "SourceFacts", "Table",
-           "check_profile_text", "describe_source", "id_ranges", "infer", "inferrer_for", "render", "toml_value"]
+           "check_profile_text", "describe_source", "id_ranges", "infer", "inferrer_for", "render", "toml_value",
+           "traffic_of"]

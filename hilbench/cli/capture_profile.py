@@ -38,23 +38,8 @@ def _open(args: argparse.Namespace):
     return open_cli_source(args.capture, baud=args.baud)
 
 
-def _protocol(args: argparse.Namespace, source) -> tuple[str, object]:
-    """The traffic's protocol: the capture's, ``--protocol``, or told from its first bytes."""
-    from hilbench.monitor.detect import choose, detect
-
-    if args.protocol:
-        inst = choose(args.protocol, name=source.name)
-        if source.protocol and choose(source.protocol, name=source.name) is not inst:
-            raise CliError(f"{source.name} carries {source.protocol}, not {args.protocol}")
-        return inst.protocol, source
-    inst, source = detect(source, timeout=None)
-    if inst is None:
-        raise CliError(f"{source.name}: the capture is empty")
-    return inst.protocol, source
-
-
 def cmd_from_capture(args: argparse.Namespace) -> int:
-    from hilbench.bench.capture_profile import InferOptions, check_profile_text, infer, render
+    from hilbench.bench.capture_profile import InferOptions, check_profile_text, infer, render, traffic_of
     from hilbench.cli.outputs import check_outputs, source_files, write_output
 
     out = args.output
@@ -67,7 +52,7 @@ def cmd_from_capture(args: argparse.Namespace) -> int:
     with _open(args) as source:
         if source.live:
             raise CliError(f"{args.capture}: give a capture file (record a live bus with hilbench record first)")
-        protocol, source = _protocol(args, source)
+        protocol, source = traffic_of(source, args.protocol)
         draft, facts = infer(source, protocol, baud=args.baud, baud_from="--baud" if args.baud else "",
                              options=InferOptions(keep_silent=args.keep_silent))
     command = "hilbench profiles from-capture " + " ".join(shlex.quote(a) for a in _argv(args))

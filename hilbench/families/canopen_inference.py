@@ -369,6 +369,8 @@ class _Drafter:
         return t
 
     def _summary(self, obs: NodeObs) -> str:
+        if obs.silent:
+            return f"node {obs.node}: asked {obs.asked} time(s), never answered"
         parts = [f"node {obs.node}:"]
         if obs.bootups:
             parts.append(f"{len(obs.bootups)} boot-up(s),")
@@ -381,8 +383,6 @@ class _Drafter:
         downs = sum(len(v) for v in obs.downloads.values())
         if ups or downs or obs.aborts:
             parts.append(f"SDO {ups} upload(s), {downs} download(s), {len(obs.aborts)} abort(s),")
-        if obs.silent:
-            parts.append(f"asked {obs.asked} time(s), never answered")
         return " ".join(parts).rstrip(",")
 
     def _seen(self) -> None:

@@ -722,8 +722,9 @@ class _Drafter:
             others = [m.name for m in candidates if m is not pick]
             shown = ", ".join(others[:6]) + (f" and {len(others) - 6} more" if len(others) > 6 else "")
             reasons.append(f"also fits: {shown}")
-        if excluded and len(excluded) <= 4:
-            reasons += [f"not {m.name}: {why}" for m, why in excluded]
+        reasons += [f"not {m.name}: {why}" for m, why in excluded[:3]]
+        if len(excluded) > 3:
+            reasons.append(f"nor {len(excluded) - 3} other model(s)")
         firmware = None
         same = collections.Counter(ch.firmware for ch in known.values() if ch.model is pick and ch.firmware is not None)
         if same:

@@ -1,0 +1,124 @@
+"""Profiles from CAN captures (issue 27): the mecarover-can bench recorded as python-can logs while the canopen
+package drives it, back as recorded nodes; silent nodes; damaged logs."""
+
+from __future__ import annotations
+
+import json
+import time
+import tomllib
+
+import canopen
+import pytest
+
+from hilbench.bench import Bench
+from hilbench.bench.capture_profile import check_profile_text
+from hilbench.cli import main
+from hilbench.protocols import board_can as bc
+from hilbench.protocols import canopen as co
+from hilbench.pytest_plugin import wait_until
+from tests.helpers.recording import infer_file, recording
+
+canopen.Network.NOTIFIER_SHUTDOWN_TIMEOUT = 0.0
+UPLOADS = ((0x1000, 0), (0x1018, 1), (0x1018, 2), (0x1018, 3), (0x1017, 0), (0x1008, 0))
+
+
+def _drive(bench, seconds: float = 1.2, *, ask_node: int | None = None) -> dict[tuple[int, int], bytes]:
+    """What the rover's host software does: wait for the node, read its identity over SDO, start it, send
+    velocity setpoints every 50 ms and read the odometry now and then. Returns the SDO values read."""
+    net = canopen.Network(bench.can_bus())
+    net.connect()
+    node = canopen.RemoteNode(2, canopen.ObjectDictionary())
+    net.add_node(node)
+    node.sdo.RESPONSE_TIMEOUT = 1.0
+    read = {}
+    try:
+        wait_until(lambda: bench.node(2).state != co.BOOTUP)
+        time.sleep(0.1)
+        for index, sub in UPLOADS:
+            read[(index, sub)] = node.sdo.upload(index, sub)
+        if ask_node is not None:  # a node the host expects, which is not on the bus
+            other = canopen.RemoteNode(ask_node, canopen.ObjectDictionary())
+            net.add_node(other)
+            other.sdo.RESPONSE_TIMEOUT = 0.05
+            with pytest.raises(canopen.SdoCommunicationError):
+                other.sdo.upload(0x1000, 0)
+        node.nmt.send_command(co.NMT_START)
+        end = time.monotonic() + seconds
+        k = 0
+        while time.monotonic() < end:
+            net.send_message(0x202, bc.build_setpoint(100.0, 0.0, 0.0, k))
+            k += 1
+            time.sleep(0.05)
+    finally:
+        net.disconnect()
+    return read
+
+
+@pytest.fixture(scope="module")
+def rover_log(tmp_path_factory):
+    """The mecarover-can bench recorded as a candump log (``hilbench record``'s CAN format)."""
+    path = tmp_path_factory.mktemp("can") / "rover.log"
+    bench = Bench("mecarover-can").start()
+    try:
+        with recording(bench.endpoint(), path):
+            read = _drive(bench, ask_node=9)
+    finally:
+        bench.stop()
+    return path, read
+
+
+def test_round_trip_mecarover_can(rover_log):
+    path, read = rover_log
+    draft, facts, text = infer_file(path, baud=500_000)
+    data = tomllib.loads(text)
+    assert data["endpoints"]["can"]["bitrate"] == 500_000
+    (node,) = data["devices"]  # node 9 never answered: a comment
+    assert (node["model"], node["node_id"], node["heartbeat_ms"], node["autostart"]) == ("recorded-node", 2, 1000,
+                                                                                        False)
+    cfg = bc.BoardCanConfig()
+    periods = {p.cob_id(2): cfg.periods_ms[p.key] for p in bc.PDOS if p.kind == "tpdo"}
+    got = {t["cob_id"]: t for t in node["tpdos"]}
+    assert set(got) == set(periods)  # every TPDO of the board, with its period
+    for cob, period in periods.items():
+        assert abs(got[cob]["period_ms"] - period) <= max(2, period // 10), (hex(cob), got[cob])
+    objects = {(o["index"], o["subindex"]): bytes.fromhex(o["data"]) for o in node["objects"]}
+    for key, value in read.items():
+        assert objects[key] == value, key  # the SDO values the host read, byte for byte
+    assert "asked but never answering: node 9" in draft.seen
+    assert any(line.startswith("NMT start to node 2 at") for line in draft.pattern)
+    assert any(line.startswith("RPDO 0x202: ") for line in draft.pattern)
+    assert "# node 9: asked" in text and "# model        = \"recorded-node\"" in text
+
+
+def test_round_trip_verify(rover_log, tmp_path, capsys):
+    path, _ = rover_log
+    out = tmp_path / "rover.toml"
+    code = main(["profiles", "from-capture", str(path), "--baud", "500000", "-o", str(out), "--verify", "--json",
+                 "--min-ratio", "0.95"])
+    doc = json.loads(capsys.readouterr().out)
+    assert code == 0, doc
+    report = doc["verify"]
+    assert report["ratio"] >= 0.95 and report["matched_content"] >= len(UPLOADS), report
+    # every TPDO stream and the SDO answers: counted as replies
+    assert report["replies"] >= len(UPLOADS) + 4
+
+
+def test_keep_silent_makes_a_silent_node(rover_log):
+    path, _ = rover_log
+    _, _, text = infer_file(path, baud=500_000, keep_silent=True)
+    nodes = {d["node_id"]: d for d in tomllib.loads(text)["devices"]}
+    assert nodes[9]["faults"] == {"silent": True}
+    profile = check_profile_text(text)
+    with Bench(profile).start() as bench:
+        assert bench.node(9).faults["silent"] is True
+
+
+def test_a_truncated_log_gives_what_could_be_read(rover_log, tmp_path):
+    path, _ = rover_log
+    lines = path.read_text().splitlines(keepends=True)
+    cut = tmp_path / "cut.log"
+    cut.write_text("".join(lines[: len(lines) // 2]) + lines[len(lines) // 2][:9])  # killed mid-line
+    draft, _, text = infer_file(cut, baud=500_000)
+    assert tomllib.loads(text)["devices"][0]["node_id"] == 2
+    assert any(line.startswith("capture: the capture could not be read past record") for line in draft.unread), \
+        draft.unread
