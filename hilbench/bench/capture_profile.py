@@ -127,6 +127,8 @@ class ProfileDraft:
     pattern: list[str] = field(default_factory=list)
     #: The host's requests and the captured replies, for ``--verify`` (None: the inferrer cannot replay).
     replay: Replay | None = None
+    #: Per device (its address), the names of the items the host read: what the profile's values rest on.
+    read: dict[Any, list[str]] = field(default_factory=dict)
 
     def data(self) -> dict[str, Any]:
         """The profile as the TOML parser would return it (disabled devices left out)."""

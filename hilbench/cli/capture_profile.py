@@ -71,7 +71,8 @@ def cmd_from_capture(args: argparse.Namespace) -> int:
         doc = {"capture": facts.name, "protocol": facts.protocol, "baud": facts.baud, "timestamps": facts.timestamps,
                "profile": out if out not in (None, "-") else None, "devices": len(draft.devices),
                "seen": draft.seen, "guessed": draft.guessed, "contradictions": draft.contradictions,
-               "unread": draft.unread, "pattern": draft.pattern, "seconds": round(inferred, 3),
+               "unread": draft.unread, "pattern": draft.pattern, "read": {str(k): v for k, v in draft.read.items()},
+               "seconds": round(inferred, 3),
                "verify": report.to_json() if report is not None else None}
         if out in (None, "-"):
             doc["text"] = text

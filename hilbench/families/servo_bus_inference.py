@@ -795,6 +795,9 @@ class _Drafter:
                 first_by_field.setdefault(f.address, (f, value, ro.first_name))
             if len(ro.by_instruction) > 1:
                 self._by_instruction(dev, model, address, ro)
+        read_keys = {f.key for (address, length) in dev.reads for f, _ in field_values(model, address,
+                                                                                         bytes(length))}
+        draft.read[dev.id] = sorted(read_keys)
         for f, value, _name in sorted(first_by_field.values(), key=lambda x: x[0].address):
             if f == roles["id"]:
                 if value != dev.id:
@@ -923,6 +926,9 @@ class _Drafter:
                           "percentile), too scattered to tell a delay")
         if med > 254 * unit + 100e-6:
             return None, f"replies took {1e6 * med:.0f} us, more than any Return Delay Time: host or adapter latency"
+        if hi <= 0:
+            return 0, (f"replies came with their requests' end ({len(lat)} measured; the capture's times hold no "
+                       "wire time for them: an unpaced line)")
         value = max(0, min(254, round(max(0.0, lo) / unit)))
         return value, f"replies came {1e6 * lo:.0f} us (10th percentile; median {1e6 * med:.0f} us) after their " \
                       "request's end, less wire time"
