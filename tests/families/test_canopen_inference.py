@@ -122,3 +122,17 @@ def test_a_truncated_log_gives_what_could_be_read(rover_log, tmp_path):
     assert tomllib.loads(text)["devices"][0]["node_id"] == 2
     assert any(line.startswith("capture: the capture could not be read past record") for line in draft.unread), \
         draft.unread
+
+
+def test_a_hilbench_capture_of_the_can_bus(tmp_path):
+    """``hilbench record`` of a CAN bench into its own capture format reads the same way as a python-can log."""
+    bench = Bench("mecarover-can").start()
+    try:
+        with recording(bench.endpoint(), tmp_path / "rover.hbcap") as path:
+            read = _drive(bench, 0.5)
+    finally:
+        bench.stop()
+    draft, facts, text = infer_file(path)
+    assert facts.protocol == "can" and facts.baud == 500_000  # the capture says its bitrate
+    (node,) = tomllib.loads(text)["devices"]
+    assert node["node_id"] == 2 and {o["index"] for o in node["objects"]} >= {i for i, _ in read}

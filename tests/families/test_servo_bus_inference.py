@@ -391,3 +391,30 @@ def test_a_truncated_and_damaged_capture_gives_what_could_be_read(tmp_path):
     assert devices_by_id(text)[1]["model"] == "XM430-W350"
     assert any(line.startswith("capture: truncated") for line in draft.unread), draft.unread
     assert "# Could not be read:" in text
+
+
+def test_protocol1_usb2ax_sync_read(tmp_path):
+    """Protocol 1.0 behind a USB2AX: its SYNC_READ is answered by the adapter (ID FD) in one status carrying every
+    servo's bytes; the servos' models come from reads of the Model Number, and the bench replays it."""
+    from hilbench.protocols import dynamixel_protocol1 as p1
+
+    def read(i, address, data):
+        return [p1.build_instruction(i, p1.Instruction1.READ, address=address, length=len(data)),
+                p1.frame(i, 0, data)]
+
+    packets = [*read(1, 0, (12).to_bytes(2, "little")), *read(2, 0, (29).to_bytes(2, "little")),
+               *read(1, 6, (205).to_bytes(2, "little"))]
+    for _ in range(3):
+        packets += [p1.build_instruction(0xFE, p1.Instruction1.SYNC_READ, address=36, length=2, ids=[1, 2]),
+                    p1.frame(p1.USB2AX_ID, 0, (512).to_bytes(2, "little") + (2048).to_bytes(2, "little"))]
+    path = tmp_path / "p1.hbcap"
+    with CaptureWriter(path, baud=1_000_000, protocol="dynamixel1", t0=0.0) as w:
+        for k, p in enumerate(packets):
+            w.write(k * 0.001, "host" if k % 2 == 0 else "devices", p)
+    draft, _, text = infer_file(path)
+    devs = devices_by_id(text)
+    assert (devs[1]["model"], devs[2]["model"]) == ("AX-12A", "MX-28(1.0)")
+    assert devs[1]["init"] == {"cw_angle_limit": 205} and (devs[1]["position"], devs[2]["position"]) == (512, 2048)
+    assert tomllib.loads(text)["endpoints"]["host"]["protocol_version"] == 1
+    report = _verify(check_profile_text(text), draft)
+    assert (report.replies, report.matched) == (6, 6), report.lines()
