@@ -6,7 +6,7 @@ PY := $(VENV)/bin/python
 
 LGVENV ?= .venv-labgrid
 
-.PHONY: demo test test-slow test-labgrid lint bench install install-robots
+.PHONY: demo test test-slow test-labgrid lint bench install install-robots docs
 
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -63,6 +63,16 @@ test-labgrid: $(LGVENV)/.installed
 	$(LGVENV)/bin/python -c "import serial.rfc2217 as r, inspect; assert 'skipped' in inspect.getsource(r), 'serial is not pyserial-labgrid'"
 	$(LGVENV)/bin/python -m pytest -q -p no:cacheprovider tests/labgrid tests/transports/test_rfc2217.py \
 		tests/fakes/test_dynamixel_sdk.py tests/test_cli.py
+
+# The documentation site (docs/, Sphinx): the API reference is generated from the docstrings into
+# docs/api/_generated/ on every build; every warning (a broken cross-reference too: -n) fails it.
+# Open docs/_build/html/index.html. .ci/run runs it after `make test`.
+$(VENV)/.docs: $(VENV)/.installed
+	$(PY) -m pip install -q -e '.[docs]'
+	touch $@
+
+docs: $(VENV)/.docs
+	$(PY) -m sphinx -W --keep-going -n -q -b html docs docs/_build/html
 
 bench: $(VENV)/.installed $(SDK3)/.installed
 	$(PY) tools/bench_dynamixel.py

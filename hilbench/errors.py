@@ -118,7 +118,7 @@ class RequestRefused(HilbenchError):
 class MissingExtra(UsageError):
     """An optional extra of hilbench is not installed; ``str()`` names the ``pip install`` that brings it.
 
-    :attr:`module` is the module that could not be imported, :attr:`extra` the extra that provides it.
+    ``module`` is the module that could not be imported, ``extra`` the extra that provides it.
     """
 
     def __init__(self, message: str, module: str = "", extra: str = "") -> None:

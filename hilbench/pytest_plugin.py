@@ -13,15 +13,15 @@ Fixtures
 ``hilbench_emulator``
     A factory that runs ``hilbench emulate`` in a separate process, as a user
     would, and returns its manifest once every endpoint is ready.
+``hilbench_run``
+    Clients in other processes with a serial adapter's semantics (``hilbench
+    run``) against a fixture bench or an emulator: ``hilbench_run.command(bench,
+    "python", "client.py")`` or ``env=hilbench_run.env(bench)``.
 
 Every factory and the marker take ``set={"dxl.baud": 1_000_000, "can.socketcand.port": 0}``: profile keys
 changed before the bench starts and checked as the file is, as ``hilbench emulate --set`` does
 (:func:`hilbench.bench.profile.apply_overrides`), so a test moves a bench's port, baud or domain without a
 copy of the profile.
-``hilbench_run``
-    Clients in other processes with a serial adapter's semantics (``hilbench
-    run``) against a fixture bench or an emulator: ``hilbench_run.command(bench,
-    "python", "client.py")`` or ``env=hilbench_run.env(bench)``.
 
 Benches started by these fixtures (emulators too) serve modem lines, BREAK and
 flushes: their line server runs, and pyserial in the test's own process talks

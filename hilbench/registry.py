@@ -14,7 +14,10 @@ through Python entry points, built-ins exactly as an outside package would::
 =====================  =========================  =============================================
 kind                   entry-point group          the object an entry point names
 =====================  =========================  =============================================
-:data:`families`       ``hilbench.families``      a :class:`~hilbench.bench.family.DeviceFamily`
+:data:`families`       ``hilbench.families``      a :class:`~hilbench.bench.family.DeviceFamily` (chosen per
+                                                  device model)
+:data:`bus_kinds`      ``hilbench.bus_kinds``     a :class:`~hilbench.bench.bus.BusKind` (chosen per endpoint
+                                                  ``protocol``)
 :data:`host_ports`     ``hilbench.host_ports``    a host-port class (endpoint ``type``: pty, udp, tcp)
 :data:`media`          ``hilbench.media``         a :class:`~hilbench.transports.medium.Medium` class
 :data:`sources`        ``hilbench.sources``       a :class:`~hilbench.transports.sources.SourceOpener`
@@ -35,6 +38,14 @@ is skipped with one warning naming its package (a lab's broken package must
 not take the whole command down); :meth:`Kind.failures` lists them.
 Objects can also be registered in code (:meth:`Kind.register`), e.g. by tests.
 
+A registration that clashes with one already made is refused: two families
+claiming one family name or model (or one ``[defaults]`` key, or one
+top-level profile table with different checks), two bus kinds for one
+protocol, two instruments for one protocol or alias, two verb modules adding
+one verb, two inferrers for one protocol. An entry point that clashes is skipped with a :class:`PluginWarning`
+naming both packages (the first registered wins: hilbench's own, then by
+name); :meth:`Kind.register` raises :class:`ValueError`.
+
 This module imports nothing from hilbench but :mod:`hilbench.errors`.
 """
 
@@ -43,28 +54,68 @@ from __future__ import annotations
 import importlib.metadata
 import threading
 import warnings
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from typing import Any
 
 from hilbench.errors import UsageError
 
 
 class PluginWarning(UserWarning):
-    """A plug-in package could not be loaded (it is skipped)."""
+    """A plug-in package could not be loaded, or clashes with one registered before (it is skipped)."""
+
+
+#: What a registration claims besides its name: ``(what, value)``, e.g. ``("model", "MX-64")``, or
+#: ``(what, value, token)`` for a claim others may share when they bring the same token (a profile table
+#: two families check with one function).
+Claim = tuple[str, str] | tuple[str, str, str]
 
 
 class Kind:
-    """One kind of plug-in: a name -> object table filled from an entry-point group on first use."""
+    """One kind of plug-in: a name -> object table filled from an entry-point group on first use.
 
-    def __init__(self, name: str, group: str, *, what: str) -> None:
+    ``claims(obj)`` lists what a registration takes besides its name (:data:`Claim`); a registration whose
+    name or claims another one holds is refused.
+    """
+
+    def __init__(self, name: str, group: str, *, what: str,
+                 claims: Callable[[Any], Iterable[Claim]] | None = None) -> None:
         self.name = name
         self.group = group
         self.what = what  # how an error message names one ("device family", "endpoint type", ...)
+        self._claims_of = claims
         self._items: dict[str, Any] = {}
         self._origin: dict[str, str] = {}
         self._failed: dict[str, str] = {}
+        self._held: dict[tuple[str, str], tuple[str, str | None]] = {}  # (what, value) -> (name, token)
         self._loaded = False
         self._lock = threading.RLock()
+
+    # ------------------------------------------------------------------ claims
+
+    def _claims(self, obj: Any) -> list[tuple[str, str, str | None]]:
+        if self._claims_of is None:
+            return []
+        return [(c[0], c[1], c[2] if len(c) > 2 else None) for c in self._claims_of(obj)]
+
+    def _clash(self, name: str, obj: Any) -> str | None:
+        """Why ``obj`` cannot be registered as ``name`` (a claim another registration holds), else None."""
+        for what, value, token in self._claims(obj):
+            held = self._held.get((what, value))
+            if held is not None and held[0] != name and (token is None or held[1] != token):
+                owner = held[0]
+                return f"its {what} {value!r} is taken by {self.what} {owner!r} (from {self._origin.get(owner, '?')})"
+        return None
+
+    def _add(self, name: str, obj: Any, origin: str) -> None:
+        self._items[name] = obj
+        self._origin[name] = origin
+        for what, value, token in self._claims(obj):
+            self._held.setdefault((what, value), (name, token))
+
+    def _drop(self, name: str) -> None:
+        self._items.pop(name, None)
+        self._origin.pop(name, None)
+        self._held = {k: v for k, v in self._held.items() if v[0] != name}
 
     # ------------------------------------------------------------------ loading
 
@@ -80,8 +131,9 @@ class Kind:
                 dist = ep.dist.name if ep.dist is not None else "?"
                 if ep.name in self._items:
                     if self._origin.get(ep.name) != dist:
-                        warnings.warn(f"hilbench: {self.what} {ep.name!r} from {dist} ignored: "
-                                      f"{self._origin.get(ep.name)} registers it already", PluginWarning,
+                        why = f"{self._origin.get(ep.name)} registers it already"
+                        self._failed[f"{ep.name} ({dist})"] = f"{dist}: {why}"
+                        warnings.warn(f"hilbench: {self.what} {ep.name!r} from {dist} skipped: {why}", PluginWarning,
                                       stacklevel=3)
                     continue
                 try:
@@ -91,31 +143,41 @@ class Kind:
                     warnings.warn(f"hilbench: {self.what} {ep.name!r} from {dist} could not be loaded "
                                   f"({type(exc).__name__}: {exc}); skipped", PluginWarning, stacklevel=3)
                     continue
-                self._items[ep.name] = obj
-                self._origin[ep.name] = dist
+                clash = self._clash(ep.name, obj)
+                if clash is not None:
+                    self._failed[ep.name] = f"{dist}: clashes: {clash}"
+                    warnings.warn(f"hilbench: {self.what} {ep.name!r} from {dist} skipped: {clash}", PluginWarning,
+                                  stacklevel=3)
+                    continue
+                self._add(ep.name, obj, dist)
             self._loaded = True
 
     def reload(self) -> None:
         """Forget what entry points gave and read them again (after installing a package)."""
         with self._lock:
             for name in [n for n, o in self._origin.items() if o != "<code>"]:
-                self._items.pop(name, None)
-                self._origin.pop(name, None)
+                self._drop(name)
             self._failed.clear()
             self._loaded = False
 
     # ------------------------------------------------------------------ access
 
     def register(self, name: str, obj: Any = None, *, replace: bool = False) -> Any:
-        """Register ``obj`` under ``name`` in code; usable as a decorator (``@kind.register("x")``)."""
+        """Register ``obj`` under ``name`` in code; usable as a decorator (``@kind.register("x")``).
+
+        Raises :class:`ValueError` when ``name`` is taken (unless ``replace``) or ``obj`` claims what another
+        registration holds (a model, a protocol, ...)."""
 
         def add(o: Any) -> Any:
             self._load()
             with self._lock:
                 if name in self._items and not replace:
                     raise ValueError(f"{self.what} {name!r} is registered already (by {self._origin[name]})")
-                self._items[name] = o
-                self._origin[name] = "<code>"
+                clash = self._clash(name, o)
+                if clash is not None:
+                    raise ValueError(f"{self.what} {name!r} clashes: {clash}")
+                self._drop(name)
+                self._add(name, o, "<code>")
             return o
 
         return add if obj is None else add(obj)
@@ -123,8 +185,7 @@ class Kind:
     def unregister(self, name: str) -> None:
         """Remove a registration (tests)."""
         with self._lock:
-            self._items.pop(name, None)
-            self._origin.pop(name, None)
+            self._drop(name)
 
     def get(self, name: str) -> Any:
         """The object registered as ``name``; raises :class:`~hilbench.errors.UsageError` naming the known ones."""
@@ -169,19 +230,54 @@ class Kind:
         return [o for o in self.values() if predicate(o)]
 
 
-families = Kind("families", "hilbench.families", what="device family")
-host_ports = Kind("host_ports", "hilbench.host_ports", what="endpoint type")
-media = Kind("media", "hilbench.media", what="medium")
-sources = Kind("sources", "hilbench.sources", what="source kind")
-instruments = Kind("instruments", "hilbench.instruments", what="instrument")
-verbs = Kind("verbs", "hilbench.verbs", what="verb module")
-fuzz_targets = Kind("fuzz_targets", "hilbench.fuzz_targets", what="fuzz target")
-servers = Kind("servers", "hilbench.servers", what="server")
-recorders = Kind("recorders", "hilbench.recorders", what="recording format")
-inferrers = Kind("inferrers", "hilbench.inferrers", what="profile inferrer")
+def _family_claims(family: Any) -> Iterator[Claim]:
+    yield ("name", family.name)
+    for model in family.models:
+        yield ("model", model)
+    for key in family.default_keys:
+        yield ("[defaults] key", key)
+    check = type(family).check_table
+    for table in family.profile_tables:  # shared only with the same check
+        yield ("profile table", table, f"{check.__module__}.{check.__qualname__}")
 
-KINDS: tuple[Kind, ...] = (families, host_ports, media, sources, instruments, verbs, fuzz_targets, servers,
-                            recorders, inferrers)
+
+def _instrument_claims(inst: Any) -> Iterator[Claim]:
+    for protocol in (inst.protocol, *getattr(inst, "aliases", ())):
+        yield ("protocol", protocol)
+
+
+def _verb_claims(module: Any) -> Iterator[Claim]:
+    for verb in getattr(module, "VERBS", {}):
+        yield ("verb", verb)
+
+
+#: Device families (:class:`~hilbench.bench.family.DeviceFamily`), by name; chosen per device model.
+families = Kind("families", "hilbench.families", what="device family", claims=_family_claims)
+#: Bus kinds (:class:`~hilbench.bench.bus.BusKind`), by endpoint ``protocol``.
+bus_kinds = Kind("bus_kinds", "hilbench.bus_kinds", what="bus kind",
+                 claims=lambda kind: [("protocol", kind.protocol)])
+#: Host-port classes, by endpoint ``type``.
+host_ports = Kind("host_ports", "hilbench.host_ports", what="endpoint type")
+#: Medium classes, by kind.
+media = Kind("media", "hilbench.media", what="medium")
+#: Source openers (:class:`~hilbench.transports.sources.SourceOpener`).
+sources = Kind("sources", "hilbench.sources", what="source kind")
+#: Instruments (:class:`~hilbench.monitor.instrument.Instrument`), by protocol.
+instruments = Kind("instruments", "hilbench.instruments", what="instrument", claims=_instrument_claims)
+#: Verb modules of the ``hilbench`` command.
+verbs = Kind("verbs", "hilbench.verbs", what="verb module", claims=_verb_claims)
+#: Fuzz targets (:class:`~hilbench.fuzzing.FuzzTarget`): readers and servers the fuzzer and rough-input tools drive.
+fuzz_targets = Kind("fuzz_targets", "hilbench.fuzz_targets", what="fuzz target")
+#: Servers a bench can run (``emulate --serve``).
+servers = Kind("servers", "hilbench.servers", what="server")
+#: Recording formats.
+recorders = Kind("recorders", "hilbench.recorders", what="recording format")
+#: Profile inferrers (:class:`~hilbench.bench.capture_profile.Inferrer`), by the protocols they read.
+inferrers = Kind("inferrers", "hilbench.inferrers", what="profile inferrer",
+                 claims=lambda inf: [("protocol", p) for p in inf.protocols])
+
+KINDS: tuple[Kind, ...] = (families, bus_kinds, host_ports, media, sources, instruments, verbs, fuzz_targets,
+                            servers, recorders, inferrers)
 
 
 def reload() -> None:
@@ -191,13 +287,17 @@ def reload() -> None:
         kind.reload()
 
 
-def family_for_protocol(protocol: str) -> Any:
-    """The device family serving endpoints of ``protocol``; raises UsageError naming the known ones."""
+def family_for_model(model: Any) -> Any | None:
+    """The device family that knows ``model`` (a ``[[devices]]`` entry's ``model``), else None."""
     for fam in families.values():
-        if protocol in fam.protocols:
+        if fam.knows_model(model):
             return fam
-    known = sorted(p for f in families.values() for p in f.protocols)
-    raise UsageError(f"no device family speaks {protocol!r} (known: {', '.join(known)})")
+    return None
+
+
+def families_joining(protocol: str) -> list[Any]:
+    """The device families whose devices may sit on an endpoint of bus ``protocol``."""
+    return [fam for fam in families.values() if protocol in fam.joins]
 
 
 def instrument_for(protocol: str) -> Any | None:
@@ -208,5 +308,6 @@ def instrument_for(protocol: str) -> Any | None:
     return None
 
 
-__all__ = ["KINDS", "Kind", "PluginWarning", "families", "family_for_protocol", "fuzz_targets", "host_ports",
-           "inferrers", "instrument_for", "instruments", "media", "recorders", "reload", "servers", "sources", "verbs"]
+__all__ = ["KINDS", "Claim", "Kind", "PluginWarning", "bus_kinds", "families", "families_joining",
+           "family_for_model", "fuzz_targets", "host_ports", "inferrers", "instrument_for", "instruments", "media",
+           "recorders", "reload", "servers", "sources", "verbs"]

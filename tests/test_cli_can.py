@@ -67,7 +67,7 @@ def test_two_boards_need_two_node_ids():
     with pytest.raises(UsageError, match="devices\\[1\\].node_id: node id 2 is taken"):
         parse_profile(data, "p.toml")
     data["devices"][1]["node_id"] = 3
-    assert [d.node_id for d in parse_profile(data, "p.toml").can_nodes] == [2, 3]
+    assert [d.node_id for d in parse_profile(data, "p.toml").devices_of("canopen")] == [2, 3]
     assert load_profile("mecarover-can").endpoints["can"].baud == 500_000
 
 

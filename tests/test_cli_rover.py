@@ -117,7 +117,7 @@ def test_send_vel_over_udp(hilbench_emulator):
 @pytest.mark.skipif(shutil.which("tmux") is None, reason="tmux is not installed")
 def test_teleop_in_a_real_terminal(hilbench_bench):
     bench = hilbench_bench("mecarover")
-    board = bench.board()
+    board = bench.family("stm32-rover").board()
     sock = f"hilbench-test-{uuid.uuid4().hex[:8]}"
     tmux = ["tmux", "-L", sock]
     cmd = f"{sys.executable} -m hilbench.cli teleop {bench.endpoint('rover').path}"

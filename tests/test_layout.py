@@ -302,7 +302,7 @@ OWNED: dict[str, tuple[str, ...]] = {
                         "monitor/udp/xrce_state.py"),
     "freertps": ("protocols/rtps.py", "fakes/rtps_node/*", "families/freertps.py", "monitor/udp/rtps_state.py"),
 }
-#: Words of a family beyond its name, bus protocols and models: its other instruments' protocols.
+#: Words of a family beyond its name, the bus protocols it joins and models: its other instruments' protocols.
 EXTRA_WORDS = {"dynamixel": {"dynamixel1"}}
 #: Bus protocols that are a transport's, not a family's: "can" is also the CAN host port and medium.
 GENERIC_WORDS = {"can"}
@@ -376,12 +376,12 @@ def owner(rel: str) -> str | None:
 
 
 def family_words() -> dict[str, set[str]]:
-    """word -> the built-in families it names (name, bus protocols, models, EXTRA_WORDS)."""
+    """word -> the built-in families it names (name, bus protocols it joins, models, EXTRA_WORDS)."""
     words: dict[str, set[str]] = collections.defaultdict(set)
     for name, family in registry.families.items():
         if registry.families.origin(name) != "hilbench":
             continue
-        for word in {name, *family.protocols, *family.models, *EXTRA_WORDS.get(name, ())} - GENERIC_WORDS:
+        for word in {name, *family.joins, *family.models, *EXTRA_WORDS.get(name, ())} - GENERIC_WORDS:
             words[word].add(name)
     return words
 

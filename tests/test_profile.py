@@ -49,7 +49,8 @@ def test_good_profile(tmp_path):
     "edit,key,expected",
     [
         (GOOD.replace('"XM430-W350"', '"XM999"'), "devices[0].model", "unknown model 'XM999'"),
-        (GOOD + '[[devices]]\nmodel = "MX-64"\nid = 2\n', "devices[1].id", "ID 2 is already used on endpoint 'bus'"),
+        (GOOD + '[[devices]]\nmodel = "MX-64"\nid = 2\n', "devices[1].id",
+         "ID 2 is taken on endpoint 'bus' by devices[0] ('bus.2')"),
         (GOOD.replace("1_000_000", "1_500_000"), "endpoints.bus.baud", "expected a Dynamixel baud rate"),
         (GOOD.replace("schema = 1", "schema = 7"), "schema", "expected 1, got 7"),
         (GOOD.replace("ids = [1, 2]", "ids = [1, 300]"), "devices[0].id", "expected an integer 0..252, got 300"),

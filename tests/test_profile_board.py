@@ -29,10 +29,10 @@ def test_bundled_rover_profiles():
                                        "mecarover-thesis": ("pty", "v1", 1_152_000),
                                        "mecarover-udp": ("udp", "binary", 1_152_000)}.items():
         prof = load_profile(name)
-        (board,) = prof.boards
+        (board,) = prof.devices_of("stm32-rover", BoardSpec)
         ep = prof.endpoints[board.endpoint]
         assert (ep.type, ep.protocol, board.output, ep.baud) == (kind, "vel2d", output, baud)
-        assert prof.servos == [] and board.model == "stm32f767-rover"
+        assert prof.devices_of("dynamixel") == [] and board.model == "stm32f767-rover"
 
 
 def test_board_defaults_and_task_overrides(tmp_path):

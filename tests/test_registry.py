@@ -17,6 +17,7 @@ ROOT = Path(__file__).resolve().parents[1]
 #: The generic modules: none of them may name a device family or its protocol.
 CORE = [
     "hilbench/registry.py", "hilbench/errors.py", "hilbench/bench/bench.py", "hilbench/bench/profile.py",
+    "hilbench/bench/bus.py", "hilbench/bench/family.py",
     "hilbench/bench/checks.py", "hilbench/bench/manifest.py", "hilbench/bench/control.py",
     "hilbench/cli/__init__.py", "hilbench/cli/common.py", "hilbench/cli/emulate.py", "hilbench/cli/monitor.py",
     "hilbench/monitor/live.py", "hilbench/monitor/detect.py", "hilbench/monitor/instrument.py",
@@ -29,6 +30,9 @@ DOCSTRING = re.compile(r"^[rRuU]?('''|\"\"\")")
 def test_builtins_are_registered_through_entry_points_like_any_package():
     assert {"dynamixel", "stm32-rover"} <= set(registry.families)
     assert registry.families.origin("dynamixel") == "hilbench"  # from the metadata, not from code
+    assert {"dynamixel", "vel2d", "can"} <= set(registry.bus_kinds)
+    assert registry.family_for_model("MX-64").name == "dynamixel"
+    assert [f.name for f in registry.families_joining("can")] == ["canopen"]
     assert {"pty", "udp", "tcp"} <= set(registry.host_ports)
     assert "serial" in registry.media
     assert {"file", "stdin", "serial", "fifo", "tcp", "udp", "manifest"} <= set(registry.sources)
@@ -41,7 +45,7 @@ def test_builtins_are_registered_through_entry_points_like_any_package():
 def test_the_core_names_no_family(path):
     """No identifier, import path or plain string of a generic module is a family's or protocol's name
     (docstrings and comments may give examples; a word in a message is not a name)."""
-    names = {n for fam in registry.families.values() for n in (fam.name, *fam.protocols)}
+    names = {n for fam in registry.families.values() for n in (fam.name, *fam.joins)} | set(registry.bus_kinds)
     names |= {n.replace("-", "_") for n in names} | {"servo", "rover", "board", "stm32", "dxl", "dynamixel"}
     found = set()
     with tokenize.open(ROOT / path) as fh:
@@ -80,7 +84,8 @@ def test_plugins_verb_lists_every_kind():
     assert proc.returncode == 0
     for kind in registry.KINDS:
         assert f"[entry points: {kind.group}]" in proc.stdout
-    assert re.search(r"^  dynamixel\s+hilbench\s+protocols dynamixel", proc.stdout, re.M)
+    assert re.search(r"^  dynamixel\s+hilbench\s+joins dynamixel; \d+ models", proc.stdout, re.M)
+    assert re.search(r"^  can\s+hilbench\s+can medium; endpoints can", proc.stdout, re.M)
 
 
 def test_each_verb_module_names_the_verbs_it_registers():
@@ -125,6 +130,111 @@ def test_an_unknown_name_is_a_usage_error_naming_the_known_ones():
 
     with pytest.raises(UsageError, match=r"unknown endpoint type 'serial9' \(known: .*pty"):
         registry.host_ports.get("serial9")
-    with pytest.raises(UsageError, match="no device family speaks 'canbus'"):
-        registry.family_for_protocol("canbus")
+    with pytest.raises(UsageError, match=r"unknown bus kind 'canbus' \(known: can, "):
+        registry.bus_kinds.get("canbus")
+    assert registry.family_for_model("XM999") is None
 
+
+
+CLASHING_PLUGIN = '''
+from hilbench.bench.bus import BusKind
+from hilbench.bench.family import DeviceFamily
+
+
+class AcmeFamily(DeviceFamily):
+    name = "acme"
+    models = ("acme-1", "MX-64")  # the second is a Dynamixel model
+    joins = ("dynamixel",)
+
+
+class AcmeBus(BusKind):
+    protocol = "dynamixel"  # the Dynamixel bus kind's protocol
+
+
+FAMILY = AcmeFamily()
+BUS_KIND = AcmeBus()
+'''
+
+
+def test_a_clashing_plugin_is_skipped_with_a_warning_naming_both_packages(tmp_path, monkeypatch):
+    (tmp_path / "acme_clash.py").write_text(CLASHING_PLUGIN)
+    dist = tmp_path / "acme_lab_plugin-0.1.dist-info"
+    dist.mkdir()
+    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: acme-lab-plugin\nVersion: 0.1\n")
+    (dist / "entry_points.txt").write_text("[hilbench.families]\nacme = acme_clash:FAMILY\n\n"
+                                           "[hilbench.bus_kinds]\nacme-bus = acme_clash:BUS_KIND\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    registry.reload()
+    try:
+        with pytest.warns(registry.PluginWarning) as caught:
+            families = registry.families.names()
+            kinds = registry.bus_kinds.names()
+        messages = [str(w.message) for w in caught]
+        assert ("hilbench: device family 'acme' from acme-lab-plugin skipped: its model 'MX-64' is taken by device "
+                "family 'dynamixel' (from hilbench)") in messages
+        assert ("hilbench: bus kind 'acme-bus' from acme-lab-plugin skipped: its protocol 'dynamixel' is taken by bus "
+                "kind 'dynamixel' (from hilbench)") in messages
+        assert "acme" not in families and "acme-bus" not in kinds
+        assert registry.family_for_model("MX-64").name == "dynamixel"  # the first registered keeps it
+        assert "clashes" in registry.families.failures()["acme"]
+    finally:
+        monkeypatch.undo()
+        registry.reload()
+    assert registry.families.failures() == {} and registry.bus_kinds.failures() == {}
+
+
+def test_a_clashing_registration_in_code_raises():
+    from hilbench.bench.bus import BusKind
+    from hilbench.bench.family import DeviceFamily
+    from hilbench.families.rplidar import RplidarFamily
+
+    class Acme(DeviceFamily):
+        name = "acme"
+        models = ("acme-1", "lms200")  # the SICK LMS 200's model
+
+    with pytest.raises(ValueError, match=r"device family 'acme' clashes: its model 'lms200' is taken by device "
+                                         r"family 'sick-lms200' \(from hilbench\)"):
+        registry.families.register("acme", Acme())
+    with pytest.raises(ValueError, match="device family 'dynamixel' is registered already"):
+        registry.families.register("dynamixel", Acme())
+    assert "acme" not in registry.families
+
+    class CanAgain(BusKind):
+        protocol = "can"
+
+    with pytest.raises(ValueError, match="bus kind 'can2' clashes: its protocol 'can' is taken by bus kind 'can'"):
+        registry.bus_kinds.register("can2", CanAgain())
+
+    class Defaults(DeviceFamily):
+        name = "defaults"
+        default_keys = {"supply_voltage": (0, 1, 0)}  # the Dynamixel family's [defaults] key
+
+    with pytest.raises(ValueError, match=r"its \[defaults\] key 'supply_voltage' is taken by device family 'dynamixel'"):
+        registry.families.register("defaults", Defaults())
+
+    class OwnScene(DeviceFamily):  # a [scene] table checked another way
+        name = "own-scene"
+        profile_tables = ("scene",)
+
+    with pytest.raises(ValueError, match=r"its profile table 'scene' is taken by device family 'rplidar'"):
+        registry.families.register("own-scene", OwnScene())
+
+    class SameScene(RplidarFamily):  # the same table, checked by the same function: shared
+        name = "same-scene"
+        models = ("another-lidar",)
+
+    registry.families.register("same-scene", SameScene())
+    try:
+        assert registry.family_for_model("another-lidar").name == "same-scene"
+    finally:
+        registry.families.unregister("same-scene")
+    assert "another-lidar" not in {m for f in registry.families.values() for m in f.models}
+
+    verb = type(sys)("acme_verb")
+    verb.VERBS = {"emulate": "clashes with hilbench's own verb"}
+    with pytest.raises(ValueError, match="its verb 'emulate' is taken by verb module 'emulate'"):
+        registry.verbs.register("acme-verb", verb)
+
+    instrument = type("Inst", (), {"protocol": "acme", "aliases": ("canopen",)})()
+    with pytest.raises(ValueError, match="its protocol 'canopen' is taken by instrument 'can'"):
+        registry.instruments.register("acme", instrument)

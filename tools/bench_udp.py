@@ -125,7 +125,7 @@ def bench_agent(seconds: float) -> None:
                        agent)
             seq += 1
         deadline = time.monotonic() + 2
-        while time.monotonic() < deadline and not bench.agent().counters["replies"] >= 9:
+        while time.monotonic() < deadline and not bench.family("micro-ros-agent").agent().counters["replies"] >= 9:
             time.sleep(0.01)
         cli.sendto(x.build_message(0x81, 0, 0, [(10, 1, x.acknack(4, 0, 0x80))]), agent)  # its STATUSes
         time.sleep(0.05)
@@ -151,7 +151,7 @@ def bench_agent(seconds: float) -> None:
             n += 1
         rate = n / (time.perf_counter() - t0)
         cli.close()
-        s = next(iter(bench.agent().sessions.values()))
+        s = next(iter(bench.family("micro-ros-agent").agent().sessions.values()))
         assert s.samples_in == n, (s.samples_in, n)
     finally:
         bench.stop()

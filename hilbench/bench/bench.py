@@ -2,17 +2,18 @@
 
 ``Bench(profile).start()`` opens each endpoint's host port (the registered
 class of its ``type``: a pseudo-terminal, a UDP or TCP socket on 127.0.0.1,
-...), puts a medium of the kind its device family needs behind it (a serial
-line, ...), lets the family build its devices on that medium, and starts
-everything. Taps (monitor, recorder) attach to the medium the same way for
-every family. The manifest (:meth:`Bench.manifest`) tells other programs where
-everything is. Nothing here knows a device family by name: see
-:mod:`hilbench.registry` and :class:`~hilbench.bench.family.DeviceFamily`.
+...), puts a medium of the kind its bus kind needs behind it (a serial line, a
+CAN bus, ...), lets the bus kind make what the devices share (``endpoint.bus``)
+and each device family present on the endpoint build its devices onto it, and
+starts everything. Taps (monitor, recorder) attach to the medium the same way
+for every bus. The manifest (:meth:`Bench.manifest`) tells other programs where
+everything is. Nothing here knows a bus kind or device family by name: see
+:mod:`hilbench.registry`, :class:`~hilbench.bench.bus.BusKind` and
+:class:`~hilbench.bench.family.DeviceFamily`.
 """
 
 from __future__ import annotations
 
-import functools
 import os
 import time
 from collections.abc import Callable
@@ -20,7 +21,8 @@ from pathlib import Path
 from typing import Any
 
 from hilbench import registry
-from hilbench.bench.family import DeviceFamily
+from hilbench.bench.bus import BusKind
+from hilbench.bench.family import DeviceFamily, DeviceSpec, FamilyAccess
 from hilbench.bench.profile import EndpointSpec, Profile, load_profile
 from hilbench.errors import BenchError, UsageError
 from hilbench.transports.listener import BindError
@@ -29,23 +31,29 @@ from hilbench.transports.tap_server import TapServer
 
 
 class Endpoint:
-    """A started endpoint: its spec, its host port, the medium behind it and the devices on it.
+    """A started endpoint: its spec, its host port, the medium behind it, its bus and the devices on it.
 
     ``port`` is the host port (what a host program opens, :attr:`path`);
-    ``medium`` carries the traffic (taps attach here); ``devices`` maps device
-    names to the objects the family built. Attributes a family declares
-    (``endpoint.bus`` of a Dynamixel endpoint) read as None on other endpoints,
-    and ``endpoint.pty``/``endpoint.udp`` give the port when it is of that type.
+    ``medium`` carries the traffic (taps attach here); ``bus_kind`` is the
+    :class:`~hilbench.bench.bus.BusKind` of its protocol and ``bus`` what its
+    devices share (the object that decodes a servo line once for every servo;
+    None where they share only the medium); ``devices`` maps device names to
+    the objects their families built, ``specs`` to their profile entries (in
+    profile order); ``tap`` is its traffic tap server (or None) and
+    ``services`` its network servers. Nothing else is grown on it: a family's
+    own lookups are on ``bench.family(NAME)``.
     """
 
-    def __init__(self, spec: EndpointSpec, port: Any, medium: Any, family: DeviceFamily) -> None:
+    def __init__(self, spec: EndpointSpec, port: Any, medium: Any, bus_kind: BusKind,
+                 specs: list[DeviceSpec] | None = None) -> None:
         self.spec = spec
         self.port = port
         self.medium = medium
-        self.family = family
+        self.bus_kind = bus_kind
+        self.bus: Any = None
+        self.specs: dict[str, DeviceSpec] = {s.name: s for s in specs or ()}
         self.devices: dict[str, Any] = {}
         self.tap: TapServer | None = None
-        self.attrs: dict[str, Any] = {}
         #: Running servers of this endpoint by server name (``--serve``), listed in its manifest entry.
         self.services: dict[str, Any] = {}
 
@@ -63,19 +71,28 @@ class Endpoint:
         return self.port
 
     def add_device(self, name: str, device: Any) -> None:
-        """Record a device the family built (the bench lists it under its profile name)."""
+        """Put a device a family built on this endpoint's bus (:meth:`BusKind.join`) and list it under its
+        profile name."""
+        self.bus_kind.join(self, device, self.specs.get(name))
         self.devices[name] = device
 
-    def __getattr__(self, key: str) -> Any:
-        attrs = self.__dict__.get("attrs", {})
-        if key in attrs:
-            return attrs[key]
-        if any(key in fam.endpoint_attrs for fam in registry.families.values()):
-            return None  # another family's attribute: this endpoint has none
-        if key in registry.host_ports:
-            port = self.__dict__.get("port")
-            return port if getattr(port, "kind", None) == key else None
-        raise AttributeError(f"endpoint has no attribute {key!r}")
+    def families(self) -> list[str]:
+        """The families of the devices on this endpoint, in profile order."""
+        return list(dict.fromkeys(s.family for s in self.specs.values()))
+
+    def devices_of(self, family: str) -> dict[str, Any]:
+        """The devices of one family on this endpoint (name -> device), in profile order."""
+        return {n: self.devices[n] for n, s in self.specs.items() if s.family == family and n in self.devices}
+
+    def device(self, name: str | None = None) -> Any:
+        """A device on this endpoint by profile name, or its only one; KeyError naming them."""
+        if name is None:
+            if len(self.devices) != 1:
+                raise KeyError(f"endpoint {self.name!r} has devices {list(self.devices)}; name one")
+            return next(iter(self.devices.values()))
+        if name not in self.devices:
+            raise KeyError(f"endpoint {self.name!r} has no device {name!r} (devices: {list(self.devices)})")
+        return self.devices[name]
 
     def __repr__(self) -> str:
         return f"Endpoint({self.name!r}, {self.spec.protocol}, {self.path})"
@@ -114,9 +131,10 @@ class Bench:
         self.started_at: float | None = None
         self._stopped = False
         self.control = None  # a ControlServer once serve_control() ran
-        self.services: dict[str, Any] = {}  # name -> object with close() and describe(): listed in the manifest
+        self.services: dict[str, Any] = {}  #: name -> object with close() and describe(): listed in the manifest
         self._manifest_token: str | None = None  # names this bench's manifests (see hilbench.bench.manifest)
         self._manifests: dict[Path, Any] = {}  # path -> ManifestClaim
+        self._access: dict[str, FamilyAccess] = {}  # family name -> what family() returns
 
     # ------------------------------------------------------------------ lifecycle
 
@@ -134,7 +152,7 @@ class Bench:
         prof = self.profile
         try:
             for spec in prof.endpoints.values():
-                family = registry.family_for_protocol(spec.protocol)
+                bus_kind = registry.bus_kinds.get(spec.protocol)
                 try:
                     port = registry.host_ports.get(spec.type).open(spec.name, spec.port_options,
                                                                    link_dir=self.link_dir)
@@ -143,22 +161,25 @@ class Bench:
                         from None
                 paced = spec.paced if self.paced is None else self.paced
                 try:
-                    medium = registry.media.get(family.medium)(spec.name, spec.baud,
-                                                               paced=family.paced(spec, paced))
+                    medium = registry.media.get(bus_kind.medium)(spec.name, spec.baud,
+                                                                 paced=bus_kind.paced(spec, paced))
                 except Exception:
                     port.close()
                     raise
                 medium.protocol = spec.protocol
-                ep = Endpoint(spec, port, medium, family)
+                specs = prof.devices_on(spec.name)
+                ep = Endpoint(spec, port, medium, bus_kind, specs)
                 self.endpoints[spec.name] = ep
                 try:
-                    family.build(self, ep, prof.devices_on(spec.name), t)
+                    ep.bus = bus_kind.open(self, ep)
+                    for family in ep.families():  # each family builds its own devices, in profile order
+                        registry.families.get(family).build(self, ep, [s for s in specs if s.family == family], t)
                 except BindError as exc:
                     raise self._bind_error(exc, spec.name, exc.key) from None
                 self.devices.update(ep.devices)
                 medium.add_host(port)
                 if self.tap:
-                    # the medium's protocol: what its traffic is, as the family may have refined it
+                    # the medium's protocol: what its traffic is, as the bus kind may have refined it
                     # (a Protocol 1.0 Dynamixel bus carries "dynamixel1")
                     try:
                         ep.tap = TapServer(host=self.bind, baud=spec.baud, protocol=medium.protocol or spec.protocol,
@@ -175,7 +196,9 @@ class Bench:
             for ep in self.endpoints.values():
                 ep.medium.start()
             for ep in self.endpoints.values():
-                ep.family.start(ep, t)
+                ep.bus_kind.start(ep, t)
+                for family in ep.families():
+                    registry.families.get(family).start(ep, ep.devices_of(family), t)
         except Exception:
             self.stop()
             raise
@@ -223,7 +246,9 @@ class Bench:
             service.close()
         self.services.clear()
         for ep in self.endpoints.values():
-            ep.family.stop(ep)
+            for family in ep.families():
+                registry.families.get(family).stop(ep, ep.devices_of(family))
+            ep.bus_kind.stop(ep)
             ep.medium.close()
             for service in ep.services.values():  # after the medium: its thread waits on their sockets
                 service.close()
@@ -254,13 +279,28 @@ class Bench:
         if isinstance(name_or_address, str):
             return self.devices[name_or_address]
         ep = self.endpoint(endpoint)
-        return ep.family.device_at(ep, name_or_address)
+        return ep.bus_kind.device_at(ep, name_or_address)
+
+    def family(self, name: str) -> FamilyAccess:
+        """A family's devices on this bench with its typed lookups: ``bench.family("stm32-rover").board()``,
+        ``bench.family("canopen").node(2)`` (its :attr:`DeviceFamily.access`). UsageError when the bench has no
+        device of that family."""
+        access = self._access.get(name)
+        if access is None:
+            family = registry.families.get(name)  # (UsageError naming the known ones)
+            present = list(dict.fromkeys(s.family for s in self.profile.devices))
+            if name not in present:
+                raise UsageError(f"bench {self.profile.name!r} has no device of family {name!r} "
+                                 f"(families: {', '.join(present) or 'none'})")
+            access = self._access[name] = family.access(self, family)
+        return access
 
     def family_of(self, device_name: str) -> DeviceFamily:
         """The family that built a device."""
         for ep in self.endpoints.values():
-            if device_name in ep.devices:
-                return ep.family
+            spec = ep.specs.get(device_name)
+            if spec is not None and device_name in ep.devices:
+                return registry.families.get(spec.family)
         raise KeyError(device_name)
 
     def serve_control(self, host: str | None = None, port: int = 0):
@@ -279,18 +319,14 @@ class Bench:
 
     @property
     def has_control_commands(self) -> bool:
-        """Whether any device on this bench answers control commands (``emulate`` then serves the channel)."""
-        return any(ep.family.control_commands and ep.devices for ep in self.endpoints.values())
+        """Whether any device or bus on this bench answers control commands (``emulate`` then serves the
+        channel)."""
+        return any(ep.bus_kind.control_commands or any(self.family_of(n).control_commands for n in ep.devices)
+                   for ep in self.endpoints.values())
 
     def now(self) -> float:
         """The bench's clock (the devices' ``t``)."""
         return time.monotonic()
-
-    def __getattr__(self, key: str) -> Any:
-        for fam in registry.families.values():
-            if key in fam.bench_methods:
-                return functools.partial(fam.bench_methods[key], self)
-        raise AttributeError(f"{type(self).__name__!r} object has no attribute {key!r}")
 
     # ------------------------------------------------------------------ manifest
 
@@ -308,15 +344,16 @@ class Bench:
                 **medium_timing(ep.medium),  # scheduling, cpu_latency
                 "tap": ep.tap.url if ep.tap is not None else None,
             }
-            entry.update(ep.family.describe_endpoint(ep))
+            entry.update(ep.bus_kind.describe_endpoint(ep))
             for service in ep.services.values():
                 entry.update(service.describe())
             eps.append(entry)
         devs = []
         for spec in self.profile.devices:
             ep = self.endpoints.get(spec.endpoint)
-            family = registry.family_for_protocol(self.profile.endpoints[spec.endpoint].protocol)
-            devs.append(family.describe_device(spec, self.devices.get(spec.name), ep, self.profile))
+            family = registry.families.get(spec.family)
+            entry = family.describe_device(spec, self.devices.get(spec.name), ep, self.profile)
+            devs.append({**entry, "family": spec.family})
         out: dict[str, Any] = {
             "name": self.profile.name,
             "profile": self.profile.path,

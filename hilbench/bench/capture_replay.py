@@ -238,6 +238,8 @@ class Stream:
     label: str
 
 
+#: How long a CAN replay waits for the bench to be as the capture found the bus (nodes booted).
+READY_TIMEOUT = 2.0
 #: A stream's period on the bench may differ from the captured one by this share (or 2 ms).
 PERIOD_TOLERANCE = 0.1
 
@@ -249,8 +251,11 @@ class FrameReplay:
 
     def __init__(self, endpoint: str, exchanges: list[Exchange], streams: list[Stream], *,
                  span: float | None = None, notes: list[str] | None = None, settle: float = 0.0,
-                 t0: float | None = None) -> None:
+                 t0: float | None = None, ready: Callable[[Any], bool] | None = None) -> None:
         self.endpoint = endpoint
+        #: Whether the bench is as the capture found the bus (its nodes booted when the capture starts after
+        #: their boot-up): the replay's clock starts once it is true (at most :data:`READY_TIMEOUT`).
+        self.ready = ready
         #: The capture's start: the first request waits as long after it as it came in the capture.
         self.t0 = t0
         self.exchanges = exchanges
@@ -290,6 +295,10 @@ class FrameReplay:
 
         thread = threading.Thread(target=receive, name="verify-can", daemon=True)
         thread.start()
+        if self.ready is not None:
+            end = time.monotonic() + READY_TIMEOUT
+            while not self.ready(bench) and time.monotonic() < end:
+                time.sleep(0.002)
         started = time.monotonic()
         try:
             t0 = self.t0 if self.t0 is not None else self.exchanges[0].t if self.exchanges else 0.0

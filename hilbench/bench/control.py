@@ -7,7 +7,8 @@ per line each way::
     -> {"cmd": "button", "device": "rover"}
     <- {"ok": true, "status": {...}}
 
-The bench answers ``devices`` (each device that takes commands, with them),
+The bench answers ``devices`` (each device that takes commands, with them, and
+each endpoint whose bus does, under ``endpoints``),
 ``taps`` (each endpoint's traffic tap: its clients, limits and what it dropped),
 ``media`` (each endpoint's line or bus: kind, paced, what its thread is scheduled
 under and its counters, e.g. how late a paced serial line handed transmissions
@@ -16,10 +17,13 @@ server's clients and what it refused or dropped),
 ``servers`` (each endpoint's network servers, e.g. RFC 2217, with their
 client and counters), ``control`` (this channel's limits and counters) and ``manifest`` (the bench's
 manifest, for programs that reach the bench only through this channel, e.g. over labgrid);
-every other command belongs to a device family
+every other command belongs to a device's family
 (:attr:`~hilbench.bench.family.DeviceFamily.control_commands`), e.g. the rover
 board's ``status``, ``button``, ``reset``, ``fault``, ``log`` and
-``wait_report``. ``device`` may be left out when one device answers the
+``wait_report``, or to an endpoint's bus kind
+(:attr:`~hilbench.bench.bus.BusKind.control_commands`, e.g. a CAN bus's
+``bus``, addressed with ``"endpoint": NAME`` or a device on it). ``device``
+(``endpoint``) may be left out when one device (one endpoint) answers the
 command. Errors come back as ``{"ok": false, "error": "...", "exit": N}``,
 malformed requests included (``exit``: 2 for a request the bench cannot do as
 asked, such as an unknown device or a knob out of range, 1 when the bench or
@@ -200,7 +204,8 @@ class ControlServer:
 
     :data:`BENCH_COMMANDS` are the bench's own commands; every other command
     goes to the family of the device it names (or of the only device whose
-    family answers it): :attr:`DeviceFamily.control_commands`. The limits
+    family answers it): :attr:`DeviceFamily.control_commands`, or to the bus
+    kind of the endpoint it names (:attr:`BusKind.control_commands`). The limits
     (clients, timeouts) are the module's constants unless given here.
     """
 
@@ -587,9 +592,37 @@ class ControlServer:
         out = {}
         for ep in self.bench.endpoints.values():
             for name in ep.devices:
-                if ep.family.control_commands:
-                    out[name] = list(ep.family.control_commands)
+                commands = self.bench.family_of(name).control_commands
+                if commands:
+                    out[name] = list(commands)
         return out
+
+    def _bus_commands(self) -> dict[str, list[str]]:
+        """Endpoint name -> the control commands its bus kind answers."""
+        return {ep.name: list(ep.bus_kind.control_commands) for ep in self.bench.endpoints.values()
+                if ep.bus_kind.control_commands}
+
+    def _endpoint(self, cmd: str, req: dict[str, Any]):
+        """The endpoint a bus command is for: named (``endpoint``), the endpoint of the named ``device``, or
+        the only one whose bus answers ``cmd``."""
+        able = sorted(n for n, cmds in self._bus_commands().items() if cmd in cmds)
+        name = req.get("endpoint")
+        if name is not None and not isinstance(name, str):
+            raise ControlRequestError(f"endpoint: expected an endpoint name, got {name!r:.40}")
+        device = req.get("device")
+        if name is None and isinstance(device, str):
+            name = next((ep.name for ep in self.bench.endpoints.values() if device in ep.devices), None)
+            if name is None:
+                raise ControlRequestError(f"no device named {device!r} (endpoints answering {cmd!r}: "
+                                          f"{', '.join(able) or 'none'})")
+        if name is None:
+            if len(able) != 1:
+                raise ControlRequestError(f"name an endpoint: the bench has {', '.join(able)} answering {cmd!r}")
+            name = able[0]
+        if name not in able:
+            raise ControlRequestError(f"endpoint {name!r} has no command {cmd!r} (endpoints answering it: "
+                                      f"{', '.join(able) or 'none'})")
+        return self.bench.endpoints[name]
 
     def _device(self, cmd: str, req: dict[str, Any]):
         commands = self._commands()
@@ -600,7 +633,8 @@ class ControlServer:
         if name is None:
             if len(able) != 1:
                 if not able:
-                    known = sorted({c for cmds in commands.values() for c in cmds} | set(BENCH_COMMANDS))
+                    known = sorted({c for cmds in commands.values() for c in cmds} | set(BENCH_COMMANDS)
+                                   | {c for cmds in self._bus_commands().values() for c in cmds})
                     raise ControlRequestError(f"unknown command {cmd!r} (expected {', '.join(known)})")
                 raise ControlRequestError(f"name a device: the bench has {', '.join(able)} answering {cmd!r}")
             name = able[0]
@@ -615,7 +649,8 @@ class ControlServer:
 
     def _word(self, cmd: str) -> str:
         """How the devices answering ``cmd`` are called (a family's device word, e.g. "board")."""
-        words = {ep.family.device_word for ep in self.bench.endpoints.values() if cmd in ep.family.control_commands}
+        families = {self.bench.family_of(n) for ep in self.bench.endpoints.values() for n in ep.devices}
+        words = {f.device_word for f in families if cmd in f.control_commands}
         return words.pop() if len(words) == 1 else "device"
 
     def _dispatch(self, req: dict[str, Any]) -> dict[str, Any]:
@@ -623,7 +658,7 @@ class ControlServer:
         if not isinstance(cmd, str):
             raise ControlRequestError("expected {\"cmd\": NAME, ...}")
         if cmd == "devices":
-            return {"devices": self._commands()}
+            return {"devices": self._commands(), "endpoints": self._bus_commands()}
         if cmd == "servers":
             return {"servers": {ep.name: {name: service.status() if hasattr(service, "status") else service.describe()
                                           for name, service in ep.services.items()}
@@ -639,6 +674,10 @@ class ControlServer:
         if cmd == "taps":
             return {"taps": {ep.name: {"url": ep.tap.url, **ep.tap.status()}
                              for ep in self.bench.endpoints.values() if ep.tap is not None}}
+        if any(cmd in c for c in self._bus_commands().values()) and (
+                "endpoint" in req or not any(cmd in c for c in self._commands().values())):
+            ep = self._endpoint(cmd, req)
+            return ep.bus_kind.control(self.bench, ep, cmd, req)
         _name, device, family = self._device(cmd, req)
         return family.control(self.bench, device, cmd, req)
 

@@ -5,7 +5,7 @@ it throws away bytes the bench has not read yet (on a USB adapter they are
 already on the wire). ``hilbench run`` makes unmodified clients ask this server
 instead, through an LD_PRELOAD shim or a pyserial patch (:mod:`hilbench.run`).
 
-One server per bench, a :attr:`Bench.services` entry named ``lines``: a Unix
+One server per bench, a :attr:`Bench.services <hilbench.bench.bench.Bench.services>` entry named ``lines``: a Unix
 socket in a private directory (mode 0700, so only this user's programs reach
 it), listed in the manifest with the device number (``st_rdev``) of every pty
 it serves. A client sends one line per request and reads one line back, on a
@@ -20,7 +20,7 @@ request                 what the bench does                                 ``ok
 ``mget``                read the modem lines (TIOCMGET)                     TIOCM_* mask
 ``mset|mbis|mbic M``    set / raise / clear DTR and RTS (TIOCMSET/BIS/BIC)  mask afterwards
 ``break on|off|SECS``   BREAK on, off, or for SECS (answered after them)    0
-``flush``               take the bytes the client wrote, then OutputFlushed bytes taken
+``flush``               take what the client wrote, then OutputFlushed      bytes taken
 ``drain``               take them and answer once they are delivered        bytes taken
 ``sync [CFLAG]``        re-read baud rate; CFLAG: the client's framing      baud (0: unknown)
 ``framing``             the framing the client last set (a pty forgets it)  c_cflag bits, -1: none
@@ -39,8 +39,12 @@ real adapter whose client did not wait with ``tcdrain``.
 Hand-written over the standard library's socket module: socketserver's
 shutdown polls (up to half a second per bench stop), too slow for test suites
 that start hundreds of benches. At most :data:`MAX_CLIENTS` connections are
-served at once (one more is answered ``err too many clients`` and closed) and
-one idle for :data:`IDLE_TIMEOUT` seconds is closed (clients connect anew).
+served at once: a newcomer beyond takes the place of the connection that has
+waited longest for its next request, if that is :data:`EVICT_IDLE` seconds or
+more (it is closed as an idle one is: clients connect anew for their next
+request); only when every connection is busy or just answered is the
+newcomer answered ``err too many clients`` and closed. A connection idle for
+:data:`IDLE_TIMEOUT` seconds is closed.
 """
 
 from __future__ import annotations
@@ -58,6 +62,7 @@ from typing import Any
 from hilbench.bench.delivery_board import FILE_NAME as BOARD_FILE
 from hilbench.bench.delivery_board import DeliveryBoard
 from hilbench.errors import RequestRefused
+from hilbench.transports.client_limit import Eviction
 from hilbench.transports.listener import Listener
 from hilbench.transports.readiness import readable
 
@@ -69,9 +74,22 @@ MAX_REQUEST = 256
 MAX_CLIENTS = 64
 #: A connection that sends no request for this long is closed (seconds); clients then connect anew.
 IDLE_TIMEOUT = 60.0
+#: A connection waiting this long for its next request may be closed for a newcomer (seconds).
+EVICT_IDLE = 1.0
 
 TIOCM = {"dtr": termios.TIOCM_DTR, "rts": termios.TIOCM_RTS, "cts": termios.TIOCM_CTS,
          "dsr": termios.TIOCM_DSR, "ri": termios.TIOCM_RNG, "cd": termios.TIOCM_CAR}
+
+
+class _Conn:
+    """A connection's state, for choosing one to close for a newcomer."""
+
+    __slots__ = ("sock", "last", "busy")
+
+    def __init__(self, sock: socket.socket) -> None:
+        self.sock = sock
+        self.last = time.monotonic()  # when it last connected or was answered
+        self.busy = False  # a request has begun
 
 
 class _Port:
@@ -118,8 +136,10 @@ class LineServer:
                 watch(p.port, lambda ns, _rdev=rdev: self.board.delivered(_rdev, ns),
                       lambda _rdev=rdev: self.board.writers_idle(_rdev),
                       lambda _rdev=rdev: self.board.draining(_rdev))
-        self._conns: set[socket.socket] = set()
+        self._conns: dict[socket.socket, _Conn] = {}
         self._conns_lock = threading.Lock()
+        self._eviction: Eviction[_Conn] = Eviction(
+            lambda c, now: None if c.busy or now - c.last < EVICT_IDLE else (0, c.last))
         self._listener = Listener("", 0, 0, max_clients=MAX_CLIENTS, sock=self._sock,
                                   refusal=lambda reason: f"err too many clients ({reason})\n".encode())
         self._wake_r, self._wake_w = os.pipe()
@@ -288,13 +308,24 @@ class LineServer:
             with self._conns_lock:
                 if self._closed.is_set():
                     return
-                for conn, _ in listener.accept(len(self._conns)):
+                for conn, _ in listener.accept(len(self._conns), self._evict):
                     conn.settimeout(IDLE_TIMEOUT)  # (blocking, with a timeout: one thread per connection)
-                    self._conns.add(conn)
-                    threading.Thread(target=self._serve, args=(conn,), name="line-request", daemon=True).start()
+                    state = self._conns[conn] = _Conn(conn)
+                    threading.Thread(target=self._serve, args=(state,), name="line-request", daemon=True).start()
 
-    def _serve(self, conn: socket.socket) -> None:
+    def _evict(self) -> bool:
+        """Close the connection idle longest for a newcomer (called with ``_conns_lock`` held)."""
+        victim = self._eviction.victim(list(self._conns.values()), time.monotonic())
+        if victim is None:
+            return False
+        del self._conns[victim.sock]
+        with contextlib.suppress(OSError):
+            victim.sock.shutdown(socket.SHUT_RDWR)  # its thread's recv() ends: it closes the socket
+        return True
+
+    def _serve(self, state: _Conn) -> None:
         """Answer requests on one connection, one line each, until the client closes it (or idles)."""
+        conn = state.sock
         data = b""
         try:
             while not self._closed.is_set():
@@ -302,17 +333,19 @@ class LineServer:
                     chunk = conn.recv(MAX_REQUEST)
                     if not chunk:
                         return  # the client is done (or went away)
+                    state.busy = True
                     data += chunk
                 line, sep, data = data.partition(b"\n")
                 if not sep or len(line) > MAX_REQUEST:
                     conn.sendall(b"err request too long\n")
                     return
                 conn.sendall(self.handle(line.decode("ascii", "replace")).encode() + b"\n")
+                state.busy, state.last = bool(data), time.monotonic()
         except OSError:
             pass  # the client went away: it fails open on its side
         finally:
             with self._conns_lock:
-                self._conns.discard(conn)
+                self._conns.pop(conn, None)
             conn.close()
 
     def close(self) -> None:

@@ -9,7 +9,7 @@ and what was expected. Example::
 
     [endpoints.arm]
     type = "pty"                 # the port a host program opens (a registered host port type)
-    protocol = "dynamixel"       # which device family answers behind it
+    protocol = "dynamixel"       # the bus behind it (a registered bus kind)
     baud = 1_000_000
     paced = false
 
@@ -20,13 +20,17 @@ and what was expected. Example::
 
 This module knows the frame only: ``schema``, ``description``,
 ``[endpoints.NAME]`` with ``type``, ``protocol``, ``baud`` and ``paced``, and
-``[[devices]]`` with ``endpoint``. Everything else belongs to a plug-in found
-in :mod:`hilbench.registry`: the host port of the endpoint's ``type`` checks
-its keys (a pty's ``link``, a UDP port's ``bind``/``port``/``peer``), and the
-device family of its ``protocol`` checks the baud rate, its own endpoint keys,
-every device entry on the endpoint, ``[defaults]`` keys and top-level tables
-it declares. An endpoint without ``protocol`` gets the one of the family
-whose models its devices name.
+``[[devices]]`` with ``endpoint`` and ``model``. Everything else belongs to a
+plug-in found in :mod:`hilbench.registry`: the host port of the endpoint's
+``type`` checks its keys (a pty's ``link``, a UDP port's
+``bind``/``port``/``peer``); the bus kind of its ``protocol`` checks the line
+rate and its own endpoint keys, and across the devices on the endpoint how
+many there are and that no address is taken twice; the device family of each
+entry's ``model`` checks that entry's keys (so one endpoint may carry devices
+of several families), and the ``[defaults]`` keys and top-level tables it
+declares. An endpoint without ``protocol`` gets the one bus protocol the
+families of its devices' models join; a device entry without ``model`` is of
+the only family joining its endpoint's protocol.
 
 Overrides (``hilbench emulate PROFILE --set dxl.baud=1000000``, the pytest
 fixtures' ``set={...}``) change the TOML data before it is checked, so they
@@ -41,7 +45,7 @@ import tomllib
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 from hilbench import registry
 from hilbench.bench.checks import Checker, ProfileError
@@ -54,13 +58,13 @@ CORE_ENDPOINT_KEYS = ("type", "protocol", "baud", "paced")
 #: Top-level keys the core reads itself.
 CORE_KEYS = ("schema", "description", "endpoints", "devices", "defaults")
 
+S = TypeVar("S", bound=DeviceSpec)
+
 
 @dataclass
 class EndpointSpec:
-    """One endpoint of a profile: the core keys, the host port's options and the family's options.
-
-    Options read as attributes too (``spec.link``, ``spec.chain_policy``).
-    """
+    """One endpoint of a profile: the core keys, the host port's options (``port_options["link"]``) and the
+    bus kind's options (``options["chain_policy"]``), each as the plug-in that checked them made them."""
 
     name: str
     type: str
@@ -69,17 +73,6 @@ class EndpointSpec:
     paced: bool = False
     port_options: dict[str, Any] = field(default_factory=dict)
     options: dict[str, Any] = field(default_factory=dict)
-
-    def __getattr__(self, key: str) -> Any:
-        for table in (self.__dict__.get("port_options", {}), self.__dict__.get("options", {})):
-            if key in table:
-                return table[key]
-        raise AttributeError(f"endpoint {self.__dict__.get('name')!r} has no option {key!r}")
-
-    @property
-    def family(self) -> DeviceFamily:
-        """The device family serving this endpoint's protocol."""
-        return registry.family_for_protocol(self.protocol)
 
 
 @dataclass
@@ -101,18 +94,10 @@ class Profile:
         """The device specs of one endpoint, in profile order."""
         return [d for d in self.devices if d.endpoint == endpoint]
 
-    def devices_of(self, family: str) -> list[DeviceSpec]:
-        """The device specs of one family, in profile order."""
-        return [d for d in self.devices if d.family == family]
-
-    def __getattr__(self, key: str) -> Any:
-        defaults = self.__dict__.get("defaults", {})
-        if key in defaults:
-            return defaults[key]
-        for fam in registry.families.values():
-            if key in fam.profile_attrs:
-                return self.devices_of(fam.name)
-        raise AttributeError(f"profile has no attribute {key!r}")
+    def devices_of(self, family: str, kind: type[S] = DeviceSpec) -> list[S]:  # type: ignore[assignment]
+        """The device specs of one family, in profile order (``kind``: the family's spec class, for typing:
+        ``profile.devices_of("stm32-rover", BoardSpec)``)."""
+        return [d for d in self.devices if d.family == family and isinstance(d, kind)]
 
 
 def bundled_profiles() -> dict[str, Path]:
@@ -309,9 +294,15 @@ def parse_profile(data: dict[str, Any], path: str = "<profile>") -> Profile:
             profile.tables[name] = fam.check_table(c, name, data[name])
     for i, dev in enumerate(raw_devs):
         profile.devices.extend(_devices(c, f"devices[{i}]", dev, profile))
-    for fam in {registry.family_for_protocol(ep.protocol).name: registry.family_for_protocol(ep.protocol)
-                for ep in endpoints.values()}.values():
-        fam.check_profile(c, profile)
+    for name, spec in endpoints.items():
+        kind = registry.bus_kinds.get(spec.protocol)
+        if kind.default_device is not None and not profile.devices_on(name):
+            profile.devices.extend(_devices(c, f"endpoints.{name}", {**kind.default_device, "endpoint": name},
+                                            profile))
+    for name, spec in endpoints.items():
+        registry.bus_kinds.get(spec.protocol).check_devices(c, spec, profile.devices_on(name))
+    for fam_name in dict.fromkeys(spec.family for spec in profile.devices):
+        registry.families.get(fam_name).check_profile(c, profile)
     names: set[str] = set()
     for spec in profile.devices:
         if spec.name in names:
@@ -339,25 +330,29 @@ def _endpoint(c: Checker, name: str, ep: Any, raw_devs: list[dict[str, Any]], on
     ep = c.table(ep, key)
     kind = c.choice(ep.get("type", "pty"), f"{key}.type", registry.host_ports.names())
     port_cls = registry.host_ports.get(kind)
-    protocols = [p for fam in registry.families.values() for p in fam.protocols]
+    protocols = registry.bus_kinds.names()
     protocol = ep.get("protocol")
     if protocol is None:
-        # No protocol: the family whose models the endpoint's devices name (a bare servo bus stays short).
-        models = [d.get("model") for d in raw_devs if _device_endpoint(d, name, only)]
-        found = {fam.name: fam for fam in registry.families.values() for m in models if fam.knows_model(m)}
+        # No protocol: the one bus protocol the families of its devices' models join (a bare servo bus stays
+        # short).
+        joined: set[str] | None = None
         for i, d in enumerate(raw_devs):
-            if _device_endpoint(d, name, only) and "model" in d and not any(
-                    f.knows_model(d["model"]) for f in registry.families.values()):
-                known = sorted({m for f in registry.families.values() for m in f.models})
-                c.fail(f"devices[{i}].model", f"unknown model {d['model']!r} (expected one of: {', '.join(known)})")
-        if len(found) != 1:
+            if not _device_endpoint(d, name, only) or "model" not in d:
+                continue
+            family = registry.family_for_model(d["model"])
+            if family is None:
+                c.fail(f"devices[{i}].model", f"unknown model {d['model']!r} (expected one of: "
+                                              f"{', '.join(_models())})")
+            joins = set(family.joins_for(d["model"]))
+            joined = joins if joined is None else joined & joins
+        if not joined or len(joined) != 1:
             c.fail(f"{key}.protocol", f"missing (expected one of {', '.join(protocols)})")
-        protocol = next(iter(found.values())).protocols[0]
+        protocol = joined.pop()
     c.choice(protocol, f"{key}.protocol", protocols)
-    family = registry.family_for_protocol(protocol)
-    rate_key = family.rate_key  # "baud", or what the family's users call the line rate ("bitrate" on CAN)
+    bus = registry.bus_kinds.get(protocol)
+    rate_key = bus.rate_key  # "baud", or what the bus's users call the line rate ("bitrate" on CAN)
     allowed = (*CORE_ENDPOINT_KEYS, *((rate_key,) if rate_key != "baud" else ()), *port_cls.profile_keys,
-               *family.endpoint_keys)
+               *bus.endpoint_keys)
     for k in ep:
         if k not in allowed:
             owners = [n for n, cls in registry.host_ports.items() if k in cls.profile_keys]
@@ -365,21 +360,28 @@ def _endpoint(c: Checker, name: str, ep: Any, raw_devs: list[dict[str, Any]], on
                 types = " or ".join(f'type = "{o}"' for o in owners)
                 c.fail(f"{key}.{k}", f"only for {types} endpoints")
             c.fail(f"{key}.{k}", f"unknown key (expected one of: {', '.join(allowed)})")
-    if kind not in family.endpoint_types:
-        types = " or ".join(f'"{t}"' for t in family.endpoint_types)
+    if kind not in bus.endpoint_types:
+        types = " or ".join(f'"{t}"' for t in bus.endpoint_types)
         c.fail(f"{key}.type", f'expected {types} for protocol "{protocol}", got "{kind}"')
     if rate_key != "baud" and rate_key in ep and "baud" in ep:
         c.fail(f"{key}.baud", f"give the line rate once: {rate_key} or baud")
     rate_name = rate_key if rate_key in ep else "baud"
-    baud = family.check_baud(c, f"{key}.{rate_name}", ep.get(rate_name), kind)
+    baud = bus.check_baud(c, f"{key}.{rate_name}", ep.get(rate_name), kind)
     port_options = c.options(port_cls.check_options, {k: ep[k] for k in port_cls.profile_keys if k in ep}, key)
-    options = family.check_endpoint(c, key, ep, kind)
+    options = bus.check_endpoint(c, key, ep, kind)
     return EndpointSpec(name=name, type=kind, protocol=protocol, baud=baud,
                         paced=c.boolean(ep.get("paced", False), f"{key}.paced"),
                         port_options=port_options, options=options)
 
 
+def _models(protocol: str | None = None) -> list[str]:
+    """Model names of every family (joining ``protocol``), for "expected one of" lists."""
+    fams = registry.families_joining(protocol) if protocol is not None else registry.families.values()
+    return sorted({m for fam in fams for m in fam.models})
+
+
 def _devices(c: Checker, where: str, dev: dict[str, Any], profile: Profile) -> list[DeviceSpec]:
+    """One ``[[devices]]`` entry, checked by the family of its model."""
     endpoints = profile.endpoints
     ep_name = dev.get("endpoint")
     if ep_name is None and len(endpoints) == 1:
@@ -387,14 +389,23 @@ def _devices(c: Checker, where: str, dev: dict[str, Any], profile: Profile) -> l
     if ep_name not in endpoints:
         c.fail(f"{where}.endpoint", f"expected one of the endpoints ({', '.join(endpoints)}), got {ep_name!r}")
     spec = endpoints[ep_name]
-    family = registry.family_for_protocol(spec.protocol)
-    model = dev.get("model")
-    if not family.knows_model(model):
-        for other in registry.families.values():
-            if other is not family and other.knows_model(model):
-                protos = " or ".join(f'"{p}"' for p in other.protocols)
-                c.fail(f"{where}.endpoint", f"a {model} {other.device_word} needs an endpoint with "
-                                            f"protocol = {protos}")
+    if "model" in dev:
+        model = dev["model"]
+        family = registry.family_for_model(model)
+        if family is None:
+            c.fail(f"{where}.model", f"unknown model {model!r} (expected one of: {', '.join(_models(spec.protocol))})")
+    else:
+        joining = registry.families_joining(spec.protocol)
+        if len(joining) != 1:
+            c.fail(f"{where}.model", f"missing (expected a model name: {', '.join(_models(spec.protocol))})")
+        family = joining[0]
+        model = None
+    joins = family.joins_for(model)
+    if spec.protocol not in joins:
+        protos = " or ".join(f'"{p}"' for p in joins)
+        what = f"model {model!r}" if model is not None else f"a {family.device_word}"
+        c.fail(f"{where}.endpoint", f"{what} (family {family.name}) needs an endpoint with protocol = {protos}; "
+                                    f"{ep_name!r} has protocol = \"{spec.protocol}\"")
     c.unknown(dev, where, family.device_keys)
     specs = family.check_devices(c, where, dev, spec, profile)
     for s in specs:

@@ -53,16 +53,18 @@ def cmd_emulate(args: argparse.Namespace) -> int:
         warn_beyond_machine(args.bind, f"--bind {args.bind}: every server, traffic tap and the control channel",
                             "without authentication; labgrid's SSH proxying reaches a bench bound to 127.0.0.1")
         for ep in bench.endpoints.values():
-            print(f"  {ep.name}: {_where(ep)}  ({ep.family.summary(ep)})")
+            print(f"  {ep.name}: {_where(ep)}  ({ep.bus_kind.summary(ep)})")
             for name, service in ep.services.items():
                 print(f"    {name}: {service.describe().get(registry.servers.get(name).manifest_key, service)}")
             if ep.tap is not None:
                 where = f"{manifest}#{ep.name}" if manifest else ep.tap.url
-                print(f"    traffic tap: {ep.tap.url}  (hilbench {ep.family.tap_reader} {where})")
+                print(f"    traffic tap: {ep.tap.url}  (hilbench {ep.bus_kind.tap_reader} {where})")
         if bench.control is not None:
-            takers = "; ".join(f"{name}: {', '.join(ep.family.control_commands)}"
-                               for ep in bench.endpoints.values() if ep.family.control_commands
-                               for name in ep.devices)
+            takers = "; ".join([f"{name}: {', '.join(bench.family_of(name).control_commands)}"
+                                for ep in bench.endpoints.values() for name in ep.devices
+                                if bench.family_of(name).control_commands]
+                               + [f"endpoint {ep.name}: {', '.join(ep.bus_kind.control_commands)}"
+                                  for ep in bench.endpoints.values() if ep.bus_kind.control_commands])
             print(f"  control: {bench.control.address_text}  ({takers or ', '.join(BENCH_COMMANDS)})")
         if lines is not None and manifest:
             print(f"  modem lines: hilbench run --manifest {manifest} -- COMMAND")

@@ -384,7 +384,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     r = sub.add_parser(
         "record", help=VERBS["record"],
         description="Store every byte from SOURCE (as for `hilbench monitor`) with its time and direction in FILE "
-                    "(hilbench capture format, see docs/capture-format.md; '-' for stdout" + _formats() + "). Stops "
+                    "(hilbench capture format, see docs/formats/capture-format.md; '-' for stdout" + _formats() + "). Stops "
                     "when the source ends, on Ctrl-C / SIGTERM, or after --seconds. Converts raw dumps too.")
     r.add_argument("source", help="what to record")
     r.add_argument("file", help="capture file to write ('-': stdout)")

@@ -10,13 +10,16 @@ from hilbench import registry
 
 ORDER = 90
 VERBS = {  # each verb register() adds and its line in `hilbench --help` (see hilbench.cli)
-    "plugins": "list the device families, endpoint types, sources, instruments, verbs and fuzz targets",
+    "plugins": "list the device families, bus kinds, endpoint types, sources, instruments, verbs and fuzz targets",
 }
 
 
 def _describe(kind: registry.Kind, name: str, obj) -> str:
     if kind is registry.families:
-        return f"protocols {', '.join(obj.protocols)}; endpoints {', '.join(obj.endpoint_types)}"
+        return f"joins {', '.join(obj.joins)}; {len(obj.models)} models ({', '.join(obj.models[:3])}, ...)" \
+            if len(obj.models) > 3 else f"joins {', '.join(obj.joins)}; models {', '.join(obj.models)}"
+    if kind is registry.bus_kinds:
+        return f"{obj.medium} medium; endpoints {', '.join(obj.endpoint_types)}"
     if kind is registry.instruments:
         return f"{obj.title or obj.protocol} (hilbench {obj.verb})"
     if kind is registry.sources:

@@ -1,7 +1,7 @@
 """A host-side client of the rover board on CAN: NMT start, velocity setpoints every 50 ms, odometry back.
 
 Works on any python-can bus (socketcand, SLCAN, SocketCAN, a real adapter,
-``bench.can_bus()`` in the bench's process)::
+``bench.endpoint("can").port.open_bus()`` in the bench's process)::
 
     import can
     from hilbench.clients.can_rover import RoverCanClient

@@ -110,7 +110,7 @@ def servo_endpoint(bench: Bench):
     """The bench's first servo bus (a Dynamixel or Feetech endpoint with servos)."""
     for name in bench.endpoints:
         ep = bench.endpoint(name)
-        bus = ep.attrs.get("bus")
+        bus = ep.bus
         if bus is not None and any(getattr(s, "is_servo", False) for s in getattr(bus, "servos", ())):
             return ep
     raise DemoUsageError(f"profile {bench.profile.name!r} has no servo bus")

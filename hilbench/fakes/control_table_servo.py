@@ -85,7 +85,7 @@ class ControlTableServo:
         self.name = name or f"{model.name}#{servo_id}"
         self.supply_voltage = supply_voltage
         self.ambient_temperature = ambient_temperature
-        self.reboot_time = reboot_time
+        self.reboot_time = reboot_time  #: seconds a reboot keeps the servo silent
         self.faults = Faults(seed=seed or servo_id)
         self.initial = dict(initial or {})
         self._registered: tuple[int, bytes] | None = None

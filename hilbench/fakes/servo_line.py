@@ -55,6 +55,10 @@ class ServoLine:
         """Join a serial line."""
         self.port = medium.add_device(self)
 
+    def add(self, servo: Any) -> None:
+        """Put one more device on the bus (a servo, or a board answering at its own ID)."""
+        self.servos.append(servo)
+
     def servo(self, servo_id: int) -> Any:
         """The device that currently has ``servo_id``."""
         for s in self.servos:

@@ -1,18 +1,8 @@
 """The CANopen board family: the STM32 rover board as a CANopen node on an emulated CAN bus.
 
-Profile schema (endpoint ``type = "can"``, ``protocol = "can"``)::
-
-    [endpoints.can]
-    type = "can"
-    protocol = "can"
-    bitrate = 500_000                # 10 kbit/s .. 1 Mbit/s (``baud`` is accepted too)
-    paced = true                     # arbitration and bit-time pacing (false: frames delivered at once)
-    socketcand = { port = 0, channel = "can0" }   # the host port's doors, see hilbench.transports.can_port
-    slcan = true
-    # virtual = "rover-bus"
-    # socketcan = "vcan0"
-    bus_faults = { error_rate = 0.0, error_next = 0, auto_recover = true }
-    # seed = 0                       # the bus's fault draws
+The bus is the generic CAN bus kind (:mod:`hilbench.bench.can_bus`: endpoint
+``type = "can"``, ``protocol = "can"``, ``bitrate``, ``bus_faults``, ``seed``);
+other families' nodes may share it, each at its own node id. Device entries::
 
     [[devices]]
     model = "stm32f767-rover-canopen"
@@ -29,10 +19,11 @@ Profile schema (endpoint ``type = "can"``, ``protocol = "can"``)::
 A node a capture recorded is ``model = "recorded-node"``
 (:mod:`hilbench.families.canopen_recorded`). Several nodes may share an
 endpoint (one bus), each with its own node id.
-``endpoint.nodes`` maps node ids to nodes; ``bench.node(2)`` finds one,
-``bench.can_bus()`` opens a python-can bus on the endpoint in this process.
-Control commands (``hilbench can status|nmt|reset|fault|emcy|bus``): see
-:attr:`CanopenBoardFamily.control_commands`.
+``bench.family("canopen").node(2)`` finds one (:class:`CanopenNodes`; ``bench.device(2)`` finds any
+family's node by node id), ``bench.endpoint("can").port.open_bus()`` opens a python-can bus on the
+endpoint in this process.
+Control commands (``hilbench can status|nmt|reset|fault|emcy``): see
+:attr:`CanopenBoardFamily.control_commands`; ``hilbench can bus`` is the bus's own.
 """
 
 from __future__ import annotations
@@ -40,11 +31,11 @@ from __future__ import annotations
 import threading
 import time
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from hilbench.bench.checks import Checker
 from hilbench.bench.control import ControlClient, ControlError, ControlRequestError
-from hilbench.bench.family import DeviceFamily, DeviceSpec
+from hilbench.bench.family import DeviceFamily, DeviceSpec, FamilyAccess
 from hilbench.bench.knobs import KnobRules, check_fault_table, check_knobs, requested_knobs
 from hilbench.families.canopen_recorded import FAULT_RULES as RECORDED_FAULT_RULES
 from hilbench.families.canopen_recorded import (
@@ -55,7 +46,10 @@ from hilbench.families.canopen_recorded import (
     check_recorded,
 )
 from hilbench.rules import SWITCH, Rule
-from hilbench.transports.can_medium import FAULT_RULES as BUS_FAULT_RULES
+
+if TYPE_CHECKING:
+    from hilbench.fakes.canopen import RoverNode
+    from hilbench.fakes.canopen.recorded import RecordedNode
 
 MODELS = ("stm32f767-rover-canopen", "mecarover-canopen", RECORDED)
 DEVICE_KEYS = ("model", "name", "endpoint", "node_id", "heartbeat_ms", "setpoint_timeout_ms", "autostart",
@@ -97,18 +91,12 @@ def board_config(spec: NodeSpec, bitrate: int):
 
 
 class CanopenBoardFamily(DeviceFamily):
-    """CANopen rover boards on ``can`` endpoints (one bus each)."""
+    """CANopen rover boards on ``can`` endpoints."""
 
     name = "canopen"
-    protocols = ("can",)
-    endpoint_types = ("can",)
-    medium = "can"
-    rate_key = "bitrate"
-    endpoint_keys = ("bus_faults", "seed")
+    joins = ("can",)
     device_keys = DEVICE_KEYS
     models = MODELS
-    endpoint_attrs = ("nodes",)
-    profile_attrs = ("can_nodes",)
     device_word = "node"
     control_commands = {
         "status": "a node's NMT state, odometry, setpoint counters, errors and the bus figures",
@@ -117,20 +105,9 @@ class CanopenBoardFamily(DeviceFamily):
         "fault": "turn a node's fault knobs: heartbeat_stop, silent, sdo_abort, motor_fault, battery_v, "
                  "stuck_odometry, dlc_mismatch",
         "emcy": "make a node send one EMCY (code, register, data hex)",
-        "bus": "the bus's figures; with knobs: error_rate, error_next, auto_recover; bus_off=SENDER",
     }
 
     # ------------------------------------------------------------------ profile
-
-    def check_baud(self, c: Checker, key: str, value: Any, port_type: str) -> int:
-        return c.integer(500_000 if value is None else value, key, 10_000, 1_000_000)
-
-    def check_endpoint(self, c: Checker, key: str, raw: dict[str, Any], port_type: str) -> dict[str, Any]:
-        faults = check_fault_table(c, f"{key}.bus_faults", raw.get("bus_faults", {}), BUS_FAULT_RULES)
-        seed = raw.get("seed")
-        if seed is not None:
-            seed = c.integer(seed, f"{key}.seed", 0, 2**31)
-        return {"bus_faults": faults, "seed": seed}
 
     def check_devices(self, c: Checker, key: str, dev: dict[str, Any], endpoint, profile) -> list[NodeSpec]:
         from hilbench.protocols.board_can import PDOS
@@ -154,94 +131,45 @@ class CanopenBoardFamily(DeviceFamily):
         for k, v in identity.items():
             c.integer(v, f"{key}.identity.{k}", 0, 0xFFFFFFFF)
         faults = check_fault_table(c, f"{key}.faults", dev.get("faults", {}), FAULT_RULES)
+        node_id = c.integer(dev.get("node_id", 2), f"{key}.node_id", 1, 127)
         return [NodeSpec(
-            name=name, endpoint=endpoint.name, model=model,
-            node_id=c.integer(dev.get("node_id", 2), f"{key}.node_id", 1, 127),
+            name=name, endpoint=endpoint.name, model=model, address=node_id, node_id=node_id,
             heartbeat_ms=c.integer(dev.get("heartbeat_ms", 1000), f"{key}.heartbeat_ms", 0, 65535),
             setpoint_timeout_ms=c.integer(dev.get("setpoint_timeout_ms", 150), f"{key}.setpoint_timeout_ms", 0, 65535),
             autostart=c.boolean(dev.get("autostart", False), f"{key}.autostart"),
             tpdo_periods_ms=dict(periods), identity=dict(identity), faults=faults,
         )]
 
-    def check_profile(self, c: Checker, profile) -> None:
-        seen: dict[tuple[str, int], str] = {}
-        for spec in profile.devices_of(self.name):
-            where = (spec.endpoint, spec.node_id)
-            if where in seen:
-                c.fail(f"{spec.where}.node_id", f"node id {spec.node_id} is taken on endpoint {spec.endpoint!r} "
-                                                f"by {seen[where]!r}")
-            seen[where] = spec.name
-
     # ------------------------------------------------------------------ bench
 
     def build(self, bench, endpoint, devices: list[NodeSpec], t: float) -> None:
         from hilbench.fakes.canopen import RoverNode
 
-        medium = endpoint.medium
-        options = endpoint.spec.options
-        if options.get("seed") is not None:
-            medium.rng.seed(options["seed"])
-        if options.get("bus_faults"):
-            medium.set_faults(**options["bus_faults"])
-        nodes = {}
         for spec in devices:
             if isinstance(spec, RecordedSpec):
-                node = build_recorded(spec)
-                node.attach(medium)
-                endpoint.add_device(spec.name, node)
-                nodes[spec.node_id] = node
+                endpoint.add_device(spec.name, build_recorded(spec))
                 continue
             battery = spec.faults.get("battery_v", 24.6)
-            node = RoverNode(spec.name, board_config(spec, medium.bitrate), autostart=spec.autostart,
+            node = RoverNode(spec.name, board_config(spec, endpoint.medium.bitrate), autostart=spec.autostart,
                              battery_v=battery)
             node.set_faults(**{k: v for k, v in spec.faults.items() if k != "battery_v"})
-            node.attach(medium)
             endpoint.add_device(spec.name, node)
-            nodes[spec.node_id] = node
-        endpoint.attrs["nodes"] = nodes
 
-    def start(self, endpoint, t: float) -> None:
+    def start(self, endpoint, devices: dict[str, Any], t: float) -> None:
         now = time.monotonic()  # power-up happens now: the boot-up and the heartbeat phase count from here
-        for node in endpoint.devices.values():
+        for node in devices.values():
             node.start(now)
 
-    def stop(self, endpoint) -> None:
-        for node in endpoint.devices.values():
+    def stop(self, endpoint, devices: dict[str, Any]) -> None:
+        for node in devices.values():
             node.stop()
 
-    def device_at(self, endpoint, address: int):
-        nodes = endpoint.attrs.get("nodes", {})
-        if address not in nodes:
-            raise KeyError(f"endpoint {endpoint.name!r} has no node {address} (nodes: {sorted(nodes)})")
-        return nodes[address]
-
     # ------------------------------------------------------------------ description
-
-    def describe_endpoint(self, endpoint) -> dict[str, Any]:
-        medium = endpoint.medium
-        return {"bitrate": medium.bitrate, "baud": medium.bitrate,
-                "nodes": sorted(endpoint.attrs.get("nodes", {}))}
 
     def describe_device(self, spec: NodeSpec, device, endpoint, profile) -> dict[str, Any]:
         return {"name": spec.name, "model": spec.model, "endpoint": spec.endpoint,
                 "protocol": profile.endpoints[spec.endpoint].protocol, "node_id": spec.node_id,
                 "heartbeat_ms": spec.heartbeat_ms, "autostart": spec.autostart}
-
-    def summary(self, endpoint) -> str:
-        port = endpoint.port
-        nodes = ", ".join(f"node {n} {d.name!r}" for n, d in sorted(endpoint.attrs.get("nodes", {}).items()))
-        doors = []
-        if getattr(port, "slcan", None) is not None:
-            doors.append(f"SLCAN {port.slcan.path}")
-        if getattr(port, "virtual", None) is not None:
-            doors.append(f"virtual {port.virtual.channel!r}")
-        if getattr(port, "socketcan", None) is not None:
-            doors.append(f"SocketCAN {port.socketcan.channel}")
-        elif getattr(port, "socketcan_error", None):
-            doors.append("SocketCAN skipped: " + port.socketcan_error)
-        paced = "paced" if endpoint.medium.paced else "unpaced"
-        extra = f"; {'; '.join(doors)}" if doors else ""
-        return f"CAN {endpoint.medium.bitrate} bit/s {paced}, {nodes or 'no nodes'}{extra}"
 
     # ------------------------------------------------------------------ artefacts
 
@@ -309,17 +237,6 @@ class CanopenBoardFamily(DeviceFamily):
                 raise ControlRequestError("emcy: code 0..0xFFFF, register 0..0xFF, at most 5 data bytes")
             in_bus_thread(lambda: node.emcy(code, register, data.ljust(5, b"\0")))
             return {"status": in_bus_thread(node.status)}
-        if cmd == "bus":
-            knobs = dict(req.get("knobs", {}) or {})
-            bus_off = knobs.pop("bus_off", None)
-            if knobs:
-                try:
-                    medium.set_faults(**check_knobs(knobs, BUS_FAULT_RULES, "bus fault"))
-                except ValueError as exc:
-                    raise ControlRequestError(str(exc)) from None
-            if bus_off is not None:
-                medium.force_bus_off(str(bus_off))
-            return {"bus": medium.status()}
         raise ControlRequestError(f"unknown command {cmd!r}")
 
 
@@ -329,35 +246,23 @@ def profile_boards(profile) -> list[tuple[str, Any]]:
             for spec in profile.devices_of(CanopenBoardFamily.name) if not isinstance(spec, RecordedSpec)]
 
 
-def _bench_node(bench, name_or_id: str | int | None = None):
-    """``bench.node(2)`` or ``bench.node("rover")``: an emulated CANopen node (or the only one)."""
-    from hilbench.fakes.canopen import CanopenNode
+class CanopenNodes(FamilyAccess):
+    """The CANopen nodes (rover boards, recorded nodes) of a running bench: ``bench.family("canopen")``."""
 
-    nodes = [d for d in bench.devices.values() if isinstance(d, CanopenNode)]
-    if name_or_id is None:
-        if len(nodes) != 1:
-            raise KeyError(f"bench has nodes {[n.name for n in nodes]}; name one")
-        return nodes[0]
-    for node in nodes:
-        if name_or_id in (node.name, node.node_id):
-            return node
-    raise KeyError(f"no CANopen node {name_or_id!r} (nodes: {[(n.node_id, n.name) for n in nodes]})")
+    family_name = "canopen"
 
-
-def _bench_can_bus(bench, endpoint: str | None = None, **kwargs: Any):
-    """``bench.can_bus()``: a python-can bus on a CAN endpoint, in this process (shut it down when done)."""
-    import can
-
-    eps = [ep for ep in bench.endpoints.values() if ep.spec.type == "can"]
-    if endpoint is not None:
-        eps = [ep for ep in eps if ep.name == endpoint]
-    if len(eps) != 1:
-        raise KeyError(f"bench has CAN endpoints {[ep.name for ep in eps]}; name one")
-    channel = eps[0].port.open_virtual()
-    return can.Bus(interface="virtual", channel=channel, **kwargs)
+    def node(self, name_or_id: str | int | None = None) -> RoverNode | RecordedNode:
+        """A node by profile name or node id (``node(2)``, ``node("rover")``), or the only one."""
+        if name_or_id is None or isinstance(name_or_id, str):
+            return self.device(name_or_id)
+        for name, spec in self.specs().items():
+            if spec.node_id == name_or_id and name in self.bench.devices:
+                return self.bench.devices[name]
+        raise KeyError(f"no CANopen board at node id {name_or_id} "
+                       f"(boards: {[(s.node_id, n) for n, s in self.specs().items()]})")
 
 
-CanopenBoardFamily.bench_methods = {"node": _bench_node, "can_bus": _bench_can_bus}
+CanopenBoardFamily.access = CanopenNodes
 
 
 class CanClient(ControlClient):
@@ -384,5 +289,5 @@ class CanClient(ControlClient):
 
 FAMILY = CanopenBoardFamily()
 
-__all__ = ["FAMILY", "MODELS", "CanClient", "CanopenBoardFamily", "NodeSpec", "board_config",
+__all__ = ["FAMILY", "MODELS", "CanClient", "CanopenBoardFamily", "CanopenNodes", "NodeSpec", "board_config",
            "profile_boards"]

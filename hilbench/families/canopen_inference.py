@@ -490,7 +490,18 @@ class _Drafter:
         notes = []
         if s.dropped_exchanges:
             notes.append(f"only the first {len(exchanges)} host frames are replayed ({s.dropped_exchanges} more)")
-        return FrameReplay("can", exchanges, streams, span=s.facts.span, notes=notes, t0=s.facts.t_first)
+        # Nodes already running when the host's first frame came: the bench's boot first (its boot delay), so
+        # that first frame finds them as the capture did.
+        first = s.exchanges[0].t if s.exchanges else None
+        up = [n for n, o in s.nodes.items() if not o.silent and first is not None
+              and (not o.bootups or o.bootups[0] > first)]
+
+        def ready(bench: Any) -> bool:
+            nodes = bench.family("canopen")
+            return all(nodes.node(n).state != co.BOOTUP for n in up)
+
+        return FrameReplay("can", exchanges, streams, span=s.facts.span, notes=notes, t0=s.facts.t_first,
+                           ready=ready if up else None)
 
     def _sdo_mask(self, node: int, data: bytes) -> bytes:
         """An SDO response compared whole, but for the value of an object the capture shows changing."""

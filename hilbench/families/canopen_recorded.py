@@ -104,9 +104,9 @@ def check_recorded(c: Checker, key: str, dev: dict[str, Any], endpoint_name: str
             c.fail(f"{where}.data", "expected at least one byte")
         access = c.choice(item.get("access", "ro"), f"{where}.access", ("ro", "rw"))
         objects.append((index, sub, data, access))
+    node_id = c.integer(dev.get("node_id", 1), f"{key}.node_id", 1, 127)
     return RecordedSpec(
-        name=name, endpoint=endpoint_name,
-        node_id=c.integer(dev.get("node_id", 1), f"{key}.node_id", 1, 127),
+        name=name, endpoint=endpoint_name, node_id=node_id, address=node_id,
         heartbeat_ms=c.integer(dev.get("heartbeat_ms", 1000), f"{key}.heartbeat_ms", 0, 65535),
         autostart=c.boolean(dev.get("autostart", False), f"{key}.autostart"),
         tpdos=tpdos, objects=objects,

@@ -1,4 +1,9 @@
-"""The Dynamixel family: emulated servos and boards on a multi-drop RS-485 bus (Protocol 2.0 or 1.0).
+"""The Dynamixel family and bus: emulated servos and boards on a multi-drop RS-485 bus (Protocol 2.0 or 1.0).
+
+:data:`~hilbench.families.dynamixel.BUS_KIND` is the bus (endpoint ``protocol = "dynamixel"``): its keys, the
+:class:`~hilbench.fakes.dynamixel.bus.DynamixelBus` (or Protocol 1.0 bus) every
+device on it joins, addressed by ID. :data:`~hilbench.families.dynamixel.FAMILY` is the Dynamixel devices
+(chosen by model); a lab's own board family may join the same bus.
 
 Profile schema (endpoint ``protocol = "dynamixel"``, a pty)::
 
@@ -32,7 +37,9 @@ A board hilbench has no model of is ``model = "control-table"`` with its
 registers (:mod:`hilbench.families.dynamixel_custom_board`).
 
 Devices of one endpoint share one :class:`~hilbench.fakes.dynamixel.bus.DynamixelBus`
-(``endpoint.bus``); ``bench.device(3)`` is the servo answering at ID 3.
+(``endpoint.bus``); ``bench.device(3)`` is the device answering at ID 3 (of any family),
+``bench.family("dynamixel").servo(3)`` the Dynamixel device there and ``.bus()`` the bus
+(:class:`~hilbench.families.servo_bus.ServoBusAccess`).
 """
 
 from __future__ import annotations
@@ -46,7 +53,9 @@ from hilbench.fakes.dynamixel.bus import CHAIN_POLICIES, FAST_MISSING_POLICIES
 from hilbench.families.dynamixel_custom_board import BOARD_KEYS, CONTROL_TABLE, check_board
 from hilbench.families.servo_bus import (
     SERVO_FAULT_RULES,
+    ServoBusAccess,
     ServoBusFamily,
+    ServoBusKind,
     ServoBusSpec,
     apply_faults,
     initial_values,
@@ -93,25 +102,12 @@ def speaks_protocol1(model) -> bool:
     return f.min is not None and f.min <= 1
 
 
-class DynamixelFamily(ServoBusFamily):
-    """Dynamixel Protocol 2.0 servos and boards on one bus per endpoint."""
+class DynamixelBusKind(ServoBusKind):
+    """A Dynamixel RS-485 bus (Protocol 2.0, or 1.0 with ``protocol_version = 1``): its keys and the bus object
+    its devices join."""
 
-    name = "dynamixel"
-    protocols = ("dynamixel",)
+    protocol = "dynamixel"
     endpoint_keys = ("protocol_version", "chain_policy", "fast_missing", "strict_stuffing", "usb2ax")
-    device_keys = DEVICE_KEYS
-    models = (*model_names(), CONTROL_TABLE)
-    default_keys = {"supply_voltage": (0, 50, 12.0), "ambient_temperature": (-40, 100, 30.0)}
-    profile_attrs = ("servos",)
-    example_model = "XM430-W350"
-
-    # ------------------------------------------------------------------ profile
-
-    def find_model(self, name: Any, **how: Any) -> Any:
-        return find_model(name, **how)
-
-    def model_names(self) -> list[str]:
-        return list(model_names())
 
     def check_baud(self, c: Checker, key: str, value: Any, port_type: str) -> int:
         return c.rule(57_600 if value is None else value, key, BUS_BAUD)
@@ -135,6 +131,72 @@ class DynamixelFamily(ServoBusFamily):
                                      FAST_MISSING_POLICIES),
             "strict_stuffing": c.boolean(raw.get("strict_stuffing", False), f"{key}.strict_stuffing"),
         }
+
+    def open(self, bench, endpoint):
+        from hilbench.fakes.dynamixel.bus import DynamixelBus
+        from hilbench.fakes.dynamixel.bus1 import Protocol1Bus
+
+        spec = endpoint.spec
+        if spec.options.get("protocol_version", 2) == 1:
+            bus = Protocol1Bus([], name=f"{spec.name}-devices", usb2ax=spec.options["usb2ax"])
+            endpoint.medium.protocol = PROTOCOL1_TRAFFIC
+        else:
+            bus = DynamixelBus([], name=f"{spec.name}-devices", chain_policy=spec.options["chain_policy"],
+                               fast_missing=spec.options["fast_missing"],
+                               strict_stuffing=spec.options["strict_stuffing"])
+        bus.attach(endpoint.medium)
+        return bus
+
+    def join(self, endpoint, device, spec) -> None:
+        endpoint.bus.add(device)
+        fast_read = getattr(spec, "fast_read", None)
+        if fast_read is not None and hasattr(endpoint.bus, "fast_read"):
+            endpoint.bus.fast_read[device.id] = fast_read
+
+    def describe_endpoint(self, endpoint) -> dict[str, Any]:
+        opts = endpoint.spec.options
+        out: dict[str, Any] = {"protocol_version": opts.get("protocol_version", 2)}
+        if out["protocol_version"] == 1:
+            out["usb2ax"] = opts["usb2ax"]
+        return out
+
+    def summary(self, endpoint) -> str:
+        timing = "paced" if endpoint.medium.paced else "unpaced"
+        n = len(endpoint.bus.servos) if endpoint.bus is not None else 0
+        opts = endpoint.spec.options
+        version = f"Protocol {opts.get('protocol_version', 2)}.0"
+        if opts.get("usb2ax"):
+            version += " with a USB2AX"
+        return f"{endpoint.spec.protocol} ({version}), {endpoint.spec.baud} baud, {timing}, {n} devices"
+
+
+class DynamixelServos(ServoBusAccess):
+    """The Dynamixel servos and boards of a running bench: ``bench.family("dynamixel")``."""
+
+    family_name = "dynamixel"
+
+
+class DynamixelFamily(ServoBusFamily):
+    """Dynamixel Protocol 2.0/1.0 servos and boards (the Wolfgang boards) on Dynamixel buses."""
+
+    name = "dynamixel"
+    access = DynamixelServos
+    joins = ("dynamixel",)
+    device_keys = DEVICE_KEYS
+    models = (*model_names(), CONTROL_TABLE)
+    default_keys = {"supply_voltage": (0, 50, 12.0), "ambient_temperature": (-40, 100, 30.0)}
+    example_model = "XM430-W350"
+
+    # ------------------------------------------------------------------ profile
+
+    def find_model(self, name: Any, **how: Any) -> Any:
+        return find_model(name, **how)
+
+    def model_names(self) -> list[str]:
+        return list(model_names())
+
+    def knows_model(self, model: Any) -> bool:
+        return model == CONTROL_TABLE or super().knows_model(model)
 
     def check_devices(self, c: Checker, key: str, dev: dict[str, Any], endpoint, profile) -> list[ServoSpec]:
         version = endpoint.options.get("protocol_version", 2)
@@ -161,6 +223,7 @@ class DynamixelFamily(ServoBusFamily):
                 name=name or f"{endpoint.name}.{i}",
                 model=CONTROL_TABLE if board else model.name,
                 id=i,
+                address=i,
                 endpoint=endpoint.name,
                 firmware=firmware,
                 init=dict(init),
@@ -177,34 +240,8 @@ class DynamixelFamily(ServoBusFamily):
     # ------------------------------------------------------------------ bench
 
     def build(self, bench, endpoint, devices: list[ServoSpec], t: float) -> None:
-        from hilbench.fakes.dynamixel.bus import DynamixelBus
-        from hilbench.fakes.dynamixel.bus1 import Protocol1Bus
-
-        spec = endpoint.spec
-        servos = []
-        fast_read = {}
         for dev in devices:
-            servo = self._make_servo(dev, spec, bench.profile, t)
-            servos.append(servo)
-            endpoint.add_device(dev.name, servo)
-            if dev.fast_read is not None:
-                fast_read[dev.id] = dev.fast_read
-        if spec.options.get("protocol_version", 2) == 1:
-            bus1 = Protocol1Bus(servos, name=f"{spec.name}-devices", usb2ax=spec.options["usb2ax"])
-            bus1.attach(endpoint.medium)
-            endpoint.attrs["bus"] = bus1
-            endpoint.medium.protocol = PROTOCOL1_TRAFFIC
-            return
-        bus = DynamixelBus(
-            servos,
-            name=f"{spec.name}-devices",
-            chain_policy=spec.options["chain_policy"],
-            fast_missing=spec.options["fast_missing"],
-            fast_read=fast_read,
-            strict_stuffing=spec.options["strict_stuffing"],
-        )
-        bus.attach(endpoint.medium)
-        endpoint.attrs["bus"] = bus
+            endpoint.add_device(dev.name, self._make_servo(dev, endpoint.spec, bench.profile, t))
 
     @staticmethod
     def _make_servo(dev: ServoSpec, spec, profile, t: float):
@@ -237,13 +274,6 @@ class DynamixelFamily(ServoBusFamily):
 
     # ------------------------------------------------------------------ description
 
-    def describe_endpoint(self, endpoint) -> dict[str, Any]:
-        opts = endpoint.spec.options
-        out: dict[str, Any] = {"protocol_version": opts.get("protocol_version", 2)}
-        if out["protocol_version"] == 1:
-            out["usb2ax"] = opts["usb2ax"]
-        return out
-
     def describe_device(self, spec: ServoSpec, device, endpoint, profile) -> dict[str, Any]:
         ep = profile.endpoints[spec.endpoint]
         return {
@@ -257,17 +287,11 @@ class DynamixelFamily(ServoBusFamily):
             "protocol_version": ep.options.get("protocol_version", 2),
         }
 
-    def summary(self, endpoint) -> str:
-        timing = "paced" if endpoint.medium.paced else "unpaced"
-        bus = endpoint.attrs.get("bus")
-        n = len(bus.servos) if bus else 0
-        opts = endpoint.spec.options
-        version = f"Protocol {opts.get('protocol_version', 2)}.0"
-        if opts.get("usb2ax"):
-            version += " with a USB2AX"
-        return f"{endpoint.spec.protocol} ({version}), {endpoint.spec.baud} baud, {timing}, {n} devices"
 
-
+#: The bus kind this module registers (entry point ``hilbench.bus_kinds``).
+BUS_KIND = DynamixelBusKind()
+#: The device family this module registers (entry point ``hilbench.families``).
 FAMILY = DynamixelFamily()
 
-__all__ = ["DYNAMIXEL_BAUDS", "FAMILY", "DynamixelFamily", "ServoSpec"]
+__all__ = ["BUS_KIND", "DYNAMIXEL_BAUDS", "FAMILY", "DynamixelBusKind", "DynamixelFamily", "DynamixelServos",
+           "ServoSpec"]

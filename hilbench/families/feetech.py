@@ -1,4 +1,6 @@
-"""The Feetech family: STS/SCS serial-bus servos (the SO-100/SO-101 arms) on one bus per endpoint.
+"""The Feetech family and bus: STS/SCS serial-bus servos (the SO-100/SO-101 arms) on one bus per endpoint.
+
+:data:`~hilbench.families.feetech.BUS_KIND` is the bus (endpoint ``protocol = "feetech"``), :data:`~hilbench.families.feetech.FAMILY` the servos on it.
 
 Profile schema (endpoint ``protocol = "feetech"``, a pty)::
 
@@ -14,7 +16,8 @@ Profile schema (endpoint ``protocol = "feetech"``, a pty)::
     faults = { drop_rate = 0.01, delay = 0.0, vanished = false, seed = 1 }
 
 Devices of one endpoint share one :class:`~hilbench.fakes.feetech.bus.FeetechBus`
-(``endpoint.bus``); ``bench.device(3)`` is the servo answering at ID 3.
+(``endpoint.bus``); ``bench.device(3)`` is the servo answering at ID 3,
+``bench.family("feetech").servo(3)`` too and ``.bus()`` the bus.
 """
 
 from __future__ import annotations
@@ -26,7 +29,9 @@ from hilbench.bench.checks import Checker
 from hilbench.bench.knobs import check_fault_table
 from hilbench.families.servo_bus import (
     SERVO_FAULT_RULES,
+    ServoBusAccess,
     ServoBusFamily,
+    ServoBusKind,
     ServoBusSpec,
     apply_faults,
     initial_values,
@@ -43,11 +48,42 @@ class FeetechSpec(ServoBusSpec):
     """One Feetech servo of a profile (``ids = [...]`` entries are expanded to one spec per ID)."""
 
 
+class FeetechBusKind(ServoBusKind):
+    """A Feetech bus: Protocol 1.0 framing with Feetech's instructions and baud codes."""
+
+    protocol = "feetech"
+
+    def check_baud(self, c: Checker, key: str, value: Any, port_type: str) -> int:
+        baud = 1_000_000 if value is None else value
+        if baud not in FEETECH_BAUDS or isinstance(baud, bool):
+            c.fail(key, f"expected a Feetech baud rate ({', '.join(map(str, FEETECH_BAUDS))}), got {baud!r}")
+        return baud
+
+    def open(self, bench, endpoint):
+        from hilbench.fakes.feetech.bus import FeetechBus
+
+        bus = FeetechBus([], name=f"{endpoint.name}-devices")
+        bus.attach(endpoint.medium)
+        return bus
+
+    def summary(self, endpoint) -> str:
+        timing = "paced" if endpoint.medium.paced else "unpaced"
+        n = len(endpoint.bus.servos) if endpoint.bus is not None else 0
+        return f"feetech, {endpoint.spec.baud} baud, {timing}, {n} servos"
+
+
+class FeetechServos(ServoBusAccess):
+    """The Feetech servos of a running bench: ``bench.family("feetech")``."""
+
+    family_name = "feetech"
+
+
 class FeetechFamily(ServoBusFamily):
-    """Feetech STS/SCS servos on one bus per endpoint."""
+    """Feetech STS/SCS servos on Feetech buses."""
 
     name = "feetech"
-    protocols = ("feetech",)
+    access = FeetechServos
+    joins = ("feetech",)
     device_keys = DEVICE_KEYS
     models = tuple(model_names())
     example_model = "STS3215"
@@ -57,12 +93,6 @@ class FeetechFamily(ServoBusFamily):
 
     def model_names(self) -> list[str]:
         return list(model_names())
-
-    def check_baud(self, c: Checker, key: str, value: Any, port_type: str) -> int:
-        baud = 1_000_000 if value is None else value
-        if baud not in FEETECH_BAUDS or isinstance(baud, bool):
-            c.fail(key, f"expected a Feetech baud rate ({', '.join(map(str, FEETECH_BAUDS))}), got {baud!r}")
-        return baud
 
     def check_devices(self, c: Checker, key: str, dev: dict[str, Any], endpoint, profile) -> list[FeetechSpec]:
         model = self.check_model(c, key, dev)
@@ -76,6 +106,7 @@ class FeetechFamily(ServoBusFamily):
                 name=name or f"{endpoint.name}.{i}",
                 model=model.name,
                 id=i,
+                address=i,
                 endpoint=endpoint.name,
                 firmware=c.integer(dev["firmware"], f"{key}.firmware", 0, 255) if "firmware" in dev else None,
                 init=dict(init),
@@ -92,12 +123,10 @@ class FeetechFamily(ServoBusFamily):
     # ------------------------------------------------------------------ bench
 
     def build(self, bench, endpoint, devices: list[FeetechSpec], t: float) -> None:
-        from hilbench.fakes.feetech.bus import FeetechBus
         from hilbench.fakes.table_servo import TableServo
 
         spec = endpoint.spec
         defaults = bench.profile.defaults
-        servos = []
         for dev in devices:
             model = find_model(dev.model)
             init = initial_values(dev.init, model.baud_codes, spec.baud)
@@ -108,11 +137,7 @@ class FeetechFamily(ServoBusFamily):
                 firmware=dev.firmware, seed=dev.faults.get("seed", 0),
             )
             apply_faults(servo, dev.faults, t)
-            servos.append(servo)
             endpoint.add_device(dev.name, servo)
-        bus = FeetechBus(servos, name=f"{spec.name}-devices")
-        bus.attach(endpoint.medium)
-        endpoint.attrs["bus"] = bus
 
     # ------------------------------------------------------------------ description
 
@@ -127,12 +152,10 @@ class FeetechFamily(ServoBusFamily):
             "protocol": "feetech",
         }
 
-    def summary(self, endpoint) -> str:
-        timing = "paced" if endpoint.medium.paced else "unpaced"
-        bus = endpoint.attrs.get("bus")
-        return f"feetech, {endpoint.spec.baud} baud, {timing}, {len(bus.servos) if bus else 0} servos"
 
-
+#: The bus kind this module registers (entry point ``hilbench.bus_kinds``).
+BUS_KIND = FeetechBusKind()
+#: The device family this module registers (entry point ``hilbench.families``).
 FAMILY = FeetechFamily()
 
-__all__ = ["FAMILY", "FEETECH_BAUDS", "FeetechFamily", "FeetechSpec"]
+__all__ = ["BUS_KIND", "FAMILY", "FEETECH_BAUDS", "FeetechBusKind", "FeetechFamily", "FeetechServos", "FeetechSpec"]

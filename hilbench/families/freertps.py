@@ -1,5 +1,8 @@
 """The FreeRTPS family: microcontroller boards speaking minimal RTPS on 127.0.0.1 unicast.
 
+:data:`~hilbench.families.freertps.BUS_KIND` is the RTPS net (endpoint ``protocol = "rtps"``: domain, peers, naming; nodes addressed
+by participant index), :data:`~hilbench.families.freertps.FAMILY` the boards on it.
+
 Profile schema (endpoint ``protocol = "rtps"``, ``type = "udp"``)::
 
     [endpoints.nodes]
@@ -31,11 +34,15 @@ expired, invalid locators ...) and ``publish``.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
+from hilbench.bench.bus import BusKind
 from hilbench.bench.checks import Checker
 from hilbench.bench.control import ControlError, ControlRequestError
-from hilbench.bench.family import DeviceFamily, DeviceSpec, bench_device
+from hilbench.bench.family import DeviceFamily, DeviceSpec, FamilyAccess
+
+if TYPE_CHECKING:
+    from hilbench.fakes.rtps_node import FreeRtpsNode
 
 #: The default domain: non-zero, so the nodes do not meet a real DDS on the machine (domain 0).
 DEFAULT_DOMAIN = 42
@@ -110,22 +117,15 @@ def _check_topics(c: Checker, key: str, raw: Any) -> list[dict[str, Any]]:
     return out
 
 
-class FreeRtpsFamily(DeviceFamily):
-    """FreeRTPS boards (one RTPS participant each) sharing a datagram net per endpoint."""
+class RtpsBusKind(BusKind):
+    """An RTPS net on 127.0.0.1 (a datagram medium): one domain; participants addressed by their index."""
 
-    name = "freertps"
-    protocols = ("rtps",)
+    protocol = "rtps"
     endpoint_types = ("udp",)
     medium = "datagram"
     endpoint_keys = ("domain_id", "peers", "naming")
-    device_keys = NODE_KEYS
-    models = NODE_MODELS
-    endpoint_attrs = ("nodes",)
-    device_word = "node"
-    control_commands = {
-        "status": "what a node published and received, its discovered peers and counters",
-        "publish": "publish one sample now: topic, value (a table of the message's fields)",
-    }
+    address_key = "participant_index"
+    address_word = "participant index"
 
     def check_baud(self, c: Checker, key: str, value: Any, port_type: str) -> int | None:
         if value is not None:
@@ -136,6 +136,30 @@ class FreeRtpsFamily(DeviceFamily):
         return {"domain_id": c.integer(raw.get("domain_id", DEFAULT_DOMAIN), f"{key}.domain_id", 0, 232),
                 "peers": check_peers(c, f"{key}.peers", raw.get("peers")),
                 "naming": c.choice(raw.get("naming", "ros2"), f"{key}.naming", NAMING)}
+
+    def describe_endpoint(self, endpoint) -> dict[str, Any]:
+        opts = endpoint.spec.options
+        return {"domain_id": opts["domain_id"], "naming": opts["naming"], "peers": opts["peers"]}
+
+    def summary(self, endpoint) -> str:
+        opts = endpoint.spec.options
+        nodes = ", ".join(f"{name}#{s.address}" for name, s in endpoint.specs.items())
+        return (f"RTPS domain {opts['domain_id']}, {len(endpoint.devices)} nodes ({nodes}), "
+                f"naming {opts['naming']}")
+
+
+class FreeRtpsFamily(DeviceFamily):
+    """FreeRTPS boards (one RTPS participant each) on RTPS nets."""
+
+    name = "freertps"
+    joins = ("rtps",)
+    device_keys = NODE_KEYS
+    models = NODE_MODELS
+    device_word = "node"
+    control_commands = {
+        "status": "what a node published and received, its discovered peers and counters",
+        "publish": "publish one sample now: topic, value (a table of the message's fields)",
+    }
 
     def check_devices(self, c: Checker, key: str, dev: dict[str, Any], endpoint, profile) -> list[NodeSpec]:
         model = c.choice(dev.get("model", NODE_MODELS[0]), f"{key}.model", NODE_MODELS)
@@ -148,19 +172,13 @@ class FreeRtpsFamily(DeviceFamily):
         except ValueError as exc:
             c.fail(f"{key}.mac", str(exc))
         return [NodeSpec(name=c.string(dev.get("name", f"node{index}"), f"{key}.name"), endpoint=endpoint.name,
-                         model=model, participant_index=index, mac=str(mac),
+                         model=model, participant_index=index, address=index, mac=str(mac),
                          topics=_check_topics(c, f"{key}.topics", dev.get("topics")),
                          clock=c.choice(dev.get("clock", "freertps"), f"{key}.clock", ("freertps", "wall")))]
 
     def check_profile(self, c: Checker, profile) -> None:
-        seen: dict[tuple[str, int], str] = {}
         macs: dict[str, str] = {}
         for spec in profile.devices_of(self.name):
-            k = (spec.endpoint, spec.participant_index)
-            if k in seen:
-                c.fail(f"{spec.where}.participant_index", f"index {spec.participant_index} is taken by "
-                                                          f"{seen[k]!r} (each node needs its own ports)")
-            seen[k] = spec.name
             if spec.mac.upper() in macs:
                 c.fail(f"{spec.where}.mac", f"same MAC as {macs[spec.mac.upper()]!r}: the GUID prefixes collide")
             macs[spec.mac.upper()] = spec.name
@@ -173,13 +191,12 @@ class FreeRtpsFamily(DeviceFamily):
         from hilbench.transports.listener import BindError
 
         opts = endpoint.spec.options
-        nodes = []
         for spec in devices:
             node = FreeRtpsNode(spec.name, domain_id=opts["domain_id"], participant_index=spec.participant_index,
                                 mac=spec.mac, topics=[TopicSpec(**t) for t in spec.topics], peers=opts["peers"],
                                 naming=opts["naming"], clock=spec.clock)
             try:
-                node.attach(endpoint.medium)
+                endpoint.add_device(spec.name, node)  # joins the net: binds the node's ports
             except OSError as exc:
                 ports = rtps.ports(opts["domain_id"], spec.participant_index)
                 reason = (f"{exc.reason if isinstance(exc, BindError) else exc.strerror or exc} (node {spec.name!r}: "
@@ -187,23 +204,16 @@ class FreeRtpsFamily(DeviceFamily):
                           f"use ports {ports['metatraffic_unicast']}/{ports['user_unicast']})")
                 raise BindError(getattr(exc, "address", ("127.0.0.1", ports["metatraffic_unicast"])), reason,
                                 exc.errno, "RTPS port", key="domain_id") from None
-            endpoint.add_device(spec.name, node)
-            nodes.append(node)
-        endpoint.attrs["nodes"] = nodes
 
-    def start(self, endpoint, t: float) -> None:
-        for node in endpoint.attrs.get("nodes", []):
+    def start(self, endpoint, devices: dict[str, Any], t: float) -> None:
+        for node in devices.values():
             node.start()
 
-    def stop(self, endpoint) -> None:
-        for node in endpoint.attrs.get("nodes", []):
+    def stop(self, endpoint, devices: dict[str, Any]) -> None:
+        for node in devices.values():
             node.stop()
 
     # ------------------------------------------------------------------ description
-
-    def describe_endpoint(self, endpoint) -> dict[str, Any]:
-        opts = endpoint.spec.options
-        return {"domain_id": opts["domain_id"], "naming": opts["naming"], "peers": opts["peers"]}
 
     def describe_device(self, spec: NodeSpec, device, endpoint, profile) -> dict[str, Any]:
         from hilbench.fakes.rtps_node.node import mac_prefix
@@ -219,18 +229,6 @@ class FreeRtpsFamily(DeviceFamily):
                 "guid_prefix": mac_prefix(spec.mac).hex(), "host": "127.0.0.1",
                 "ports": {"metatraffic_unicast": ports["metatraffic_unicast"], "user_unicast": ports["user_unicast"]},
                 "topics": topics, "limits": limits()}
-
-    def summary(self, endpoint) -> str:
-        nodes = endpoint.attrs.get("nodes", [])
-        opts = endpoint.spec.options
-        return (f"RTPS domain {opts['domain_id']}, {len(nodes)} FreeRTPS nodes "
-                f"({', '.join(f'{n.name}#{n.participant_index}' for n in nodes)}), naming {opts['naming']}")
-
-    def device_at(self, endpoint, address: int) -> Any:
-        for node in endpoint.attrs.get("nodes", []):
-            if node.participant_index == address:
-                return node
-        raise KeyError(f"endpoint {endpoint.name!r} has no node with participant index {address}")
 
     # ------------------------------------------------------------------ control channel
 
@@ -262,14 +260,20 @@ class FreeRtpsFamily(DeviceFamily):
         raise ControlRequestError(f"unknown command {cmd!r}")
 
 
-def _bench_node(bench, name: str | None = None):
-    """``bench.node(name=None)``: an emulated FreeRTPS node by name (or the only one)."""
-    from hilbench.fakes.rtps_node import FreeRtpsNode
+class FreeRtpsNodes(FamilyAccess):
+    """The FreeRTPS nodes of a running bench: ``bench.family("freertps")``."""
 
-    return bench_device(bench, FreeRtpsNode, "nodes", name)
+    family_name = "freertps"
+
+    def node(self, name: str | None = None) -> FreeRtpsNode:
+        """A node by profile name (``node("echo")``), or the only one."""
+        return self.device(name)
 
 
-FreeRtpsFamily.bench_methods = {"node": _bench_node}
+FreeRtpsFamily.access = FreeRtpsNodes
+#: The bus kind this module registers (entry point ``hilbench.bus_kinds``).
+BUS_KIND = RtpsBusKind()
+#: The device family this module registers (entry point ``hilbench.families``).
 FAMILY = FreeRtpsFamily()
 
-__all__ = ["DEFAULT_DOMAIN", "FAMILY", "FreeRtpsFamily", "NodeSpec", "check_peers"]
+__all__ = ["BUS_KIND", "DEFAULT_DOMAIN", "FAMILY", "FreeRtpsFamily", "FreeRtpsNodes", "NodeSpec", "RtpsBusKind", "check_peers"]

@@ -1,5 +1,8 @@
 """The Micro XRCE-DDS agent family: what ``micro_ros_agent udp4 --port 8888`` is, on UDP 127.0.0.1.
 
+:data:`~hilbench.families.micro_ros_agent.BUS_KIND` is the agent's UDP port (endpoint ``protocol = "xrce-dds"``: one agent, a default one
+when the profile lists none), :data:`~hilbench.families.micro_ros_agent.FAMILY` the agent.
+
 Profile schema (endpoint ``protocol = "xrce-dds"``, ``type = "udp"``)::
 
     [endpoints.agent]
@@ -19,8 +22,9 @@ Profile schema (endpoint ``protocol = "xrce-dds"``, ``type = "udp"``)::
     session_timeout = 300          # seconds a silent session lives (0: for ever)
 
 The manifest's endpoint entry says ``"role": "agent"`` with its ``host`` and
-``port``; its device entry the agent's ``limits``; ``endpoint.agent`` (and
-``bench.agent()``) is the :class:`~hilbench.fakes.xrce_agent.XrceAgent`.
+``port``; its device entry the agent's ``limits``;
+``bench.family("micro-ros-agent").agent()`` (:class:`MicroRosAgents`) is the
+:class:`~hilbench.fakes.xrce_agent.XrceAgent`.
 Control commands: ``status`` (counters, sessions, entities, limits, log) and
 ``fault``.
 """
@@ -28,11 +32,16 @@ Control commands: ``status`` (counters, sessions, entities, limits, log) and
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
+from hilbench.bench.bus import BusKind
 from hilbench.bench.checks import Checker
 from hilbench.bench.control import ControlRequestError
-from hilbench.bench.family import DeviceFamily, DeviceSpec, bench_device
+from hilbench.bench.family import DeviceFamily, DeviceSpec, FamilyAccess
+
+if TYPE_CHECKING:
+    from hilbench.fakes.xrce_agent import XrceAgent
+    from hilbench.fakes.xrce_agent.bridge import RtpsBridge
 from hilbench.bench.knobs import check_fault_table, requested_knobs
 from hilbench.rules import FAULT_COUNT
 
@@ -71,26 +80,54 @@ def check_bridge(c: Checker, key: str, raw: Any) -> dict[str, Any] | None:
             "peers": check_peers(c, f"{key}.peers", raw.get("peers"))}
 
 
-class MicroRosAgentFamily(DeviceFamily):
-    """One emulated agent per ``xrce-dds`` endpoint (a UDP port on a datagram net)."""
+class XrceDdsBusKind(BusKind):
+    """An agent's UDP port (a datagram net): one agent per endpoint, a default one if the profile lists none."""
 
-    name = "micro-ros-agent"
-    protocols = ("xrce-dds",)
+    protocol = "xrce-dds"
     endpoint_types = ("udp",)
     medium = "datagram"
-    device_keys = AGENT_KEYS
-    models = AGENT_MODELS
-    endpoint_attrs = ("agent",)
-    device_word = "agent"
-    control_commands = {
-        "status": "counters, sessions with their entities and streams, the agent's log",
-        "fault": "drop_next (outgoing datagrams to drop), corrupt_status_agent (STATUS_AGENTs with header 0x80)",
-    }
+    max_devices = 1
+    one_device_reason = "one agent per port"
+    default_device = {"model": AGENT_MODELS[0]}
 
     def check_baud(self, c: Checker, key: str, value: Any, port_type: str) -> int | None:
         if value is not None:
             c.fail(key, "a UDP agent has no baud rate")
         return None
+
+    def describe_endpoint(self, endpoint) -> dict[str, Any]:
+        out: dict[str, Any] = {"role": "agent"}
+        agent = next(iter(endpoint.devices.values()), None)
+        if getattr(agent, "bridge", None) is not None:
+            out["bridge"] = agent.bridge.describe()
+        return out
+
+    def summary(self, endpoint) -> str:
+        agent = next(iter(endpoint.devices.values()), None)
+        if agent is None:
+            return "Micro XRCE-DDS agent port, no agent"
+        bridge = getattr(agent, "bridge", None)
+        extra = f", bridged to RTPS domain {bridge.domain_id}" if bridge is not None else ""
+        return f"Micro XRCE-DDS agent {agent.name!r} (zeroed datagrams: {agent.zeroed}){extra}"
+
+    def device_at(self, endpoint, address: int) -> Any:
+        if not endpoint.devices:
+            raise KeyError(f"endpoint {endpoint.name!r} has no agent")
+        return next(iter(endpoint.devices.values()))
+
+
+class MicroRosAgentFamily(DeviceFamily):
+    """The emulated agent, one per ``xrce-dds`` endpoint."""
+
+    name = "micro-ros-agent"
+    joins = ("xrce-dds",)
+    device_keys = AGENT_KEYS
+    models = AGENT_MODELS
+    device_word = "agent"
+    control_commands = {
+        "status": "counters, sessions with their entities and streams, the agent's log",
+        "fault": "drop_next (outgoing datagrams to drop), corrupt_status_agent (STATUS_AGENTs with header 0x80)",
+    }
 
     def check_devices(self, c: Checker, key: str, dev: dict[str, Any], endpoint, profile) -> list[AgentSpec]:
         model = c.choice(dev.get("model", AGENT_MODELS[0]), f"{key}.model", AGENT_MODELS)
@@ -118,52 +155,34 @@ class MicroRosAgentFamily(DeviceFamily):
                           session_timeout=c.number(dev.get("session_timeout", SESSION_TIMEOUT_S),
                                                    f"{key}.session_timeout", 0, 86_400))]
 
-    def check_profile(self, c: Checker, profile) -> None:
-        seen: set[str] = set()
-        for spec in profile.devices_of(self.name):
-            if spec.endpoint in seen:
-                c.fail(f"{spec.where}.endpoint", f"endpoint {spec.endpoint!r} already has an agent")
-            seen.add(spec.endpoint)
-
     # ------------------------------------------------------------------ bench
 
     def build(self, bench, endpoint, devices: list[AgentSpec], t: float) -> None:
         from hilbench.fakes.xrce_agent import XrceAgent
 
-        spec = devices[0] if devices else AgentSpec(name=endpoint.name, endpoint=endpoint.name)
-        agent = XrceAgent(spec.name, zeroed=spec.zeroed, refs=spec.refs, max_sessions=spec.max_sessions,
-                          session_timeout=spec.session_timeout)
-        agent.set_faults(**spec.faults)
-        agent.attach(endpoint.medium)
-        endpoint.add_device(spec.name, agent)
-        endpoint.attrs["agent"] = agent
-        if spec.bridge is not None:
-            from hilbench.fakes.xrce_agent.bridge import RtpsBridge
+        for spec in devices:
+            agent = XrceAgent(spec.name, zeroed=spec.zeroed, refs=spec.refs, max_sessions=spec.max_sessions,
+                              session_timeout=spec.session_timeout)
+            agent.set_faults(**spec.faults)
+            endpoint.add_device(spec.name, agent)
+            if spec.bridge is not None:
+                from hilbench.fakes.xrce_agent.bridge import RtpsBridge
 
-            endpoint.attrs["bridge"] = RtpsBridge(agent, endpoint.medium, **spec.bridge)
+                RtpsBridge(agent, endpoint.medium, **spec.bridge)  # (it is agent.bridge from now on)
 
-    def start(self, endpoint, t: float) -> None:
-        endpoint.attrs["agent"].start()
-        bridge = endpoint.attrs.get("bridge")
-        if bridge is not None:
-            bridge.start()
+    def start(self, endpoint, devices: dict[str, Any], t: float) -> None:
+        for agent in devices.values():
+            agent.start()
+            if agent.bridge is not None:
+                agent.bridge.start()
 
-    def stop(self, endpoint) -> None:
-        bridge = endpoint.attrs.get("bridge")
-        if bridge is not None:
-            bridge.stop()
-        agent = endpoint.attrs.get("agent")
-        if agent is not None:
+    def stop(self, endpoint, devices: dict[str, Any]) -> None:
+        for agent in devices.values():
+            if agent.bridge is not None:
+                agent.bridge.stop()
             agent.stop()
 
     # ------------------------------------------------------------------ description
-
-    def describe_endpoint(self, endpoint) -> dict[str, Any]:
-        out: dict[str, Any] = {"role": "agent"}
-        bridge = endpoint.attrs.get("bridge")
-        if bridge is not None:
-            out["bridge"] = bridge.describe()
-        return out
 
     def describe_device(self, spec: AgentSpec, device, endpoint, profile) -> dict[str, Any]:
         out = {"name": spec.name, "model": spec.model, "endpoint": spec.endpoint, "protocol": "xrce-dds",
@@ -174,15 +193,6 @@ class MicroRosAgentFamily(DeviceFamily):
         if device is not None:
             out["limits"] = device.limits()
         return out
-
-    def summary(self, endpoint) -> str:
-        agent = endpoint.attrs.get("agent")
-        bridge = endpoint.attrs.get("bridge")
-        extra = f", bridged to RTPS domain {bridge.domain_id}" if bridge is not None else ""
-        return f"Micro XRCE-DDS agent {agent.name!r} (zeroed datagrams: {agent.zeroed}){extra}"
-
-    def device_at(self, endpoint, address: int) -> Any:
-        return endpoint.attrs["agent"]
 
     # ------------------------------------------------------------------ control channel
 
@@ -201,14 +211,25 @@ class MicroRosAgentFamily(DeviceFamily):
         raise ControlRequestError(f"unknown command {cmd!r}")
 
 
-def _bench_agent(bench, name: str | None = None):
-    """``bench.agent(name=None)``: an emulated XRCE agent by name (or the only one)."""
-    from hilbench.fakes.xrce_agent import XrceAgent
+class MicroRosAgents(FamilyAccess):
+    """The XRCE-DDS agents of a running bench: ``bench.family("micro-ros-agent")``."""
 
-    return bench_device(bench, XrceAgent, "agents", name)
+    family_name = "micro-ros-agent"
+
+    def agent(self, name: str | None = None) -> XrceAgent:
+        """An agent by profile name, or the only one."""
+        return self.device(name)
+
+    def bridge(self, name: str | None = None) -> RtpsBridge | None:
+        """The RTPS bridge of an agent (``bridge = {...}`` in its profile entry), or None."""
+        return self.agent(name).bridge
 
 
-MicroRosAgentFamily.bench_methods = {"agent": _bench_agent}
+MicroRosAgentFamily.access = MicroRosAgents
+#: The bus kind this module registers (entry point ``hilbench.bus_kinds``).
+BUS_KIND = XrceDdsBusKind()
+#: The device family this module registers (entry point ``hilbench.families``).
 FAMILY = MicroRosAgentFamily()
 
-__all__ = ["AGENT_MODELS", "FAMILY", "AgentSpec", "MicroRosAgentFamily", "check_bridge"]
+__all__ = ["AGENT_MODELS", "BUS_KIND", "FAMILY", "AgentSpec", "MicroRosAgentFamily", "MicroRosAgents", "XrceDdsBusKind",
+           "check_bridge"]

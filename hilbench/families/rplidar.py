@@ -32,17 +32,22 @@ adapter's DTR as a host would: ``{"dtr": false}`` runs the motor).
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from hilbench.bench.checks import Checker
 from hilbench.bench.control import ControlRequestError
 from hilbench.families.scanner import (
     COMMON_DEVICE_KEYS,
+    ScannerBusKind,
     ScannerFamily,
     ScannerSpec,
+    ScannerUnits,
     check_scene,
 )
 from hilbench.rules import PROBABILITY, SWITCH, Rule
+
+if TYPE_CHECKING:
+    from hilbench.fakes.scanners.rplidar import RplidarA1
 
 RPLIDAR_MODELS = ("rplidar-a1", "A1M8", "rplidar-a1m8")
 RPLIDAR_KEYS = ("motor", "spin_up", "rpm", "speed_wander", "firmware", "typical_mode")
@@ -55,18 +60,40 @@ FAULTS = {
 }
 
 
+class RplidarBusKind(ScannerBusKind):
+    """An RPLIDAR's UART (a pty)."""
+
+    protocol = "rplidar"
+    endpoint_types = ("pty",)
+
+    def check_baud(self, c: Checker, key: str, value: Any, port_type: str) -> int:
+        return c.integer(115_200 if value is None else value, key, 1200, 4_000_000)
+
+    def summary(self, endpoint) -> str:
+        dev = self.unit(endpoint)
+        motor = dev.config.motor if dev is not None else "?"
+        return f"rplidar A1, {endpoint.spec.baud} baud, motor {motor}"
+
+
+class RplidarUnits(ScannerUnits):
+    """The emulated units of a running bench: ``bench.family("rplidar")``."""
+
+    family_name = "rplidar"
+
+    def unit(self, name: str | None = None) -> RplidarA1:
+        return self.device(name)
+
+
 class RplidarFamily(ScannerFamily):
-    """One emulated RPLIDAR A1 per ``rplidar`` endpoint; owns the profile's ``[scene]`` table."""
+    """The emulated RPLIDAR A1, one per ``rplidar`` endpoint; owns the profile's ``[scene]`` table."""
 
     name = "rplidar"
-    protocols = ("rplidar",)
-    endpoint_types = ("pty",)
+    access = RplidarUnits
+    joins = ("rplidar",)
     device_keys = (*COMMON_DEVICE_KEYS, *RPLIDAR_KEYS)
     models = RPLIDAR_MODELS
     default_model = "rplidar-a1"
     profile_tables = ("scene",)
-    profile_attrs = ("lidars",)
-    endpoint_attrs = ("lidar",)
     fault_knobs = FAULTS
     control_commands = {
         "scanner_status": "what the unit is doing (state, motor, health, revolutions)",
@@ -77,9 +104,6 @@ class RplidarFamily(ScannerFamily):
 
     def check_table(self, c: Checker, name: str, raw: Any) -> Any:
         return check_scene(c, raw, name)
-
-    def check_baud(self, c: Checker, key: str, value: Any, port_type: str) -> int:
-        return c.integer(115_200 if value is None else value, key, 1200, 4_000_000)
 
     def check_options(self, c: Checker, key: str, dev: dict[str, Any], endpoint,
                       common: dict[str, Any]) -> dict[str, Any]:
@@ -122,11 +146,6 @@ class RplidarFamily(ScannerFamily):
                     "baud": profile.endpoints[spec.endpoint].baud})
         return out
 
-    def summary(self, endpoint) -> str:
-        dev = endpoint.attrs.get("lidar")
-        motor = dev.config.motor if dev else "?"
-        return f"rplidar A1, {endpoint.spec.baud} baud, motor {motor}"
-
     # ------------------------------------------------------------------ control channel
 
     def control(self, bench, device, cmd: str, req: dict[str, Any]) -> dict[str, Any]:
@@ -149,6 +168,7 @@ class RplidarFamily(ScannerFamily):
             device.set_health(device.faults.health_status, device.faults.health_code)
 
 
+BUS_KIND = RplidarBusKind()
 FAMILY = RplidarFamily()
 
-__all__ = ["FAMILY", "RPLIDAR_MODELS", "RplidarFamily"]
+__all__ = ["BUS_KIND", "FAMILY", "RplidarUnits", "RPLIDAR_MODELS", "RplidarBusKind", "RplidarFamily"]

@@ -24,9 +24,10 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
+from hilbench.bench.bus import BusKind
 from hilbench.bench.checks import Checker
 from hilbench.bench.control import ControlRequestError
-from hilbench.bench.family import DeviceFamily, DeviceSpec
+from hilbench.bench.family import DeviceFamily, DeviceSpec, FamilyAccess
 from hilbench.bench.knobs import KnobRules, check_fault_table, check_knobs, requested_knobs
 
 SCENE_KEYS = ("walls", "wall_reflectivity", "boxes", "circles", "moving")
@@ -130,18 +131,50 @@ class ScannerSpec(DeviceSpec):
     options: dict[str, Any] = field(default_factory=dict)
 
 
+class ScannerBusKind(BusKind):
+    """A scanner's port: one unit, which paces its own link (its UART, or whole replies at the times it
+    decides), so the medium delivers at once."""
+
+    max_devices = 1
+    one_device_reason = "one unit per port"
+    #: Whether the unit paces its link itself (its UART at the link speed), as the manifest says.
+    unit_paces_link: bool = True
+
+    def paced(self, spec, requested: bool) -> bool:
+        return False
+
+    def describe_endpoint(self, endpoint) -> dict[str, Any]:
+        return {"paced": True} if self.unit_paces_link else {}
+
+    def unit(self, endpoint) -> Any:
+        """The endpoint's unit (None before it is built)."""
+        return next(iter(endpoint.devices.values()), None)
+
+    def device_at(self, endpoint, address: int):
+        if not endpoint.devices:
+            raise KeyError(f"endpoint {endpoint.name!r} has no scanner")
+        return self.unit(endpoint)
+
+
+class ScannerUnits(FamilyAccess):
+    """A scanner family's units on a running bench: ``bench.family("rplidar").unit()``."""
+
+    def unit(self, name: str | None = None) -> Any:
+        """A unit by profile name, or the only one."""
+        return self.device(name)
+
+
 class ScannerFamily(DeviceFamily):
     """What scanner families share: the common device keys, building, the manifest entry and the control
     commands ``scanner_status`` and ``scanner_fault``; subclasses check their options
     (:meth:`check_options`) and make their devices (:meth:`make_scanner`)."""
 
     device_word = "scanner"
+    access = ScannerUnits
     #: Fault knobs and their rules (:mod:`hilbench.rules`: SWITCH, or a Rule for a count, rate or time).
     fault_knobs: KnobRules = {}
     #: The family's default model name.
     default_model: str = ""
-    #: Whether the unit paces its link itself (its UART at the link speed), as the manifest says.
-    unit_paces_link: bool = True
 
     def check_common(self, c: Checker, key: str, dev: dict[str, Any], endpoint) -> dict[str, Any]:
         """Model, name, pose, seed, noise, max_range and faults of a scanner entry."""
@@ -179,14 +212,6 @@ class ScannerFamily(DeviceFamily):
         """The family's own keys of a scanner entry (``common``, already checked, may be amended)."""
         return {}
 
-    def check_profile(self, c: Checker, profile) -> None:
-        seen: set[str] = set()
-        for spec in profile.devices_of(self.name):
-            if spec.endpoint in seen:
-                c.fail(f"{spec.where}.endpoint", f"endpoint {spec.endpoint!r} already has a scanner "
-                                                 "(one unit per port)")
-            seen.add(spec.endpoint)
-
     def range_model(self, spec: ScannerSpec, defaults: dict[str, float]):
         """The device's range model: the model's defaults with the profile's overrides."""
         from hilbench.fakes.scanners.scene import RangeModel
@@ -203,15 +228,10 @@ class ScannerFamily(DeviceFamily):
 
     # ------------------------------------------------------------------ bench
 
-    def paced(self, spec, requested: bool) -> bool:
-        return False  # a scanner paces its own link (its UART, or whole replies at the times it decides)
-
     def build(self, bench, endpoint, devices: list[ScannerSpec], t: float) -> None:
         for spec in devices:
             dev = self.make_scanner(bench, endpoint, spec, t)
-            dev.attach(endpoint.medium)
             endpoint.add_device(spec.name, dev)
-            endpoint.attrs[self.endpoint_attrs[0]] = dev
 
     def make_scanner(self, bench, endpoint, spec: ScannerSpec, t: float):
         """The emulated unit of ``spec`` (not yet attached to the endpoint's medium)."""
@@ -224,17 +244,9 @@ class ScannerFamily(DeviceFamily):
 
     # ------------------------------------------------------------------ description
 
-    def describe_endpoint(self, endpoint) -> dict[str, Any]:
-        return {"paced": True} if self.unit_paces_link else {}
-
     def describe_device(self, spec: ScannerSpec, device, endpoint, profile) -> dict[str, Any]:
         return {**super().describe_device(spec, device, endpoint, profile),
                 "pose": {"x": spec.x, "y": spec.y, "heading": spec.heading}}
-
-    def device_at(self, endpoint, address: int):
-        if not endpoint.devices:
-            raise KeyError(f"endpoint {endpoint.name!r} has no scanner")
-        return next(iter(endpoint.devices.values()))
 
     # ------------------------------------------------------------------ control channel
 
@@ -259,5 +271,5 @@ def pose_of(spec: ScannerSpec):
     return Pose(spec.x, spec.y, spec.heading)
 
 
-__all__ = ["COMMON_DEVICE_KEYS", "SCENE_KEYS", "ScannerFamily", "ScannerSpec", "check_scene", "pose_of",
-           "scene_of"]
+__all__ = ["COMMON_DEVICE_KEYS", "SCENE_KEYS", "ScannerBusKind", "ScannerFamily", "ScannerSpec", "ScannerUnits",
+           "check_scene", "pose_of", "scene_of"]

@@ -23,11 +23,20 @@ commands: ``scanner_status``, ``scanner_fault``.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from hilbench.bench.checks import Checker
-from hilbench.families.scanner import COMMON_DEVICE_KEYS, ScannerFamily, ScannerSpec
+from hilbench.families.scanner import (
+    COMMON_DEVICE_KEYS,
+    ScannerBusKind,
+    ScannerFamily,
+    ScannerSpec,
+    ScannerUnits,
+)
 from hilbench.rules import SWITCH, Rule
+
+if TYPE_CHECKING:
+    from hilbench.fakes.scanners.scip import ScipScanner
 
 SCIP_MODELS = ("ust-10lx", "urg-04lx", "UST-10LX", "URG-04LX")
 SCIP_KEYS = ("clock_offset_ms",)
@@ -35,26 +44,44 @@ FAULTS = {"bad_sum_next": Rule(int, 0, 1000), "truncate_next": Rule(int, 0, 1000
           "burst": SWITCH}
 
 
-class Scip2Family(ScannerFamily):
-    """One emulated SCIP 2.0 unit per ``scip2`` endpoint."""
+class Scip2BusKind(ScannerBusKind):
+    """A SCIP 2.0 unit's TCP port (UST-10LX) or USB serial port (URG-04LX)."""
 
-    name = "scip2"
-    protocols = ("scip2",)
+    protocol = "scip2"
     endpoint_types = ("tcp", "pty")
-    device_keys = (*COMMON_DEVICE_KEYS, *SCIP_KEYS)
-    models = SCIP_MODELS
-    default_model = "ust-10lx"
     unit_paces_link = False  # each reply goes out whole
-    profile_attrs = ("scip_units",)
-    endpoint_attrs = ("scip",)
-    fault_knobs = FAULTS
-    control_commands = {"scanner_status": "what the unit is doing (laser, continuous scans, clock)",
-                        "scanner_fault": "turn fault knobs: " + ", ".join(FAULTS)}
 
     def check_baud(self, c: Checker, key: str, value: Any, port_type: str) -> int | None:
         if value is None:
             return None
         return c.integer(value, key, 1200, 12_000_000)
+
+    def summary(self, endpoint) -> str:
+        dev = self.unit(endpoint)
+        return f"scip2, {dev.unit.name if dev is not None else '?'}"
+
+
+class ScipUnits(ScannerUnits):
+    """The emulated units of a running bench: ``bench.family("scip2")``."""
+
+    family_name = "scip2"
+
+    def unit(self, name: str | None = None) -> ScipScanner:
+        return self.device(name)
+
+
+class Scip2Family(ScannerFamily):
+    """The emulated SCIP 2.0 units, one per ``scip2`` endpoint."""
+
+    name = "scip2"
+    access = ScipUnits
+    joins = ("scip2",)
+    device_keys = (*COMMON_DEVICE_KEYS, *SCIP_KEYS)
+    models = SCIP_MODELS
+    default_model = "ust-10lx"
+    fault_knobs = FAULTS
+    control_commands = {"scanner_status": "what the unit is doing (laser, continuous scans, clock)",
+                        "scanner_fault": "turn fault knobs: " + ", ".join(FAULTS)}
 
     def check_options(self, c: Checker, key: str, dev: dict[str, Any], endpoint,
                       common: dict[str, Any]) -> dict[str, Any]:
@@ -85,11 +112,8 @@ class Scip2Family(ScannerFamily):
             out.update({k: v for k, v in endpoint.port.describe().items() if k in ("host", "port", "path")})
         return out
 
-    def summary(self, endpoint) -> str:
-        dev = endpoint.attrs.get("scip")
-        return f"scip2, {dev.unit.name if dev else '?'}"
 
-
+BUS_KIND = Scip2BusKind()
 FAMILY = Scip2Family()
 
-__all__ = ["FAMILY", "SCIP_MODELS", "Scip2Family"]
+__all__ = ["BUS_KIND", "FAMILY", "ScipUnits", "SCIP_MODELS", "Scip2BusKind", "Scip2Family"]

@@ -1,10 +1,12 @@
-"""What the serial-bus servo families (Dynamixel, Feetech) share: a servo's profile entry and its checks.
+"""What the serial-bus servo families (Dynamixel, Feetech) share: the bus, a servo's profile entry, its checks.
 
-A servo bus endpoint holds servos by ID, one bus object per endpoint
-(``endpoint.bus``). :class:`ServoBusFamily` reads the parts of a ``[[devices]]``
-entry both families write the same way (model, ``id``/``ids``, ``name``), keeps
-IDs unique per endpoint, finds a servo by ID, and :func:`apply_faults` turns a
-checked ``faults`` table into the servo's fault knobs.
+A servo bus endpoint holds devices by ID, one bus object per endpoint
+(``endpoint.bus``), which :class:`ServoBusKind` makes its devices join and
+finds them in by their current ID (the bus kind refuses an ID taken twice,
+across families). :class:`ServoBusFamily` reads the parts of a
+``[[devices]]`` entry both families write the same way (model,
+``id``/``ids``, ``name``), and :func:`apply_faults` turns a checked ``faults``
+table into the servo's fault knobs.
 """
 
 from __future__ import annotations
@@ -13,8 +15,9 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
+from hilbench.bench.bus import BusKind
 from hilbench.bench.checks import Checker
-from hilbench.bench.family import DeviceFamily, DeviceSpec
+from hilbench.bench.family import DeviceFamily, DeviceSpec, FamilyAccess
 from hilbench.rules import FAULT_COUNT, PROBABILITY, SWITCH, Rule
 
 #: The fault knobs every emulated servo has (profile ``faults`` tables), with their rules; a family adds its own.
@@ -38,12 +41,47 @@ class ServoBusSpec(DeviceSpec):
     ambient_temperature: float | None = None
 
 
-class ServoBusFamily(DeviceFamily):
-    """Servos addressed by ID on one bus per endpoint (a subclass says how its models are found)."""
+class ServoBusKind(BusKind):
+    """A servo bus on a pty: devices addressed by ``id`` join the bus object :meth:`open` makes
+    (``endpoint.bus``, a :class:`~hilbench.fakes.servo_line.ServoLine`)."""
 
     endpoint_types = ("pty",)
-    endpoint_attrs = ("bus",)
+    address_key = "id"
+    address_word = "ID"
+
+    def join(self, endpoint, device, spec) -> None:
+        endpoint.bus.add(device)
+
+    def device_at(self, endpoint, address: int):
+        return endpoint.bus.servo(address)  # by its current ID: a host may have changed it
+
+
+class ServoBusAccess(FamilyAccess):
+    """A servo family's devices on a running bench: by profile name (:meth:`device`), by ID, and their bus."""
+
+    def servo(self, servo_id: int, endpoint: str | None = None) -> Any:
+        """The family's device answering at ``servo_id`` now (a host may have changed its ID) on ``endpoint``
+        (or the only endpoint carrying the family's devices); KeyError if there is none."""
+        ep = self.endpoint(endpoint)
+        try:
+            device = ep.bus.servo(servo_id)
+        except KeyError:
+            raise KeyError(f"no {self.family.device_word} at ID {servo_id} on endpoint {ep.name!r}") from None
+        if not any(d is device for d in ep.devices_of(self.family.name).values()):
+            raise KeyError(f"ID {servo_id} on endpoint {ep.name!r} is not a {self.family.name} device")
+        return device
+
+    def bus(self, endpoint: str | None = None) -> Any:
+        """The bus object of ``endpoint`` (or of the only endpoint carrying the family's devices):
+        its ``servos``, ``stats``, ``servo(id)``."""
+        return self.endpoint(endpoint).bus
+
+
+class ServoBusFamily(DeviceFamily):
+    """Servos addressed by ID on servo buses (a subclass says how its models are found)."""
+
     device_word = "servo"
+    access = ServoBusAccess
     #: A model name the "missing model" error suggests.
     example_model = ""
 
@@ -108,17 +146,6 @@ class ServoBusFamily(DeviceFamily):
             c.fail(f"{key}.name", "expected a string, and only with a single id")
         return name
 
-    def check_profile(self, c: Checker, profile) -> None:
-        taken: dict[tuple[str, int], str] = {}
-        for spec in profile.devices_of(self.name):
-            owner = taken.get((spec.endpoint, spec.id))
-            if owner is not None:
-                c.fail(f"{spec.where}.id", f"ID {spec.id} is already used on endpoint {spec.endpoint!r} by {owner}")
-            taken[(spec.endpoint, spec.id)] = spec.where
-
-    def device_at(self, endpoint, address: int):
-        return endpoint.attrs["bus"].servo(address)
-
 
 def initial_values(init: dict[str, int | float], baud_codes: dict[int, int], baud: int | None) -> dict[str, int | float]:
     """A servo's ``init`` values with the Baud Rate code of the endpoint's ``baud`` unless ``init`` sets one."""
@@ -140,4 +167,4 @@ def apply_faults(servo: Any, faults: dict[str, Any], t: float) -> None:
         servo.raise_hardware_error(faults["hardware_error"], t, sticky=True)
 
 
-__all__ = ["SERVO_FAULT_RULES", "ServoBusFamily", "ServoBusSpec", "apply_faults", "initial_values"]
+__all__ = ["SERVO_FAULT_RULES", "ServoBusAccess", "ServoBusFamily", "ServoBusKind", "ServoBusSpec", "apply_faults", "initial_values"]

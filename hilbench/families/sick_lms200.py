@@ -23,11 +23,20 @@ The LMS paces its own UART at the current link speed. Control commands:
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from hilbench.bench.checks import Checker
-from hilbench.families.scanner import COMMON_DEVICE_KEYS, ScannerFamily, ScannerSpec
+from hilbench.families.scanner import (
+    COMMON_DEVICE_KEYS,
+    ScannerBusKind,
+    ScannerFamily,
+    ScannerSpec,
+    ScannerUnits,
+)
 from hilbench.rules import PROBABILITY, SWITCH, Rule
+
+if TYPE_CHECKING:
+    from hilbench.fakes.scanners.sick_lms200 import SickLms200
 
 LMS_MODELS = ("lms200", "LMS200", "sick-lms200")
 LMS_KEYS = ("variant", "units", "no_echo")
@@ -40,20 +49,11 @@ FAULTS = {
 LMS_BAUDS = (9600, 19200, 38400, 500_000)
 
 
-class SickLms200Family(ScannerFamily):
-    """One emulated LMS 200 per ``sick-lms200`` endpoint."""
+class SickLms200BusKind(ScannerBusKind):
+    """An LMS 200's RS-232 port (a pty), at 9600 baud until the host changes it."""
 
-    name = "sick-lms200"
-    protocols = ("sick-lms200",)
+    protocol = "sick-lms200"
     endpoint_types = ("pty",)
-    device_keys = (*COMMON_DEVICE_KEYS, *LMS_KEYS)
-    models = LMS_MODELS
-    default_model = "lms200"
-    profile_attrs = ("lms_units",)
-    endpoint_attrs = ("lms",)
-    fault_knobs = FAULTS
-    control_commands = {"scanner_status": "what the unit is doing (link speed, mode, variant, units)",
-                        "scanner_fault": "turn fault knobs: " + ", ".join(FAULTS)}
 
     def check_baud(self, c: Checker, key: str, value: Any, port_type: str) -> int:
         baud = 9600 if value is None else value
@@ -61,6 +61,34 @@ class SickLms200Family(ScannerFamily):
             c.fail(key, f"expected 9600 (an LMS 200 starts at 9600 baud; hosts change it with mode 40/41/48), "
                         f"got {baud!r}")
         return baud
+
+    def summary(self, endpoint) -> str:
+        dev = self.unit(endpoint)
+        baud = dev.baud if dev is not None else endpoint.spec.baud
+        return f"sick-lms200, {baud} baud now (9600 at power-up)"
+
+
+class LmsUnits(ScannerUnits):
+    """The emulated units of a running bench: ``bench.family("sick-lms200")``."""
+
+    family_name = "sick-lms200"
+
+    def unit(self, name: str | None = None) -> SickLms200:
+        return self.device(name)
+
+
+class SickLms200Family(ScannerFamily):
+    """The emulated LMS 200, one per ``sick-lms200`` endpoint."""
+
+    name = "sick-lms200"
+    access = LmsUnits
+    joins = ("sick-lms200",)
+    device_keys = (*COMMON_DEVICE_KEYS, *LMS_KEYS)
+    models = LMS_MODELS
+    default_model = "lms200"
+    fault_knobs = FAULTS
+    control_commands = {"scanner_status": "what the unit is doing (link speed, mode, variant, units)",
+                        "scanner_fault": "turn fault knobs: " + ", ".join(FAULTS)}
 
     def check_options(self, c: Checker, key: str, dev: dict[str, Any], endpoint,
                       common: dict[str, Any]) -> dict[str, Any]:
@@ -88,12 +116,8 @@ class SickLms200Family(ScannerFamily):
                     "baud": device.baud if device is not None else 9600})
         return out
 
-    def summary(self, endpoint) -> str:
-        dev = endpoint.attrs.get("lms")
-        baud = dev.baud if dev else endpoint.spec.baud
-        return f"sick-lms200, {baud} baud now (9600 at power-up)"
 
-
+BUS_KIND = SickLms200BusKind()
 FAMILY = SickLms200Family()
 
-__all__ = ["FAMILY", "LMS_MODELS", "SickLms200Family"]
+__all__ = ["BUS_KIND", "FAMILY", "LmsUnits", "LMS_MODELS", "SickLms200BusKind", "SickLms200Family"]

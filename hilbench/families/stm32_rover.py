@@ -1,5 +1,8 @@
 """The STM32 rover family: the mecanum rover's STM32F767 FreeRTOS board behind a UART (or UDP).
 
+:data:`~hilbench.families.stm32_rover.BUS_KIND` is its UART (endpoint ``protocol = "vel2d"``: one board, which paces its own line),
+:data:`~hilbench.families.stm32_rover.FAMILY` the board.
+
 Profile schema (endpoint ``protocol = "vel2d"``, a pty or UDP)::
 
     [endpoints.rover]
@@ -24,8 +27,8 @@ Profile schema (endpoint ``protocol = "vel2d"``, a pty or UDP)::
                                    # xrce-dds endpoint of this profile); see fakes/stm32_board/micro_ros.py
     micro_ros = { client_key = 0x60C93570, domain_id = 0, zero_after_session = false }
 
-An endpoint carries one board (a UART is point to point): ``endpoint.board``,
-``bench.board()``. The board paces its own UART, so its medium delivers at
+An endpoint carries one board (a UART is point to point):
+``bench.family("stm32-rover").board()`` (:class:`RoverBoards`). The board paces its own UART, so its medium delivers at
 once. Control commands (``hilbench board``, :class:`BoardClient`): status,
 button, reset, fault, log, wait_report.
 """
@@ -33,13 +36,17 @@ button, reset, fault, log, wait_report.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
+from hilbench.bench.bus import BusKind
 from hilbench.bench.checks import Checker
 from hilbench.bench.control import ControlClient, ControlError, ControlRequestError, client_waits
-from hilbench.bench.family import DeviceFamily, DeviceSpec, bench_device
+from hilbench.bench.family import DeviceFamily, DeviceSpec, FamilyAccess
 from hilbench.bench.knobs import check_fault_table, check_knobs
 from hilbench.rules import FAULT_COUNT, PROBABILITY, Rule, RuleError
+
+if TYPE_CHECKING:
+    from hilbench.fakes.stm32_board import Board
 
 #: Line rates a board endpoint accepts (bit/s); a pty does not care, the board paces its UART by it.
 BOARD_BAUD_RANGE = (1200, 12_500_000)
@@ -102,18 +109,46 @@ def check_fault_knobs(knobs: dict[str, Any]) -> dict[str, float]:
     return check_knobs(knobs, FAULT_RULES, error=RuleError)
 
 
+class Vel2dBusKind(BusKind):
+    """The rover board's UART (a pty) or its UDP door: one board per endpoint."""
+
+    protocol = "vel2d"
+    endpoint_types = ("pty", "udp")
+    max_devices = 1
+    one_device_reason = "a UART is point to point"
+    tap_reader = "profile"
+
+    def check_baud(self, c: Checker, key: str, value: Any, port_type: str) -> int:
+        return c.rule(115_200 if value is None else value, key, BOARD_BAUD)
+
+    def paced(self, spec, requested: bool) -> bool:
+        return False  # the board paces its own UART (full duplex), so its line delivers at once
+
+    def describe_endpoint(self, endpoint) -> dict[str, Any]:
+        return {"paced": True}  # at the UART's rate, by the board itself
+
+    def summary(self, endpoint) -> str:
+        board = next(iter(endpoint.devices.values()), None)
+        if board is None or not hasattr(board, "config"):
+            return f"{endpoint.spec.protocol}, {endpoint.spec.baud} baud, no board"
+        b = board.config
+        return (f"{endpoint.spec.protocol}, {endpoint.spec.baud} baud, board {board.name!r}: "
+                f"{b.preset.name}{'' if b.preset.caches else ' no caches'}, output {b.output}")
+
+    def device_at(self, endpoint, address: int):
+        if not endpoint.devices:
+            raise KeyError(f"endpoint {endpoint.name!r} has no board")
+        return next(iter(endpoint.devices.values()))
+
+
 class Stm32RoverFamily(DeviceFamily):
-    """One emulated rover board per ``vel2d`` endpoint."""
+    """The emulated rover board, one per ``vel2d`` endpoint."""
 
     name = "stm32-rover"
-    protocols = ("vel2d",)
-    endpoint_types = ("pty", "udp")
+    joins = ("vel2d",)
     device_keys = BOARD_KEYS
     models = BOARD_MODELS
-    endpoint_attrs = ("board",)
-    profile_attrs = ("boards",)
     device_word = "board"
-    tap_reader = "profile"
     control_commands = {
         "status": "what the board is doing (preset, output, counters, recent log)",
         "button": "press the user button (starts/stops a trace window)",
@@ -125,9 +160,6 @@ class Stm32RoverFamily(DeviceFamily):
     }
 
     # ------------------------------------------------------------------ profile
-
-    def check_baud(self, c: Checker, key: str, value: Any, port_type: str) -> int:
-        return c.rule(115_200 if value is None else value, key, BOARD_BAUD)
 
     def check_devices(self, c: Checker, key: str, dev: dict[str, Any], endpoint, profile) -> list[BoardSpec]:
         from hilbench.fakes.stm32_board.presets import OUTPUTS, make_preset, preset_names
@@ -180,20 +212,12 @@ class Stm32RoverFamily(DeviceFamily):
         )]
 
     def check_profile(self, c: Checker, profile) -> None:
-        seen: set[str] = set()
         for spec in profile.devices_of(self.name):
             if spec.agent is not None and ":" not in spec.agent and spec.agent not in profile.endpoints:
                 c.fail(f"{spec.where}.agent", f"no endpoint named {spec.agent!r} (expected \"HOST:PORT\" or an "
                                               "xrce-dds endpoint of this profile)")
-            if spec.endpoint in seen:
-                c.fail(f"{spec.where}.endpoint", f"endpoint {spec.endpoint!r} already has a board (a UART is "
-                                                 "point to point)")
-            seen.add(spec.endpoint)
 
     # ------------------------------------------------------------------ bench
-
-    def paced(self, spec, requested: bool) -> bool:
-        return False  # the board paces its own UART (full duplex), so its line delivers at once
 
     def build(self, bench, endpoint, devices: list[BoardSpec], t: float) -> None:
         from hilbench.fakes.stm32_board import Board
@@ -204,22 +228,17 @@ class Stm32RoverFamily(DeviceFamily):
                 from hilbench.fakes.stm32_board.micro_ros import MicroRosLink
 
                 board.attach_link(MicroRosLink(_agent_address(bench, dev.agent), **dev.micro_ros))
-            board.attach(endpoint.medium)
             endpoint.add_device(dev.name, board)
-            endpoint.attrs["board"] = board
 
-    def start(self, endpoint, t: float) -> None:
-        for board in endpoint.devices.values():
+    def start(self, endpoint, devices: dict[str, Any], t: float) -> None:
+        for board in devices.values():
             board.start(t)
 
-    def stop(self, endpoint) -> None:
-        for board in endpoint.devices.values():
+    def stop(self, endpoint, devices: dict[str, Any]) -> None:
+        for board in devices.values():
             board.stop()
 
     # ------------------------------------------------------------------ description
-
-    def describe_endpoint(self, endpoint) -> dict[str, Any]:
-        return {"paced": True}  # at the UART's rate, by the board itself
 
     def describe_device(self, spec: BoardSpec, device, endpoint, profile) -> dict[str, Any]:
         extra: dict[str, Any] = {}
@@ -235,14 +254,6 @@ class Stm32RoverFamily(DeviceFamily):
             "output": spec.output,
             "baud": profile.endpoints[spec.endpoint].baud,
         } | extra | _rx_fifo(profile.endpoints[spec.endpoint].type, device)
-
-    def summary(self, endpoint) -> str:
-        board = endpoint.attrs.get("board")
-        if board is None:
-            return f"{endpoint.spec.protocol}, {endpoint.spec.baud} baud, no board"
-        b = board.config
-        return (f"{endpoint.spec.protocol}, {endpoint.spec.baud} baud, board {board.name!r}: "
-                f"{b.preset.name}{'' if b.preset.caches else ' no caches'}, output {b.output}")
 
     # ------------------------------------------------------------------ control channel
 
@@ -351,14 +362,17 @@ def _agent_address(bench, agent: str):
     return find
 
 
-def _bench_board(bench, name: str | None = None):
-    """``bench.board(name=None)``: an emulated rover board by name (or the only one)."""
-    from hilbench.fakes.stm32_board import Board
+class RoverBoards(FamilyAccess):
+    """The rover boards of a running bench: ``bench.family("stm32-rover")``."""
 
-    return bench_device(bench, Board, "boards", name)
+    family_name = "stm32-rover"
+
+    def board(self, name: str | None = None) -> Board:
+        """A board by profile name, or the only one."""
+        return self.device(name)
 
 
-Stm32RoverFamily.bench_methods = {"board": _bench_board}
+Stm32RoverFamily.access = RoverBoards
 
 
 class BoardClient(ControlClient):
@@ -387,7 +401,10 @@ class BoardClient(ControlClient):
         return self.call("wait_report", device=device, timeout=timeout, after=after)
 
 
+#: The bus kind this module registers (entry point ``hilbench.bus_kinds``).
+BUS_KIND = Vel2dBusKind()
+#: The device family this module registers (entry point ``hilbench.families``).
 FAMILY = Stm32RoverFamily()
 
-__all__ = ["BOARD_BAUD", "BOARD_MODELS", "FAMILY", "FAULT_RULES", "BoardClient", "BoardSpec", "Stm32RoverFamily",
-           "board_config", "check_fault_knobs"]
+__all__ = ["BOARD_BAUD", "BOARD_MODELS", "BUS_KIND", "FAMILY", "FAULT_RULES", "BoardClient", "BoardSpec",
+           "RoverBoards", "Stm32RoverFamily", "Vel2dBusKind", "board_config", "check_fault_knobs"]

@@ -146,6 +146,10 @@ class RemoteBench:
         raise BenchError(f"bench {self.profile.name!r} runs remotely ({self.where}): its devices are not objects "
                          "in this process; use bench.control or the wire")
 
+    def family(self, name: str) -> Any:
+        """As :meth:`device`: a family's devices live on the bench's machine."""
+        return self.device(name)
+
     def stop(self) -> None:
         for ep in self.endpoints.values():
             ep.close()

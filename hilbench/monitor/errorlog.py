@@ -70,7 +70,7 @@ class ErrorLog:
     """Bounded log of bus errors with counts by kind."""
 
     def __init__(self, capacity: int = 1000) -> None:
-        self.capacity = capacity
+        self.capacity = capacity  #: entries kept (the newest)
         self.entries: deque[LogEntry] = deque(maxlen=capacity)
         self.counts: dict[str, int] = dict.fromkeys(KINDS, 0)
         self.total = 0

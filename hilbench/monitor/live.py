@@ -72,7 +72,7 @@ class Monitor:
         if instrument is None:
             instrument = choose(protocol or source.protocol)
         self.instrument = instrument
-        self.tracker = tracker
+        self.tracker = tracker  #: the instrument's tracker (None until the protocol is known)
         if tracker is None and instrument is not None:
             self.tracker = self._make_tracker(instrument)
         self.recorder = record

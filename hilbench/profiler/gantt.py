@@ -20,6 +20,7 @@ from hilbench.errors import require
 from hilbench.profiler.analysis import Analysis
 from hilbench.transports.atomic_file import atomic_write
 
+#: Intervals drawn at most (the picture covers the first ones).
 MAX_INTERVALS = 50_000
 #: Columns of the picture's time axis (about the plot area's width in pixels at the default size).
 PIXELS = 1000

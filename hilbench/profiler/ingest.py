@@ -1,4 +1,4 @@
-"""The profiler's front end: bytes or decoded items in, a :class:`Timeline` and counters out.
+"""The profiler's front end: bytes or decoded items in, a :class:`~hilbench.profiler.timeline.Timeline` and counters out.
 
 :class:`Profiler` owns one :class:`~hilbench.protocols.tracestamp_stream.StreamDecoder`
 (text and binary stamps mixed with logs and run-time reports on one port) and

@@ -2,7 +2,7 @@
 
 ``hilbench monitor`` points a user at ``hilbench profile`` for this protocol
 (:attr:`~hilbench.monitor.instrument.Instrument.verb`), and ``hilbench
-profile`` accepts only sources whose instrument it is. :meth:`sniff` tells
+profile`` accepts only sources whose instrument it is. :meth:`~TraceInstrument.sniff` tells
 trace output in a raw capture (text stamp lines, logs, reports, binary words).
 """
 

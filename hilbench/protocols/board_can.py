@@ -10,9 +10,9 @@ PDO        COB-ID         len  signals (physical = raw x scale)                 
 RPDO1      0x200 + n      8    ``vx``, ``vy`` (int16, 0.001 m/s), ``omega`` (int16,    host, 50 ms
                                0.001 rad/s), ``counter`` (u8, +1 per frame),
                                ``checksum`` (u8, CRC-8/SAE-J1850 of bytes 0..6)
-TPDO1      0x180 + n      8    ``enc_fr``, ``enc_fl``, ``enc_bl``, ``enc_br`` (int16:  20 ms
-                               encoder increments since the previous frame,
-                               3072 per wheel turn)
+TPDO1      0x180 + n      8    ``enc_fr``, ``enc_fl``, ``enc_bl``, ``enc_br``          20 ms
+                               (int16: encoder increments since the previous
+                               frame, 3072 per wheel turn)
 TPDO2      0x280 + n      8    ``x``, ``y`` (int24, 0.001 m), ``theta`` (int16,        50 ms
                                0.0001 rad): the odometry pose
 TPDO3      0x380 + n      7    ``vx``, ``vy``, ``omega`` (as RPDO1): the ramped        50 ms
@@ -94,6 +94,7 @@ def _s(name: str, offset: int, bits: int, signed: bool, scale: float, unit: str,
     return Signal(name, 8 * offset, bits, signed, scale, unit, comment, choices, od_entry)
 
 
+#: RPDO1, the velocity setpoint the host sends (see the module docstring).
 SETPOINT = Pdo("setpoint", "rpdo", 1, "VelocitySetpoint", 8, (
     _s("vx", 0, 16, True, 0.001, "m/s", (0x2000, 1), "forward velocity (Vel2d linear.x)"),
     _s("vy", 2, 16, True, 0.001, "m/s", (0x2000, 2), "sideways velocity, left positive (Vel2d linear.y)"),

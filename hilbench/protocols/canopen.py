@@ -14,7 +14,8 @@ Predefined connection set (node id n = 1..127)::
 SDO frames are 8 bytes: a command byte, the index (u16, little-endian), the
 sub-index, and 4 data bytes (expedited) or a size; segments carry 7 data bytes
 after the command byte. :data:`SdoInitiate` and :data:`SdoSegment` are the
-layouts; :func:`sdo_command` reads a command byte's fields.
+layouts; :data:`InitiateCommand`, :data:`SegmentCommand` and :func:`specifier` read a
+command byte's fields.
 """
 
 from __future__ import annotations

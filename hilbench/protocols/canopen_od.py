@@ -1,7 +1,7 @@
 """A CANopen object dictionary described as data, its value codecs, and its EDS text (CiA 306).
 
-A device's dictionary is a list of :class:`Variable`, :class:`Record` and
-:class:`Array` entries. The same list feeds the emulated node's SDO server
+A device's dictionary is a list of :class:`Variable` and :class:`Record`
+(``array=True``: an ARRAY) entries. The same list feeds the emulated node's SDO server
 (:mod:`hilbench.fakes.canopen`) and the EDS file tools import (the
 ``canopen`` package, CANopen configuration tools), so they cannot disagree.
 

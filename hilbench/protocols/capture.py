@@ -2,7 +2,7 @@
 
 One definition of the layout, used by the recorder, the capture reader and
 the bench's tap server (which streams the same records over TCP). Full
-description: ``docs/capture-format.md``. All integers little-endian::
+description: ``docs/formats/capture-format.md``. All integers little-endian::
 
     file   = header record*
     header = magic(8) = 89 'HBC' 0D 0A 1A 0A

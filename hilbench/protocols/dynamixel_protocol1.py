@@ -147,7 +147,7 @@ def build(packet_id: int, code: int, params: bytes = b"") -> bytes:
 
 
 def frame(packet_id: int, code: int, params: bytes = b"") -> bytes:
-    """Fast path of :func:`build` for the emulators' replies (tests prove both agree on every vector)."""
+    """Fast path of :func:`build <hilbench.protocols.dynamixel_protocol1.build>` for the emulators' replies (tests prove both agree on every vector)."""
     body = bytes((packet_id, len(params) + 2, code)) + params
     return HEADER + body + bytes((~sum(body) & 0xFF,))
 

@@ -1,4 +1,4 @@
-"""What a decoder throws away, reported instead of raised: one :class:`Problem` type for every decoder.
+"""What a decoder throws away, reported instead of raised: one :class:`~hilbench.protocols.problem.Problem` type for every decoder.
 
 Decoders never raise on garbage: they resynchronise, count what they dropped
 and put a :class:`Problem` among their items where it happened, so a consumer

@@ -52,7 +52,7 @@ class LineSplitter:
         self.max_line = max_line
         self._buf = bytearray()
         self._overflow = False
-        self.dropped = 0
+        self.dropped = 0  #: bytes of lines dropped (too long)
 
     def feed(self, data: bytes) -> list[str]:
         out: list[str] = []

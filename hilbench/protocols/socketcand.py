@@ -61,7 +61,7 @@ class MessageSplitter:
     def __init__(self, max_message: int = MAX_MESSAGE) -> None:
         self.max_message = max_message
         self._buf = bytearray()
-        self.dropped = 0
+        self.dropped = 0  #: bytes dropped (outside or beyond a message)
 
     def feed(self, data: bytes) -> list[str]:
         buf = self._buf

@@ -385,7 +385,7 @@ class _ReportBuilder:
 
 #: At most this many distinct names are kept; further new names all map to :data:`OVERFLOW_NAME`.
 MAX_NAMES = 65536
-OVERFLOW_NAME = "<too many names>"
+OVERFLOW_NAME = "<too many names>"  #: what every new name beyond MAX_NAMES becomes
 
 
 class NameRegistry:

@@ -1,6 +1,6 @@
 """Compact binary trace stamps: one tagged 32-bit word per stamp (hilbench's design for spec §3.9).
 
-Full description with a worked example: ``docs/tracestamp-binary.md``. In short:
+Full description with a worked example: ``docs/formats/tracestamp-binary.md``. In short:
 
 * **Word**: 4 bytes, little-endian. Every byte has bit 7 set, so words never
   look like the board's 7-bit ASCII text (logs, reports) and both share one
@@ -52,7 +52,7 @@ TIME_INTERVAL_US = 1 << HI_SHIFT  # 32,768 µs: the period whose first stamp a T
 ARG_BITS = 13
 ARG_MASK = (1 << ARG_BITS) - 1
 MAX_DROPS_PER_WORD = ARG_MASK
-CHECK_BLOCK = 64
+CHECK_BLOCK = 64  #: words between two CHECK words
 WORD_SIZE = 4
 
 
@@ -380,7 +380,7 @@ class WordDecoder:
         return outs
 
     def cut(self) -> int:
-        """The input was cut off (see :meth:`TextDecoder.cut`): drop an unfinished word; returns its bytes."""
+        """The input was cut off (see :meth:`TextDecoder.cut <hilbench.protocols.tracestamp.TextDecoder.cut>`): drop an unfinished word; returns its bytes."""
         n = len(self._pending)
         self._pending = np.zeros(0, np.uint8)
         return n

@@ -39,9 +39,9 @@ StreamItem = Item | Marker
 class StreamDecoder:
     """Incremental decoder of a mixed text/binary board stream; never raises.
 
-    ``feed(data)`` returns :class:`Stamp`, :class:`LogLine`, :class:`RuntimeReport`,
-    :class:`NameEntry`, :class:`TableStart`, :class:`Marker` and
-    :class:`~hilbench.protocols.problem.Problem` items (unreadable lines, damaged
+    ``feed(data)`` returns :class:`Stamp`, :class:`~hilbench.protocols.tracestamp.LogLine`,
+    :class:`~hilbench.protocols.tracestamp.RuntimeReport`, :class:`NameEntry`, :class:`TableStart`,
+    :class:`Marker` and :class:`~hilbench.protocols.problem.Problem` items (unreadable lines, damaged
     words) in arrival order; ``feed_batch(data)`` the same with runs of stamps
     as :class:`StampBatch` columns. ``text`` and ``words`` are the
     two decoders, with their counters.

@@ -34,7 +34,7 @@ MM_PER_M = 1000.0
 
 #: The firmware's ERROR log messages (ulog), byte for byte.
 MSG_INSUFFICIENT = "parsing velocity failed: insufficient bytes received"
-MSG_CRC = "crc mismatch!"
+MSG_CRC = "crc mismatch!"  #: the firmware's message for a CRC mismatch
 
 _PAYLOAD = struct.Struct("<3d")
 _FRAME = struct.Struct("<3dI")

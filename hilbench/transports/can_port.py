@@ -8,12 +8,12 @@ endpoint opens every door at once, each a party on the same emulated bus
 profile key          door                                                    who uses it
 ===================  ======================================================  =====================================
 ``socketcand``       socketcand server on 127.0.0.1 (default: on, port 0,    python-can ``socketcand``, can.viewer,
-                     channel ``can0``): :mod:`~hilbench.transports.           can.logger, cantools monitor, canopen,
-                     socketcand_server`                                      (SavvyCAN: untested)
+                     channel ``can0``):                                      can.logger, cantools monitor, canopen,
+                     :mod:`~hilbench.transports.socketcand_server`           (SavvyCAN: untested)
 ``slcan``            LAWICEL adapter on a pty (default: on; a path makes a   python-can ``slcan``, cantools monitor
                      stable link): :mod:`~hilbench.transports.slcan_port`    (slcand, SavvyCAN: untested)
 ``virtual``          python-can ``virtual`` channel (default: off; also      code in the bench's own process
-                     opened on demand by ``bench.can_bus()``)
+                     opened on demand by ``open_bus()``)
 ``socketcan``        a kernel interface such as ``vcan0`` (default: off);    can-utils, Wireshark, everything
                      skipped, with the reason in the manifest, where the     SocketCAN
                      kernel has no AF_CAN
@@ -222,6 +222,13 @@ class CanHostPort(HostPort):
         if self._medium is not None:
             self._medium.wake()  # the bus thread waits on the new door's descriptor from its next round
         return door.channel
+
+    def open_bus(self, **kwargs: Any) -> Any:
+        """A python-can bus on this endpoint's bus, in this process (its ``virtual`` door, opened if need be):
+        ``bench.endpoint("can").port.open_bus()``; ``kwargs`` go to ``can.Bus``. Shut it down when done."""
+        import can
+
+        return can.Bus(interface="virtual", channel=self.open_virtual(), **kwargs)
 
     def attach(self, medium: Any) -> None:
         """The medium this port is a host of (doors learn its bitrate and clock)."""

@@ -161,12 +161,12 @@ class CaptureParser:
         self.truncated_bytes = 0
         #: Bytes skipped while resynchronising after damage, and the number of damaged places.
         self.corrupt_bytes = 0
-        self.corruptions = 0
+        self.corruptions = 0  #: damaged places
         #: Records of kinds this version does not know (skipped by their length).
         self.unknown_records = 0
         #: Records whose time was out of order (repaired), and lasting steps back (continued).
         self.time_faults = 0
-        self.time_resets = 0
+        self.time_resets = 0  #: lasting steps back in time (continued)
         #: One line per finding (at most :data:`MAX_FINDINGS`; the counters are exact).
         self.findings: list[str] = []
         self._buf = bytearray()

@@ -18,7 +18,7 @@ and their addresses:
   is the sending device's name, or ``udp:HOST:PORT`` for a datagram from outside.
   A datagram one device sends to another socket of the same net is tapped when sent.
 
-One thread runs the net: it reads the sockets, runs timers (:meth:`call_at`) and
+One thread runs the net: it reads the sockets, runs timers (:meth:`~DatagramMedium.call_at`) and
 every device callback, so device logic needs no locks. Loopback is not paced: a
 datagram leaves when it is sent (``t`` delays it).
 """

@@ -3,9 +3,9 @@
 ``HostLink.open("/dev/ttyACM0", 115200)`` opens a serial port with pyserial
 in raw mode, as the ROS bridge ``vel2d_bridge`` does; ``HostLink.open(
 "udp://127.0.0.1:9000")`` talks to a board endpoint over UDP (the first
-datagram sent registers this socket for the board's output). :meth:`send`
+datagram sent registers this socket for the board's output). :meth:`~HostLink.send`
 writes one message with one write and waits until it has left (tcdrain),
-like the bridge; :meth:`read` returns whatever the board sent.
+like the bridge; :meth:`~HostLink.read` returns whatever the board sent.
 """
 
 from __future__ import annotations

@@ -43,7 +43,7 @@ class HostPort:
 
     @classmethod
     def check_options(cls, raw: dict[str, Any]) -> dict[str, Any]:
-        """Check this port type's keys of an endpoint table (raise :class:`OptionError`); returns them filled."""
+        """Check this port type's keys of an endpoint table (raise :class:`~hilbench.errors.OptionError`); returns them filled."""
         return {k: raw.get(k, default) for k, default in cls.profile_keys.items()}
 
     @classmethod

@@ -6,9 +6,11 @@ is not used: it turns IPV6_V6ONLY on (a ``::`` bind would stop hearing IPv4
 clients) and rewrites bind errors.
 
 A client must never take a bench's thread down, so :class:`Listener` also
-keeps each server to its limit of clients: a connection beyond it gets the
-server's own refusal (its protocol's error message) and is closed, and the
-clients already served go on. When the process has no descriptor left
+keeps each server to its limit of clients: a connection beyond it first asks
+the server to let go of a kept client that is of no use (``evict``; the
+policy: :mod:`hilbench.transports.client_limit`) and takes its place; if
+none is, it gets the server's own refusal (its protocol's error message) and
+is closed, and the clients already served go on. When the process has no descriptor left
 (``accept`` fails with EMFILE), the connection would stay pending and the
 listener readable, and a thread waiting on it would spin: the listener then
 spends a spare descriptor kept for the purpose to take that connection and
@@ -159,7 +161,8 @@ class Listener:
     send buffer (SO_SNDBUF): autotuned, the kernel holds up to megabytes for a
     client that reads nothing (2.8 MB measured on loopback), on top of what the
     server queues itself. Counters: :attr:`accepted`, :attr:`refused` (beyond
-    the limit), :attr:`exhausted` (accept found no descriptor left).
+    the limit), :attr:`evicted` (kept clients let go for a newcomer),
+    :attr:`exhausted` (accept found no descriptor left).
     """
 
     def __init__(self, bind: str, port: int, backlog: int, *, max_clients: int,
@@ -175,9 +178,10 @@ class Listener:
         self.max_clients = max_clients
         self.refusal = refusal
         self.send_buffer = send_buffer
-        self.accepted = 0
-        self.refused = 0
-        self.exhausted = 0
+        self.accepted = 0  #: connections accepted
+        self.refused = 0  #: connections refused beyond the limit
+        self.evicted = 0  #: connections closed to make room for a newcomer
+        self.exhausted = 0  #: accepts that found no descriptor left
         #: While ``time.monotonic()`` is below this, the listener is not waited on (see the module docstring).
         self.paused_until = 0.0
         _Spare.ensure()
@@ -198,9 +202,11 @@ class Listener:
         """When a pause ends (wait no longer than that), or None."""
         return self.paused_until if self.paused_until > time.monotonic() else None
 
-    def accept(self, clients: int) -> Iterator[tuple[socket.socket, tuple]]:
+    def accept(self, clients: int, evict: Callable[[], bool] | None = None) -> Iterator[tuple[socket.socket, tuple]]:
         """Every connection waiting, made ready by :func:`serve`, while the server holds fewer than
-        ``max_clients`` (``clients`` now, plus those yielded); the others are refused. Never blocks or raises."""
+        ``max_clients`` (``clients`` now, plus those yielded). Beyond, ``evict()`` may let a kept client go
+        (it returns True if it did: the newcomer takes its place); otherwise the newcomer is refused. Never
+        blocks or raises."""
         if self.paused_until:
             if time.monotonic() < self.paused_until:
                 return
@@ -218,6 +224,9 @@ class Listener:
                     if not _Spare.shed(self.sock, self.refusal):
                         self.paused_until = time.monotonic() + PAUSE
                 return  # closed under us (EBADF, EINVAL) or out of descriptors: nothing more now
+            if clients >= self.max_clients and evict is not None and evict():
+                self.evicted += 1
+                clients -= 1
             if clients >= self.max_clients:
                 self.refused += 1
                 refuse(sock, self.refusal(f"{self.max_clients} clients at most"))
@@ -236,7 +245,7 @@ class Listener:
     def status(self) -> dict[str, int]:
         """The limit and the counters, for status reports."""
         return {"max_clients": self.max_clients, "accepted": self.accepted, "refused": self.refused,
-                "out_of_descriptors": self.exhausted}
+                "evicted": self.evicted, "out_of_descriptors": self.exhausted}
 
     def close(self) -> None:
         with contextlib.suppress(OSError):

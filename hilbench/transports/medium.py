@@ -8,8 +8,8 @@ hears traffic depends on the medium (``on_bytes`` on a serial line,
 ``on_frame`` on a CAN bus, ``on_datagram`` on a datagram net); what it sends
 goes through the :class:`DevicePort` the medium returned when it was added.
 
-Media register by kind in the ``hilbench.media`` entry-point group; a device
-family names the kind its endpoints need (:attr:`DeviceFamily.medium`).
+Media register by kind in the ``hilbench.media`` entry-point group; a bus kind
+names the kind its endpoints need (:attr:`BusKind.medium <hilbench.bench.bus.BusKind.medium>`).
 
 Besides traffic, a serial host port has modem lines and BREAK
 (:mod:`hilbench.transports.line`): the medium hands the host's changes to each

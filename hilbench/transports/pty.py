@@ -127,8 +127,8 @@ class PtyEndpoint(HostPort):
         self.master_fd, self.slave_fd = os.openpty()
         tty.setraw(self.slave_fd)
         os.set_blocking(self.master_fd, False)
-        self.path = os.ttyname(self.slave_fd)
-        self.link: Path | None = None
+        self.path = os.ttyname(self.slave_fd)  #: the client side's device path
+        self.link: Path | None = None  #: the stable symlink to it, if one was made
         self._link_id: tuple[int, int] | None = None  # (st_dev, st_ino) of the link made
         self.bytes_in = 0
         self.bytes_out = 0

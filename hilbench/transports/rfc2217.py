@@ -88,7 +88,7 @@ class Rfc2217Port(HostPort):
     ``lines`` of the endpoint is where modem lines, BREAK and settings go
     (:attr:`line_state`); the port itself has no :attr:`lines` of its own, so
     the medium keeps its listener on the endpoint's port. ``medium`` (needed
-    for :meth:`~Medium.call_at`) is where it runs.
+    for :meth:`~hilbench.transports.medium.Medium.call_at`) is where it runs.
     """
 
     kind = "rfc2217"
@@ -97,7 +97,7 @@ class Rfc2217Port(HostPort):
     def __init__(self, name: str, line_state: LineState, medium: Any, *, bind: str = DEFAULT_BIND, port: int = 0,
                  baud: int | None = None, signature: str = "") -> None:
         self.name = name
-        self.line_state = line_state
+        self.line_state = line_state  #: the endpoint's modem lines, BREAK and settings
         self.medium = medium
         self.signature = signature or f"hilbench {__version__}"
         self.listener = Listener(bind, port, 4, max_clients=1, refusal=self._refusal, send_buffer=SEND_BUFFER)

@@ -126,7 +126,7 @@ class SerialMedium(Medium):
 
     def __init__(self, name: str, baud: int, *, paced: bool = False, realtime: bool | None = None) -> None:
         super().__init__(name, baud, paced=paced)
-        self.stats = LineStats()
+        self.stats = LineStats()  #: transmissions, bytes and lateness against the wire-time model
         #: Run the line's thread under SCHED_FIFO if the OS allows it (None: when paced, unless
         #: HILBENCH_REALTIME=0). Unpaced lines gain nothing from it.
         self.realtime = (paced and os.environ.get("HILBENCH_REALTIME", "1") != "0") if realtime is None \

@@ -55,7 +55,7 @@ class SlcanAdapter(CanDoor):
         self.sent = 0
         self.received = 0
         self.refused = 0
-        self.bitrate_mismatch = 0
+        self.bitrate_mismatch = 0  #: frames not exchanged: the adapter's bitrate is not the bus's
         self._medium: Any = None
         self._t0 = 0.0
 

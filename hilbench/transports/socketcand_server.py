@@ -32,9 +32,18 @@ where python-can's ``detect_beacon()`` listens (never broadcast).
 Limits (the daemon forks a process per client and lets the kernel bound the
 rest; one bad client must not take the bus from the others here):
 
-- at most :data:`MAX_CLIENTS` clients at once; one more gets
-  ``< error too many clients >`` instead of ``< hi >`` and is closed (python-can
-  then raises ``CanError`` with that message);
+- at most :data:`MAX_CLIENTS` clients at once. A newcomer beyond takes the
+  place of a client of no use (:mod:`~hilbench.transports.client_limit`), which
+  reads ``< error too many clients: closed for a newcomer >`` and is closed:
+  first one that has not opened a bus :data:`OPEN_GRACE` seconds after
+  connecting (python-can sends ``< open >`` at once), the longest connected
+  first; then one that has left what it was sent unread for
+  :data:`READ_GRACE` seconds, the longest unread first; then one that can
+  receive nothing (no raw mode, subscription, job or statistics) and sent
+  no command for :data:`IDLE_GRACE` seconds. Only when no kept client is
+  one of these is the newcomer refused: it gets ``< error too many clients >``
+  instead of ``< hi >`` and is closed (python-can then raises ``CanError``
+  with that message);
 - a number out of its range (an interval beyond the kernel's 400 days or a
   million microseconds, an identifier beyond 11/29 bits, a statistics interval
   beyond 32 bits) is answered with ``< error interval out of range >`` (or
@@ -64,12 +73,21 @@ from hilbench.protocols import can_frame as cf
 from hilbench.protocols import socketcand as sc
 from hilbench.protocols.can_frame import CanFrame
 from hilbench.transports.can_port import CanDoor
-from hilbench.transports.listener import BACKLOG, Listener
+from hilbench.transports.client_limit import Eviction, ReadWatch
+from hilbench.transports.heap import Ebb
+from hilbench.transports.listener import BACKLOG, Listener, refuse
 
 log = logging.getLogger(__name__)
 
-#: Clients served at once; one more is refused with ``< error too many clients >``.
+#: Clients served at once; a newcomer beyond takes the place of a client of no use, or is refused with
+#: ``< error too many clients >`` (see the module docstring).
 MAX_CLIENTS = 64
+#: A client that has not opened a bus this long after connecting may be let go for a newcomer (seconds).
+OPEN_GRACE = 3.0
+#: A client that has left what it was sent unread this long may be let go for a newcomer (seconds).
+READ_GRACE = 5.0
+#: A client that can receive nothing and sent no command this long may be let go for a newcomer (seconds).
+IDLE_GRACE = 60.0
 #: Bytes waiting for one client (frames, replies, frames held during the rawmode delay) beyond which its
 #: newest frames are dropped and its commands left unread (a client that stopped reading).
 MAX_PENDING = 512 << 10
@@ -89,6 +107,8 @@ SEND_CHUNK = 1024
 
 
 ERROR_TOO_MANY_CLIENTS = "< error too many clients >"
+#: What a client let go for a newcomer reads before the end of the connection.
+ERROR_EVICTED = "< error too many clients: closed for a newcomer >"
 ERROR_TOO_MANY_JOBS = "< error too many jobs >"
 ERROR_TOO_MANY_SUBSCRIPTIONS = "< error too many subscriptions >"
 
@@ -113,6 +133,8 @@ class _Sub:
 class _Client:
     sock: socket.socket
     name: str
+    connected: float  # (monotonic)
+    watch: ReadWatch
     splitter: sc.MessageSplitter = field(default_factory=sc.MessageSplitter)
     mode: str = "nobus"
     out: bytearray = field(default_factory=bytearray)
@@ -130,6 +152,7 @@ class _Client:
     tx_bytes: int = 0
     dropped: int = 0
     closing: bool = False
+    last_command: float = 0.0
 
 
 class SocketcandServer(CanDoor):
@@ -146,6 +169,8 @@ class SocketcandServer(CanDoor):
         self.rawmode_delay = rawmode_delay
         self.listener = Listener(bind, port, BACKLOG, max_clients=MAX_CLIENTS, refusal=self._refusal,
                                  send_buffer=SEND_BUFFER)
+        self.eviction: Eviction[_Client] = Eviction(self._judge, lambda c: (c.sock, c.watch,
+                                                                            len(c.out) + c.held_bytes))
         self.clients: list[_Client] = []
         self.connections = 0
         self.malformed = 0
@@ -154,6 +179,7 @@ class SocketcandServer(CanDoor):
         self.frames_dropped = 0
         self.stalled = 0
         self.queued = 0  # bytes waiting for all clients
+        self._ebb = Ebb()  # memory goes back to the system once the queues empty after a flood
         self.bitrate = 500_000
         self.wall_offset = 0.0
         self._due = float("inf")  # the earliest timed work of any client (poll() does nothing before it)
@@ -199,11 +225,35 @@ class SocketcandServer(CanDoor):
         return self.listener.filenos() + [c.sock.fileno() for c in self.clients if len(c.out) <= MAX_PENDING]
 
     def _accept(self) -> None:
-        for sock, addr in self.listener.accept(len(self.clients)):
+        for sock, addr in self.listener.accept(len(self.clients), self._evict):
             self.connections += 1
-            client = _Client(sock, f"socketcand {addr[0]}:{addr[1]}")
+            now = time.monotonic()
+            client = _Client(sock, f"socketcand {addr[0]}:{addr[1]}", now, ReadWatch(now), last_command=now)
             self.clients.append(client)
             self._reply(client, sc.HI)
+
+    @staticmethod
+    def _judge(c: _Client, now: float) -> tuple[int, float] | None:
+        """Whether ``c`` may be let go for a newcomer, and how surely (see the module docstring)."""
+        if c.mode == "nobus":
+            return (0, c.connected) if now - c.connected >= OPEN_GRACE else None
+        if c.watch.unread_for(now) >= READ_GRACE:
+            return 1, c.watch.since
+        receives = c.mode == "raw" or c.subs or c.jobs or c.stat_interval
+        if not receives and now - c.last_command >= IDLE_GRACE:
+            return 2, c.last_command
+        return None
+
+    def _evict(self) -> bool:
+        """Let a client of no use go for a newcomer (the listener asks when the server is full)."""
+        victim = self.eviction.victim(self.clients, time.monotonic())
+        if victim is None:
+            return False
+        log.info("%s: closed for a newcomer (%d clients at most)", victim.name, MAX_CLIENTS)
+        sock = victim.sock
+        self._drop(victim, close=False)
+        refuse(sock, ERROR_EVICTED.encode())
+        return True
 
     def read_frames(self, now: float) -> list[tuple[str, CanFrame]]:
         """Accept clients and read their commands; returns the frames they send."""
@@ -287,6 +337,7 @@ class SocketcandServer(CanDoor):
                 self._send(client)
                 backlog = backlog or bool(client.out)
         self._backlog = backlog
+        self._ebb.note(self.queued)
 
     def _send(self, client: _Client) -> None:
         # Whole messages in writes of at most SEND_CHUNK bytes: python-can reads 1024 bytes at a time and logs a
@@ -306,6 +357,7 @@ class SocketcandServer(CanDoor):
                 return
             del out[:sent]  # (a bytearray shrinks its buffer once it is less than half full)
             self.queued -= sent
+            client.watch.sent += sent
             if client.full_since is not None:
                 client.full_since = None  # it reads again
             if sent < cut:
@@ -392,6 +444,7 @@ class SocketcandServer(CanDoor):
     # ------------------------------------------------------------------ commands
 
     def _command(self, client: _Client, message: str, now: float, out: list[tuple[str, CanFrame]]) -> None:
+        client.last_command = now
         cmd = sc.parse_command(message)
         if cmd.name == "range":
             self.out_of_range += 1
@@ -492,17 +545,20 @@ class SocketcandServer(CanDoor):
 
     # ------------------------------------------------------------------ closing
 
-    def _drop(self, client: _Client) -> None:
-        """Disconnect a client: its jobs, subscriptions and queue go with it."""
+    def _drop(self, client: _Client, close: bool = True) -> None:
+        """Disconnect a client: its jobs, subscriptions and queue go with it (the socket is closed unless
+        ``close`` is False: the caller says goodbye first)."""
         if client in self.clients:
             self.clients.remove(client)
             self.queued -= len(client.out) + client.held_bytes
+            self._ebb.note(self.queued)
         client.out = bytearray()
         client.held = []
         client.held_bytes = 0
         client.jobs.clear()
-        with contextlib.suppress(OSError):
-            client.sock.close()
+        if close:
+            with contextlib.suppress(OSError):
+                client.sock.close()
 
     def close(self) -> None:
         for client in list(self.clients):

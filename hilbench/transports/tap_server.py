@@ -14,10 +14,16 @@ is buffered, and beyond ``max_buffer`` bytes (:data:`MAX_BUFFER`) per client
 new data is dropped and reported to that client as a GAP record once it
 catches up (a monitor counts it as lost input). A client that takes nothing
 for :data:`STALL_TIMEOUT` seconds while its buffer is full is disconnected.
-At most :data:`MAX_CLIENTS` clients are served at once; one more reads a
-line of text starting with :data:`REFUSAL_PREFIX` instead of a capture
-header, then the end of the stream (``hilbench monitor`` reports the line).
-Counters: :meth:`TapServer.status`.
+At most :data:`MAX_CLIENTS` clients are served at once. A newcomer beyond
+takes the place of a client that has left what it was sent unread for
+:data:`READ_GRACE` seconds, the longest unread first (on this machine the
+kernel shows a client that never reads at once, even before the capture
+header is read: :mod:`~hilbench.transports.client_limit`); that client's
+stream just ends. A client that reads keeps its place. Only when every kept
+client reads is the newcomer refused: it reads a line of text starting with
+:data:`REFUSAL_PREFIX` instead of a capture header, then the end of the
+stream (``hilbench monitor`` reports the line). Counters:
+:meth:`TapServer.status`.
 """
 
 from __future__ import annotations
@@ -32,12 +38,17 @@ import time
 
 from hilbench.protocols import capture as cap
 from hilbench.protocols.capture import MAX_PAYLOAD, Flags, RecordKind
+from hilbench.transports.client_limit import Eviction, ReadWatch
+from hilbench.transports.heap import Ebb
 from hilbench.transports.listener import BACKLOG, Listener
 
 log = logging.getLogger(__name__)
 
-#: Clients served at once; one more reads :data:`REFUSAL` and is closed.
+#: Clients served at once; a newcomer beyond takes the place of one that does not read, or reads
+#: :data:`REFUSAL_PREFIX` and is closed.
 MAX_CLIENTS = 32
+#: A client that has left what it was sent unread this long may be let go for a newcomer (seconds).
+READ_GRACE = 5.0
 #: Bytes buffered for one client that reads slower than the line sends; beyond, data is dropped (a GAP record).
 MAX_BUFFER = 1 << 20
 #: Each client's kernel send buffer (bytes; the kernel holds up to megabytes for a client that reads nothing).
@@ -49,13 +60,19 @@ REFUSAL_PREFIX = b"hilbench tap: refused: "
 
 
 class _Client:
-    __slots__ = ("sock", "pending", "lost", "full_since")
+    __slots__ = ("sock", "pending", "lost", "full_since", "watch", "ebb")
 
-    def __init__(self, sock: socket.socket) -> None:
+    def __init__(self, sock: socket.socket, now: float, max_buffer: int) -> None:
         self.sock = sock
         self.pending = bytearray()
         self.lost: dict[int, int] = {}
         self.full_since: float | None = None
+        self.watch = ReadWatch(now)
+        self.ebb = Ebb(max_buffer // 2)  # memory goes back to the system once a large buffer empties
+
+    def close(self) -> None:
+        self.sock.close()
+        self.ebb.note(0)
 
 
 class TapServer:
@@ -87,6 +104,10 @@ class TapServer:
         self.host, self.port = self._listener.getsockname()[:2]
         self._lock = threading.Lock()
         self._clients: list[_Client] = []
+        self._eviction: Eviction[_Client] = Eviction(
+            lambda c, now: (0, c.watch.since) if c.watch.unread_for(now) >= READ_GRACE else None,
+            lambda c: (c.sock, c.watch, len(c.pending)))
+        self._sel: selectors.BaseSelector | None = None
         self._ids: dict[str, int] = {}
         self._names = bytearray()  # SOURCE records sent to every new client
         self._wake_r, self._wake_w = os.pipe()
@@ -161,18 +182,20 @@ class TapServer:
                         sent = 0
                     except OSError:
                         continue  # the server thread notices the broken connection
+                    c.watch.sent += sent
                     if sent == len(records):
                         continue
                     c.pending += records[sent:]
                 else:
                     c.pending += records
+                c.ebb.note(len(c.pending))
                 wake = True
         if wake:
             with contextlib.suppress(BlockingIOError):
                 os.write(self._wake_w, b"x")
 
     def _run(self) -> None:
-        sel = selectors.DefaultSelector()  # (epoll: no limit on descriptor numbers)
+        sel = self._sel = selectors.DefaultSelector()  # (epoll: no limit on descriptor numbers)
         sel.register(self._listener.sock, selectors.EVENT_READ, "accept")
         sel.register(self._wake_r, selectors.EVENT_READ, "wake")
         listening = True
@@ -188,7 +211,7 @@ class TapServer:
                             self._clients.remove(c)
                             with contextlib.suppress(KeyError, ValueError):
                                 sel.unregister(c.sock)
-                            c.sock.close()
+                            c.close()
                             continue
                         events = selectors.EVENT_READ | (selectors.EVENT_WRITE if c.pending else 0)
                         try:
@@ -221,12 +244,34 @@ class TapServer:
             sel.close()
 
     def _accept(self) -> None:
-        for sock, _ in self._listener.accept(len(self._clients)):
-            c = _Client(sock)
+        for sock, _ in self._listener.accept(len(self._clients), self._evict):
+            c = _Client(sock, time.monotonic(), self.max_buffer)
             with self._lock:
                 c.pending += self._header + self._names
                 self._clients.append(c)
                 self.clients_served += 1
+
+    def _evict(self) -> bool:
+        """Let a client that does not read go for a newcomer (the listener asks when the server is full)."""
+        with self._lock:
+            clients = list(self._clients)
+        # Outside the lock: the line thread feeding the clients must not wait for the kernel's answers (a
+        # count it changes meanwhile only makes the look a moment older).
+        victim = self._eviction.victim(clients, time.monotonic())
+        if victim is None:
+            return False
+        with self._lock:
+            if victim not in self._clients:
+                return False
+            self._clients.remove(victim)
+        log.info("tap %s: a client left %d bytes unread for %.0f s; closed for a newcomer", self.port,
+                 victim.watch.sent - victim.watch.taken + len(victim.pending),
+                 victim.watch.unread_for(time.monotonic()))
+        if self._sel is not None:
+            with contextlib.suppress(KeyError, ValueError):
+                self._sel.unregister(victim.sock)
+        victim.close()
+        return True
 
     def _serve(self, sel: selectors.BaseSelector, c: _Client, mask: int) -> None:
         try:
@@ -236,6 +281,8 @@ class TapServer:
                 with self._lock:
                     sent = c.sock.send(c.pending)
                     del c.pending[:sent]  # (a bytearray shrinks its buffer once it is less than half full)
+                    c.watch.sent += sent
+                    c.ebb.note(len(c.pending))
                     if sent:
                         c.full_since = None
         except (BlockingIOError, InterruptedError):
@@ -246,7 +293,7 @@ class TapServer:
                     self._clients.remove(c)
             with contextlib.suppress(KeyError, ValueError):
                 sel.unregister(c.sock)
-            c.sock.close()
+            c.close()
 
     def close(self) -> None:
         """Stop serving and disconnect every client."""
@@ -256,7 +303,7 @@ class TapServer:
         self._thread.join(timeout=5)
         with self._lock:
             for c in self._clients:
-                c.sock.close()
+                c.close()
             self._clients.clear()
         self._listener.close()
         for fd in (self._wake_r, self._wake_w):

@@ -94,7 +94,7 @@ class UdpEndpoint(HostPort):
         self.bytes_in = 0
         self.bytes_out = 0
         self.datagrams_in = 0
-        self.dropped = 0  # bytes a full socket buffer refused
+        self.dropped = 0  #: bytes a full socket buffer refused
 
     @property
     def address(self) -> tuple[str, int]:

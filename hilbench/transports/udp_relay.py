@@ -44,7 +44,7 @@ class UdpRelay:
 
     def __init__(self, listen: Address, target: Address, *, max_clients: int = MAX_CLIENTS) -> None:
         self.target = target
-        self.max_clients = max_clients
+        self.max_clients = max_clients  #: clients relayed at once
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
             self.sock.bind(listen)
@@ -53,6 +53,7 @@ class UdpRelay:
             raise
         self.sock.setblocking(False)
         self.listen: Address = self.sock.getsockname()[:2]
+        #: What the relay saw, both ways, for a monitor or recorder.
         self.source = PushSource(f"udp relay {self.listen[0]}:{self.listen[1]} -> {target[0]}:{target[1]}",
                                  max_bytes=WATCH_BYTES)
         self.source.protocol = "udp"

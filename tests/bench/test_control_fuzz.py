@@ -114,7 +114,7 @@ def test_the_socket_survives_everything_and_stderr_stays_clean(rover, capfd):
     reply = json.loads(request(address, b'{"cmd": "devices"}\n'))
     expected = {name: list(rover.family_of(name).control_commands) for name in rover.devices
                 if rover.family_of(name).control_commands}
-    assert "rover" in expected and reply == {"ok": True, "devices": expected}
+    assert "rover" in expected and reply == {"ok": True, "devices": expected, "endpoints": {}}
     assert json.loads(request(address, b'{"cmd": "status"}\n'))["ok"] is True
     err = capfd.readouterr().err
     assert "Traceback" not in err and "Error" not in err, err

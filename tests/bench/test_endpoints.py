@@ -6,6 +6,8 @@ from __future__ import annotations
 import socket
 import time
 
+import pytest
+
 from hilbench.bench import Bench
 from hilbench.pytest_plugin import wait_until
 from hilbench.transports.line import BreakCondition, LineSettings, ModemLines
@@ -77,13 +79,35 @@ def test_line_events_of_a_host_port_reach_the_devices_and_device_lines_reach_the
         assert lines.device_lines() == {"cts": True, "dsr": True, "ri": False, "cd": False}
 
 
-def test_endpoints_answer_the_attributes_of_every_family():
+def test_endpoints_and_families_have_explicit_typed_accessors():
+    from hilbench.bench.family import FamilyAccess
+    from hilbench.errors import UsageError
+    from hilbench.families.dynamixel import DynamixelServos
+
     with Bench("arm") as bench:
         ep = bench.endpoint()
-        assert ep.bus is not None and ep.board is None  # a servo bus has no rover board
-        assert ep.pty is ep.port and ep.udp is None and ep.tcp is None
+        assert ep.bus is not None and ep.bus_kind.protocol == "dynamixel" and ep.port.kind == "pty"
         assert bench.device(1) is ep.bus.servo(1)
         assert bench.family_of(next(iter(bench.devices))).name == "dynamixel"
+        servos = bench.family("dynamixel")
+        assert isinstance(servos, DynamixelServos) and DynamixelServos.of(bench) is servos
+        assert servos.servo(1) is bench.device(1) and servos.bus() is ep.bus
+        assert servos.device("arm.1") is bench.device(1) and list(servos.devices()) == list(bench.devices)
+        with pytest.raises(KeyError, match="bench has servos .* of family dynamixel; name one"):
+            servos.device()
+        with pytest.raises(KeyError, match="no servo at ID 42"):
+            servos.servo(42)
+        with pytest.raises(UsageError, match="bench 'arm' has no device of family 'stm32-rover' .families: dynamixel."):
+            bench.family("stm32-rover")
+        with pytest.raises(UsageError, match="unknown device family 'nope'"):
+            bench.family("nope")
+        # nothing is grown through __getattr__ any more: a typo is an AttributeError, not another family's None
+        for owner, name in ((bench, "board"), (ep, "board"), (ep, "pty"), (bench.profile, "servos"),
+                            (ep.spec, "chain_policy")):
+            with pytest.raises(AttributeError):
+                getattr(owner, name)
+        for cls in (type(bench), type(ep), type(bench.profile), type(ep.spec), FamilyAccess):
+            assert "__getattr__" not in vars(cls)
 
 
 def test_manifest_names_the_bench_and_describes_ports_and_devices():

@@ -7,6 +7,7 @@ paced Wolfgang bus: +22 MB, for the 100 s of wire time it needed; a Vel2d flood 
 from __future__ import annotations
 
 import os
+import random
 import termios
 import time
 import tty
@@ -68,7 +69,7 @@ def test_a_flood_into_a_paced_bus_is_held_back_and_the_sdk_pings_right_after(hil
     control = ControlClient.from_manifest(bench["manifest_path"])
     fd = open_client(ep["path"], baud)
     try:
-        got = flood(fd, os.urandom(4096), pid, 1.0)
+        got = flood(fd, random.Random(7).randbytes(4096), pid, 1.0)  # (the same bytes every run)
     finally:
         os.close(fd)
     # Taken at the wire's pace (2 Mbaud: 200 kB/s) plus what the pty itself buffers, not the 20 MB offered.
@@ -84,7 +85,12 @@ def test_a_flood_into_a_paced_bus_is_held_back_and_the_sdk_pings_right_after(hil
     port = sdk.PortHandler(ep["path"])
     assert port.openPort() and port.setBaudRate(baud)
     try:
-        model, result, error = sdk.PacketHandler(2.0).ping(port, 1)
+        # The flood may end inside what looks like a packet's header and length: the servos take the next
+        # bytes as its rest, as real ones would, so the first ping may go unanswered; the second is heard.
+        for _ in range(2):
+            model, result, error = sdk.PacketHandler(2.0).ping(port, 1)
+            if result == sdk.COMM_SUCCESS:
+                break
     finally:
         port.closePort()
     assert (result, error) == (sdk.COMM_SUCCESS, 0) and model > 0

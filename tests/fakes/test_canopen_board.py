@@ -42,12 +42,12 @@ def rover(tmp_path):
         benches.append(bench)
         eds = tmp_path / "rover.eds"
         eds.write_text(bc.eds(bc.BoardCanConfig()), newline="")
-        net = canopen.Network(bench.can_bus())
+        net = canopen.Network(bench.endpoint("can").port.open_bus())
         net.connect()
         nets.append(net)
         node = net.add_node(2, str(eds))
         node.sdo.RESPONSE_TIMEOUT = 1.0
-        wait_until(lambda: bench.node(2).state != co.BOOTUP)  # NMT commands count once the node has booted
+        wait_until(lambda: bench.family("canopen").node(2).state != co.BOOTUP)  # NMT commands count once the node has booted
         return bench, net, node
 
     yield start
@@ -124,7 +124,7 @@ def test_setpoints_move_the_odometry_as_commanded(rover):
     node.tpdo.read()
     poses = []
     node.tpdo[2].add_callback(lambda m: poses.append({v.name.split(".")[-1]: v.phys for v in m}))
-    board = bench.node(2)
+    board = bench.family("canopen").node(2)
     start = time.monotonic()
     counter = 0
     while time.monotonic() - start < 1.0:  # 0.25 m/s forward, 0.4 rad/s yaw, repeated every 50 ms
@@ -148,7 +148,7 @@ def test_setpoints_move_the_odometry_as_commanded(rover):
 def test_rejected_setpoints_and_emcy(rover):
     bench, net, node = rover()
     node.nmt.state = "OPERATIONAL"
-    board = bench.node(2)
+    board = bench.family("canopen").node(2)
     good = bc.build_setpoint(0.1, 0, 0, 1)
     net.send_message(0x202, good)
     net.send_message(0x202, good)  # the same counter again: a frozen sender
@@ -160,7 +160,7 @@ def test_rejected_setpoints_and_emcy(rover):
     emcy = wait_until(lambda: next((e for e in node.emcy.log if e.code == co.ERR_PDO_LENGTH), None))
     assert emcy.register & co.REG_COMMUNICATION
     assert sum(e.code == co.ERR_PROTOCOL for e in node.emcy.log) == 1  # once per burst of bad checksums
-    ctl = bench.endpoint().family
+    ctl = bench.family_of("rover")
     ctl.control(bench, board, "fault", {"knobs": {"motor_fault": True}})
     emcy = wait_until(lambda: next((e for e in node.emcy.log if e.code == co.ERR_MOTOR_BLOCKED), None))
     assert emcy.register & co.REG_CURRENT and node.sdo[0x1001].raw & co.REG_CURRENT
@@ -184,7 +184,7 @@ def test_reset_restores_defaults_and_boots_again(rover):
     assert node.nmt.state == "PRE-OPERATIONAL" and node.sdo[0x1017].raw == 100
     node.nmt.state = "RESET"
     wait_until(lambda: len(bootups) == 2)
-    assert bench.node(2).bootups == 3
+    assert bench.family("canopen").node(2).bootups == 3
 
 
 def test_tpdo_timer_writes_take_effect(rover):
@@ -235,13 +235,13 @@ def test_canopen_in_another_process_over_socketcand(tmp_path):
         assert res["period_before"] == pytest.approx(0.3, abs=0.05)
         assert res["period_after"] == pytest.approx(0.1, abs=0.03)
         assert res["odometry_x"] > 0.1 and abs(res["odometry_y"]) < 0.01
-        assert bench.node(2).heartbeat_ms == 100
+        assert bench.family("canopen").node(2).heartbeat_ms == 100
 
 
 def test_bus_off_and_recovery_raise_emcy(rover):
     bench, net, node = rover()
-    board = bench.node(2)
-    family = bench.endpoint().family
+    board = bench.family("canopen").node(2)
+    ep = bench.endpoint()
     states = []
     original = board.on_bus_state
 
@@ -250,7 +250,7 @@ def test_bus_off_and_recovery_raise_emcy(rover):
         original(state, t)
 
     board.on_bus_state = spy
-    reply = family.control(bench, board, "bus", {"knobs": {"bus_off": "rover"}})
+    reply = ep.bus_kind.control(bench, ep, "bus", {"knobs": {"bus_off": "rover"}})
     assert reply["bus"]["bitrate"] == 500_000
     wait_until(lambda: "recovered" in states, timeout=2)  # 128 x 11 bits later
     assert states[0] == "bus-off"
@@ -258,4 +258,4 @@ def test_bus_off_and_recovery_raise_emcy(rover):
     assert emcy.register & co.REG_COMMUNICATION
     wait_until(lambda: any(e.code == 0 for e in node.emcy.log))  # and the error reset after it
     with pytest.raises(Exception, match="bus fault error_rate"):
-        family.control(bench, board, "bus", {"knobs": {"error_rate": 5}})
+        ep.bus_kind.control(bench, ep, "bus", {"knobs": {"error_rate": 5}})

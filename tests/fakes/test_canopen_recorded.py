@@ -38,13 +38,13 @@ def node():
     def start(**device):
         bench = Bench(parse_profile(profile(**device), "test.toml")).start()
         benches.append(bench)
-        net = canopen.Network(bench.can_bus())
+        net = canopen.Network(bench.endpoint("can").port.open_bus())
         net.connect()
         nets.append(net)
         remote = canopen.RemoteNode(5, canopen.ObjectDictionary())
         net.add_node(remote)
         remote.sdo.RESPONSE_TIMEOUT = 1.0
-        wait_until(lambda: bench.node(5).state != co.BOOTUP)
+        wait_until(lambda: bench.family("canopen").node(5).state != co.BOOTUP)
         return bench, net, remote
 
     yield start
@@ -80,7 +80,7 @@ def test_pdos_flow_in_operational_at_their_periods(node):
     assert 0x185 not in quiet and 0x285 not in quiet  # PRE-OPERATIONAL: heartbeats only
     assert abs(_period(quiet[0x705]) - 0.1) < 0.02
     remote.nmt.send_command(co.NMT_START)
-    wait_until(lambda: bench.node(5).state == co.OPERATIONAL)
+    wait_until(lambda: bench.family("canopen").node(5).state == co.OPERATIONAL)
     seen = _frames(net, 0.6)
     assert abs(_period(seen[0x185]) - 0.02) < 0.004 and abs(_period(seen[0x285]) - 0.05) < 0.01
     got = []
@@ -88,10 +88,10 @@ def test_pdos_flow_in_operational_at_their_periods(node):
     wait_until(lambda: got)
     assert got[0] == bytes([0xAA, 0xBB])
     remote.nmt.send_command(co.NMT_STOP)
-    wait_until(lambda: bench.node(5).state == co.STOPPED)
-    sent = bench.node(5).pdos_sent
+    wait_until(lambda: bench.family("canopen").node(5).state == co.STOPPED)
+    sent = bench.family("canopen").node(5).pdos_sent
     time.sleep(0.1)
-    assert bench.node(5).pdos_sent == sent  # stopped: no PDOs
+    assert bench.family("canopen").node(5).pdos_sent == sent  # stopped: no PDOs
 
 
 def test_sdo_uploads_answer_the_recorded_bytes(node):
@@ -114,10 +114,10 @@ def test_fault_knobs(node):
     bench, net, remote = node(faults={"sdo_abort": 0x08000000})
     with pytest.raises(canopen.SdoAbortedError):
         remote.sdo.upload(0x1018, 1)
-    assert bench.node(5).set_faults(sdo_abort=0) == {"heartbeat_stop": False, "silent": False, "sdo_abort": 0}
+    assert bench.family("canopen").node(5).set_faults(sdo_abort=0) == {"heartbeat_stop": False, "silent": False, "sdo_abort": 0}
     assert remote.sdo.upload(0x1018, 1) == bytes.fromhex("4e424800")
     with pytest.raises(ValueError, match="unknown fault knob 'battery_v'"):
-        bench.node(5).set_faults(battery_v=20)
+        bench.family("canopen").node(5).set_faults(battery_v=20)
 
 
 @pytest.mark.parametrize(("change", "message"), [

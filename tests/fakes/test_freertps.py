@@ -135,5 +135,5 @@ def test_two_nodes_on_one_index_is_a_profile_error() -> None:
                 {"name": "t", "type": "std_msgs/String", "direction": "sub"}]},
                 {"name": "b", "mac": "02:00:00:00:00:02", "topics": [
                     {"name": "t", "type": "std_msgs/String", "direction": "sub"}]}]}
-    with pytest.raises(ProfileError, match="participant_index: index 0 is taken by 'a'"):
+    with pytest.raises(ProfileError, match=r"participant_index: participant index 0 is taken on endpoint 'n' by devices\[0\] \('a'\)"):
         parse_profile(prof, "n.toml")

@@ -35,8 +35,8 @@ def bench(hilbench_bench):
 
 def test_board_session_entities_and_cmd_vel(bench) -> None:
     b = bench()
-    link = b.board().links[0]
-    agent = b.agent()
+    link = b.family("stm32-rover").board().links[0]
+    agent = b.family("micro-ros-agent").agent()
     wait_until(lambda: link.client.state == "running" and link.self_samples["odometry"] > 3, 10)
     s = agent.by_key[bytes.fromhex("60C93570")]
     topics = {e.topic for e in s.entities.values() if e.topic}
@@ -54,7 +54,7 @@ def test_board_session_entities_and_cmd_vel(bench) -> None:
         teleop.write(pub, TWIST.encode({"linear": {"x": 0.2, "y": 0.0, "z": 0.0}}))
         wait_until(lambda: link.cmd_vel_received == 1, 5)
         # m/s -> mm/s, as cmd_vel_cb does; taken at the next pose cycle.
-        wait_until(lambda: b.board().robot_state().setpoint == (200.0, 0.0, 0.0), 2)
+        wait_until(lambda: b.family("stm32-rover").board().robot_state().setpoint == (200.0, 0.0, 0.0), 2)
         wait_until(lambda: odo and odo[-1]["x"] > 1.0, 10)  # the board moves and says so
     finally:
         teleop.close()
@@ -66,8 +66,8 @@ def test_board_session_entities_and_cmd_vel(bench) -> None:
 def test_zeroed_datagram_fault_breaks_every_session(bench) -> None:
     b = bench(zero=True)
     mon = Monitor(MediumSource(b.endpoint("agent").medium)).start()
-    link = b.board().links[0]
-    agent = b.agent()
+    link = b.family("stm32-rover").board().links[0]
+    agent = b.family("micro-ros-agent").agent()
     wait_until(lambda: agent.counters["takeovers"] >= 1 and link.client.counters["creation_failures"] >= 1, 10)
 
     def seen() -> bool:  # the tap joined after the bench started: its first session may predate it
@@ -78,17 +78,17 @@ def test_zeroed_datagram_fault_breaks_every_session(bench) -> None:
     wait_until(seen, 15)
     mon.stop()
     assert link.self_samples["odometry"] == 0
-    assert any("entity creation failed" in line.message for line in b.board().log)
+    assert any("entity creation failed" in line.message for line in b.family("stm32-rover").board().log)
 
 
 def test_control_channel_zeroes_the_next_datagram(bench) -> None:
     from hilbench.families.stm32_rover import FAMILY
 
     b = bench()
-    link = b.board().links[0]
+    link = b.family("stm32-rover").board().links[0]
     wait_until(lambda: link.client.state == "running" and link.self_samples["odometry"] > 0, 10)
-    before = b.agent().counters["takeovers"]
-    out = FAMILY.control(b, b.board(), "micro_ros", {"zeroed_next": 1})
+    before = b.family("micro-ros-agent").agent().counters["takeovers"]
+    out = FAMILY.control(b, b.family("stm32-rover").board(), "micro_ros", {"zeroed_next": 1})
     assert out["micro_ros"]["state"] == "running"
-    wait_until(lambda: b.agent().counters["takeovers"] == before + 1, 5)
+    wait_until(lambda: b.family("micro-ros-agent").agent().counters["takeovers"] == before + 1, 5)
     assert link.client.counters["zeroed"] == 1

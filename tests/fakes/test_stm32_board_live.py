@@ -43,7 +43,7 @@ class Reader:
 @pytest.mark.hilbench_profile("mecarover-thesis")
 def test_pty_frames_logs_button_window_and_taps(bench):
     ep = bench.endpoint("rover")
-    board = bench.board()
+    board = bench.family("stm32-rover").board()
     seen: dict[str, int] = {}
     ep.medium.add_tap(lambda t, source, data: seen.__setitem__(source, seen.get(source, 0) + len(data)))
     port = serial.Serial(ep.path, 1_152_000, timeout=0)
@@ -78,7 +78,7 @@ def test_a_host_at_the_wrong_baud_rate_gets_crc_errors(bench):
     try:
         port.write(vel2d.build(0.5, 0.0, 0.0))
         port.flush()
-        board = bench.board()
+        board = bench.family("stm32-rover").board()
         wait_until(lambda: board.truth.frames_crc_error == 1, timeout=5)
         assert board.log[-1].message == "crc mismatch!" and board.rx_baud_mismatch == 28
     finally:
@@ -88,8 +88,8 @@ def test_a_host_at_the_wrong_baud_rate_gets_crc_errors(bench):
 def test_udp_round_trip_frames_logs_and_binary_stamps(hilbench_bench):
     bench = hilbench_bench("mecarover-udp")
     ep = bench.endpoint("rover")
-    assert ep.path.startswith("udp://127.0.0.1:") and ep.udp.address[0] == "127.0.0.1"
-    board = bench.board()
+    assert ep.path.startswith("udp://127.0.0.1:") and ep.port.kind == "udp" and ep.port.address[0] == "127.0.0.1"
+    board = bench.family("stm32-rover").board()
     link = HostLink.open(ep.path)
     rd = Reader(link.read)
     try:
@@ -120,7 +120,7 @@ def test_udp_rejects_short_frames_like_the_uart(hilbench_bench):
     link = HostLink.open(bench.endpoint().path)
     try:
         link.send(vel2d.build(0.0, 0.0, 0.0)[:20])
-        board = bench.board()
+        board = bench.family("stm32-rover").board()
         wait_until(lambda: board.truth.frames_length_error == 1, timeout=5)
         assert board.log[-1].message == "parsing velocity failed: insufficient bytes received"
     finally:

@@ -72,7 +72,7 @@ def test_handshake_replies_are_the_sheets_bytes(agent_bench) -> None:
         pong = x.parse_message(raw.ask(V.X["X1"])).submessages[0].fields
         assert pong.implementation_status == 1  # now the address has a session
         assert raw.ask(V.X["X19"]) == V.X["X20"]  # DELETE client: STATUS OK, session gone
-        assert not b.agent().sessions
+        assert not b.family("micro-ros-agent").agent().sessions
         assert raw.ask(V.X["X5"]) == V.X["X6"]  # session 0x01: key in every header
     finally:
         raw.close()
@@ -87,7 +87,7 @@ def test_participant_by_reference_and_its_status(agent_bench) -> None:
         replies = {raw.recv(), raw.recv()}  # the agent's ACKNACK for the reliable message, and the STATUS
         assert V.X["X11"] in replies and V.X["X12"] in replies
         raw.send(V.X["X13"])  # the client acknowledges the STATUS: no HEARTBEATs follow
-        s = next(iter(b.agent().sessions.values()))
+        s = next(iter(b.family("micro-ros-agent").agent().sessions.values()))
         wait_until(lambda: not s.rel_out[0x80].history, 2)
         assert s.entities[b"\x00\x11"].kind == x.ObjectKind.PARTICIPANT
     finally:
@@ -122,7 +122,7 @@ def test_publisher_to_subscriber_both_qos_and_a_client_reading_itself(agent_benc
     try:
         sub.start()
         pub.start()
-        agent = b.agent()
+        agent = b.family("micro-ros-agent").agent()
         wait_until(lambda: running(pub) and running(sub) and sum(len(s.reads) for s in agent.sessions.values()) == 3)
         for i in range(5):
             pub.write(w_be, STRING.encode({"data": f"be {i}"}))
@@ -135,7 +135,7 @@ def test_publisher_to_subscriber_both_qos_and_a_client_reading_itself(agent_benc
     finally:
         pub.close()
         sub.close()
-    wait_until(lambda: not b.agent().sessions)  # both deleted their sessions (X19)
+    wait_until(lambda: not b.family("micro-ros-agent").agent().sessions)  # both deleted their sessions (X19)
 
 
 def test_a_reliable_reader_does_not_match_a_best_effort_writer(agent_bench) -> None:
@@ -149,11 +149,11 @@ def test_a_reliable_reader_does_not_match_a_best_effort_writer(agent_bench) -> N
     try:
         sub.start()
         pub.start()
-        wait_until(lambda: running(pub) and running(sub) and any(s.reads for s in b.agent().sessions.values()))
+        wait_until(lambda: running(pub) and running(sub) and any(s.reads for s in b.family("micro-ros-agent").agent().sessions.values()))
         pub.write(w, STRING.encode({"data": "x"}))
-        wait_until(lambda: pub.counters["samples_out"] == 1 and b.agent().counters["datagrams"] > 0)
+        wait_until(lambda: pub.counters["samples_out"] == 1 and b.family("micro-ros-agent").agent().counters["datagrams"] > 0)
         time.sleep(0.2)  # nothing may arrive: give a wrongly routed sample its chance to show
-        assert got == [] and b.agent().counters["samples_routed"] == 0
+        assert got == [] and b.family("micro-ros-agent").agent().counters["samples_routed"] == 0
     finally:
         pub.close()
         sub.close()
@@ -174,7 +174,7 @@ def test_retransmission_on_nack_and_heartbeats_while_unacknowledged(agent_bench)
         again = raw.recv()
         while again != V.X["X12"]:
             again = raw.recv()
-        assert b.agent().counters["retransmissions"] >= 1
+        assert b.family("micro-ros-agent").agent().counters["retransmissions"] >= 1
     finally:
         raw.close()
 
@@ -190,8 +190,8 @@ def test_fragmented_write_is_reassembled(agent_bench) -> None:
     try:
         sub.start()
         pub.start()
-        wait_until(lambda: running(pub) and running(sub) and any(s.reads for s in b.agent().sessions.values()))
-        session = next(s for s in b.agent().sessions.values() if s.key == pub.key)
+        wait_until(lambda: running(pub) and running(sub) and any(s.reads for s in b.family("micro-ros-agent").agent().sessions.values()))
+        session = next(s for s in b.family("micro-ros-agent").agent().sessions.values() if s.key == pub.key)
         big = STRING.encode({"data": "A" * 1500})
         whole = x.build_submessage(x.SubmessageId.WRITE_DATA, x.data(b"\x00\x40", w.writer, big))
         with pub._lock:  # send it as the client library does: FRAGMENTs on the reliable stream
@@ -200,8 +200,8 @@ def test_fragmented_write_is_reassembled(agent_bench) -> None:
                 pub._send_reliable(x.SubmessageId.FRAGMENT, whole[i:i + 400],
                                    x.FLAG_E | (x.FLAG_LAST_FRAGMENT if last else 0))
         wait_until(lambda: got == ["A" * 1500])
-        assert b.agent().counters["fragments_in"] == 4
-        assert b.agent().counters["fragments_out"] >= 4  # the 1.5 kB DATA went back to the reader fragmented
+        assert b.family("micro-ros-agent").agent().counters["fragments_in"] == 4
+        assert b.family("micro-ros-agent").agent().counters["fragments_out"] >= 4  # the 1.5 kB DATA went back to the reader fragmented
         assert session.samples_in == 1
     finally:
         pub.close()
@@ -217,7 +217,7 @@ def test_zeroed_datagram_from_a_sessions_address_tears_it_down(agent_bench) -> N
         m = x.parse_message(reply)
         assert m.session_id == 0x00 and m.client_key == b"\x00\x00\x00\x00"  # as the agent source builds it
         assert m.submessages[0].fields.status == x.Status.ERR_INVALID_DATA
-        a = b.agent()
+        a = b.family("micro-ros-agent").agent()
         assert not a.sessions and a.counters["takeovers"] == 1 and a.counters["zero_fill"] == 1
         log = list(a.log)
         assert any(line.startswith("delete_client | client_key: 0x60C93570") for line in log)
@@ -238,7 +238,7 @@ def test_zeroed_setting_keep_keeps_the_session(agent_bench) -> None:
     try:
         raw.ask(V.X["X3"])
         raw.ask(V.X["X21"])
-        a = b.agent()
+        a = b.family("micro-ros-agent").agent()
         assert len(a.sessions) == 1 and a.counters["takeovers"] == 0 and a.counters["zero_fill"] == 1
         # The session answers the board's HEARTBEAT, NACKing the message it never got (seq 0).
         assert raw.ask(V.X["X10"]) == x.build_message(0x81, 0, 0, [(10, 1, x.acknack(0, 0x0001, 0x80))])
@@ -253,7 +253,7 @@ def test_zeroed_datagrams_from_other_addresses_never_end_a_session(agent_bench) 
         raw.ask(V.X["X3"])
         for _ in range(3):
             other.ask(V.X["X21"])
-        a = b.agent()
+        a = b.family("micro-ros-agent").agent()
         assert len(a.sessions) == 1 and a.counters["zero_fill_foreign"] == 3
     finally:
         raw.close()
@@ -270,7 +270,7 @@ def test_status_agent_fault_knob_makes_the_client_retry(agent_bench) -> None:
         raw.close()
     c = XrceClient(tuple(b.endpoint().port.address), name="c")
     try:
-        b.agent().set_faults(corrupt_status_agent=1)
+        b.family("micro-ros-agent").agent().set_faults(corrupt_status_agent=1)
         c.start()
         wait_until(lambda: running(c), 5)
         assert c.counters["create_client"] == 2  # the X4b reply was ignored, the resend 1 s later worked
@@ -290,12 +290,12 @@ def test_fuzzed_datagrams_never_stop_the_agent(agent_bench) -> None:
     fuzz.bind(("127.0.0.1", 0))
     try:
         c.start()
-        wait_until(lambda: running(c) and any(s.reads for s in b.agent().sessions.values()))
+        wait_until(lambda: running(c) and any(s.reads for s in b.family("micro-ros-agent").agent().sessions.values()))
         vectors = list(V.X.values())
-        before = b.agent().counters["datagrams"]
+        before = b.family("micro-ros-agent").agent().counters["datagrams"]
         for i in range(3000):
             if i % 100 == 0:  # in bursts the socket buffer holds: every datagram reaches the agent
-                wait_until(lambda n=i: b.agent().counters["datagrams"] - before >= n, 10)
+                wait_until(lambda n=i: b.family("micro-ros-agent").agent().counters["datagrams"] - before >= n, 10)
             kind = i % 3
             if kind == 0:
                 data = bytes(rng.getrandbits(8) for _ in range(rng.randint(0, 80)))
@@ -305,7 +305,7 @@ def test_fuzzed_datagrams_never_stop_the_agent(agent_bench) -> None:
                     data[rng.randrange(len(data))] = rng.getrandbits(8)
                 data = bytes(data[:rng.randint(1, len(data))]) if kind == 2 else bytes(data)
             fuzz.sendto(data, addr)
-        wait_until(lambda: b.agent().counters["datagrams"] - before >= 3000, 10)
+        wait_until(lambda: b.family("micro-ros-agent").agent().counters["datagrams"] - before >= 3000, 10)
         c.write(w, STRING.encode({"data": "still here"}))
         wait_until(lambda: got == ["still here"], 5)
         assert b.endpoint().medium._thread.is_alive()
@@ -377,7 +377,7 @@ def test_requester_and_replier_as_the_agent_pairs_them(agent_bench) -> None:
             assert c.next("STATUS").fields.status == x.Status.OK
         for c, oid in ((rep_c, replier), (req_c, requester), (other, requester)):
             c.say(S.READ_DATA, x.read_data(b"\x00\x03", oid, x.STREAM_BEST_EFFORT))
-        agent = b.agent()
+        agent = b.family("micro-ros-agent").agent()
         wait_until(lambda: sum(len(s.reads) for s in agent.sessions.values()) == 3)
         req_c.say(S.WRITE_DATA, x.data(b"\x12\x34", requester, b"\x02\x00\x00\x00\x03\x00\x00\x00"))
         request = rep_c.next("DATA").payload

@@ -62,7 +62,7 @@ def _pub_sub(examples: Path, agent: Bench, pub: str, sub: str, n: int, timeout: 
     subscriber = subprocess.Popen(["stdbuf", "-oL", _exe(examples, sub), "127.0.0.1", port, str(n)],
                                   stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
-        a = agent.agent()
+        a = agent.family("micro-ros-agent").agent()
         # The subscriber is ready once its READ_DATA reached the agent.
         deadline = time.monotonic() + 10
         while not any(s.reads for s in a.sessions.values()):
@@ -88,7 +88,7 @@ def test_reliable_publisher_to_subscriber(examples: Path, agent: Bench) -> None:
     pub, sub = _pub_sub(examples, agent, "PublishHelloWorld", "SubscribeHelloWorld", 5)
     assert re.findall(r"Send topic: Hello DDS world!, id: (\d+)", pub) == ["1", "2", "3", "4", "5"]
     assert re.findall(r"Received topic: Hello DDS world!, id: (\d+)", sub)[:5] == ["1", "2", "3", "4", "5"]
-    a = agent.agent()
+    a = agent.family("micro-ros-agent").agent()
     assert a.counters["sessions_created"] == 2 and a.counters["samples_routed"] >= 5
     assert not a.sessions  # both deleted their sessions
 
@@ -103,7 +103,7 @@ def test_fragmented_samples_both_ways(examples: Path, agent: Bench) -> None:
     pub, sub = _pub_sub(examples, agent, "PublishBigHelloWorld", "SubscribeBigHelloWorld", 2)
     assert pub.count("Send topic with size 49999") == 2
     assert re.findall(r"Received topic with size (\d+), id: (\d+)", sub)[:2] == [("49999", "0"), ("49999", "1")]
-    c = agent.agent().counters
+    c = agent.family("micro-ros-agent").agent().counters
     assert c["fragments_in"] > 100 and c["fragments_out"] > 100
 
 
@@ -136,7 +136,7 @@ def test_request_reply_adder(examples: Path, agent: Bench) -> None:
         replier = subprocess.Popen(["stdbuf", "-oL", _exe(examples, "ReplyAdder"), "127.0.0.1", port],
                                    stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         procs.append(replier)
-        a = agent.agent()
+        a = agent.family("micro-ros-agent").agent()
         deadline = time.monotonic() + 10
         while not any(s.reads for s in a.sessions.values()):
             assert replier.poll() is None, replier.communicate()[0]

@@ -68,7 +68,7 @@ def replies(c: Client, first: bytes) -> list[str]:
 
 def test_a_fragment_nested_2000_deep_is_dropped_and_counted(agent_bench) -> None:
     b = agent_bench()
-    agent = b.agent()
+    agent = b.family("micro-ros-agent").agent()
     c = Client(b, 0x11223344)
     try:
         assert c.create_client() == x.Status.OK
@@ -84,7 +84,7 @@ def test_a_fragment_nested_2000_deep_is_dropped_and_counted(agent_bench) -> None
 
 def test_sessions_are_bounded_and_silent_ones_expire(agent_bench) -> None:
     b = agent_bench(max_sessions=2, session_timeout=1)
-    agent = b.agent()
+    agent = b.family("micro-ros-agent").agent()
     assert b.manifest()["devices"][0]["limits"]["sessions"] == 2
     clients = [Client(b, 0x100 + i) for i in range(3)]
     try:
@@ -103,7 +103,7 @@ def test_sessions_are_bounded_and_silent_ones_expire(agent_bench) -> None:
 def test_a_new_client_takes_the_place_of_a_dead_one(agent_bench, monkeypatch) -> None:
     monkeypatch.setattr(agent_module, "CLIENT_DEAD_S", 0.2)  # (30 s, as the real agent: too long for a test)
     b = agent_bench(max_sessions=1, session_timeout=0)
-    agent = b.agent()
+    agent = b.family("micro-ros-agent").agent()
     old, new = Client(b, 0x201), Client(b, 0x202)
     try:
         assert old.create_client() == x.Status.OK
@@ -134,14 +134,14 @@ def test_entities_beyond_the_limit_get_err_resources(agent_bench, monkeypatch) -
                         "domain_id": 0})  # (replaces an existing object: the size alone refuses it)
         reply = c.ask(x.build_message(0x81, x.STREAM_BEST_EFFORT, 3, [(S.CREATE, x.FLAG_E | x.FLAG_REPLACE, big)]))
         assert x.parse_message(reply).submessages[0].fields.status == x.Status.ERR_RESOURCES
-        assert b.agent().counters["entities_refused"] == 2
+        assert b.family("micro-ros-agent").agent().counters["entities_refused"] == 2
     finally:
         c.close()
 
 
 def test_reliable_input_waiting_behind_a_gap_is_bounded(agent_bench) -> None:
     b = agent_bench()
-    agent = b.agent()
+    agent = b.family("micro-ros-agent").agent()
     c = Client(b, 0x401)
     try:
         assert c.create_client() == x.Status.OK
@@ -172,7 +172,7 @@ def test_the_board_client_hears_only_its_agent_and_bounds_fragment_nests(agent_b
     stranger = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     try:
         c.start()
-        wait_until(lambda: c.state == "running" and any(s.reads for s in b.agent().sessions.values()), 10)
+        wait_until(lambda: c.state == "running" and any(s.reads for s in b.family("micro-ros-agent").agent().sessions.values()), 10)
         # A sample for its reader from another address: the connected socket never hears it (as the
         # client library's UDP transport, which connects to the agent).
         stranger.sendto(x.build_message(0x81, x.STREAM_BEST_EFFORT, 1000, [(S.DATA, x.FLAG_E, x.data(

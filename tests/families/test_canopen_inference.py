@@ -25,14 +25,14 @@ UPLOADS = ((0x1000, 0), (0x1018, 1), (0x1018, 2), (0x1018, 3), (0x1017, 0), (0x1
 def _drive(bench, seconds: float = 1.2, *, ask_node: int | None = None) -> dict[tuple[int, int], bytes]:
     """What the rover's host software does: wait for the node, read its identity over SDO, start it, send
     velocity setpoints every 50 ms and read the odometry now and then. Returns the SDO values read."""
-    net = canopen.Network(bench.can_bus())
+    net = canopen.Network(bench.endpoint("can").port.open_bus())
     net.connect()
     node = canopen.RemoteNode(2, canopen.ObjectDictionary())
     net.add_node(node)
     node.sdo.RESPONSE_TIMEOUT = 1.0
     read = {}
     try:
-        wait_until(lambda: bench.node(2).state != co.BOOTUP)
+        wait_until(lambda: bench.family("canopen").node(2).state != co.BOOTUP)
         time.sleep(0.1)
         for index, sub in UPLOADS:
             read[(index, sub)] = node.sdo.upload(index, sub)
@@ -110,7 +110,7 @@ def test_keep_silent_makes_a_silent_node(rover_log):
     assert nodes[9]["faults"] == {"silent": True}
     profile = check_profile_text(text)
     with Bench(profile).start() as bench:
-        assert bench.node(9).faults["silent"] is True
+        assert bench.family("canopen").node(9).faults["silent"] is True
 
 
 def test_a_truncated_log_gives_what_could_be_read(rover_log, tmp_path):

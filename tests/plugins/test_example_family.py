@@ -1,7 +1,7 @@
 """A lab's own device family as a separate pip package: tests/example_family, installed for this test run.
 
-It adds a device family (a profile key, a device), an instrument (tracker and
-summary) and a verb through entry points only. Everything below goes through
+It adds a bus kind, a device family (a profile key, a device, a typed lookup),
+an instrument (tracker and summary) and a verb through entry points only. Everything below goes through
 the same paths as the built-in families: profile checks, `hilbench emulate`,
 the manifest, the control channel, `hilbench monitor` (which must tell the
 blinker's line from a Dynamixel bus by its bytes) and the verb table.
@@ -58,7 +58,7 @@ def hb(installed: Path, *args: str, timeout: float = 60) -> subprocess.Completed
 
 
 def test_without_the_package_hilbench_knows_no_blinker():
-    assert "blinker" not in registry.families and "blink" not in registry.verbs
+    assert "blinker" not in registry.families and "blink" not in registry.verbs and "blink" not in registry.bus_kinds
 
 
 def test_the_package_adds_a_verb_a_family_and_an_instrument(installed):
@@ -119,6 +119,8 @@ def test_in_process_bench_and_monitor_tell_the_line_by_its_bytes(in_process, tmp
     with Bench(in_process / "hilbench_example" / "blinker.toml") as bench:
         board = bench.device("blinky")
         assert bench.family_of("blinky").name == "blinker"
+        assert bench.family("blinker").blinker() is board  # the package's own typed lookup
+        assert bench.endpoint().bus_kind is registry.bus_kinds.get("blink")  # and its bus kind
         raw = tmp_path / "blink.bin"
         src = MediumSource(bench.endpoint().medium)
         chunks = []

@@ -123,12 +123,12 @@ def _profile_cli(*args: str) -> subprocess.Popen:
 def test_cli_on_the_emulated_board_over_a_pty(bench):
     """The thesis set-up (V1 at 1,152,000 baud): hilbench profile reads the pty while the button is pressed."""
     ep = bench.endpoint("rover")
-    board = bench.board()
+    board = bench.family("stm32-rover").board()
     proc = _profile_cli(ep.path, "--baud", "1152000", "--reports", "1", "--json", "--period", "wheel_ctrl=10ms",
                         "--period", "hal_fetch=100Hz", "--duration", "20")
     try:
         # Once the profiler has opened the port (pyserial set its baud) and the debounce time has passed.
-        wait_until(lambda: ep.pty.client_baud() == 1_152_000 and board.now_us > 2e5, timeout=10)
+        wait_until(lambda: ep.port.client_baud() == 1_152_000 and board.now_us > 2e5, timeout=10)
         board.press_button()
         wait_until(lambda: board.truth.stamps_sent > 2000, timeout=10)
         board.press_button()
@@ -151,13 +151,13 @@ def test_cli_on_the_emulated_board_over_udp(hilbench_bench):
     """Binary words over UDP: the profiler binds 127.0.0.1 and registers with the board (?peer=)."""
     bench = hilbench_bench("mecarover-udp")
     ep = bench.endpoint("rover")
-    board = bench.board()
+    board = bench.family("stm32-rover").board()
     board_addr = ep.path.removeprefix("udp://")
     proc = _profile_cli(f"udp://127.0.0.1:0?peer={board_addr}", "--reports", "1", "--json", "--duration", "20",
                         "--period", "hal_fetch=1ms", "--tasks", "IDLE,tsink,hal_fetch,wheel_ctrl,odometry,"
                         "pose_control,profile,recv_vel")
     try:
-        wait_until(lambda: len(ep.udp.peers) > 0, timeout=10)  # the profiler registered
+        wait_until(lambda: len(ep.port.peers) > 0, timeout=10)  # the profiler registered
         board.press_button()
         wait_until(lambda: board.truth.stamps_recorded > 3000, timeout=10)
         board.press_button()

@@ -15,7 +15,7 @@ from hilbench.protocols.tracestamp import LogLine, NameEntry, RuntimeReport, Sta
 from hilbench.protocols.tracestamp_binary import Marker, Op, WordDecoder
 from hilbench.protocols.tracestamp_stream import StreamDecoder, decode_all, decode_words, stamps_of
 
-DOC = Path(__file__).resolve().parents[2] / "docs" / "tracestamp-binary.md"
+DOC = Path(__file__).resolve().parents[2] / "docs" / "formats" / "tracestamp-binary.md"
 
 
 def test_worked_example_of_the_documentation():

@@ -208,6 +208,7 @@ def test_patch_is_removed_when_the_bench_stops(hilbench_bench):
 def test_connections_beyond_the_limit_are_refused_and_idle_ones_closed(hilbench_bench, monkeypatch):
     monkeypatch.setattr(line_server, "MAX_CLIENTS", 2)
     monkeypatch.setattr(line_server, "IDLE_TIMEOUT", 0.5)
+    monkeypatch.setattr(line_server, "EVICT_IDLE", 60.0)  # (none waited long enough to be closed for the newcomer)
     server = hilbench_bench("arm").services["lines"]
     held = []
     for _ in range(2):
@@ -226,3 +227,25 @@ def test_connections_beyond_the_limit_are_refused_and_idle_ones_closed(hilbench_
         assert s.recv(256) == b""
         s.close()
     assert ask(server, "0 ping") == "ok 1\n"
+
+
+def test_a_newcomer_takes_the_place_of_the_connection_idle_longest(hilbench_bench, monkeypatch):
+    monkeypatch.setattr(line_server, "MAX_CLIENTS", 2)
+    monkeypatch.setattr(line_server, "EVICT_IDLE", 0.2)
+    server = hilbench_bench("arm").services["lines"]
+    held = []
+    for _ in range(2):
+        s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        s.settimeout(5)
+        s.connect(server.path)
+        s.sendall(b"0 ping\n")
+        assert s.recv(256) == b"ok 1\n"
+        held.append(s)
+        t_last = time.monotonic()
+    wait_until(lambda: time.monotonic() - t_last > 0.2)  # both have waited long enough for a next request
+    assert ask(server, "0 ping") == "ok 1\n"  # served: the one idle longest made room
+    assert held[0].recv(256) == b""  # closed as an idle one is (a client connects anew for its next request)
+    held[1].sendall(b"0 ping\n")
+    assert held[1].recv(256) == b"ok 1\n"  # the other keeps its connection
+    for s in held:
+        s.close()

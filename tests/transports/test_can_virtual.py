@@ -1,4 +1,4 @@
-"""python-can's virtual interface in the bench's process: bench.can_bus(), a named channel, the client API."""
+"""python-can's virtual interface in the bench's process: the CAN port's open_bus(), a named channel, the client API."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from hilbench.pytest_plugin import wait_until
 
 @pytest.mark.hilbench_profile("mecarover-can")
 def test_can_bus_fixture_and_rover_client(bench):
-    bus = bench.can_bus()
+    bus = bench.endpoint("can").port.open_bus()
     try:
         with RoverCanClient(bus, node_id=2) as rover:
             wait_until(lambda: rover.heartbeats >= 1, timeout=3)
@@ -24,7 +24,8 @@ def test_can_bus_fixture_and_rover_client(bench):
             odo = wait_until(lambda: (rover.pose() or (0, 0, 0))[0] > 0.05 and rover.pose(), timeout=3)
             assert odo[1] > 0  # moving left as well
             rover.drive(0.0)
-            assert bench.node(2).stats["accepted"] == rover.sent or rover.sent - bench.node(2).stats["accepted"] <= 1
+            accepted = bench.family("canopen").node(2).stats["accepted"]
+            assert accepted == rover.sent or rover.sent - accepted <= 1
             status = rover.wait_for("status")
             assert status["battery"] == pytest.approx(24.6, abs=1.3) and status["mode"] in (0, 1)
     finally:
@@ -47,6 +48,6 @@ def test_a_named_virtual_channel():
                 assert msg is not None
                 seen.add(msg.arbitration_id)
             bus.send(can.Message(arbitration_id=0x202, data=bc.build_setpoint(0.1, 0, 0, 1), is_extended_id=False))
-            wait_until(lambda: bench.node(2).stats["accepted"] == 1)
+            wait_until(lambda: bench.family("canopen").node(2).stats["accepted"] == 1)
         finally:
             bus.shutdown()

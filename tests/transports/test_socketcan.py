@@ -101,7 +101,7 @@ def test_bench_skips_the_socketcan_door_with_the_reason():
         assert entry["socketcan"] is None
         assert "AF_CAN" in entry["socketcan_error"]
         assert entry["socketcand"]["port"] > 0  # the other doors still open
-        assert "SocketCAN skipped" in bench.endpoint().family.summary(bench.endpoint())
+        assert "SocketCAN skipped" in bench.endpoint().bus_kind.summary(bench.endpoint())
 
 
 VCAN_WHY = AF_CAN_WHY or "AF_CAN works, but vcan0 is missing or down (modprobe vcan; ip link add dev vcan0 type vcan)"
@@ -120,6 +120,6 @@ def test_real_vcan0_both_ways():
                 msg = bus.recv(3)
                 assert msg is not None
                 seen.add(msg.arbitration_id)
-            wait_until(lambda: bench.node(2).state_name == "OPERATIONAL")
+            wait_until(lambda: bench.family("canopen").node(2).state_name == "OPERATIONAL")
         finally:
             bus.shutdown()

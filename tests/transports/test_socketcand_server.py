@@ -232,6 +232,59 @@ def test_clients_beyond_the_limit_get_the_daemons_error_and_python_can_still_wor
         raw.close()
 
 
+def test_a_newcomer_takes_the_place_of_a_client_of_no_use_and_python_can_is_served(can_bus, monkeypatch):
+    """Beyond the limit, a newcomer evicts first a client that never opened a bus, then one that leaves what it
+    is sent unread; python-can clients that read (the bus is quiet: they have read everything) keep their place,
+    and a newcomer finding only those is refused."""
+    import can
+
+    monkeypatch.setattr(socketcand_server, "MAX_CLIENTS", 4)
+    monkeypatch.setattr(socketcand_server, "OPEN_GRACE", 60.0)
+    monkeypatch.setattr(socketcand_server, "READ_GRACE", 0.2)
+    _m, port, dev, _dport, (host, tcp) = can_bus()
+    server = port.socketcand
+
+    def python_can():
+        return can.Bus(interface="socketcand", host=host, port=tcp, channel="can0")
+
+    reader = python_can()  # the oldest client: it would go first if reading did not keep its place
+    deaf = Raw((host, tcp))
+    deaf.send("< open can0 >< rawmode >")  # opened, and never reads a reply
+    t_deaf = time.monotonic()
+    mute = Raw((host, tcp))  # reads its greeting, never opens a bus
+    assert mute.read() == sc.HI
+    buses = [reader]
+    try:
+        buses.append(python_can())
+        wait_until(lambda: len(server.clients) == 4)
+        with pytest.raises(can.CanError, match="too many clients"):  # nobody is useless yet: refused
+            python_can()
+        monkeypatch.setattr(socketcand_server, "OPEN_GRACE", 0.0)  # mute has had its time to open a bus
+        buses.append(python_can())  # takes mute's place
+        assert mute.read() == socketcand_server.ERROR_EVICTED
+        with pytest.raises(ConnectionError):
+            mute.read()
+        wait_until(lambda: time.monotonic() - t_deaf > 0.2)  # deaf has left its replies unread long enough
+        buses.append(python_can())  # takes deaf's place, not the older reader's
+        data = deaf.sock.recv(65536)
+        while chunk := deaf.sock.recv(65536):
+            data += chunk
+        assert data.endswith(socketcand_server.ERROR_EVICTED.encode())  # after the replies it never read
+        assert len(server.clients) == 4 and server.listener.evicted == 2
+        with pytest.raises(can.CanError, match="too many clients"):  # every kept client reads: refused
+            python_can()
+        assert server.listener.refused == 2
+        reader.send(can.Message(arbitration_id=0x123, data=[1], is_extended_id=False))
+        wait_until(lambda: data_frame(0x123, b"\x01") in dev.frames)  # the reader kept its place and works
+        got = buses[-1].recv(timeout=5)  # and the last newcomer is served
+        assert got is not None and got.arbitration_id == 0x123
+    finally:
+        for bus in buses:
+            bus.shutdown()
+        mute.close()
+        deaf.close()
+
+
 HUGE = "9" * 400
 
 

@@ -339,6 +339,33 @@ def test_a_tap_refuses_clients_beyond_its_limit_and_the_reader_says_why():
         server.close()
 
 
+def test_a_tap_newcomer_takes_the_place_of_a_client_that_never_reads_and_readers_keep_theirs(monkeypatch):
+    monkeypatch.setattr(tap_server, "READ_GRACE", 0.2)
+    server = TapServer(max_clients=2)
+    sources = []
+    try:
+        sources.append(TcpSource(server.host, server.port))  # the oldest: it would go first if reading did not count
+        deaf = socket.create_connection((server.host, server.port), timeout=5)  # never reads, not even the header
+        t_deaf = time.monotonic()
+        wait_until(lambda: server.clients == 2)
+        wait_until(lambda: time.monotonic() - t_deaf > 0.2)  # deaf has left its header unread long enough
+        sources.append(TcpSource(server.host, server.port))  # served: it took deaf's place
+        data = deaf.recv(65536)
+        while chunk := deaf.recv(65536):  # its stream just ends (after the header it never read)
+            data += chunk
+        assert data.startswith(b"\x89HBC") and server.status()["evicted"] == 1
+        with pytest.raises(SourceError, match=r"refused: 2 clients at most$"):  # both kept clients read
+            TcpSource(server.host, server.port)
+        server.feed(time.monotonic(), "bus", b"still here")
+        for src in sources:
+            assert next(c for c in src.chunks(idle=1.0) if c is not None).data == b"still here"
+        deaf.close()
+    finally:
+        for src in sources:
+            src.close()
+        server.close()
+
+
 def test_a_tap_client_that_takes_nothing_is_disconnected(monkeypatch):
     monkeypatch.setattr(tap_server, "STALL_TIMEOUT", 0.3)
     server = TapServer(max_buffer=16 << 10)

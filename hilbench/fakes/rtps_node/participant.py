@@ -6,7 +6,7 @@ talk to a FreeRTPS board, without multicast:
 - two sockets on the standard unicast ports of the domain and participant
   index (metatraffic ``7410 + 250 d + 2 p``, user ``7411 + 250 d + 2 p``), and
   those exact locators in the SPDP announcement;
-- SPDP DATA(p) every :attr:`spdp_period` to each peer's metatraffic unicast
+- SPDP DATA(p) every :attr:`~RtpsParticipant.spdp_period` to each peer's metatraffic unicast
   ports (every participant index up to ``max_index`` of a peer host, or an
   explicit ``host:port``) instead of the multicast group, with an incrementing
   sequence number; an unknown participant's SPDP is answered at once;
@@ -64,14 +64,14 @@ SEEN = 256
 MAX_REMOTES = 64
 #: Remote writers and readers (from SEDP) kept per remote participant, and in all.
 MAX_REMOTE_ENDPOINTS_EACH = 256
-MAX_REMOTE_ENDPOINTS = 2048
+MAX_REMOTE_ENDPOINTS = 2048  #: in all
 #: Unicast locators kept per participant or endpoint (the first usable ones).
 MAX_LOCATORS = 4
 #: Longest topic, type or participant name kept; an endpoint with a longer one is refused.
 MAX_NAME = 256
 #: The lease of an SPDP that names none (the DDS default), and the longest one honoured.
 DEFAULT_LEASE_S = 100.0
-MAX_LEASE_S = 300.0
+MAX_LEASE_S = 300.0  #: the longest lease honoured
 #: Ports a remote locator may name: from the RTPS port base PB (7400) up, where the standard mapping and
 #: the ephemeral ports of participants that pick their own lie; below are the machine's services.
 LOCATOR_PORTS = (r.PB, 65535)
@@ -169,7 +169,7 @@ class _WriterState:
 
 
 class RtpsParticipant:
-    """One participant on a datagram net (through a device's :class:`DatagramPort`); see the module docstring."""
+    """One participant on a datagram net (through a device's :class:`DatagramPort <hilbench.transports.datagram_medium.DatagramPort>`); see the module docstring."""
 
     def __init__(self, name: str, port: Any, *, domain_id: int, participant_index: int, guid_prefix: bytes,
                  peers: list[Address | str] | None = None, vendor_id: bytes = r.VENDOR_FREERTPS,
@@ -184,7 +184,7 @@ class RtpsParticipant:
         self.vendor_id = vendor_id
         self.pl_vendor_id = pl_vendor_id
         self.max_index = max_index
-        self.spdp_period = spdp_period
+        self.spdp_period = spdp_period  #: seconds between SPDP announcements
         self.heartbeat_period = heartbeat_period
         self.lease_s = lease_s
         self.clock = clock

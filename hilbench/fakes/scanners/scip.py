@@ -9,6 +9,15 @@ answered with the next whole scan, MD sends one reply per scan (skipping K),
 each reply written whole with one send. Timestamps come from a 24-bit
 millisecond clock with a configurable start offset (wrap-around tests).
 
+A real unit answers one request after another, and while its output waits
+(TCP holds it back from a client that does not read) it reads no more
+requests. The emulated one reads every request at once and computes each
+answer when it comes, so it keeps at most :data:`MAX_WAITING` replies waiting
+to go out: a request beyond is dropped unanswered and counted
+(``requests_dropped`` in ``scanner_status``). A client reading its replies
+never meets the bound; one pipelining 15 000 ``GD`` unread held 50 MB of
+scans before.
+
 Over TCP the unit holds one client (the host port turns others away), and
 each connection starts afresh: a request line the last client began but did
 not end is forgotten, a first ``RB`` it sent no longer arms a reboot, and
@@ -31,6 +40,8 @@ from hilbench.protocols import scip
 
 #: Command processing time before a reply.
 REPLY_DELAY = 0.0005
+#: Replies waiting to go out (a scan's waits for the scan) beyond which a request is dropped unanswered.
+MAX_WAITING = 32
 
 
 @dataclass(frozen=True)
@@ -146,6 +157,9 @@ class ScipScanner(Scanner):
         for item in self.decoder.feed(data):
             if isinstance(item, scip.Request):
                 self.note_request(item.cmd)
+                if self.tx is not None and self.tx.waiting >= MAX_WAITING:
+                    self.counters["requests_dropped"] += 1  # (see the module docstring)
+                    continue
                 self.handle(item, t)
             else:
                 self.counters[f"rx_{item.kind}"] += 1
@@ -371,4 +385,4 @@ class ScipScanner(Scanner):
                 "requests": list(self.requests[-20:]), "counters": dict(self.counters)}
 
 
-__all__ = ["MODELS", "NO_ECHO", "ScipConfig", "ScipFaults", "ScipModel", "ScipScanner"]
+__all__ = ["MAX_WAITING", "MODELS", "NO_ECHO", "ScipConfig", "ScipFaults", "ScipModel", "ScipScanner"]

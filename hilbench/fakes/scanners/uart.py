@@ -5,10 +5,10 @@ bytes, so its endpoint's medium runs unpaced and the device paces itself, as
 the STM32 board does. :class:`UartTx` keeps the line's busy-until time, cuts
 long writes into chunks of about a millisecond of wire time, and hands each
 chunk to the medium stamped with the time its last bit leaves the device
-(:meth:`DevicePort.transmit` with ``t``). Nothing sleeps: every chunk is one
+(:meth:`DevicePort.transmit <hilbench.transports.medium.DevicePort.transmit>` with ``t``). Nothing sleeps: every chunk is one
 event on the medium's clock.
 
-Queued chunks can be cancelled (:meth:`cancel`: a STOP, a reset), so what a
+Queued chunks can be cancelled (:meth:`~UartTx.cancel`: a STOP, a reset), so what a
 device has not yet put on the wire never reaches the host; the chunk being
 sent still completes, as on a real UART.
 
@@ -36,7 +36,7 @@ class UartTx:
     def __init__(self, port, baud: int | None, *, chunk_s: float = CHUNK_S,
                  counters: dict[str, int] | None = None) -> None:
         self.port = port
-        self.baud = baud
+        self.baud = baud  #: the line rate (None: not paced)
         self.chunk_s = chunk_s
         self.busy_until = 0.0
         self.epoch = 0
@@ -91,6 +91,11 @@ class UartTx:
     @property
     def idle(self) -> bool:
         return self._pending == 0
+
+    @property
+    def waiting(self) -> int:
+        """Pieces handed to :meth:`send` and not yet on the wire (a whole write is one)."""
+        return self._pending
 
     def cancel(self, now: float | None = None) -> None:
         """Drop everything queued and not yet on the wire; the line is free from ``now``."""

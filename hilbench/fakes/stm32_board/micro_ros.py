@@ -4,14 +4,14 @@ The firmware's ``micro_ros_node`` (``application/micro_ros/*.cpp``) as the
 board runs it over LwIP/UDP: after pinging the agent and creating its session
 it creates, in binary, what its three executors use:
 
-===============  =============================================  ==========  =================
-topic            type                                           direction   QoS / rate
-===============  =============================================  ==========  =================
-``cmd_vel``      geometry_msgs/Twist                            subscribe   reliable
-``encoder_data`` control_msgs/MecanumDriveControllerState       both        best effort, wheel rate
-``odometry``     geometry_msgs/Pose2D                           both        best effort, pose rate
-``wheel_vel``    control_msgs/MecanumDriveControllerState       both        best effort, pose rate
-===============  =============================================  ==========  =================
+================  =============================================  ==========  =================
+topic             type                                           direction   QoS / rate
+================  =============================================  ==========  =================
+``cmd_vel``       geometry_msgs/Twist                            subscribe   reliable
+``encoder_data``  control_msgs/MecanumDriveControllerState       both        best effort, wheel rate
+``odometry``      geometry_msgs/Pose2D                           both        best effort, pose rate
+``wheel_vel``     control_msgs/MecanumDriveControllerState       both        best effort, pose rate
+================  =============================================  ==========  =================
 
 (topic names get ROS 2's ``rt/`` prefix on the wire). ``cmd_vel`` samples set
 the robot's velocity setpoint (x, y in m/s to mm/s, as ``cmd_vel_cb`` does);

@@ -256,7 +256,7 @@ class BoardConfig:
     ``v2`` (micro-ROS head: ring flushed every 10 ticks, ``in/out``), ``v3``
     (FreeRTOS head: 32,768-record array, fixed window, dump afterwards) or
     ``binary`` (hilbench's compact words written by the hooks themselves,
-    docs/tracestamp-binary.md).
+    docs/formats/tracestamp-binary.md).
     """
 
     preset: Preset

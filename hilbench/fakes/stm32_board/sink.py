@@ -7,7 +7,7 @@ comes first, and occupies the wire for 10 bits per byte at the baud rate.
 Text writers wait in 1 ms steps while a line does not fit (nothing is lost,
 the writer's timing shifts); binary stamps are claimed without waiting, and
 a stamp that does not fit is dropped and counted, then reported by DROPS
-words once space returns (docs/tracestamp-binary.md).
+words once space returns (docs/formats/tracestamp-binary.md).
 
 Everything here is bookkeeping on arrays: the stamps a run produces arrive in
 bulk, and only the stamps the ring accepts are ever encoded or formatted.

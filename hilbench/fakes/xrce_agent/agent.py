@@ -24,7 +24,7 @@ invalid anyway (key 0, bad cookie or version). Everything is counted
 (:attr:`XrceAgent.counters`) and logged the way the agent logs it.
 
 What a client may hold is bounded (the real agent's limits, and where it has
-none, hilbench's; :func:`limits`): at most ``max_sessions`` sessions
+none, hilbench's; :meth:`~XrceAgent.limits`): at most ``max_sessions`` sessions
 (:data:`MAX_SESSIONS`; a CREATE_CLIENT beyond takes the place of the session
 idle longest if that one has been silent for :data:`CLIENT_DEAD_S`, the real
 agent's CLIENT_DEAD_TIME, and is otherwise answered STATUS_AGENT
@@ -75,13 +75,13 @@ CLIENT_DEAD_S = 30.0
 SESSION_TIMEOUT_S = 300.0
 #: Objects per session and in all, and the longest representation a CREATE may carry (bytes).
 MAX_ENTITIES = 256
-MAX_ENTITIES_TOTAL = 2048
-MAX_REPRESENTATION = 4096
+MAX_ENTITIES_TOTAL = 2048  #: objects in all sessions
+MAX_REPRESENTATION = 4096  #: bytes of a CREATE's representation
 #: Bytes a session may hold: reliable input behind a gap or in reassembly, reliable output unacknowledged
 #: or waiting for room, samples waiting for a READ_DATA.
 SESSION_INPUT_BYTES = 256 * 1024
-SESSION_OUTPUT_BYTES = 1024 * 1024
-SESSION_QUEUE_BYTES = 256 * 1024
+SESSION_OUTPUT_BYTES = 1024 * 1024  #: reliable output unacknowledged or waiting for room
+SESSION_QUEUE_BYTES = 256 * 1024  #: samples waiting for a READ_DATA
 #: Levels of FRAGMENTs inside reassembled messages followed.
 MAX_FRAGMENT_DEPTH = 4
 

@@ -55,7 +55,7 @@ class ReliableInput:
         self.fragments = bytearray()
         self.duplicates = 0
         self.pending_bytes = 0
-        self.fragments_dropped = 0
+        self.fragments_dropped = 0  #: fragmented messages dropped (too large)
         self._skipping = False  # the rest of a dropped fragmented message is ignored up to its last fragment
 
     @property
@@ -147,7 +147,7 @@ class ReliableOutput:
         self.last_unacked = 0xFFFF  # nothing sent yet
         self.history: dict[int, bytes] = {}
         self.backlog: deque[tuple[int, bytes]] = deque()  # (submessage id, payload) waiting for room
-        self.dropped = 0
+        self.dropped = 0  #: submessages the backlog refused
         self.retransmissions = 0
         self.history_bytes = 0
         self.backlog_bytes = 0

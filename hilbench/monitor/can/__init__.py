@@ -72,6 +72,7 @@ class CanInstrument(Instrument):
         print_summary(report, console)
 
 
+#: The plug-in (entry point ``can`` of ``hilbench.instruments``).
 INSTRUMENT = CanInstrument()
 
 __all__ = ["INSTRUMENT", "CanInstrument", "CanTracker", "summary"]

@@ -67,6 +67,7 @@ class DynamixelInstrument(Instrument):
         print_summary(report, console)
 
 
+#: The plug-in (entry point ``dynamixel`` of ``hilbench.instruments``).
 INSTRUMENT = DynamixelInstrument()
 
 __all__ = ["INSTRUMENT", "BusTracker", "DeviceState", "DynamixelInstrument", "summary"]

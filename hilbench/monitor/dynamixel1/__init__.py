@@ -38,6 +38,7 @@ class Device1(DeviceState):
     fallback_layout: ClassVar = MX28_1
 
 
+#: What Protocol 1.0-framed bytes mean on a Dynamixel bus (:class:`Dialect`).
 DIALECT = Dialect(
     protocol="dynamixel1",
     instruction_names=dict(p1.INSTRUCTION_NAMES),
@@ -120,6 +121,7 @@ class Dynamixel1Instrument(Protocol1Instrument):
     title = "Dynamixel Protocol 1.0 bus"
 
 
+#: The plug-in (entry point ``dynamixel1`` of ``hilbench.instruments``).
 INSTRUMENT = Dynamixel1Instrument()
 
 __all__ = ["DIALECT", "INSTRUMENT", "Bus1Tracker", "Device1", "Dynamixel1Instrument", "Protocol1Instrument",

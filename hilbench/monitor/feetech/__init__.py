@@ -27,6 +27,7 @@ class FeetechDevice(DeviceState):
     fallback_layout: ClassVar = STS3215
 
 
+#: What Protocol 1.0-framed bytes mean on a Feetech bus (:class:`Dialect`).
 DIALECT = Dialect(
     protocol="feetech",
     instruction_names=dict(ft.INSTRUCTION_NAMES),
@@ -55,6 +56,7 @@ class FeetechInstrument(Protocol1Instrument):
     _own: ClassVar = {0x82}
 
 
+#: The plug-in (entry point ``feetech`` of ``hilbench.instruments``).
 INSTRUMENT = FeetechInstrument()
 
 __all__ = ["DIALECT", "INSTRUMENT", "FeetechDevice", "FeetechInstrument"]

@@ -61,6 +61,7 @@ class UdpInstrument(Instrument):
         print_summary(report, console)
 
 
+#: The plug-in (entry point ``udp`` of ``hilbench.instruments``).
 INSTRUMENT = UdpInstrument()
 
 __all__ = ["INSTRUMENT", "UdpInstrument", "UdpTracker"]

@@ -4,17 +4,17 @@ Every CAN source yields chunks of 16-byte SocketCAN frame records
 (:mod:`hilbench.protocols.can_frame`) and says ``protocol = "can"``, so the
 monitor, the recorder and captures treat them like any other source.
 
-=============================================  ======================================================
-source string                                  what it opens
-=============================================  ======================================================
+==============================================  ======================================================
+source string                                   what it opens
+==============================================  ======================================================
 ``socketcand://HOST:PORT/CHANNEL[?bitrate=N]``  a socketcand server (a bench's, or the linux-can daemon)
 ``slcan:///dev/ttyACM0[?bitrate=N]``            a LAWICEL adapter (or a bench's SLCAN pty); also
-                                               ``slcan://socket://HOST:PORT``
-``socketcan://vcan0``                          a kernel CAN interface (where the kernel has AF_CAN)
-``virtual://CHANNEL``                          a python-can virtual channel in this process
-``run.asc``, ``run.blf``, ``run.trc``,         python-can's log readers (a ``.log`` that is not candump
-``run.log`` (candump ``-L``)                   text is read as any other file)
-=============================================  ======================================================
+                                                ``slcan://socket://HOST:PORT``
+``socketcan://vcan0``                           a kernel CAN interface (where the kernel has AF_CAN)
+``virtual://CHANNEL``                           a python-can virtual channel in this process
+``run.asc``, ``run.blf``, ``run.trc``,          python-can's log readers (a ``.log`` that is not candump
+``run.log`` (candump ``-L``)                    text is read as any other file)
+==============================================  ======================================================
 
 Live buses stamp frames with Unix time (what socketcand and python-can give);
 ``bitrate`` only tells the monitor the bus load's reference.

@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from hilbench.bench.family import DeviceFamily, DeviceSpec
+from hilbench.bench.family import DeviceFamily, DeviceSpec, FamilyAccess
 
 
 @dataclass
@@ -16,8 +16,7 @@ class BlinkerSpec(DeviceSpec):
 
 class BlinkerFamily(DeviceFamily):
     name = "blinker"
-    protocols = ("blink",)
-    endpoint_types = ("pty",)
+    joins = ("blink",)  # the bus kind of bus.py
     device_keys = ("model", "name", "endpoint", "board_id", "period_ms")
     models = ("acme-blinker",)
     device_word = "blinker"
@@ -37,16 +36,14 @@ class BlinkerFamily(DeviceFamily):
         from hilbench_example.device import Blinker
 
         for spec in devices:
-            dev = Blinker(spec.name, spec.board_id, spec.period_ms)
-            dev.attach(endpoint.medium)
-            endpoint.add_device(spec.name, dev)
+            endpoint.add_device(spec.name, Blinker(spec.name, spec.board_id, spec.period_ms))  # onto the bus
 
-    def start(self, endpoint, t: float) -> None:
-        for dev in endpoint.devices.values():
+    def start(self, endpoint, devices: dict[str, Any], t: float) -> None:
+        for dev in devices.values():
             dev.start(t)
 
-    def stop(self, endpoint) -> None:
-        for dev in endpoint.devices.values():
+    def stop(self, endpoint, devices: dict[str, Any]) -> None:
+        for dev in devices.values():
             dev.stop()
 
     def describe_device(self, spec: BlinkerSpec, device, endpoint, profile) -> dict[str, Any]:
@@ -57,4 +54,15 @@ class BlinkerFamily(DeviceFamily):
         return {"blinks": device.blinks}
 
 
+class Blinkers(FamilyAccess):
+    """``bench.family("blinker")``: the blinker boards of a running bench."""
+
+    family_name = "blinker"
+
+    def blinker(self, name: str | None = None):
+        """A board by profile name, or the only one."""
+        return self.device(name)
+
+
+BlinkerFamily.access = Blinkers
 FAMILY = BlinkerFamily()

@@ -129,3 +129,23 @@ def test_hokuyolx_after_a_client_left_a_command_half_sent(ust):
     wait_until(lambda: port.client is None, 3)
     out = run_client("hokuyolx_client.py", host, str(number), "3")
     assert out["params"]["model"] == "UST-10LX" and out["pendings"] == [2, 1, 0]
+
+
+def test_requests_piled_up_unread_wait_in_a_bounded_queue_and_the_rest_are_dropped_and_counted(ust):
+    from hilbench.fakes.scanners.scip import MAX_WAITING
+
+    unit = ust.device("ust")
+    address = ust.endpoint("ust").port.address
+    flood = connect(ust, address)
+    try:
+        assert flood.ask(b"BM\n").status == "00"
+        scanned = unit.scans_sent
+        flood.sock.sendall(b"GD0000108000\n" * 2000)  # 2 000 scans asked at once (50 MB of them unread before)
+        wait_until(lambda: unit.scans_sent - scanned + unit.counters["requests_dropped"] == 2000)
+        dropped = unit.counters["requests_dropped"]
+        assert dropped >= 2000 - 10 * MAX_WAITING  # (a loaded machine reads them in a few bites, replies go between)
+        replies = flood.replies(2000 - dropped + 1, timeout=2.0)
+        assert [r.status for r in replies] == ["00"] * (2000 - dropped)  # each kept request answered whole
+        assert flood.ask(b"VV\n").status == "00"  # and the unit goes on answering
+    finally:
+        flood.close()
