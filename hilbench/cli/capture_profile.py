@@ -60,16 +60,19 @@ def cmd_from_capture(args: argparse.Namespace) -> int:
     name = out if out not in (None, "-") else "<generated profile>"
     profile = check_profile_text(text, name)  # what it writes loads with `hilbench emulate` unchanged
     inferred = time.monotonic() - started
+    active = sum(not t.disabled for t in draft.devices)
+    commented = len(draft.devices) - active
     if out not in (None, "-"):
         write_output(out, text)
-        print(f"wrote {out}: {len(draft.devices)} device entr{'y' if len(draft.devices) == 1 else 'ies'} "
-              f"from {facts.name} in {inferred:.2f} s", file=sys.stderr)
+        print(f"wrote {out}: {active} device entr{'y' if active == 1 else 'ies'}"
+              + (f" (and {commented} commented out)" if commented else "")
+              + f" from {facts.name} in {inferred:.2f} s", file=sys.stderr)
     elif not args.json:
         write_output(None, text)
     report = _verify(args, draft, profile) if args.verify else None
     if args.json:
         doc = {"capture": facts.name, "protocol": facts.protocol, "baud": facts.baud, "timestamps": facts.timestamps,
-               "profile": out if out not in (None, "-") else None, "devices": len(draft.devices),
+               "profile": out if out not in (None, "-") else None, "devices": active, "commented_out": commented,
                "seen": draft.seen, "guessed": draft.guessed, "contradictions": draft.contradictions,
                "unread": draft.unread, "pattern": draft.pattern, "read": {str(k): v for k, v in draft.read.items()},
                "seconds": round(inferred, 3),

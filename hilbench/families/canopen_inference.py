@@ -60,6 +60,10 @@ class IdObs:
     last: bytes = b""
     payloads: set[bytes] = field(default_factory=set)
     lengths: set[int] = field(default_factory=set)
+    #: Intervals between frames (s), none across a restart.
+    intervals: list[float] = field(default_factory=list)
+    #: Where the next interval counts from (the last frame, or a restart; None: nowhere).
+    since: float | None = None
 
     def add(self, t: float, data: bytes) -> None:
         if not self.count:
@@ -71,13 +75,19 @@ class IdObs:
             self.payloads.add(data)
         if len(self.times) < MAX_TIMES:
             self.times.append(t)
+            if self.since is not None and t > self.since:
+                self.intervals.append(t - self.since)
+        self.since = t
+
+    def restart(self, t: float) -> None:
+        """The sender restarted at ``t`` (a boot-up): its timer counts from there, not from its last frame."""
+        self.since = t
 
     def period(self) -> float | None:
-        """The median interval (s), None with fewer than three frames."""
-        if len(self.times) < 3:
+        """The median interval (s), None with fewer than two intervals."""
+        if len(self.intervals) < 2:
             return None
-        intervals = [b - a for a, b in zip(self.times, self.times[1:], strict=False) if b > a]
-        return statistics.median(intervals) if intervals else None
+        return statistics.median(self.intervals)
 
 
 @dataclass
@@ -204,6 +214,9 @@ class CanopenSession:
                 state = data[0] & 0x7F
                 if state == co.BOOTUP:
                     obs.bootups.append(t)
+                    obs.heartbeat.restart(t)  # the heartbeat timer starts with the boot-up
+                    for ido in obs.tpdos.values():
+                        ido.since = None  # PDOs start again with the next NMT start
                 else:
                     if obs.first_state is None:
                         obs.first_state = state

@@ -136,3 +136,37 @@ def test_a_hilbench_capture_of_the_can_bus(tmp_path):
     assert facts.protocol == "can" and facts.baud == 500_000  # the capture says its bitrate
     (node,) = tomllib.loads(text)["devices"]
     assert node["node_id"] == 2 and {o["index"] for o in node["objects"]} >= {i for i, _ in read}
+
+
+def _candump(path, frames: list[tuple[float, int, str]]) -> None:
+    """A candump log (python-can's ``.log`` writer's format) of ``(t, can_id, hex data)`` frames."""
+    path.write_text("".join(f"({1_800_000_000 + t:.6f}) can0 {cob:03X}#{data.replace(' ', '')} R\n"
+                            for t, cob, data in frames))
+
+
+def test_a_reset_restarts_the_heartbeat_period(tmp_path):
+    """A node the host resets: its heartbeat timer counts from the boot-up, so the interval from the heartbeat
+    before the reset to the one after it is no period (its median with one real interval was 1180 ms)."""
+    path = tmp_path / "reset.log"
+    _candump(path, [(0.0, 0x702, "7f"), (0.33, 0x000, "81 02"), (0.36, 0x702, "00"),
+                    (1.36, 0x702, "7f"), (2.36, 0x702, "7f")])
+    draft, _, text = infer_file(path, baud=500_000)
+    (node,) = tomllib.loads(text)["devices"]
+    assert node["heartbeat_ms"] == 1000, text
+    assert "heartbeat every 1000.0 ms" in "\n".join(draft.seen)
+
+
+def test_verify_waits_for_nodes_the_capture_found_running(tmp_path):
+    """A capture that starts with the host's SDO upload (the node booted long before): the replay's clock starts
+    once the bench's node has booted, so the first upload is answered (it went unanswered while the node was in
+    its 20 ms boot delay)."""
+    path = tmp_path / "running.log"
+    frames = [(0.0, 0x602, "40 18 10 01 00 00 00 00"), (0.0003, 0x582, "43 18 10 01 4e 42 48 00"),
+              (0.002, 0x602, "40 00 10 00 00 00 00 00"), (0.0023, 0x582, "43 00 10 00 00 00 00 00")]
+    frames += [(0.1 + k, 0x702, "7f") for k in range(3)]
+    _candump(path, frames)
+    draft, _, text = infer_file(path, baud=500_000)
+    with Bench(check_profile_text(text)).start() as bench:
+        report = draft.replay.run(bench, speed=1.0)
+    assert (report.replies, report.matched_content) == (3, 2), report.lines()  # 2 uploads + the heartbeat stream
+    assert report.matched == 3, report.lines()

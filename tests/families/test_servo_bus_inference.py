@@ -90,8 +90,11 @@ def test_wolfgang_verify_meets_the_target(tmp_path, capsys):
     out = tmp_path / "wolfgang.toml"
     code = main(["profiles", "from-capture", str(WOLFGANG_TRACE), "--baud", "2000000", "-o", str(out), "--verify",
                  "--min-ratio", "0.95", "--json"])
-    doc = json.loads(capsys.readouterr().out)
+    captured = capsys.readouterr()
+    doc = json.loads(captured.out)  # one document on stdout; the "wrote" line goes to stderr
     assert code == 0
+    assert (doc["devices"], doc["commented_out"]) == (20, 1)  # ID 101 never answered: a comment
+    assert "wrote " + str(out) + ": 20 device entries (and 1 commented out) from " in captured.err
     report = doc["verify"]
     assert report["replies"] > 19_000 and report["ratio"] >= 0.95, report
     assert report["requests"] == 2409 and report["missing"] == 0
