@@ -120,8 +120,22 @@ def test_a_truncated_log_gives_what_could_be_read(rover_log, tmp_path):
     cut.write_text("".join(lines[: len(lines) // 2]) + lines[len(lines) // 2][:9])  # killed mid-line
     draft, _, text = infer_file(cut, baud=500_000)
     assert tomllib.loads(text)["devices"][0]["node_id"] == 2
-    assert any(line.startswith("capture: the capture could not be read past record") for line in draft.unread), \
+    assert "capture: truncated: the last line has no end (the recording was cut off): skipped" in draft.unread, \
         draft.unread
+
+
+def test_a_damaged_log_is_read_past_its_bad_lines(rover_log, tmp_path):
+    """Lines that are no frame (noise, a hex digit gone) are skipped and counted; what follows them is read."""
+    path, read = rover_log
+    lines = path.read_text().splitlines(keepends=True)
+    lines[3] = "\x00\x7fgarbage (12.5) can0\n"
+    lines[5] = lines[5].replace("#", "#Z", 1)
+    damaged = tmp_path / "damaged.log"
+    damaged.write_text("".join(lines))
+    draft, _, text = infer_file(damaged, baud=500_000)
+    assert "capture: 2 line(s) that are no candump frame skipped (the first: line 4)" in draft.unread, draft.unread
+    (node,) = tomllib.loads(text)["devices"]
+    assert len(node["tpdos"]) == 4  # the PDOs long after the damage were read
 
 
 def test_a_hilbench_capture_of_the_can_bus(tmp_path):
