@@ -167,7 +167,7 @@ class Inferrer:
     title: ClassVar[str] = ""
 
     def session(self, facts: SourceFacts, options: InferOptions) -> InferenceSession:
-        """A new session for a capture (``facts`` grow while it is read; final at :meth:`finish`)."""
+        """A new session for a capture (``facts`` grow while it is read; final at :meth:`InferenceSession.finish`)."""
         raise NotImplementedError
 
 
