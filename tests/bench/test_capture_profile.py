@@ -67,6 +67,25 @@ def test_inferrers_come_from_the_registry_and_a_protocol_without_one_is_refused(
         inferrer_for("vel2d")
 
 
+def test_a_second_inferrer_for_a_protocol_is_refused():
+    """Inferrers claim their protocols: one that reads a protocol another one reads is refused, naming it."""
+
+    class Other:
+        title = "another Dynamixel reader"
+        protocols = ("dynamixel",)
+
+    with pytest.raises(ValueError, match=r"its protocol 'dynamixel' is taken by profile inferrer 'dynamixel'"):
+        registry.inferrers.register("other-dxl", Other())
+    assert "other-dxl" not in registry.inferrers
+
+
+def test_plugins_lists_the_inferrers_with_their_protocols(capsys):
+    assert main(["plugins"]) == 0
+    out = capsys.readouterr().out
+    assert "Dynamixel servo buses (Protocol 2.0 and 1.0): profiles from dynamixel, dynamixel1 captures" in out
+    assert "CANopen nodes on a CAN bus: profiles from can captures" in out
+
+
 def test_from_capture_writes_a_profile_that_emulate_loads(tmp_path, capsys, hilbench_emulator):
     out = tmp_path / "robot.toml"
     assert main(["profiles", "from-capture", str(_capture(tmp_path)), "--baud", "1000000", "-o", str(out)]) == 0
