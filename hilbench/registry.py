@@ -28,6 +28,9 @@ kind                   entry-point group          the object an entry point name
 :data:`servers`        ``hilbench.servers``       a :class:`~hilbench.bench.server.Server` (``emulate --serve``)
 :data:`recorders`      ``hilbench.recorders``     a recording format: ``accepts(path, protocol)``,
                                                   ``open(path, source=..., description=...)``
+:data:`inferrers`      ``hilbench.inferrers``     a :class:`~hilbench.bench.capture_profile.Inferrer`: a
+                                                  profile from a capture of its traffic
+                                                  (``profiles from-capture``)
 =====================  =========================  =============================================
 
 Entry points load on first use of their kind. A plug-in that fails to load
@@ -39,7 +42,7 @@ A registration that clashes with one already made is refused: two families
 claiming one family name or model (or one ``[defaults]`` key, or one
 top-level profile table with different checks), two bus kinds for one
 protocol, two instruments for one protocol or alias, two verb modules adding
-one verb. An entry point that clashes is skipped with a :class:`PluginWarning`
+one verb, two inferrers for one protocol. An entry point that clashes is skipped with a :class:`PluginWarning`
 naming both packages (the first registered wins: hilbench's own, then by
 name); :meth:`Kind.register` raises :class:`ValueError`.
 
@@ -269,9 +272,12 @@ fuzz_targets = Kind("fuzz_targets", "hilbench.fuzz_targets", what="fuzz target")
 servers = Kind("servers", "hilbench.servers", what="server")
 #: Recording formats.
 recorders = Kind("recorders", "hilbench.recorders", what="recording format")
+#: Profile inferrers (:class:`~hilbench.bench.capture_profile.Inferrer`), by the protocols they read.
+inferrers = Kind("inferrers", "hilbench.inferrers", what="profile inferrer",
+                 claims=lambda inf: [("protocol", p) for p in inf.protocols])
 
 KINDS: tuple[Kind, ...] = (families, bus_kinds, host_ports, media, sources, instruments, verbs, fuzz_targets,
-                            servers, recorders)
+                            servers, recorders, inferrers)
 
 
 def reload() -> None:
@@ -303,5 +309,5 @@ def instrument_for(protocol: str) -> Any | None:
 
 
 __all__ = ["KINDS", "Claim", "Kind", "PluginWarning", "bus_kinds", "families", "families_joining",
-           "family_for_model", "fuzz_targets", "host_ports", "instrument_for", "instruments", "media", "recorders",
-           "reload", "servers", "sources", "verbs"]
+           "family_for_model", "fuzz_targets", "host_ports", "inferrers", "instrument_for", "instruments", "media",
+           "recorders", "reload", "servers", "sources", "verbs"]

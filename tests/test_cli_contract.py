@@ -357,6 +357,17 @@ motor = "always"
 """
 
 
+def _small_capture(tmp_path):
+    """A raw dump of one servo's Ping and a read of its position, with their replies."""
+    from hilbench.protocols import dynamixel as dxl
+
+    path = tmp_path / "bus.bin"
+    path.write_bytes(dxl.instruction_packet(1, dxl.Instruction.PING) + dxl.status_packet(1, 0, bytes([0xFC, 3, 52]))
+                     + dxl.instruction_packet(1, dxl.Instruction.READ, bytes([132, 0, 4, 0]))
+                     + dxl.status_packet(1, 0, (2048).to_bytes(4, "little")))
+    return path
+
+
 def test_every_json_option_prints_one_json_document(tmp_path, hilbench_emulator):
     prof = tmp_path / "both.toml"
     prof.write_text(BOTH)
@@ -373,6 +384,8 @@ def test_every_json_option_prints_one_json_document(tmp_path, hilbench_emulator)
         ("lidar",): ["lidar", f"{mfile}#lidar", "--scans", "2", "--json"],
         ("board",): ["board", "--manifest", mfile, "--json", "status"],
         ("profile",): ["profile", f"{mfile}#rover", "--duration", "1", "--json"],
+        ("profiles", "from-capture"): ["profiles", "from-capture", str(_small_capture(tmp_path)), "--baud", "1000000",
+                                       "--verify", "--speed", "0", "--json"],
     }
     with_json = {path for path, parser in parsers() if any("--json" in a.option_strings for a in parser._actions)}
     assert with_json == set(commands), "a verb with --json and no case here"

@@ -273,16 +273,18 @@ def test_no_upward_imports():
 #: sdo_server}.py, protocols/{control_table,canopen,canopen_od,cdr}.py, ...) and the generic instruments
 #: (the CAN, UDP and trace instruments) and verbs.
 OWNED: dict[str, tuple[str, ...]] = {
-    "dynamixel": ("protocols/dynamixel*.py", "fakes/dynamixel/*", "families/dynamixel.py", "monitor/dynamixel/*",
+    "dynamixel": ("protocols/dynamixel*.py", "fakes/dynamixel/*", "families/dynamixel.py", "families/dynamixel_*.py",
+                  "monitor/dynamixel/*",
                   "monitor/dynamixel1/*", "dashboard/dynamixel_views.py", "clients/dynamixel.py", "cli/dxl.py"),
-    "feetech": ("protocols/feetech*.py", "fakes/feetech/*", "families/feetech.py", "monitor/feetech/*"),
+    "feetech": ("protocols/feetech*.py", "fakes/feetech/*", "families/feetech.py", "families/feetech_*.py",
+                "monitor/feetech/*"),
     "stm32-rover": ("protocols/vel2d*.py", "protocols/tracestamp*.py", "fakes/stm32_board/*",
                     "families/stm32_rover*.py"),
     "rplidar": ("protocols/rplidar*.py", "fakes/scanners/rplidar.py", "families/rplidar*.py"),
     "sick-lms200": ("protocols/sick_lms200*.py", "fakes/scanners/sick_lms200.py", "families/sick_lms200*.py"),
     "scip2": ("protocols/scip*.py", "fakes/scanners/scip.py", "families/scip2*.py"),
-    "canopen": ("protocols/board_can.py", "fakes/canopen/rover.py", "families/canopen_board*.py",
-                "clients/can_rover.py"),
+    "canopen": ("protocols/board_can.py", "fakes/canopen/rover.py", "fakes/canopen/recorded.py",
+                "families/canopen_*.py", "clients/can_rover.py"),
     "micro-ros-agent": ("protocols/xrce_dds.py", "fakes/xrce_agent/*", "families/micro_ros_agent*.py",
                         "monitor/udp/xrce_state.py"),
     "freertps": ("protocols/rtps.py", "fakes/rtps_node/*", "families/freertps.py", "monitor/udp/rtps_state.py"),
