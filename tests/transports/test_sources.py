@@ -79,6 +79,20 @@ def test_serial_source_sniffs_a_real_pty_and_never_writes():
         os.close(slave)
 
 
+def test_a_manifest_named_freely_is_found_by_its_content(tmp_path):
+    """``emulate --manifest bench.manifest`` takes any name, and prints ``hilbench monitor bench.manifest#arm``."""
+    with Bench("arm", tap=True) as bench:
+        path = tmp_path / "arm.manifest"
+        bench.write_manifest(path)
+        src = open_source(f"{path}#arm")
+        try:
+            assert isinstance(src, TcpSource) and src.protocol == "dynamixel"
+        finally:
+            src.close()
+    (tmp_path / "notes.manifest").write_text('{"hilbench": "no manifest"}')  # JSON, but not a manifest
+    assert isinstance(open_source(str(tmp_path / "notes.manifest")), FileSource)
+
+
 def test_a_bench_tap_streams_both_directions_to_every_client():
     with Bench("arm", tap=True) as bench:
         ep = bench.endpoint()

@@ -41,6 +41,7 @@ from urllib.parse import urlparse
 from hilbench import registry
 from hilbench.transports.chunk import Chunk
 from hilbench.transports.sources.base import (
+    SNIFF_SIZE,
     MediumSource,
     PeekedSource,
     PushSource,
@@ -101,6 +102,16 @@ def open_source(spec: str, *, baud: int | None = None, speed: float | None = Non
         for opener in source_kinds():
             if path.suffix.lower() in opener.suffixes:
                 return opener.open(spec, path_text, fragment, **options)
+        sniffers = [opener for opener in source_kinds() if opener.sniff is not None]
+        if sniffers:  # a file named freely (a manifest written to bench.manifest, say)
+            try:
+                with open(path, "rb") as f:
+                    head = f.read(SNIFF_SIZE)
+            except OSError as exc:
+                raise SourceUnavailable(f"{spec}: {exc.strerror}") from None
+            for opener in sniffers:
+                if opener.sniff(head):  # type: ignore[misc]
+                    return opener.open(spec, path_text, fragment, **options)
     return _by_kind(kind).open(spec, path_text, fragment, **options)
 
 

@@ -302,10 +302,12 @@ class SourceOpener:
     whole string, ``target`` the part an opener reads (a path, or the URL),
     ``fragment`` what followed ``#``; ``options`` are ``baud``, ``speed`` and
     ``default_baud`` (an opener ignores what it does not use). An opener is
-    found by URL scheme (``schemes``), by file suffix (``suffixes``) or by the
-    kind of file (``kinds``: ``"stdin"`` for ``-``, ``"char"`` for a character
-    device, ``"fifo"``, ``"file"`` for any other regular file). ``usage`` and
-    ``what`` make its row of the table in ``hilbench monitor --help``.
+    found by URL scheme (``schemes``), by file suffix (``suffixes``), by the
+    first bytes of a regular file whose suffix no opener claims (``sniff``:
+    given up to :data:`SNIFF_SIZE` bytes, whether the opener reads that file)
+    or by the kind of file (``kinds``: ``"stdin"`` for ``-``, ``"char"`` for a
+    character device, ``"fifo"``, ``"file"`` for any other regular file).
+    ``usage`` and ``what`` make its row of the table in ``hilbench monitor --help``.
     """
 
     name: str
@@ -315,7 +317,11 @@ class SourceOpener:
     kinds: tuple[str, ...] = ()
     usage: str = ""
     what: str = ""
+    sniff: Callable[[bytes], bool] | None = None
 
 
-__all__ = ["Chunk", "MediumSource", "PeekedSource", "PushSource", "ReplaySource", "Source", "SourceError",
+#: Bytes of a file an opener's ``sniff`` sees.
+SNIFF_SIZE = 4096
+
+__all__ = ["SNIFF_SIZE", "Chunk", "MediumSource", "PeekedSource", "PushSource", "ReplaySource", "Source", "SourceError",
            "SourceOpener", "SourceUnavailable", "peek"]
