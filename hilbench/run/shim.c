@@ -138,6 +138,8 @@ static int (*real_fclose)(FILE *);
 __attribute__((visibility("hidden"))) int hb_real_clock_gettime(clockid_t clk, struct timespec *tp);
 __attribute__((visibility("hidden"))) void hb_vclock_forget(int fd);
 __attribute__((visibility("hidden"))) void hb_vclock_wrote(int fd, ssize_t n);
+__attribute__((visibility("hidden"))) void hb_vclock_flushing(int fd, int queue);
+__attribute__((visibility("hidden"))) int hb_vclock_empty(int fd);
 
 /* struct termios2 of <asm/termbits.h>, which cannot be included beside <termios.h>. */
 struct shim_termios2 {
@@ -916,11 +918,19 @@ int ioctl(int fd, unsigned long request, ...)
         return -1;
     }
     switch (request) {
+    case TCFLSH:
+        hb_vclock_flushing(fd, (int)(intptr_t)arg);  /* virtual time counts what an input flush drops */
+        break;
     case TIOCMGET: case TIOCMSET: case TIOCMBIS: case TIOCMBIC:
-    case TIOCSBRK: case TIOCCBRK: case TCSBRK: case TCSBRKP: case TCFLSH:
+    case TIOCSBRK: case TIOCCBRK: case TCSBRK: case TCSBRKP:
     case TCSETS: case TCSETSW: case TCSETSF: case SHIM_TCSETS2: case SHIM_TCSETSW2: case SHIM_TCSETSF2:
     case TCGETS: case SHIM_TCGETS2:
         break;
+    case FIONREAD:  /* an empty answer again and again is polling: virtual time may block it a quantum */
+        rc = real_ioctl(fd, request, arg);
+        if (rc == 0 && arg && *(int *)arg == 0 && hb_vclock_empty(fd))
+            rc = real_ioctl(fd, request, arg);
+        return rc;
     default:
         return real_ioctl(fd, request, arg);
     }
@@ -988,6 +998,7 @@ int ioctl(int fd, unsigned long request, ...)
 int tcflush(int fd, int queue)
 {
     struct bench_port *p = bench_port(fd);
+    hb_vclock_flushing(fd, queue);
     if (p) {
         int rc = flush_port(p, fd, queue);
         if (rc != -2)

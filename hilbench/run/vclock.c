@@ -53,6 +53,8 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/epoll.h>
+#include <sys/ioctl.h>
+#include <sys/uio.h>
 #include <sys/mman.h>
 #include <sys/resource.h>
 #include <sys/select.h>
@@ -62,6 +64,7 @@
 #include <sys/time.h>
 #include <sys/timerfd.h>
 #include <sys/wait.h>
+#include <termios.h>
 #include <time.h>
 #include <unistd.h>
 
@@ -184,7 +187,7 @@ R(sem_wait); R(sem_timedwait); R(sem_clockwait); R(sem_post);
 R(pthread_cond_wait); R(pthread_cond_timedwait); R(pthread_cond_clockwait); R(pthread_cond_signal);
 R(pthread_cond_broadcast); R(pthread_create); R(pthread_join); R(fork);
 R(execve); R(execvpe); R(fexecve); R(posix_spawn); R(posix_spawnp);
-R(waitpid); R(wait4); R(waitid); R(send); R(sendto); R(sendmsg);
+R(waitpid); R(wait4); R(waitid); R(send); R(sendto); R(sendmsg); R(read); R(readv);
 R(alarm); R(setitimer); R(timer_settime); R(timerfd_settime);
 static int (*r_epoll_pwait2)(int, struct epoll_event *, int, const struct timespec *, const sigset_t *);
 static int resolved;
@@ -198,7 +201,7 @@ static void resolve(void)
     D(pthread_cond_wait); D(pthread_cond_timedwait); D(pthread_cond_clockwait); D(pthread_cond_signal);
     D(pthread_cond_broadcast); D(pthread_create); D(pthread_join); D(fork);
     D(execve); D(execvpe); D(fexecve); D(posix_spawn); D(posix_spawnp);
-    D(waitpid); D(wait4); D(waitid); D(send); D(sendto); D(sendmsg);
+    D(waitpid); D(wait4); D(waitid); D(send); D(sendto); D(sendmsg); D(read); D(readv);
     D(alarm); D(setitimer); D(timer_settime); D(timerfd_settime);
 #undef D
     __atomic_store_n(&resolved, 1, __ATOMIC_RELEASE);
@@ -1697,4 +1700,183 @@ int timerfd_settime(int fd, int flags, const struct itimerspec *nv, struct itime
     if (nv && (nv->it_value.tv_sec || nv->it_value.tv_nsec))
         unvirtualised("timerfd_settime");
     return REAL(timerfd_settime)(fd, flags, nv, old);
+}
+
+/* ------------------------------------------------------------------ reads of bench ptys */
+
+static int inq(int fd)
+{
+    int n = 0;
+    return syscall(SYS_ioctl, fd, FIONREAD, &n) == 0 ? n : -1;
+}
+
+/* Before a blocking read of a bench pty returns, the bytes it would wait for are there: VMIN and
+ * VTIME in virtual time. The slot waits on the port (the loop wakes it when it delivers there) and,
+ * while nothing is unread, on the descriptor itself. Afterwards the real read cannot block: it asks
+ * for no more than is there when fewer than VMIN bytes are. Returns the size to read, 0 for a VTIME
+ * timeout without data, -1 with errno (EINTR). */
+static ssize_t pty_wait(struct vc_slot *s, int fd, int port, size_t n)
+{
+    struct termios t;
+    int64_t vtime;
+    uint64_t deadline = NO_DEADLINE;
+    size_t want;
+    int vmin, last = 0, wfd;
+    if (n == 0 || syscall(SYS_ioctl, fd, TCGETS, &t) != 0)
+        return (ssize_t)n;
+    if (t.c_lflag & ICANON) {  /* poll says readable only with a whole line: wait for that */
+        struct pollfd watch[2] = {{fd, POLLIN, 0}, {-1, 0, 0}};
+        struct poll_ctx ctx = {watch, 1};
+        int rc = fd_wait(s, poll_probe, &ctx, watch, 1, NO_DEADLINE, NULL);
+        return rc < 0 ? -1 : (ssize_t)n;
+    }
+    vmin = t.c_cc[VMIN];
+    vtime = (int64_t)t.c_cc[VTIME] * (NS / 10);
+    if (vmin == 0 && vtime == 0)
+        return (ssize_t)n;  /* never blocks */
+    want = vmin ? ((size_t)vmin < n ? (size_t)vmin : n) : 1;
+    if (vmin == 0)
+        deadline = add_sat(vnow(), vtime);
+    wfd = wake_fd(s);
+    for (;;) {
+        uint64_t act = activity();
+        int avail = inq(fd);
+        struct pollfd watch[2];
+        nfds_t k = 0;
+        if (avail < 0 || (size_t)avail >= want)
+            break;
+        if (vmin && vtime && avail > last) {  /* the inter-byte timer starts again at each byte */
+            last = avail;
+            deadline = add_sat(vnow(), vtime);
+        }
+        if (vnow() >= deadline) {
+            end_wait(s);
+            return avail;  /* VTIME ran out: what is there (0: none) */
+        }
+        begin_wait(s, deadline, SF_FDWAIT, port < 64 ? 1ull << port : 0, act, ST_WAITING);
+        if (inq(fd) != avail || vnow() >= deadline)
+            continue;
+        if (avail == 0) {
+            watch[k].fd = fd;
+            watch[k].events = POLLIN;
+            watch[k++].revents = 0;
+        }
+        if (wfd >= 0) {
+            watch[k].fd = wfd;
+            watch[k].events = POLLIN;
+            watch[k++].revents = 0;
+        }
+        if (wfd < 0) {
+            struct timespec slice = ns_ts(SLICE_NS);
+            REAL(ppoll)(watch, k, &slice, NULL);
+        } else if (REAL(ppoll)(watch, k, NULL, NULL) < 0 && errno == EINTR) {
+            end_wait(s);
+            return -1;
+        }
+        drain_wake_fd();
+    }
+    end_wait(s);
+    return (ssize_t)n;
+}
+
+static void count_read(int port, ssize_t got)
+{
+    if (got > 0) {
+        productive();
+        if (port >= 0)
+            __atomic_add_fetch(&PT[port].read, (uint64_t)got, __ATOMIC_SEQ_CST);
+    }
+}
+
+/* A read that found nothing (EAGAIN, or 0 from a VMIN=0/VTIME=0 pty): polling, K times in a row. */
+static int read_empty(struct vc_slot *s, int fd)
+{
+    struct pollfd watch[2] = {{fd, POLLIN, 0}, {-1, 0, 0}};
+    struct poll_ctx ctx = {watch, 1};
+    if (!unproductive(s))
+        return 0;
+    fd_wait(s, poll_probe, &ctx, watch, 1, add_sat(vnow(), (int64_t)quantum()), NULL);
+    return 1;
+}
+
+static int nonblocking(int fd) { return (int)syscall(SYS_fcntl, fd, F_GETFL) & O_NONBLOCK; }
+
+ssize_t read(int fd, void *buf, size_t n)
+{
+    struct vc_slot *s;
+    ssize_t got, size = (ssize_t)n;
+    int port, saved;
+    if (!vc_on || !(s = cur()))
+        return REAL(read)(fd, buf, n);
+    port = port_of(fd);
+    if (port >= 0 && !nonblocking(fd)) {
+        size = pty_wait(s, fd, port, n);
+        if (size <= 0)
+            return size;
+    }
+    got = REAL(read)(fd, buf, (size_t)size);
+    saved = errno;
+    count_read(port, got);
+    if ((got < 0 && (saved == EAGAIN || saved == EWOULDBLOCK)) || (got == 0 && port >= 0 && n > 0)) {
+        if (read_empty(s, fd)) {
+            got = REAL(read)(fd, buf, n);
+            saved = errno;
+            count_read(port, got);
+        }
+    }
+    errno = saved;
+    return got;
+}
+
+ssize_t __read_chk(int fd, void *buf, size_t n, size_t buflen)
+{
+    if (n > buflen)
+        abort();
+    return read(fd, buf, n);
+}
+
+ssize_t readv(int fd, const struct iovec *iov, int iovcnt)
+{
+    struct vc_slot *s;
+    ssize_t got;
+    size_t total = 0;
+    int port, i;
+    if (!vc_on || !(s = cur()))
+        return REAL(readv)(fd, iov, iovcnt);
+    port = port_of(fd);
+    for (i = 0; i < iovcnt; i++)
+        total += iov[i].iov_len;
+    if (port >= 0 && !nonblocking(fd)) {
+        ssize_t size = pty_wait(s, fd, port, total);
+        if (size <= 0)
+            return size;
+        if ((size_t)size < total) {  /* fewer than VMIN: read only what is there */
+            got = REAL(read)(fd, iov[0].iov_base, (size_t)size < iov[0].iov_len ? (size_t)size : iov[0].iov_len);
+            count_read(port, got);
+            return got;
+        }
+    }
+    got = REAL(readv)(fd, iov, iovcnt);
+    count_read(port, got);
+    return got;
+}
+
+/* shim.c: before an input flush (tcflush, TCFLSH), what it drops is counted for the loop. */
+__attribute__((visibility("hidden"))) void hb_vclock_flushing(int fd, int queue)
+{
+    int port, n;
+    if (!vc_on || (queue != TCIFLUSH && queue != TCIOFLUSH) || (port = port_of(fd)) < 0)
+        return;
+    n = inq(fd);
+    if (n > 0)
+        __atomic_add_fetch(&PT[port].discarded, (uint64_t)n, __ATOMIC_SEQ_CST);
+}
+
+/* shim.c: FIONREAD said 0. On a bench pty, K times in a row is polling: block a quantum (1: ask again). */
+__attribute__((visibility("hidden"))) int hb_vclock_empty(int fd)
+{
+    struct vc_slot *s;
+    if (!vc_on || port_of(fd) < 0 || !(s = cur()))
+        return 0;
+    return read_empty(s, fd);
 }

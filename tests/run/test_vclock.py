@@ -205,3 +205,34 @@ def test_without_a_clock_page_the_library_passes_through(library, clock_env):
     assert before <= a <= b <= after  # the machine's own monotonic clock
     assert b - a >= 0.05
     assert abs(wall - time.time()) < 5
+
+
+def test_bench_pty_reads_and_waits_in_virtual_time(clock, library, tmp_path):
+    """Blocking reads with VMIN/VTIME, select and poll on a bench pty, with bytes delivered at virtual instants;
+    the port's counters (read, written, discarded) on the page."""
+    cc = shutil.which("cc") or shutil.which("gcc")
+    if cc is None:
+        pytest.skip("no C compiler (cc or gcc): the C test client cannot be built")
+    exe = tmp_path / "vtime_pty"
+    subprocess.run([cc, "-O2", "-Wall", "-Wextra", "-Werror", "-o", str(exe), str(CLIENTS / "vtime_pty.c")],
+                   check=True, capture_output=True)
+    master, slave = os.openpty()
+    path = os.ttyname(slave)
+    try:
+        ctl = clock(ports=[(os.stat(path).st_rdev, slave)])
+        at = vp.ORIGIN_NS
+        for t, data in ((1.0, b"abc"), (2.0, b"ab"), (2.1, b"c"), (3.0, b"x"), (4.0, b"zz")):
+            ctl.deliver_at(at + round(t * S), 0, master, data)
+        stdout, _err, _wall = run(ctl, library, [str(exe), path], tmp_path)
+        got = {name: ((int(v) - at) / S, int(r)) for name, v, r in (line.split() for line in stdout.splitlines())}
+        assert got == {
+            "read_vtime": (0.5, 0), "read_vmin1": (1.0, 3), "read_vmin5_vtime2": (2.3, 3), "select": (3.0, 1),
+            "read_one": (3.0, 1), "poll": (3.25, 0), "write": (3.25, 5), "tcflush": (4.5, 0),
+        }
+        assert (ctl.port(0, vp.P_DELIVERED), ctl.port(0, vp.P_READ), ctl.port(0, vp.P_DISCARDED),
+                ctl.port(0, vp.P_WRITTEN)) == (9, 7, 2, 5)
+        assert os.read(master, 64) == b"hello"
+        assert ctl.stalls == 0
+    finally:
+        os.close(master)
+        os.close(slave)

@@ -2,7 +2,8 @@
 
 It owns a clock page (:mod:`hilbench.run.vclock_page`) and the FIFOs beside it, and
 advances virtual time when every live client thread waits: to the earliest deadline
-(a sleep's end, a timeout, a poller's quantum), with no bench events of its own. A
+(a sleep's end, a timeout, a poller's quantum) or scheduled delivery (bytes written
+to a pty master at a virtual instant, settled before the waiters on that port wake). A
 waiter on something a client hands over (``SF_FOREIGN``) is woken to re-check when
 ``activity`` moved since it began to wait. A thread that runs without waiting for
 ``stall`` wall seconds starts a lockstep stall: time then follows the wall clock until
@@ -13,12 +14,15 @@ The page's atomics come from the shim library itself (``hb_vclock_cas32`` and fr
 from __future__ import annotations
 
 import ctypes
+import fcntl
+import heapq
 import mmap
 import os
 import select
 import struct
 import subprocess
 import sys
+import termios
 import time
 from pathlib import Path
 
@@ -27,10 +31,13 @@ from hilbench.run import vclock_page as vp
 
 class VtController:
     def __init__(self, directory: Path, library: str | os.PathLike[str], *, nslots: int = 32, poll_k: int = 32,
-                 quantum_ns: int = 100_000, stall: float = 1.0, epoch_ns: int | None = None) -> None:
+                 quantum_ns: int = 100_000, stall: float = 1.0, epoch_ns: int | None = None,
+                 ports: list[tuple[int, int]] = ()) -> None:
+        """``ports``: (rdev, slave fd) of each bench pty; the controller reads FIONREAD on the slave to settle."""
         self.dir, self.nslots, self.stall = Path(directory), nslots, stall
+        self.ports = list(ports)
         self.page = self.dir / vp.PAGE_FILE
-        size = vp.page_size(nslots, 0)
+        size = vp.page_size(nslots, len(self.ports))
         self.page.write_bytes(bytes(size))
         os.mkfifo(self.dir / vp.NOTIFY_FILE)
         for i in range(nslots):
@@ -48,7 +55,10 @@ class VtController:
         self.u32, self.u64 = memoryview(self.map).cast("I"), memoryview(self.map).cast("Q")
         m = self.map
         m[0:8] = vp.MAGIC
-        struct.pack_into("III", m, vp.H_VERSION, vp.VERSION, nslots, 0)
+        struct.pack_into("III", m, vp.H_VERSION, vp.VERSION, nslots, len(self.ports))
+        for i, (rdev, _slave) in enumerate(self.ports):
+            struct.pack_into("Q", m, vp.port_offset(nslots, i) + vp.P_RDEV, rdev)
+        self._events: list[tuple[int, int, int, int, bytes]] = []  # (t, seq, port, master fd, data)
         struct.pack_into("QQ", m, vp.H_VNOW, vp.ORIGIN_NS, time.time_ns() if epoch_ns is None else epoch_ns)
         struct.pack_into("I", m, vp.H_POLL_K, poll_k)
         struct.pack_into("Q", m, vp.H_POLL_QUANTUM, quantum_ns)
@@ -80,6 +90,35 @@ class VtController:
     @property
     def env(self) -> dict[str, str]:
         return {vp.ENV: str(self.page)}
+
+    def port(self, i: int, off: int) -> int:
+        return self.u64[(vp.port_offset(self.nslots, i) + off) // 8]
+
+    def deliver_at(self, t: int, port: int, master: int, data: bytes) -> None:
+        """Write ``data`` to ``master`` (port record ``port``) when virtual time reaches ``t`` ns."""
+        heapq.heappush(self._events, (t, len(self._events), port, master, data))
+
+    def _run_events(self, v: int) -> None:
+        woken: set[int] = set()
+        while self._events and self._events[0][0] <= v:
+            _t, _seq, port, master, data = heapq.heappop(self._events)
+            os.write(master, data)
+            off = (vp.port_offset(self.nslots, port) + vp.P_DELIVERED) // 8
+            self.u64[off] += len(data)
+            woken.add(port)
+        for port in woken:  # settle: the client sees every delivered byte before it is woken
+            unread = self.port(port, vp.P_DELIVERED) - self.port(port, vp.P_READ) - self.port(port, vp.P_DISCARDED)
+            end = time.monotonic() + 0.5
+            while self._inq(self.ports[port][1]) < unread and time.monotonic() < end:
+                pass
+        for i, state, _d, flags, *_ in self._scan():
+            ports = self.s64(i, vp.S_PORTS)
+            if state == vp.WAITING and flags & vp.SF_FDWAIT and any(ports >> p & 1 for p in woken):
+                self._wake(i)
+
+    @staticmethod
+    def _inq(fd: int) -> int:
+        return struct.unpack("i", fcntl.ioctl(fd, termios.FIONREAD, b"\0" * 4))[0]
 
     def _set(self, off: int, value: int) -> None:
         self.u64[off // 8] = value
@@ -126,6 +165,7 @@ class VtController:
     def _advance(self, v: int) -> None:
         self._set(vp.H_VNOW, v)
         self._set(vp.H_ROUND, self.h(vp.H_ROUND) + 1)
+        self._run_events(v)
         for i, state, deadline, *_ in self._scan():
             if state in (vp.WAITING, vp.POLLING) and deadline <= v:
                 self._wake(i)
@@ -166,7 +206,7 @@ class VtController:
                     self._set(vp.H_STALLED_NS, self.h(vp.H_STALLED_NS) + self.vnow - stall_at[0])
                     self.u32[vp.H_FLAGS // 4] &= ~vp.FLAG_STALL
                     stall_at = None
-                nxt = min(d for _i, _st, d, *_ in live)
+                nxt = min([d for _i, _st, d, *_ in live] + [e[0] for e in self._events[:1]])
                 if nxt != vp.NO_DEADLINE:
                     self.advances += 1
                     self._advance(max(self.vnow, nxt))
