@@ -187,7 +187,7 @@ R(sem_wait); R(sem_timedwait); R(sem_clockwait); R(sem_post);
 R(pthread_cond_wait); R(pthread_cond_timedwait); R(pthread_cond_clockwait); R(pthread_cond_signal);
 R(pthread_cond_broadcast); R(pthread_create); R(pthread_join); R(fork);
 R(execve); R(execvpe); R(fexecve); R(posix_spawn); R(posix_spawnp);
-R(waitpid); R(wait4); R(waitid); R(send); R(sendto); R(sendmsg); R(read); R(readv);
+R(waitpid); R(wait4); R(waitid); R(send); R(sendto); R(sendmsg); R(read); R(readv); R(epoll_ctl);
 R(alarm); R(setitimer); R(timer_settime); R(timerfd_settime);
 static int (*r_epoll_pwait2)(int, struct epoll_event *, int, const struct timespec *, const sigset_t *);
 static int resolved;
@@ -201,7 +201,7 @@ static void resolve(void)
     D(pthread_cond_wait); D(pthread_cond_timedwait); D(pthread_cond_clockwait); D(pthread_cond_signal);
     D(pthread_cond_broadcast); D(pthread_create); D(pthread_join); D(fork);
     D(execve); D(execvpe); D(fexecve); D(posix_spawn); D(posix_spawnp);
-    D(waitpid); D(wait4); D(waitid); D(send); D(sendto); D(sendmsg); D(read); D(readv);
+    D(waitpid); D(wait4); D(waitid); D(send); D(sendto); D(sendmsg); D(read); D(readv); D(epoll_ctl);
     D(alarm); D(setitimer); D(timer_settime); D(timerfd_settime);
 #undef D
     __atomic_store_n(&resolved, 1, __ATOMIC_RELEASE);
@@ -407,8 +407,13 @@ static long futex_wait(uint32_t *addr, uint32_t val, const struct timespec *rel)
 static void productive(void)
 {
     struct vc_slot *s = vc_on && !t_off ? t_me : NULL;
-    if (s)
-        s->unproductive = 0;
+    uint32_t st;
+    if (!s)
+        return;
+    s->unproductive = 0;
+    st = __atomic_load_n(&s->state, __ATOMIC_RELAXED);
+    if (st == ST_POLLING || st == ST_WOKEN)  /* it found something: it computes now, and holds the clock */
+        __atomic_store_n(&s->state, ST_RUNNING, __ATOMIC_SEQ_CST);
 }
 
 /* One more call that found nothing; 1 when the thread counts as polling now. */
@@ -701,10 +706,17 @@ unsigned int sleep(unsigned int seconds)
 #define VC_FD_CACHE 65536
 static unsigned char vc_fd_port[VC_FD_CACHE];
 
+/* epoll descriptors: the bench ports in their sets (bit 63: something else too). Only grows until the
+ * epoll descriptor is closed: a port removed from a set at most costs the slot a spurious wake. */
+static uint64_t *ep_ports;
+
 __attribute__((visibility("hidden"))) void hb_vclock_forget(int fd)
 {
-    if (fd >= 0 && fd < VC_FD_CACHE)
+    if (fd >= 0 && fd < VC_FD_CACHE) {
         __atomic_store_n(&vc_fd_port[fd], 0, __ATOMIC_RELAXED);
+        if (ep_ports)
+            __atomic_store_n(&ep_ports[fd], 0, __ATOMIC_RELAXED);
+    }
 }
 
 /* The bench port record behind fd, or -1. */
@@ -729,22 +741,50 @@ static int port_of(int fd)
     return i;
 }
 
-/* Which of `fds` are bench ports (a bitmask), and whether any is not (then the wait is foreign). */
+#define EP_FOREIGN (1ull << 63)
+
+/* Which of `fds` are bench ports (a bitmask), and whether any is not (then the wait is foreign); an
+ * epoll descriptor stands for its set. */
 static uint64_t ports_of(const struct pollfd *fds, nfds_t n, int *foreign)
 {
     uint64_t mask = 0;
     nfds_t i;
     for (i = 0; i < n; i++) {
-        int p;
-        if (fds[i].fd < 0)
+        int fd = fds[i].fd, p;
+        uint64_t ep;
+        if (fd < 0)
             continue;
-        p = port_of(fds[i].fd);
-        if (p < 0)
+        if (ep_ports && fd < VC_FD_CACHE && (ep = __atomic_load_n(&ep_ports[fd], __ATOMIC_RELAXED)) != 0) {
+            mask |= ep & ~EP_FOREIGN;
+            *foreign |= (ep & EP_FOREIGN) != 0;
+            continue;
+        }
+        p = port_of(fd);
+        if (p < 0 || p >= 63)
             *foreign = 1;
         else
             mask |= 1ull << p;
     }
     return mask;
+}
+
+int epoll_ctl(int ep, int op, int fd, struct epoll_event *ev)
+{
+    int rc = REAL(epoll_ctl)(ep, op, fd, ev);
+    if (rc == 0 && vc_on && nports && (op == EPOLL_CTL_ADD || op == EPOLL_CTL_MOD) && ep >= 0 && ep < VC_FD_CACHE) {
+        int p = port_of(fd);
+        if (!ep_ports) {  /* first use: 512 KiB of address space, touched only where used */
+            uint64_t *t = mmap(NULL, VC_FD_CACHE * sizeof *t, PROT_READ | PROT_WRITE, MAP_PRIVATE | MAP_ANONYMOUS,
+                               -1, 0);
+            uint64_t *expected = NULL;
+            if (t == MAP_FAILED)
+                return rc;
+            if (!__atomic_compare_exchange_n(&ep_ports, &expected, t, 0, __ATOMIC_SEQ_CST, __ATOMIC_SEQ_CST))
+                munmap(t, VC_FD_CACHE * sizeof *t);
+        }
+        __atomic_or_fetch(&ep_ports[ep], p < 0 || p >= 63 ? EP_FOREIGN : 1ull << p, __ATOMIC_RELAXED);
+    }
+    return rc;
 }
 
 /* One look with a zero timeout (the real call on the caller's own arguments): >0 ready, 0 nothing,

@@ -128,7 +128,7 @@ def test_python_client_waits_in_virtual_time(clock, library, tmp_path):
     assert got == {
         "time.sleep": S, "time.time": S, "select.select": S // 2, "select.poll": S // 4, "select.epoll": S * 3 // 2,
         "selectors": S // 4, "Event.wait": S * 3 // 2, "Lock.acquire": S * 3 // 4, "Condition.wait": S // 2,
-        "queue.get": 2 * S, "Thread.join": S, "Event.set_by_thread": S // 4, "queue.put_by_thread": S // 8,
+        "queue.get": 2 * S, "socket.recv": S * 3 // 4, "Thread.join": S, "Event.set_by_thread": S // 4, "queue.put_by_thread": S // 8,
         "selectors_ready": S // 2, "total": 60 * S,
     }
     assert rest > 40 * S
@@ -208,7 +208,7 @@ def test_without_a_clock_page_the_library_passes_through(library, clock_env):
 
 
 def test_bench_pty_reads_and_waits_in_virtual_time(clock, library, tmp_path):
-    """Blocking reads with VMIN/VTIME, select and poll on a bench pty, with bytes delivered at virtual instants;
+    """Blocking reads with VMIN/VTIME, select, poll and epoll on a bench pty, with bytes delivered at virtual instants;
     the port's counters (read, written, discarded) on the page."""
     cc = shutil.which("cc") or shutil.which("gcc")
     if cc is None:
@@ -221,16 +221,17 @@ def test_bench_pty_reads_and_waits_in_virtual_time(clock, library, tmp_path):
     try:
         ctl = clock(ports=[(os.stat(path).st_rdev, slave)])
         at = vp.ORIGIN_NS
-        for t, data in ((1.0, b"abc"), (2.0, b"ab"), (2.1, b"c"), (3.0, b"x"), (4.0, b"zz")):
+        for t, data in ((1.0, b"abc"), (2.0, b"ab"), (2.1, b"c"), (3.0, b"x"), (3.5, b"e"), (4.0, b"zz")):
             ctl.deliver_at(at + round(t * S), 0, master, data)
         stdout, _err, _wall = run(ctl, library, [str(exe), path], tmp_path)
         got = {name: ((int(v) - at) / S, int(r)) for name, v, r in (line.split() for line in stdout.splitlines())}
         assert got == {
             "read_vtime": (0.5, 0), "read_vmin1": (1.0, 3), "read_vmin5_vtime2": (2.3, 3), "select": (3.0, 1),
-            "read_one": (3.0, 1), "poll": (3.25, 0), "write": (3.25, 5), "tcflush": (4.5, 0),
+            "read_one": (3.0, 1), "poll": (3.25, 0), "epoll_wait": (3.5, 1), "read_e": (3.5, 1), "write": (3.5, 5),
+            "tcflush": (4.5, 0),
         }
         assert (ctl.port(0, vp.P_DELIVERED), ctl.port(0, vp.P_READ), ctl.port(0, vp.P_DISCARDED),
-                ctl.port(0, vp.P_WRITTEN)) == (9, 7, 2, 5)
+                ctl.port(0, vp.P_WRITTEN)) == (10, 8, 2, 5)
         assert os.read(master, 64) == b"hello"
         assert ctl.stalls == 0
     finally:

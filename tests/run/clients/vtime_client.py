@@ -7,6 +7,7 @@ import os
 import queue
 import select
 import selectors
+import socket
 import threading
 import time
 
@@ -57,6 +58,19 @@ def queue_get():
 
 
 measure("queue.get", queue_get)
+sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+sock.bind(("127.0.0.1", 0))
+sock.settimeout(0.75)
+
+
+def recv_timeout():
+    try:
+        sock.recv(10)
+    except TimeoutError:
+        pass
+
+
+measure("socket.recv", recv_timeout)
 later = threading.Thread(target=time.sleep, args=(1,))
 measure("Thread.join", lambda: (later.start(), later.join()))
 ev = threading.Event()

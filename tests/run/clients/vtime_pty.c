@@ -7,6 +7,7 @@
 #include <stdint.h>
 #include <stdio.h>
 #include <string.h>
+#include <sys/epoll.h>
 #include <sys/select.h>
 #include <termios.h>
 #include <time.h>
@@ -58,6 +59,16 @@ int main(int argc, char **argv)
     pf.events = POLLIN;
     rc = poll(&pf, 1, 250);
     printf("poll %lld %d\n", now(), rc);
+    {
+        int ep = epoll_create1(0);
+        struct epoll_event ev = {.events = EPOLLIN, .data.fd = fd}, out[2];
+        epoll_ctl(ep, EPOLL_CTL_ADD, fd, &ev);
+        rc = epoll_wait(ep, out, 2, 5000);
+        printf("epoll_wait %lld %d\n", now(), rc);  /* "e" at 1003.5 */
+        close(ep);
+        rc = (int)read(fd, buf, 1);
+        printf("read_e %lld %d\n", now(), buf[0] == 'e' ? rc : -1);
+    }
     rc = (int)write(fd, "hello", 5);
     printf("write %lld %d\n", now(), rc);
     until.tv_sec = 1004;
