@@ -1449,7 +1449,7 @@ pid_t fork(void)
     pid = REAL(fork)();
     if (pid == 0) {
         vc_pid = getpid();
-        t_wfd = -1;  /* the parent's FIFO: a copy, closed by our exit or the next exec (O_CLOEXEC) */
+        close_wake_fd();  /* our copy of the parent's slot's FIFO */
         t_me = child;
         t_off = child == NULL;
         if (child) {
