@@ -181,6 +181,18 @@ class Board:
         with self.lock:
             return self.fw.robot.state(self.fw.now)
 
+    def body_velocity(self, t: float) -> tuple[float, float, float]:
+        """What the wheels do at monotonic time ``t``: the body-frame velocity (m/s, m/s, rad/s) they give the
+        board's world body (a world driver, :meth:`hilbench.fakes.world.World.drive`); zero before start.
+        The robot model is advanced no further than the firmware ran, so a setpoint the firmware has yet
+        to receive is not overtaken."""
+        if self.wall0 is None:
+            return 0.0, 0.0, 0.0
+        with self.lock:
+            fw = self.fw
+            fw.robot.advance(min((t - self.wall0) * 1e6 - self.boot_offset, fw.now))
+            return fw.robot.body_velocity()
+
     def status(self) -> dict[str, Any]:
         """A JSON-able summary: time, counters, robot, faults, last log lines."""
         with self.lock:
