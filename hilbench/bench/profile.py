@@ -302,6 +302,8 @@ def parse_profile(data: dict[str, Any], path: str = "<profile>") -> Profile:
         profile.world = check_world(c, data["world"])
         if profile.world.scene is not None and "scene" in data:
             c.fail("scene", "the world's geometry is given in [world] already: move these keys there")
+        if profile.world.scene is not None:
+            profile.tables["scene"] = profile.world.scene  # (where readers of the older [scene] look)
     for i, dev in enumerate(raw_devs):
         profile.devices.extend(_devices(c, f"devices[{i}]", dev, profile))
     for name, spec in endpoints.items():

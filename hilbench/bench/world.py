@@ -229,20 +229,6 @@ def build_world(profile, t: float) -> World:
     return World(scene, bodies, t0=t, step=1.0 / spec.step_hz)
 
 
-def driver(device: Any, slip: float = 0.0):
-    """A world driver for a device with ``body_velocity(t)`` (the rover boards): that velocity, less the
-    ``slip`` share the wheels lose on the floor."""
-    if not slip:
-        return device.body_velocity
-    keep = 1.0 - slip
-
-    def drive(t: float) -> tuple[float, float, float]:
-        vx, vy, w = device.body_velocity(t)
-        return vx * keep, vy * keep, w * keep
-
-    return drive
-
-
 class BodyView:
     """A body of a running bench, as tests see it: :attr:`pose` now (x, y, theta), :attr:`velocity`."""
 
@@ -397,4 +383,4 @@ def refuse_second_driver(world: World, body: str, device: str) -> None:
 
 __all__ = ["BenchWorld", "BodySpec", "BodyView", "MAX_EDGES", "SCENE_KEYS", "WORLD_KEYS", "WorldSpec",
            "build_world", "check_body", "check_odometry", "check_pose", "check_scene", "check_world", "control",
-           "driver", "refuse_second_driver"]
+           "refuse_second_driver"]

@@ -50,7 +50,7 @@ SCAN_HISTORY = 4096
 #: Rays cast at once when each has its own origin (bounds the rays x edges arrays).
 RAY_CHUNK = 256
 
-Driver = Callable[[float], tuple[float, float, float]]
+Driver = Callable[[float], tuple[Any, float, float, float, float, float, float]]
 
 
 @dataclass(frozen=True)
@@ -91,6 +91,28 @@ def _wrap(a: float) -> float:
     return math.atan2(math.sin(a), math.cos(a))
 
 
+def twist_motion(vx: float, vy: float, w: float, dt: float) -> tuple[float, float, float]:
+    """The motion (dx, dy, dtheta; frame at its start) of a constant body-frame twist over ``dt`` (exact)."""
+    th = w * dt
+    if abs(th) < 1e-9:
+        return vx * dt, vy * dt, th
+    s, c = math.sin(th), math.cos(th)
+    return (vx * s - vy * (1 - c)) / w, (vx * (1 - c) + vy * s) / w, th
+
+
+def compose(a: tuple[float, float, float], b: tuple[float, float, float]) -> tuple[float, float, float]:
+    """Pose ``b`` (in ``a``'s frame) after pose ``a``."""
+    c, s = math.cos(a[2]), math.sin(a[2])
+    return a[0] + c * b[0] - s * b[1], a[1] + s * b[0] + c * b[1], a[2] + b[2]
+
+
+def relative(a: tuple[float, float, float], b: tuple[float, float, float]) -> tuple[float, float, float]:
+    """Pose ``b`` seen from pose ``a`` (``compose(a, relative(a, b)) == b``)."""
+    c, s = math.cos(a[2]), math.sin(a[2])
+    dx, dy = b[0] - a[0], b[1] - a[1]
+    return c * dx + s * dy, -s * dx + c * dy, b[2] - a[2]
+
+
 @dataclass
 class Body:
     """A named rigid body: footprint, pose, velocity (world frame: vx, vy m/s, omega rad/s) and its driver."""
@@ -104,8 +126,12 @@ class Body:
     vy: float = 0.0
     omega: float = 0.0
     reflectivity: float = 0.8
-    #: Body-frame velocity (vx, vy, omega) at a time; None: the body keeps the velocity it was given.
+    #: What moves it: ``driver(t)`` -> (epoch, x, y, theta, vx, vy, omega): the motion its wheels made up to
+    #: ``t`` (in the frame they started in; a new epoch starts from zero) and its body-frame velocity now.
+    #: None: the body moves at :attr:`command`.
     driver: Driver | None = None
+    #: Share of the driver's motion the body loses (wheels slipping on the floor), 0..1.
+    slip: float = 0.0
     #: Body-frame velocity of a body without driver (``World.set_velocity``).
     command: tuple[float, float, float] = (0.0, 0.0, 0.0)
     #: Whether the last step's move was refused (the footprint would have met something).
@@ -113,7 +139,7 @@ class Body:
     collisions: int = 0
     #: (t, x, y, theta, vx, vy, omega) per step, oldest first.
     history: collections.deque = field(default_factory=lambda: collections.deque(maxlen=int(HISTORY_S / STEP)))
-    _body_v: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    _motion: tuple[Any, float, float, float] | None = None  # the driver's last reading (epoch, x, y, theta)
 
     @property
     def pose(self) -> Pose2:
@@ -182,9 +208,11 @@ class World:
         except KeyError:
             raise KeyError(f"no body named {name!r} (bodies: {', '.join(self.bodies) or 'none'})") from None
 
-    def drive(self, name: str, driver: Driver | None) -> None:
-        """Let ``driver(t) -> (vx, vy, omega)`` (body frame, m/s and rad/s) move body ``name``."""
-        self.body(name).driver = driver
+    def drive(self, name: str, driver: Driver | None, slip: float = 0.0) -> None:
+        """Let ``driver`` (see :attr:`Body.driver`) move body ``name``, losing ``slip`` of its motion."""
+        b = self.body(name)
+        with self.lock:
+            b.driver, b.slip, b._motion = driver, float(slip), None
 
     def set_velocity(self, name: str, vx: float = 0.0, vy: float = 0.0, omega: float = 0.0) -> None:
         """The body-frame velocity of a body nothing drives (from the next step on)."""
@@ -207,41 +235,53 @@ class World:
         """Advance every body to time ``t`` (default: the clock now)."""
         t = self.clock() if t is None else t
         # Drivers first, outside the world's lock (each takes its own device's lock).
-        wanted = {name: (b.driver(t) if b.driver is not None else b.command) for name, b in self.bodies.items()}
+        readings = {name: b.driver(t) for name, b in self.bodies.items() if b.driver is not None}
         with self.lock:
             dt = t - self.t
             if dt <= 0:
                 return
             mover_segs, _, mover_circ, _ = self._movers(t)
             for name, b in self.bodies.items():
-                self._advance(b, dt, t, mover_segs, mover_circ)
-                b._body_v = tuple(float(v) for v in wanted[name])
+                m = readings.get(name)
+                if m is None or b.driver is None:
+                    delta, bv = twist_motion(*b.command, dt), b.command
+                else:
+                    epoch, mx, my, mth, bvx, bvy, bw = m
+                    last = b._motion
+                    # (a driver's motion counts from its start, where the body stood; a new epoch from zero)
+                    base = (0.0, 0.0, 0.0) if last is None or last[0] != epoch else last[1:]
+                    b._motion = (epoch, mx, my, mth)
+                    keep = 1.0 - b.slip
+                    dx, dy, dth = relative(base, (mx, my, mth))
+                    delta, bv = (dx * keep, dy * keep, dth * keep), (bvx * keep, bvy * keep, bw * keep)
+                self._move(b, delta, mover_segs, mover_circ)
+                if b.blocked:
+                    bv = (0.0, 0.0, 0.0)  # the truth stands; what drives it may not know
                 c, s = math.cos(b.theta), math.sin(b.theta)
-                bvx, bvy, bw = b._body_v
-                b.vx, b.vy, b.omega = c * bvx - s * bvy, s * bvx + c * bvy, bw
-                b.history[-1] = (*b.history[-1][:4], b.vx, b.vy, b.omega)
+                b.vx, b.vy, b.omega = c * bv[0] - s * bv[1], s * bv[0] + c * bv[1], bv[2]
+                b.history.append((t, b.x, b.y, b.theta, b.vx, b.vy, b.omega))
             self.t = t
             self.steps += 1
         for listener in list(self.listeners):
             listener.on_step(self, t)
 
-    def _advance(self, b: Body, dt: float, t: float, mover_segs: np.ndarray, mover_circ: np.ndarray) -> None:
-        bvx, bvy, bw = b._body_v
-        if bvx or bvy or bw:
-            mid = b.theta + bw * dt / 2
-            c, s = math.cos(mid), math.sin(mid)
-            nx, ny, nth = b.x + (c * bvx - s * bvy) * dt, b.y + (s * bvx + c * bvy) * dt, _wrap(b.theta + bw * dt)
-            if self.collides(b, nx, ny, nth, mover_segs, mover_circ) and \
-                    not self.collides(b, b.x, b.y, b.theta, mover_segs, mover_circ):
-                if not b.blocked:
-                    b.collisions += 1
-                b.blocked = True
-            else:
-                b.blocked = False
-                b.x, b.y, b.theta = nx, ny, nth
+    def _move(self, b: Body, delta: tuple[float, float, float], mover_segs: np.ndarray,
+              mover_circ: np.ndarray) -> None:
+        """Move ``b`` by ``delta`` (its own frame) unless its footprint would meet something it does not meet
+        now (then it stays: blocked)."""
+        if not any(delta):
+            b.blocked = False
+            return
+        nx, ny, nth = compose((b.x, b.y, b.theta), delta)
+        nth = _wrap(nth)
+        if self.collides(b, nx, ny, nth, mover_segs, mover_circ) and \
+                not self.collides(b, b.x, b.y, b.theta, mover_segs, mover_circ):
+            if not b.blocked:
+                b.collisions += 1
+            b.blocked = True
         else:
             b.blocked = False
-        b.history.append((t, b.x, b.y, b.theta, b.vx, b.vy, b.omega))
+            b.x, b.y, b.theta = nx, ny, nth
 
     def _movers(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The movers' edges and circles (and reflectivities) at time ``t``."""
@@ -393,6 +433,8 @@ class World:
         return rng, cos_inc, refl
 
     def _body_geometry(self, t: float, exclude: str | None):
+        if not self.bodies:
+            return np.zeros((0, 4)), np.zeros(0), np.zeros((0, 3)), np.zeros(0)
         segs, srefl, circ, crefl = [], [], [], []
         for name, b in self.bodies.items():
             if name == exclude:
@@ -606,5 +648,5 @@ def read_record(path: str) -> dict[str, Any]:
     return out
 
 
-__all__ = ["Body", "Driver", "Pose2", "Recorder", "STEP", "ScanRecord", "Shape", "World", "cast_rays",
-           "footprint_hits", "read_record"]
+__all__ = ["Body", "Driver", "Pose2", "Recorder", "STEP", "ScanRecord", "Shape", "World", "cast_rays", "compose",
+           "footprint_hits", "read_record", "relative", "twist_motion"]

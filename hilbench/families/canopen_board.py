@@ -38,7 +38,6 @@ from hilbench.bench.control import ControlClient, ControlError, ControlRequestEr
 from hilbench.bench.family import DeviceFamily, DeviceSpec, FamilyAccess
 from hilbench.bench.knobs import KnobRules, check_fault_table, check_knobs, requested_knobs
 from hilbench.bench.world import check_odometry, refuse_second_driver
-from hilbench.bench.world import driver as world_driver
 from hilbench.rules import SWITCH, Rule
 
 if TYPE_CHECKING:
@@ -143,7 +142,7 @@ class CanopenBoardFamily(DeviceFamily):
             endpoint.add_device(spec.name, node)
             if spec.body is not None:  # RPDO1 setpoints move the body through the firmware's motion model
                 refuse_second_driver(bench.world.world, spec.body, spec.name)
-                bench.world.world.drive(spec.body, world_driver(node, spec.odometry["slip"]))
+                bench.world.world.drive(spec.body, node.body_motion, spec.odometry["slip"])
 
     def start(self, endpoint, devices: dict[str, Any], t: float) -> None:
         now = time.monotonic()  # power-up happens now: the boot-up and the heartbeat phase count from here

@@ -46,7 +46,6 @@ from hilbench.bench.control import ControlClient, ControlError, ControlRequestEr
 from hilbench.bench.family import DeviceFamily, DeviceSpec, FamilyAccess
 from hilbench.bench.knobs import check_fault_table, check_knobs
 from hilbench.bench.world import check_odometry, refuse_second_driver
-from hilbench.bench.world import driver as world_driver
 from hilbench.rules import FAULT_COUNT, PROBABILITY, Rule, RuleError
 
 if TYPE_CHECKING:
@@ -238,7 +237,7 @@ class Stm32RoverFamily(DeviceFamily):
             endpoint.add_device(dev.name, board)
             if dev.body is not None:  # the firmware's motion model moves its body, whichever door the setpoint took
                 refuse_second_driver(bench.world.world, dev.body, dev.name)
-                bench.world.world.drive(dev.body, world_driver(board, dev.odometry["slip"]))
+                bench.world.world.drive(dev.body, board.body_motion, dev.odometry["slip"])
 
     def start(self, endpoint, devices: dict[str, Any], t: float) -> None:
         for board in devices.values():

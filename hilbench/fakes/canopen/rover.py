@@ -101,14 +101,16 @@ class RoverNode(CanopenNode):
         return Robot(CONTROL_PERIOD_US, CONTROL_PERIOD_US, first_cycle_us=0.0, encoder_noise=self.encoder_noise,
                      seed=self.seed)
 
-    def body_velocity(self, t: float) -> tuple[float, float, float]:
-        """What the wheels do at monotonic time ``t``: the body-frame velocity (m/s, m/s, rad/s) they give the
-        node's world body (a world driver); zero before start."""
+    def body_motion(self, t: float) -> tuple[int, float, float, float, float, float, float]:
+        """What the wheels did up to monotonic time ``t``, for its world body (a world driver): (epoch, x, y,
+        theta of the motion since power-up or reset in metres and radians, body-frame vx, vy, omega now)."""
         if not self._started:
-            return 0.0, 0.0, 0.0
+            return 0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
         with self._robot_lock:
-            self.robot.advance(max(0.0, self._t_us(t)))
-            return self.robot.body_velocity()
+            robot = self.robot
+            t_us = max(0.0, self._t_us(t))
+            robot.advance(t_us)
+            return (id(robot), *robot.motion_at(t_us), *robot.body_velocity())
 
     # ------------------------------------------------------------------ NMT hooks
 

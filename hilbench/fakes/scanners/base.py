@@ -22,6 +22,7 @@ import collections
 import math
 import time
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -63,7 +64,7 @@ class Scanner:
         self.body = body
         self.pose = pose
         self.model = model
-        self._points: collections.deque[tuple[np.ndarray, np.ndarray]] = collections.deque(maxlen=self.POINT_BATCHES)
+        self._points: collections.deque[tuple[Any, ...]] = collections.deque(maxlen=self.POINT_BATCHES)
         self.port = None
         self.truth: collections.deque[TruthScan] = collections.deque(maxlen=self.TRUTH_SCANS)
         self.counters: dict[str, int] = collections.Counter()
@@ -83,13 +84,12 @@ class Scanner:
         """World directions (rad) of beams at sensor-convention angles from the (fixed) mounting pose."""
         return self.directions(np.asarray(sensor_deg, float), math.radians(self.pose.heading))
 
-    def origins(self, sensor_deg: np.ndarray, times: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Where each beam starts and which world direction it takes (arrays x, y, direction rad) when beam k
-        is taken at ``times[k]``: from the body's pose then, or from the fixed pose."""
+    def origins(self, sensor_deg: np.ndarray, times: np.ndarray) -> tuple[Any, Any, np.ndarray]:
+        """Where each beam starts and which world direction it takes (x, y: arrays, or numbers for a scanner
+        fixed in the world; directions in rad) when beam k is taken at ``times[k]``."""
         p = self.pose
-        if self.body is None:
-            n = len(sensor_deg)
-            return np.full(n, p.x), np.full(n, p.y), self.world_angles(sensor_deg)
+        if self.body is None:  # (scalars: the world's caster then takes the cached path for a fixed origin)
+            return p.x, p.y, self.world_angles(sensor_deg)
         bx, by, bth = self.world.poses_at(self.body, times)
         c, s = np.cos(bth), np.sin(bth)
         return (bx + c * p.x - s * p.y, by + s * p.x + c * p.y,
@@ -103,19 +103,20 @@ class Scanner:
         times = np.full(len(sensor_deg), t) if times is None else np.asarray(times, float)
         ox, oy, dirs = self.origins(sensor_deg, times)
         rng, cos_inc, refl = self.world.cast(ox, oy, dirs, t, max_range=self.model.max_range, exclude=self.body)
-        hit = np.isfinite(rng)
-        self._points.append((ox[hit] + rng[hit] * np.cos(dirs[hit]), oy[hit] + rng[hit] * np.sin(dirs[hit])))
+        self._points.append((ox, oy, dirs, rng))  # (turned into points only when a view asks)
         meas, power = self.model.measure(rng, cos_inc, refl)
         return rng, meas, power
 
     def points(self, limit: int = 2000) -> list[list[float]]:
         """World points (x, y) the most recent beams hit (truth, newest last; for top-down views)."""
-        batches = list(self._points)
-        if not batches:
+        xs, ys = [], []
+        for ox, oy, dirs, rng in list(self._points):
+            hit = np.isfinite(rng)
+            xs.append((ox[hit] if np.ndim(ox) else ox) + rng[hit] * np.cos(dirs[hit]))
+            ys.append((oy[hit] if np.ndim(oy) else oy) + rng[hit] * np.sin(dirs[hit]))
+        if not xs:
             return []
-        xs = np.concatenate([b[0] for b in batches])[-limit:]
-        ys = np.concatenate([b[1] for b in batches])[-limit:]
-        return np.stack([xs, ys], axis=1).round(4).tolist()
+        return np.stack([np.concatenate(xs)[-limit:], np.concatenate(ys)[-limit:]], axis=1).round(4).tolist()
 
     def truth_range(self, sensor_deg: float, t: float | None = None) -> float:
         """The true range (m) of one beam at a sensor angle (for tests computing the truth by hand)."""

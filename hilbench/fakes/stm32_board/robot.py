@@ -21,9 +21,10 @@ with numpy:
   each wheel's delta per pose cycle while it turns): odometry and the
   encoder counts then drift from what the wheels did.
 
-What the wheels *do* (:meth:`Robot.body_velocity`) is the truth a world body
-is driven with (:mod:`hilbench.fakes.world`); what the firmware integrates
-is its odometry. A body that meets a wall stops; the wheels and the odometry
+What the wheels *do* is the truth a world body is driven with
+(:mod:`hilbench.fakes.world`): :meth:`Robot.motion_at` integrates their
+motion exactly (constant wheel speeds between pose cycles: one SE(2)
+exponential per stretch), whatever the firmware's odometry makes of it. A body that meets a wall stops; the wheels and the odometry
 run on.
 """
 
@@ -34,6 +35,8 @@ from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
+
+from hilbench.fakes.world import compose, twist_motion
 
 WHEEL_RADIUS = 50.0  # mm
 L_W_HALF = (325.0 + 300.0) / 2  # mm
@@ -99,6 +102,8 @@ class Robot:
         self.dropped = 0
         #: How far each wheel (fr, fl, bl, br) has turned in total (rad): what its encoder counts.
         self.wheel_angle = [0.0, 0.0, 0.0, 0.0]
+        #: What the wheels did up to :attr:`next_cycle` (m, m, rad in the start frame): the true motion.
+        self.motion = (0.0, 0.0, 0.0)
 
     def push_setpoint(self, t_us: float, vx: float, vy: float, wz: float) -> bool:
         """recv_vel's ``xQueueSend(vel_sp_queue, timeout 0)``: False when the queue was full."""
@@ -113,6 +118,15 @@ class Robot:
         """What the wheels do now: the body-frame velocity (m/s, m/s, rad/s) their speeds make."""
         vx, vy, wz = forward_kinematics(*self.wheels)
         return vx / 1000.0, vy / 1000.0, wz
+
+    def motion_at(self, t_us: float) -> tuple[float, float, float]:
+        """What the wheels did from the start to ``t_us`` (m, m, rad in the start frame), after
+        :meth:`advance` to ``t_us``: the motion up to the next cycle, less the part of this cycle still to come."""
+        ahead = (self.next_cycle - t_us) * 1e-6
+        if ahead <= 0:
+            return self.motion
+        vx, vy, w = self.body_velocity()
+        return compose(self.motion, twist_motion(-vx, -vy, -w, ahead))
 
     @property
     def wheels(self) -> tuple[float, float, float, float]:
@@ -154,6 +168,9 @@ class Robot:
 
     def _odometry(self, n: int) -> None:
         wheels = self.wheels
+        if any(wheels):
+            vx, vy, w = self.body_velocity()
+            self.motion = compose(self.motion, twist_motion(vx, vy, w, self.pose_period * 1e-6 * n))
         if self.encoder_noise and any(wheels):
             for _ in range(n):  # each reading its own noise
                 self._odometry_noisy(wheels)
