@@ -39,7 +39,7 @@ from typing import Any
 
 import numpy as np
 
-from hilbench.fakes.scanners.scene import Scene, _box_segments
+from hilbench.fakes.scanners.scene import Scene
 
 #: Default world step (s): 200 Hz, so every body's pose is known at least every 5 ms.
 STEP = 0.005
@@ -158,7 +158,28 @@ class Body:
         x = self.x if x is None else x
         y = self.y if y is None else y
         theta = self.theta if theta is None else theta
-        return np.asarray(_box_segments(x, y, self.shape.size[0], self.shape.size[1], math.degrees(theta)))
+        c, s = math.cos(theta), math.sin(theta)
+        w, h = self.shape.size[0] / 2, self.shape.size[1] / 2
+        pts = [(x + c * u - s * v, y + s * u + c * v) for u, v in ((-w, -h), (w, -h), (w, h), (-w, h))]
+        return np.asarray([(*pts[k], *pts[(k + 1) % 4]) for k in range(4)])
+
+    def pose_at(self, t: float) -> tuple[float, float, float]:
+        """(x, y, theta) at time ``t`` from the step history (newest first: a sensor asks about recent times);
+        past the last step extrapolated with the velocity. Call under the world's lock."""
+        hist = self.history
+        n = len(hist)
+        for i in range(n - 1, -1, -1):
+            h = hist[i]
+            if h[0] <= t:
+                if i == n - 1:
+                    dt = t - h[0]
+                    return h[1] + h[4] * dt, h[2] + h[5] * dt, h[3] + h[6] * dt
+                nxt = hist[i + 1]
+                f = (t - h[0]) / (nxt[0] - h[0]) if nxt[0] > h[0] else 0.0
+                dth = math.atan2(math.sin(nxt[3] - h[3]), math.cos(nxt[3] - h[3]))
+                return h[1] + f * (nxt[1] - h[1]), h[2] + f * (nxt[2] - h[2]), h[3] + f * dth
+        h = hist[0]
+        return h[1], h[2], h[3]
 
 
 @dataclass(frozen=True)
@@ -298,8 +319,9 @@ class World:
             mover_segs, _, mover_circ, _ = self._movers(self.t)
         segs = [self.scene.segments, mover_segs]
         circ = [self.scene.circles, mover_circ]
+        reach = b.shape.extent
         for other in self.bodies.values():
-            if other is b:
+            if other is b or math.hypot(other.x - x, other.y - y) > reach + other.shape.extent:
                 continue
             if other.shape.kind == "box":
                 segs.append(other.segments())
@@ -355,15 +377,21 @@ class World:
         b = self.body(name)
         times = np.asarray(times, float)
         with self.lock:
-            hist = list(b.history) if len(b.history) <= 64 or times.min() < b.history[-64][0] \
-                else list(b.history)[-64:]
-        h = np.asarray(hist, float)
+            hist = b.history
+            first = times.min()
+            k = len(hist) - 1
+            while k > 0 and hist[k][0] > first:  # the steps the times need (recent ones: few)
+                k -= 1
+            h = np.asarray([hist[i] for i in range(k, len(hist))], float)
         ht = h[:, 0]
         if len(h) == 1 or np.all(times >= ht[-1]):
             last = h[-1]
             dt = np.maximum(times - last[0], 0.0)
             return last[1] + last[4] * dt, last[2] + last[5] * dt, last[3] + last[6] * dt
-        th_unwrapped = np.unwrap(h[:, 3])
+        # Headings unwrapped step to step (each step turns less than half a turn).
+        dth = np.diff(h[:, 3])
+        dth = (dth + math.pi) % (2 * math.pi) - math.pi
+        th_unwrapped = h[0, 3] + np.concatenate([[0.0], np.cumsum(dth)])
         x = np.interp(times, ht, h[:, 1])
         y = np.interp(times, ht, h[:, 2])
         th = np.interp(times, ht, th_unwrapped)
@@ -416,18 +444,19 @@ class World:
             ox, oy = np.asarray(ox, float), np.asarray(oy, float)
             if np.ptp(ox) == 0 and np.ptp(oy) == 0:  # a caster standing still: the scene's cached path
                 ox, oy, per_ray = float(ox[0]), float(oy[0]), False
-        if per_ray:
+        bsegs, brefl, bcirc, bcrefl = self._body_geometry(t, exclude)
+        if per_ray:  # one pass over the scene and the bodies, each ray from its own origin
             segs, srefl, circ, crefl = self.scene.geometry(t - self.t0)
-            rng, cos_inc, refl = cast_rays(ox, oy, angles, segs, srefl, circ, crefl)
+            rng, cos_inc, refl = cast_rays(ox, oy, angles, np.vstack([segs, bsegs]), np.concatenate([srefl, brefl]),
+                                           np.vstack([circ, bcirc]), np.concatenate([crefl, bcrefl]))
         else:
             rng, cos_inc, refl = self.scene.cast(float(ox), float(oy), angles, t=t - self.t0)
-        bsegs, brefl, bcirc, bcrefl = self._body_geometry(t, exclude)
-        if len(bsegs) or len(bcirc):
-            r2, c2, f2 = cast_rays(ox, oy, angles, bsegs, brefl, bcirc, bcrefl)
-            closer = r2 < rng
-            rng = np.where(closer, r2, rng)
-            cos_inc = np.where(closer, c2, cos_inc)
-            refl = np.where(closer, f2, refl)
+            if len(bsegs) or len(bcirc):
+                r2, c2, f2 = cast_rays(ox, oy, angles, bsegs, brefl, bcirc, bcrefl)
+                closer = r2 < rng
+                rng = np.where(closer, r2, rng)
+                cos_inc = np.where(closer, c2, cos_inc)
+                refl = np.where(closer, f2, refl)
         if max_range < math.inf:
             rng = np.where(rng <= max_range, rng, np.inf)
         return rng, cos_inc, refl
@@ -436,16 +465,16 @@ class World:
         if not self.bodies:
             return np.zeros((0, 4)), np.zeros(0), np.zeros((0, 3)), np.zeros(0)
         segs, srefl, circ, crefl = [], [], [], []
-        for name, b in self.bodies.items():
-            if name == exclude:
-                continue
-            x, y, th = self.poses_at(name, np.asarray([t]))
+        with self.lock:
+            poses = {name: b.pose_at(t) for name, b in self.bodies.items() if name != exclude}
+        for name, (x, y, th) in poses.items():
+            b = self.bodies[name]
             if b.shape.kind == "box":
-                s = b.segments(float(x[0]), float(y[0]), float(th[0]))
+                s = b.segments(x, y, th)
                 segs.append(s)
                 srefl.extend([b.reflectivity] * len(s))
             else:
-                circ.append((float(x[0]), float(y[0]), b.shape.radius))
+                circ.append((x, y, b.shape.radius))
                 crefl.append(b.reflectivity)
         return (np.vstack(segs) if segs else np.zeros((0, 4)), np.asarray(srefl, float),
                 np.asarray(circ, float).reshape(-1, 3), np.asarray(crefl, float))
