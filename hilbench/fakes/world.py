@@ -24,7 +24,7 @@ casts rays against the scene and every body's footprint (except the
 caster's own body), each ray from its own origin when the caster moves.
 
 Time is the bench clock: ``clock`` (``time.monotonic`` unless the bench
-gives another); the scene's movers run on time since :attr:`World.t0`.
+gives another); the scene's movers run on time since ``World.t0``.
 """
 
 from __future__ import annotations
@@ -330,7 +330,7 @@ class World:
         return footprint_hits(b.shape, x, y, theta, np.vstack(segs), np.vstack(circ))
 
     def start(self) -> None:
-        """Step in a thread of its own every :attr:`step_s` seconds of the clock."""
+        """Step in a thread of its own every ``step_s`` seconds of the clock."""
         if self._thread is not None:
             return
         self._stop.clear()

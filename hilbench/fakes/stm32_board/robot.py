@@ -102,7 +102,7 @@ class Robot:
         self.dropped = 0
         #: How far each wheel (fr, fl, bl, br) has turned in total (rad): what its encoder counts.
         self.wheel_angle = [0.0, 0.0, 0.0, 0.0]
-        #: What the wheels did up to :attr:`next_cycle` (m, m, rad in the start frame): the true motion.
+        #: What the wheels did up to ``next_cycle`` (m, m, rad in the start frame): the true motion.
         self.motion = (0.0, 0.0, 0.0)
 
     def push_setpoint(self, t_us: float, vx: float, vy: float, wz: float) -> bool:
