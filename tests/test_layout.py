@@ -117,8 +117,6 @@ def modules() -> dict[str, Module]:
 #: package (`fakes/motion.py`); `CanDoor` moves to `transports/can_door.py`, which the doors import.
 KNOWN_CYCLES = {
     frozenset({"hilbench.fakes.stm32_board.fast_path", "hilbench.fakes.stm32_board.kernel"}),
-    frozenset({"hilbench.fakes.control_table_servo", "hilbench.fakes.dynamixel", "hilbench.fakes.dynamixel.bus",
-               "hilbench.fakes.dynamixel.servo"}),
     frozenset({"hilbench.transports.can_port", "hilbench.transports.can_virtual", "hilbench.transports.slcan_port",
                "hilbench.transports.socketcan", "hilbench.transports.socketcand_server"}),
 }

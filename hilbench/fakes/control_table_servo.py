@@ -14,9 +14,12 @@ from __future__ import annotations
 import math
 import random
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
-from hilbench.fakes.dynamixel.motion import Profile
 from hilbench.protocols.control_table import Field, Model
+
+if TYPE_CHECKING:  # (at run time the Dynamixel package imports this module: no cycle through its __init__)
+    from hilbench.fakes.dynamixel.motion import Profile
 
 
 @dataclass

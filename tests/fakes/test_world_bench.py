@@ -222,3 +222,32 @@ def test_arena_r2_lms_sees_r1_where_the_truth_puts_it_and_follows_it(hilbench_be
     # 0..180 degrees at 1 degree: half a turn of the 75 Hz mirror between the first and the last ray.
     assert all(s.t_last - s.t_first == pytest.approx(0.5 / 75, rel=0.01) for s in scans)
     assert all(s.body == "r2" for s in scans)
+
+
+def test_mecarover_udp_datagrams_turn_the_body(hilbench_bench):
+    """The UDP door moves the same body (here a turn on the spot: theta, not x); the freertos-1000 firmware
+    (wheels 1000 Hz, pose 500 Hz) counts one wheel period of every pose cycle: half the turn."""
+    import socket
+
+    bench = hilbench_bench("mecarover-udp")
+    host, port = bench.endpoint("rover").path.removeprefix("udp://").rsplit(":", 1)
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    board = bench.family("stm32-rover").board()
+    try:
+        end = time.monotonic() + 1.0
+        while time.monotonic() < end:  # (datagrams from this process: the door is the bench's socket)
+            sock.sendto(vel2d_frame(0.0, 0.0, 0.8), (host, int(port)))
+            time.sleep(0.05)
+        sock.sendto(vel2d_frame(0.0, 0.0, 0.0), (host, int(port)))
+        still(bench, "rover")
+        x, y, theta = bench.world.body("rover").pose
+        assert theta > 0.5 and abs(x) < 1e-6 and abs(y) < 1e-6
+        assert board.status()["robot"]["pose"][2] == pytest.approx(theta / 2, abs=0.01)
+    finally:
+        sock.close()
+
+
+def vel2d_frame(x: float, y: float, z: float) -> bytes:
+    from hilbench.protocols import vel2d
+
+    return vel2d.build(x, y, z)
