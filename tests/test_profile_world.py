@@ -100,7 +100,12 @@ def test_overrides_reach_world_keys():
     assert prof.world.bodies[0].x == -2.0
 
 
-def test_control_channel_answers_world_and_places_bodies():
+def client_address(client: ControlClient) -> str:
+    host, port = client.address
+    return f"{host}:{port}"
+
+
+def test_control_channel_answers_world_and_places_bodies(tmp_path):
     with Bench("arena") as bench:
         client = ControlClient(bench.serve_control().address_text)
         doc = client.world(geometry=True)
@@ -109,6 +114,9 @@ def test_control_channel_answers_world_and_places_bodies():
         assert doc["devices"]["r1-lms"] == {"body": "r1", "mount": {"x": 0.15, "y": 0.0, "theta": 0.0},
                                             "pose": {"x": pytest.approx(-1.35), "y": 0.0, "theta": 0.0}}
         assert len(doc["geometry"]["segments"]) == 4 + 4 + 4  # walls, the bench, the crate
+        # Each rover's scanner sees the other: straight ahead (the LMS's 90-degree beam) the other's near face.
+        assert bench.devices["r2-lms"].truth_range(90.0) == pytest.approx(2.6)
+        assert bench.devices["r1-lms"].truth_range(90.0) == pytest.approx(2.6)
         client.place("r1", 0.5, -1.0, 0.25)
         assert bench.world.body("r1").pose == pytest.approx((0.5, -1.0, 0.25))
         # r2's scanner sees r1 where it was put: its 90-degree beam, west along y = 0, misses it now.
@@ -122,3 +130,13 @@ def test_control_channel_answers_world_and_places_bodies():
             client.call("world", since="yesterday")
         hist = client.world(since=doc["time"])["history"]
         assert hist["poses"] and set(hist["poses"][-1]["bodies"]) == {"r1", "r2"}
+        # hilbench world's pictures: a PNG, and the terminal's top-down view.
+        from hilbench.cli import main
+        from hilbench.cli.world import render_text
+
+        png = tmp_path / "world.png"
+        assert main(["world", "--control", client_address(client), "--png", str(png)]) == 0
+        assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+        rows = [r for r in render_text(client.world(geometry=True, scans=True)) if r.strip()]
+        assert rows[0].strip().startswith("#") and rows[0].strip().endswith("#")  # the north wall
+        assert sum(r.count("1") for r in rows) > 4 and sum(r.count("2") for r in rows) > 4  # r1 and r2
