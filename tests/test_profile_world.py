@@ -140,3 +140,14 @@ def test_control_channel_answers_world_and_places_bodies(tmp_path):
         rows = [r for r in render_text(client.world(geometry=True, scans=True)) if r.strip()]
         assert rows[0].strip().startswith("#") and rows[0].strip().endswith("#")  # the north wall
         assert sum(r.count("1") for r in rows) > 4 and sum(r.count("2") for r in rows) > 4  # r1 and r2
+
+
+def test_a_scanner_mount_pose_may_give_theta_in_radians(tmp_path):
+    lidar = ('\n[endpoints.lidar]\ntype = "pty"\nprotocol = "rplidar"\n[[devices]]\nmodel = "rplidar-a1"\n'
+             'endpoint = "lidar"\nbody = "rover"\n')
+    path = write(tmp_path, world=BODY + lidar + "pose = { x = 0.1, theta = 1.5707963267948966 }\n")
+    spec = next(d for d in load_profile(path).devices if d.model == "rplidar-a1")
+    assert spec.heading == pytest.approx(90.0) and spec.body == "rover"
+    path = write(tmp_path, world=BODY + lidar + "pose = { heading = 90, theta = 1.0 }\n")
+    with pytest.raises(ProfileError, match=r"devices\[1\].pose: expected heading \(degrees\) or theta"):
+        load_profile(path)

@@ -14,14 +14,15 @@ geometry::
     moving = [ { path = [[1.0, -1.0], [1.0, 1.0]], speed = 0.5, radius = 0.2 } ]   # or size = [w, h]
 
 Each scanner device has ``pose = { x = 0.5, y = 0.3, heading = 0.0 }`` (metres;
-heading in degrees counter-clockwise from +x, the sensor's straight-ahead): its
-world pose, or with ``body = "NAME"`` its mount pose on that body. Optional:
+heading in degrees counter-clockwise from +x, the sensor's straight-ahead; or
+``theta`` in radians): its world pose, or with ``body = "NAME"`` its mount pose on that body. Optional:
 ``seed``, ``noise`` (``sigma0_mm``, ``sigma_k``, ``dropout``) and
 ``max_range`` overrides, and ``faults`` (family-specific knobs).
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -112,7 +113,12 @@ class ScannerFamily(DeviceFamily):
         if not isinstance(name, str) or not name:
             c.fail(f"{key}.name", f"expected a string, got {name!r}")
         pose = c.table(dev.get("pose", {}), f"{key}.pose")
-        c.unknown(pose, f"{key}.pose", ("x", "y", "heading"))
+        c.unknown(pose, f"{key}.pose", ("x", "y", "heading", "theta"))
+        if "theta" in pose:  # (radians, as the world's poses; heading is degrees)
+            if "heading" in pose:
+                c.fail(f"{key}.pose", "expected heading (degrees) or theta (radians), not both")
+            pose = {**pose, "heading": math.degrees(c.number(pose["theta"], f"{key}.pose.theta", -2 * math.pi,
+                                                             2 * math.pi))}
         noise = c.table(dev.get("noise", {}), f"{key}.noise")
         c.unknown(noise, f"{key}.noise", NOISE_KEYS)
         for nk, hi in (("sigma0_mm", 1000.0), ("sigma_k", 1.0), ("dropout", 1.0)):
