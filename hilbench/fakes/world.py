@@ -444,24 +444,68 @@ class World:
             ox, oy = np.asarray(ox, float), np.asarray(oy, float)
             if np.ptp(ox) == 0 and np.ptp(oy) == 0:  # a caster standing still: the scene's cached path
                 ox, oy, per_ray = float(ox[0]), float(oy[0]), False
-        bsegs, brefl, bcirc, bcrefl = self._body_geometry(t, exclude)
-        if per_ray:  # one pass over the scene and the bodies, each ray from its own origin
+        if per_ray:
             segs, srefl, circ, crefl = self.scene.geometry(t - self.t0)
-            rng, cos_inc, refl = cast_rays(ox, oy, angles, np.vstack([segs, bsegs]), np.concatenate([srefl, brefl]),
-                                           np.vstack([circ, bcirc]), np.concatenate([crefl, bcrefl]))
+            rng, cos_inc, refl = cast_rays(ox, oy, angles, segs, srefl, circ, crefl)
         else:
             rng, cos_inc, refl = self.scene.cast(float(ox), float(oy), angles, t=t - self.t0)
-            if len(bsegs) or len(bcirc):
-                r2, c2, f2 = cast_rays(ox, oy, angles, bsegs, brefl, bcirc, bcrefl)
-                closer = r2 < rng
-                rng = np.where(closer, r2, rng)
-                cos_inc = np.where(closer, c2, cos_inc)
-                refl = np.where(closer, f2, refl)
+        if self.bodies:
+            rng, cos_inc, refl = self._cast_bodies(ox, oy, angles, t, exclude, rng.copy(), cos_inc.copy(),
+                                                   refl.copy())
         if max_range < math.inf:
             rng = np.where(rng <= max_range, rng, np.inf)
         return rng, cos_inc, refl
 
-    def _body_geometry(self, t: float, exclude: str | None):
+    def _cast_bodies(self, ox, oy, angles: np.ndarray, t: float, exclude: str | None, rng: np.ndarray,
+                     cos_inc: np.ndarray, refl: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Nearer hits on other bodies' footprints merged into (rng, cos_inc, refl). Only the rays inside the
+        angle some body subtends from the rays' origins (its extent's circle seen from their mean, widened by
+        how far they spread) are cast, in one pass against every body."""
+        with self.lock:
+            poses = {name: b.pose_at(t) for name, b in self.bodies.items() if name != exclude}
+        if not poses:
+            return rng, cos_inc, refl
+        per_ray = np.ndim(ox) > 0
+        if per_ray:
+            mx, my = float(np.mean(ox)), float(np.mean(oy))
+            spread = float(np.max(np.hypot(ox - mx, oy - my)))
+        else:
+            mx, my, spread = float(ox), float(oy), 0.0
+        segs, srefl, circ, crefl = [], [], [], []
+        wanted = np.zeros(len(angles), bool)
+        for name, (x, y, th) in poses.items():
+            b = self.bodies[name]
+            ext = b.shape.extent
+            d = math.hypot(x - mx, y - my)
+            if d <= ext + spread + 1e-9:
+                wanted[:] = True
+            else:
+                half = math.asin(min(1.0, ext / (d - spread))) + math.asin(min(1.0, spread / d)) + 1e-9
+                diff = np.mod(angles - math.atan2(y - my, x - mx) + math.pi, 2 * math.pi) - math.pi
+                near = np.abs(diff) <= half
+                if not near.any():
+                    continue
+                wanted |= near
+            if b.shape.kind == "box":
+                segs.append(b.segments(x, y, th))
+                srefl.extend([b.reflectivity] * 4)
+            else:
+                circ.append((x, y, b.shape.radius))
+                crefl.append(b.reflectivity)
+        sel = np.nonzero(wanted)[0]
+        if not len(sel):
+            return rng, cos_inc, refl
+        r2, c2, f2 = cast_rays(ox[sel] if per_ray else ox, oy[sel] if per_ray else oy, angles[sel],
+                               np.vstack(segs) if segs else np.zeros((0, 4)), np.asarray(srefl, float),
+                               np.asarray(circ, float).reshape(-1, 3), np.asarray(crefl, float))
+        closer = r2 < rng[sel]
+        hit = sel[closer]
+        rng[hit], cos_inc[hit], refl[hit] = r2[closer], c2[closer], f2[closer]
+        return rng, cos_inc, refl
+
+    def body_geometry(self, t: float, exclude: str | None = None):
+        """Every body's footprint at ``t`` but ``exclude``'s: segments, their reflectivity, circles, theirs
+        (what :meth:`cast` tests rays against, body by body)."""
         if not self.bodies:
             return np.zeros((0, 4)), np.zeros(0), np.zeros((0, 3)), np.zeros(0)
         segs, srefl, circ, crefl = [], [], [], []

@@ -121,6 +121,31 @@ def test_casts_see_other_bodies_but_not_their_own():
     assert r[0] == pytest.approx(0.25)  # not excluded: its own front face
 
 
+def test_bodies_culled_by_angle_give_what_every_ray_against_every_body_gives():
+    """:meth:`World.cast` tests each body only against the rays it may meet; the reference tests all pairs."""
+    from hilbench.fakes.world import cast_rays
+
+    rng = np.random.default_rng(7)
+    clock = Clock()
+    for trial in range(20):
+        bodies = [Body(f"b{k}", Shape("box", tuple(rng.uniform(0.1, 0.8, 2))) if k % 2 else
+                       Shape("circle", radius=float(rng.uniform(0.05, 0.4))),
+                       *rng.uniform(-2.5, 2.5, 2), float(rng.uniform(-3, 3))) for k in range(8)]
+        w = room_world(*bodies, clock=clock)
+        n = 400
+        spread = 0.3 if trial % 2 else 0.0  # rays from one origin, or each from its own (a moving caster)
+        ox = rng.uniform(-spread, spread, n) if spread else 0.0
+        oy = rng.uniform(-spread, spread, n) if spread else 0.0
+        angles = rng.uniform(-np.pi, np.pi, n)
+        got = w.cast(ox, oy, angles, clock.t, exclude="b0")
+        segs, srefl, circ, crefl = w.body_geometry(clock.t, exclude="b0")
+        sc = w.scene
+        ref = cast_rays(ox, oy, angles, np.vstack([sc.segments, segs]), np.concatenate([sc.segment_reflectivity, srefl]),
+                        np.vstack([sc.circles, circ]), np.concatenate([sc.circle_reflectivity, crefl]))
+        for a, b in zip(got, ref, strict=True):
+            assert np.allclose(a, b)
+
+
 def test_a_scan_taken_while_turning_is_skewed():
     """Each beam of the LMS 200 leaves from where its body points at that beam's time."""
     clock = Clock()
