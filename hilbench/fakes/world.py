@@ -288,21 +288,30 @@ class World:
 
     def _move(self, b: Body, delta: tuple[float, float, float], mover_segs: np.ndarray,
               mover_circ: np.ndarray) -> None:
-        """Move ``b`` by ``delta`` (its own frame) unless its footprint would meet something it does not meet
-        now (then it stays: blocked)."""
+        """Move ``b`` by ``delta`` (its own frame); where its footprint would meet something it does not meet
+        now, only as far as it fits (it stops there: blocked)."""
         if not any(delta):
             b.blocked = False
             return
-        nx, ny, nth = compose((b.x, b.y, b.theta), delta)
-        nth = _wrap(nth)
+        here = (b.x, b.y, b.theta)
+        nx, ny, nth = compose(here, delta)
         if self.collides(b, nx, ny, nth, mover_segs, mover_circ) and \
-                not self.collides(b, b.x, b.y, b.theta, mover_segs, mover_circ):
+                not self.collides(b, *here, mover_segs, mover_circ):
+            # It stops where it touches: the largest share of the move that fits (bisected to 1/1024).
+            lo, hi = 0.0, 1.0
+            for _ in range(10):
+                mid = (lo + hi) / 2
+                if self.collides(b, *compose(here, tuple(d * mid for d in delta)), mover_segs, mover_circ):
+                    hi = mid
+                else:
+                    lo = mid
+            nx, ny, nth = compose(here, tuple(d * lo for d in delta))
             if not b.blocked:
                 b.collisions += 1
             b.blocked = True
         else:
             b.blocked = False
-            b.x, b.y, b.theta = nx, ny, nth
+        b.x, b.y, b.theta = nx, ny, _wrap(nth)
 
     def _movers(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The movers' edges and circles (and reflectivities) at time ``t``."""
