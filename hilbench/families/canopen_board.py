@@ -15,6 +15,8 @@ other families' nodes may share it, each at its own node id. Device entries::
     identity = { vendor_id = 0x0048424E, product_code = 0x00F76701, revision = 0x00010000, serial = 1 }
     faults = { heartbeat_stop = false, silent = false, sdo_abort = 0, motor_fault = false, battery_v = 24.6,
                stuck_odometry = false, dlc_mismatch = false }
+    body = "rover"                   # the world body the node drives (RPDO1 setpoints move it)
+    odometry = { slip = 0.0, encoder_noise = 0.0 }   # share of wheel motion lost; counts of noise per cycle
 
 A node a capture recorded is ``model = "recorded-node"``
 (:mod:`hilbench.families.canopen_recorded`). Several nodes may share an
@@ -37,6 +39,7 @@ from hilbench.bench.checks import Checker
 from hilbench.bench.control import ControlClient, ControlError, ControlRequestError
 from hilbench.bench.family import DeviceFamily, DeviceSpec, FamilyAccess
 from hilbench.bench.knobs import KnobRules, check_fault_table, check_knobs, requested_knobs
+from hilbench.bench.world import check_odometry, refuse_second_driver
 from hilbench.families.canopen_recorded import FAULT_RULES as RECORDED_FAULT_RULES
 from hilbench.families.canopen_recorded import (
     RECORDED,
@@ -53,7 +56,7 @@ if TYPE_CHECKING:
 
 MODELS = ("stm32f767-rover-canopen", "mecarover-canopen", RECORDED)
 DEVICE_KEYS = ("model", "name", "endpoint", "node_id", "heartbeat_ms", "setpoint_timeout_ms", "autostart",
-               "tpdo_periods_ms", "identity", "faults", *RECORDED_KEYS)
+               "tpdo_periods_ms", "identity", "faults", "odometry", *RECORDED_KEYS)
 IDENTITY_KEYS = {"vendor_id": "vendor_id", "product_code": "product_code", "revision": "revision",
                  "serial": "serial"}
 #: The board's fault knobs (the node's and the rover's, as the fake's ROVER_FAULT_KEYS) and their rules.
@@ -77,6 +80,7 @@ class NodeSpec(DeviceSpec):
     tpdo_periods_ms: dict[str, int] = field(default_factory=dict)
     identity: dict[str, int] = field(default_factory=dict)
     faults: dict[str, Any] = field(default_factory=dict)
+    odometry: dict[str, float] = field(default_factory=dict)
 
 
 def board_config(spec: NodeSpec, bitrate: int):
@@ -138,6 +142,7 @@ class CanopenBoardFamily(DeviceFamily):
             setpoint_timeout_ms=c.integer(dev.get("setpoint_timeout_ms", 150), f"{key}.setpoint_timeout_ms", 0, 65535),
             autostart=c.boolean(dev.get("autostart", False), f"{key}.autostart"),
             tpdo_periods_ms=dict(periods), identity=dict(identity), faults=faults,
+            odometry=check_odometry(c, dev.get("odometry", {}), f"{key}.odometry"),
         )]
 
     # ------------------------------------------------------------------ bench
@@ -151,9 +156,12 @@ class CanopenBoardFamily(DeviceFamily):
                 continue
             battery = spec.faults.get("battery_v", 24.6)
             node = RoverNode(spec.name, board_config(spec, endpoint.medium.bitrate), autostart=spec.autostart,
-                             battery_v=battery)
+                             battery_v=battery, encoder_noise=spec.odometry["encoder_noise"], seed=spec.node_id)
             node.set_faults(**{k: v for k, v in spec.faults.items() if k != "battery_v"})
             endpoint.add_device(spec.name, node)
+            if spec.body is not None:  # RPDO1 setpoints move the body through the firmware's motion model
+                refuse_second_driver(bench.world.world, spec.body, spec.name)
+                bench.world.world.drive(spec.body, node.body_motion, spec.odometry["slip"])
 
     def start(self, endpoint, devices: dict[str, Any], t: float) -> None:
         now = time.monotonic()  # power-up happens now: the boot-up and the heartbeat phase count from here

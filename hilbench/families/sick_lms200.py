@@ -108,7 +108,7 @@ class SickLms200Family(ScannerFamily):
         o = spec.options
         config = LmsConfig(angle=o["variant"][0], resolution=o["variant"][1], units_mm=o["units"] == "mm",
                            no_echo=o["no_echo"], faults=LmsFaults(seed=spec.seed, **spec.faults))
-        return SickLms200(*self.placement(bench, spec, LMS_RANGE), config, t0=t)
+        return SickLms200(*self.placement(bench, spec, LMS_RANGE), config, t0=t, body=spec.body)
 
     def describe_device(self, spec: ScannerSpec, device, endpoint, profile) -> dict[str, Any]:
         out = super().describe_device(spec, device, endpoint, profile)
