@@ -60,7 +60,7 @@ def rover_log(tmp_path_factory):
     path = tmp_path_factory.mktemp("can") / "rover.log"
     bench = Bench("mecarover-can").start()
     try:
-        with recording(bench.endpoint(), path):
+        with recording(bench.endpoint("can"), path):
             read = _drive(bench, ask_node=9)
     finally:
         bench.stop()
@@ -142,7 +142,7 @@ def test_a_hilbench_capture_of_the_can_bus(tmp_path):
     """``hilbench record`` of a CAN bench into its own capture format reads the same way as a python-can log."""
     bench = Bench("mecarover-can").start()
     try:
-        with recording(bench.endpoint(), tmp_path / "rover.hbcap") as path:
+        with recording(bench.endpoint("can"), tmp_path / "rover.hbcap") as path:
             read = _drive(bench, 0.5)
     finally:
         bench.stop()
