@@ -152,7 +152,7 @@ def test_lidar_says_which_speeds_an_lms200_did_not_answer_at(monkeypatch, capsys
     import os
 
     from hilbench.cli import main
-    from hilbench.clients.scanners import SickDriver
+    from hilbench.clients.sick_lms200 import SickDriver
 
     monkeypatch.setattr(SickDriver, "PROBE_TIMEOUT", 0.1)
     master, slave = os.openpty()  # a port with nothing behind it
