@@ -287,7 +287,8 @@ def test_no_upward_imports():
 #: clients/{base,scanners}.py, ...) and the generic instruments (the CAN, UDP and trace instruments) and verbs.
 OWNED: dict[str, tuple[str, ...]] = {
     "dynamixel": ("protocols/dynamixel*.py", "fakes/dynamixel/*", "families/dynamixel.py", "monitor/dynamixel/*",
-                  "monitor/dynamixel1/*", "dashboard/dynamixel_views.py", "clients/dynamixel.py", "cli/dxl.py"),
+                  "monitor/dynamixel1/*", "dashboard/dynamixel_views.py", "clients/dynamixel.py", "cli/dxl.py",
+                  "labgrid/dynamixel.py"),
     "feetech": ("protocols/feetech*.py", "fakes/feetech/*", "families/feetech.py", "monitor/feetech/*"),
     "stm32-rover": ("protocols/vel2d*.py", "protocols/tracestamp*.py", "fakes/stm32_board/*",
                     "families/stm32_rover*.py"),
@@ -324,9 +325,6 @@ NAMES_A_FAMILY: dict[str, set[str]] = {
     # P8c: servo clients from the registry (clients/servo_demo.py, clients/{dynamixel,feetech}.py)
     "clients/dynamixel_demo.py": {"'Wolfgang Foot'", "'dynamixel'", "'feetech'"},
     "clients/servo_links.py": {"'dynamixel'", "'dynamixel1'", "'feetech'", "import hilbench.clients.dynamixel"},
-    # P8d: the labgrid driver through the bus kind (labgrid/dynamixel.py)
-    "labgrid/config.py": {"'dynamixel'"},
-    "labgrid/drivers.py": {"'dynamixel'"},
     # P3: fakes/motion.py (MotionProfile), kit of both
     "fakes/control_table_servo.py": {"import hilbench.fakes.dynamixel.motion"},
     "fakes/table_servo.py": {"import hilbench.fakes.dynamixel.motion"},
