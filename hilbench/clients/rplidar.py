@@ -1,7 +1,7 @@
-"""The RPLIDAR's host side: :class:`RplidarDriver` and its ``hilbench lidar`` client (``--express``).
+"""The RPLIDAR's host side: :class:`~hilbench.clients.rplidar.RplidarDriver` and its ``hilbench lidar`` client.
 
-Registered as ``hilbench.clients`` entry point ``rplidar``
-(:data:`CLIENT`); the codec is imported when the driver talks.
+Registered as ``hilbench.clients`` entry point ``rplidar`` (:data:`CLIENT`),
+with the option ``--express``; the codec is imported when the driver talks.
 """
 
 from __future__ import annotations
@@ -60,7 +60,7 @@ class RplidarClient(ScannerClient):
 
     @property
     def default_baud(self) -> int:  # type: ignore[override]
-        """The A1's UART rate (:data:`hilbench.protocols.rplidar.BAUD`)."""
+        """The A1's UART rate (``hilbench.protocols.rplidar.BAUD``)."""
         from hilbench.protocols.rplidar import BAUD
 
         return BAUD
@@ -74,6 +74,7 @@ class RplidarClient(ScannerClient):
         return RplidarDriver(link, express=bool(getattr(args, "express", False)), motor=motor)
 
 
+#: The client driver this module registers (entry point ``hilbench.clients``).
 CLIENT = RplidarClient()
 
 __all__ = ["CLIENT", "RplidarClient", "RplidarDriver"]

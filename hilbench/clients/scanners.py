@@ -155,7 +155,7 @@ class ScannerClient(ClientDriver):
     role = "scanner"
     #: The :class:`ScannerDriver` subclass it runs.
     driver: ClassVar[type[ScannerDriver]] = ScannerDriver
-    #: Link kinds (:meth:`ScannerLink.kind_of`: ``"serial"``, ``"tcp"``) whose scanner is taken to speak this
+    #: Link kinds (:meth:`~hilbench.clients.scanners.ScannerLink.kind_of`: ``"serial"``, ``"tcp"``) whose scanner is taken to speak this
     #: protocol when nothing says which (no ``--protocol``, not a bench).
     default_on: ClassVar[tuple[str, ...]] = ()
 

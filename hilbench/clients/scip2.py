@@ -1,4 +1,4 @@
-"""The Hokuyo SCIP 2.0 host side: :class:`ScipDriver` and its ``hilbench lidar`` client.
+"""The Hokuyo SCIP 2.0 host side: :class:`~hilbench.clients.scip2.ScipDriver` and its ``hilbench lidar`` client.
 
 Registered as ``hilbench.clients`` entry point ``scip2`` (:data:`CLIENT`, alias
 ``scip``); a ``HOST:PORT`` source with no ``--protocol`` is taken to be a SCIP
@@ -43,6 +43,7 @@ class ScipClient(ScannerClient):
     default_on = ("tcp",)  # HOST:PORT and nothing else said: a SCIP unit on Ethernet
 
 
+#: The client driver this module registers (entry point ``hilbench.clients``).
 CLIENT = ScipClient()
 
 __all__ = ["CLIENT", "ScipClient", "ScipDriver"]

@@ -1,8 +1,8 @@
-"""The SICK LMS 200's host side: :class:`SickDriver` and its ``hilbench lidar`` client (``--lms-baud``).
+"""The SICK LMS 200's host side: :class:`~hilbench.clients.sick_lms200.SickDriver` and its ``hilbench lidar`` client.
 
 Registered as ``hilbench.clients`` entry point ``sick-lms200`` (:data:`CLIENT`,
-aliases ``sick``, ``lms200``). The link speeds come from the protocol's one
-table (:data:`hilbench.protocols.sick_lms200.BAUD_MODES`).
+aliases ``sick``, ``lms200``), with the option ``--lms-baud``. The link speeds
+come from the protocol's one table (:data:`hilbench.protocols.sick_lms200.BAUD_MODES`).
 """
 
 from __future__ import annotations
@@ -120,6 +120,7 @@ class SickClient(ScannerClient):
         return SickDriver(link, baud=getattr(args, "lms_baud", lms.POWER_UP_BAUD))
 
 
+#: The client driver this module registers (entry point ``hilbench.clients``).
 CLIENT = SickClient()
 
 __all__ = ["CLIENT", "SickClient", "SickDriver"]

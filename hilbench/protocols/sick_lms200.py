@@ -42,8 +42,10 @@ STX = 0x02
 ACK = 0x06
 NAK = 0x15
 HOST_ADDRESS_BIT = 0x80
-#: Link speeds after power-up and after a mode 40/41/42/48 change: the one table of an LMS 200's speeds.
+#: The link speed after power-up (and a reset).
 POWER_UP_BAUD = 9600
+#: Mode byte of a link speed change (mode 40/41/42/48) -> the speed it switches to: the one table of an
+#: LMS 200's link speeds.
 BAUD_MODES = {0x40: 38_400, 0x41: 19_200, 0x42: 9_600, 0x48: 500_000}
 #: Every link speed an LMS 200 runs at, slowest first.
 LINK_BAUDS = tuple(sorted(BAUD_MODES.values()))

@@ -28,6 +28,7 @@ class RplidarInstrument(ScannerInstrument):
         return 0.5 if good and good == len(reqs) else 0.0
 
 
+#: The instrument this module registers (entry point ``hilbench.instruments``).
 INSTRUMENT = RplidarInstrument()
 
 __all__ = ["INSTRUMENT", "RplidarInstrument"]

@@ -25,6 +25,7 @@ class ScipInstrument(ScannerInstrument):
         return 0.9 if good and good >= len(reps) / 2 else 0.0
 
 
+#: The instrument this module registers (entry point ``hilbench.instruments``).
 INSTRUMENT = ScipInstrument()
 
 __all__ = ["INSTRUMENT", "ScipInstrument"]

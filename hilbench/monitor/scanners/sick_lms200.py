@@ -24,6 +24,7 @@ class SickInstrument(ScannerInstrument):
         return 0.95 if frames else 0.0
 
 
+#: The instrument this module registers (entry point ``hilbench.instruments``).
 INSTRUMENT = SickInstrument()
 
 __all__ = ["INSTRUMENT", "SickInstrument"]
