@@ -270,19 +270,22 @@ def test_no_upward_imports():
 #: The files each built-in family owns (globs under hilbench/). Everything else is shared: the frame, the
 #: kits families build on (families/scanner.py, families/servo_bus.py, fakes/scanners/{base,scene,uart}.py,
 #: fakes/{control_table_servo,table_servo,motion,servo_line,xrce_client}.py, fakes/canopen/{node,dictionary,
-#: sdo_server}.py, protocols/{control_table,canopen,canopen_od,cdr}.py, ...) and the generic instruments
-#: (the CAN, UDP and trace instruments) and verbs.
+#: sdo_server}.py, protocols/{control_table,canopen,canopen_od,cdr}.py, monitor/scanners/{__init__,tracker}.py,
+#: clients/{base,scanners}.py, ...) and the generic instruments (the CAN, UDP and trace instruments) and verbs.
 OWNED: dict[str, tuple[str, ...]] = {
     "dynamixel": ("protocols/dynamixel*.py", "fakes/dynamixel/*", "families/dynamixel.py", "families/dynamixel_*.py",
-                  "monitor/dynamixel/*",
-                  "monitor/dynamixel1/*", "dashboard/dynamixel_views.py", "clients/dynamixel.py", "cli/dxl.py"),
+                  "monitor/dynamixel/*", "monitor/dynamixel1/*", "dashboard/dynamixel_views.py", "clients/dynamixel.py",
+                  "cli/dxl.py", "labgrid/dynamixel.py"),
     "feetech": ("protocols/feetech*.py", "fakes/feetech/*", "families/feetech.py", "families/feetech_*.py",
                 "monitor/feetech/*"),
     "stm32-rover": ("protocols/vel2d*.py", "protocols/tracestamp*.py", "fakes/stm32_board/*",
                     "families/stm32_rover*.py"),
-    "rplidar": ("protocols/rplidar*.py", "fakes/scanners/rplidar.py", "families/rplidar*.py"),
-    "sick-lms200": ("protocols/sick_lms200*.py", "fakes/scanners/sick_lms200.py", "families/sick_lms200*.py"),
-    "scip2": ("protocols/scip*.py", "fakes/scanners/scip.py", "families/scip2*.py"),
+    "rplidar": ("protocols/rplidar*.py", "fakes/scanners/rplidar.py", "families/rplidar*.py",
+                "monitor/scanners/rplidar*.py", "clients/rplidar.py"),
+    "sick-lms200": ("protocols/sick_lms200*.py", "fakes/scanners/sick_lms200.py", "families/sick_lms200*.py",
+                    "monitor/scanners/sick_lms200*.py", "clients/sick_lms200.py"),
+    "scip2": ("protocols/scip*.py", "fakes/scanners/scip.py", "families/scip2*.py", "monitor/scanners/scip2*.py",
+              "clients/scip2.py"),
     "canopen": ("protocols/board_can.py", "fakes/canopen/rover.py", "fakes/canopen/recorded.py",
                 "families/canopen_*.py", "clients/can_rover.py"),
     "micro-ros-agent": ("protocols/xrce_dds.py", "fakes/xrce_agent/*", "families/micro_ros_agent*.py",
@@ -305,20 +308,11 @@ NAMES_A_FAMILY: dict[str, set[str]] = {
     "cli/can.py": {"'canopen'", "import hilbench.clients.can_rover", "import hilbench.families.canopen_board"},
     # P8c: --view choices from the servo bus's instrument
     "cli/demo.py": {"'dynamixel'", "import hilbench.dashboard.dynamixel_views"},
-    # P8a: scanner clients from the registry
-    "cli/lidar.py": {"'lms200'", "'rplidar'", "'scip2'", "'sick-lms200'"},
     # P8c: the trace instrument's device_sources and default_baud
     "cli/profile.py": {"'stm32f767-rover'", "'vel2d'"},
     # P8c: servo clients from the registry (clients/servo_demo.py, clients/{dynamixel,feetech}.py)
     "clients/dynamixel_demo.py": {"'Wolfgang Foot'", "'dynamixel'", "'feetech'"},
     "clients/servo_links.py": {"'dynamixel'", "'dynamixel1'", "'feetech'", "import hilbench.clients.dynamixel"},
-    # P8a: per-family scanner drivers, trackers and instruments
-    "clients/scanners.py": {"'rplidar'", "'scip2'", "'sick-lms200'"},
-    "monitor/scanners/__init__.py": {"'lms200'", "'rplidar'", "'scip2'", "'sick-lms200'"},
-    "monitor/scanners/tracker.py": {"'rplidar'", "'scip2'", "'sick-lms200'"},
-    # P8d: the labgrid driver through the bus kind (labgrid/dynamixel.py)
-    "labgrid/config.py": {"'dynamixel'"},
-    "labgrid/drivers.py": {"'dynamixel'"},
     # family -> family: the Protocol 1.0 bus core and tracker into a servo-bus kit (PLAN24 §1, "should")
     "fakes/feetech/bus.py": {"import hilbench.fakes.dynamixel.bus1"},
     "monitor/feetech/__init__.py": {"import hilbench.monitor.dynamixel.devices", "import hilbench.monitor.dynamixel1",

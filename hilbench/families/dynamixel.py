@@ -47,6 +47,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
+from hilbench.bench.bus import LabgridDriver
 from hilbench.bench.checks import Checker
 from hilbench.bench.knobs import check_fault_table
 from hilbench.fakes.dynamixel.bus import CHAIN_POLICIES, FAST_MISSING_POLICIES
@@ -152,6 +153,12 @@ class DynamixelBusKind(ServoBusKind):
         fast_read = getattr(spec, "fast_read", None)
         if fast_read is not None and hasattr(endpoint.bus, "fast_read"):
             endpoint.bus.fast_read[device.id] = fast_read
+
+    def labgrid_driver(self, endpoint: dict[str, Any]) -> LabgridDriver | None:
+        """:class:`~hilbench.labgrid.dynamixel.DynamixelDriver` (Protocol 2.0) on a Protocol 2.0 bus."""
+        if endpoint.get("protocol_version", 2) != 2:
+            return None
+        return LabgridDriver("hilbench.labgrid.dynamixel", "DynamixelDriver", "-dxl")
 
     def describe_endpoint(self, endpoint) -> dict[str, Any]:
         opts = endpoint.spec.options

@@ -46,7 +46,6 @@ FAULTS = {
     "nak_next": Rule(int, 0, 1000), "no_ack": SWITCH, "bad_crc_rate": PROBABILITY, "refuse_modes": SWITCH,
     "status": Rule(int, 0, 255), "truncate_next": Rule(int, 0, 1000), "ignore_stop_once": SWITCH,
 }
-LMS_BAUDS = (9600, 19200, 38400, 500_000)
 
 
 class SickLms200BusKind(ScannerBusKind):
