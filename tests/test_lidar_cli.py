@@ -4,6 +4,7 @@ the verb in another, through the bench's manifest (ptys, TCP on 127.0.0.1, the c
 from __future__ import annotations
 
 import json
+import math
 import subprocess
 import sys
 
@@ -226,3 +227,19 @@ def test_a_scanner_client_brings_its_protocol_speed_and_options_to_lidar():
         assert "--express" in parser._subparsers._group_actions[0].choices["lidar"].format_help()
     finally:
         registry.clients.unregister("acme-scan")
+
+
+def test_a_scanner_on_a_body_is_drawn_where_the_body_took_it():
+    """mecarover's A1 sits 0.1 m ahead of the rover's centre: ``--png`` draws the scan from the rover's pose
+    in the world (the truth's), not from the mount pose as if the rover had never moved."""
+    from hilbench.cli.lidar import resolve
+
+    target = resolve("bench:mecarover#lidar")
+    try:
+        assert target.pose["x"] == pytest.approx(0.1)  # the mount on the body
+        target.bench.world.place("rover", 1.0, 0.5, math.pi / 2)
+        pose = target.world_pose()
+        assert pose["x"] == pytest.approx(1.0, abs=1e-6) and pose["y"] == pytest.approx(0.6, abs=1e-6)
+        assert pose["heading"] == pytest.approx(90.0 + target.pose["heading"], abs=1e-6)
+    finally:
+        target.bench.stop()

@@ -59,11 +59,14 @@ class Target:
     shim): through the bench's line server or its control channel."""
 
     def __init__(self, link: str, protocol: str | None, *, scene=None, pose: dict | None = None,
-                 set_dtr=None, bench=None, label: str = "") -> None:
+                 set_dtr=None, bench=None, label: str = "", world_pose=None) -> None:
         self.link = link
         self.protocol = protocol
         self.scene = scene
         self.pose = pose
+        #: For a scanner mounted on a body: a callable giving its pose in the world now (x, y, heading in
+        #: degrees), since ``pose`` is then its mount on the body, which moves.
+        self.world_pose = world_pose
         self.set_dtr = set_dtr
         self.bench = bench
         self.label = label or link
@@ -125,9 +128,15 @@ def resolve(source: str, overrides: list[str] | None = None) -> Target:
         port = bench.endpoint(ep["name"]).port
         lines = getattr(port, "lines", None)
         set_dtr = (lambda level: lines.host_sets(dtr=level)) if lines is not None else None
+        world_pose = None
+        if dev.get("body"):
+            name = dev.get("name")
+
+            def world_pose():
+                return _heading_pose(bench.world.devices()[name]["pose"])
         return Target(ep["path"] if ep["type"] != "tcp" else f"{ep['host']}:{ep['port']}", ep["protocol"],
                       scene=bench.profile.tables.get("scene"), pose=dev.get("pose"), set_dtr=set_dtr, bench=bench,
-                      label=f"bench {bench.profile.name}#{ep['name']}")
+                      label=f"bench {bench.profile.name}#{ep['name']}", world_pose=world_pose)
     path, _, frag = source.partition("#")
     if path.endswith(".json"):
         from hilbench.bench.manifest import devices_on, read_manifest
@@ -145,8 +154,17 @@ def resolve(source: str, overrides: list[str] | None = None) -> Target:
                 scene = load_profile(manifest["profile"], overrides).tables.get("scene")
         link = f"{ep['host']}:{ep['port']}" if ep.get("type") == "tcp" else ep["path"]
         _carry_lines(manifest)
+        world_pose = None
+        if dev.get("body") and manifest.get("control"):
+            address, name = manifest["control"], dev.get("name")
+
+            def world_pose():
+                from hilbench.bench.control import ControlClient
+
+                return _heading_pose(ControlClient(address).world()["devices"][name]["pose"])
         return Target(link, ep.get("protocol"), scene=scene, pose=dev.get("pose"),
-                      set_dtr=_control_dtr(manifest.get("control"), dev.get("name")), label=f"{path}#{ep['name']}")
+                      set_dtr=_control_dtr(manifest.get("control"), dev.get("name")), label=f"{path}#{ep['name']}",
+                      world_pose=world_pose)
     return Target(source, None)
 
 
@@ -185,6 +203,11 @@ def _stats(tr) -> str:
             f"checksum failures {tr.checksum_failures}, errors {tr.error_count}")
 
 
+def _heading_pose(pose: dict) -> dict:
+    """A world pose (x, y, theta in rad) as the scanner poses here are given (x, y, heading in degrees)."""
+    return {"x": pose["x"], "y": pose["y"], "heading": math.degrees(pose["theta"])}
+
+
 def save_png(path: str, scan, target: Target) -> None:
     """One scan as a picture: over the scene in world coordinates when the pose is known, else sensor frame."""
     matplotlib = require("matplotlib", "plot", "--png")
@@ -195,9 +218,15 @@ def save_png(path: str, scan, target: Target) -> None:
     ok = scan.ranges > 0
     a, r = scan.angles[ok], scan.ranges[ok]
     fig, ax = plt.subplots(figsize=(7, 6), dpi=100)
-    if target.pose is not None:
-        x0, y0 = target.pose["x"], target.pose["y"]
-        h = math.radians(target.pose["heading"])
+    pose = target.pose
+    if target.world_pose is not None:  # on a body: where the body has taken it (at the end of the scan)
+        try:
+            pose = target.world_pose()
+        except Exception:  # noqa: BLE001 - no world answer: the sensor frame, which is still right
+            pose = None
+    if pose is not None:
+        x0, y0 = pose["x"], pose["y"]
+        h = math.radians(pose["heading"])
         xs, ys = x0 + r * np.cos(h + a), y0 + r * np.sin(h + a)
         if target.scene is not None:
             for seg in target.scene.segments:
