@@ -393,7 +393,11 @@ def test_a_client_that_reads_nothing_is_bounded_then_disconnected(can_bus, monke
             got += 1
         assert server.queued <= 2 * (16 << 10) + 4096
     assert server.frames_dropped > 0  # the sleeper's share, dropped and counted, before it was disconnected
-    assert len(server.clients) == 1 and server.queued < 4096
+    assert len(server.clients) == 1
+    while got < sent:  # the reader takes what it was behind by (up to 300 frames on a loaded machine) ...
+        reader.read()
+        got += 1
+    wait_until(lambda: server.queued == 0)  # ... and nothing is left queued: the sleeper's share went with it
     reader.send("< echo >")
     while reader.read() != sc.ECHO:
         pass
