@@ -15,7 +15,6 @@ everything is. Nothing here knows a bus kind or device family by name: see
 from __future__ import annotations
 
 import os
-import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -25,6 +24,7 @@ from hilbench.bench.bus import BusKind
 from hilbench.bench.family import DeviceFamily, DeviceSpec, FamilyAccess
 from hilbench.bench.profile import EndpointSpec, Profile, load_profile
 from hilbench.errors import BenchError, UsageError
+from hilbench.transports.clock import WALL, WallClock
 from hilbench.transports.listener import BindError
 from hilbench.transports.medium import medium_timing
 from hilbench.transports.tap_server import TapServer
@@ -126,6 +126,8 @@ class Bench:
         self.serve = tuple(serve)
         self.bind = bind
         self.link_dir = Path(link_dir) if link_dir else None
+        #: The one clock every medium, port and device of this bench reads (DESIGN §12).
+        self.clock: WallClock = WALL
         self.endpoints: dict[str, Endpoint] = {}
         self.devices: dict[str, Any] = {}
         self.started_at: float | None = None
@@ -148,7 +150,7 @@ class Bench:
             return self
         if self._stopped:
             raise BenchError("this bench was stopped and its ports are closed: start a new Bench")
-        t = time.monotonic()
+        t = self.clock.now()
         prof = self.profile
         try:
             for spec in prof.endpoints.values():
@@ -161,8 +163,7 @@ class Bench:
                         from None
                 paced = spec.paced if self.paced is None else self.paced
                 try:
-                    medium = registry.media.get(bus_kind.medium)(spec.name, spec.baud,
-                                                                 paced=bus_kind.paced(spec, paced))
+                    medium = self._medium(bus_kind, spec, paced)
                 except Exception:
                     port.close()
                     raise
@@ -183,7 +184,8 @@ class Bench:
                     # (a Protocol 1.0 Dynamixel bus carries "dynamixel1")
                     try:
                         ep.tap = TapServer(host=self.bind, baud=spec.baud, protocol=medium.protocol or spec.protocol,
-                                           description=f"bench {prof.name}, endpoint {spec.name}")
+                                           description=f"bench {prof.name}, endpoint {spec.name}",
+                                           clock=self.clock)
                     except OSError as exc:  # (on a free port: only the bind address can be wrong)
                         reason = os.strerror(exc.errno) if exc.errno else str(exc)
                         raise self._bind_error(BindError((self.bind, 0), reason, exc.errno, "traffic tap (TCP port)"),
@@ -204,6 +206,15 @@ class Bench:
             raise
         self.started_at = t
         return self
+
+    def _medium(self, bus_kind: BusKind, spec: EndpointSpec, paced: bool) -> Any:
+        """The medium of an endpoint, on the bench's clock (a medium class without ``clock=`` gets the wall
+        clock, its default)."""
+        cls = registry.media.get(bus_kind.medium)
+        kwargs: dict[str, Any] = {"paced": bus_kind.paced(spec, paced)}
+        if self.clock is not WALL:
+            kwargs["clock"] = self.clock
+        return cls(spec.name, spec.baud, **kwargs)
 
     def _bind_error(self, exc: BindError, endpoint: str | None, key: str | None) -> BindError:
         """``exc`` in one line that names the profile, the endpoint, the address and the key to change."""
@@ -326,7 +337,7 @@ class Bench:
 
     def now(self) -> float:
         """The bench's clock (the devices' ``t``)."""
-        return time.monotonic()
+        return self.clock.now()
 
     # ------------------------------------------------------------------ manifest
 

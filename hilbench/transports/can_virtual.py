@@ -12,11 +12,12 @@ from __future__ import annotations
 import collections
 import contextlib
 import threading
-import time
+from typing import Any
 
 from hilbench.protocols.can_frame import CanFrame
 from hilbench.transports.can_messages import to_frame, to_message
 from hilbench.transports.can_port import CanDoor
+from hilbench.transports.clock import WALL
 from hilbench.transports.medium_loop import WakePipe
 
 #: Frames held between the receiving thread and the bus before new ones are dropped.
@@ -40,6 +41,7 @@ class VirtualChannel(CanDoor):
         self.received = 0
         self.sent = 0
         self.dropped = 0
+        self._clock = WALL  # the bus's clock once attached: frames carry its Unix time
         self._thread = threading.Thread(target=self._run, name=f"can-virtual-{channel}", daemon=True)
         self._thread.start()
 
@@ -60,6 +62,9 @@ class VirtualChannel(CanDoor):
             self._inbox.append(frame)
             self._waker.wake()
 
+    def attach(self, medium: Any) -> None:
+        self._clock = getattr(medium, "clock", WALL)
+
     def describe(self) -> str:
         return self.channel
 
@@ -77,7 +82,7 @@ class VirtualChannel(CanDoor):
     def write_frame(self, t: float, source: str, frame: CanFrame) -> None:
         if source == self.source:
             return
-        msg = to_message(frame, timestamp=time.time())
+        msg = to_message(frame, timestamp=self._clock.wall(t))
         try:
             self.bus.send(msg)
             self.sent += 1

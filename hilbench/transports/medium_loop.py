@@ -21,10 +21,10 @@ import itertools
 import logging
 import os
 import threading
-import time
 from collections.abc import Callable
 from typing import Any, ClassVar
 
+from hilbench.transports.clock import WALL, WallClock
 from hilbench.transports.medium import Medium
 
 log = logging.getLogger(__name__)
@@ -76,8 +76,8 @@ class LoopMedium(Medium):
     thread_prefix: ClassVar[str] = "medium"
     stats: Any
 
-    def __init__(self, name: str, baud: int | None, *, paced: bool = False) -> None:
-        super().__init__(name, baud, paced=paced)
+    def __init__(self, name: str, baud: int | None, *, paced: bool = False, clock: WallClock = WALL) -> None:
+        super().__init__(name, baud, paced=paced, clock=clock)
         self._events: list[tuple[float, int, Callable[[], None]]] = []
         self._seq = itertools.count()
         self._waker = WakePipe()
@@ -89,7 +89,7 @@ class LoopMedium(Medium):
     def call_at(self, t: float | None, fn: Callable[[], None]) -> None:
         """Run ``fn`` in the medium's thread at time ``t`` (None: at once); thread-safe."""
         with self._lock:
-            self._push(time.monotonic() if t is None else t, fn)
+            self._push(self._now() if t is None else t, fn)
         if threading.current_thread() is not self._thread:
             self._wake()
 
@@ -100,7 +100,7 @@ class LoopMedium(Medium):
     def _run_due(self) -> None:
         while True:
             with self._lock:
-                if not self._events or self._events[0][0] > time.monotonic():
+                if not self._events or self._events[0][0] > self._now():
                     return
                 _, _, fn = heapq.heappop(self._events)
             try:

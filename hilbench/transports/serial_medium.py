@@ -56,7 +56,15 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Protocol
 
-from hilbench.transports.clock import Waiter, awake_cpus, reduce_timer_slack, try_realtime, wait
+from hilbench.transports.clock import (
+    WALL,
+    Waiter,
+    WallClock,
+    awake_cpus,
+    reduce_timer_slack,
+    try_realtime,
+    wait,
+)
 from hilbench.transports.host_port import HostPort
 from hilbench.transports.medium import DevicePort, Medium, Tap
 
@@ -124,8 +132,9 @@ class SerialMedium(Medium):
 
     kind = "serial"
 
-    def __init__(self, name: str, baud: int, *, paced: bool = False, realtime: bool | None = None) -> None:
-        super().__init__(name, baud, paced=paced)
+    def __init__(self, name: str, baud: int, *, paced: bool = False, realtime: bool | None = None,
+                 clock: WallClock = WALL) -> None:
+        super().__init__(name, baud, paced=paced, clock=clock)
         self.stats = LineStats()  #: transmissions, bytes and lateness against the wire-time model
         #: Run the line's thread under SCHED_FIFO if the OS allows it (None: when paced, unless
         #: HILBENCH_REALTIME=0). Unpaced lines gain nothing from it.
@@ -195,8 +204,7 @@ class SerialMedium(Medium):
         """
         data = bytes(data)
         with self._lock:
-            now = time.monotonic()
-            t = now if t is None else t
+            t = self._now() if t is None else t
             if self.paced:
                 start = max(t, self._busy_until) + gap
                 end = start + len(data) * self.byte_time(baud)
@@ -214,7 +222,7 @@ class SerialMedium(Medium):
         """Seconds until everything ``source`` transmitted is delivered, and taken in by a device that paces
         its own receiver (0 when it is; on an unpaced line without such a device always 0): a host port that
         reads its client only while this is small bounds what waits for the wire."""
-        return max(0.0, self._ahead(source, time.monotonic()))
+        return max(0.0, self._ahead(source, self._now()))
 
     def _ahead(self, source: str, now: float) -> float:
         ahead = self._last_end.get(source, 0.0) - now
@@ -232,7 +240,7 @@ class SerialMedium(Medium):
     def call_at(self, t: float | None, fn: Callable[[], None]) -> None:
         """Run ``fn`` in the line's thread at time ``t`` (None: at once; thread-safe)."""
         with self._lock:
-            self._push(time.monotonic() if t is None else t, fn)
+            self._push(self._now() if t is None else t, fn)
         if threading.get_ident() != self._ident:
             self._wake()
 
@@ -311,7 +319,8 @@ class SerialMedium(Medium):
             self._loop()
 
     def _loop(self) -> None:
-        events, lock, stop, wake_r, paced = self._events, self._lock, self._stop, self._wake_r, self.paced
+        events, lock, stop, wake_r, paced, clock = self._events, self._lock, self._stop, self._wake_r, self.paced, \
+            self._now
         version = -1
         waiter = Waiter() if paced else wait  # a paced line keeps its deliveries' times
         fds: list[int] = []
@@ -343,7 +352,7 @@ class SerialMedium(Medium):
             # ~10 us, between the burst's last write and the worker that hands it to the client.
             ready = waiter(fds, deadline, None if fixed else 0.5, leave_cpu=wrote and not last)
             if ready:
-                now = time.monotonic()
+                now = clock()
                 taken: set[int] = set()
                 for fd in ready:
                     if fd == wake_r:
@@ -422,7 +431,7 @@ class SerialMedium(Medium):
         key = id(endpoint)
         if key in self._held:
             return
-        self._held[key] = time.monotonic()
+        self._held[key] = self._now()
         self.stats.held_back += 1
         with self._lock:
             self._hosts_version += 1
@@ -433,7 +442,7 @@ class SerialMedium(Medium):
         if since is not None:
             with self._lock:
                 self._hosts_version += 1
-            self.stats.held_back_s += time.monotonic() - since
+            self.stats.held_back_s += self._now() - since
 
     def drain_host(self, port) -> tuple[int, float]:
         """Take everything ``port`` already sent, in the line's thread; returns (bytes taken, when the
@@ -444,13 +453,13 @@ class SerialMedium(Medium):
         has been taken.
         """
         with self._lock:
-            end = max(time.monotonic(), self._last_end.get(port.name, 0.0))  # bytes taken before, on the wire
+            end = max(self._now(), self._last_end.get(port.name, 0.0))  # bytes taken before, on the wire
         taken = 0
         for endpoint, listen_only in list(self._hosts):
             if endpoint is not port:
                 continue
             while True:  # (everything: a drain waits for all the client wrote, however much is ahead)
-                n, t = self._take(endpoint, listen_only, time.monotonic())
+                n, t = self._take(endpoint, listen_only, self._now())
                 if not n:
                     break
                 taken += n
@@ -489,7 +498,7 @@ class SerialMedium(Medium):
         _, watcher, ready, keen = watched
         # The clock before the rest: a write stamped earlier is counted in ready() or has returned, and then
         # its bytes are there for the read to find (a pty master's read first runs the tty layer's work).
-        t0 = time.monotonic_ns()
+        t0 = self._board_ns()
         if ready is not None and not ready():
             # A client is inside write() (often preempted by this very thread on return): look again soon,
             # less and less often, and give up (every drain then asks) if it never ends.
@@ -498,14 +507,14 @@ class SerialMedium(Medium):
             with self._lock:
                 if _retry < QUIET_RETRIES and port.name not in self._quiet_retrying:  # one series at a time
                     self._quiet_retrying.add(port.name)
-                    self._push(time.monotonic() + QUIET_RETRY * 2 ** _retry,
+                    self._push(self._now() + QUIET_RETRY * 2 ** _retry,
                                lambda: self.check_quiet(port, _retry + 1))
             return False
         for endpoint, listen_only in hosts:
             if listen_only or id(endpoint) in self._held:
                 return False  # a port whose bytes are never delivered, or one held back with bytes waiting
             bounded = getattr(endpoint, "backpressure", False) and (self.paced or bool(self._receivers))
-            if self._take(endpoint, listen_only, time.monotonic(), bounded)[0] or id(endpoint) in self._held:
+            if self._take(endpoint, listen_only, self._now(), bounded)[0] or id(endpoint) in self._held:
                 return False  # new bytes (or some left unread, held back): not quiet yet
         try:
             watcher(t0)
@@ -514,18 +523,24 @@ class SerialMedium(Medium):
             log.exception("quiet watcher of %s failed", port.name)
         return True
 
+    @staticmethod
+    def _board_ns() -> int:
+        # The delivery board's stamps are in the real CLOCK_MONOTONIC domain of the shim's writes (a
+        # client's write stamped before this read is counted), whatever the bench's clock: wall-clock.
+        return time.monotonic_ns()  # wall-clock: the delivery board's domain
+
     def _run_due(self) -> None:
         """Run what is due. Deliveries due together reach each host port in one write (a pty write costs
         about as much as a reply's emulation), held back in ``_out`` for the loop to make just before it
         waits; anything else first flushes what is pending, so the order the host sees stays the order of
         the line."""
-        events, lock, paced = self._events, self._lock, self.paced
+        events, lock, paced, clock = self._events, self._lock, self.paced, self._now
         if self._out is None:
             self._out = {}
         try:
             while True:
                 with lock:
-                    if not events or events[0][0] > (now := time.monotonic()):
+                    if not events or events[0][0] > (now := clock()):
                         break
                     t, _, fn, joinable = heapq.heappop(events)
                 if not joinable:

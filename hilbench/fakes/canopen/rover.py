@@ -31,7 +31,6 @@ count it discarded).
 from __future__ import annotations
 
 import threading
-import time
 from typing import Any
 
 from hilbench.fakes.canopen.node import CanopenNode
@@ -84,7 +83,7 @@ class RoverNode(CanopenNode):
     # ------------------------------------------------------------------ time
 
     def _now(self) -> float:
-        return time.monotonic()
+        return self.now()
 
     def _t_us(self, t: float) -> float:
         return (t - self._t0) * 1e6

@@ -12,12 +12,12 @@ tests can compare what a client decoded with what the emulator meant.
 from __future__ import annotations
 
 import collections
-import time
 from dataclasses import dataclass
 
 import numpy as np
 
 from hilbench.fakes.scanners.scene import Pose, RangeModel, Scene
+from hilbench.transports.clock import WALL
 
 
 @dataclass(frozen=True)
@@ -43,7 +43,7 @@ class Scanner:
         self.scene = scene
         self.pose = pose
         self.model = model
-        self.t0 = time.monotonic() if t0 is None else t0
+        self.t0 = WALL.now() if t0 is None else t0
         self.port = None
         self.truth: collections.deque[TruthScan] = collections.deque(maxlen=self.TRUTH_SCANS)
         self.counters: dict[str, int] = collections.Counter()
@@ -53,6 +53,10 @@ class Scanner:
         """Join a medium as ``<name>-device`` (the host port keeps the endpoint's name, so taps and
         trackers tell the two directions apart); the device port transmits on the medium's clock."""
         self.port = medium.add_device(_Party(self, f"{self.name}-device"))
+
+    def now(self) -> float:
+        """The medium's time (its bench's clock; the wall clock before the scanner is attached)."""
+        return self.port.now() if self.port is not None else WALL.now()
 
     def world_angles(self, sensor_deg: np.ndarray) -> np.ndarray:
         """World directions (rad) of beams at sensor-convention angles (overridden per convention)."""
@@ -68,7 +72,7 @@ class Scanner:
 
     def truth_range(self, sensor_deg: float, t: float | None = None) -> float:
         """The true range (m) of one beam at a sensor angle (for tests computing the truth by hand)."""
-        t = time.monotonic() if t is None else t
+        t = self.now() if t is None else t
         p = self.pose
         r, _, _ = self.scene.cast(p.x, p.y, self.world_angles(np.asarray([sensor_deg], float)), t=t - self.t0)
         return float(r[0])
