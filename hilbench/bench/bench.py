@@ -14,7 +14,9 @@ everything is. Nothing here knows a bus kind or device family by name: see
 
 from __future__ import annotations
 
+import inspect
 import os
+import random
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -24,10 +26,11 @@ from hilbench.bench.bus import BusKind
 from hilbench.bench.family import DeviceFamily, DeviceSpec, FamilyAccess
 from hilbench.bench.profile import EndpointSpec, Profile, load_profile
 from hilbench.errors import BenchError, UsageError
-from hilbench.transports.clock import WALL, WallClock
+from hilbench.transports.clock import WALL, VirtualClock, WallClock
 from hilbench.transports.listener import BindError
 from hilbench.transports.medium import medium_timing
 from hilbench.transports.tap_server import TapServer
+from hilbench.transports.virtual_loop import MODES, VirtualLoop
 
 
 class Endpoint:
@@ -108,6 +111,14 @@ class Bench:
     ``serve`` names servers (:mod:`hilbench.bench.server`, e.g. ``"rfc2217"``)
     that make every endpoint they can serve reachable over the network; they,
     the taps and the control channel listen on ``bind`` (default 127.0.0.1).
+
+    ``virtual_time`` (True, ``"hold"`` or ``"free"``) runs the bench on a
+    :class:`~hilbench.transports.clock.VirtualClock`: one
+    :class:`~hilbench.transports.virtual_loop.VirtualLoop` thread runs every medium and device timer, and
+    time jumps from event to event (``"hold"``, the default: only when ``bench.clock.run_for(s)`` asks;
+    ``"free"``: on its own). A virtual bench is paced. ``virtual_epoch`` pins the Unix time of its start
+    (stamps then repeat from run to run); ``seed`` seeds what would otherwise be random (a bus's fault
+    draws), so two runs of the same inputs do the same.
     """
 
     def __init__(
@@ -119,8 +130,13 @@ class Bench:
         tap: bool = False,
         serve: tuple[str, ...] | list[str] = (),
         bind: str = "127.0.0.1",
+        virtual_time: bool | str = False,
+        virtual_epoch: float | None = None,
+        seed: int = 0,
     ) -> None:
         self.profile = profile if isinstance(profile, Profile) else load_profile(profile)
+        if virtual_time and paced is False:
+            raise UsageError("virtual time is paced: --unpaced and --virtual-time do not go together")
         self.paced = paced
         self.tap = tap
         self.serve = tuple(serve)
@@ -128,6 +144,16 @@ class Bench:
         self.link_dir = Path(link_dir) if link_dir else None
         #: The one clock every medium, port and device of this bench reads (DESIGN §12).
         self.clock: WallClock = WALL
+        #: What runs the bench in virtual time (None on the wall clock).
+        self.loop: VirtualLoop | None = None
+        self.seed = seed
+        if virtual_time:
+            mode = "hold" if virtual_time is True else str(virtual_time)
+            if mode not in MODES:
+                raise UsageError(f"virtual time must be one of {', '.join(MODES)}, got {virtual_time!r}")
+            self.paced = True
+            self.clock = VirtualClock(epoch=virtual_epoch)
+            self.loop = VirtualLoop(self.clock, mode=mode, name=self.profile.name)
         self.endpoints: dict[str, Endpoint] = {}
         self.devices: dict[str, Any] = {}
         self.started_at: float | None = None
@@ -196,7 +222,12 @@ class Bench:
                 for ep in self.endpoints.values():
                     on_endpoint(ep)
             for ep in self.endpoints.values():
-                ep.medium.start()
+                if self.loop is not None:
+                    self.loop.add(ep.medium)
+                else:
+                    ep.medium.start()
+            if self.loop is not None:
+                self.loop.start()
             for ep in self.endpoints.values():
                 ep.bus_kind.start(ep, t)
                 for family in ep.families():
@@ -214,7 +245,14 @@ class Bench:
         kwargs: dict[str, Any] = {"paced": bus_kind.paced(spec, paced)}
         if self.clock is not WALL:
             kwargs["clock"] = self.clock
+        if self.loop is not None and "seed" in inspect.signature(cls).parameters:
+            kwargs["seed"] = self.seeded(f"medium:{spec.name}")
         return cls(spec.name, spec.baud, **kwargs)
+
+    def seeded(self, name: str) -> int:
+        """A seed for one part of the bench, derived from the bench's ``seed`` and the part's name (the same
+        in every run, different for every part)."""
+        return random.Random(f"{self.seed}:{name}").getrandbits(32)
 
     def _bind_error(self, exc: BindError, endpoint: str | None, key: str | None) -> BindError:
         """``exc`` in one line that names the profile, the endpoint, the address and the key to change."""
@@ -250,6 +288,8 @@ class Bench:
         if self._stopped:
             return
         self._stopped = True
+        if self.loop is not None:
+            self.loop.stop()  # (first: nothing runs while the rest is taken apart)
         if self.control is not None:
             self.control.close()
             self.control = None

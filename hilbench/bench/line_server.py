@@ -238,7 +238,15 @@ class LineServer:
         if not 0.0 < duration <= 60.0:
             raise RequestRefused(f"break duration {duration} s is outside 0..60 s")
         self._after_taking(port, lambda: port.lines.host_break(True, duration))
-        self._closed.wait(duration)  # tcsendbreak returns when the break is over, as on an adapter
+        # tcsendbreak returns when the break is over, as on an adapter: in the line's time
+        clock = port.medium.clock
+        if clock.virtual:
+            over = threading.Event()
+            port.medium.call_at(clock.now() + duration, over.set)
+            while not over.wait(0.1) and not self._closed.is_set():
+                pass
+        else:
+            self._closed.wait(duration)
         return 0
 
     @staticmethod

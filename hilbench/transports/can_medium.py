@@ -456,6 +456,55 @@ class CanMedium(LoopMedium):
             self._running.set()
             self._loop()
 
+    # ------------------------------------------------------------------ virtual time (a VirtualLoop runs it)
+
+    def vt_deadline(self) -> float | None:
+        times = [d for port, _ in list(self._hosts) if (d := port.deadline()) is not None]
+        return min(times) if times else None
+
+    def vt_fds(self) -> list[int]:
+        fds = [self._waker.fd]
+        for port, _ in list(self._hosts):
+            fds.extend(port.filenos())
+        return fds
+
+    def vt_read(self, ready: list[int], now: float) -> bool:
+        got = super().vt_read(ready, now)
+        for port, listen_only in list(self._hosts):
+            if not any(fd in ready for fd in port.filenos()):
+                continue
+            got = True
+            try:
+                frames = port.read_frames(now)
+            except Exception:
+                self.stats.callback_errors += 1
+                log.exception("host port %s failed", getattr(port, "name", port))
+                continue
+            if not listen_only:
+                for src, frame in frames:
+                    self._submit(src, frame, now)
+        return got
+
+    def vt_poll(self, now: float) -> None:
+        for port, listen_only in list(self._hosts):
+            try:
+                frames = port.poll(now)
+            except Exception:
+                self.stats.callback_errors += 1
+                log.exception("host port %s failed", getattr(port, "name", port))
+                continue
+            if not listen_only:
+                for src, frame in frames:
+                    self._submit(src, frame, now)
+
+    def vt_flush(self) -> None:
+        for port, _ in list(self._hosts):
+            try:
+                port.flush()
+            except Exception:
+                self.stats.callback_errors += 1
+                log.exception("host port %s failed to flush", getattr(port, "name", port))
+
     def _loop(self) -> None:
         waker = self._waker
         waiter = Waiter() if self.paced else wait  # a paced bus keeps its frames' times

@@ -34,7 +34,8 @@ class VirtualChannel(CanDoor):
 
         self.channel = channel
         self.source = f"virtual {channel}"
-        self.bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
+        self.bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False,
+                           preserve_timestamps=True)  # (the bus clock's Unix time, see write_frame)
         self._inbox: collections.deque[CanFrame] = collections.deque()
         self._waker = WakePipe()
         self._stop = threading.Event()

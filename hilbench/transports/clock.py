@@ -84,13 +84,14 @@ class VirtualClock(WallClock):
     """Virtual time: ``now()`` is what the bench's :class:`~hilbench.transports.virtual_loop.VirtualLoop`
     last set, and nothing else moves it.
 
-    Virtual monotonic time starts at :attr:`origin` (1000 s, "booted 1000 s ago", so clients that take 0
-    for "never" still work); virtual Unix time is ``epoch + (now - origin)``, ``epoch`` being the real
+    Virtual monotonic time starts at ``origin`` (default :attr:`ORIGIN`, 1000 s: "booted 1000 s ago", so
+    clients that take 0 for "never" still work); virtual Unix time is ``epoch + (now - origin)``, ``epoch`` being the real
     start time unless given (pinned, payload stamps repeat from run to run). The in-process drivers
     (:meth:`run_for`, :meth:`run_until`, :meth:`hold`, :meth:`free`) are the loop's, once it is attached.
     """
 
     virtual = True
+    #: Where virtual monotonic time starts by default (seconds).
     ORIGIN = 1000.0
 
     def __init__(self, epoch: float | None = None, origin: float = ORIGIN) -> None:

@@ -210,6 +210,20 @@ class DatagramMedium(LoopMedium):
                     waker.drain()
             self._run_due()
 
+    # ------------------------------------------------------------------ virtual time (a VirtualLoop runs it)
+
+    def vt_fds(self) -> list[int]:
+        return [p.fileno() for p, _ in list(self._hosts)] + [self._waker.fd]
+
+    def vt_read(self, ready: list[int], now: float) -> bool:
+        """Datagrams keep their boundaries: each is heard at ``now`` as it is read."""
+        got = super().vt_read(ready, now)
+        for port, listen_only in list(self._hosts):
+            if port.fileno() in ready:
+                self._receive(port, listen_only)
+                got = True
+        return got
+
     def close(self) -> None:
         """Stop the net, release its wake-up pipe, close the sockets it opened for devices."""
         super().close()

@@ -133,6 +133,52 @@ class LoopMedium(Medium):
     def _run(self) -> None:
         raise NotImplementedError
 
+    # ------------------------------------------------------------------ virtual time (a VirtualLoop runs it)
+
+    def vt_attach(self, loop: Any) -> None:
+        """Run in ``loop`` instead of a thread of its own; its events join the loop's one sequence."""
+        self._seq = loop.seq
+
+    def vt_thread(self, thread: threading.Thread | None) -> None:
+        """The loop's thread is the medium's (its callbacks run there), or None once the loop stops."""
+        self._thread = thread
+
+    def vt_head(self) -> tuple[float, int] | None:
+        with self._lock:
+            return self._events[0][:2] if self._events else None
+
+    def vt_deadline(self) -> float | None:
+        """Timed work outside the heap (a host port's), in virtual time."""
+        return None
+
+    def vt_run_one(self) -> None:
+        with self._lock:
+            _, _, fn = heapq.heappop(self._events)
+        try:
+            fn()
+        except Exception:  # one faulty callback must not stop the bench
+            self.stats.callback_errors += 1
+            log.exception("timed callback failed on %s medium %s", self.kind, self.name)
+
+    def vt_poll(self, now: float) -> None:
+        """Host ports' timed work due at ``now`` (after the bench phase's events)."""
+
+    def vt_flush(self) -> None:
+        """End of the bench phase: host ports send what was queued for them."""
+
+    def vt_fds(self) -> list[int]:
+        return [self._waker.fd]
+
+    def vt_read(self, ready: list[int], now: float) -> bool:
+        """Read what ready host ports have, at ``now``; True if any of the medium's descriptors was ready."""
+        if self._waker.fd in ready:
+            self._waker.drain()
+            return True
+        return False
+
+    def vt_commit(self, now: float) -> None:
+        """Put what :meth:`vt_read` took on the medium (at ``now``)."""
+
     def close(self) -> None:
         """Stop the medium and release its wake-up pipe."""
         self.stop()

@@ -569,6 +569,80 @@ class SerialMedium(Medium):
         out.clear()
         return True
 
+    # ------------------------------------------------------------------ virtual time (a VirtualLoop runs it)
+
+    def vt_attach(self, loop) -> None:
+        """Run in ``loop`` (a :class:`~hilbench.transports.virtual_loop.VirtualLoop`) instead of a thread of
+        its own: its events join the loop's one sequence; deliveries happen at their exact model times."""
+        self._seq = loop.seq
+        self._vt_version = -1
+        self._vt_fds: dict[int, tuple] = {}
+
+    def vt_thread(self, thread: threading.Thread | None) -> None:
+        """The loop's thread is the line's (its callbacks run there), or None once the loop stops."""
+        self._thread = thread
+        self._ident = thread.ident if thread is not None else None
+
+    def vt_head(self) -> tuple[float, int] | None:
+        with self._lock:
+            return self._events[0][:2] if self._events else None
+
+    def vt_deadline(self) -> float | None:
+        return None
+
+    def vt_run_one(self) -> None:
+        """Run the next event (the loop chose it); host writes of deliveries wait for :meth:`vt_flush`."""
+        if self._out is None:
+            self._out = {}
+        with self._lock:
+            _, _, fn, joinable = heapq.heappop(self._events)
+        if not joinable:
+            self._flush_out()  # (what the host sees stays in the line's order)
+        try:
+            fn()
+        except Exception:  # one faulty callback must not stop the bench
+            self.stats.callback_errors += 1
+            log.exception("timed callback failed on line %s", self.name)
+
+    def vt_flush(self) -> None:
+        """End of the bench phase: each host port gets what was delivered to it, in one write."""
+        self._flush_out()
+        self._out = None
+
+    def vt_poll(self, now: float) -> None:
+        pass
+
+    def vt_fds(self) -> list[int]:
+        """The descriptors the loop looks at for this line: its hosts not held back, and its wake-up pipe."""
+        if self._vt_version != self._hosts_version or not all(
+                type(ep).filenos is HostPort.filenos for ep, _ in self._hosts):
+            with self._lock:
+                self._vt_version = self._hosts_version
+                hosts = list(self._hosts)
+            self._vt_fds = {fd: (ep, listen_only, not listen_only and getattr(ep, "backpressure", False))
+                            for ep, listen_only in hosts if id(ep) not in self._held for fd in ep.filenos()}
+        return [*self._vt_fds, self._wake_r]
+
+    def vt_read(self, ready: list[int], now: float) -> bool:
+        """Read each ready host port once, at ``now``: everything one read returns is one transmission (a
+        program's writes at one instant are one burst). True if any descriptor of the line was ready."""
+        got = False
+        if self._wake_r in ready:
+            with contextlib.suppress(BlockingIOError):
+                os.read(self._wake_r, 4096)
+            got = True
+        taken: set[int] = set()
+        for fd in ready:
+            host = self._vt_fds.get(fd)
+            if host is not None and id(host[0]) not in taken:
+                taken.add(id(host[0]))
+                self._take(host[0], host[1], now, host[2])
+                got = True
+        return got
+
+    def vt_commit(self, now: float) -> None:
+        pass  # (vt_read puts each port's one read on the line at once: nothing is pending between rounds)
+
     def close(self) -> None:
         """Stop the line and release its wake-up pipe."""
         self.stop()

@@ -1,0 +1,86 @@
+"""Benches in virtual time (``Bench(virtual_time=...)``): faster than real time when little happens, and the
+same every run."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import can
+import pytest
+import serial
+
+from hilbench.bench import Bench
+from hilbench.bench.profile import load_profile
+from hilbench.errors import UsageError
+from hilbench.protocols import dynamixel as dxl
+from hilbench.transports.clock import VirtualClock
+
+PROFILES = Path(__file__).resolve().parents[2] / "profiles"
+EPOCH = 1_700_000_000.0
+T0 = VirtualClock.ORIGIN
+
+
+def heartbeat_run(channel: str) -> tuple[list[tuple[float, str, bytes]], list[can.Message], float]:
+    """60.5 virtual seconds of mecarover-can (node 2, heartbeat 1 s): the bench's tap records, what an
+    in-process python-can virtual bus received, and the wall time it took."""
+    profile = load_profile(PROFILES / "mecarover-can.toml", {"can.virtual": channel})
+    tapped: list[tuple[float, str, bytes]] = []
+    bench = Bench(profile, virtual_time=True, virtual_epoch=EPOCH, seed=7)
+    listener = can.Bus(interface="virtual", channel=channel)
+    try:
+        bench.start(on_endpoint=lambda ep: ep.medium.add_tap(lambda t, src, data: tapped.append((t, src, data))))
+        start = time.monotonic()
+        assert bench.clock.run_for(60.5, timeout=30) == T0 + 60.5
+        wall = time.monotonic() - start
+        received = []
+        while (msg := listener.recv(0)) is not None:
+            received.append(msg)
+    finally:
+        listener.shutdown()
+        bench.stop()
+    return tapped, received, wall
+
+
+def test_a_minute_of_heartbeats_takes_no_time_and_comes_out_the_same_twice():
+    tapped, received, wall = heartbeat_run("vt-heartbeats-1")
+    assert wall < 6.0  # 60 virtual seconds: a tenth of that at most (in practice milliseconds)
+    node2 = [(t, data) for t, src, data in tapped if data[:4] == bytes([0x02, 0x07, 0, 0])]  # id 0x702
+    boot, beats = node2[0], node2[1:]
+    assert boot[1][8] == 0x00  # the boot-up message, then 60 heartbeats (pre-operational: 0x7f)
+    assert len(beats) == 60 and all(data[8] == 0x7F for _, data in beats)
+    assert [round(t - boot[0], 9) for t, _ in beats] == [float(k) for k in range(1, 61)]  # exactly 1 s apart
+    # The in-process python-can bus saw the same frames, stamped with the virtual clock's Unix time.
+    heard = [m for m in received if m.arbitration_id == 0x702]
+    assert len(heard) == 61
+    assert [round(m.timestamp - EPOCH, 6) for m in heard] == [round(t - T0, 6) for t, _ in node2]
+    # A second run of the same profile and seed: the same capture, to the bit and the nanosecond.
+    again, _, _ = heartbeat_run("vt-heartbeats-2")
+    assert again == tapped
+
+
+def test_a_virtual_bench_is_paced_and_refuses_unpaced():
+    with pytest.raises(UsageError, match="virtual time is paced"):
+        Bench(PROFILES / "mecarover-can.toml", paced=False, virtual_time=True)
+    with pytest.raises(UsageError, match="hold, free"):
+        Bench(PROFILES / "mecarover-can.toml", virtual_time="fast")
+
+
+def test_a_pyserial_client_gets_replies_at_wire_times_from_a_free_running_bench():
+    # A program outside the lockstep (here a pyserial client in this process) against a free-running
+    # virtual bench: its request is stamped with the instant the loop reads it, the reply follows the
+    # wire model exactly (2 Mbaud, each servo's Return Delay Time).
+    with Bench(PROFILES / "wolfgang.toml", virtual_time="free") as bench:
+        ep = bench.endpoint()
+        seen: list[tuple[float, str, bytes]] = []
+        ep.medium.add_tap(lambda t, src, data: seen.append((t, src, data)))
+        with serial.Serial(ep.path, 2_000_000, timeout=2) as ser:
+            ping = dxl.instruction_packet(1, dxl.Instruction.PING)
+            ser.write(ping)
+            reply = ser.read(14)
+        assert reply[:5] == b"\xff\xff\xfd\x00\x01" and reply[7] == 0x55  # a status packet from ID 1
+        (t_req, _, req), (t_rep, _, rep) = seen[:2]
+        assert req == ping and rep == reply
+        byte = 10 / 2_000_000
+        delay = bench.device(1).return_delay  # (the servo's Return Delay Time)
+        assert t_rep == pytest.approx(t_req + delay + len(reply) * byte, abs=1e-12)
