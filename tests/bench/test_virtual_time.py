@@ -84,3 +84,28 @@ def test_a_pyserial_client_gets_replies_at_wire_times_from_a_free_running_bench(
         byte = 10 / 2_000_000
         delay = bench.device(1).return_delay  # (the servo's Return Delay Time)
         assert t_rep == pytest.approx(t_req + delay + len(reply) * byte, abs=1e-12)
+
+
+def board_run() -> tuple[list[tuple[float, str, bytes]], dict]:
+    """The rover board (mecarover) sampling for 1.5 virtual seconds: its trace stream on the line's tap."""
+    tapped: list[tuple[float, str, bytes]] = []
+    with Bench(PROFILES / "mecarover.toml", virtual_time=True, virtual_epoch=EPOCH) as bench:
+        bench.endpoint("rover").medium.add_tap(lambda t, src, data: tapped.append((t, src, data)))
+        board = bench.family("stm32-rover").board()
+        bench.clock.run_for(0.1, timeout=30)
+        board.press_button()
+        bench.clock.run_for(1.5, timeout=60)
+        status = board.status()
+    return tapped, status
+
+
+def test_the_rover_boards_trace_stream_runs_in_virtual_time_the_same_every_run():
+    tapped, status = board_run()
+    assert status["window"] == 1 and status["truth"]["stamps_sent"] > 100  # the button's 1 s trace window
+    assert status["lag_us"] == 0.0  # the loop's timers keep the firmware ahead of the line, always
+    assert 1.6e6 <= status["now_us"] <= 1.6e6 + 2500  # the firmware's clock is the bench's (plus its lookahead)
+    sent = sum(len(data) for _, src, data in tapped if src == "rover-board")
+    assert sent >= status["truth"]["bytes_to_wire"] - 1000  # (what the UART has sent by now, less the tail)
+    assert all(T0 <= t <= T0 + 1.6 for t, _, _ in tapped)
+    again, _ = board_run()
+    assert again == tapped  # the same bytes at the same virtual instants
