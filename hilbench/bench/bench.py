@@ -289,7 +289,7 @@ class Bench:
             return
         self._stopped = True
         if self.loop is not None:
-            self.loop.stop()  # (first: nothing runs while the rest is taken apart)
+            self.loop.close()  # (first: nothing runs while the rest is taken apart)
         if self.control is not None:
             self.control.close()
             self.control = None
