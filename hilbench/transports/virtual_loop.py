@@ -248,9 +248,11 @@ class VirtualLoop:
                 heads.append((head[0], head[1], medium))
         return heads
 
-    def _next_time(self) -> float | None:
+    def _next_time(self, now: float) -> float | None:
+        """The next instant anything is due: a queued event (possibly ``now`` itself: a zero-delay one), or a
+        host port's timed work after ``now`` (its work due at ``now`` ran in this round's bench phase)."""
         times = [h[0] for h in self._heads()]
-        times += [t for m in self.media if (t := m.vt_deadline()) is not None]
+        times += [t for m in self.media if (t := m.vt_deadline()) is not None and t > now]
         return min(times) if times else None
 
     def _run_one(self) -> None:
@@ -318,7 +320,7 @@ class VirtualLoop:
         stats.rounds += 1
         self._bench_phase(now)
         self._input(now, 0)
-        nxt = self._next_time()
+        nxt = self._next_time(now)
         if nxt is not None and nxt <= now:
             stats.delta_rounds += 1
             return  # zero-delay work: another round at the same instant

@@ -109,3 +109,28 @@ def test_the_rover_boards_trace_stream_runs_in_virtual_time_the_same_every_run()
     assert all(T0 <= t <= T0 + 1.6 for t, _, _ in tapped)
     again, _ = board_run()
     assert again == tapped  # the same bytes at the same virtual instants
+
+
+def test_a_socketcand_clients_cyclic_job_runs_on_the_virtual_clock():
+    # A client outside the process adds a BCM job (every 100 ms): the bench runs it in virtual time, at
+    # exact instants, however slowly or quickly the wall clock goes.
+    import socket
+
+    from hilbench.pytest_plugin import wait_until
+
+    with Bench(PROFILES / "mecarover-can.toml", virtual_time=True, virtual_epoch=EPOCH) as bench:
+        ep = bench.endpoint()
+        seen: list[tuple[float, bytes]] = []
+        ep.medium.add_tap(lambda t, src, data: seen.append((t, data)))
+        server = ep.port.socketcand
+        with socket.create_connection(server.address, timeout=5) as sock:
+            sock.sendall(b"< open can0 >< add 0 100000 321 1 aa >")
+            wait_until(lambda: any(c.jobs for c in server.clients), timeout=10)  # (read at the held instant)
+            start = bench.clock.now()
+            bench.clock.run_for(1.0, timeout=30)
+        job = [t for t, data in seen if data[:4] == bytes([0x21, 0x03, 0, 0])]  # id 0x321
+        assert len(job) == 10  # at the instant it was added, then every 100 ms (the 11th is its bits past 1 s)
+        assert job[0] >= start
+        bit_time = job[0] - start  # (the frame's bits at 500 kbit/s: it is delivered when sent)
+        assert 0 < bit_time < 200e-6
+        assert [round(t - start - bit_time, 9) for t in job] == [round(0.1 * k, 9) for k in range(10)]
