@@ -71,7 +71,9 @@ $(VENV)/.docs: $(VENV)/.installed
 	$(PY) -m pip install -q -e '.[docs]'
 	touch $@
 
+# The API pages are generated afresh each time: a module moved or removed leaves no stale page behind.
 docs: $(VENV)/.docs
+	rm -rf docs/api/_generated
 	$(PY) -m sphinx -W --keep-going -n -q -b html docs docs/_build/html
 
 bench: $(VENV)/.installed $(SDK3)/.installed

@@ -13,6 +13,10 @@ Fixtures
 ``hilbench_emulator``
     A factory that runs ``hilbench emulate`` in a separate process, as a user
     would, and returns its manifest once every endpoint is ready.
+``hilbench_world``
+    The ``bench`` fixture's world (:class:`~hilbench.bench.world.BenchWorld`): the truth a test compares
+    with what its clients measured, ``body("rover").pose``, ``place("r1", x, y, theta)``, ``record(path)``.
+    (Any fixture bench has it as ``bench.world``; an emulator answers ``ControlClient.world()``.)
 ``hilbench_run``
     Clients in other processes with a serial adapter's semantics (``hilbench
     run``) against a fixture bench or an emulator: ``hilbench_run.command(bench,
@@ -165,6 +169,12 @@ def bench(request: pytest.FixtureRequest, hilbench_bench: Callable[..., Bench]) 
         remote.stop()
         return
     yield hilbench_bench(profile, **(marker.kwargs if marker else {}))
+
+
+@pytest.fixture
+def hilbench_world(bench: Any) -> Any:
+    """The world of the ``bench`` fixture (its bodies, their true poses, placing them, recording them)."""
+    return bench.world
 
 
 def _labgrid_bench(request: pytest.FixtureRequest) -> Any:

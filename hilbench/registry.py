@@ -22,12 +22,17 @@ kind                   entry-point group          the object an entry point name
 :data:`media`          ``hilbench.media``         a :class:`~hilbench.transports.medium.Medium` class
 :data:`sources`        ``hilbench.sources``       a :class:`~hilbench.transports.sources.SourceOpener`
 :data:`instruments`    ``hilbench.instruments``   an :class:`~hilbench.monitor.instrument.Instrument`
+:data:`clients`        ``hilbench.clients``       a :class:`~hilbench.clients.base.ClientDriver` (a device's host
+                                                  side, for the verb of its role: ``hilbench lidar``)
 :data:`verbs`          ``hilbench.verbs``         a module with ``register(subparsers)``
 :data:`fuzz_targets`   ``hilbench.fuzz_targets``  a :class:`~hilbench.fuzzing.FuzzTarget` (fuzzing,
                                                   rough-input benchmarks)
 :data:`servers`        ``hilbench.servers``       a :class:`~hilbench.bench.server.Server` (``emulate --serve``)
 :data:`recorders`      ``hilbench.recorders``     a recording format: ``accepts(path, protocol)``,
                                                   ``open(path, source=..., description=...)``
+:data:`inferrers`      ``hilbench.inferrers``     a :class:`~hilbench.bench.capture_profile.Inferrer`: a
+                                                  profile from a capture of its traffic
+                                                  (``profiles from-capture``)
 =====================  =========================  =============================================
 
 Entry points load on first use of their kind. A plug-in that fails to load
@@ -39,9 +44,10 @@ A registration that clashes with one already made is refused: two families
 claiming one family name or model (or one ``[defaults]`` key, or one
 top-level profile table with different checks), two bus kinds for one
 protocol, two instruments for one protocol or alias, two verb modules adding
-one verb. An entry point that clashes is skipped with a :class:`PluginWarning`
+one verb, two inferrers for one protocol. An entry point that clashes is skipped with a :class:`PluginWarning`
 naming both packages (the first registered wins: hilbench's own, then by
-name); :meth:`Kind.register` raises :class:`ValueError`.
+name); :meth:`Kind.register` raises :class:`ValueError`. Client drivers claim
+their protocol and aliases, and the options they add to their role's verb.
 
 This module imports nothing from hilbench but :mod:`hilbench.errors`.
 """
@@ -243,6 +249,19 @@ def _instrument_claims(inst: Any) -> Iterator[Claim]:
         yield ("protocol", protocol)
 
 
+def _client_claims(client: Any) -> Iterator[Claim]:
+    """A client driver's protocol and aliases, and the options it adds to its role's verb (they share one
+    parser with the other clients of that role)."""
+    import argparse
+
+    yield from _instrument_claims(client)
+    parser = argparse.ArgumentParser(add_help=False)
+    client.add_arguments(parser)
+    for action in parser._actions:
+        for option in action.option_strings:
+            yield (f"{client.role} option", option)
+
+
 def _verb_claims(module: Any) -> Iterator[Claim]:
     for verb in getattr(module, "VERBS", {}):
         yield ("verb", verb)
@@ -261,6 +280,8 @@ media = Kind("media", "hilbench.media", what="medium")
 sources = Kind("sources", "hilbench.sources", what="source kind")
 #: Instruments (:class:`~hilbench.monitor.instrument.Instrument`), by protocol.
 instruments = Kind("instruments", "hilbench.instruments", what="instrument", claims=_instrument_claims)
+#: Client drivers (:class:`~hilbench.clients.base.ClientDriver`): a device's host side, by protocol.
+clients = Kind("clients", "hilbench.clients", what="client driver", claims=_client_claims)
 #: Verb modules of the ``hilbench`` command.
 verbs = Kind("verbs", "hilbench.verbs", what="verb module", claims=_verb_claims)
 #: Fuzz targets (:class:`~hilbench.fuzzing.FuzzTarget`): readers and servers the fuzzer and rough-input tools drive.
@@ -269,9 +290,12 @@ fuzz_targets = Kind("fuzz_targets", "hilbench.fuzz_targets", what="fuzz target")
 servers = Kind("servers", "hilbench.servers", what="server")
 #: Recording formats.
 recorders = Kind("recorders", "hilbench.recorders", what="recording format")
+#: Profile inferrers (:class:`~hilbench.bench.capture_profile.Inferrer`), by the protocols they read.
+inferrers = Kind("inferrers", "hilbench.inferrers", what="profile inferrer",
+                 claims=lambda inf: [("protocol", p) for p in inf.protocols])
 
 KINDS: tuple[Kind, ...] = (families, bus_kinds, host_ports, media, sources, instruments, verbs, fuzz_targets,
-                            servers, recorders)
+                            servers, recorders, inferrers, clients)
 
 
 def reload() -> None:
@@ -302,6 +326,6 @@ def instrument_for(protocol: str) -> Any | None:
     return None
 
 
-__all__ = ["KINDS", "Claim", "Kind", "PluginWarning", "bus_kinds", "families", "families_joining",
-           "family_for_model", "fuzz_targets", "host_ports", "instrument_for", "instruments", "media", "recorders",
-           "reload", "servers", "sources", "verbs"]
+__all__ = ["KINDS", "Claim", "Kind", "PluginWarning", "bus_kinds", "clients", "families", "families_joining",
+           "family_for_model", "fuzz_targets", "host_ports", "inferrers", "instrument_for", "instruments", "media",
+           "recorders", "reload", "servers", "sources", "verbs"]

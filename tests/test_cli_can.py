@@ -20,7 +20,7 @@ from hilbench.errors import UsageError
 from hilbench.protocols import board_can as bc
 from hilbench.protocols import can_frame as cf
 from hilbench.pytest_plugin import wait_until
-from hilbench.transports.capture_file import Chunk
+from hilbench.transports.chunk import Chunk
 from hilbench.transports.sources import open_source
 from tests.conftest import REPO, interrupt
 
@@ -108,6 +108,13 @@ def test_socketcan_source_says_why(tmp_path):
         pytest.skip("the kernel has AF_CAN: no error to see")
     out = hb("monitor", "socketcan://vcan0", "--summary", "--json")
     assert out.returncode == 2 and "AF_CAN" in out.stderr and out.stderr.count("\n") == 1
+
+
+def _wait_for_raw_client(manifest: str) -> None:
+    """Until a socketcand client (a CLI started in another process) is in raw mode, i.e. hears the bus."""
+    control = ControlClient.from_manifest(manifest)
+    wait_until(lambda: control.media()["can"]["host"]["socketcand"]["modes"].get("raw", 0) >= 1, timeout=20,
+               interval=0.05)
 
 
 @pytest.fixture
@@ -198,7 +205,7 @@ def test_monitor_a_live_bench_with_faults(can_bench):
     proc = subprocess.Popen([sys.executable, "-m", "hilbench.cli", "monitor", f"{url}?bitrate=500000", "--summary",
                              "--json", "--seconds", "4.5"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True, cwd=REPO)
-    time.sleep(1.0)
+    _wait_for_raw_client(manifest)  # the monitor listens before the heartbeat (and the errors) come back
     assert hb("can", "fault", "--manifest", manifest, "heartbeat_stop=false").returncode == 0
     out, err = proc.communicate(timeout=30)
     assert proc.returncode == 0, err
@@ -214,7 +221,7 @@ def test_send_and_dump(can_bench):
     dump = subprocess.Popen([sys.executable, "-m", "hilbench.cli", "can", "dump", url, "--dbc", "mecarover-can",
                              "-n", "8", "--seconds", "20"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             cwd=REPO, env={**os.environ, "PYTHONUNBUFFERED": "1"})
-    time.sleep(1.0)
+    _wait_for_raw_client(manifest)  # the dump listens before anything is sent
     out = hb("can", "send", manifest, "000#0102", "123#DEADBEEF")
     assert out.returncode == 0, out.stderr
     lines, err = dump.communicate(timeout=30)

@@ -227,6 +227,9 @@ def cases(w: dict) -> dict[str, dict[str, list[str] | NA]]:
                   "refused": ["board", "--control", f"127.0.0.1:{r}", "status"], "taken": NA("listens nowhere"),
                   "timeout": ["board", "--control", f"127.0.0.1:{s}", "status"],
                   "bad": ["board", "--manifest", m, "fault", "drop_rate=2"]},
+        "world": {"missing": ["world", m, "--json"], "refused": ["world", "--control", f"127.0.0.1:{r}", "--json"],
+                  "taken": NA("listens nowhere"), "timeout": ["world", "--control", f"127.0.0.1:{s}", "--json"],
+                  "bad": ["world", m, "--duration", "-1"]},
         "profile": {"missing": ["profile", m], "refused": ["profile", tcp],
                     "taken": ["profile", "bench:mecarover-udp", "--set", f"rover.port={w['udp']}"],
                     "timeout": ["profile", f"tcp://127.0.0.1:{s}"], "bad": ["profile", "x", "--bins", "0"]},
@@ -357,6 +360,17 @@ motor = "always"
 """
 
 
+def _small_capture(tmp_path):
+    """A raw dump of one servo's Ping and a read of its position, with their replies."""
+    from hilbench.protocols import dynamixel as dxl
+
+    path = tmp_path / "bus.bin"
+    path.write_bytes(dxl.instruction_packet(1, dxl.Instruction.PING) + dxl.status_packet(1, 0, bytes([0xFC, 3, 52]))
+                     + dxl.instruction_packet(1, dxl.Instruction.READ, bytes([132, 0, 4, 0]))
+                     + dxl.status_packet(1, 0, (2048).to_bytes(4, "little")))
+    return path
+
+
 def test_every_json_option_prints_one_json_document(tmp_path, hilbench_emulator):
     prof = tmp_path / "both.toml"
     prof.write_text(BOTH)
@@ -372,7 +386,10 @@ def test_every_json_option_prints_one_json_document(tmp_path, hilbench_emulator)
         ("dxl", "read"): ["dxl", "read", path["arm"], "1", "present_position", "--baud", "1000000", "--json"],
         ("lidar",): ["lidar", f"{mfile}#lidar", "--scans", "2", "--json"],
         ("board",): ["board", "--manifest", mfile, "--json", "status"],
+        ("world",): ["world", mfile, "--json"],
         ("profile",): ["profile", f"{mfile}#rover", "--duration", "1", "--json"],
+        ("profiles", "from-capture"): ["profiles", "from-capture", str(_small_capture(tmp_path)), "--baud", "1000000",
+                                       "--verify", "--speed", "0", "--json"],
     }
     with_json = {path for path, parser in parsers() if any("--json" in a.option_strings for a in parser._actions)}
     assert with_json == set(commands), "a verb with --json and no case here"

@@ -70,7 +70,7 @@ def test_every_exception_class_is_a_hilbench_error():
     found = json.loads(proc.stdout.splitlines()[-1])
     assert found["offenders"] == []
     # The walk saw the package: the classes that once stood outside the root are among those it checked.
-    for name in ("hilbench.transports.capture_file.CaptureError", "hilbench.protocols.vel2d.Vel2dError",
+    for name in ("hilbench.transports.chunk.CaptureError", "hilbench.protocols.vel2d.Vel2dError",
                  "hilbench.fakes.xrce_agent.entities.EntityError", "hilbench.errors.MissingExtra",
                  "hilbench.transports.listener.BindError"):
         assert name in found["checked"]
@@ -80,7 +80,7 @@ def test_every_exception_class_is_a_hilbench_error():
 def test_callers_catching_value_error_still_catch_format_errors():
     from hilbench.fakes.xrce_agent.entities import EntityError
     from hilbench.protocols import vel2d
-    from hilbench.transports.capture_file import CaptureError
+    from hilbench.transports.chunk import CaptureError
 
     with pytest.raises(ValueError, match="expected 28 bytes") as exc:
         vel2d.parse(b"\x00" * 27)

@@ -112,18 +112,6 @@ def modules() -> dict[str, Module]:
 
 # -- import cycles ------------------------------------------------------------------------------------------
 
-#: The import cycles left (strongly connected components). Issue 24 step P3 removes them: the kernel's fast
-#: path imports Kernel/Task for annotations only (TYPE_CHECKING); `motion.py` moves out of the Dynamixel
-#: package (`fakes/motion.py`); `CanDoor` moves to `transports/can_door.py`, which the doors import.
-KNOWN_CYCLES = {
-    frozenset({"hilbench.fakes.stm32_board.fast_path", "hilbench.fakes.stm32_board.kernel"}),
-    frozenset({"hilbench.fakes.control_table_servo", "hilbench.fakes.dynamixel", "hilbench.fakes.dynamixel.bus",
-               "hilbench.fakes.dynamixel.servo"}),
-    frozenset({"hilbench.transports.can_port", "hilbench.transports.can_virtual", "hilbench.transports.slcan_port",
-               "hilbench.transports.socketcan", "hilbench.transports.socketcand_server"}),
-}
-
-
 def import_graph() -> dict[str, set[str]]:
     """Module -> modules its import runs: its imports (in functions too, not under TYPE_CHECKING) and the
     packages above each (importing ``a.b.c`` runs ``a/__init__`` and ``a/b/__init__`` first)."""
@@ -211,12 +199,11 @@ def test_the_cycle_finder_finds_a_cycle_and_only_cycles():
 
 
 def test_no_import_cycles():
+    """None at all: a module that needs another's types for annotations only imports them under
+    ``TYPE_CHECKING``; a base class two modules share lives in a third (``transports/can_door.py``)."""
     graph = import_graph()
-    found = set(cycles(graph))
-    new = [" -> ".join(shortest_cycle(graph, c)) for c in found - KNOWN_CYCLES]
-    assert not new, f"new import cycles: {new}"
-    gone = [sorted(c) for c in KNOWN_CYCLES - found]
-    assert not gone, f"these cycles are gone: delete them from KNOWN_CYCLES: {gone}"
+    found = [" -> ".join(shortest_cycle(graph, c)) for c in cycles(graph)]
+    assert not found, f"import cycles: {found}"
 
 
 # -- layers -------------------------------------------------------------------------------------------------
@@ -282,20 +269,25 @@ def test_no_upward_imports():
 
 #: The files each built-in family owns (globs under hilbench/). Everything else is shared: the frame, the
 #: kits families build on (families/scanner.py, families/servo_bus.py, fakes/scanners/{base,scene,uart}.py,
-#: fakes/{control_table_servo,table_servo,servo_line,xrce_client}.py, fakes/canopen/{node,dictionary,
-#: sdo_server}.py, protocols/{control_table,canopen,canopen_od,cdr}.py, ...) and the generic instruments
-#: (the CAN, UDP and trace instruments) and verbs.
+#: fakes/{control_table_servo,table_servo,motion,servo_line,xrce_client}.py, fakes/canopen/{node,dictionary,
+#: sdo_server}.py, protocols/{control_table,canopen,canopen_od,cdr}.py, monitor/scanners/{__init__,tracker}.py,
+#: clients/{base,scanners}.py, ...) and the generic instruments (the CAN, UDP and trace instruments) and verbs.
 OWNED: dict[str, tuple[str, ...]] = {
-    "dynamixel": ("protocols/dynamixel*.py", "fakes/dynamixel/*", "families/dynamixel.py", "monitor/dynamixel/*",
-                  "monitor/dynamixel1/*", "dashboard/dynamixel_views.py", "clients/dynamixel.py", "cli/dxl.py"),
-    "feetech": ("protocols/feetech*.py", "fakes/feetech/*", "families/feetech.py", "monitor/feetech/*"),
+    "dynamixel": ("protocols/dynamixel*.py", "fakes/dynamixel/*", "families/dynamixel.py", "families/dynamixel_*.py",
+                  "monitor/dynamixel/*", "monitor/dynamixel1/*", "dashboard/dynamixel_views.py", "clients/dynamixel.py",
+                  "cli/dxl.py", "labgrid/dynamixel.py"),
+    "feetech": ("protocols/feetech*.py", "fakes/feetech/*", "families/feetech.py", "families/feetech_*.py",
+                "monitor/feetech/*"),
     "stm32-rover": ("protocols/vel2d*.py", "protocols/tracestamp*.py", "fakes/stm32_board/*",
                     "families/stm32_rover*.py"),
-    "rplidar": ("protocols/rplidar*.py", "fakes/scanners/rplidar.py", "families/rplidar*.py"),
-    "sick-lms200": ("protocols/sick_lms200*.py", "fakes/scanners/sick_lms200.py", "families/sick_lms200*.py"),
-    "scip2": ("protocols/scip*.py", "fakes/scanners/scip.py", "families/scip2*.py"),
-    "canopen": ("protocols/board_can.py", "fakes/canopen/rover.py", "families/canopen_board*.py",
-                "clients/can_rover.py"),
+    "rplidar": ("protocols/rplidar*.py", "fakes/scanners/rplidar.py", "families/rplidar*.py",
+                "monitor/scanners/rplidar*.py", "clients/rplidar.py"),
+    "sick-lms200": ("protocols/sick_lms200*.py", "fakes/scanners/sick_lms200.py", "families/sick_lms200*.py",
+                    "monitor/scanners/sick_lms200*.py", "clients/sick_lms200.py"),
+    "scip2": ("protocols/scip*.py", "fakes/scanners/scip.py", "families/scip2*.py", "monitor/scanners/scip2*.py",
+              "clients/scip2.py"),
+    "canopen": ("protocols/board_can.py", "fakes/canopen/rover.py", "fakes/canopen/recorded.py",
+                "families/canopen_*.py", "clients/can_rover.py"),
     "micro-ros-agent": ("protocols/xrce_dds.py", "fakes/xrce_agent/*", "families/micro_ros_agent*.py",
                         "monitor/udp/xrce_state.py"),
     "freertps": ("protocols/rtps.py", "fakes/rtps_node/*", "families/freertps.py", "monitor/udp/rtps_state.py"),
@@ -306,7 +298,7 @@ EXTRA_WORDS = {"dynamixel": {"dynamixel1"}}
 GENERIC_WORDS = {"can"}
 
 #: Shared modules that name a family today (PLAN24 §1), module -> {what it names}; the steps of issue 24
-#: (P3, P5, P8a-d, P11 in PLAN24 §10) empty it. An import of a family's protocol codec is not counted:
+#: (P5, P8a-d, P11 in PLAN24 §10) empty it. An import of a family's protocol codec is not counted:
 #: codecs are libraries anyone may use (DESIGN.md §3); a string naming it (its protocol) is.
 NAMES_A_FAMILY: dict[str, set[str]] = {
     # P8c: the rover board's verbs become the family's own module cli/stm32_rover.py
@@ -316,23 +308,11 @@ NAMES_A_FAMILY: dict[str, set[str]] = {
     "cli/can.py": {"'canopen'", "import hilbench.clients.can_rover", "import hilbench.families.canopen_board"},
     # P8c: --view choices from the servo bus's instrument
     "cli/demo.py": {"'dynamixel'", "import hilbench.dashboard.dynamixel_views"},
-    # P8a: scanner clients from the registry
-    "cli/lidar.py": {"'lms200'", "'rplidar'", "'scip2'", "'sick-lms200'"},
     # P8c: the trace instrument's device_sources and default_baud
     "cli/profile.py": {"'stm32f767-rover'", "'vel2d'"},
     # P8c: servo clients from the registry (clients/servo_demo.py, clients/{dynamixel,feetech}.py)
     "clients/dynamixel_demo.py": {"'Wolfgang Foot'", "'dynamixel'", "'feetech'"},
     "clients/servo_links.py": {"'dynamixel'", "'dynamixel1'", "'feetech'", "import hilbench.clients.dynamixel"},
-    # P8a: per-family scanner drivers, trackers and instruments
-    "clients/scanners.py": {"'rplidar'", "'scip2'", "'sick-lms200'"},
-    "monitor/scanners/__init__.py": {"'lms200'", "'rplidar'", "'scip2'", "'sick-lms200'"},
-    "monitor/scanners/tracker.py": {"'rplidar'", "'scip2'", "'sick-lms200'"},
-    # P8d: the labgrid driver through the bus kind (labgrid/dynamixel.py)
-    "labgrid/config.py": {"'dynamixel'"},
-    "labgrid/drivers.py": {"'dynamixel'"},
-    # P3: fakes/motion.py (MotionProfile), kit of both
-    "fakes/control_table_servo.py": {"import hilbench.fakes.dynamixel.motion"},
-    "fakes/table_servo.py": {"import hilbench.fakes.dynamixel.motion"},
     # family -> family: the Protocol 1.0 bus core and tracker into a servo-bus kit (PLAN24 §1, "should")
     "fakes/feetech/bus.py": {"import hilbench.fakes.dynamixel.bus1"},
     "monitor/feetech/__init__.py": {"import hilbench.monitor.dynamixel.devices", "import hilbench.monitor.dynamixel1",

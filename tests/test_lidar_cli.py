@@ -152,7 +152,7 @@ def test_lidar_says_which_speeds_an_lms200_did_not_answer_at(monkeypatch, capsys
     import os
 
     from hilbench.cli import main
-    from hilbench.clients.scanners import SickDriver
+    from hilbench.clients.sick_lms200 import SickDriver
 
     monkeypatch.setattr(SickDriver, "PROBE_TIMEOUT", 0.1)
     master, slave = os.openpty()  # a port with nothing behind it
@@ -167,3 +167,62 @@ def test_lidar_says_which_speeds_an_lms200_did_not_answer_at(monkeypatch, capsys
     assert err.splitlines() == [
         f"hilbench: error: {name}: no LMS 200 answers a status request at 9600, 38400, 19200, 500000 baud "
         "(is it powered, on this port, and not used by another program?)"]
+
+
+def test_a_scanner_client_brings_its_protocol_speed_and_options_to_lidar():
+    """`hilbench lidar` names no scanner: a client registered like any family's (here in code) gets its protocol
+    and aliases into --protocol, its options into the verb, its speed onto the port and its driver run."""
+    import argparse
+    import os
+
+    from hilbench import registry
+    from hilbench.cli import lidar
+    from hilbench.clients.scanners import ScannerClient, ScannerDriver
+    from hilbench.monitor.scanners.tracker import ScannerTracker
+
+    opened = []
+
+    class AcmeDriver(ScannerDriver):
+        protocol = "acme-scan"
+
+        def new_tracker(self):  # (no instrument registered for acme-scan here)
+            return ScannerTracker(protocol="acme-scan")
+
+    class AcmeClient(ScannerClient):
+        protocol = "acme-scan"
+        aliases = ("acme",)
+        driver = AcmeDriver
+        default_baud = 57_600
+
+        def add_arguments(self, parser):
+            parser.add_argument("--acme-range", type=float, default=4.0)
+
+        def open(self, link, args=None, *, set_dtr=None):
+            opened.append((link.handle.baudrate, args.acme_range))
+            return super().open(link, args)
+
+    class Clashing(AcmeClient):
+        protocol = "other-scan"
+        aliases = ()
+
+        def add_arguments(self, parser):
+            parser.add_argument("--lms-baud")  # the LMS 200's option
+
+    registry.clients.register("acme-scan", AcmeClient())
+    try:
+        with pytest.raises(ValueError, match="scanner option '--lms-baud' is taken by client driver 'sick-lms200'"):
+            registry.clients.register("other-scan", Clashing())
+        parser = argparse.ArgumentParser()
+        lidar.register(parser.add_subparsers())
+        master, slave = os.openpty()
+        try:
+            args = parser.parse_args(["lidar", os.ttyname(slave), "--protocol", "acme", "--acme-range", "8"])
+            drv = lidar._driver(lidar.Target(os.ttyname(slave), None), args)
+            drv.link.close()
+        finally:
+            os.close(slave)
+            os.close(master)
+        assert opened == [(57_600, 8.0)] and isinstance(drv, AcmeDriver)
+        assert "--express" in parser._subparsers._group_actions[0].choices["lidar"].format_help()
+    finally:
+        registry.clients.unregister("acme-scan")

@@ -25,6 +25,7 @@ from hilbench import registry
 from hilbench.bench.bus import BusKind
 from hilbench.bench.family import DeviceFamily, DeviceSpec, FamilyAccess
 from hilbench.bench.profile import EndpointSpec, Profile, load_profile
+from hilbench.bench.world import BenchWorld, build_world
 from hilbench.errors import BenchError, UsageError
 from hilbench.transports.clock import WALL, VirtualClock, WallClock
 from hilbench.transports.listener import BindError
@@ -163,6 +164,7 @@ class Bench:
         self._manifest_token: str | None = None  # names this bench's manifests (see hilbench.bench.manifest)
         self._manifests: dict[Path, Any] = {}  # path -> ManifestClaim
         self._access: dict[str, FamilyAccess] = {}  # family name -> what family() returns
+        self._world: BenchWorld | None = None
 
     # ------------------------------------------------------------------ lifecycle
 
@@ -178,6 +180,7 @@ class Bench:
             raise BenchError("this bench was stopped and its ports are closed: start a new Bench")
         t = self.clock.now()
         prof = self.profile
+        self._world = BenchWorld(self, build_world(prof, t, self.clock))
         try:
             for spec in prof.endpoints.values():
                 bus_kind = registry.bus_kinds.get(spec.protocol)
@@ -232,6 +235,8 @@ class Bench:
                 ep.bus_kind.start(ep, t)
                 for family in ep.families():
                     registry.families.get(family).start(ep, ep.devices_of(family), t)
+            if self._world.world.bodies:  # (a world without bodies has nothing to step: movers are functions of time)
+                self._world.world.start()
         except Exception:
             self.stop()
             raise
@@ -296,6 +301,8 @@ class Bench:
         for service in self.services.values():
             service.close()
         self.services.clear()
+        if self._world is not None:
+            self._world.world.stop()
         for ep in self.endpoints.values():
             for family in ep.families():
                 registry.families.get(family).stop(ep, ep.devices_of(family))
@@ -331,6 +338,14 @@ class Bench:
             return self.devices[name_or_address]
         ep = self.endpoint(endpoint)
         return ep.bus_kind.device_at(ep, name_or_address)
+
+    @property
+    def world(self) -> BenchWorld:
+        """The bench's world (the truth: bodies, their poses, recorders); see :mod:`hilbench.bench.world`.
+        BenchError before the bench started."""
+        if self._world is None:
+            raise BenchError(f"bench {self.profile.name!r} has not started: its world does not exist yet")
+        return self._world
 
     def family(self, name: str) -> FamilyAccess:
         """A family's devices on this bench with its typed lookups: ``bench.family("stm32-rover").board()``,
@@ -404,6 +419,8 @@ class Bench:
             ep = self.endpoints.get(spec.endpoint)
             family = registry.families.get(spec.family)
             entry = family.describe_device(spec, self.devices.get(spec.name), ep, self.profile)
+            if spec.body is not None:
+                entry["body"] = spec.body
             devs.append({**entry, "family": spec.family})
         out: dict[str, Any] = {
             "name": self.profile.name,

@@ -18,7 +18,10 @@ itself:
 - finding a device by address (:meth:`~BusKind.device_at`), the endpoint's manifest
   fields and listing line (:meth:`~BusKind.describe_endpoint`, :meth:`~BusKind.summary`), and
   **bus-level control commands** (:meth:`~BusKind.control`, e.g. a CAN bus's error
-  knobs) addressed by endpoint.
+  knobs) addressed by endpoint;
+- the **labgrid driver** ``hilbench labgrid env`` puts on a served endpoint's
+  console (:meth:`~BusKind.labgrid_driver`, a :class:`LabgridDriver`), if the
+  family has one.
 
 Devices come from :class:`~hilbench.bench.family.DeviceFamily` plug-ins chosen
 per device **model**; a family says which bus protocols its devices join
@@ -35,7 +38,7 @@ second CANopen node family beside the rover board). A minimal bus kind::
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar, NamedTuple
 
 from hilbench.bench.checks import Checker
 
@@ -43,6 +46,17 @@ if TYPE_CHECKING:
     from hilbench.bench.bench import Bench, Endpoint
     from hilbench.bench.family import DeviceSpec
     from hilbench.bench.profile import EndpointSpec
+
+
+class LabgridDriver(NamedTuple):
+    """A labgrid driver for an endpoint's console, as ``hilbench labgrid env`` writes it into an environment."""
+
+    #: The module the environment imports (``imports:``); importing it registers the driver with labgrid.
+    module: str
+    #: The driver's class name (labgrid's key in the environment's ``drivers:``).
+    cls: str
+    #: Appended to the endpoint's name to name the driver (``arm`` + ``-dxl``).
+    suffix: str
 
 
 class BusKind:
@@ -156,6 +170,13 @@ class BusKind:
         """Answer bus command ``cmd`` (one of :attr:`control_commands`) for ``endpoint``."""
         raise NotImplementedError
 
+    # ------------------------------------------------------------------ remote benches
+
+    def labgrid_driver(self, endpoint: dict[str, Any]) -> LabgridDriver | None:
+        """The labgrid driver for a served endpoint of this bus (``endpoint``: its manifest entry), bound to the
+        endpoint's ``SerialDriver``; None: the console alone."""
+        return None
+
 
 def _word_of(spec: DeviceSpec) -> str:
     """How errors name a device of ``spec``'s family (its ``device_word``)."""
@@ -168,4 +189,4 @@ def _a(word: str) -> str:
     return f"an {word}" if word[:1] in "aeiou" else f"a {word}"
 
 
-__all__ = ["BusKind"]
+__all__ = ["BusKind", "LabgridDriver"]

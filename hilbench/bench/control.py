@@ -15,8 +15,10 @@ under and its counters, e.g. how late a paced serial line handed transmissions
 over against its wire model; ``host``: the host port's own, e.g. a socketcand
 server's clients and what it refused or dropped),
 ``servers`` (each endpoint's network servers, e.g. RFC 2217, with their
-client and counters), ``control`` (this channel's limits and counters) and ``manifest`` (the bench's
-manifest, for programs that reach the bench only through this channel, e.g. over labgrid);
+client and counters), ``control`` (this channel's limits and counters), ``manifest`` (the bench's
+manifest, for programs that reach the bench only through this channel, e.g. over labgrid),
+``world`` (the truth: every body's pose and velocity, each device's body and pose, as ``hilbench world
+--json`` prints it) and ``world_place`` (put a body somewhere: ``body``, ``x``, ``y``, ``theta``);
 every other command belongs to a device's family
 (:attr:`~hilbench.bench.family.DeviceFamily.control_commands`), e.g. the rover
 board's ``status``, ``button``, ``reset``, ``fault``, ``log`` and
@@ -93,7 +95,7 @@ SEND_BUFFER = 64 << 10
 BACKLOG = 1024
 
 #: What every bench answers, whatever its devices.
-BENCH_COMMANDS = ("control", "devices", "manifest", "media", "servers", "taps")
+BENCH_COMMANDS = ("control", "devices", "manifest", "media", "servers", "taps", "world", "world_place")
 
 _JSON_STRING = re.compile(rb'"(?:[^"\\]|\\.)*"')
 _NESTING = bytes.maketrans(b"[{]}", b"\x01\x01\x02\x02")
@@ -674,6 +676,10 @@ class ControlServer:
         if cmd == "taps":
             return {"taps": {ep.name: {"url": ep.tap.url, **ep.tap.status()}
                              for ep in self.bench.endpoints.values() if ep.tap is not None}}
+        if cmd in ("world", "world_place"):
+            from hilbench.bench import world
+
+            return world.control(self.bench, cmd, req)
         if any(cmd in c for c in self._bus_commands().values()) and (
                 "endpoint" in req or not any(cmd in c for c in self._commands().values())):
             ep = self._endpoint(cmd, req)
@@ -782,6 +788,15 @@ class ControlClient:
     def control(self) -> dict[str, Any]:
         """The channel's own limits and counters: ``{"clients": 1, "max_clients": 64, "refused": 0, ...}``."""
         return self.call("control")["control"]
+
+    def world(self, **args: Any) -> dict[str, Any]:
+        """The bench's world now (``geometry=True``, ``scans=True``, ``since=T`` add more): see
+        :func:`hilbench.bench.world.control`."""
+        return self.call("world", **args)
+
+    def place(self, body: str, x: float, y: float, theta: float = 0.0) -> dict[str, Any]:
+        """Put a body of the bench's world at (x, y, theta) (m, m, rad)."""
+        return self.call("world_place", body=body, x=x, y=y, theta=theta)
 
     def taps(self) -> dict[str, dict[str, Any]]:
         """Each endpoint's traffic tap: ``{"rover": {"url": "tcp://...", "clients": 1}}``."""

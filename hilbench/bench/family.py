@@ -75,6 +75,9 @@ class DeviceSpec:
     address: int | None = field(default=None, kw_only=True)
     #: Where the profile declared it (``devices[3]``), for errors found later.
     where: str = field(default="", kw_only=True, repr=False)
+    #: The world body it sits on (``body = "rover"``, a core key checked by the profile loader); None: fixed in
+    #: the world (or not in it at all).
+    body: str | None = field(default=None, kw_only=True)
 
 
 class DeviceFamily:

@@ -353,10 +353,16 @@ def open_manifest(spec: str, target: str, fragment: str, **_: object):
     return TcpSource(url.hostname or "127.0.0.1", url.port or 0, name=name)
 
 
+def sniff_manifest(head: bytes) -> bool:
+    """Whether a file's first bytes are a manifest's (``emulate --manifest`` takes any file name)."""
+    return head.lstrip().startswith(b"{") and f'"{MARKER}"'.encode() in head
+
+
 #: The ``manifest`` source plug-in (``hilbench.sources`` entry point).
 SOURCE = SourceOpener("manifest", open_manifest, suffixes=(".json",), usage="/tmp/bench.json[#endpoint]",
-                      what="the traffic tap of a running hilbench emulate, found through its manifest")
+                      what="the traffic tap of a running hilbench emulate, found through its manifest",
+                      sniff=sniff_manifest)
 
 __all__ = ["FORMAT", "MARKER", "SOURCE", "BenchNotRunning", "ManifestBusy", "ManifestClaim", "ManifestError",
            "check_path", "devices_on", "endpoint_of", "is_manifest", "manifest_tap", "new_token", "open_manifest", "pid_alive", "process_start",
-           "read_manifest", "remove_manifest", "stale_pid", "write_manifest"]
+           "read_manifest", "remove_manifest", "sniff_manifest", "stale_pid", "write_manifest"]

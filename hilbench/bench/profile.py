@@ -56,7 +56,9 @@ DEFAULT_PROFILE = "wolfgang"
 #: Keys of ``[endpoints.NAME]`` the core reads itself.
 CORE_ENDPOINT_KEYS = ("type", "protocol", "baud", "paced")
 #: Top-level keys the core reads itself.
-CORE_KEYS = ("schema", "description", "endpoints", "devices", "defaults")
+CORE_KEYS = ("schema", "description", "endpoints", "devices", "defaults", "world")
+#: Keys of a ``[[devices]]`` entry the core reads itself, whatever the family.
+CORE_DEVICE_KEYS = ("body",)
 
 S = TypeVar("S", bound=DeviceSpec)
 
@@ -86,6 +88,8 @@ class Profile:
     devices: list[DeviceSpec]
     defaults: dict[str, Any] = field(default_factory=dict)
     tables: dict[str, Any] = field(default_factory=dict)
+    #: The checked ``[world]`` table (:class:`~hilbench.bench.world.WorldSpec`; None: the profile has none).
+    world: Any = None
     #: The overrides applied to the file (``{"dxl.baud": 1000000}``; :func:`apply_overrides`), listed in the
     #: bench's manifest (``"set"``) so a reader of the profile file can apply them too.
     overrides: dict[str, Any] = field(default_factory=dict)
@@ -292,6 +296,14 @@ def parse_profile(data: dict[str, Any], path: str = "<profile>") -> Profile:
     for name, fam in tables.items():
         if name in data:
             profile.tables[name] = fam.check_table(c, name, data[name])
+    if "world" in data:
+        from hilbench.bench.world import check_world
+
+        profile.world = check_world(c, data["world"])
+        if profile.world.scene is not None and "scene" in data:
+            c.fail("scene", "the world's geometry is given in [world] already: move these keys there")
+        if profile.world.scene is not None:
+            profile.tables["scene"] = profile.world.scene  # (where readers of the older [scene] look)
     for i, dev in enumerate(raw_devs):
         profile.devices.extend(_devices(c, f"devices[{i}]", dev, profile))
     for name, spec in endpoints.items():
@@ -406,11 +418,18 @@ def _devices(c: Checker, where: str, dev: dict[str, Any], profile: Profile) -> l
         what = f"model {model!r}" if model is not None else f"a {family.device_word}"
         c.fail(f"{where}.endpoint", f"{what} (family {family.name}) needs an endpoint with protocol = {protos}; "
                                     f"{ep_name!r} has protocol = \"{spec.protocol}\"")
-    c.unknown(dev, where, family.device_keys)
-    specs = family.check_devices(c, where, dev, spec, profile)
+    c.unknown(dev, where, (*family.device_keys, *CORE_DEVICE_KEYS))
+    body = None
+    if "body" in dev:
+        from hilbench.bench.world import check_body
+
+        body = check_body(c, dev["body"], f"{where}.body", profile.world)
+    specs = family.check_devices(c, where, {k: v for k, v in dev.items() if k not in CORE_DEVICE_KEYS}, spec,
+                                 profile)
     for s in specs:
         s.family = family.name
         s.where = where
+        s.body = body
     return specs
 
 

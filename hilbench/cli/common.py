@@ -102,7 +102,7 @@ def open_cli_source(spec: str, *, baud: int | None, speed: float | None = None,
     which starts that bench (its profile changed by ``overrides``, ``--set``) in this process and taps
     ``endpoint`` (default: the first). Errors are one line, a source's own keeping its exit status; the source
     (and bench) close when the block ends."""
-    from hilbench.transports.capture_file import CaptureError
+    from hilbench.transports.chunk import CaptureError
     from hilbench.transports.sources import MediumSource, open_source
 
     bench = None

@@ -70,7 +70,7 @@ def cmd_profiles(args: argparse.Namespace) -> int:
 ORDER = 70
 VERBS = {  # each verb register() adds and its line in `hilbench --help` (see hilbench.cli)
     "demo": "run a servo bench, drive it with its own SDK, watch it live",
-    "profiles": "list the bundled profiles",
+    "profiles": "list the bundled profiles; from-capture: a profile from a capture of a real bus",
 }
 
 
@@ -89,5 +89,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     dm.add_argument("--view", choices=VIEWS, default="devices", help="dashboard view to start with (keys: 1-4)")
     dm.set_defaults(func=cmd_demo)
 
-    pr = sub.add_parser("profiles", help=VERBS["profiles"], description="List the bundled profiles.")
+    pr = sub.add_parser("profiles", help=VERBS["profiles"], description="List the bundled profiles, or write one "
+                                                                       "from a capture (from-capture).")
     pr.set_defaults(func=cmd_profiles)
+    from hilbench.cli.capture_profile import add_commands
+
+    add_commands(pr)

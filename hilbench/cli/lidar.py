@@ -1,12 +1,14 @@
 """``hilbench lidar``: live scans of a laser scanner (real or emulated) in the terminal, or one as a picture.
 
 SOURCE is a serial port (``/dev/ttyUSB0``, a bench's pty), ``tcp://HOST:PORT``
-(a SCIP 2.0 unit on Ethernet), a bench manifest (``/tmp/bench.json#lidar``:
-the endpoint's path, protocol, and the scene for ``--png``) or
+(a scanner on Ethernet), a bench manifest (``/tmp/bench.json#lidar``: the
+endpoint's path, protocol, and the scene for ``--png``) or
 ``bench:PROFILE#ENDPOINT`` (start that bench here). hilbench acts as the host:
-it starts the scans (RPLIDAR: motor on through DTR, SCAN; LMS 200: continuous
-output, after a link speed change with ``--lms-baud``; SCIP: BM and MD) and
-decodes them with the scanner trackers the monitor uses.
+the scanner's client driver (``hilbench.clients`` entry points of role
+``scanner``, :class:`~hilbench.clients.scanners.ScannerClient`) starts the
+scans its protocol's way, with options of its own, and the tracker the monitor
+uses decodes them. This module names no scanner: ``--protocol``'s choices, the
+port's speed, the options and the guess for a bare port come from the clients.
 """
 
 from __future__ import annotations
@@ -20,27 +22,49 @@ import time
 from pathlib import Path
 from typing import Any
 
+from hilbench import registry
 from hilbench.cli.common import CliError, add_set_option, terminate_on_sigterm
 from hilbench.errors import DeviceError, UnavailableError, require
 from hilbench.rules import POSITIVE_COUNT, SECONDS, Rule
 
 #: ``--timeout``: how long to wait for the first scan (s).
 FIRST_SCAN_TIMEOUT = Rule(float, 0, 3600, above=True)
+#: The role of the client drivers this verb runs (:attr:`~hilbench.clients.base.ClientDriver.role`).
+ROLE = "scanner"
 
-PROTOCOLS = {"rplidar": "rplidar", "sick": "sick-lms200", "sick-lms200": "sick-lms200", "lms200": "sick-lms200",
-             "scip": "scip2", "scip2": "scip2"}
+
+def scanner_clients() -> dict[str, Any]:
+    """Protocol -> its :class:`~hilbench.clients.scanners.ScannerClient`, for every registered scanner client."""
+    return {c.protocol: c for c in registry.clients.values() if c.role == ROLE}
+
+
+def protocol_names(clients: dict[str, Any]) -> dict[str, str]:
+    """Every name ``--protocol`` takes (protocols and aliases) -> its protocol."""
+    return {name: protocol for protocol, c in clients.items() for name in c.names}
+
+
+def _default_protocols(clients: dict[str, Any]) -> dict[str, str]:
+    """Link kind (``serial``, ``tcp``) -> the protocol taken when nothing says which (the first client's)."""
+    found: dict[str, str] = {}
+    for protocol, c in clients.items():
+        for kind in c.default_on:
+            found.setdefault(kind, protocol)
+    return found
 
 
 class Target:
-    """What to open: a link target, its protocol, and (for benches) the scene and the scanner's pose."""
+    """What to open: a link target, its protocol, and (for benches) the scene and the scanner's pose.
+
+    ``set_dtr(level)`` drives the port's DTR where pyserial cannot (a bench's pty seen without the line
+    shim): through the bench's line server or its control channel."""
 
     def __init__(self, link: str, protocol: str | None, *, scene=None, pose: dict | None = None,
-                 motor=None, bench=None, label: str = "") -> None:
+                 set_dtr=None, bench=None, label: str = "") -> None:
         self.link = link
         self.protocol = protocol
         self.scene = scene
         self.pose = pose
-        self.motor = motor
+        self.set_dtr = set_dtr
         self.bench = bench
         self.label = label or link
 
@@ -49,21 +73,22 @@ def _endpoint_of(manifest: dict, fragment: str, where: str) -> dict:
     """The manifest's scanner endpoint: ``#NAME``, else its only one (:func:`~hilbench.bench.manifest.endpoint_of`)."""
     from hilbench.bench.manifest import endpoint_of
 
-    return endpoint_of(manifest, fragment, where, lambda e: e.get("protocol") in PROTOCOLS.values(),
-                       "scanner endpoints")
+    clients = scanner_clients()
+    return endpoint_of(manifest, fragment, where, lambda e: e.get("protocol") in clients, "scanner endpoints")
 
 
-def _control_motor(address: str | None, device: str | None):
+def _control_dtr(address: str | None, device: str | None):
+    """DTR of ``device``'s port through the bench's control channel (``dtr`` command), else None."""
     if not address or not device:
         return None
 
-    def motor(on: bool) -> None:
+    def set_dtr(level: bool) -> None:
         from hilbench.bench.control import ControlClient
 
         with contextlib.suppress(Exception):
-            ControlClient(address).call("dtr", device=device, dtr=not on)
+            ControlClient(address).call("dtr", device=device, dtr=level)
 
-    return motor
+    return set_dtr
 
 
 def _carry_lines(manifest: dict) -> None:
@@ -99,9 +124,9 @@ def resolve(source: str, overrides: list[str] | None = None) -> Target:
         dev = next(iter(devices_on(manifest, ep)), {})
         port = bench.endpoint(ep["name"]).port
         lines = getattr(port, "lines", None)
-        motor = (lambda on: lines.host_sets(dtr=not on)) if lines is not None else None
+        set_dtr = (lambda level: lines.host_sets(dtr=level)) if lines is not None else None
         return Target(ep["path"] if ep["type"] != "tcp" else f"{ep['host']}:{ep['port']}", ep["protocol"],
-                      scene=bench.profile.tables.get("scene"), pose=dev.get("pose"), motor=motor, bench=bench,
+                      scene=bench.profile.tables.get("scene"), pose=dev.get("pose"), set_dtr=set_dtr, bench=bench,
                       label=f"bench {bench.profile.name}#{ep['name']}")
     path, _, frag = source.partition("#")
     if path.endswith(".json"):
@@ -121,35 +146,35 @@ def resolve(source: str, overrides: list[str] | None = None) -> Target:
         link = f"{ep['host']}:{ep['port']}" if ep.get("type") == "tcp" else ep["path"]
         _carry_lines(manifest)
         return Target(link, ep.get("protocol"), scene=scene, pose=dev.get("pose"),
-                      motor=_control_motor(manifest.get("control"), dev.get("name")), label=f"{path}#{ep['name']}")
+                      set_dtr=_control_dtr(manifest.get("control"), dev.get("name")), label=f"{path}#{ep['name']}")
     return Target(source, None)
 
 
 def _driver(target: Target, args: argparse.Namespace):
-    from hilbench.clients.scanners import DRIVERS, ScannerLink
+    from hilbench.clients.scanners import ScannerLink
 
+    clients = scanner_clients()
     protocol = target.protocol
     if args.protocol:
-        asked = PROTOCOLS[args.protocol]
+        asked = protocol_names(clients)[args.protocol]
         if protocol and protocol != asked:
             raise CliError(f"{target.label} speaks {protocol}, not {asked}")
         protocol = asked
     if protocol is None:
-        protocol = "scip2" if ":" in target.link and not target.link.startswith("/") else "rplidar"
-    if protocol not in DRIVERS:
+        kind = ScannerLink.kind_of(target.link)
+        protocol = _default_protocols(clients).get(kind)
+        if protocol is None:
+            raise CliError(f"{target.label}: which scanner is it? give --protocol")
+    client = clients.get(protocol)
+    if client is None:
         raise CliError(f"{target.label}: {protocol} is not a scanner protocol")
-    baud = {"rplidar": 115_200, "sick-lms200": 9600}.get(protocol)
     try:
-        link = ScannerLink.open(target.link, baud)
+        link = ScannerLink.open(target.link, client.default_baud)
     except OSError as exc:  # not there, refused, busy: exit status 1
         raise UnavailableError(f"{target.link}: {getattr(exc, 'strerror', None) or exc}") from None
     except ValueError as exc:
         raise CliError(f"{target.link}: {exc}") from None
-    if protocol == "rplidar":
-        return DRIVERS[protocol](link, express=args.express, motor=target.motor)
-    if protocol == "sick-lms200":
-        return DRIVERS[protocol](link, baud=args.lms_baud)
-    return DRIVERS[protocol](link)
+    return client.open(link, args, set_dtr=target.set_dtr)
 
 
 def _stats(tr) -> str:
@@ -308,12 +333,15 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "or bench:PROFILE#ENDPOINT (start that bench here). --png draws one scan over the bench's "
                     "scene (a manifest or bench source) or in the sensor frame.")
     p.add_argument("source", help="what to read (see above)")
-    p.add_argument("--protocol", choices=sorted(PROTOCOLS), help="the scanner's protocol (default: what a bench "
-                   "says; a serial port: rplidar; tcp://: scip)")
+    clients = scanner_clients()
+    defaults = _default_protocols(clients)
+    guesses = "".join(f"; {'a serial port' if kind == 'serial' else f'{kind}://'}: {protocol}"
+                      for kind, protocol in sorted(defaults.items()))
+    p.add_argument("--protocol", choices=sorted(protocol_names(clients)),
+                   help=f"the scanner's protocol (default: what a bench says{guesses})")
     add_set_option(p, "bench:PROFILE: ")
-    p.add_argument("--express", action="store_true", help="RPLIDAR: express scan (legacy capsules)")
-    p.add_argument("--lms-baud", type=int, choices=(9600, 19200, 38400, 500_000), default=9600,
-                   help="LMS 200: switch the link to this speed first (default 9600, the power-up rate)")
+    for client in clients.values():  # each scanner's own options (--express, --lms-baud, ...)
+        client.add_arguments(p)
     p.add_argument("--scans", type=POSITIVE_COUNT, help="stop after N scans")
     p.add_argument("--seconds", type=SECONDS, help="stop after S seconds (0: no limit)")
     p.add_argument("--timeout", type=FIRST_SCAN_TIMEOUT, default=10.0, help="give up when no scan arrives within S seconds "

@@ -188,7 +188,7 @@ def cmd_monitor(args: argparse.Namespace) -> int:
 
 def cmd_record(args: argparse.Namespace) -> int:
     from hilbench.cli.outputs import source_files
-    from hilbench.transports.capture_file import CaptureError
+    from hilbench.transports.chunk import CaptureError
 
     terminate_on_sigterm()
     speed = args.speed if args.speed is not None else None

@@ -26,6 +26,8 @@ def _describe(kind: registry.Kind, name: str, obj) -> str:
         return obj.usage or obj.what
     if kind is registry.fuzz_targets:
         return f"{obj.title} ({obj.kind})"
+    if kind is registry.inferrers:
+        return f"{obj.title or name}: profiles from {', '.join(obj.protocols)} captures"
     doc = (getattr(obj, "__doc__", None) or "").strip().splitlines()
     # the first docstring line, without reST markup (:attr:`x` -> x, ``y`` -> y)
     return re.sub(r":\w+:`~?([^`]+)`|``([^`]+)``", lambda m: m[1] or m[2], doc[0]) if doc else ""

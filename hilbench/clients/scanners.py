@@ -1,11 +1,12 @@
-"""Host-side drivers of laser scanners (real or emulated): open the link, start scans, feed a tracker.
+"""The kit of host-side laser-scanner drivers (real or emulated): open the link, start scans, feed a tracker.
 
 A :class:`ScannerLink` is the byte pipe (a serial port or a TCP socket). A
-driver (:class:`RplidarDriver`, :class:`SickDriver`, :class:`ScipDriver`)
-speaks just enough of its protocol to get scans flowing and to stop them
-again; every byte each way goes to a scanner tracker
-(:mod:`hilbench.monitor.scanners.tracker`), which decodes the scans, so
-``hilbench lidar`` and ``hilbench monitor`` count the same way::
+driver (a :class:`ScannerDriver` subclass in its family's own module, e.g.
+:class:`~hilbench.clients.rplidar.RplidarDriver`) speaks just enough of its
+protocol to get scans flowing and to stop them again; every byte each way
+goes to the tracker of the protocol's instrument (the one ``hilbench monitor``
+uses, found through the registry), which decodes the scans, so ``hilbench
+lidar`` and ``hilbench monitor`` count the same way::
 
     link = ScannerLink.open("/dev/ttyUSB0", baud=115200)
     drv = RplidarDriver(link)
@@ -13,21 +14,27 @@ again; every byte each way goes to a scanner tracker
     while drv.tracker.scans < 10:
         drv.pump(0.1)
     drv.stop()
+
+A family makes its driver available to ``hilbench lidar`` with a
+:class:`ScannerClient` registered in the ``hilbench.clients`` entry-point group.
 """
 
 from __future__ import annotations
 
+import argparse
 import contextlib
 import errno
 import socket
 import time
 from collections.abc import Callable
+from typing import TYPE_CHECKING, ClassVar
 
-from hilbench.errors import DeviceError
-from hilbench.monitor.scanners.tracker import RplidarTracker, ScannerTracker, ScipTracker, SickTracker
-from hilbench.protocols import rplidar as rp
-from hilbench.protocols import scip
-from hilbench.protocols import sick_lms200 as lms
+from hilbench import registry
+from hilbench.clients.base import ClientDriver
+from hilbench.errors import UsageError
+
+if TYPE_CHECKING:
+    from hilbench.monitor.scanners.tracker import ScannerTracker
 
 
 class ScannerLink:
@@ -38,10 +45,15 @@ class ScannerLink:
         self.handle = handle
         self.name = name
 
+    @staticmethod
+    def kind_of(target: str) -> str:
+        """``"tcp"`` for ``tcp://HOST:PORT`` or ``HOST:PORT``, else ``"serial"``."""
+        return "tcp" if target.startswith("tcp://") or (":" in target and not target.startswith("/")) else "serial"
+
     @classmethod
     def open(cls, target: str, baud: int | None = None) -> ScannerLink:
         """``tcp://HOST:PORT`` or ``HOST:PORT`` opens a socket; anything else a serial port."""
-        if target.startswith("tcp://") or (":" in target and not target.startswith("/")):
+        if cls.kind_of(target) == "tcp":
             host, _, port = target.removeprefix("tcp://").rpartition(":")
             sock = socket.create_connection((host or "127.0.0.1", int(port)), timeout=5)
             sock.settimeout(0.05)
@@ -95,11 +107,19 @@ class ScannerLink:
 class ScannerDriver:
     """Base: a link, a tracker fed with both directions, start/stop."""
 
-    tracker_class: type[ScannerTracker] = ScannerTracker
+    #: The protocol it speaks: its tracker is that protocol's instrument's (``hilbench monitor``'s).
+    protocol: ClassVar[str] = ""
 
     def __init__(self, link: ScannerLink, tracker: ScannerTracker | None = None) -> None:
         self.link = link
-        self.tracker = tracker or self.tracker_class(timestamps=True)
+        self.tracker = tracker or self.new_tracker()
+
+    def new_tracker(self) -> ScannerTracker:
+        """A tracker of :attr:`protocol` from its registered instrument, with real times."""
+        instrument = registry.instrument_for(self.protocol)
+        if instrument is None:
+            raise UsageError(f"no instrument decodes {self.protocol or 'this driver'}'s traffic")
+        return instrument.make_tracker(baud=None, timestamps=True)
 
     def send(self, data: bytes) -> None:
         self.link.write(data)
@@ -127,141 +147,23 @@ class ScannerDriver:
         raise NotImplementedError
 
 
-class RplidarDriver(ScannerDriver):
-    """GET_INFO, GET_HEALTH, motor on (DTR cleared), SCAN or EXPRESS_SCAN; STOP and motor off."""
+class ScannerClient(ClientDriver):
+    """A laser scanner's host side for ``hilbench lidar`` (role ``scanner``): subclasses name their
+    :attr:`driver` and may add options (:meth:`~hilbench.clients.base.ClientDriver.add_arguments`) that
+    :meth:`open` reads."""
 
-    tracker_class = RplidarTracker
+    role = "scanner"
+    #: The :class:`ScannerDriver` subclass it runs.
+    driver: ClassVar[type[ScannerDriver]] = ScannerDriver
+    #: Link kinds (:meth:`~hilbench.clients.scanners.ScannerLink.kind_of`: ``"serial"``, ``"tcp"``) whose scanner is taken to speak this
+    #: protocol when nothing says which (no ``--protocol``, not a bench).
+    default_on: ClassVar[tuple[str, ...]] = ()
 
-    def __init__(self, link: ScannerLink, tracker=None, *, express: bool = False,
-                 motor: Callable[[bool], None] | None = None) -> None:
-        super().__init__(link, tracker)
-        self.express = express
-        self.motor = motor  # how to reach DTR when the port has no modem lines (a bench pty)
-
-    def _set_motor(self, on: bool) -> None:
-        if not self.link.set_dtr(not on) and self.motor is not None:
-            self.motor(on)
-
-    def start(self) -> None:
-        tr = self.tracker
-        self.send(rp.request(rp.Cmd.GET_INFO))
-        self.wait_for(lambda: bool(tr.device_info), 1.0)
-        self.send(rp.request(rp.Cmd.GET_HEALTH))
-        self.wait_for(lambda: tr.health != "unknown", 1.0)
-        self._set_motor(True)
-        if self.express:
-            self.send(rp.request(rp.Cmd.EXPRESS_SCAN, bytes(5)))
-        else:
-            self.send(rp.request(rp.Cmd.SCAN))
-
-    def stop(self) -> None:
-        with contextlib.suppress(OSError):
-            self.send(rp.request(rp.Cmd.STOP))
-            self._set_motor(False)
+    def open(self, link: ScannerLink, args: argparse.Namespace | None = None, *,
+             set_dtr: Callable[[bool], None] | None = None) -> ScannerDriver:
+        """A driver on ``link`` with the verb's parsed options (None: the defaults). ``set_dtr`` sets the
+        port's DTR where the link cannot (a bench pty seen without ``hilbench run``'s shim)."""
+        return self.driver(link)
 
 
-class SickDriver(ScannerDriver):
-    """Find the unit's link speed, change it if asked (mode 40/41/48, then the port follows), continuous
-    output; mode 25 and the power-up speed again when done.
-
-    An LMS 200 keeps a speed it was switched to until power-off, so a host that left it at 38 400 baud
-    (or died before switching back) finds it there next time. As real drivers do (sicktoolbox's
-    ``SickLMS2xx::Initialize``), :meth:`find_baud` tries the speeds in turn with a status request (31)
-    and takes the one that gets a good reply; :meth:`stop` switches back to 9600 as sicktoolbox's
-    ``Uninitialize`` does.
-    """
-
-    tracker_class = SickTracker
-    MODES = {v: k for k, v in lms.BAUD_MODES.items()}
-    #: Link speeds an LMS 200 can run at, in the order they are tried (its power-up speed first).
-    BAUDS = (lms.POWER_UP_BAUD, 38_400, 19_200, 500_000)
-    #: How long a status request waits for its reply at each speed (the reply: 160 bytes, 170 ms at 9600).
-    PROBE_TIMEOUT = 1.0
-
-    def __init__(self, link: ScannerLink, tracker=None, *, baud: int = 9600) -> None:
-        super().__init__(link, tracker)
-        self.baud = baud
-        #: The speed the unit runs at now, once known.
-        self.session_baud: int | None = None
-
-    def answers_at(self, baud: int, timeout: float | None = None) -> bool:
-        """Whether the unit answers a status request at ``baud`` (the port is left at ``baud``).
-
-        The exchange is kept from the tracker: at a wrong speed a real unit's bytes are noise.
-        """
-        self.link.set_baud(baud)
-        with contextlib.suppress(OSError):
-            while self.link.read(0.0):  # what came at the old speed
-                pass
-        dec = lms.Decoder(handshakes=True)
-        self.link.write(lms.request(lms.Cmd.STATUS))
-        deadline = time.monotonic() + (self.PROBE_TIMEOUT if timeout is None else timeout)
-        while time.monotonic() < deadline:
-            for item in dec.feed(self.link.read(0.02)):
-                # a status reply, or the scans of a unit left streaming at this speed
-                if isinstance(item, lms.Frame) and item.is_reply and item.cmd in (0xB1, 0xB0):
-                    return True
-        return False
-
-    def find_baud(self) -> int:
-        """The unit's link speed (tried as :attr:`BAUDS` says, the asked-for one second); a
-        :class:`~hilbench.errors.DeviceError` saying what was tried when none answers."""
-        tried = list(dict.fromkeys((self.BAUDS[0], self.baud, *self.BAUDS)))
-        for baud in tried:
-            if self.answers_at(baud):
-                self.session_baud = baud
-                return baud
-        raise DeviceError(f"{self.link.name}: no LMS 200 answers a status request at "
-                          f"{', '.join(map(str, tried))} baud (is it powered, on this port, and not used by "
-                          f"another program?)")
-
-    def _switch(self, baud: int, wait: float = 2.0) -> bool:
-        tr = self.tracker
-        replies = tr.replies
-        self.send(lms.mode_request(self.MODES[baud]))
-        ok = self.wait_for(lambda: tr.replies > replies, wait)
-        self.link.set_baud(baud)  # the reply came at the old speed; the LMS now runs at the new
-        self.session_baud = baud
-        return ok
-
-    def start(self) -> None:
-        if self.link.kind == "serial":
-            self.find_baud()
-        else:  # a serial server on TCP: its own port has the speed
-            self.session_baud = self.baud
-        if self.session_baud != self.baud:
-            self._switch(self.baud)
-        self.send(lms.mode_request(lms.Mode.CONTINUOUS))
-
-    def stop(self) -> None:
-        with contextlib.suppress(OSError):
-            tr = self.tracker
-            replies = tr.replies
-            self.send(lms.mode_request(lms.Mode.POLLED))
-            if self.session_baud not in (None, lms.POWER_UP_BAUD) and self.link.kind == "serial":
-                self.wait_for(lambda: tr.replies > replies, 1.0)
-                self._switch(lms.POWER_UP_BAUD, wait=1.0)
-
-
-class ScipDriver(ScannerDriver):
-    """PP (the unit's steps), BM, MD over the whole field; QT stops."""
-
-    tracker_class = ScipTracker
-
-    def start(self) -> None:
-        tr = self.tracker
-        replies = tr.replies
-        self.send(b"PP\n")
-        self.wait_for(lambda: tr.replies > replies, 2.0)
-        p = tr.params
-        self.send(b"BM\n")
-        self.send(scip.request("MD", {"start": p["AMIN"], "end": p["AMAX"], "cluster": 0, "skip": 0, "scans": 0}))
-
-    def stop(self) -> None:
-        with contextlib.suppress(OSError):
-            self.send(b"QT\n")
-
-
-DRIVERS = {"rplidar": RplidarDriver, "sick-lms200": SickDriver, "scip2": ScipDriver}
-
-__all__ = ["DRIVERS", "RplidarDriver", "ScannerDriver", "ScannerLink", "ScipDriver", "SickDriver"]
+__all__ = ["ScannerClient", "ScannerDriver", "ScannerLink"]

@@ -15,7 +15,7 @@ import math
 import random
 from dataclasses import dataclass, field
 
-from hilbench.fakes.dynamixel.motion import Profile
+from hilbench.fakes.motion import MotionProfile
 from hilbench.protocols.control_table import Field, Model
 
 
@@ -66,7 +66,7 @@ class ControlTableServo:
     _shutdown_address: int | None = None
     #: Where RAM starts: Reboot keeps what lies below, Factory Reset restores it.
     _eeprom_end: int = 64
-    profile: Profile
+    profile: MotionProfile
 
     def __init__(
         self,

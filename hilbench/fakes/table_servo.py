@@ -13,7 +13,7 @@ error bits.
 What the registers do:
 
 - Goal Position moves the horn (velocity- and acceleration-limited, see
-  :mod:`hilbench.fakes.dynamixel.motion`); a goal outside the angle limits is
+  :mod:`hilbench.fakes.motion`); a goal outside the angle limits is
   clamped to them (and reported as an angle-limit error where the protocol
   has one). Both angle limits 0 (AX/MX) or a wheel Control/Operating Mode
   turn the speed register into a signed wheel speed.
@@ -36,7 +36,7 @@ from __future__ import annotations
 import math
 
 from hilbench.fakes.control_table_servo import ControlTableServo
-from hilbench.fakes.dynamixel.motion import Profile
+from hilbench.fakes.motion import MotionProfile
 from hilbench.protocols.control_table import Field, Model
 from hilbench.protocols.dynamixel import ALERT_BIT, ErrorNumber
 
@@ -113,7 +113,7 @@ class TableServo(ControlTableServo):
         if "torque_limit" in self._f and "max_torque" in self._f:
             self._set_role("torque_limit", self._role("max_torque"))
         start = position if position is not None else self._actual(self._role("present_position"))
-        self.profile = Profile(t, float(start))
+        self.profile = MotionProfile(t, float(start))
         self._hold(t)
         if self.torque:  # on at power-on (Feetech): holding the horn, warming from now
             self._set_torque(True, t)

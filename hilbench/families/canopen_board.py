@@ -15,8 +15,12 @@ other families' nodes may share it, each at its own node id. Device entries::
     identity = { vendor_id = 0x0048424E, product_code = 0x00F76701, revision = 0x00010000, serial = 1 }
     faults = { heartbeat_stop = false, silent = false, sdo_abort = 0, motor_fault = false, battery_v = 24.6,
                stuck_odometry = false, dlc_mismatch = false }
+    body = "rover"                   # the world body the node drives (RPDO1 setpoints move it)
+    odometry = { slip = 0.0, encoder_noise = 0.0 }   # share of wheel motion lost; counts of noise per cycle
 
-Several boards may share an endpoint (one bus), each with its own node id.
+A node a capture recorded is ``model = "recorded-node"``
+(:mod:`hilbench.families.canopen_recorded`). Several nodes may share an
+endpoint (one bus), each with its own node id.
 ``bench.family("canopen").node(2)`` finds one (:class:`CanopenNodes`; ``bench.device(2)`` finds any
 family's node by node id), ``bench.endpoint("can").port.open_bus()`` opens a python-can bus on the
 endpoint in this process.
@@ -34,14 +38,24 @@ from hilbench.bench.checks import Checker
 from hilbench.bench.control import ControlClient, ControlError, ControlRequestError
 from hilbench.bench.family import DeviceFamily, DeviceSpec, FamilyAccess
 from hilbench.bench.knobs import KnobRules, check_fault_table, check_knobs, requested_knobs
+from hilbench.bench.world import check_odometry, refuse_second_driver
+from hilbench.families.canopen_recorded import FAULT_RULES as RECORDED_FAULT_RULES
+from hilbench.families.canopen_recorded import (
+    RECORDED,
+    RECORDED_KEYS,
+    RecordedSpec,
+    build_recorded,
+    check_recorded,
+)
 from hilbench.rules import SWITCH, Rule
 
 if TYPE_CHECKING:
     from hilbench.fakes.canopen import RoverNode
+    from hilbench.fakes.canopen.recorded import RecordedNode
 
-MODELS = ("stm32f767-rover-canopen", "mecarover-canopen")
+MODELS = ("stm32f767-rover-canopen", "mecarover-canopen", RECORDED)
 DEVICE_KEYS = ("model", "name", "endpoint", "node_id", "heartbeat_ms", "setpoint_timeout_ms", "autostart",
-               "tpdo_periods_ms", "identity", "faults")
+               "tpdo_periods_ms", "identity", "faults", "odometry", *RECORDED_KEYS)
 IDENTITY_KEYS = {"vendor_id": "vendor_id", "product_code": "product_code", "revision": "revision",
                  "serial": "serial"}
 #: The board's fault knobs (the node's and the rover's, as the fake's ROVER_FAULT_KEYS) and their rules.
@@ -65,6 +79,7 @@ class NodeSpec(DeviceSpec):
     tpdo_periods_ms: dict[str, int] = field(default_factory=dict)
     identity: dict[str, int] = field(default_factory=dict)
     faults: dict[str, Any] = field(default_factory=dict)
+    odometry: dict[str, float] = field(default_factory=dict)
 
 
 def board_config(spec: NodeSpec, bitrate: int):
@@ -101,6 +116,11 @@ class CanopenBoardFamily(DeviceFamily):
         from hilbench.protocols.board_can import PDOS
 
         model = c.choice(dev.get("model", MODELS[0]), f"{key}.model", MODELS)
+        if model == RECORDED:
+            return [check_recorded(c, key, dev, endpoint.name)]
+        for extra in RECORDED_KEYS:
+            if extra in dev:
+                c.fail(f"{key}.{extra}", f'only for model = "{RECORDED}" nodes')
         name = dev.get("name", endpoint.name)
         if not isinstance(name, str) or not name:
             c.fail(f"{key}.name", f"expected a string, got {name!r}")
@@ -121,6 +141,7 @@ class CanopenBoardFamily(DeviceFamily):
             setpoint_timeout_ms=c.integer(dev.get("setpoint_timeout_ms", 150), f"{key}.setpoint_timeout_ms", 0, 65535),
             autostart=c.boolean(dev.get("autostart", False), f"{key}.autostart"),
             tpdo_periods_ms=dict(periods), identity=dict(identity), faults=faults,
+            odometry=check_odometry(c, dev.get("odometry", {}), f"{key}.odometry"),
         )]
 
     # ------------------------------------------------------------------ bench
@@ -129,11 +150,17 @@ class CanopenBoardFamily(DeviceFamily):
         from hilbench.fakes.canopen import RoverNode
 
         for spec in devices:
+            if isinstance(spec, RecordedSpec):
+                endpoint.add_device(spec.name, build_recorded(spec))
+                continue
             battery = spec.faults.get("battery_v", 24.6)
             node = RoverNode(spec.name, board_config(spec, endpoint.medium.bitrate), autostart=spec.autostart,
-                             battery_v=battery)
+                             battery_v=battery, encoder_noise=spec.odometry["encoder_noise"], seed=spec.node_id)
             node.set_faults(**{k: v for k, v in spec.faults.items() if k != "battery_v"})
             endpoint.add_device(spec.name, node)
+            if spec.body is not None:  # RPDO1 setpoints move the body through the firmware's motion model
+                refuse_second_driver(bench.world.world, spec.body, spec.name)
+                bench.world.world.drive(spec.body, node.body_motion, spec.odometry["slip"])
 
     def start(self, endpoint, devices: dict[str, Any], t: float) -> None:
         now = endpoint.medium.clock.now()  # power-up happens now: the boot-up and the heartbeat phase count from here
@@ -203,7 +230,8 @@ class CanopenBoardFamily(DeviceFamily):
             in_bus_thread(lambda: node.reset())
             return {"status": in_bus_thread(node.status)}
         if cmd == "fault":
-            checked = check_knobs(requested_knobs(req), FAULT_RULES)
+            rules = RECORDED_FAULT_RULES if getattr(node, "tpdos", None) is not None else FAULT_RULES
+            checked = check_knobs(requested_knobs(req), rules)
             return {"faults": in_bus_thread(lambda: node.set_faults(**checked))}
         if cmd == "emcy":
             try:
@@ -222,16 +250,16 @@ class CanopenBoardFamily(DeviceFamily):
 def profile_boards(profile) -> list[tuple[str, Any]]:
     """``(device name, BoardCanConfig)`` of every CANopen board of a profile."""
     return [(spec.name, board_config(spec, profile.endpoints[spec.endpoint].baud or 500_000))
-            for spec in profile.devices_of(CanopenBoardFamily.name)]
+            for spec in profile.devices_of(CanopenBoardFamily.name) if not isinstance(spec, RecordedSpec)]
 
 
 class CanopenNodes(FamilyAccess):
-    """The CANopen rover boards of a running bench: ``bench.family("canopen")``."""
+    """The CANopen nodes (rover boards, recorded nodes) of a running bench: ``bench.family("canopen")``."""
 
     family_name = "canopen"
 
-    def node(self, name_or_id: str | int | None = None) -> RoverNode:
-        """A board by profile name or node id (``node(2)``, ``node("rover")``), or the only one."""
+    def node(self, name_or_id: str | int | None = None) -> RoverNode | RecordedNode:
+        """A node by profile name or node id (``node(2)``, ``node("rover")``), or the only one."""
         if name_or_id is None or isinstance(name_or_id, str):
             return self.device(name_or_id)
         for name, spec in self.specs().items():

@@ -33,6 +33,9 @@ series, the MX(2.0), the XL-320 and the custom boards. Its traffic is
     faults = { drop_rate = 0.01, delay = 0.0, vanished = false, hardware_error = 0 }
     fast_read = false
 
+A board hilbench has no model of is ``model = "control-table"`` with its
+registers (:mod:`hilbench.families.dynamixel_custom_board`).
+
 Devices of one endpoint share one :class:`~hilbench.fakes.dynamixel.bus.DynamixelBus`
 (``endpoint.bus``); ``bench.device(3)`` is the device answering at ID 3 (of any family),
 ``bench.family("dynamixel").servo(3)`` the Dynamixel device there and ``.bus()`` the bus
@@ -44,9 +47,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
+from hilbench.bench.bus import LabgridDriver
 from hilbench.bench.checks import Checker
 from hilbench.bench.knobs import check_fault_table
 from hilbench.fakes.dynamixel.bus import CHAIN_POLICIES, FAST_MISSING_POLICIES
+from hilbench.families.dynamixel_custom_board import BOARD_KEYS, CONTROL_TABLE, check_board
 from hilbench.families.servo_bus import (
     SERVO_FAULT_RULES,
     ServoBusAccess,
@@ -73,7 +78,7 @@ BUS_BAUD = Rule(int, choices=tuple(sorted(set(DYNAMIXEL_BAUDS + PROTOCOL1_BAUDS)
 #: A Dynamixel servo's fault knobs: every servo's, and the Hardware Error Status bits to raise.
 FAULT_RULES = {**SERVO_FAULT_RULES, "hardware_error": Rule(int, 0, 0x3D)}
 DEVICE_KEYS = ("model", "id", "ids", "name", "endpoint", "firmware", "init", "faults", "position",
-               "supply_voltage", "ambient_temperature", "fast_read")
+               "supply_voltage", "ambient_temperature", "fast_read", *BOARD_KEYS)
 
 
 @dataclass
@@ -81,6 +86,8 @@ class ServoSpec(ServoBusSpec):
     """One Dynamixel device of a profile (``ids = [...]`` entries are expanded to one spec per ID)."""
 
     fast_read: bool | None = None
+    #: The table of a ``control-table`` board (None: the model's own, by name).
+    table: Any = None
 
 
 def speaks_protocol1(model) -> bool:
@@ -147,6 +154,12 @@ class DynamixelBusKind(ServoBusKind):
         if fast_read is not None and hasattr(endpoint.bus, "fast_read"):
             endpoint.bus.fast_read[device.id] = fast_read
 
+    def labgrid_driver(self, endpoint: dict[str, Any]) -> LabgridDriver | None:
+        """:class:`~hilbench.labgrid.dynamixel.DynamixelDriver` (Protocol 2.0) on a Protocol 2.0 bus."""
+        if endpoint.get("protocol_version", 2) != 2:
+            return None
+        return LabgridDriver("hilbench.labgrid.dynamixel", "DynamixelDriver", "-dxl")
+
     def describe_endpoint(self, endpoint) -> dict[str, Any]:
         opts = endpoint.spec.options
         out: dict[str, Any] = {"protocol_version": opts.get("protocol_version", 2)}
@@ -177,7 +190,7 @@ class DynamixelFamily(ServoBusFamily):
     access = DynamixelServos
     joins = ("dynamixel",)
     device_keys = DEVICE_KEYS
-    models = tuple(model_names())
+    models = (*model_names(), CONTROL_TABLE)
     default_keys = {"supply_voltage": (0, 50, 12.0), "ambient_temperature": (-40, 100, 30.0)}
     example_model = "XM430-W350"
 
@@ -189,9 +202,16 @@ class DynamixelFamily(ServoBusFamily):
     def model_names(self) -> list[str]:
         return list(model_names())
 
+    def knows_model(self, model: Any) -> bool:
+        return model == CONTROL_TABLE or super().knows_model(model)
+
     def check_devices(self, c: Checker, key: str, dev: dict[str, Any], endpoint, profile) -> list[ServoSpec]:
         version = endpoint.options.get("protocol_version", 2)
-        model = self.check_model(c, key, dev, protocol=version)
+        board = dev.get("model") == CONTROL_TABLE
+        model = check_board(c, key, dev, version) if board else self.check_model(c, key, dev, protocol=version)
+        for extra in BOARD_KEYS:
+            if extra in dev and not board:
+                c.fail(f"{key}.{extra}", f'only for model = "{CONTROL_TABLE}" boards')
         if model.protocol != version and not (version == 1 and speaks_protocol1(model)):
             c.fail(f"{key}.model", f"{model.name} speaks Protocol {model.protocol}.0 but endpoint "
                                    f"{endpoint.name!r} is a Protocol {version}.0 bus (protocol_version)")
@@ -199,7 +219,7 @@ class DynamixelFamily(ServoBusFamily):
         init = self.check_init(c, key, dev, model, integers=False)
         faults = check_fault_table(c, f"{key}.faults", dev.get("faults", {}), FAULT_RULES)
         name = self.check_name(c, key, dev, ids)
-        firmware = c.integer(dev["firmware"], f"{key}.firmware", 0, 255) if "firmware" in dev else None
+        firmware = c.integer(dev["firmware"], f"{key}.firmware", 0, 255) if "firmware" in dev and not board else None
         position = c.number(dev["position"], f"{key}.position", -1_048_575, 1_048_575) if "position" in dev else None
         supply = c.number(dev["supply_voltage"], f"{key}.supply_voltage", 0, 50) if "supply_voltage" in dev else None
         ambient = (c.number(dev["ambient_temperature"], f"{key}.ambient_temperature", -40, 100)
@@ -208,7 +228,7 @@ class DynamixelFamily(ServoBusFamily):
         return [
             ServoSpec(
                 name=name or f"{endpoint.name}.{i}",
-                model=model.name,
+                model=CONTROL_TABLE if board else model.name,
                 id=i,
                 address=i,
                 endpoint=endpoint.name,
@@ -219,6 +239,7 @@ class DynamixelFamily(ServoBusFamily):
                 supply_voltage=supply,
                 ambient_temperature=ambient,
                 fast_read=fast,
+                table=model if board else None,
             )
             for i in ids
         ]
@@ -235,7 +256,7 @@ class DynamixelFamily(ServoBusFamily):
         from hilbench.fakes.table_servo import TableServo
         from hilbench.protocols.dynamixel_classic_models import P1_NOMINAL_BAUDS
 
-        model = find_model(dev.model)
+        model = dev.table or find_model(dev.model)
         init = dict(dev.init)
         if model.kind == "servo":
             init = initial_values(init, P1_NOMINAL_BAUDS if model.protocol == 1 else model.baud_codes, spec.baud)
@@ -265,7 +286,7 @@ class DynamixelFamily(ServoBusFamily):
         return {
             "name": spec.name,
             "model": spec.model,
-            "model_number": device.model.number if device else find_model(spec.model).number,
+            "model_number": device.model.number if device else (spec.table or find_model(spec.model)).number,
             "firmware": device.firmware if device else spec.firmware,
             "endpoint": spec.endpoint,
             "id": spec.id,

@@ -132,7 +132,7 @@ class RplidarFamily(ScannerFamily):
                                speed_wander=o["speed_wander"], firmware=o["firmware"],
                                typical_mode=o["typical_mode"], baud=endpoint.spec.baud,
                                faults=RplidarFaults(seed=spec.seed, **spec.faults))
-        dev = RplidarA1(*self.placement(bench, spec, A1_RANGE), config, t0=t)
+        dev = RplidarA1(*self.placement(bench, spec, A1_RANGE), config, t0=t, body=spec.body)
         lines = getattr(endpoint.port, "lines", None)
         if lines is not None:
             dev.dtr = lines.dtr  # the line's level now; changes arrive as on_line events

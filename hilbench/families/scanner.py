@@ -1,12 +1,12 @@
-"""What the laser-scanner families share: the ``[scene]`` table's schema, poses, range models, fault knobs.
+"""What the laser-scanner families share: poses, range models, fault knobs, and where the scene comes from.
 
-The scene is one top-level table every scanner of a profile sees. Its schema
-lives here, once; the RPLIDAR family owns the table (it declares it in
-``profile_tables``) and the SICK LMS 200 and SCIP 2.0 families read the checked
-:class:`~hilbench.fakes.scanners.scene.Scene` from ``profile.tables["scene"]``
-(an empty scene when a profile has none)::
+Every scanner of a bench sees the bench's world (:mod:`hilbench.bench.world`):
+its ``[world]`` geometry and bodies. Profiles written before the world have a
+``[scene]`` table with the same geometry keys; the RPLIDAR family still owns
+that table (it declares it in ``profile_tables``) and it loads as the world's
+geometry::
 
-    [scene]
+    [scene]                 # or, today, the same keys in [world]
     walls = [ [[-3.0, -2.0], [3.0, -2.0], [3.0, 2.0], [-3.0, 2.0], [-3.0, -2.0]] ]   # polylines, metres
     wall_reflectivity = 0.8
     boxes = [ { center = [1.0, 1.0], size = [0.4, 0.3], heading = 30.0, reflectivity = 0.5 } ]
@@ -14,13 +14,15 @@ lives here, once; the RPLIDAR family owns the table (it declares it in
     moving = [ { path = [[1.0, -1.0], [1.0, 1.0]], speed = 0.5, radius = 0.2 } ]   # or size = [w, h]
 
 Each scanner device has ``pose = { x = 0.5, y = 0.3, heading = 0.0 }`` (metres;
-heading in degrees counter-clockwise from +x, the sensor's straight-ahead),
-an optional ``seed``, ``noise`` (``sigma0_mm``, ``sigma_k``, ``dropout``) and
+heading in degrees counter-clockwise from +x, the sensor's straight-ahead; or
+``theta`` in radians): its world pose, or with ``body = "NAME"`` its mount pose on that body. Optional:
+``seed``, ``noise`` (``sigma0_mm``, ``sigma_k``, ``dropout``) and
 ``max_range`` overrides, and ``faults`` (family-specific knobs).
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -29,91 +31,19 @@ from hilbench.bench.checks import Checker
 from hilbench.bench.control import ControlRequestError
 from hilbench.bench.family import DeviceFamily, DeviceSpec, FamilyAccess
 from hilbench.bench.knobs import KnobRules, check_fault_table, check_knobs, requested_knobs
+from hilbench.bench.world import MAX_EDGES, SCENE_KEYS, check_scene
 
-SCENE_KEYS = ("walls", "wall_reflectivity", "boxes", "circles", "moving")
 COMMON_DEVICE_KEYS = ("model", "name", "endpoint", "pose", "seed", "noise", "max_range", "faults")
 NOISE_KEYS = ("sigma0_mm", "sigma_k", "dropout")
-#: Largest scene accepted (edges), so a profile cannot make every beam cost seconds.
-MAX_EDGES = 20_000
-
-
-def _point(c: Checker, value: Any, key: str) -> tuple[float, float]:
-    if not isinstance(value, list) or len(value) != 2:
-        c.fail(key, f"expected a point [x, y] in metres, got {value!r}")
-    return c.number(value[0], f"{key}[0]", -1e4, 1e4), c.number(value[1], f"{key}[1]", -1e4, 1e4)
-
-
-def check_scene(c: Checker, raw: Any, name: str = "scene"):
-    """The ``[scene]`` table -> a :class:`~hilbench.fakes.scanners.scene.Scene` (one-line errors)."""
-    from hilbench.fakes.scanners.scene import Mover, Scene
-
-    raw = c.table(raw, name)
-    c.unknown(raw, name, SCENE_KEYS)
-    walls = raw.get("walls", [])
-    if not isinstance(walls, list):
-        c.fail(f"{name}.walls", "expected an array of polylines ([[x, y], [x, y], ...])")
-    lines = []
-    for i, line in enumerate(walls):
-        key = f"{name}.walls[{i}]"
-        if not isinstance(line, list) or len(line) < 2:
-            c.fail(key, "expected a polyline of at least two points [[x, y], [x, y], ...]")
-        lines.append([_point(c, p, f"{key}[{j}]") for j, p in enumerate(line)])
-    refl = c.number(raw.get("wall_reflectivity", 0.8), f"{name}.wall_reflectivity", 0.0, 1.0)
-    boxes = []
-    for i, box in enumerate(_array(c, raw.get("boxes", []), f"{name}.boxes")):
-        key = f"{name}.boxes[{i}]"
-        box = c.table(box, key)
-        c.unknown(box, key, ("center", "size", "heading", "reflectivity"))
-        if "center" not in box or "size" not in box:
-            c.fail(key, "expected center = [x, y] and size = [w, h]")
-        w, h = _point(c, box["size"], f"{key}.size")
-        if w <= 0 or h <= 0:
-            c.fail(f"{key}.size", f"expected positive sizes, got {box['size']!r}")
-        boxes.append({"center": _point(c, box["center"], f"{key}.center"), "size": (w, h),
-                      "heading": c.number(box.get("heading", 0.0), f"{key}.heading", -360, 360),
-                      "reflectivity": c.number(box.get("reflectivity", 0.8), f"{key}.reflectivity", 0, 1)})
-    circles = []
-    for i, circ in enumerate(_array(c, raw.get("circles", []), f"{name}.circles")):
-        key = f"{name}.circles[{i}]"
-        circ = c.table(circ, key)
-        c.unknown(circ, key, ("center", "radius", "reflectivity"))
-        if "center" not in circ or "radius" not in circ:
-            c.fail(key, "expected center = [x, y] and radius")
-        circles.append({"center": _point(c, circ["center"], f"{key}.center"),
-                        "radius": c.number(circ["radius"], f"{key}.radius", 1e-4, 1e3),
-                        "reflectivity": c.number(circ.get("reflectivity", 0.8), f"{key}.reflectivity", 0, 1)})
-    movers = []
-    for i, mv in enumerate(_array(c, raw.get("moving", []), f"{name}.moving")):
-        key = f"{name}.moving[{i}]"
-        mv = c.table(mv, key)
-        c.unknown(mv, key, ("path", "speed", "radius", "size", "reflectivity"))
-        path = mv.get("path")
-        if not isinstance(path, list) or not path:
-            c.fail(f"{key}.path", "expected an array of points [[x, y], ...] (a closed loop)")
-        pts = tuple(_point(c, p, f"{key}.path[{j}]") for j, p in enumerate(path))
-        if ("radius" in mv) == ("size" in mv):
-            c.fail(key, "expected exactly one of radius = R (a circle) or size = [w, h] (a box)")
-        size = _point(c, mv["size"], f"{key}.size") if "size" in mv else None
-        movers.append(Mover(pts, c.number(mv.get("speed", 0.5), f"{key}.speed", 0, 100),
-                            radius=c.number(mv.get("radius", 0.0), f"{key}.radius", 0, 1e3), size=size,
-                            reflectivity=c.number(mv.get("reflectivity", 0.8), f"{key}.reflectivity", 0, 1)))
-    scene = Scene.build(walls=lines, boxes=boxes, circles=circles, movers=movers,
-                        wall_reflectivity=[refl] * len(lines))
-    if scene.edge_count > MAX_EDGES:
-        c.fail(name, f"expected at most {MAX_EDGES} edges, got {scene.edge_count}")
-    return scene
-
-
-def _array(c: Checker, value: Any, key: str) -> list:
-    if not isinstance(value, list):
-        c.fail(key, "expected an array of tables")
-    return value
 
 
 def scene_of(profile) -> Any:
-    """The profile's checked scene (an empty one when the profile has no ``[scene]``)."""
+    """The profile's checked scene (its ``[world]`` geometry, or its ``[scene]``; an empty one without)."""
     from hilbench.fakes.scanners.scene import Scene
 
+    world = getattr(profile, "world", None)
+    if world is not None and world.scene is not None:
+        return world.scene
     return profile.tables.get("scene") or Scene()
 
 
@@ -183,7 +113,12 @@ class ScannerFamily(DeviceFamily):
         if not isinstance(name, str) or not name:
             c.fail(f"{key}.name", f"expected a string, got {name!r}")
         pose = c.table(dev.get("pose", {}), f"{key}.pose")
-        c.unknown(pose, f"{key}.pose", ("x", "y", "heading"))
+        c.unknown(pose, f"{key}.pose", ("x", "y", "heading", "theta"))
+        if "theta" in pose:  # (radians, as the world's poses; heading is degrees)
+            if "heading" in pose:
+                c.fail(f"{key}.pose", "expected heading (degrees) or theta (radians), not both")
+            pose = {**pose, "heading": math.degrees(c.number(pose["theta"], f"{key}.pose.theta", -2 * math.pi,
+                                                             2 * math.pi))}
         noise = c.table(dev.get("noise", {}), f"{key}.noise")
         c.unknown(noise, f"{key}.noise", NOISE_KEYS)
         for nk, hi in (("sigma0_mm", 1000.0), ("sigma_k", 1.0), ("dropout", 1.0)):
@@ -238,9 +173,10 @@ class ScannerFamily(DeviceFamily):
         raise NotImplementedError
 
     def placement(self, bench, spec: ScannerSpec, range_defaults: dict[str, float]) -> tuple[Any, ...]:
-        """What every unit is built with, in order: its name, the profile's scene, its pose and its range
-        model (the model's ``range_defaults`` with the profile's overrides)."""
-        return spec.name, scene_of(bench.profile), pose_of(spec), self.range_model(spec, range_defaults)
+        """What every unit is built with, in order: its name, the bench's world, its pose (on its body, if
+        it has one: give ``body=spec.body`` too) and its range model (the model's ``range_defaults`` with the
+        profile's overrides)."""
+        return spec.name, bench.world.world, pose_of(spec), self.range_model(spec, range_defaults)
 
     # ------------------------------------------------------------------ description
 
@@ -271,5 +207,5 @@ def pose_of(spec: ScannerSpec):
     return Pose(spec.x, spec.y, spec.heading)
 
 
-__all__ = ["COMMON_DEVICE_KEYS", "SCENE_KEYS", "ScannerBusKind", "ScannerFamily", "ScannerSpec", "ScannerUnits",
-           "check_scene", "pose_of", "scene_of"]
+__all__ = ["COMMON_DEVICE_KEYS", "MAX_EDGES", "SCENE_KEYS", "ScannerBusKind", "ScannerFamily", "ScannerSpec",
+           "ScannerUnits", "check_scene", "pose_of", "scene_of"]

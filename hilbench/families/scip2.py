@@ -103,8 +103,8 @@ class Scip2Family(ScannerFamily):
                             faults=ScipFaults(seed=spec.seed, **spec.faults))
         connected = (lambda p=port: p.client is not None) if hasattr(port, "client") else None
         session = (lambda p=port: p.connections) if hasattr(port, "connections") else None
-        return ScipScanner(*self.placement(bench, spec, defaults), unit, config, t0=t, connected=connected,
-                           session=session)
+        return ScipScanner(*self.placement(bench, spec, defaults), unit, config, t0=t, body=spec.body,
+                           connected=connected, session=session)
 
     def describe_device(self, spec: ScannerSpec, device, endpoint, profile) -> dict[str, Any]:
         out = super().describe_device(spec, device, endpoint, profile)

@@ -46,7 +46,6 @@ FAULTS = {
     "nak_next": Rule(int, 0, 1000), "no_ack": SWITCH, "bad_crc_rate": PROBABILITY, "refuse_modes": SWITCH,
     "status": Rule(int, 0, 255), "truncate_next": Rule(int, 0, 1000), "ignore_stop_once": SWITCH,
 }
-LMS_BAUDS = (9600, 19200, 38400, 500_000)
 
 
 class SickLms200BusKind(ScannerBusKind):
@@ -108,7 +107,7 @@ class SickLms200Family(ScannerFamily):
         o = spec.options
         config = LmsConfig(angle=o["variant"][0], resolution=o["variant"][1], units_mm=o["units"] == "mm",
                            no_echo=o["no_echo"], faults=LmsFaults(seed=spec.seed, **spec.faults))
-        return SickLms200(*self.placement(bench, spec, LMS_RANGE), config, t0=t)
+        return SickLms200(*self.placement(bench, spec, LMS_RANGE), config, t0=t, body=spec.body)
 
     def describe_device(self, spec: ScannerSpec, device, endpoint, profile) -> dict[str, Any]:
         out = super().describe_device(spec, device, endpoint, profile)

@@ -26,6 +26,8 @@ Profile schema (endpoint ``protocol = "vel2d"``, a pty or UDP)::
     agent = "127.0.0.1:8888"       # micro-ros presets: the XRCE client's agent ("HOST:PORT" or an
                                    # xrce-dds endpoint of this profile); see fakes/stm32_board/micro_ros.py
     micro_ros = { client_key = 0x60C93570, domain_id = 0, zero_after_session = false }
+    body = "rover"                 # the world body the board drives (whichever door setpoints come through)
+    odometry = { slip = 0.0, encoder_noise = 0.0 }   # share of wheel motion lost; counts of noise per cycle
 
 An endpoint carries one board (a UART is point to point):
 ``bench.family("stm32-rover").board()`` (:class:`RoverBoards`). The board paces its own UART, so its medium delivers at
@@ -43,6 +45,7 @@ from hilbench.bench.checks import Checker
 from hilbench.bench.control import ControlClient, ControlError, ControlRequestError, client_waits
 from hilbench.bench.family import DeviceFamily, DeviceSpec, FamilyAccess
 from hilbench.bench.knobs import check_fault_table, check_knobs
+from hilbench.bench.world import check_odometry, refuse_second_driver
 from hilbench.rules import FAULT_COUNT, PROBABILITY, Rule, RuleError
 
 if TYPE_CHECKING:
@@ -54,7 +57,7 @@ BOARD_BAUD_RANGE = (1200, 12_500_000)
 BOARD_BAUD = Rule(int, *BOARD_BAUD_RANGE)
 BOARD_MODELS = ("stm32f767-rover", "mecarover", "stm32-rover")
 BOARD_KEYS = ("model", "name", "endpoint", "preset", "caches", "output", "dialect", "window_ms", "flush_ms", "seed",
-              "boot_banner", "faults", "tasks", "agent", "micro_ros")
+              "boot_banner", "faults", "tasks", "agent", "micro_ros", "odometry")
 MICRO_ROS_KEYS = ("client_key", "domain_id", "zero_after_session")
 TIMING_KEYS = ("mean_us", "sd_us", "min_us", "max_us", "dist")
 #: ``wait_report``: how long to wait (s), and after how many reports (``hilbench board wait-report`` too).
@@ -85,6 +88,7 @@ class BoardSpec(DeviceSpec):
     tasks: dict[str, dict[str, Any]] = field(default_factory=dict)
     agent: str | None = None
     micro_ros: dict[str, Any] = field(default_factory=dict)
+    odometry: dict[str, float] = field(default_factory=dict)
 
 
 def board_config(spec: BoardSpec, baud: int, port_type: str = "pty"):
@@ -99,7 +103,8 @@ def board_config(spec: BoardSpec, baud: int, port_type: str = "pty"):
         preset = preset.with_task_timing(name, **timing)
     return BoardConfig(preset, output=spec.output, baud=baud, dialect=spec.dialect, window_ms=spec.window_ms,
                        flush_ms=spec.flush_ms, seed=spec.seed, boot_banner=spec.boot_banner,
-                       faults=dict(spec.faults), rx_fifo=RX_FIFO if port_type == "udp" else None)
+                       faults=dict(spec.faults), rx_fifo=RX_FIFO if port_type == "udp" else None,
+                       encoder_noise=spec.odometry.get("encoder_noise", 0.0))
 
 
 def check_fault_knobs(knobs: dict[str, Any]) -> dict[str, float]:
@@ -208,6 +213,7 @@ class Stm32RoverFamily(DeviceFamily):
             boot_banner=c.boolean(dev.get("boot_banner", True), f"{key}.boot_banner"),
             faults=dict(faults),
             tasks={k: dict(v) for k, v in tasks.items()},
+            odometry=check_odometry(c, dev.get("odometry", {}), f"{key}.odometry"),
             **_check_micro_ros(c, key, dev, preset),
         )]
 
@@ -229,6 +235,9 @@ class Stm32RoverFamily(DeviceFamily):
 
                 board.attach_link(MicroRosLink(_agent_address(bench, dev.agent), **dev.micro_ros))
             endpoint.add_device(dev.name, board)
+            if dev.body is not None:  # the firmware's motion model moves its body, whichever door the setpoint took
+                refuse_second_driver(bench.world.world, dev.body, dev.name)
+                bench.world.world.drive(dev.body, board.body_motion, dev.odometry["slip"])
 
     def start(self, endpoint, devices: dict[str, Any], t: float) -> None:
         for board in devices.values():
@@ -253,6 +262,7 @@ class Stm32RoverFamily(DeviceFamily):
             "caches": spec.caches,
             "output": spec.output,
             "baud": profile.endpoints[spec.endpoint].baud,
+            **({"odometry": dict(spec.odometry)} if spec.body is not None else {}),
         } | extra | _rx_fifo(profile.endpoints[spec.endpoint].type, device)
 
     # ------------------------------------------------------------------ control channel

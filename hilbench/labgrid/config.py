@@ -17,7 +17,9 @@ The exporter configuration groups them under the bench's name, so
 place matches them with ``add-match 'EXPORTER/BENCH/*'``. The environment
 file is the same resources as one target with drivers (labgrid's
 ``SerialDriver`` per port, hilbench's :mod:`hilbench.labgrid.drivers` on
-top), for use without a coordinator.
+the control channel and on each endpoint the driver its bus kind names,
+:meth:`~hilbench.bench.bus.BusKind.labgrid_driver`), for use without a
+coordinator.
 
 This module does not need labgrid; it writes YAML with PyYAML when that is
 installed (labgrid depends on it) and JSON, which YAML readers accept, otherwise.
@@ -37,7 +39,7 @@ from hilbench.transports.host_port import url_host
 #: Resource names besides the endpoints'.
 CONTROL_RESOURCE = "control"
 TAP_SUFFIX = "-tap"
-#: The module an environment imports to register hilbench's labgrid drivers.
+#: The module an environment imports to register hilbench's generic labgrid drivers (bus kinds name theirs).
 DRIVERS_MODULE = "hilbench.labgrid.drivers"
 
 
@@ -114,11 +116,11 @@ def exporter_config(manifest: dict[str, Any], host: str | None = None) -> dict[s
 
 def environment(manifest: dict[str, Any], host: str | None = None, target: str = "main") -> dict[str, Any]:
     """A labgrid environment: one target with the bench's resources, a SerialDriver on each, and
-    hilbench's drivers (a DynamixelDriver on each Dynamixel endpoint, a BenchControlDriver on the
-    control channel) bound by name."""
+    hilbench's drivers (on each endpoint the one its bus kind names, e.g. a DynamixelDriver; a
+    BenchControlDriver on the control channel) bound by name."""
     resources = bench_resources(manifest, host)
-    protocols = {ep["name"]: ep.get("protocol") for ep in manifest["endpoints"]}
-    res_list, drivers = [], []
+    endpoints = {ep["name"]: ep for ep in manifest["endpoints"]}
+    res_list, drivers, imports = [], [], [DRIVERS_MODULE]
     for name, entry in resources.items():
         params = {k: v for k, v in entry.items() if k != "cls"}
         res_list.append({entry["cls"]: {"name": name, **params}})
@@ -128,9 +130,19 @@ def environment(manifest: dict[str, Any], host: str | None = None, target: str =
         drivers.append({"SerialDriver": {"name": console, "bindings": {"port": name}}})
         if name == CONTROL_RESOURCE:
             drivers.append({"BenchControlDriver": {"name": "bench-control", "bindings": {"console": console}}})
-        elif protocols.get(name) == "dynamixel":
-            drivers.append({"DynamixelDriver": {"name": f"{name}-dxl", "bindings": {"console": console}}})
-    return {"targets": {target: {"resources": res_list, "drivers": drivers}}, "imports": [DRIVERS_MODULE]}
+        elif name in endpoints and (driver := _bus_driver(endpoints[name])) is not None:
+            drivers.append({driver.cls: {"name": f"{name}{driver.suffix}", "bindings": {"console": console}}})
+            if driver.module not in imports:
+                imports.append(driver.module)
+    return {"targets": {target: {"resources": res_list, "drivers": drivers}}, "imports": imports}
+
+
+def _bus_driver(endpoint: dict[str, Any]):
+    """The labgrid driver the endpoint's bus kind puts on its console (None: none, or no such bus kind here)."""
+    protocol = endpoint.get("protocol")
+    if not isinstance(protocol, str) or protocol not in registry.bus_kinds:
+        return None
+    return registry.bus_kinds.get(protocol).labgrid_driver(endpoint)
 
 
 def dump(data: dict[str, Any], comment: str = "") -> str:

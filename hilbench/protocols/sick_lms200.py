@@ -42,9 +42,13 @@ STX = 0x02
 ACK = 0x06
 NAK = 0x15
 HOST_ADDRESS_BIT = 0x80
-#: Link speeds after power-up and after a mode 40/41/42/48 change.
+#: The link speed after power-up (and a reset).
 POWER_UP_BAUD = 9600
+#: Mode byte of a link speed change (mode 40/41/42/48) -> the speed it switches to: the one table of an
+#: LMS 200's link speeds.
 BAUD_MODES = {0x40: 38_400, 0x41: 19_200, 0x42: 9_600, 0x48: 500_000}
+#: Every link speed an LMS 200 runs at, slowest first.
+LINK_BAUDS = tuple(sorted(BAUD_MODES.values()))
 #: A bounded telegram: the longest a LMS 2xx sends is 1452 bytes (721 values).
 MAX_LEN = 2048
 #: The installation-mode password.
@@ -294,7 +298,7 @@ class Decoder:
 
 
 __all__ = [
-    "ACK", "BAUD_MODES", "CONFIG_SIZE", "CONFIG_UNITS", "MAX_LEN", "MIRROR_PERIOD", "NAK", "PASSWORD",
+    "ACK", "BAUD_MODES", "CONFIG_SIZE", "CONFIG_UNITS", "LINK_BAUDS", "MAX_LEN", "MIRROR_PERIOD", "NAK", "PASSWORD",
     "POWER_UP_BAUD", "REPLY_INVALID", "REPLY_POWER_ON", "REPLY_RESET", "REVOLUTIONS", "STATUS_OK", "STX", "UNITS",
     "VARIANTS", "Cmd", "CountWord", "Decoder", "Frame", "Handshake", "Mode", "Telegram",
     "VariantReply", "VariantRequest", "count_word", "mode_request", "parse_count_word", "parse_scan", "reply",

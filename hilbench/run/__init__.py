@@ -7,7 +7,9 @@ answered by the bench's line server (:mod:`hilbench.bench.line_server`):
 
 - ``shim.c``, an LD_PRELOAD library built with the
   system's C compiler on first use (:mod:`hilbench.run.build`), for every
-  dynamically linked program (Python, C, C++);
+  dynamically linked program (Python, C, C++); ``vclock.c`` in the same library
+  puts the client on a virtual-time bench's clock (dormant without one; its page
+  is described in :mod:`hilbench.run.vclock_page`);
 - :mod:`hilbench.run.pyserial_shim`, a patch of pyserial loaded through a
   ``sitecustomize`` where no compiler exists (or ``HILBENCH_RUN_SHIM=python``);
   the pytest plugin applies it in-process for fixture benches.

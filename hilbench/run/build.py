@@ -1,7 +1,10 @@
 """Building ``hilbench run``'s preload shim with the system's C compiler, once per user and source.
 
-The library is cached under ``$XDG_CACHE_HOME/hilbench`` (``~/.cache/hilbench``),
-named after a hash of the source, the machine and the compiler, so an upgrade of
+One library from two sources: ``shim.c`` (modem lines, breaks, flushes on the
+bench's ptys) and ``vclock.c`` (virtual time; dormant unless ``HILBENCH_CLOCK``
+names a bench's clock page). It is cached under ``$XDG_CACHE_HOME/hilbench``
+(``~/.cache/hilbench``), named after a hash of the sources, the machine and the
+compiler, so an upgrade of
 hilbench or a new compiler builds afresh and concurrent first uses cannot see
 half a file (each builds beside it and renames).
 """
@@ -21,15 +24,22 @@ from pathlib import Path
 from hilbench.errors import HilbenchError
 
 SHIM_SOURCE = "shim.c"
+#: Every C source of the library, in link order.
+SOURCES = (SHIM_SOURCE, "vclock.c")
 
 
 class ShimBuildError(HilbenchError):
     """No C compiler, or the shim did not compile (the Python fallback then applies)."""
 
 
-def shim_source() -> bytes:
-    """The C source shipped in the package."""
-    return resources.files("hilbench.run").joinpath(SHIM_SOURCE).read_bytes()
+def shim_source(name: str = SHIM_SOURCE) -> bytes:
+    """A C source shipped in the package (``shim.c`` by default)."""
+    return resources.files("hilbench.run").joinpath(name).read_bytes()
+
+
+def shim_sources() -> dict[str, bytes]:
+    """Every source of the library by file name."""
+    return {name: shim_source(name) for name in SOURCES}
 
 
 def find_compiler() -> list[str] | None:
@@ -86,16 +96,19 @@ def shim_library() -> Path:
         cc = os.environ.get("CC")
         raise ShimBuildError(f"no C compiler (CC={cc!r} not found)" if cc
                              else "no C compiler (cc, gcc or clang) on PATH")
-    source = shim_source()
-    key = hashlib.sha256(b"\0".join([source, platform.machine().encode(), " ".join(compiler).encode()]))
+    sources = shim_sources()
+    parts = [part for name, text in sources.items() for part in (name.encode(), text)]
+    key = hashlib.sha256(b"\0".join([*parts, platform.machine().encode(), " ".join(compiler).encode()]))
     target = cache_dir() / f"run-shim-{key.hexdigest()[:16]}.so"
     if target.exists():
         return target
     with tempfile.TemporaryDirectory(prefix="hilbench-shim-") as tmp:
-        src = Path(tmp) / SHIM_SOURCE
-        src.write_bytes(source)
+        paths = []
+        for name, text in sources.items():
+            paths.append(str(Path(tmp) / name))
+            Path(paths[-1]).write_bytes(text)
         out = target.with_name(f".{target.name}.{os.getpid()}.tmp")
-        cmd = [*compiler, "-shared", "-fPIC", "-O2", "-o", str(out), str(src), "-ldl", "-pthread"]
+        cmd = [*compiler, "-shared", "-fPIC", "-O2", "-o", str(out), *paths, "-ldl", "-pthread"]
         try:
             proc = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
         except (OSError, subprocess.TimeoutExpired) as exc:
@@ -108,4 +121,4 @@ def shim_library() -> Path:
     return target
 
 
-__all__ = ["ShimBuildError", "cache_dir", "find_compiler", "shim_library", "shim_source"]
+__all__ = ["SOURCES", "ShimBuildError", "cache_dir", "find_compiler", "shim_library", "shim_source", "shim_sources"]

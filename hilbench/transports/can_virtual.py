@@ -15,8 +15,8 @@ import threading
 from typing import Any
 
 from hilbench.protocols.can_frame import CanFrame
+from hilbench.transports.can_door import CanDoor
 from hilbench.transports.can_messages import to_frame, to_message
-from hilbench.transports.can_port import CanDoor
 from hilbench.transports.clock import WALL
 from hilbench.transports.medium_loop import WakePipe
 

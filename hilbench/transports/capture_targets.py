@@ -10,7 +10,9 @@ import io
 import random
 
 from hilbench.fuzzing import FuzzTarget
-from hilbench.transports.capture_file import CaptureError, CaptureParser, CaptureWriter
+from hilbench.transports.capture_file import CaptureWriter
+from hilbench.transports.capture_parser import CaptureParser
+from hilbench.transports.chunk import CaptureError
 
 #: The fastest line hilbench records: a 12.5 Mbit/s UART, 8N1 (a capture holds its bytes plus 12 per record).
 CAPTURE_LINE = 12_500_000 / 10

@@ -124,7 +124,7 @@ class DatagramMedium(LoopMedium):
             via = self.socket_of(source) or self.socket_of(None)
         if via is None:
             raise RuntimeError(f"datagram net {self.name!r} has no socket to send from")
-        if t is None and threading.current_thread() is self._thread:
+        if t is None and threading.get_ident() == self._ident:
             self._send_now(source, data, dst, via)
         else:
             self.call_at(t, lambda: self._send_now(source, data, dst, via))

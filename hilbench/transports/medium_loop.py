@@ -2,8 +2,9 @@
 
 Each medium runs everything in one thread (reading host ports, delivering,
 its devices' callbacks), so device logic needs no locks. What waits for what
-differs by medium (a CAN bus polls its doors' deadlines, a datagram net reads
-sockets), so :meth:`LoopMedium._run` is the subclass's; the rest is here:
+differs by medium (a serial line reads its host ports and joins deliveries, a
+CAN bus polls its doors' deadlines, a datagram net reads sockets), so
+:meth:`LoopMedium._run` is the subclass's; the rest is here:
 
 - :meth:`~LoopMedium.call_at` queues ``fn`` for time ``t`` from any thread
   (the heap is ordered by time, then by arrival, so equal times run in order);
@@ -11,7 +12,10 @@ sockets), so :meth:`LoopMedium._run` is the subclass's; the rest is here:
   failing callback is counted (``stats.callback_errors``) and logged, and the
   medium keeps running;
 - :class:`WakePipe` wakes the thread out of its wait when another thread
-  queued work (or stops it).
+  queued work (or stops it);
+- :meth:`~LoopMedium.start` returns once the thread runs, with what it runs
+  under known (:attr:`~LoopMedium.scheduling`, a paced medium's
+  :attr:`~LoopMedium.cpu_latency`), so a manifest written next can say it.
 """
 
 from __future__ import annotations
@@ -24,7 +28,7 @@ import threading
 from collections.abc import Callable
 from typing import Any, ClassVar
 
-from hilbench.transports.clock import WALL, WallClock
+from hilbench.transports.clock import WALL, WallClock, awake_cpus, reduce_timer_slack, try_realtime
 from hilbench.transports.medium import Medium
 
 log = logging.getLogger(__name__)
@@ -70,6 +74,8 @@ class LoopMedium(Medium):
 
     They wait on ``self._waker.fd`` besides their ports, ``drain()`` it when it is ready, stop when
     ``self._stop`` is set, and call :meth:`_run_due` each round. ``stats.callback_errors`` counts failures.
+    A paced medium's thread asks for precise wake-ups (timer slack, idle CPUs kept awake:
+    :mod:`~hilbench.transports.clock`), and for SCHED_FIFO where :attr:`realtime` is set.
     """
 
     #: The thread's name is ``<thread_prefix>-<medium name>``.
@@ -78,10 +84,21 @@ class LoopMedium(Medium):
 
     def __init__(self, name: str, baud: int | None, *, paced: bool = False, clock: WallClock = WALL) -> None:
         super().__init__(name, baud, paced=paced, clock=clock)
-        self._events: list[tuple[float, int, Callable[[], None]]] = []
+        #: Run the thread under SCHED_FIFO if the OS allows it (a subclass sets it: paced serial lines).
+        self.realtime = False
+        #: What the thread runs under once started ("SCHED_FIFO 10", or SCHED_OTHER and why).
+        self.scheduling: str | None = None
+        #: A paced medium's request that idle CPUs wake fast (:class:`~hilbench.transports.clock.CpuLatency`)
+        #: once started: "0 us", or why not; None when not paced.
+        self.cpu_latency: str | None = None
+        # (time, sequence, function, joinable): a subclass may let joinable events (a serial line's
+        # deliveries) wait for later ones; the sequence keeps equal times in arrival order.
+        self._events: list[tuple[float, int, Callable[[], None], bool]] = []
         self._seq = itertools.count()
         self._waker = WakePipe()
         self._thread: threading.Thread | None = None
+        self._ident: int | None = None  # the thread's, while it runs (cheaper to compare than the Thread)
+        self._started = threading.Event()
         self._stop = threading.Event()
 
     # ------------------------------------------------------------------ timers
@@ -90,19 +107,21 @@ class LoopMedium(Medium):
         """Run ``fn`` in the medium's thread at time ``t`` (None: at once); thread-safe."""
         with self._lock:
             self._push(self._now() if t is None else t, fn)
-        if threading.current_thread() is not self._thread:
+        if threading.get_ident() != self._ident:
             self._wake()
 
-    def _push(self, t: float, fn: Callable[[], None]) -> None:
+    def _push(self, t: float, fn: Callable[[], None], joinable: bool = False) -> None:
         """Queue ``fn`` at ``t`` (the caller holds the lock or is the medium's thread)."""
-        heapq.heappush(self._events, (t, next(self._seq), fn))
+        heapq.heappush(self._events, (t, next(self._seq), fn, joinable))
 
     def _run_due(self) -> None:
+        """Run what is due (the medium's thread)."""
+        events, lock, clock = self._events, self._lock, self._now
         while True:
-            with self._lock:
-                if not self._events or self._events[0][0] > self._now():
+            with lock:
+                if not events or events[0][0] > clock():
                     return
-                _, _, fn = heapq.heappop(self._events)
+                _, _, fn, _ = heapq.heappop(events)
             try:
                 fn()
             except Exception:  # one faulty callback must not stop the medium
@@ -112,12 +131,24 @@ class LoopMedium(Medium):
     # ------------------------------------------------------------------ thread
 
     def start(self) -> None:
-        """Run the medium in a background thread."""
+        """Run the medium in a background thread; returns once it runs (:attr:`scheduling` and
+        :attr:`cpu_latency` known)."""
         if self._thread is not None:
             return
         self._stop.clear()
-        self._thread = threading.Thread(target=self._run, name=f"{self.thread_prefix}-{self.name}", daemon=True)
+        self._started.clear()
+        self._thread = threading.Thread(target=self._main, name=f"{self.thread_prefix}-{self.name}", daemon=True)
         self._thread.start()
+        self._started.wait(5)
+
+    def _main(self) -> None:
+        self._ident = threading.get_ident()
+        if self.paced:
+            reduce_timer_slack()
+        self.scheduling = try_realtime() if self.realtime else "SCHED_OTHER"
+        with awake_cpus(self.paced) as self.cpu_latency:
+            self._started.set()
+            self._run()
 
     def stop(self) -> None:
         """Stop the thread (host ports stay open; close them separately)."""
@@ -126,6 +157,10 @@ class LoopMedium(Medium):
         if self._thread is not None:
             self._thread.join(timeout=5)
             self._thread = None
+            self._ident = None
+
+    def in_medium_thread(self) -> bool:
+        return threading.get_ident() == self._ident
 
     def _wake(self) -> None:
         self._waker.wake()
@@ -142,6 +177,7 @@ class LoopMedium(Medium):
     def vt_thread(self, thread: threading.Thread | None) -> None:
         """The loop's thread is the medium's (its callbacks run there), or None once the loop stops."""
         self._thread = thread
+        self._ident = thread.ident if thread is not None else None
 
     def vt_head(self) -> tuple[float, int] | None:
         with self._lock:
@@ -153,7 +189,7 @@ class LoopMedium(Medium):
 
     def vt_run_one(self) -> None:
         with self._lock:
-            _, _, fn = heapq.heappop(self._events)
+            _, _, fn, _ = heapq.heappop(self._events)
         try:
             fn()
         except Exception:  # one faulty callback must not stop the bench

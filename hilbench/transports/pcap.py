@@ -1,7 +1,7 @@
 """pcap and pcapng: UDP datagrams to and from the files Wireshark and tcpdump read and write (with dpkt).
 
 :class:`PcapReader` yields each UDP datagram of a pcap or pcapng file as a
-:class:`~hilbench.transports.capture_file.Chunk` with its addresses, stamped with
+:class:`~hilbench.transports.chunk.Chunk` with its addresses, stamped with
 the packet's Unix time; it understands Ethernet (with VLAN tags), Linux
 cooked captures (``tcpdump -i any``, SLL and SLL2), BSD loopback and raw IP
 link types, IPv4 and IPv6. Everything else (TCP, ARP, IP fragments after the
@@ -24,7 +24,7 @@ from typing import Any, BinaryIO
 
 import dpkt
 
-from hilbench.transports.capture_file import CaptureError, Chunk
+from hilbench.transports.chunk import CaptureError, Chunk
 
 PCAP_MAGICS = {b"\xd4\xc3\xb2\xa1", b"\xa1\xb2\xc3\xd4", b"\x4d\x3c\xb2\xa1", b"\xa1\xb2\x3c\x4d"}
 PCAPNG_MAGIC = b"\x0a\x0d\x0d\x0a"

@@ -24,7 +24,7 @@ from typing import Any
 
 from hilbench.protocols import slcan
 from hilbench.protocols.can_frame import CanFrame
-from hilbench.transports.can_port import CanDoor
+from hilbench.transports.can_door import CanDoor
 from hilbench.transports.pty import PtyEndpoint
 
 log = logging.getLogger(__name__)

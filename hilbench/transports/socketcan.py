@@ -17,7 +17,7 @@ import socket
 
 from hilbench.protocols import can_frame as cf
 from hilbench.protocols.can_frame import CanFrame
-from hilbench.transports.can_port import CanDoor
+from hilbench.transports.can_door import CanDoor
 
 #: Frames read per call at most (the rest wait for the next round).
 READ_BATCH = 256

@@ -72,7 +72,7 @@ from typing import Any
 from hilbench.protocols import can_frame as cf
 from hilbench.protocols import socketcand as sc
 from hilbench.protocols.can_frame import CanFrame
-from hilbench.transports.can_port import CanDoor
+from hilbench.transports.can_door import CanDoor
 from hilbench.transports.client_limit import Eviction, ReadWatch
 from hilbench.transports.heap import Ebb
 from hilbench.transports.listener import BACKLOG, Listener, refuse
@@ -209,8 +209,12 @@ class SocketcandServer(CanDoor):
         return {"host": host, "port": port, "channel": self.channel, "max_clients": self.listener.max_clients}
 
     def status(self) -> dict[str, Any]:
-        """Clients, limits and what was refused or dropped, for status reports (control ``media``)."""
-        return {"url": self.url, "clients": len(self.clients), **self.listener.status(),
+        """Clients (and how many are in each mode: ``{"raw": 1}``), limits and what was refused or dropped, for
+        status reports (control ``media``)."""
+        modes: dict[str, int] = {}
+        for client in list(self.clients):  # (a copy: the medium's thread changes the list)
+            modes[client.mode] = modes.get(client.mode, 0) + 1
+        return {"url": self.url, "clients": len(self.clients), "modes": modes, **self.listener.status(),
                 "malformed": self.malformed, "out_of_range": self.out_of_range, "too_many": self.too_many,
                 "frames_dropped": self.frames_dropped, "stalled": self.stalled, "queued_bytes": self.queued,
                 "max_pending": MAX_PENDING, "max_pending_total": MAX_PENDING_TOTAL}

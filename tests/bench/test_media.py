@@ -43,8 +43,8 @@ def test_a_paced_line_reports_how_late_it_delivered(hilbench_emulator):
 
 
 def test_every_kind_of_medium_answers(tmp_path):
-    """Serial, CAN and UDP benches in one process: ``media`` names each endpoint's medium with its counters;
-    an unpaced line never runs under SCHED_FIFO."""
+    """Serial and CAN benches in one process: ``media`` names each endpoint's medium with its counters and
+    what its thread runs under; an unpaced line never runs under SCHED_FIFO."""
     profile = tmp_path / "mixed.toml"
     profile.write_text(
         'schema = 1\n'
@@ -66,6 +66,7 @@ def test_every_kind_of_medium_answers(tmp_path):
     assert media["arm"]["scheduling"] == "SCHED_OTHER" and "cpu_latency" not in media["arm"]
     assert {"transmissions", "bytes", "late_count", "late_total", "late_max"} <= set(media["arm"]["stats"])
     assert media["can"]["kind"] == "can" and {"frames", "bits", "error_frames"} <= set(media["can"]["stats"])
+    assert media["can"]["scheduling"] == "SCHED_OTHER"  # (every medium's thread says what it runs under)
     assert "media" in BENCH_COMMANDS and "media" in unknown["error"]
 
 

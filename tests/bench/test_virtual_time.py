@@ -119,7 +119,7 @@ def test_a_socketcand_clients_cyclic_job_runs_on_the_virtual_clock():
     from hilbench.pytest_plugin import wait_until
 
     with Bench(PROFILES / "mecarover-can.toml", virtual_time=True, virtual_epoch=EPOCH) as bench:
-        ep = bench.endpoint()
+        ep = bench.endpoint("can")
         seen: list[tuple[float, bytes]] = []
         ep.medium.add_tap(lambda t, src, data: seen.append((t, data)))
         server = ep.port.socketcand
@@ -134,3 +134,55 @@ def test_a_socketcand_clients_cyclic_job_runs_on_the_virtual_clock():
         bit_time = job[0] - start  # (the frame's bits at 500 kbit/s: it is delivered when sent)
         assert 0 < bit_time < 200e-6
         assert [round(t - start - bit_time, 9) for t in job] == [round(0.1 * k, 9) for k in range(10)]
+
+
+def world_run(channel: str) -> dict:
+    """mecarover-can on a held virtual clock: one RPDO1 setpoint (0.2 m/s ahead, no setpoint timeout) from
+    an in-process python-can bus, then the rover's world body at virtual instants."""
+    from hilbench.protocols import board_can as bc
+    from hilbench.pytest_plugin import wait_until
+
+    profile = load_profile(PROFILES / "mecarover-can.toml", {
+        "can.virtual": channel, "devices.rover.autostart": True, "devices.rover.setpoint_timeout_ms": 0})
+    sender = can.Bus(interface="virtual", channel=channel)
+    bench = Bench(profile, virtual_time=True, virtual_epoch=EPOCH)
+    try:
+        bench.start()
+        world, node = bench.world, bench.family("canopen").node()
+        out: dict = {"start": world.snapshot()}
+        bench.clock.run_for(0.1, timeout=30)  # (the node is operational by now: autostart)
+        sender.send(can.Message(arbitration_id=bc.SETPOINT.cob_id(2), data=bc.build_setpoint(0.2, 0.0, 0.0, 1),
+                                is_extended_id=False))
+        door = next(d for d in bench.endpoint("can").port.doors if d.kind == "virtual")
+        wait_until(lambda: door.received, timeout=10)  # (the loop reads it at the held instant, the next round)
+        out["t_sent"] = bench.clock.now()
+        for at in (1.0, 2.0, 3.0):  # virtual seconds after the bench started
+            bench.clock.run_until(T0 + at, timeout=30)
+            out[at] = (bench.clock.now(), world.world.t, world.world.steps, world.body("rover").pose,
+                       world.snapshot())
+        out["setpoint"] = node.setpoint
+    finally:
+        sender.shutdown()
+        bench.stop()
+    return out
+
+
+def test_a_virtual_benchs_world_steps_in_virtual_time_and_a_setpoint_moves_the_body_by_v_times_t():
+    run = world_run("vt-world-1")
+    start = run["start"]
+    assert start["time"] == T0 and start["unix_time"] == EPOCH  # the world's clock is the bench's
+    step = 1 / 200  # (the profile's world steps at 200 Hz)
+    for at in (1.0, 2.0, 3.0):
+        now, world_t, steps, _, snap = run[at]
+        assert now == T0 + at
+        assert world_t == pytest.approx(now, abs=1e-9)  # stepped as the loop's timers, right up to now
+        assert steps == round(at / step)  # every step, none twice, none late
+        assert snap["time"] == now and snap["unix_time"] == pytest.approx(EPOCH + at, abs=1e-9)
+    assert run["t_sent"] == T0 + 0.1 and run["setpoint"] == (0.2, 0.0, 0.0)
+    # Once the firmware's ramp has reached the setpoint (13 pose cycles of 10 ms), the body moves at exactly
+    # 0.2 m/s of virtual time, straight ahead (no wall clock, no load, no lateness in it).
+    (x1, y1, th1), (x2, _, _), (x3, y3, th3) = (run[at][3] for at in (1.0, 2.0, 3.0))
+    assert x2 - x1 == pytest.approx(0.2, abs=1e-9) and x3 - x2 == pytest.approx(0.2, abs=1e-9)
+    assert y1 == y3 == 0.0 and th1 == th3 == 0.0
+    again = world_run("vt-world-2")
+    assert [again[at][3] for at in (1.0, 2.0, 3.0)] == [run[at][3] for at in (1.0, 2.0, 3.0)]  # the same, twice

@@ -22,8 +22,9 @@ def rover_profile(zero: bool = False):
                                       "rover": {"type": "pty", "protocol": "vel2d", "baud": 2_000_000}},
            "devices": [{"model": "micro-ros-agent", "name": "agent", "endpoint": "agent"},
                        {"model": "stm32f767-rover", "name": "rover", "endpoint": "rover", "preset": prof.devices[1].preset,
-                        "output": "v2", "agent": "agent",
-                        "micro_ros": {"client_key": 0x60C93570, "zero_after_session": zero}}]}
+                        "output": "v2", "agent": "agent", "body": "rover",
+                        "micro_ros": {"client_key": 0x60C93570, "zero_after_session": zero}}],
+           "world": {"bodies": [{"name": "rover", "shape": "box", "size": [0.5, 0.4]}]}}
     return parse_profile(raw, "rover.toml")
 
 
@@ -56,6 +57,7 @@ def test_board_session_entities_and_cmd_vel(bench) -> None:
         # m/s -> mm/s, as cmd_vel_cb does; taken at the next pose cycle.
         wait_until(lambda: b.family("stm32-rover").board().robot_state().setpoint == (200.0, 0.0, 0.0), 2)
         wait_until(lambda: odo and odo[-1]["x"] > 1.0, 10)  # the board moves and says so
+        assert wait_until(lambda: b.world.body("rover").pose[0] > 0.005, 5)  # and the Twist moved its body
     finally:
         teleop.close()
     st = link.status()

@@ -231,14 +231,14 @@ def test_the_strategy_brings_the_bench_to_ready(served_arm, tmp_path):
     _hilbench("labgrid", "env", str(path), "-o", str(env_file))
     config = yaml.safe_load(env_file.read_text())
     config["targets"]["main"]["drivers"].append(
-        {"HilbenchStrategy": {"servo_ids": [1, 5], "bindings": {"dynamixel": "arm-dxl", "control": "bench-control"}}})
+        {"HilbenchStrategy": {"addresses": [1, 5], "bindings": {"bus": "arm-dxl", "control": "bench-control"}}})
     env_file.write_text(yaml.safe_dump(config))
     target = Environment(str(env_file)).get_target()
     try:
         strategy = target.get_driver("HilbenchStrategy")
         strategy.transition("ready")
         assert strategy.status.name == "ready"
-        assert strategy.dynamixel.ping(1)[0] == 1020
+        assert strategy.bus.ping(1)[0] == 1020
         strategy.transition("off")
         assert strategy.status.name == "off"
     finally:

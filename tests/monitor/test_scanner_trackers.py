@@ -6,7 +6,9 @@ import numpy as np
 
 from hilbench import registry
 from hilbench.dashboard import Dashboard
-from hilbench.monitor.scanners.tracker import RplidarTracker, ScipTracker, SickTracker
+from hilbench.monitor.scanners.rplidar_tracker import RplidarTracker
+from hilbench.monitor.scanners.scip2_tracker import ScipTracker
+from hilbench.monitor.scanners.sick_lms200_tracker import SickTracker
 from hilbench.protocols import rplidar as rp
 from hilbench.protocols import scip
 from hilbench.protocols import sick_lms200 as lms

@@ -113,7 +113,8 @@ def test_emulate_serves_the_board_and_the_tools_work_on_it(installed, tmp_path):
 def test_in_process_bench_and_monitor_tell_the_line_by_its_bytes(in_process, tmp_path):
     from hilbench.bench import Bench
     from hilbench.monitor import Monitor
-    from hilbench.transports.capture_file import CaptureWriter, Chunk
+    from hilbench.transports.capture_file import CaptureWriter
+    from hilbench.transports.chunk import Chunk
     from hilbench.transports.sources import FileSource, MediumSource
 
     with Bench(in_process / "hilbench_example" / "blinker.toml") as bench:

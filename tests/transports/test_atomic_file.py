@@ -11,7 +11,8 @@ import sys
 import pytest
 
 from hilbench.transports.atomic_file import WriteError, atomic_write, write_atomically
-from hilbench.transports.capture_file import CaptureError, CaptureReader, CaptureWriter, Chunk
+from hilbench.transports.capture_file import CaptureReader, CaptureWriter
+from hilbench.transports.chunk import CaptureError, Chunk
 from hilbench.transports.pcap import PcapWriter
 from hilbench.transports.recording_file import Recording, RecordingFile, RecordingRefused, partial_path
 

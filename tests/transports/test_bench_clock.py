@@ -34,6 +34,8 @@ ALLOWED = {
     "transports/tap_server.py": "its clients' stall and eviction timers",
     "transports/udp_relay.py": "its clients' idle timeouts",
     "bench/control.py": "the control channel's connection timeouts and command waits",
+    "bench/capture_replay.py": "--verify replays a capture through the bench's ptys and sockets as a client "
+                               "does, in real time",
     "fakes/xrce_client.py": "a client session with real waits (a bench participant thread: not yet virtual)",
     "families/scip2_targets.py": "a fuzz target's harness, not a bench",
 }

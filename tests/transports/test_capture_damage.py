@@ -15,7 +15,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from hilbench.protocols import capture as cap
-from hilbench.transports.capture_file import CaptureError, CaptureParser, CaptureReader, CaptureWriter
+from hilbench.transports.capture_file import CaptureReader, CaptureWriter
+from hilbench.transports.capture_parser import CaptureParser
+from hilbench.transports.chunk import CaptureError
 from tests.conftest import WOLFGANG_TRACE
 
 

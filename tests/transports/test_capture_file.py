@@ -7,7 +7,9 @@ import io
 import pytest
 
 from hilbench.protocols import capture as cap
-from hilbench.transports.capture_file import CaptureError, CaptureParser, CaptureReader, CaptureWriter, Chunk
+from hilbench.transports.capture_file import CaptureReader, CaptureWriter
+from hilbench.transports.capture_parser import CaptureParser
+from hilbench.transports.chunk import CaptureError, Chunk
 
 
 def test_round_trip_keeps_times_sources_and_bytes(tmp_path):

@@ -8,7 +8,8 @@ import time
 
 from hilbench.protocols import capture as cap
 from hilbench.pytest_plugin import wait_until
-from hilbench.transports.capture_file import CaptureParser, CaptureReader, CaptureWriter
+from hilbench.transports.capture_file import CaptureReader, CaptureWriter
+from hilbench.transports.capture_parser import CaptureParser
 from hilbench.transports.datagram_medium import DatagramMedium
 from hilbench.transports.sources.stream import TcpSource
 from hilbench.transports.tap_server import TapServer

@@ -13,7 +13,8 @@ from pathlib import Path
 import dpkt
 import pytest
 
-from hilbench.transports.capture_file import CaptureError, CaptureReader, CaptureWriter, Chunk
+from hilbench.transports.capture_file import CaptureReader, CaptureWriter
+from hilbench.transports.chunk import CaptureError, Chunk
 from hilbench.transports.pcap import PcapReader, PcapWriter, frame
 
 spec = importlib.util.spec_from_file_location("udp_vectors", Path(__file__).resolve().parents[1] / "udp_vectors.py")

@@ -20,7 +20,8 @@ from hilbench.bench import Bench
 from hilbench.protocols import dynamixel as dxl
 from hilbench.pytest_plugin import wait_until
 from hilbench.transports import tap_server
-from hilbench.transports.capture_file import CaptureParser, Chunk
+from hilbench.transports.capture_parser import CaptureParser
+from hilbench.transports.chunk import Chunk
 from hilbench.transports.sources import (
     FileSource,
     PushSource,
@@ -76,6 +77,20 @@ def test_serial_source_sniffs_a_real_pty_and_never_writes():
     finally:
         os.close(master)
         os.close(slave)
+
+
+def test_a_manifest_named_freely_is_found_by_its_content(tmp_path):
+    """``emulate --manifest bench.manifest`` takes any name, and prints ``hilbench monitor bench.manifest#arm``."""
+    with Bench("arm", tap=True) as bench:
+        path = tmp_path / "arm.manifest"
+        bench.write_manifest(path)
+        src = open_source(f"{path}#arm")
+        try:
+            assert isinstance(src, TcpSource) and src.protocol == "dynamixel"
+        finally:
+            src.close()
+    (tmp_path / "notes.manifest").write_text('{"hilbench": "no manifest"}')  # JSON, but not a manifest
+    assert isinstance(open_source(str(tmp_path / "notes.manifest")), FileSource)
 
 
 def test_a_bench_tap_streams_both_directions_to_every_client():

@@ -54,7 +54,7 @@ class RoverNode(CanopenNode):
     """The rover board on a CAN bus; see the module docstring."""
 
     def __init__(self, name: str, config: bc.BoardCanConfig, *, autostart: bool = False,
-                 battery_v: float = 24.6) -> None:
+                 battery_v: float = 24.6, encoder_noise: float = 0.0, seed: int = 0) -> None:
         super().__init__(name, config.node_id, bc.object_dictionary(config), autostart=autostart)
         self.config = config
         self.faults.update({"motor_fault": False, "battery_v": battery_v, "stuck_odometry": False,
@@ -62,7 +62,9 @@ class RoverNode(CanopenNode):
         self._t0 = 0.0
         # The robot model advances in the bus thread; pose() and status() may be called from others.
         self._robot_lock = threading.RLock()
-        self.robot = Robot(CONTROL_PERIOD_US, CONTROL_PERIOD_US)
+        self.encoder_noise = encoder_noise
+        self.seed = seed
+        self.robot = self._new_robot()
         self.mode = bc.MODE_IDLE
         self.counters = {p.key: 0 for p in bc.PDOS if p.kind == "tpdo"}
         self.stats = {"accepted": 0, "checksum_errors": 0, "counter_errors": 0, "lost_frames": 0,
@@ -91,8 +93,23 @@ class RoverNode(CanopenNode):
     def start(self, t: float | None = None) -> None:
         t = self._now() if t is None else t
         self._t0 = t
-        self.robot = Robot(CONTROL_PERIOD_US, CONTROL_PERIOD_US, first_cycle_us=0.0)
+        self.robot = self._new_robot()
         super().start(t)
+
+    def _new_robot(self) -> Robot:
+        return Robot(CONTROL_PERIOD_US, CONTROL_PERIOD_US, first_cycle_us=0.0, encoder_noise=self.encoder_noise,
+                     seed=self.seed)
+
+    def body_motion(self, t: float) -> tuple[int, float, float, float, float, float, float]:
+        """What the wheels did up to bench clock time ``t``, for its world body (a world driver): (epoch, x, y,
+        theta of the motion since power-up or reset in metres and radians, body-frame vx, vy, omega now)."""
+        if not self._started:
+            return 0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+        with self._robot_lock:
+            robot = self.robot
+            t_us = max(0.0, self._t_us(t))
+            robot.advance(t_us)
+            return (id(robot), *robot.motion_at(t_us), *robot.body_velocity())
 
     # ------------------------------------------------------------------ NMT hooks
 
@@ -112,7 +129,8 @@ class RoverNode(CanopenNode):
 
     def on_reset(self, t: float) -> None:
         self._t0 = t
-        self.robot = Robot(CONTROL_PERIOD_US, CONTROL_PERIOD_US, first_cycle_us=0.0)
+        with self._robot_lock:
+            self.robot = self._new_robot()
         self.mode = bc.MODE_IDLE
         self.counters = dict.fromkeys(self.counters, 0)
         self.stats = dict.fromkeys(self.stats, 0)

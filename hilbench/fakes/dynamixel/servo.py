@@ -12,7 +12,7 @@ import math
 import struct
 
 from hilbench.fakes.control_table_servo import ControlTableServo
-from hilbench.fakes.dynamixel.motion import Profile
+from hilbench.fakes.motion import MotionProfile
 from hilbench.protocols import dynamixel_models as m
 from hilbench.protocols.dynamixel import ALERT_BIT, BACKUP_KEY, CLEAR_KEY, ErrorNumber
 from hilbench.protocols.dynamixel_models import Field, Model
@@ -89,14 +89,14 @@ class Servo(ControlTableServo):
             self._shutdown_address = m.SHUTDOWN
         self._eeprom_end = m.EEPROM_END
         start = position if position is not None else (2048 if self.is_servo else 0)
-        self.profile = Profile(t, float(start))
+        self.profile = MotionProfile(t, float(start))
         self._goal_at_power_on(start)
         self._last_comm = t
         self._fields = [model.covering(a) for a in range(model.table_size)]
 
     def _after_power_on(self, t: float, position: float) -> None:
         """After a reboot the horn is where it was and Goal Position holds it there."""
-        self.profile = Profile(t, position)
+        self.profile = MotionProfile(t, position)
         self._goal_at_power_on(position)
 
     def _goal_at_power_on(self, position: float) -> None:
@@ -225,7 +225,7 @@ class Servo(ControlTableServo):
         s = self.profile.at(t)
         if s.moving:
             return ErrorNumber.RESULT_FAIL
-        self.profile = Profile(t, s.position % PULSES_PER_REV)
+        self.profile = MotionProfile(t, s.position % PULSES_PER_REV)
         return 0
 
     def backup(self, params: bytes, t: float) -> int:

@@ -25,7 +25,6 @@ Behaviour follows the spec sheet (laser_scanners.md §1.8-1.13):
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -33,6 +32,7 @@ import numpy as np
 from hilbench.fakes.scanners.base import Scanner
 from hilbench.fakes.scanners.scene import Pose, RangeModel, Scene
 from hilbench.fakes.scanners.uart import UartTx
+from hilbench.fakes.world import World
 from hilbench.protocols import rplidar as rp
 from hilbench.transports.line import ModemLines
 
@@ -93,9 +93,9 @@ SCAN_MODES = (("Standard", "sample_us", rp.AnsType.MEASUREMENT), ("Express", "ex
 class RplidarA1(Scanner):
     """The emulated A1; attach to a serial medium (``attach``) or drive ``on_bytes`` directly."""
 
-    def __init__(self, name: str, scene: Scene, pose: Pose, model: RangeModel | None = None,
-                 config: RplidarConfig | None = None, *, t0: float | None = None) -> None:
-        super().__init__(name, scene, pose, model or RangeModel(0.15, 12.0, 0.0005, 0.005), t0=t0)
+    def __init__(self, name: str, scene: Scene | World, pose: Pose, model: RangeModel | None = None,
+                 config: RplidarConfig | None = None, *, t0: float | None = None, body: str | None = None) -> None:
+        super().__init__(name, scene, pose, model or RangeModel(0.15, 12.0, 0.0005, 0.005), t0=t0, body=body)
         self.config = config or RplidarConfig()
         self.faults = self.config.faults
         self.frng = np.random.default_rng(self.faults.seed + 1)
@@ -120,6 +120,7 @@ class RplidarA1(Scanner):
         self._rev_true: list[np.ndarray] = []
         self._rev_meas: list[np.ndarray] = []
         self._rev_t = 0.0
+        self._rev_t_last = 0.0
         self._capsule_first = True
         self._waiting_motor = False
         self._force = False
@@ -361,7 +362,7 @@ class RplidarA1(Scanner):
             if self._freq:
                 self._draw_speed()  # a new revolution, a slightly different speed
         self._angle = float(angles[-1] + step)  # >= 360: the next batch's first sample starts a revolution
-        rng_true, meas, power = self.measure(angles, float(times[n // 2]))
+        rng_true, meas, power = self.measure(angles, float(times[n // 2]), times)
         self._record(angles, rng_true, meas, starts, times)
         if express:
             self._send_capsule(angles, meas, float(times[-1]))
@@ -384,10 +385,11 @@ class RplidarA1(Scanner):
             if starts[a]:
                 if self._rev_angles:
                     self.remember(self._rev_t, np.concatenate(self._rev_angles), np.concatenate(self._rev_true),
-                                  np.concatenate(self._rev_meas))
+                                  np.concatenate(self._rev_meas), self._rev_t_last)
                     self.revolutions += 1
                 self._rev_angles, self._rev_true, self._rev_meas = [], [], []
                 self._rev_t = float(times[a])
+            self._rev_t_last = float(times[b - 1])
             self._rev_angles.append(angles[a:b])
             self._rev_true.append(rng_true[a:b])
             self._rev_meas.append(meas[a:b])
@@ -443,9 +445,9 @@ class RplidarA1(Scanner):
 
     # ------------------------------------------------------------------ geometry and status
 
-    def world_angles(self, sensor_deg: np.ndarray) -> np.ndarray:
+    def directions(self, sensor_deg: np.ndarray, heading: np.ndarray | float) -> np.ndarray:
         """RPLIDAR angles grow clockwise seen from above, 0° straight ahead."""
-        return math.radians(self.pose.heading) - np.radians(sensor_deg)
+        return heading - np.radians(np.asarray(sensor_deg, float))
 
     def set_health(self, status: int, code: int = 0) -> None:
         """Inject a health state; status 2 is a protection stop (the scan ends, no new one until RESET)."""

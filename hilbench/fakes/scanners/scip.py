@@ -35,6 +35,7 @@ import numpy as np
 from hilbench.fakes.scanners.base import Scanner
 from hilbench.fakes.scanners.scene import Pose, RangeModel, Scene
 from hilbench.fakes.scanners.uart import UartTx
+from hilbench.fakes.world import World
 from hilbench.protocols import scip
 
 #: Command processing time before a reply.
@@ -98,11 +99,11 @@ class ScipConfig:
 class ScipScanner(Scanner):
     """The emulated SCIP 2.0 unit."""
 
-    def __init__(self, name: str, scene: Scene, pose: Pose, model: RangeModel | None, unit: ScipModel,
+    def __init__(self, name: str, scene: Scene | World, pose: Pose, model: RangeModel | None, unit: ScipModel,
                  config: ScipConfig | None = None, *, t0: float | None = None,
-                 connected=None, session=None) -> None:
+                 connected=None, session=None, body: str | None = None) -> None:
         super().__init__(name, scene, pose,
-                         model or RangeModel(unit.dmin / 1000, unit.dmax / 1000, unit.sigma0, 0.0), t0=t0)
+                         model or RangeModel(unit.dmin / 1000, unit.dmax / 1000, unit.sigma0, 0.0), t0=t0, body=body)
         self.unit = unit
         self.config = config or ScipConfig()
         self.faults = self.config.faults
@@ -131,9 +132,9 @@ class ScipScanner(Scanner):
         """The unit's 24-bit millisecond clock at monotonic time ``t``."""
         return (int((t - self.t0) * 1000.0) + self.config.clock_offset_ms) % scip.TIMESTAMP_WRAP
 
-    def world_angles(self, sensor_deg: np.ndarray) -> np.ndarray:
+    def directions(self, sensor_deg: np.ndarray, heading: np.ndarray | float) -> np.ndarray:
         """Steps grow counter-clockwise; the front step AFRT looks straight ahead."""
-        return math.radians(self.pose.heading) + np.radians(sensor_deg)
+        return heading + np.radians(np.asarray(sensor_deg, float))
 
     def step_angles(self, start: int, end: int) -> np.ndarray:
         steps = np.arange(start, end + 1)
@@ -344,8 +345,10 @@ class ScipScanner(Scanner):
     def _scan_body(self, cmd: str, f: dict, t_start: float) -> bytes:
         start, end, cluster = f["start"], f["end"], max(1, f["cluster"])
         angles = self.step_angles(start, end)
-        true, meas, power = self.measure(angles, t_start + self.unit.period / 2)
-        self.remember(t_start, angles, true, meas)
+        # The mirror passes one step every period / ARES: beam k of the range is taken k steps after the first.
+        times = t_start + np.arange(len(angles)) * self.unit.period / self.unit.ares
+        true, meas, power = self.measure(angles, t_start + self.unit.period / 2, times)
+        self.remember(t_start, angles, true, meas, float(times[-1]))
         mm = np.where(meas > 0, np.round(meas * 1000.0), NO_ECHO).astype(np.int64)
         if cluster > 1:  # a cluster reports its smallest valid distance
             n = len(mm) // cluster * cluster

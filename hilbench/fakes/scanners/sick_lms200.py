@@ -30,6 +30,7 @@ import numpy as np
 from hilbench.fakes.scanners.base import Scanner
 from hilbench.fakes.scanners.scene import Pose, RangeModel, Scene
 from hilbench.fakes.scanners.uart import UartTx
+from hilbench.fakes.world import World
 from hilbench.protocols import sick_lms200 as lms
 
 #: Processing time before a reply telegram starts (after the ACK).
@@ -67,9 +68,9 @@ class LmsConfig:
 class SickLms200(Scanner):
     """The emulated LMS 200."""
 
-    def __init__(self, name: str, scene: Scene, pose: Pose, model: RangeModel | None = None,
-                 config: LmsConfig | None = None, *, t0: float | None = None) -> None:
-        super().__init__(name, scene, pose, model or RangeModel(0.0, 80.0, 0.01, 0.0), t0=t0)
+    def __init__(self, name: str, scene: Scene | World, pose: Pose, model: RangeModel | None = None,
+                 config: LmsConfig | None = None, *, t0: float | None = None, body: str | None = None) -> None:
+        super().__init__(name, scene, pose, model or RangeModel(0.0, 80.0, 0.01, 0.0), t0=t0, body=body)
         self.config = config or LmsConfig()
         self.faults = self.config.faults
         self.frng = np.random.default_rng(self.faults.seed + 7)
@@ -96,9 +97,16 @@ class SickLms200(Scanner):
 
     # ------------------------------------------------------------------ geometry
 
-    def world_angles(self, sensor_deg: np.ndarray) -> np.ndarray:
+    def directions(self, sensor_deg: np.ndarray, heading: np.ndarray | float) -> np.ndarray:
         """LMS angles run from the right (0°) to the left (180°); straight ahead is 90°."""
-        return math.radians(self.pose.heading - 90.0) + np.radians(sensor_deg)
+        return heading + np.radians(np.asarray(sensor_deg, float) - 90.0)
+
+    def beam_times(self, t_start: float, angles: np.ndarray) -> np.ndarray:
+        """When each beam is taken: the mirror turns at 75 Hz and passes 0°..180° in half a turn; finer
+        resolutions interlace beams of successive turns (beam k on turn k mod turns)."""
+        turns = lms.REVOLUTIONS[self.resolution]
+        k = np.arange(len(angles))
+        return t_start + (np.asarray(angles) / 360.0 + k % turns) * lms.MIRROR_PERIOD
 
     def beam_angles(self) -> np.ndarray:
         n = lms.VARIANTS[(self.angle, self.resolution)]
@@ -267,8 +275,9 @@ class SickLms200(Scanner):
 
     def _send_scan(self, t_start: float, *, t_ready: float) -> float:
         angles = self.beam_angles()
-        true, meas, _power = self.measure(angles, t_start + self._scan_duration() / 2)
-        self.remember(t_start, angles, true, meas)
+        times = self.beam_times(t_start, angles)
+        true, meas, _power = self.measure(angles, t_start + self._scan_duration() / 2, times)
+        self.remember(float(times.min()), angles, true, meas, float(times.max()))
         vals = np.round(meas * 1000.0) if self.units_mm else np.round(meas * 100.0)
         vals = np.where((meas > 0) & (vals < 8183), vals, self.config.no_echo).astype(np.int64)
         data = lms.scan_data([int(v) for v in vals], self.units_mm)

@@ -192,6 +192,20 @@ class Board:
         with self.lock:
             return self.fw.robot.state(self.fw.now)
 
+    def body_motion(self, t: float) -> tuple[int, float, float, float, float, float, float]:
+        """What the wheels did up to bench clock time ``t``, for its world body (a world driver,
+        :meth:`hilbench.fakes.world.World.drive`): (epoch, x, y, theta of the motion since this boot's start
+        in metres and radians, and the body-frame velocity vx, vy, omega now). The robot model is advanced no
+        further than the firmware ran, so a setpoint the firmware has yet to receive is not overtaken; a reset
+        starts a new epoch (a new robot model)."""
+        if self.wall0 is None:
+            return 0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+        with self.lock:
+            fw = self.fw
+            t_us = min((t - self.wall0) * 1e6 - self.boot_offset, fw.now)
+            fw.robot.advance(t_us)
+            return (self.boots, *fw.robot.motion_at(t_us), *fw.robot.body_velocity())
+
     def status(self) -> dict[str, Any]:
         """A JSON-able summary: time, counters, robot, faults, last log lines."""
         with self.lock:

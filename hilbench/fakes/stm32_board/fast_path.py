@@ -21,11 +21,14 @@ from __future__ import annotations
 
 import bisect
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from hilbench.fakes.stm32_board.kernel import Kernel, Task
 from hilbench.fakes.stm32_board.presets import RUNTIME_UNIT_US
+
+if TYPE_CHECKING:  # (annotations only: the kernel imports this module)
+    from hilbench.fakes.stm32_board.kernel import Kernel, Task
 
 
 def fast_run(k: Kernel, k0: int, k_end: int, tasks: list[Task], bg: Task | None = None,

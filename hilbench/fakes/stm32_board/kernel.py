@@ -16,8 +16,8 @@ each switch, counted in TIM13 units of ≈92.6 µs).
 
 Whenever only periodic tasks interrupt the running task, :meth:`Kernel.run_until`
 hands whole runs of ticks to the vectorised fast path
-(:func:`hilbench.fakes.stm32_board.fast_path.fast_run`, imported lazily, as
-that module builds on this one's types).
+(:func:`hilbench.fakes.stm32_board.fast_path.fast_run`, which names this
+module's types in annotations only).
 """
 
 from __future__ import annotations
@@ -30,6 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hilbench.fakes.stm32_board.fast_path import fast_run
 from hilbench.fakes.stm32_board.presets import RUNTIME_UNIT_US, Timing
 
 # Actions a task generator yields.
@@ -569,7 +570,4 @@ class Kernel:
             tasks.append(task)
         if limit - k0 < 2:
             return
-        # Imported here: fast_path builds on this module's types (no import circle).
-        from hilbench.fakes.stm32_board.fast_path import fast_run
-
         fast_run(self, k0, limit, tasks, cur, until)

@@ -272,6 +272,9 @@ class BoardConfig:
     #: (``Truth.rx_overruns``). None: unbounded (a pty door, whose writer the line holds back while the UART
     #: has more than half of HOST_FIFO to take in, as the real USB link does: :meth:`Board.input_backlog`).
     rx_fifo: int | None = None
+    #: Encoder noise (standard deviation in counts per wheel per pose cycle while it turns): see
+    #: :class:`~hilbench.fakes.stm32_board.robot.Robot`.
+    encoder_noise: float = 0.0
 
     @property
     def edge_dialect(self) -> str:

@@ -17,6 +17,15 @@ with numpy:
   delta of one wheel period only (hal_fetch overwrites it at the wheel rate):
   the firmware integrates wheel_period / pose_period of the true motion, and
   this model reproduces that.
+- Encoders may be noisy (``encoder_noise``: standard deviation in counts of
+  each wheel's delta per pose cycle while it turns): odometry and the
+  encoder counts then drift from what the wheels did.
+
+What the wheels *do* is the truth a world body is driven with
+(:mod:`hilbench.fakes.world`): :meth:`Robot.motion_at` integrates their
+motion exactly (constant wheel speeds between pose cycles: one SE(2)
+exponential per stretch), whatever the firmware's odometry makes of it. A body that meets a wall stops; the wheels and the odometry
+run on.
 """
 
 from __future__ import annotations
@@ -26,6 +35,8 @@ from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
+
+from hilbench.fakes.world import compose, twist_motion
 
 WHEEL_RADIUS = 50.0  # mm
 L_W_HALF = (325.0 + 300.0) / 2  # mm
@@ -76,8 +87,11 @@ class RobotState:
 class Robot:
     """Pose cycles at ``pose_period_us`` starting at ``first_cycle_us``; see the module docstring."""
 
-    def __init__(self, pose_period_us: float, wheel_period_us: float, first_cycle_us: float = 0.0) -> None:
+    def __init__(self, pose_period_us: float, wheel_period_us: float, first_cycle_us: float = 0.0, *,
+                 encoder_noise: float = 0.0, seed: int = 0) -> None:
         self.pose_period = pose_period_us
+        self.encoder_noise = encoder_noise
+        self.rng = np.random.default_rng(seed)
         self.wheel_period = wheel_period_us
         self.next_cycle = first_cycle_us
         self.cycles = 0
@@ -88,6 +102,8 @@ class Robot:
         self.dropped = 0
         #: How far each wheel (fr, fl, bl, br) has turned in total (rad): what its encoder counts.
         self.wheel_angle = [0.0, 0.0, 0.0, 0.0]
+        #: What the wheels did up to ``next_cycle`` (m, m, rad in the start frame): the true motion.
+        self.motion = (0.0, 0.0, 0.0)
 
     def push_setpoint(self, t_us: float, vx: float, vy: float, wz: float) -> bool:
         """recv_vel's ``xQueueSend(vel_sp_queue, timeout 0)``: False when the queue was full."""
@@ -97,6 +113,20 @@ class Robot:
             return False
         self.queue.append((t_us, (vx, vy, wz)))
         return True
+
+    def body_velocity(self) -> tuple[float, float, float]:
+        """What the wheels do now: the body-frame velocity (m/s, m/s, rad/s) their speeds make."""
+        vx, vy, wz = forward_kinematics(*self.wheels)
+        return vx / 1000.0, vy / 1000.0, wz
+
+    def motion_at(self, t_us: float) -> tuple[float, float, float]:
+        """What the wheels did from the start to ``t_us`` (m, m, rad in the start frame), after
+        :meth:`advance` to ``t_us``: the motion up to the next cycle, less the part of this cycle still to come."""
+        ahead = (self.next_cycle - t_us) * 1e-6
+        if ahead <= 0:
+            return self.motion
+        vx, vy, w = self.body_velocity()
+        return compose(self.motion, twist_motion(-vx, -vy, -w, ahead))
 
     @property
     def wheels(self) -> tuple[float, float, float, float]:
@@ -138,6 +168,13 @@ class Robot:
 
     def _odometry(self, n: int) -> None:
         wheels = self.wheels
+        if any(wheels):
+            vx, vy, w = self.body_velocity()
+            self.motion = compose(self.motion, twist_motion(vx, vy, w, self.pose_period * 1e-6 * n))
+        if self.encoder_noise and any(wheels):
+            for _ in range(n):  # each reading its own noise
+                self._odometry_noisy(wheels)
+            return
         turned = self.pose_period * 1e-6 * n  # the wheels turn for the whole pose period(s)
         self.wheel_angle = [a + w * turned for a, w in zip(self.wheel_angle, wheels, strict=True)]
         # One wheel period's encoder delta per pose cycle (the mailbox semantics of the firmware).
@@ -146,12 +183,24 @@ class Robot:
         if dx == 0 and dy == 0 and dth == 0:
             return
         if n == 1:
-            mid = self.theta + dth / 2
-            self.x += dx * math.cos(mid) - dy * math.sin(mid)
-            self.y += dx * math.sin(mid) + dy * math.cos(mid)
-            self.theta = _wrap(self.theta + dth)
+            self._integrate(dx, dy, dth)
             return
         mids = self.theta + dth * (np.arange(n) + 0.5)
         self.x += float(np.sum(dx * np.cos(mids) - dy * np.sin(mids)))
         self.y += float(np.sum(dx * np.sin(mids) + dy * np.cos(mids)))
         self.theta = _wrap(self.theta + n * dth)
+
+    def _odometry_noisy(self, wheels: tuple[float, ...]) -> None:
+        """One pose cycle whose encoder deltas carry noise (counts, while a wheel turns)."""
+        noise = self.rng.standard_normal(4) * self.encoder_noise * INC2RAD
+        turned = self.pose_period * 1e-6
+        measured = [w * turned + (e if w else 0.0) for w, e in zip(wheels, noise, strict=True)]
+        self.wheel_angle = [a + m for a, m in zip(self.wheel_angle, measured, strict=True)]
+        frac = self.wheel_period / self.pose_period
+        self._integrate(*forward_kinematics(*(m * frac for m in measured)))
+
+    def _integrate(self, dx: float, dy: float, dth: float) -> None:
+        mid = self.theta + dth / 2
+        self.x += dx * math.cos(mid) - dy * math.sin(mid)
+        self.y += dx * math.sin(mid) + dy * math.cos(mid)
+        self.theta = _wrap(self.theta + dth)

@@ -1,28 +1,46 @@
-"""Laser-scanner instruments: RPLIDAR, SICK LMS 200 and SCIP 2.0 traffic for ``hilbench monitor``.
+"""Laser-scanner instruments for ``hilbench monitor``: the frame each scanner family's instrument builds on.
 
-Each protocol registers an :class:`~hilbench.monitor.instrument.Instrument`
-(``hilbench.instruments`` entry points ``rplidar``, ``sick-lms200``, ``scip2``)
-whose tracker (:mod:`hilbench.monitor.scanners.tracker`) decodes both
-directions into a request/reply log, scans, scan rate, points per scan,
-health, errors and checksum failures, shown by the scanner dashboard views
+A scanner family registers an instrument (``hilbench.instruments`` entry
+point, a :class:`ScannerInstrument` subclass in its own module, e.g.
+:mod:`hilbench.monitor.scanners.rplidar`) that names its tracker
+(:attr:`ScannerInstrument.tracker_path`, a
+:class:`~hilbench.monitor.scanners.tracker.ScannerTracker` subclass). The
+tracker decodes both directions into a request/reply log, scans, scan rate,
+points per scan, health, errors and checksum failures; this class gives every
+scanner the same summary and the scanner dashboard views
 (:mod:`hilbench.dashboard.scanner_views`).
+
+Importing an instrument is cheap: its tracker (and the protocol's codec,
+numpy) is imported when a tracker is made.
 """
 
 from __future__ import annotations
 
-from typing import Any
+import importlib
+from typing import TYPE_CHECKING, Any, ClassVar
 
 from hilbench.monitor.instrument import Instrument
-from hilbench.monitor.scanners.tracker import TRACKERS, ScannerTracker
+
+if TYPE_CHECKING:
+    from hilbench.monitor.scanners.tracker import ScannerTracker
 
 
 class ScannerInstrument(Instrument):
-    """Shared plumbing: tracker by protocol, JSON summary, printed summary."""
+    """Shared plumbing: the tracker its subclass names, JSON summary, printed summary."""
 
     views_path = "hilbench.dashboard.scanner_views:VIEW_SET"
+    #: ``"module:CLASS"`` of its tracker (a :class:`~hilbench.monitor.scanners.tracker.ScannerTracker`
+    #: subclass), imported when the first tracker is made.
+    tracker_path: ClassVar[str] = ""
+
+    @property
+    def tracker_class(self) -> type[ScannerTracker]:
+        """The tracker class :attr:`tracker_path` names."""
+        module, _, attr = self.tracker_path.partition(":")
+        return getattr(importlib.import_module(module), attr)
 
     def make_tracker(self, *, baud: int | None, timestamps: bool, **options: Any) -> ScannerTracker:
-        return TRACKERS[self.protocol](baud=baud, timestamps=timestamps)
+        return self.tracker_class(baud=baud, timestamps=timestamps)
 
     def summary(self, tracker: ScannerTracker, *, source: str, timestamps: str | None, errors: int = 50) -> dict:
         return tracker.summary(source=source, timestamps=timestamps, errors=errors)
@@ -42,50 +60,4 @@ class ScannerInstrument(Instrument):
             console.print(f"  ! {line}", highlight=False)
 
 
-class RplidarInstrument(ScannerInstrument):
-    protocol = "rplidar"
-    title = "Slamtec RPLIDAR serial protocol"
-
-    def sniff(self, data: bytes) -> float:
-        from hilbench.protocols import rplidar as rp
-
-        dec = rp.ResponseDecoder()
-        items = dec.feed(data[:8192])
-        descriptors = sum(1 for i in items if isinstance(i, rp.Response) and i.ans_type in list(rp.AnsType))
-        if descriptors:
-            return 0.9
-        reqs = rp.RequestDecoder().feed(data[:256])
-        good = sum(1 for i in reqs if isinstance(i, rp.Request) and i.cmd in list(rp.Cmd))
-        return 0.5 if good and good == len(reqs) else 0.0
-
-
-class SickInstrument(ScannerInstrument):
-    protocol = "sick-lms200"
-    aliases = ("sick", "lms200")
-    title = "SICK LMS 200 telegrams"
-
-    def sniff(self, data: bytes) -> float:
-        from hilbench.protocols import sick_lms200 as lms
-
-        frames = sum(1 for i in lms.Decoder().feed(data[:8192]) if isinstance(i, lms.Frame))
-        return 0.95 if frames else 0.0
-
-
-class ScipInstrument(ScannerInstrument):
-    protocol = "scip2"
-    aliases = ("scip", "hokuyo")
-    title = "Hokuyo SCIP 2.0"
-
-    def sniff(self, data: bytes) -> float:
-        from hilbench.protocols import scip
-
-        reps = [r for r in scip.ReplyDecoder().feed(data[:8192]) if isinstance(r, scip.Reply)]
-        good = sum(1 for r in reps if r.status is not None and not r.bad_sums)
-        return 0.9 if good and good >= len(reps) / 2 else 0.0
-
-
-RPLIDAR = RplidarInstrument()
-SICK = SickInstrument()
-SCIP = ScipInstrument()
-
-__all__ = ["RPLIDAR", "SCIP", "SICK", "ScannerInstrument"]
+__all__ = ["ScannerInstrument"]

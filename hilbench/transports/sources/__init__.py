@@ -1,6 +1,6 @@
 """Byte sources for instruments: where traffic comes from, as timestamped chunks.
 
-Every source yields :class:`~hilbench.transports.capture_file.Chunk` s
+Every source yields :class:`~hilbench.transports.chunk.Chunk` s
 ``(t, source, data)``: the bytes one party put on the medium, complete at
 time ``t`` (seconds, ``time.monotonic()`` for live data, the recording's own
 clock for captures). The monitor, the recorder and the trace profiler consume
@@ -39,8 +39,9 @@ from pathlib import Path
 from urllib.parse import urlparse
 
 from hilbench import registry
-from hilbench.transports.capture_file import Chunk
+from hilbench.transports.chunk import Chunk
 from hilbench.transports.sources.base import (
+    SNIFF_SIZE,
     MediumSource,
     PeekedSource,
     PushSource,
@@ -101,6 +102,16 @@ def open_source(spec: str, *, baud: int | None = None, speed: float | None = Non
         for opener in source_kinds():
             if path.suffix.lower() in opener.suffixes:
                 return opener.open(spec, path_text, fragment, **options)
+        sniffers = [opener for opener in source_kinds() if opener.sniff is not None]
+        if sniffers:  # a file named freely (a manifest written to bench.manifest, say)
+            try:
+                with open(path, "rb") as f:
+                    head = f.read(SNIFF_SIZE)
+            except OSError as exc:
+                raise SourceUnavailable(f"{spec}: {exc.strerror}") from None
+            for opener in sniffers:
+                if opener.sniff(head):  # type: ignore[misc]
+                    return opener.open(spec, path_text, fragment, **options)
     return _by_kind(kind).open(spec, path_text, fragment, **options)
 
 

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from hilbench.errors import HilbenchError, UnavailableError
-from hilbench.transports.capture_file import Chunk, sound_quality
+from hilbench.transports.chunk import Chunk, sound_quality
 
 
 class SourceError(HilbenchError, ValueError):
@@ -62,7 +62,7 @@ class Source:
 
     def quality(self) -> dict[str, Any]:
         """Damage found in the input so far: counters and one-line ``findings`` (truncation, corruption,
-        times out of order; see :class:`~hilbench.transports.capture_file.CaptureParser`). Sources that
+        times out of order; see :class:`~hilbench.transports.capture_parser.CaptureParser`). Sources that
         carry no capture format have nothing to report."""
         return sound_quality()
 
@@ -313,10 +313,12 @@ class SourceOpener:
     whole string, ``target`` the part an opener reads (a path, or the URL),
     ``fragment`` what followed ``#``; ``options`` are ``baud``, ``speed`` and
     ``default_baud`` (an opener ignores what it does not use). An opener is
-    found by URL scheme (``schemes``), by file suffix (``suffixes``) or by the
-    kind of file (``kinds``: ``"stdin"`` for ``-``, ``"char"`` for a character
-    device, ``"fifo"``, ``"file"`` for any other regular file). ``usage`` and
-    ``what`` make its row of the table in ``hilbench monitor --help``.
+    found by URL scheme (``schemes``), by file suffix (``suffixes``), by the
+    first bytes of a regular file whose suffix no opener claims (``sniff``:
+    given up to :data:`SNIFF_SIZE` bytes, whether the opener reads that file)
+    or by the kind of file (``kinds``: ``"stdin"`` for ``-``, ``"char"`` for a
+    character device, ``"fifo"``, ``"file"`` for any other regular file).
+    ``usage`` and ``what`` make its row of the table in ``hilbench monitor --help``.
     """
 
     name: str
@@ -326,7 +328,11 @@ class SourceOpener:
     kinds: tuple[str, ...] = ()
     usage: str = ""
     what: str = ""
+    sniff: Callable[[bytes], bool] | None = None
 
 
-__all__ = ["Chunk", "MediumSource", "PeekedSource", "PushSource", "ReplaySource", "Source", "SourceError",
+#: Bytes of a file an opener's ``sniff`` sees.
+SNIFF_SIZE = 4096
+
+__all__ = ["SNIFF_SIZE", "Chunk", "MediumSource", "PeekedSource", "PushSource", "ReplaySource", "Source", "SourceError",
            "SourceOpener", "SourceUnavailable", "peek"]

@@ -16,6 +16,11 @@ source string                                   what it opens
 ``run.log`` (candump ``-L``)                    text is read as any other file)
 ==============================================  ======================================================
 
+A candump log is read line by line (:class:`CandumpLogSource`): a damaged
+line is skipped and counted, a last line cut by a killed recorder reported,
+and reading goes on, where python-can's readers (the other formats) stop at
+the first bad record.
+
 Live buses stamp frames with Unix time (what socketcand and python-can give);
 ``bitrate`` only tells the monitor the bus load's reference.
 """
@@ -31,7 +36,7 @@ from typing import Any
 from urllib.parse import parse_qs, urlparse
 
 from hilbench.protocols import can_frame as cf
-from hilbench.transports.capture_file import Chunk
+from hilbench.transports.chunk import Chunk, sound_quality
 from hilbench.transports.sources.base import (
     PushSource,
     ReplaySource,
@@ -218,6 +223,112 @@ class CanLogSource(ReplaySource):
                 pass
 
 
+#: One candump ``-L`` line (python-can's ``.log``): ``(time) channel id#data [R|T]``; data is hex bytes, ``R`` with
+#: an optional length (a remote frame), or ``#F`` and hex bytes (CAN FD, flags F).
+_CANDUMP_LINE = re.compile(
+    rb"^\((\d{1,12}(?:\.\d{1,9})?)\)[ \t]+(\S{1,64})[ \t]+([0-9A-Fa-f]{3}|[0-9A-Fa-f]{8})#"
+    rb"(R[0-9A-Fa-f]?|#[0-9A-Fa-f](?:[0-9A-Fa-f]{2}){0,64}|(?:[0-9A-Fa-f]{2}){0,8})(?:[ \t]+([RTrt]))?[ \t]*\r?$")
+#: Longest candump line read (a longer one is damage, skipped without reading it all into memory).
+MAX_CANDUMP_LINE = 512
+
+
+class CandumpLogSource(CanLogSource):
+    """A candump ``-L`` text log (python-can's ``.log``), read line by line: a line that is no frame (damage, a
+    line cut by a recording that was killed) is skipped and counted, and reading goes on (python-can's own
+    reader stops at the first one)."""
+
+    def __init__(self, path: str, *, baud: int | None = None, speed: float | None = None) -> None:
+        if not Path(path).exists():
+            raise SourceUnavailable(f"{path}: no such file")
+        self.check_speed(speed)
+        self.name = path
+        self.baud = baud
+        self.wall_offset = 0.0
+        self.reader = None
+        self.bad_lines = 0
+        self.first_bad: int | None = None
+        self.cut_last = False
+        self.fd_frames = 0
+        self._start_replay(speed)
+
+    def quality(self) -> dict[str, Any]:
+        findings = []
+        if self.bad_lines:
+            findings.append(f"{self.bad_lines} line(s) that are no candump frame skipped (the first: line "
+                            f"{self.first_bad})")
+        if self.cut_last:
+            findings.append("truncated: the last line has no end (the recording was cut off): skipped")
+        if self.fd_frames:
+            findings.append(f"{self.fd_frames} CAN FD frame(s) longer than 8 bytes skipped (a classic bus)")
+        return {**sound_quality(), "corruptions": self.bad_lines, "truncated_bytes": int(self.cut_last),
+                "findings": findings}
+
+    def _frame(self, m: re.Match) -> tuple[float, str, cf.CanFrame] | None:
+        t = float(m.group(1))
+        ident, data, flag = m.group(3), m.group(4), m.group(5)
+        can_id = int(ident, 16)
+        extended = len(ident) == 8
+        direction = "" if flag is None or flag in (b"R", b"r") else " tx"
+        channel = m.group(2).decode("ascii", "replace")
+        if data[:1] == b"R":
+            return t, channel + direction, cf.CanFrame(can_id & cf.CAN_EFF_MASK, b"", extended, True, False,
+                                                    min(int(data[1:] or b"0", 16), 8))
+        if data[:1] == b"#":
+            data = data[2:]
+            if len(data) > 16:
+                self.fd_frames += 1
+                return None
+        raw = bytes.fromhex(data.decode("ascii"))
+        if extended and can_id & cf.CAN_ERR_FLAG:
+            return t, channel + direction, cf.CanFrame(can_id & cf.CAN_ERR_MASK, raw[:8].ljust(8, b"\0"), False, False,
+                                                    True, 8)
+        return t, channel + direction, cf.CanFrame(can_id & cf.CAN_EFF_MASK, raw, extended, False, False, len(raw))
+
+    def _bad(self, number: int) -> None:
+        self.bad_lines += 1
+        if self.first_bad is None:
+            self.first_bad = number
+
+    def chunks(self, idle: float | None = None) -> Iterator[Chunk | None]:
+        stop = self._stop
+        try:
+            with open(self.name, "rb") as fh:
+                number = 0
+                while not stop.is_set():
+                    line = fh.readline(MAX_CANDUMP_LINE + 1)
+                    if not line:
+                        return
+                    number += 1
+                    if not line.endswith(b"\n"):
+                        if len(line) > MAX_CANDUMP_LINE:  # no candump line is this long: skip the rest of it
+                            while line and not line.endswith(b"\n"):
+                                line = fh.readline(MAX_CANDUMP_LINE + 1)
+                            self._bad(number)
+                            continue
+                        if line.strip():
+                            self.cut_last = True  # the last line, without its end: a recorder killed mid-write
+                        return
+                    text = line.rstrip(b"\r\n")
+                    if not text.strip():
+                        continue
+                    m = _CANDUMP_LINE.match(text)
+                    if m is None:
+                        self._bad(number)
+                        continue
+                    got = self._frame(m)
+                    if got is None:
+                        continue
+                    t, source, frame = got
+                    if self.speed is not None and (yield from self._pace(t, idle)):
+                        return
+                    yield Chunk(t, source, cf.pack(frame))
+        except OSError as exc:
+            raise SourceError(f"{self.name}: {exc}") from None
+
+    def close(self) -> None:
+        ReplaySource.close(self)
+
+
 def _is_candump(path: str) -> bool:
     try:
         with open(path, encoding="ascii", errors="replace") as fh:
@@ -239,6 +350,8 @@ def open_can_log(spec: str, target: str, fragment: str, *, baud: int | None = No
         from hilbench.transports.sources.file import open_file
 
         return open_file(spec, target, fragment, baud=baud, speed=speed)
+    if Path(target).suffix.lower() == ".log":
+        return CandumpLogSource(target, baud=baud, speed=speed)
     return CanLogSource(target, baud=baud, speed=speed)
 
 
@@ -248,4 +361,4 @@ CAN_BUS = SourceOpener("can-bus", open_can_bus, schemes=("socketcand", "slcan", 
 CAN_LOG = SourceOpener("can-log", open_can_log, suffixes=LOG_SUFFIXES, usage="run.asc, run.blf, run.trc, run.log",
                        what="a python-can log file (Vector ASC/BLF, PEAK TRC, candump -L)")
 
-__all__ = ["CAN_BUS", "CAN_LOG", "CanBusSource", "CanLogSource", "open_bus"]
+__all__ = ["CAN_BUS", "CAN_LOG", "CanBusSource", "CanLogSource", "CandumpLogSource", "open_bus"]

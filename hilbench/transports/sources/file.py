@@ -7,7 +7,8 @@ import stat
 import sys
 from collections.abc import Iterator
 
-from hilbench.transports.capture_file import CaptureError, CaptureReader, Chunk, sound_quality
+from hilbench.transports.capture_file import CaptureReader
+from hilbench.transports.chunk import CaptureError, Chunk, sound_quality
 from hilbench.transports.sources.base import (
     ReplaySource,
     Source,

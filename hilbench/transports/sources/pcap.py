@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 
-from hilbench.transports.capture_file import CaptureError, Chunk
+from hilbench.transports.chunk import CaptureError, Chunk
 from hilbench.transports.sources.base import (
     ReplaySource,
     Source,

@@ -7,7 +7,7 @@ import time
 from collections.abc import Iterator
 from urllib.parse import parse_qs, urlparse
 
-from hilbench.transports.capture_file import Chunk
+from hilbench.transports.chunk import Chunk
 from hilbench.transports.sources.base import Source, SourceError, SourceOpener, SourceUnavailable
 
 

@@ -10,7 +10,8 @@ import time
 from collections.abc import Iterator
 from urllib.parse import urlparse
 
-from hilbench.transports.capture_file import READ_SIZE, CaptureParser, Chunk, sound_quality
+from hilbench.transports.capture_parser import READ_SIZE, CaptureParser
+from hilbench.transports.chunk import Chunk, sound_quality
 from hilbench.transports.readiness import Readiness
 from hilbench.transports.sources.base import Source, SourceError, SourceOpener, SourceUnavailable
 from hilbench.transports.tap_server import REFUSAL_PREFIX as TAP_REFUSAL

@@ -196,7 +196,7 @@ def test_stalled_motor_gives_descriptor_then_silence(a1):
 
 
 def test_fault_knobs_reach_the_decoders(scanners):
-    from hilbench.monitor.scanners.tracker import RplidarTracker
+    from hilbench.monitor.scanners.rplidar_tracker import RplidarTracker
 
     dev = scanners.device("lidar")
     dev.config.motor = "always"

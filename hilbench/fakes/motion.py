@@ -1,9 +1,12 @@
-"""Servo motion as a function of time: velocity- and acceleration-limited profiles.
+"""Servo motion as a function of time: velocity- and acceleration-limited motion profiles.
 
-A profile is a short list of constant-acceleration segments computed when a
-goal changes; the servo's present position, velocity and acceleration are
-evaluated from it at the moment a host reads them. No thread ticks the
-simulation, so an idle bench costs nothing and every read is exact.
+A motion profile is a short list of constant-acceleration segments computed
+when a goal changes; the servo's present position, velocity and acceleration
+are evaluated from it at the moment a host reads them. No thread ticks the
+simulation, so an idle bench costs nothing and every read is exact. A kit:
+the Dynamixel servos and the servos built from control tables
+(:mod:`~hilbench.fakes.control_table_servo`, :mod:`~hilbench.fakes.table_servo`)
+move by it.
 """
 
 from __future__ import annotations
@@ -27,7 +30,7 @@ class State(NamedTuple):
     moving: bool
 
 
-class Profile:
+class MotionProfile:
     """Piecewise constant-acceleration motion, starting at rest at ``position``."""
 
     def __init__(self, t: float, position: float) -> None:

@@ -1,0 +1,153 @@
+"""The ``[world]`` table and the devices' ``body``: bundled rover profiles have the body ``rover``; mistakes are
+one line naming the file, the key and what was expected; the older ``[scene]`` still loads; the control
+channel answers ``world`` and ``world_place``."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from hilbench.bench import Bench
+from hilbench.bench.control import ControlClient, ControlError
+from hilbench.bench.profile import ProfileError, load_profile
+
+ROVER = """
+schema = 1
+[endpoints.rover]
+type = "pty"
+protocol = "vel2d"
+[[devices]]
+model = "stm32f767-rover"
+name = "rover"
+endpoint = "rover"
+preset = "freertos-1000"
+{device}
+{world}
+"""
+BODY = """
+[[world.bodies]]
+name = "rover"
+shape = "box"
+size = [0.5, 0.4]
+"""
+
+
+def write(tmp_path, device: str = 'body = "rover"', world: str = BODY):
+    p = tmp_path / "bench.toml"
+    p.write_text(ROVER.format(device=device, world=world))
+    return p
+
+
+@pytest.mark.parametrize("name", ["mecarover", "mecarover-can", "mecarover-udp", "mecarover-micro-ros",
+                                  "mecarover-thesis"])
+def test_every_rover_profile_has_the_body_rover_driven_by_its_board(name):
+    prof = load_profile(name)
+    assert prof.world.body_names() == ["rover"]
+    board = next(d for d in prof.devices if d.name == "rover")
+    assert board.body == "rover"
+    if name in ("mecarover", "mecarover-can"):
+        lidar = next(d for d in prof.devices if d.model == "rplidar-a1")
+        assert (lidar.body, lidar.x, lidar.y) == ("rover", 0.1, 0.0)
+
+
+def test_arena_has_two_rovers_each_with_board_and_lms200():
+    prof = load_profile("arena")
+    assert prof.world.body_names() == ["r1", "r2"]
+    on = {d.name: (d.model, d.body) for d in prof.devices}
+    assert on == {"r1": ("stm32f767-rover", "r1"), "r1-lms": ("lms200", "r1"),
+                  "r2": ("stm32f767-rover", "r2"), "r2-lms": ("lms200", "r2")}
+    assert len(prof.world.scene.movers) == 1
+
+
+@pytest.mark.parametrize(("device", "world", "key", "expected"), [
+    ('body = "rvr"', BODY, "devices[0].body", "expected the name of a world body (rover), got 'rvr'"),
+    ('body = "rover"', "", "devices[0].body", "expected the name of a world body (none: add [[world.bodies]]"),
+    ("body = 3", BODY, "devices[0].body", "got 3"),
+    ('body = "rover"\nodometry = { slip = 2.0 }', BODY, "devices[0].odometry.slip", "expected a number 0.0..0.9"),
+    ('body = "rover"\nodometry = { wobble = 1 }', BODY, "devices[0].odometry.wobble", "unknown key"),
+    ("", BODY.replace('shape = "box"\n', 'shape = "triangle"\n'), "world.bodies[0].shape",
+     "expected one of box, circle"),
+    ("", BODY.replace("size = [0.5, 0.4]\n", ""), "world.bodies[0]", 'expected size = [length, width]'),
+    ("", BODY.replace("size = [0.5, 0.4]", "size = [0.5, -1]"), "world.bodies[0].size", "expected sizes 0..100 m"),
+    ("", BODY + "pose = { x = 1, heading = 90, theta = 1 }\n", "world.bodies[0].pose",
+     "expected theta (radians) or heading (degrees), not both"),
+    ("", BODY + 'colour = "red"\n', "world.bodies[0].colour", "unknown key"),
+    ("", BODY + BODY, "world.bodies[1].name", "body name 'rover' is used twice"),
+    ("", "[world]\nstep_hz = 5\n" + BODY, "world.step_hz", "expected a number 20.0..2000.0, got 5"),
+    ("", "[world]\nwalls = 3\n", "world.walls", "expected an array of polylines"),
+    ("", "[world]\nwalls = [[[0, 0], [1, 1]]]\n[scene]\nwalls = [[[0, 0], [1, 1]]]\n", "scene",
+     "the world's geometry is given in [world] already"),
+])
+def test_world_mistakes_are_one_line_naming_file_key_and_expectation(tmp_path, device, world, key, expected):
+    path = write(tmp_path, device, world)
+    with pytest.raises(ProfileError) as err:
+        load_profile(path)
+    text = str(err.value)
+    assert "\n" not in text and text.startswith(f"{path}: {key}: ") and expected in text, text
+
+
+def test_the_older_scene_table_is_the_world_s_geometry(tmp_path):
+    path = write(tmp_path, world="[scene]\nwalls = [[[-1, -1], [1, -1], [1, 1], [-1, 1], [-1, -1]]]\n" + BODY)
+    prof = load_profile(path)
+    with Bench(prof) as bench:
+        assert len(bench.world.world.scene.segments) == 4
+        assert bench.manifest()["devices"][0]["body"] == "rover"
+
+
+def test_overrides_reach_world_keys():
+    prof = load_profile("arena", {"world.bodies.0.pose.x": -2.0})
+    assert prof.world.bodies[0].x == -2.0
+
+
+def client_address(client: ControlClient) -> str:
+    host, port = client.address
+    return f"{host}:{port}"
+
+
+def test_control_channel_answers_world_and_places_bodies(tmp_path):
+    with Bench("arena") as bench:
+        client = ControlClient(bench.serve_control().address_text)
+        doc = client.world(geometry=True)
+        assert set(doc["bodies"]) == {"r1", "r2"}
+        assert doc["bodies"]["r2"]["theta"] == pytest.approx(math.pi)
+        assert doc["devices"]["r1-lms"] == {"body": "r1", "mount": {"x": 0.15, "y": 0.0, "theta": 0.0},
+                                            "pose": {"x": pytest.approx(-1.35), "y": 0.0, "theta": 0.0}}
+        assert len(doc["geometry"]["segments"]) == 4 + 4 + 4  # walls, the bench, the crate
+        # Each rover's scanner sees the other: straight ahead (the LMS's 90-degree beam) the other's near face.
+        assert bench.devices["r2-lms"].truth_range(90.0) == pytest.approx(2.6)
+        assert bench.devices["r1-lms"].truth_range(90.0) == pytest.approx(2.6)
+        client.place("r1", 0.5, -1.0, 0.25)
+        assert bench.world.body("r1").pose == pytest.approx((0.5, -1.0, 0.25))
+        # r2's scanner sees r1 where it was put: its 90-degree beam, west along y = 0, misses it now.
+        assert bench.devices["r2-lms"].truth_range(90.0) == pytest.approx(1.35 + 4.0)
+        for bad, says in (({"body": "r9"}, "body: expected one of r1, r2"), ({"body": "r1", "x": "a"}, "x: expected"),
+                          ({"body": "r1", "theta": float("nan")}, "theta: expected")):
+            with pytest.raises(ControlError, match=says) as err:
+                client.call("world_place", **bad)
+            assert err.value.exit_code == 2
+        with pytest.raises(ControlError, match="since: expected"):
+            client.call("world", since="yesterday")
+        hist = client.world(since=doc["time"])["history"]
+        assert hist["poses"] and set(hist["poses"][-1]["bodies"]) == {"r1", "r2"}
+        # hilbench world's pictures: a PNG, and the terminal's top-down view.
+        from hilbench.cli import main
+        from hilbench.cli.world import render_text
+
+        png = tmp_path / "world.png"
+        assert main(["world", "--control", client_address(client), "--png", str(png)]) == 0
+        assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+        rows = [r for r in render_text(client.world(geometry=True, scans=True)) if r.strip()]
+        assert rows[0].strip().startswith("#") and rows[0].strip().endswith("#")  # the north wall
+        assert sum(r.count("1") for r in rows) > 4 and sum(r.count("2") for r in rows) > 4  # r1 and r2
+
+
+def test_a_scanner_mount_pose_may_give_theta_in_radians(tmp_path):
+    lidar = ('\n[endpoints.lidar]\ntype = "pty"\nprotocol = "rplidar"\n[[devices]]\nmodel = "rplidar-a1"\n'
+             'endpoint = "lidar"\nbody = "rover"\n')
+    path = write(tmp_path, world=BODY + lidar + "pose = { x = 0.1, theta = 1.5707963267948966 }\n")
+    spec = next(d for d in load_profile(path).devices if d.model == "rplidar-a1")
+    assert spec.heading == pytest.approx(90.0) and spec.body == "rover"
+    path = write(tmp_path, world=BODY + lidar + "pose = { heading = 90, theta = 1.0 }\n")
+    with pytest.raises(ProfileError, match=r"devices\[1\].pose: expected heading \(degrees\) or theta"):
+        load_profile(path)
