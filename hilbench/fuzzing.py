@@ -43,6 +43,7 @@ import logging
 import random
 import socket
 import threading
+import time
 import traceback
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -369,6 +370,17 @@ def check_address(dst: Any) -> None:
         raise OverflowError("getsockaddrarg: port must be 0-65535.")
 
 
+class _WallClock:
+    """The wall clock as a medium's clock answers (this module sits below transports: none of their imports)."""
+
+    virtual = False
+    now = staticmethod(time.monotonic)
+
+    @staticmethod
+    def wall(t: float) -> float:
+        return t + (time.time() - time.monotonic())
+
+
 class NetPort:
     """What a device on a datagram net holds (``send``, ``call_at``), for a target run without sockets:
     datagrams are checked as ``sendto`` checks them and counted, timers kept to be run by the session."""
@@ -376,6 +388,10 @@ class NetPort:
     def __init__(self) -> None:
         self.sent = 0
         self.timers: list[Any] = []
+        self.clock = _WallClock()  # (a DevicePort's clock: the wall clock, a medium's default)
+
+    def now(self) -> float:
+        return self.clock.now()
 
     def send(self, data: bytes, dst: Any, *, via: Any = None, t: float | None = None) -> None:
         check_address(dst)

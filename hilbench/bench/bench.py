@@ -14,8 +14,9 @@ everything is. Nothing here knows a bus kind or device family by name: see
 
 from __future__ import annotations
 
+import inspect
 import os
-import time
+import random
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -26,9 +27,11 @@ from hilbench.bench.family import DeviceFamily, DeviceSpec, FamilyAccess
 from hilbench.bench.profile import EndpointSpec, Profile, load_profile
 from hilbench.bench.world import BenchWorld, build_world
 from hilbench.errors import BenchError, UsageError
+from hilbench.transports.clock import WALL, VirtualClock, WallClock
 from hilbench.transports.listener import BindError
 from hilbench.transports.medium import medium_timing
 from hilbench.transports.tap_server import TapServer
+from hilbench.transports.virtual_loop import MODES, VirtualLoop
 
 
 class Endpoint:
@@ -109,6 +112,14 @@ class Bench:
     ``serve`` names servers (:mod:`hilbench.bench.server`, e.g. ``"rfc2217"``)
     that make every endpoint they can serve reachable over the network; they,
     the taps and the control channel listen on ``bind`` (default 127.0.0.1).
+
+    ``virtual_time`` (True, ``"hold"`` or ``"free"``) runs the bench on a
+    :class:`~hilbench.transports.clock.VirtualClock`: one
+    :class:`~hilbench.transports.virtual_loop.VirtualLoop` thread runs every medium and device timer, and
+    time jumps from event to event (``"hold"``, the default: only when ``bench.clock.run_for(s)`` asks;
+    ``"free"``: on its own). A virtual bench is paced. ``virtual_epoch`` pins the Unix time of its start
+    (stamps then repeat from run to run); ``seed`` seeds what would otherwise be random (a bus's fault
+    draws), so two runs of the same inputs do the same.
     """
 
     def __init__(
@@ -120,13 +131,30 @@ class Bench:
         tap: bool = False,
         serve: tuple[str, ...] | list[str] = (),
         bind: str = "127.0.0.1",
+        virtual_time: bool | str = False,
+        virtual_epoch: float | None = None,
+        seed: int = 0,
     ) -> None:
         self.profile = profile if isinstance(profile, Profile) else load_profile(profile)
+        if virtual_time and paced is False:
+            raise UsageError("virtual time is paced: --unpaced and --virtual-time do not go together")
         self.paced = paced
         self.tap = tap
         self.serve = tuple(serve)
         self.bind = bind
         self.link_dir = Path(link_dir) if link_dir else None
+        #: The one clock every medium, port and device of this bench reads (DESIGN §12).
+        self.clock: WallClock = WALL
+        #: What runs the bench in virtual time (None on the wall clock).
+        self.loop: VirtualLoop | None = None
+        self.seed = seed
+        if virtual_time:
+            mode = "hold" if virtual_time is True else str(virtual_time)
+            if mode not in MODES:
+                raise UsageError(f"virtual time must be one of {', '.join(MODES)}, got {virtual_time!r}")
+            self.paced = True
+            self.clock = VirtualClock(epoch=virtual_epoch)
+            self.loop = VirtualLoop(self.clock, mode=mode, name=self.profile.name)
         self.endpoints: dict[str, Endpoint] = {}
         self.devices: dict[str, Any] = {}
         self.started_at: float | None = None
@@ -150,9 +178,9 @@ class Bench:
             return self
         if self._stopped:
             raise BenchError("this bench was stopped and its ports are closed: start a new Bench")
-        t = time.monotonic()
+        t = self.clock.now()
         prof = self.profile
-        self._world = BenchWorld(self, build_world(prof, t))
+        self._world = BenchWorld(self, build_world(prof, t, self.clock))
         try:
             for spec in prof.endpoints.values():
                 bus_kind = registry.bus_kinds.get(spec.protocol)
@@ -164,8 +192,7 @@ class Bench:
                         from None
                 paced = spec.paced if self.paced is None else self.paced
                 try:
-                    medium = registry.media.get(bus_kind.medium)(spec.name, spec.baud,
-                                                                 paced=bus_kind.paced(spec, paced))
+                    medium = self._medium(bus_kind, spec, paced)
                 except Exception:
                     port.close()
                     raise
@@ -186,7 +213,8 @@ class Bench:
                     # (a Protocol 1.0 Dynamixel bus carries "dynamixel1")
                     try:
                         ep.tap = TapServer(host=self.bind, baud=spec.baud, protocol=medium.protocol or spec.protocol,
-                                           description=f"bench {prof.name}, endpoint {spec.name}")
+                                           description=f"bench {prof.name}, endpoint {spec.name}",
+                                           clock=self.clock)
                     except OSError as exc:  # (on a free port: only the bind address can be wrong)
                         reason = os.strerror(exc.errno) if exc.errno else str(exc)
                         raise self._bind_error(BindError((self.bind, 0), reason, exc.errno, "traffic tap (TCP port)"),
@@ -197,7 +225,12 @@ class Bench:
                 for ep in self.endpoints.values():
                     on_endpoint(ep)
             for ep in self.endpoints.values():
-                ep.medium.start()
+                if self.loop is not None:
+                    self.loop.add(ep.medium)
+                else:
+                    ep.medium.start()
+            if self.loop is not None:
+                self.loop.start()
             for ep in self.endpoints.values():
                 ep.bus_kind.start(ep, t)
                 for family in ep.families():
@@ -209,6 +242,22 @@ class Bench:
             raise
         self.started_at = t
         return self
+
+    def _medium(self, bus_kind: BusKind, spec: EndpointSpec, paced: bool) -> Any:
+        """The medium of an endpoint, on the bench's clock (a medium class without ``clock=`` gets the wall
+        clock, its default)."""
+        cls = registry.media.get(bus_kind.medium)
+        kwargs: dict[str, Any] = {"paced": bus_kind.paced(spec, paced)}
+        if self.clock is not WALL:
+            kwargs["clock"] = self.clock
+        if self.loop is not None and "seed" in inspect.signature(cls).parameters:
+            kwargs["seed"] = self.seeded(f"medium:{spec.name}")
+        return cls(spec.name, spec.baud, **kwargs)
+
+    def seeded(self, name: str) -> int:
+        """A seed for one part of the bench, derived from the bench's ``seed`` and the part's name (the same
+        in every run, different for every part)."""
+        return random.Random(f"{self.seed}:{name}").getrandbits(32)
 
     def _bind_error(self, exc: BindError, endpoint: str | None, key: str | None) -> BindError:
         """``exc`` in one line that names the profile, the endpoint, the address and the key to change."""
@@ -244,6 +293,8 @@ class Bench:
         if self._stopped:
             return
         self._stopped = True
+        if self.loop is not None:
+            self.loop.close()  # (first: nothing runs while the rest is taken apart)
         if self.control is not None:
             self.control.close()
             self.control = None
@@ -341,7 +392,7 @@ class Bench:
 
     def now(self) -> float:
         """The bench's clock (the devices' ``t``)."""
-        return time.monotonic()
+        return self.clock.now()
 
     # ------------------------------------------------------------------ manifest
 

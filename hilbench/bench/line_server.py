@@ -88,7 +88,7 @@ class _Conn:
 
     def __init__(self, sock: socket.socket) -> None:
         self.sock = sock
-        self.last = time.monotonic()  # when it last connected or was answered
+        self.last = time.monotonic()  # when it last connected or was answered (wall-clock: idle service timer)
         self.busy = False  # a request has begun
 
 
@@ -238,7 +238,15 @@ class LineServer:
         if not 0.0 < duration <= 60.0:
             raise RequestRefused(f"break duration {duration} s is outside 0..60 s")
         self._after_taking(port, lambda: port.lines.host_break(True, duration))
-        self._closed.wait(duration)  # tcsendbreak returns when the break is over, as on an adapter
+        # tcsendbreak returns when the break is over, as on an adapter: in the line's time
+        clock = port.medium.clock
+        if clock.virtual:
+            over = threading.Event()
+            port.medium.call_at(clock.now() + duration, over.set)
+            while not over.wait(0.1) and not self._closed.is_set():
+                pass
+        else:
+            self._closed.wait(duration)
         return 0
 
     @staticmethod
@@ -278,14 +286,14 @@ class LineServer:
                 took.set()
             # Queued behind the deliveries of the bytes just taken (an unpaced line delivers them
             # "now"), so the devices hear those bytes before the change.
-            medium.call_at(box["end"] if delivered else time.monotonic(), finish)
+            medium.call_at(box["end"] if delivered else medium.clock.now(), finish)
 
         if medium.in_medium_thread():
             raise RequestRefused("called from the bench's own line thread")
         medium.call_at(None, take)
         if not took.wait(MEDIUM_TIMEOUT):
             raise RequestRefused(f"the bench's line did not answer within {MEDIUM_TIMEOUT:g} s")
-        wire = max(0.0, box.get("end", 0.0) - time.monotonic())  # a paced line's wire time
+        wire = max(0.0, box.get("end", 0.0) - medium.clock.now())  # a paced line's wire time
         if not done.wait(MEDIUM_TIMEOUT + wire):
             raise RequestRefused(f"the bench's line did not answer within {MEDIUM_TIMEOUT:g} s")
         if "error" in box:
@@ -300,7 +308,7 @@ class LineServer:
             pause = listener.deadline()  # (out of descriptors: see Listener)
             try:
                 ready = readable([*listener.filenos(), self._wake_r],
-                                 None if pause is None else pause - time.monotonic())
+                                 None if pause is None else pause - time.monotonic())  # wall-clock: EMFILE pause
             except OSError:
                 return
             if self._wake_r in ready and self._closed.is_set():
@@ -315,7 +323,7 @@ class LineServer:
 
     def _evict(self) -> bool:
         """Close the connection idle longest for a newcomer (called with ``_conns_lock`` held)."""
-        victim = self._eviction.victim(list(self._conns.values()), time.monotonic())
+        victim = self._eviction.victim(list(self._conns.values()), time.monotonic())  # wall-clock: service
         if victim is None:
             return False
         del self._conns[victim.sock]
@@ -340,7 +348,7 @@ class LineServer:
                     conn.sendall(b"err request too long\n")
                     return
                 conn.sendall(self.handle(line.decode("ascii", "replace")).encode() + b"\n")
-                state.busy, state.last = bool(data), time.monotonic()
+                state.busy, state.last = bool(data), time.monotonic()  # wall-clock: service
         except OSError:
             pass  # the client went away: it fails open on its side
         finally:

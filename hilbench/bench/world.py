@@ -216,9 +216,10 @@ def check_body(c: Checker, value: Any, key: str, world: WorldSpec | None) -> str
     return value
 
 
-def build_world(profile, t: float) -> World:
+def build_world(profile, t: float, clock: Any = None) -> World:
     """The world of a checked profile at bench time ``t``: its geometry (``[world]``, or the older
-    ``[scene]``) and bodies."""
+    ``[scene]``) and bodies, on the bench's ``clock`` (a :class:`~hilbench.transports.clock.WallClock`,
+    the wall clock if None; a virtual clock's loop steps the world)."""
     from hilbench.fakes.scanners.scene import Scene
     from hilbench.fakes.world import Body, Shape, World
 
@@ -226,7 +227,11 @@ def build_world(profile, t: float) -> World:
     scene = spec.scene or profile.tables.get("scene") or Scene()
     bodies = [Body(b.name, Shape(b.shape, b.size, b.radius), b.x, b.y, b.theta, reflectivity=b.reflectivity)
               for b in spec.bodies]
-    return World(scene, bodies, t0=t, step=1.0 / spec.step_hz)
+    if clock is None:
+        return World(scene, bodies, t0=t, step=1.0 / spec.step_hz)
+    loop = getattr(clock, "loop", None) if clock.virtual else None
+    return World(scene, bodies, t0=t, step=1.0 / spec.step_hz, clock=clock.now, wall=clock.wall,
+                 timer=loop.call_at if loop is not None else None)
 
 
 class BodyView:

@@ -23,8 +23,11 @@ Sensors observe the world at their own sample times: :meth:`World.cast`
 casts rays against the scene and every body's footprint (except the
 caster's own body), each ray from its own origin when the caster moves.
 
-Time is the bench clock: ``clock`` (``time.monotonic`` unless the bench
-gives another); the scene's movers run on time since ``World.t0``.
+Time is the bench clock: ``clock`` (the wall clock's ``now``, ``time.monotonic``,
+unless the bench gives another); the scene's movers run on time since
+``World.t0``. A world steps in a thread of its own, or, on a bench in virtual
+time, as timers of the bench's loop (``timer``), so its bodies move in the
+bench's virtual time, in step with every other device.
 """
 
 from __future__ import annotations
@@ -32,7 +35,6 @@ from __future__ import annotations
 import collections
 import math
 import threading
-import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -40,6 +42,7 @@ from typing import Any
 import numpy as np
 
 from hilbench.fakes.scanners.scene import Scene
+from hilbench.transports.clock import WALL
 
 #: Default world step (s): 200 Hz, so every body's pose is known at least every 5 ms.
 STEP = 0.005
@@ -193,13 +196,21 @@ class ScanRecord:
 
 
 class World:
-    """The bench's world; see the module docstring. ``clock`` is the bench clock (seconds)."""
+    """The bench's world; see the module docstring. ``clock`` is the bench clock (seconds), ``wall`` maps its
+    times to Unix time, and ``timer`` (``call_at(t, fn)`` of the bench's virtual loop), when given, runs the
+    steps instead of a thread of the world's own."""
 
     def __init__(self, scene: Scene | None = None, bodies: list[Body] | tuple[Body, ...] = (), *,
-                 t0: float | None = None, step: float = STEP, clock: Callable[[], float] = time.monotonic) -> None:
+                 t0: float | None = None, step: float = STEP, clock: Callable[[], float] = WALL.now,
+                 wall: Callable[[float], float] = WALL.wall,
+                 timer: Callable[[float, Callable[[], None]], None] | None = None) -> None:
         self.scene = scene if scene is not None else Scene()
         self.bodies: dict[str, Body] = {}
         self.clock = clock
+        self.wall = wall
+        self.timer = timer
+        self._timed = False  # stepping as timers (see start)
+        self._run_id = 0  # which start() the queued timer belongs to (one left from before a restart ends)
         self.t0 = clock() if t0 is None else t0
         self.step_s = step
         self.t = self.t0  # time of the last step
@@ -339,18 +350,41 @@ class World:
         return footprint_hits(b.shape, x, y, theta, np.vstack(segs), np.vstack(circ))
 
     def start(self) -> None:
-        """Step in a thread of its own every ``step_s`` seconds of the clock."""
-        if self._thread is not None:
+        """Step every ``step_s`` seconds of the clock: in a thread of its own, or as ``timer``'s timers (a
+        virtual bench's loop: each step exactly at its time)."""
+        if self._thread is not None or self._timed:
             return
         self._stop.clear()
         self.t = max(self.t, self.clock())
         for b in self.bodies.values():
             b.history.append((self.t, b.x, b.y, b.theta, b.vx, b.vy, b.omega))
+        if self.timer is not None:
+            self._timed = True
+            self._run_id += 1
+            run, start = self._run_id, self.t
+            self.timer(start + self.step_s, lambda: self._tick(run, start, 1))
+            return
         self._thread = threading.Thread(target=self._run, name="hilbench-world", daemon=True)
         self._thread.start()
 
+    def _tick(self, run: int, start: float, k: int) -> None:
+        """Step ``k`` (at ``start + k * step_s``, counted from the start so steps never drift), then queue
+        the next one."""
+        if self._stop.is_set() or run != self._run_id:
+            return
+        t = start + k * self.step_s
+        try:
+            self.step(t)
+        except Exception:  # noqa: BLE001 (a driver that fails must not stop the world)
+            import logging
+
+            logging.getLogger(__name__).exception("world step failed")
+        if self.timer is not None:
+            self.timer(start + (k + 1) * self.step_s, lambda: self._tick(run, start, k + 1))
+
     def stop(self) -> None:
         self._stop.set()
+        self._timed = False
         if self._thread is not None:
             self._thread.join(timeout=5)
             self._thread = None
@@ -434,7 +468,7 @@ class World:
             for m in self.scene.movers:
                 mx, my = m.position(now - self.t0)
                 moving.append({"x": mx, "y": my, **({"size": list(m.size)} if m.size else {"radius": m.radius})})
-        return {"time": now, "unix_time": time.time(), "steps": self.steps, "bodies": bodies, "moving": moving}
+        return {"time": now, "unix_time": self.wall(now), "steps": self.steps, "bodies": bodies, "moving": moving}
 
     def geometry(self) -> dict[str, Any]:
         """The static scene: segments [[x0, y0, x1, y1], ...] and circles [[x, y, r], ...]."""
@@ -684,7 +718,8 @@ class Recorder:
         self.lock = threading.Lock()
         self.poses = 0
         self.scan_count = 0
-        self.write({"type": "header", "time": world.clock(), "unix_time": time.time(), "step_s": world.step_s,
+        now = world.clock()
+        self.write({"type": "header", "time": now, "unix_time": world.wall(now), "step_s": world.step_s,
                     "bodies": {n: b.shape.describe() for n, b in world.bodies.items()}, **(header or {})})
 
     def write(self, obj: dict[str, Any]) -> None:

@@ -31,7 +31,6 @@ Control commands (``hilbench can status|nmt|reset|fault|emcy``): see
 from __future__ import annotations
 
 import threading
-import time
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -164,7 +163,7 @@ class CanopenBoardFamily(DeviceFamily):
                 bench.world.world.drive(spec.body, node.body_motion, spec.odometry["slip"])
 
     def start(self, endpoint, devices: dict[str, Any], t: float) -> None:
-        now = time.monotonic()  # power-up happens now: the boot-up and the heartbeat phase count from here
+        now = endpoint.medium.clock.now()  # power-up happens now: the boot-up and the heartbeat phase count from here
         for node in devices.values():
             node.start(now)
 
@@ -225,7 +224,7 @@ class CanopenBoardFamily(DeviceFamily):
             if state not in NMT_STATES:
                 raise ControlRequestError(f"nmt: state must be one of {', '.join(NMT_STATES)}, got {state!r}")
             code = NMT_STATES[state]
-            in_bus_thread(lambda: node._nmt(bytes([code, node.node_id]), time.monotonic()))
+            in_bus_thread(lambda: node._nmt(bytes([code, node.node_id]), node.now()))
             return {"status": in_bus_thread(node.status)}
         if cmd == "reset":
             in_bus_thread(lambda: node.reset())

@@ -47,6 +47,11 @@ class CanDoor:
         """When the door next needs :meth:`poll` (a handshake delay, a cyclic job), or None."""
         return None
 
+    def wall_deadline(self) -> float | None:
+        """When the door's service timers (a flush retry, a stalled client's timeout) next need :meth:`poll`,
+        on the wall clock (``time.monotonic()``) whatever the bus's clock, or None."""
+        return None
+
     def poll(self, now: float) -> list[tuple[str, CanFrame]]:
         """Timed work; returns frames it sends (cyclic jobs)."""
         return []

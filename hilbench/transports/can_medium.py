@@ -36,14 +36,13 @@ import collections
 import logging
 import random
 import threading
-import time
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 from hilbench.protocols import can_frame as cf
 from hilbench.protocols.can_frame import CanFrame
 from hilbench.rules import FAULT_COUNT, PROBABILITY, SWITCH
-from hilbench.transports.clock import Waiter, wait
+from hilbench.transports.clock import WALL, Waiter, WallClock, wait
 from hilbench.transports.line_load import is_unpaced
 from hilbench.transports.medium import DevicePort
 from hilbench.transports.medium_loop import LoopMedium
@@ -65,6 +64,10 @@ LOAD_SLOT = 0.001
 
 #: The bus's fault knobs and their rules (the CANopen family checks profiles and control commands with them).
 FAULT_RULES = {"error_rate": PROBABILITY, "error_next": FAULT_COUNT, "auto_recover": SWITCH}
+
+
+def _none() -> None:
+    return None
 
 
 class CanDevice(Protocol):
@@ -89,7 +92,7 @@ class CanDevicePort(DevicePort):
         at = None if t is None else t + gap
         for frame in frames:
             self._medium.send(self.name, frame, at)
-        return time.monotonic() if at is None else at
+        return self._medium.clock.now() if at is None else at
 
     @property
     def state(self) -> str:
@@ -117,8 +120,9 @@ class CanMedium(LoopMedium):
     kind = "can"
     thread_prefix = "can"
 
-    def __init__(self, name: str, baud: int | None = None, *, paced: bool = False, seed: int | None = None) -> None:
-        super().__init__(name, baud or DEFAULT_BITRATE, paced=paced)
+    def __init__(self, name: str, baud: int | None = None, *, paced: bool = False, seed: int | None = None,
+                 clock: WallClock = WALL) -> None:
+        super().__init__(name, baud or DEFAULT_BITRATE, paced=paced, clock=clock)
         self.stats = BusStats()
         self.rng = random.Random(seed)
         self.faults: dict[str, Any] = {"error_rate": 0.0, "error_next": 0, "auto_recover": True}
@@ -129,16 +133,19 @@ class CanMedium(LoopMedium):
         self._arbitrating = False
         self._load: collections.deque[list[int]] = collections.deque()  # [slot number, bits], oldest first
         self._load_bits = 0
-        # One mapping from the bus clock (time.monotonic) to Unix time, so wire stamps never jump.
-        self.wall_offset = time.time() - time.monotonic()
 
     @property
     def bitrate(self) -> int:
         return int(self.baud or DEFAULT_BITRATE)
 
+    @property
+    def wall_offset(self) -> float:
+        """Unix time minus bus time: the clock's one mapping, so wire stamps never jump."""
+        return self.clock.wall(0.0)
+
     def wall(self, t: float) -> float:
         """Unix time of bus time ``t`` (what socketcand stamps frames with)."""
-        return t + self.wall_offset
+        return self.clock.wall(t)
 
     # ------------------------------------------------------------------ wiring
 
@@ -180,15 +187,15 @@ class CanMedium(LoopMedium):
 
     def force_bus_off(self, source: str) -> None:
         """Put ``source``'s controller into bus-off now (as after 32 failed attempts)."""
-        self.call_at(None, lambda: self._enter_bus_off(source, time.monotonic()))
+        self.call_at(None, lambda: self._enter_bus_off(source, self._now()))
 
     def recover(self, source: str) -> None:
         """Restart a bus-off controller now (what ``ip link set canX type can restart`` does)."""
-        self.call_at(None, lambda: self._recover(source, time.monotonic()))
+        self.call_at(None, lambda: self._recover(source, self._now()))
 
     def load(self, window: float = LOAD_WINDOW, now: float | None = None) -> float:
         """Share of the last ``window`` seconds the bus was busy (bits sent / bits possible)."""
-        now = time.monotonic() if now is None else now
+        now = self._now() if now is None else now
         first = (now - window) / LOAD_SLOT  # (a slot counts if it began after the window did: one slot off at most)
         with self._lock:
             bits = sum(b for slot, b in self._load if slot > first)
@@ -216,11 +223,11 @@ class CanMedium(LoopMedium):
         """Put ``frame`` from ``source`` on the bus (not before ``t``); thread-safe."""
         in_thread = threading.get_ident() == self._ident
         if t is None and in_thread:
-            self._submit(source, frame, time.monotonic())
+            self._submit(source, frame, self._now())
             return
         with self._lock:
-            at = time.monotonic() if t is None else t
-            self._push(at, lambda: self._submit(source, frame, max(at, time.monotonic())))
+            at = self._now() if t is None else t
+            self._push(at, lambda: self._submit(source, frame, max(at, self._now())))
         if not in_thread:
             self._wake()
 
@@ -231,7 +238,7 @@ class CanMedium(LoopMedium):
         at = None if t is None else t + gap
         for frame in frames:
             self.send(source, frame, at)
-        return time.monotonic() if at is None else at
+        return self._now() if at is None else at
 
     def _submit(self, source: str, frame: CanFrame, now: float) -> None:
         if source in self._bus_off:
@@ -336,7 +343,7 @@ class CanMedium(LoopMedium):
         if tec:
             self.tec[source] = tec - 1
             if tec == ERROR_PASSIVE:  # back below the passive threshold
-                self._state_change(source, "active", time.monotonic())
+                self._state_change(source, "active", self._now())
 
     def _error(self, source: str, t: float) -> None:
         self.stats.attempts_failed += 1
@@ -440,9 +447,9 @@ class CanMedium(LoopMedium):
             fds = [waker.fd]
             for port, _ in hosts:
                 fds.extend(port.filenos())
-                d = port.deadline()
-                if d is not None and (deadline is None or d < deadline):
-                    deadline = d
+                for d in (port.deadline(), getattr(port, "wall_deadline", _none)()):  # (one time base on the wall clock)
+                    if d is not None and (deadline is None or d < deadline):
+                        deadline = d
             # No leave_cpu (see Waiter and SerialMedium._run): it keeps a SCHED_FIFO line's polling from
             # holding back the tty worker its pty write woke on the same CPU; this thread runs under the
             # normal scheduler, whose wake-up preemption lets the worker in. Measured (an SLCAN listener at
@@ -450,7 +457,7 @@ class CanMedium(LoopMedium):
             # the fastest tenth of frames 8-35 us later and moved the median and p90 no more than the
             # loaded machine's noise did.
             ready = waiter(fds, deadline)
-            now = time.monotonic()
+            now = self._now()
             if ready:
                 if waker.fd in ready:
                     waker.drain()
@@ -475,6 +482,55 @@ class CanMedium(LoopMedium):
                 except Exception:
                     self.stats.callback_errors += 1
                     log.exception("host port %s failed to flush", getattr(port, "name", port))
+
+    # ------------------------------------------------------------------ virtual time (a VirtualLoop runs it)
+
+    def vt_deadline(self) -> float | None:
+        times = [d for port, _ in list(self._hosts) if (d := port.deadline()) is not None]
+        return min(times) if times else None
+
+    def vt_fds(self) -> list[int]:
+        fds = [self._waker.fd]
+        for port, _ in list(self._hosts):
+            fds.extend(port.filenos())
+        return fds
+
+    def vt_read(self, ready: list[int], now: float) -> bool:
+        got = super().vt_read(ready, now)
+        for port, listen_only in list(self._hosts):
+            if not any(fd in ready for fd in port.filenos()):
+                continue
+            got = True
+            try:
+                frames = port.read_frames(now)
+            except Exception:
+                self.stats.callback_errors += 1
+                log.exception("host port %s failed", getattr(port, "name", port))
+                continue
+            if not listen_only:
+                for src, frame in frames:
+                    self._submit(src, frame, now)
+        return got
+
+    def vt_poll(self, now: float) -> None:
+        for port, listen_only in list(self._hosts):
+            try:
+                frames = port.poll(now)
+            except Exception:
+                self.stats.callback_errors += 1
+                log.exception("host port %s failed", getattr(port, "name", port))
+                continue
+            if not listen_only:
+                for src, frame in frames:
+                    self._submit(src, frame, now)
+
+    def vt_flush(self) -> None:
+        for port, _ in list(self._hosts):
+            try:
+                port.flush()
+            except Exception:
+                self.stats.callback_errors += 1
+                log.exception("host port %s failed to flush", getattr(port, "name", port))
 
 
 __all__ = ["DEFAULT_BITRATE", "BusStats", "CanDevice", "CanDevicePort", "CanMedium"]

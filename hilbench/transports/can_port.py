@@ -221,6 +221,10 @@ class CanHostPort(HostPort):
         times = [d for d in (door.deadline() for door in self.doors) if d is not None]
         return min(times) if times else None
 
+    def wall_deadline(self) -> float | None:
+        times = [d for d in (door.wall_deadline() for door in self.doors) if d is not None]
+        return min(times) if times else None
+
     def poll(self, now: float) -> list[tuple[str, CanFrame]]:
         out: list[tuple[str, CanFrame]] = []
         for door in self.doors:

@@ -12,11 +12,12 @@ from __future__ import annotations
 import collections
 import contextlib
 import threading
-import time
+from typing import Any
 
 from hilbench.protocols.can_frame import CanFrame
 from hilbench.transports.can_door import CanDoor
 from hilbench.transports.can_messages import to_frame, to_message
+from hilbench.transports.clock import WALL
 from hilbench.transports.medium_loop import WakePipe
 
 #: Frames held between the receiving thread and the bus before new ones are dropped.
@@ -33,13 +34,15 @@ class VirtualChannel(CanDoor):
 
         self.channel = channel
         self.source = f"virtual {channel}"
-        self.bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
+        self.bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False,
+                           preserve_timestamps=True)  # (the bus clock's Unix time, see write_frame)
         self._inbox: collections.deque[CanFrame] = collections.deque()
         self._waker = WakePipe()
         self._stop = threading.Event()
         self.received = 0
         self.sent = 0
         self.dropped = 0
+        self._clock = WALL  # the bus's clock once attached: frames carry its Unix time
         self._thread = threading.Thread(target=self._run, name=f"can-virtual-{channel}", daemon=True)
         self._thread.start()
 
@@ -60,6 +63,9 @@ class VirtualChannel(CanDoor):
             self._inbox.append(frame)
             self._waker.wake()
 
+    def attach(self, medium: Any) -> None:
+        self._clock = getattr(medium, "clock", WALL)
+
     def describe(self) -> str:
         return self.channel
 
@@ -77,7 +83,7 @@ class VirtualChannel(CanDoor):
     def write_frame(self, t: float, source: str, frame: CanFrame) -> None:
         if source == self.source:
             return
-        msg = to_message(frame, timestamp=time.time())
+        msg = to_message(frame, timestamp=self._clock.wall(t))
         try:
             self.bus.send(msg)
             self.sent += 1

@@ -12,6 +12,13 @@ SCHED_FIFO (:func:`try_realtime`), so a wake-up preempts CPU-bound neighbours
 instead of waiting for their time slice, and the process asks that idle CPUs
 stay awake (:class:`CpuLatency`), so waking one (the line, the kernel's tty
 worker, the client) takes microseconds instead of tens.
+
+It also holds the bench's clock (:class:`WallClock`, :class:`VirtualClock`):
+the one time base every medium, port and device reads (DESIGN §12). Media,
+ports and devices never read ``time.monotonic()`` themselves; they call their
+clock's :attr:`~WallClock.now` (a device through its
+:class:`~hilbench.transports.medium.DevicePort`), and stamp Unix time with
+:meth:`~WallClock.wall`.
 """
 
 from __future__ import annotations
@@ -25,6 +32,7 @@ import threading
 import time
 from collections import deque
 from collections.abc import Iterator
+from typing import Any
 
 from hilbench.transports.readiness import Readiness
 
@@ -36,6 +44,108 @@ _PR_SET_TIMERSLACK = 29
 #: Linux's PM QoS request for the whole system: while a process holds it open with a value written,
 #: no idle CPU enters a state that takes longer than that many microseconds to leave.
 CPU_DMA_LATENCY = "/dev/cpu_dma_latency"
+
+
+class WallClock:
+    """The wall clock: ``now`` *is* :func:`time.monotonic` (the builtin itself, so a paced line's hot path
+    pays nothing for going through a clock), ``wall(t)`` maps it to Unix time with one offset taken when
+    the clock was made (so stamps never jump). Pacing is the media's matter, not the clock's."""
+
+    #: Whether time is virtual (advanced only by a :class:`~hilbench.transports.virtual_loop.VirtualLoop`).
+    virtual = False
+    now = staticmethod(time.monotonic)
+    now_ns = staticmethod(time.monotonic_ns)
+
+    def __init__(self) -> None:
+        #: Unix time minus clock time (:meth:`wall`).
+        self.wall_offset = time.time() - time.monotonic()
+
+    def wall(self, t: float) -> float:
+        """Unix time of clock time ``t``."""
+        return t + self.wall_offset
+
+    def sleep(self, seconds: float) -> None:
+        """Let ``seconds`` of clock time pass (bench-side threads only: never a medium's thread)."""
+        time.sleep(max(0.0, seconds))
+
+    def wait(self, event: threading.Event, timeout: float | None) -> bool:
+        """``event.wait(timeout)`` with ``timeout`` in clock seconds (bench-side threads only)."""
+        return event.wait(timeout)
+
+    def __repr__(self) -> str:
+        return "WallClock()"
+
+
+#: The process's wall clock: what media, ports and devices use unless a bench gives them another.
+WALL = WallClock()
+
+
+class VirtualClock(WallClock):
+    """Virtual time: ``now()`` is what the bench's :class:`~hilbench.transports.virtual_loop.VirtualLoop`
+    last set, and nothing else moves it.
+
+    Virtual monotonic time starts at ``origin`` (default :attr:`ORIGIN`, 1000 s: "booted 1000 s ago", so
+    clients that take 0 for "never" still work); virtual Unix time is ``epoch + (now - origin)``, ``epoch`` being the real
+    start time unless given (pinned, payload stamps repeat from run to run). The in-process drivers
+    (:meth:`run_for`, :meth:`run_until`, :meth:`hold`, :meth:`free`) are the loop's, once it is attached.
+    """
+
+    virtual = True
+    #: Where virtual monotonic time starts by default (seconds).
+    ORIGIN = 1000.0
+
+    def __init__(self, epoch: float | None = None, origin: float = ORIGIN) -> None:
+        self.origin = origin
+        self.epoch = time.time() if epoch is None else float(epoch)
+        self.wall_offset = self.epoch - origin
+        self._vnow = origin
+        self.loop: Any = None  # the VirtualLoop that advances it (set by the loop)
+
+    def now(self) -> float:  # type: ignore[override]
+        """Virtual seconds (the loop's current instant)."""
+        return self._vnow
+
+    def now_ns(self) -> int:  # type: ignore[override]
+        return round(self._vnow * 1e9)
+
+    def wall(self, t: float) -> float:
+        return self.epoch + (t - self.origin)
+
+    def _loop(self) -> Any:
+        if self.loop is None:
+            raise RuntimeError("this virtual clock has no VirtualLoop yet (start the bench first)")
+        return self.loop
+
+    def sleep(self, seconds: float) -> None:
+        """Wait until ``seconds`` of virtual time have passed (from a thread other than the loop's)."""
+        self._loop().sleep(seconds)
+
+    def wait(self, event: threading.Event, timeout: float | None) -> bool:
+        """Wait for ``event`` or ``timeout`` virtual seconds (from a thread other than the loop's)."""
+        return self._loop().wait_event(event, timeout)
+
+    def run_for(self, seconds: float, timeout: float | None = None) -> float:
+        """Advance a held clock by ``seconds``, running every event on the way; returns the new now."""
+        return self._loop().run_for(seconds, timeout)
+
+    def run_until(self, t: float, timeout: float | None = None) -> float:
+        """Advance a held clock to ``t`` (virtual seconds), running every event on the way."""
+        return self._loop().run_until(t, timeout)
+
+    def hold(self) -> None:
+        """Time moves only through :meth:`run_for` / :meth:`run_until` (and, later, lockstep clients)."""
+        self._loop().hold()
+
+    def free(self) -> None:
+        """Time jumps from event to event on its own, as fast as the bench runs them."""
+        self._loop().free()
+
+    def __repr__(self) -> str:
+        return f"VirtualClock(now={self._vnow!r}, epoch={self.epoch!r})"
+
+
+#: What a bench's media, ports and devices share (a :class:`WallClock` or a :class:`VirtualClock`).
+Clock = WallClock
 
 
 def reduce_timer_slack(nanoseconds: int = 1000) -> bool:

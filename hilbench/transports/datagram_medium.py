@@ -28,12 +28,11 @@ from __future__ import annotations
 import inspect
 import logging
 import threading
-import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from hilbench.transports.clock import wait
+from hilbench.transports.clock import WALL, WallClock, wait
 from hilbench.transports.medium import DevicePort
 from hilbench.transports.medium_loop import LoopMedium
 from hilbench.transports.udp import UdpEndpoint
@@ -64,8 +63,8 @@ class DatagramMedium(LoopMedium):
     kind = "datagram"
     thread_prefix = "net"
 
-    def __init__(self, name: str, baud: int | None = None, *, paced: bool = False) -> None:
-        super().__init__(name, baud, paced=False)
+    def __init__(self, name: str, baud: int | None = None, *, paced: bool = False, clock: WallClock = WALL) -> None:
+        super().__init__(name, baud, paced=False, clock=clock)
         self.stats = NetStats()
         self._owner: dict[int, str | None] = {}  # id(socket) -> device name owning it (None: shared)
         self._sockets: list[UdpEndpoint] = []
@@ -139,13 +138,13 @@ class DatagramMedium(LoopMedium):
         stats.bytes_out += len(data)
         stats.by_source[source] = stats.by_source.get(source, 0) + len(data)
         src = via.address
-        self._tap(time.monotonic(), source, data, (src[0], src[1], dst[0], dst[1]))
+        self._tap(self._now(), source, data, (src[0], src[1], dst[0], dst[1]))
 
     def transmit(self, source: str, data: bytes, *, t: float | None = None, gap: float = 0.0,
                  baud: int | None = None) -> float:
         """The serial line's call, for devices written for one: to every recent sender of the endpoint."""
         sock = self.socket_of(None)
-        when = (time.monotonic() if t is None else t) + gap
+        when = (self._now() if t is None else t) + gap
         if sock is not None:
             for peer in sock.targets():
                 self.send(source, data, peer, via=sock, t=when)
@@ -172,7 +171,7 @@ class DatagramMedium(LoopMedium):
             if got is None:
                 return
             data, src = got
-            t = time.monotonic()
+            t = self._now()
             self.stats.datagrams_in += 1
             self.stats.bytes_in += len(data)
             if tuple(src) not in self._own_addresses:  # from inside the net: tapped when it was sent
@@ -210,6 +209,20 @@ class DatagramMedium(LoopMedium):
                 if waker.fd in ready:
                     waker.drain()
             self._run_due()
+
+    # ------------------------------------------------------------------ virtual time (a VirtualLoop runs it)
+
+    def vt_fds(self) -> list[int]:
+        return [p.fileno() for p, _ in list(self._hosts)] + [self._waker.fd]
+
+    def vt_read(self, ready: list[int], now: float) -> bool:
+        """Datagrams keep their boundaries: each is heard at ``now`` as it is read."""
+        got = super().vt_read(ready, now)
+        for port, listen_only in list(self._hosts):
+            if port.fileno() in ready:
+                self._receive(port, listen_only)
+                got = True
+        return got
 
     def close(self) -> None:
         """Stop the net, release its wake-up pipe, close the sockets it opened for devices."""

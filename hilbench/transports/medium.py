@@ -24,6 +24,7 @@ import threading
 from collections.abc import Callable
 from typing import Any, ClassVar
 
+from hilbench.transports.clock import WALL, WallClock
 from hilbench.transports.line import LineEvent
 
 log = logging.getLogger(__name__)
@@ -40,10 +41,13 @@ class Medium:
     #: What the traffic is (an endpoint's protocol, set by the bench), for taps and monitors.
     protocol: str | None = None
 
-    def __init__(self, name: str, baud: int | None = None, *, paced: bool = False) -> None:
+    def __init__(self, name: str, baud: int | None = None, *, paced: bool = False, clock: WallClock = WALL) -> None:
         self.name = name
         self.baud = baud
         self.paced = paced
+        #: The bench's clock: every time this medium, its ports and its devices read is ``clock.now()``.
+        self.clock = clock
+        self._now = clock.now  # (the builtin time.monotonic itself on a wall clock: the hot path's read)
         self._taps: list[Tap] = []
         self._hosts: list[tuple[Any, bool]] = []
         self._devices: list[Any] = []
@@ -100,9 +104,7 @@ class Medium:
             self.call_at(None, lambda: self._deliver_line_event(source, event))
 
     def _deliver_line_event(self, source: str, event: LineEvent) -> None:
-        import time
-
-        t = time.monotonic()
+        t = self._now()
         for device in self._devices:
             handler = getattr(device, "on_line", None)
             if handler is None or device.name == source:
@@ -173,6 +175,15 @@ class DevicePort:
     @property
     def paced(self) -> bool:
         return self._medium.paced
+
+    @property
+    def clock(self) -> WallClock:
+        """The bench's clock (what :meth:`now` reads; ``clock.wall(t)`` for Unix time stamps)."""
+        return self._medium.clock
+
+    def now(self) -> float:
+        """The medium's current time (the ``t`` devices schedule and stamp with)."""
+        return self._medium.clock.now()
 
     def transmit(self, data: bytes, t: float | None = None, gap: float = 0.0, baud: int | None = None) -> float:
         """Send ``data`` ``gap`` seconds after the medium is free (and not before ``t``); returns its end time."""

@@ -25,11 +25,10 @@ import itertools
 import logging
 import os
 import threading
-import time
 from collections.abc import Callable
 from typing import Any, ClassVar
 
-from hilbench.transports.clock import awake_cpus, reduce_timer_slack, try_realtime
+from hilbench.transports.clock import WALL, WallClock, awake_cpus, reduce_timer_slack, try_realtime
 from hilbench.transports.medium import Medium
 
 log = logging.getLogger(__name__)
@@ -83,8 +82,8 @@ class LoopMedium(Medium):
     thread_prefix: ClassVar[str] = "medium"
     stats: Any
 
-    def __init__(self, name: str, baud: int | None, *, paced: bool = False) -> None:
-        super().__init__(name, baud, paced=paced)
+    def __init__(self, name: str, baud: int | None, *, paced: bool = False, clock: WallClock = WALL) -> None:
+        super().__init__(name, baud, paced=paced, clock=clock)
         #: Run the thread under SCHED_FIFO if the OS allows it (a subclass sets it: paced serial lines).
         self.realtime = False
         #: What the thread runs under once started ("SCHED_FIFO 10", or SCHED_OTHER and why).
@@ -107,7 +106,7 @@ class LoopMedium(Medium):
     def call_at(self, t: float | None, fn: Callable[[], None]) -> None:
         """Run ``fn`` in the medium's thread at time ``t`` (None: at once); thread-safe."""
         with self._lock:
-            self._push(time.monotonic() if t is None else t, fn)
+            self._push(self._now() if t is None else t, fn)
         if threading.get_ident() != self._ident:
             self._wake()
 
@@ -117,10 +116,10 @@ class LoopMedium(Medium):
 
     def _run_due(self) -> None:
         """Run what is due (the medium's thread)."""
-        events, lock = self._events, self._lock
+        events, lock, clock = self._events, self._lock, self._now
         while True:
             with lock:
-                if not events or events[0][0] > time.monotonic():
+                if not events or events[0][0] > clock():
                     return
                 _, _, fn, _ = heapq.heappop(events)
             try:
@@ -168,6 +167,53 @@ class LoopMedium(Medium):
 
     def _run(self) -> None:
         raise NotImplementedError
+
+    # ------------------------------------------------------------------ virtual time (a VirtualLoop runs it)
+
+    def vt_attach(self, loop: Any) -> None:
+        """Run in ``loop`` instead of a thread of its own; its events join the loop's one sequence."""
+        self._seq = loop.seq
+
+    def vt_thread(self, thread: threading.Thread | None) -> None:
+        """The loop's thread is the medium's (its callbacks run there), or None once the loop stops."""
+        self._thread = thread
+        self._ident = thread.ident if thread is not None else None
+
+    def vt_head(self) -> tuple[float, int] | None:
+        with self._lock:
+            return self._events[0][:2] if self._events else None
+
+    def vt_deadline(self) -> float | None:
+        """Timed work outside the heap (a host port's), in virtual time."""
+        return None
+
+    def vt_run_one(self) -> None:
+        with self._lock:
+            _, _, fn, _ = heapq.heappop(self._events)
+        try:
+            fn()
+        except Exception:  # one faulty callback must not stop the bench
+            self.stats.callback_errors += 1
+            log.exception("timed callback failed on %s medium %s", self.kind, self.name)
+
+    def vt_poll(self, now: float) -> None:
+        """Host ports' timed work due at ``now`` (after the bench phase's events)."""
+
+    def vt_flush(self) -> None:
+        """End of the bench phase: host ports send what was queued for them."""
+
+    def vt_fds(self) -> list[int]:
+        return [self._waker.fd]
+
+    def vt_read(self, ready: list[int], now: float) -> bool:
+        """Read what ready host ports have, at ``now``; True if any of the medium's descriptors was ready."""
+        if self._waker.fd in ready:
+            self._waker.drain()
+            return True
+        return False
+
+    def vt_commit(self, now: float) -> None:
+        """Put what :meth:`vt_read` took on the medium (at ``now``)."""
 
     def close(self) -> None:
         """Stop the medium and release its wake-up pipe."""

@@ -237,7 +237,7 @@ class Rfc2217Port(HostPort):
         for sock, addr in self.listener.accept(0 if self.client is None else 1):
             with self._lock:
                 self._reset_session()
-                self.client, self.peer, self.since = sock, addr[:2], time.time()
+                self.client, self.peer, self.since = sock, addr[:2], time.time()  # wall-clock: connected at
             self.connections += 1
             self.settings = LineSettings(self.default_baud)
             # Opening a real port asserts DTR and RTS (the client then sets them as it likes).
@@ -382,7 +382,7 @@ class Rfc2217Port(HostPort):
     def _schedule_flush(self) -> None:
         if not self._flush_scheduled:
             self._flush_scheduled = True
-            self.medium.call_at(time.monotonic() + 0.002, self._flush)
+            self.medium.call_at(self.medium.clock.now() + 0.002, self._flush)  # (the medium's heap: its time)
 
     def _hold(self, data: bytes) -> int:
         if len(self._held) + len(data) > MAX_HELD:

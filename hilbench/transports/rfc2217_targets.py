@@ -18,6 +18,7 @@ from typing import Any
 
 from hilbench.fuzzing import SESSION_WRITE, FuzzTarget, TracebackWatch, drain, send_some, session_socket
 from hilbench.protocols import rfc2217 as p
+from hilbench.transports.clock import WALL
 
 #: A pyserial client at 1 Mbaud: what an RFC 2217 session carries at most, in bytes per second.
 RFC2217_LINE = 1_000_000 / 10
@@ -65,6 +66,7 @@ class _Loop:
     def __init__(self) -> None:
         self.due: list[Any] = []
         self.events = 0
+        self.clock = WALL  # (a medium's clock: the wall clock, its default)
 
     def call_at(self, t: float | None, fn: Any) -> None:
         self.due.append(fn)

@@ -54,7 +54,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Protocol
 
-from hilbench.transports.clock import Waiter, reduce_timer_slack, wait
+from hilbench.transports.clock import WALL, Waiter, WallClock, reduce_timer_slack, wait
 from hilbench.transports.host_port import HostPort
 from hilbench.transports.medium import DevicePort, Tap
 from hilbench.transports.medium_loop import LoopMedium
@@ -129,8 +129,9 @@ class SerialMedium(LoopMedium):
     kind = "serial"
     thread_prefix = "line"
 
-    def __init__(self, name: str, baud: int, *, paced: bool = False, realtime: bool | None = None) -> None:
-        super().__init__(name, baud, paced=paced)
+    def __init__(self, name: str, baud: int, *, paced: bool = False, realtime: bool | None = None,
+                 clock: WallClock = WALL) -> None:
+        super().__init__(name, baud, paced=paced, clock=clock)
         self.stats = LineStats()  #: transmissions, bytes and lateness against the wire-time model
         #: Run the line's thread under SCHED_FIFO if the OS allows it (None: when paced, unless
         #: HILBENCH_REALTIME=0). Unpaced lines gain nothing from it.
@@ -185,8 +186,7 @@ class SerialMedium(LoopMedium):
         """
         data = bytes(data)
         with self._lock:
-            now = time.monotonic()
-            t = now if t is None else t
+            t = self._now() if t is None else t
             if self.paced:
                 start = max(t, self._busy_until) + gap
                 end = start + len(data) * self.byte_time(baud)
@@ -204,7 +204,7 @@ class SerialMedium(LoopMedium):
         """Seconds until everything ``source`` transmitted is delivered, and taken in by a device that paces
         its own receiver (0 when it is; on an unpaced line without such a device always 0): a host port that
         reads its client only while this is small bounds what waits for the wire."""
-        return max(0.0, self._ahead(source, time.monotonic()))
+        return max(0.0, self._ahead(source, self._now()))
 
     def _ahead(self, source: str, now: float) -> float:
         ahead = self._last_end.get(source, 0.0) - now
@@ -255,7 +255,8 @@ class SerialMedium(LoopMedium):
     # ------------------------------------------------------------------ running (timers, thread: LoopMedium)
 
     def _run(self) -> None:
-        events, lock, stop, waker, paced = self._events, self._lock, self._stop, self._waker, self.paced
+        events, lock, stop, waker, paced, clock = self._events, self._lock, self._stop, self._waker, self.paced, \
+            self._now
         wake_r = waker.fd
         version = -1
         waiter = Waiter() if paced else wait  # a paced line keeps its deliveries' times
@@ -288,7 +289,7 @@ class SerialMedium(LoopMedium):
             # ~10 us, between the burst's last write and the worker that hands it to the client.
             ready = waiter(fds, deadline, None if fixed else 0.5, leave_cpu=wrote and not last)
             if ready:
-                now = time.monotonic()
+                now = clock()
                 taken: set[int] = set()
                 for fd in ready:
                     if fd == wake_r:
@@ -366,7 +367,7 @@ class SerialMedium(LoopMedium):
         key = id(endpoint)
         if key in self._held:
             return
-        self._held[key] = time.monotonic()
+        self._held[key] = self._now()
         self.stats.held_back += 1
         with self._lock:
             self._hosts_version += 1
@@ -377,7 +378,7 @@ class SerialMedium(LoopMedium):
         if since is not None:
             with self._lock:
                 self._hosts_version += 1
-            self.stats.held_back_s += time.monotonic() - since
+            self.stats.held_back_s += self._now() - since
 
     def drain_host(self, port) -> tuple[int, float]:
         """Take everything ``port`` already sent, in the line's thread; returns (bytes taken, when the
@@ -388,13 +389,13 @@ class SerialMedium(LoopMedium):
         has been taken.
         """
         with self._lock:
-            end = max(time.monotonic(), self._last_end.get(port.name, 0.0))  # bytes taken before, on the wire
+            end = max(self._now(), self._last_end.get(port.name, 0.0))  # bytes taken before, on the wire
         taken = 0
         for endpoint, listen_only in list(self._hosts):
             if endpoint is not port:
                 continue
             while True:  # (everything: a drain waits for all the client wrote, however much is ahead)
-                n, t = self._take(endpoint, listen_only, time.monotonic())
+                n, t = self._take(endpoint, listen_only, self._now())
                 if not n:
                     break
                 taken += n
@@ -433,7 +434,7 @@ class SerialMedium(LoopMedium):
         _, watcher, ready, keen = watched
         # The clock before the rest: a write stamped earlier is counted in ready() or has returned, and then
         # its bytes are there for the read to find (a pty master's read first runs the tty layer's work).
-        t0 = time.monotonic_ns()
+        t0 = self._board_ns()
         if ready is not None and not ready():
             # A client is inside write() (often preempted by this very thread on return): look again soon,
             # less and less often, and give up (every drain then asks) if it never ends.
@@ -442,14 +443,14 @@ class SerialMedium(LoopMedium):
             with self._lock:
                 if _retry < QUIET_RETRIES and port.name not in self._quiet_retrying:  # one series at a time
                     self._quiet_retrying.add(port.name)
-                    self._push(time.monotonic() + QUIET_RETRY * 2 ** _retry,
+                    self._push(self._now() + QUIET_RETRY * 2 ** _retry,
                                lambda: self.check_quiet(port, _retry + 1))
             return False
         for endpoint, listen_only in hosts:
             if listen_only or id(endpoint) in self._held:
                 return False  # a port whose bytes are never delivered, or one held back with bytes waiting
             bounded = getattr(endpoint, "backpressure", False) and (self.paced or bool(self._receivers))
-            if self._take(endpoint, listen_only, time.monotonic(), bounded)[0] or id(endpoint) in self._held:
+            if self._take(endpoint, listen_only, self._now(), bounded)[0] or id(endpoint) in self._held:
                 return False  # new bytes (or some left unread, held back): not quiet yet
         try:
             watcher(t0)
@@ -458,6 +459,12 @@ class SerialMedium(LoopMedium):
             log.exception("quiet watcher of %s failed", port.name)
         return True
 
+    @staticmethod
+    def _board_ns() -> int:
+        # The delivery board's stamps are in the real CLOCK_MONOTONIC domain of the shim's writes (a
+        # client's write stamped before this read is counted), whatever the bench's clock: wall-clock.
+        return time.monotonic_ns()  # wall-clock: the delivery board's domain
+
     def _run_due(self) -> None:
         """Run what is due. Deliveries due together reach each host port in one write (a pty write costs
         about as much as a reply's emulation), held back in ``_out`` for the loop to make just before it
@@ -465,13 +472,13 @@ class SerialMedium(LoopMedium):
         the line. A paced line also counts how late each delivery is against its wire model."""
         # LoopMedium's loop, with this line's bookkeeping inline: a hook called per event (tried) costs
         # ~55 ns of the ~480 ns each due event takes here (+12 %; 20-40 events per 20-servo cycle).
-        events, lock, paced = self._events, self._lock, self.paced
+        events, lock, paced, clock = self._events, self._lock, self.paced, self._now
         if self._out is None:
             self._out = {}
         try:
             while True:
                 with lock:
-                    if not events or events[0][0] > (now := time.monotonic()):
+                    if not events or events[0][0] > (now := clock()):
                         break
                     t, _, fn, joinable = heapq.heappop(events)
                 if not joinable:
@@ -503,6 +510,59 @@ class SerialMedium(LoopMedium):
             endpoint.write(bytes(data))
         out.clear()
         return True
+
+    # ------------------------------------------------------------------ virtual time (a VirtualLoop runs it)
+    # (vt_thread, vt_head, vt_deadline and vt_poll are LoopMedium's)
+
+    def vt_attach(self, loop) -> None:
+        """Run in ``loop`` (a :class:`~hilbench.transports.virtual_loop.VirtualLoop`) instead of a thread of
+        its own: its events join the loop's one sequence; deliveries happen at their exact model times."""
+        super().vt_attach(loop)
+        self._vt_version = -1
+        self._vt_fds: dict[int, tuple] = {}
+
+    def vt_run_one(self) -> None:
+        """Run the next event (the loop chose it); host writes of deliveries wait for :meth:`vt_flush`."""
+        if self._out is None:
+            self._out = {}
+        with self._lock:
+            _, _, fn, joinable = heapq.heappop(self._events)
+        if not joinable:
+            self._flush_out()  # (what the host sees stays in the line's order)
+        try:
+            fn()
+        except Exception:  # one faulty callback must not stop the bench
+            self.stats.callback_errors += 1
+            log.exception("timed callback failed on line %s", self.name)
+
+    def vt_flush(self) -> None:
+        """End of the bench phase: each host port gets what was delivered to it, in one write."""
+        self._flush_out()
+        self._out = None
+
+    def vt_fds(self) -> list[int]:
+        """The descriptors the loop looks at for this line: its hosts not held back, and its wake-up pipe."""
+        if self._vt_version != self._hosts_version or not all(
+                type(ep).filenos is HostPort.filenos for ep, _ in self._hosts):
+            with self._lock:
+                self._vt_version = self._hosts_version
+                hosts = list(self._hosts)
+            self._vt_fds = {fd: (ep, listen_only, not listen_only and getattr(ep, "backpressure", False))
+                            for ep, listen_only in hosts if id(ep) not in self._held for fd in ep.filenos()}
+        return [*self._vt_fds, self._waker.fd]
+
+    def vt_read(self, ready: list[int], now: float) -> bool:
+        """Read each ready host port once, at ``now``: everything one read returns is one transmission (a
+        program's writes at one instant are one burst). True if any descriptor of the line was ready."""
+        got = super().vt_read(ready, now)  # (the wake-up pipe)
+        taken: set[int] = set()
+        for fd in ready:
+            host = self._vt_fds.get(fd)
+            if host is not None and id(host[0]) not in taken:
+                taken.add(id(host[0]))
+                self._take(host[0], host[1], now, host[2])
+                got = True
+        return got
 
 
 __all__ = ["Device", "DevicePort", "LineStats", "SerialMedium", "Tap"]

@@ -183,6 +183,7 @@ class SocketcandServer(CanDoor):
         self.bitrate = 500_000
         self.wall_offset = 0.0
         self._due = float("inf")  # the earliest timed work of any client (poll() does nothing before it)
+        self._stall_at = float("inf")  # (wall clock) when a client full since then would be disconnected
         self._backlog = False  # some client has bytes waiting: retry sending soon
         self._beacon_sock: socket.socket | None = None
         self._beacon_next = 0.0
@@ -231,7 +232,7 @@ class SocketcandServer(CanDoor):
     def _accept(self) -> None:
         for sock, addr in self.listener.accept(len(self.clients), self._evict):
             self.connections += 1
-            now = time.monotonic()
+            now = time.monotonic()  # wall-clock: service timer
             client = _Client(sock, f"socketcand {addr[0]}:{addr[1]}", now, ReadWatch(now), last_command=now)
             self.clients.append(client)
             self._reply(client, sc.HI)
@@ -250,7 +251,7 @@ class SocketcandServer(CanDoor):
 
     def _evict(self) -> bool:
         """Let a client of no use go for a newcomer (the listener asks when the server is full)."""
-        victim = self.eviction.victim(self.clients, time.monotonic())
+        victim = self.eviction.victim(self.clients, time.monotonic())  # wall-clock: service timer
         if victim is None:
             return False
         log.info("%s: closed for a newcomer (%d clients at most)", victim.name, MAX_CLIENTS)
@@ -325,8 +326,8 @@ class SocketcandServer(CanDoor):
         client.dropped += 1
         self.frames_dropped += 1
         if client.full_since is None:
-            client.full_since = time.monotonic()
-            self._schedule(client.full_since + STALL_TIMEOUT)
+            client.full_since = time.monotonic()  # wall-clock: service timer
+            self._stall_at = min(self._stall_at, client.full_since + STALL_TIMEOUT)
         return False
 
     def _queue(self, client: _Client, text: str) -> None:
@@ -375,18 +376,25 @@ class SocketcandServer(CanDoor):
         self.queued += len(text)
         self._send(client)
         if len(client.out) > MAX_PENDING and client.full_since is None:
-            client.full_since = time.monotonic()
-            self._schedule(client.full_since + STALL_TIMEOUT)
+            client.full_since = time.monotonic()  # wall-clock: service timer
+            self._stall_at = min(self._stall_at, client.full_since + STALL_TIMEOUT)
 
     def deadline(self) -> float | None:
+        """The next timed work on the bus's clock: a handshake delay, a cyclic job, statistics, the beacon."""
         times = [self._due]
+        if self._beacon_sock is not None:
+            times.append(self._beacon_next)
+        t = min(times)
+        return t if t != float("inf") else None
+
+    def wall_deadline(self) -> float | None:
+        """Service timers on the wall clock: a flush retry, a stalled client's timeout, the EMFILE pause."""
+        times = [self._stall_at]
         if self._backlog:
-            times.append(time.monotonic() + FLUSH_RETRY)
+            times.append(time.monotonic() + FLUSH_RETRY)  # wall-clock: service timer
         pause = self.listener.deadline()
         if pause is not None:
             times.append(pause)
-        if self._beacon_sock is not None:
-            times.append(self._beacon_next)
         t = min(times)
         return t if t != float("inf") else None
 
@@ -399,17 +407,21 @@ class SocketcandServer(CanDoor):
         """Timed work: end handshake delays, run cyclic BCM jobs, statistics and the beacon; disconnect a
         client stalled with a full queue."""
         out: list[tuple[str, CanFrame]] = []
-        if now >= self._due:
-            due = float("inf")
+        if self._stall_at != float("inf") and (wall := time.monotonic()) >= self._stall_at:  # wall-clock: service
+            stall_at = float("inf")
             for c in list(self.clients):
                 if c.full_since is not None:
-                    if now - c.full_since >= STALL_TIMEOUT:
+                    if wall - c.full_since >= STALL_TIMEOUT:
                         self.stalled += 1
                         log.warning("%s: read nothing for %.0f s with %d bytes waiting; disconnected",
                                     c.name, STALL_TIMEOUT, len(c.out))
                         self._drop(c)
                         continue
-                    due = min(due, c.full_since + STALL_TIMEOUT)
+                    stall_at = min(stall_at, c.full_since + STALL_TIMEOUT)
+            self._stall_at = stall_at
+        if now >= self._due:
+            due = float("inf")
+            for c in list(self.clients):
                 if c.raw_at is not None:
                     if now >= c.raw_at:
                         c.raw_at = None
@@ -448,7 +460,7 @@ class SocketcandServer(CanDoor):
     # ------------------------------------------------------------------ commands
 
     def _command(self, client: _Client, message: str, now: float, out: list[tuple[str, CanFrame]]) -> None:
-        client.last_command = now
+        client.last_command = time.monotonic()  # wall-clock: judged for eviction (service)
         cmd = sc.parse_command(message)
         if cmd.name == "range":
             self.out_of_range += 1

@@ -39,6 +39,7 @@ import time
 from hilbench.protocols import capture as cap
 from hilbench.protocols.capture import MAX_PAYLOAD, Flags, RecordKind
 from hilbench.transports.client_limit import Eviction, ReadWatch
+from hilbench.transports.clock import WALL, WallClock
 from hilbench.transports.heap import Ebb
 from hilbench.transports.listener import BACKLOG, Listener
 
@@ -88,13 +89,15 @@ class TapServer:
         description: str = "",
         max_buffer: int = MAX_BUFFER,
         max_clients: int = MAX_CLIENTS,
+        clock: WallClock = WALL,
     ) -> None:
-        self.t0 = time.monotonic()
+        # Records are stamped in the medium's time (``clock``): t0 and its Unix time come from that clock.
+        self.t0 = clock.now()
         self.max_buffer = max_buffer
         self._header = cap.build_header(
             flags=Flags.MEASURED,
             baud=baud,
-            t0_wall=time.time(),
+            t0_wall=clock.wall(self.t0),
             t0_monotonic=self.t0,
             protocol=protocol,
             description=description,

@@ -31,7 +31,6 @@ Fault knobs: ``heartbeat_stop``, ``silent`` (sends nothing at all),
 from __future__ import annotations
 
 import logging
-import time
 from collections.abc import Callable
 from typing import Any
 
@@ -40,6 +39,7 @@ from hilbench.fakes.canopen.sdo_server import SdoServer
 from hilbench.protocols import canopen as co
 from hilbench.protocols import canopen_od as od
 from hilbench.protocols.can_frame import CanFrame, data_frame
+from hilbench.transports.clock import WALL
 
 log = logging.getLogger(__name__)
 
@@ -83,10 +83,14 @@ class CanopenNode:
         """Join a :class:`~hilbench.transports.can_medium.CanMedium`."""
         self.port = medium.add_device(self)
 
+    def now(self) -> float:
+        """The bus's time (its bench's clock; the wall clock before the node is attached)."""
+        return self.port.now() if self.port is not None else WALL.now()
+
     def start(self, t: float | None = None) -> None:
         """Power up: boot-up message after the boot delay, then heartbeats."""
         self._started = True
-        self._boot(time.monotonic() if t is None else t)
+        self._boot(self.now() if t is None else t)
 
     def stop(self) -> None:
         """Power off: nothing more is sent (timers become stale)."""
@@ -146,7 +150,7 @@ class CanopenNode:
 
     def reset(self, t: float | None = None, *, communication_only: bool = False) -> None:
         """NMT reset node (or reset communication): defaults back, boot-up again."""
-        t = time.monotonic() if t is None else t
+        t = self.now() if t is None else t
         if communication_only:
             self.od.reset(0x1000, 0x1FFF)
         else:
@@ -193,7 +197,7 @@ class CanopenNode:
         period = self.heartbeat_ms / 1000
         if period > 0:
             nxt = t + period
-            now = time.monotonic()
+            now = self.now()
             if nxt < now - period:  # far behind (a stalled machine): skip the backlog instead of bursting
                 nxt = now + period
             self.call_at(nxt, lambda: self._heartbeat(nxt), timer="heartbeat")
@@ -201,7 +205,7 @@ class CanopenNode:
     def _write_heartbeat(self, index: int, subindex: int, value: Any) -> int | None:
         # The new period applies from now: the heartbeat "follows a change at once".
         self.od[(0x1017, 0)] = value
-        self._schedule_heartbeat(time.monotonic())
+        self._schedule_heartbeat(self.now())
         return None
 
     def _guard(self) -> None:

@@ -13,7 +13,6 @@ where the capture shows none.
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
 from typing import Any
 
@@ -108,7 +107,7 @@ class RecordedNode(CanopenNode):
         self.send(pdo.cob_id, pdo.data)
         period = pdo.period_ms / 1000
         nxt = t + period
-        now = time.monotonic()  # (the node's clock, as CanopenNode's heartbeat reads it)
+        now = self.now()  # (the node's clock, as CanopenNode's heartbeat reads it)
         if nxt < now - period:  # far behind (a stalled machine): skip the backlog instead of bursting
             nxt = now + period
         self._schedule(pdo, nxt)

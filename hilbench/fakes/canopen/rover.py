@@ -31,7 +31,6 @@ count it discarded).
 from __future__ import annotations
 
 import threading
-import time
 from typing import Any
 
 from hilbench.fakes.canopen.node import CanopenNode
@@ -86,7 +85,7 @@ class RoverNode(CanopenNode):
     # ------------------------------------------------------------------ time
 
     def _now(self) -> float:
-        return time.monotonic()
+        return self.now()
 
     def _t_us(self, t: float) -> float:
         return (t - self._t0) * 1e6
@@ -102,7 +101,7 @@ class RoverNode(CanopenNode):
                      seed=self.seed)
 
     def body_motion(self, t: float) -> tuple[int, float, float, float, float, float, float]:
-        """What the wheels did up to monotonic time ``t``, for its world body (a world driver): (epoch, x, y,
+        """What the wheels did up to bench clock time ``t``, for its world body (a world driver): (epoch, x, y,
         theta of the motion since power-up or reset in metres and radians, body-frame vx, vy, omega now)."""
         if not self._started:
             return 0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0

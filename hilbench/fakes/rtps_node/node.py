@@ -12,7 +12,6 @@ name FreeRTPS-FreeRTOS used) or ``legacy-partition`` (bare name, partition
 from __future__ import annotations
 
 import logging
-import time
 from collections import deque
 from dataclasses import dataclass
 from typing import Any
@@ -132,7 +131,7 @@ class FreeRtpsNode:
                     reliable=t.reliable, partition=partition)
         self._running = True
         p.start()
-        self._t0 = time.monotonic()
+        self._t0 = self.port.now()
         for t in self.topics:
             if t.direction == "pub" and t.rate_hz > 0 and not t.echo_of:
                 self.port.call_at(self._t0 + 1.0 / t.rate_hz, lambda _t=t: self._publish(_t, 1))

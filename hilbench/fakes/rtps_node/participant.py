@@ -46,7 +46,6 @@ from __future__ import annotations
 
 import ipaddress
 import logging
-import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -279,9 +278,9 @@ class RtpsParticipant:
 
     def start(self) -> None:
         self._running = True
-        self.started = time.monotonic()
+        self.started = self.port.now()
         self.port.call_at(None, self._spdp_tick)
-        self.port.call_at(time.monotonic() + self.heartbeat_period, self._heartbeat_tick)
+        self.port.call_at(self.port.now() + self.heartbeat_period, self._heartbeat_tick)
 
     def stop(self) -> None:
         self._running = False
@@ -289,8 +288,8 @@ class RtpsParticipant:
     def now_ts(self) -> tuple[int, int]:
         """INFO_TS time: FreeRTPS's fake epoch plus uptime (§2.6), or the wall clock."""
         if self.clock == "wall":
-            return r.time_parts(time.time())
-        up = time.monotonic() - self.started
+            return r.time_parts(self.port.clock.wall(self.port.now()))
+        up = self.port.now() - self.started
         us = int(up * 1e6) & 0xFFFFFFFF  # the board's 32-bit microsecond counter wraps every 71.6 min
         return r.FREERTPS_EPOCH + us // 1_000_000, ((us % 1_000_000) << 32) // 1_000_000
 
@@ -358,7 +357,7 @@ class RtpsParticipant:
     def _spdp_tick(self) -> None:
         if not self._running:
             return
-        now = time.monotonic()
+        now = self.port.now()
         self.port.call_at(now + self.spdp_period, self._spdp_tick)  # first: nothing below can stop the timer
         subs = self._spdp_message()
         for dst in self._spdp_targets():
@@ -381,7 +380,7 @@ class RtpsParticipant:
     def _heartbeat_tick(self) -> None:
         if not self._running:
             return
-        self.port.call_at(time.monotonic() + self.heartbeat_period, self._heartbeat_tick)
+        self.port.call_at(self.port.now() + self.heartbeat_period, self._heartbeat_tick)
         for w in self.writers.values():
             if w.reliable and w.history and any(acked < w.sn for acked in w.matched.values()):
                 self._user_heartbeat(w)
@@ -494,7 +493,7 @@ class RtpsParticipant:
         src_prefix = msg.guid_prefix
         known = self.remotes.get(src_prefix)
         if known is not None:
-            known.last_seen = time.monotonic()
+            known.last_seen = self.port.now()
         self._vendor = msg.vendor_id
         dest = None
         ts: float | None = None
@@ -580,7 +579,7 @@ class RtpsParticipant:
         if not meta:
             self.counters["unreachable"] += 1
             return
-        now = time.monotonic()
+        now = self.port.now()
         remote = self.remotes.get(prefix)
         new = remote is None
         if new:

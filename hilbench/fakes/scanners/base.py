@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import collections
 import math
-import time
 from dataclasses import dataclass
 from typing import Any
 
@@ -28,6 +27,7 @@ import numpy as np
 
 from hilbench.fakes.scanners.scene import Pose, RangeModel, Scene
 from hilbench.fakes.world import World
+from hilbench.transports.clock import WALL
 
 
 @dataclass(frozen=True)
@@ -56,7 +56,7 @@ class Scanner:
     def __init__(self, name: str, scene: Scene | World, pose: Pose, model: RangeModel, *, t0: float | None = None,
                  body: str | None = None) -> None:
         self.name = name
-        self.t0 = time.monotonic() if t0 is None else t0
+        self.t0 = WALL.now() if t0 is None else t0
         self.world = scene if isinstance(scene, World) else World(scene, t0=self.t0)
         self.scene = self.world.scene
         if body is not None:
@@ -74,6 +74,10 @@ class Scanner:
         """Join a medium as ``<name>-device`` (the host port keeps the endpoint's name, so taps and
         trackers tell the two directions apart); the device port transmits on the medium's clock."""
         self.port = medium.add_device(_Party(self, f"{self.name}-device"))
+
+    def now(self) -> float:
+        """The medium's time (its bench's clock; the wall clock before the scanner is attached)."""
+        return self.port.now() if self.port is not None else WALL.now()
 
     def directions(self, sensor_deg: np.ndarray, heading: np.ndarray | float) -> np.ndarray:
         """World directions (rad) of beams at sensor-convention angles when the sensor's straight-ahead
@@ -120,7 +124,7 @@ class Scanner:
 
     def truth_range(self, sensor_deg: float, t: float | None = None) -> float:
         """The true range (m) of one beam at a sensor angle (for tests computing the truth by hand)."""
-        t = time.monotonic() if t is None else t
+        t = self.now() if t is None else t
         ox, oy, dirs = self.origins(np.asarray([sensor_deg], float), np.asarray([t]))
         r, _, _ = self.world.cast(ox, oy, dirs, t, exclude=self.body)
         return float(r[0])

@@ -25,7 +25,6 @@ Behaviour follows the spec sheet (laser_scanners.md §1.8-1.13):
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -157,7 +156,7 @@ class RplidarA1(Scanner):
 
     def set_dtr(self, dtr: bool, t: float | None = None) -> None:
         """The adapter's DTR changed (True: asserted, which stops the A1's motor)."""
-        t = time.monotonic() if t is None else t
+        t = self.now() if t is None else t
         was = self.motor_commanded()
         self.dtr = bool(dtr)
         now = self.motor_commanded()
@@ -171,7 +170,7 @@ class RplidarA1(Scanner):
     @property
     def motor_running(self) -> bool:
         stable = self.motor_stable_at()
-        return stable is not None and time.monotonic() >= stable
+        return stable is not None and self.now() >= stable
 
     # ------------------------------------------------------------------ host bytes
 
@@ -456,7 +455,7 @@ class RplidarA1(Scanner):
         self.faults.health_status, self.faults.health_code = self.health
         if status == 2:
             if self.state in ("scanning", "express"):
-                self._stop_scan(time.monotonic())
+                self._stop_scan(self.now())
             self.state = "protection"
 
     def status(self) -> dict:

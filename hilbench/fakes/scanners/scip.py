@@ -28,7 +28,6 @@ hears an answer to another client's bytes.
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -171,7 +170,7 @@ class ScipScanner(Scanner):
         return self.tx.send(data, t, whole=True)
 
     def _answer(self, req: scip.Request, status: str, body: bytes = b"", t: float | None = None) -> None:
-        t = time.monotonic() if t is None else t
+        t = self.now() if t is None else t
         self._send(scip.reply(req.line, status, body), t + REPLY_DELAY)
 
     # ------------------------------------------------------------------ commands
@@ -384,7 +383,7 @@ class ScipScanner(Scanner):
         return {"model": self.unit.name, "laser": self.laser, "timesync": self.timesync,
                 "continuous": None if self.md is None else {"cmd": self.md["req"].cmd,
                                                             "remaining": self.md["remaining"]},
-                "clock_ms": self.clock_ms(time.monotonic()), "scans_sent": self.scans_sent,
+                "clock_ms": self.clock_ms(self.now()), "scans_sent": self.scans_sent,
                 "requests": list(self.requests[-20:]), "counters": dict(self.counters)}
 
 

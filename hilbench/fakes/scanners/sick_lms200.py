@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import math
 import struct
-import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -240,7 +239,7 @@ class SickLms200(Scanner):
             self._set_baud(lms.POWER_UP_BAUD)
             self.mode = lms.Mode.POLLED
             self.installation = False
-            self._reply(lms.REPLY_POWER_ON, SOFTWARE, time.monotonic())
+            self._reply(lms.REPLY_POWER_ON, SOFTWARE, self.now())
 
         self.port.call_at(self.ready_at, ready)
 

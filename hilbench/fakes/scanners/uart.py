@@ -21,7 +21,6 @@ ring has room.
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable
 
 #: Longest piece of one write handed to the medium as a unit (seconds of wire time).
@@ -58,7 +57,7 @@ class UartTx:
         """
         if not data:
             return max(self.busy_until, t_ready or 0.0)
-        now = time.monotonic() if t_ready is None else t_ready
+        now = self.port.now() if t_ready is None else t_ready
         start = max(now, self.busy_until)
         bt = self.byte_time()
         if bt and start > now and (start - now) / bt + len(data) > TX_QUEUE:  # the ring is full: dropped
@@ -100,7 +99,7 @@ class UartTx:
     def cancel(self, now: float | None = None) -> None:
         """Drop everything queued and not yet on the wire; the line is free from ``now``."""
         self.epoch += 1
-        now = time.monotonic() if now is None else now
+        now = self.port.now() if now is None else now
         # The chunk in flight finishes (it was handed over whole); later ones are dropped.
         self.busy_until = min(self.busy_until, now + self.chunk_s)
 

@@ -31,6 +31,7 @@ from hilbench.fakes.stm32_board.presets import BoardConfig, make_preset
 from hilbench.fakes.stm32_board.robot import RobotState
 from hilbench.fakes.stm32_board.sink import Truth
 from hilbench.protocols.tracestamp import LogLine, RuntimeReport
+from hilbench.transports.clock import WALL, WallClock
 
 log = logging.getLogger(__name__)
 
@@ -63,6 +64,11 @@ class Board:
         #: Peripherals that run beside the firmware while the board is live (e.g. the micro-ROS link):
         #: objects with start(board), stop() and reset(), see :meth:`attach_link`.
         self.links: list[Any] = []
+
+    @property
+    def clock(self) -> WallClock:
+        """The line's clock (its bench's) once attached; the wall clock before."""
+        return self.port.clock if self.port is not None else WALL
 
     def attach_link(self, link: Any) -> None:
         """Add a peripheral started and stopped with the live board and told about resets."""
@@ -101,13 +107,18 @@ class Board:
     def settle(self, us: float = 5000.0, timeout: float = 2.0) -> None:
         """Let ``us`` of virtual time pass: offline by simulating it, live by waiting for the thread."""
         target = self.now_us + us
-        if self._thread is None:
+        if self.clock.virtual and self.port is not None and self.wall0 is not None:
+            loop = getattr(self.clock, "loop", None)
+            if loop is not None and loop.mode == "hold" and not loop.in_loop():
+                loop.run_until(self.wall0 + target / 1e6 + STEP_S, timeout)
+                return
+        if self._thread is None and not (self.clock.virtual and self.port is not None and self.wall0 is not None):
             self.run_until(target)
             return
-        deadline = time.monotonic() + timeout
-        while self.now_us < target and time.monotonic() < deadline:
+        deadline = time.monotonic() + timeout  # wall-clock: how long the caller waits for the thread
+        while self.now_us < target and time.monotonic() < deadline:  # wall-clock
             self._wake.set()
-            time.sleep(0.001)
+            time.sleep(0.001)  # wall-clock: the caller waits for the live thread
 
     def reset(self) -> None:
         """Reset the board: a new boot of the firmware at the current virtual time; unsent output is lost."""
@@ -182,7 +193,7 @@ class Board:
             return self.fw.robot.state(self.fw.now)
 
     def body_motion(self, t: float) -> tuple[int, float, float, float, float, float, float]:
-        """What the wheels did up to monotonic time ``t``, for its world body (a world driver,
+        """What the wheels did up to bench clock time ``t``, for its world body (a world driver,
         :meth:`hilbench.fakes.world.World.drive`): (epoch, x, y, theta of the motion since this boot's start
         in metres and radians, and the body-frame velocity vx, vy, omega now). The robot model is advanced no
         further than the firmware ran, so a setpoint the firmware has yet to receive is not overtaken; a reset
@@ -255,16 +266,24 @@ class Board:
         """Start the live thread; virtual time 0 (or the current virtual time) is now."""
         if self._thread is not None:
             return
-        self.wall0 = (wall0 if wall0 is not None else time.monotonic()) - self.now_us / 1e6
+        self.wall0 = (wall0 if wall0 is not None else self.clock.now()) - self.now_us / 1e6
         self._stop.clear()
-        self._thread = threading.Thread(target=self._run, name=f"board-{self.name}", daemon=True)
-        self._thread.start()
+        if self.clock.virtual and self.port is not None:
+            # In virtual time the bench's loop runs the board: the thread's steps become loop timers.
+            self._vt_sent = self.now_us
+            self._vt_epoch = getattr(self, "_vt_epoch", 0) + 1
+            epoch = self._vt_epoch
+            self.port.call_at(self.clock.now(), lambda: self._vt_step(epoch))
+        else:
+            self._thread = threading.Thread(target=self._run, name=f"board-{self.name}", daemon=True)
+            self._thread.start()
         for link in self.links:
             link.start(self)
 
     def stop(self) -> None:
         for link in self.links:
             link.stop()
+        self._vt_epoch = getattr(self, "_vt_epoch", 0) + 1  # (ends the loop timers of virtual time)
         self._stop.set()
         self._wake.set()
         if self._thread is not None:
@@ -273,31 +292,45 @@ class Board:
 
     def _run(self) -> None:
         sent_until = self.now_us
+        now = self.clock.now
         while not self._stop.is_set():
-            wall = time.monotonic()
-            v_now = (wall - self.wall0) * 1e6
-            target = v_now + LOOKAHEAD_US
-            try:
-                with self.lock:
-                    if self.now_us < target:
-                        self.fw.run_until(target - self.boot_offset)
-                    self.lag_us = max(0.0, v_now - self.now_us)
-                    horizon = v_now + STEP_S * 1e6
-                    carry, self._carry = self._carry, b""
-                    data, t_last = self.fw.wire.take(horizon - self.boot_offset)
-                    t_last += self.boot_offset
-                data = carry + data
-                if data:
-                    t_wall = self.wall0 + max(t_last, sent_until) / 1e6
-                    sent_until = max(t_last, sent_until)
-                    if self.port is not None:
-                        self.port.transmit(data, t=t_wall)
-                    if self.on_output is not None:
-                        self.on_output(data, t_wall)
-            except Exception:  # keep the board alive; the failure is logged
-                log.exception("board %s failed", self.name)
+            sent_until = self._step(now(), sent_until)
             self._wake.wait(STEP_S)
             self._wake.clear()
+
+    def _vt_step(self, epoch: int) -> None:
+        """One step in virtual time (a timer of the bench's loop, every :data:`STEP_S`)."""
+        if epoch != self._vt_epoch:
+            return  # stopped (or restarted) since
+        now = self.clock.now()
+        self._vt_sent = self._step(now, self._vt_sent)
+        self.port.call_at(now + STEP_S, lambda: self._vt_step(epoch))
+
+    def _step(self, wall: float, sent_until: float) -> float:
+        """Run the firmware to ``LOOKAHEAD_US`` past clock time ``wall`` and hand the line what its UART
+        has sent by one step later; returns the new ``sent_until``."""
+        v_now = (wall - self.wall0) * 1e6
+        target = v_now + LOOKAHEAD_US
+        try:
+            with self.lock:
+                if self.now_us < target:
+                    self.fw.run_until(target - self.boot_offset)
+                self.lag_us = max(0.0, v_now - self.now_us)
+                horizon = v_now + STEP_S * 1e6
+                carry, self._carry = self._carry, b""
+                data, t_last = self.fw.wire.take(horizon - self.boot_offset)
+                t_last += self.boot_offset
+            data = carry + data
+            if data:
+                t_wall = self.wall0 + max(t_last, sent_until) / 1e6
+                sent_until = max(t_last, sent_until)
+                if self.port is not None:
+                    self.port.transmit(data, t=t_wall)
+                if self.on_output is not None:
+                    self.on_output(data, t_wall)
+        except Exception:  # keep the board alive; the failure is logged
+            log.exception("board %s failed", self.name)
+        return sent_until
 
 
 class _LineParty:

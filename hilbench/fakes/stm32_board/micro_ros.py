@@ -28,7 +28,6 @@ then never gets its entities, as in the thesis); ``zero_next(n)`` the next n.
 from __future__ import annotations
 
 import threading
-import time
 from typing import Any
 
 from hilbench.fakes.xrce_client import XrceClient
@@ -59,6 +58,7 @@ class MicroRosLink:
         self.last_cmd_vel: dict[str, Any] | None = None
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
+        self._epoch = 0
 
     # ------------------------------------------------------------------ board link protocol
 
@@ -76,10 +76,32 @@ class MicroRosLink:
             c.subscribe(f"rt/{name}", t.dds_name, lambda data, le, _n=name: self._on_own(_n), reliable=False)
         c.start()
         self._stop.clear()
+        clock = board.clock
+        if clock.virtual and board.port is not None:
+            # In virtual time the bench's loop runs the link's timers (the XRCE session itself still runs on
+            # its client's thread, on the wall clock).
+            self._epoch += 1
+            preset = board.config.preset
+            self._vt_timer(self._epoch, 1.0 / preset.wheel_hz, lambda dt: self._publish_wheel(dt))
+            self._vt_timer(self._epoch, 1.0 / preset.pose_hz, lambda dt: self._publish_pose())
+            return
         self._thread = threading.Thread(target=self._run, name=f"uros-{board.name}", daemon=True)
         self._thread.start()
 
+    def _vt_timer(self, epoch: int, period: float, publish) -> None:
+        port = self.board.port
+
+        def tick(t: float) -> None:
+            if epoch != self._epoch:
+                return  # stopped since
+            publish(period)
+            port.call_at(t + period, lambda: tick(t + period))
+
+        t0 = port.now() + period
+        port.call_at(t0, lambda: tick(t0))
+
     def stop(self) -> None:
+        self._epoch += 1  # (ends the loop timers of virtual time)
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout=5)
@@ -120,20 +142,22 @@ class MicroRosLink:
     def _run(self) -> None:
         preset = self.board.config.preset
         wheel_s, pose_s = 1.0 / preset.wheel_hz, 1.0 / preset.pose_hz
-        t0 = time.monotonic()
+        clock = self.board.clock
+        t0 = clock.now()
         next_wheel, next_pose = t0 + wheel_s, t0 + pose_s
         while not self._stop.is_set():
-            now = time.monotonic()
+            now = clock.now()
             if now >= next_wheel:
                 next_wheel += wheel_s * max(1, int((now - next_wheel) / wheel_s) + 1)
                 self._publish_wheel(wheel_s)
             if now >= next_pose:
                 next_pose += pose_s * max(1, int((now - next_pose) / pose_s) + 1)
                 self._publish_pose()
-            self._stop.wait(max(0.0, min(next_wheel, next_pose) - time.monotonic()))
+            clock.wait(self._stop, max(0.0, min(next_wheel, next_pose) - clock.now()))
 
     def _stamp(self) -> dict[str, int]:
-        ns = time.time_ns() + (self.client.time_offset_ns or 0 if self.client else 0)
+        clock = self.board.clock
+        ns = int(clock.wall(clock.now()) * 1e9) + (self.client.time_offset_ns or 0 if self.client else 0)
         return {"sec": ns // 1_000_000_000, "nanosec": ns % 1_000_000_000}
 
     def _publish_wheel(self, dt: float) -> None:

@@ -47,7 +47,6 @@ reassembled message (the real agent recurses into it) is followed
 from __future__ import annotations
 
 import logging
-import time
 from collections import OrderedDict, deque
 from dataclasses import dataclass, field
 from typing import Any
@@ -55,6 +54,7 @@ from typing import Any
 from hilbench.fakes.xrce_agent.entities import Entity, EntityError, entity_from_create, same
 from hilbench.fakes.xrce_agent.streams import BestEffortInput, ReliableInput, ReliableOutput
 from hilbench.protocols import xrce_dds as x
+from hilbench.transports.clock import WALL
 
 log = logging.getLogger(__name__)
 K = x.ObjectKind
@@ -192,7 +192,7 @@ class XrceAgent:
     def start(self) -> None:
         self._running = True
         if self.port is not None:
-            self.port.call_at(time.monotonic() + self.heartbeat_s, self._heartbeats)
+            self.port.call_at(self.port.now() + self.heartbeat_s, self._heartbeats)
 
     def stop(self) -> None:
         self._running = False
@@ -269,7 +269,7 @@ class XrceAgent:
     def _heartbeats(self) -> None:
         if not self._running:
             return
-        now = time.monotonic()
+        now = self.port.now()
         self.port.call_at(now + self.heartbeat_s, self._heartbeats)  # first: nothing below can stop the timer
         self.expire(now)
         for s in list(self.by_key.values()):
@@ -426,9 +426,9 @@ class XrceAgent:
             first, bitmap = rel.acknack()
             self._send_none(s, S.ACKNACK, x.acknack(first, bitmap, fields.stream_id))
         elif sub_id == S.TIMESTAMP:
-            now = time.time()
+            now = self._wall()
             recv = (int(now), int((now % 1) * 1e9))
-            tr = time.time()
+            tr = self._wall()
             self._send_none(s, S.TIMESTAMP_REPLY, x.timestamp_reply(
                 (int(tr), int((tr % 1) * 1e9)), recv,
                 (fields.transmit.seconds, fields.transmit.nanoseconds)))
@@ -781,8 +781,13 @@ class XrceAgent:
                 "session_output_bytes": SESSION_OUTPUT_BYTES, "session_queue_bytes": SESSION_QUEUE_BYTES,
                 "fragment_depth": MAX_FRAGMENT_DEPTH}
 
+    def _wall(self) -> float:
+        """Unix time now, on the bench's clock (the wall clock for an agent not on a net)."""
+        clock = self.port.clock if self.port is not None else WALL
+        return clock.wall(clock.now())
+
     def status(self) -> dict[str, Any]:
-        now = time.monotonic()
+        now = self.port.now() if self.port is not None else WALL.now()
         return {"name": self.name, "zeroed": self.zeroed, "counters": dict(self.counters),
                 "sessions": [s.describe(now) for s in list(self.sessions.values())], "faults": dict(self.faults),
                 "limits": self.limits(), "log": list(self.log)[-30:]}

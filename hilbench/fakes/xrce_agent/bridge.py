@@ -13,6 +13,7 @@ readers of the topic (never back to RTPS). Both run in the net's thread.
 from __future__ import annotations
 
 import os
+import random
 from typing import Any
 
 from hilbench.fakes.rtps_node.participant import RtpsParticipant
@@ -41,7 +42,12 @@ class RtpsBridge:
         self.domain_id = domain_id
         self.participant_index = participant_index
         self.port = net.add_device(_BridgeDevice(self, f"{agent.name}-rtps"))
-        prefix = VENDOR_EPROSIMA + os.urandom(10)
+        clock = self.port.clock
+        if clock.virtual:  # the same GUID every run of a virtual bench with the same (pinned) epoch
+            prefix = VENDOR_EPROSIMA + random.Random(f"{agent.name}:{domain_id}:{participant_index}:"
+                                                     f"{clock.wall(clock.now())}").randbytes(10)
+        else:
+            prefix = VENDOR_EPROSIMA + os.urandom(10)
         self.participant = RtpsParticipant(f"{agent.name}-rtps", self.port, domain_id=domain_id,
                                            participant_index=participant_index, guid_prefix=prefix, peers=peers,
                                            vendor_id=VENDOR_EPROSIMA, pl_vendor_id=VENDOR_EPROSIMA, clock="wall",

@@ -205,6 +205,17 @@ class MediumSource(PushSource):
         self._medium = medium
         medium.add_tap(self.push)
 
+    def clock(self) -> float | None:
+        """The medium's time (its bench's clock), so monitors judge silence in the time its stamps are in."""
+        clock = getattr(self._medium, "clock", None)
+        return clock.now() if clock is not None else super().clock()
+
+    @property
+    def wall_offset(self) -> float | None:
+        """Unix time minus the medium's time (recorders stamp Unix time with it)."""
+        clock = getattr(self._medium, "clock", None)
+        return clock.wall(0.0) if clock is not None else None
+
     def close(self) -> None:
         self._medium.remove_tap(self.push)
         super().close()
