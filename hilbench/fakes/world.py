@@ -301,9 +301,8 @@ class World:
               mover_circ: np.ndarray) -> None:
         """Move ``b`` by ``delta`` (its own frame); where its footprint would meet something it does not meet
         now, only as far as it fits (it stops there: blocked)."""
-        if not any(delta):
-            b.blocked = False
-            return
+        if not any(delta):  # a step without wheel motion (a lagging board, a stop) ends no contact:
+            return          # the body is still where it touched, and pushing on is the same collision
         here = (b.x, b.y, b.theta)
         nx, ny, nth = compose(here, delta)
         if self.collides(b, nx, ny, nth, mover_segs, mover_circ) and \

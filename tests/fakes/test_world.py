@@ -60,6 +60,22 @@ def test_a_body_meeting_a_wall_stops_and_counts_one_collision():
     assert not w.body("r").blocked and w.body("r").x < 2.7
 
 
+def test_a_pause_against_the_wall_is_the_same_contact():
+    """A step in which the wheels did not move (a board that lags one step, a stop) ends no contact: pushing on
+    is still the one collision."""
+    clock = Clock()
+    w = room_world(Body("r", Shape("box", (0.5, 0.4)), x=2.5), clock=clock)
+    w.set_velocity("r", 0.5)
+    run(w, clock, 1.0)
+    w.set_velocity("r", 0.0)
+    run(w, clock, 0.1)
+    assert w.body("r").blocked
+    w.set_velocity("r", 0.5)
+    run(w, clock, 0.5)
+    b = w.body("r")
+    assert b.blocked and b.collisions == 1 and b.x == pytest.approx(2.75, abs=0.001)
+
+
 def test_bodies_collide_with_each_other_and_with_obstacles():
     clock = Clock()
     a = Body("a", Shape("circle", radius=0.2), x=-1.0)
