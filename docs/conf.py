@@ -128,7 +128,7 @@ nitpick_ignore_regex = [
     (r"py:.*", rf"(?:{_alternatives(_OUTSIDE)})\..+"),
     (r"py:.*", rf"(?:{_alternatives(_OUTSIDE - _OWN_MODULES)})"),
     # Type variables (a one-letter name in a module) have no page of their own.
-    (r"py:class", r"hilbench\..+\.[A-Z]"),
+    (r"py:(?:class|obj)", r"hilbench\..+\.[A-Z]"),
 ]
 
 

@@ -335,8 +335,8 @@ NAMES_A_FAMILY: dict[str, set[str]] = {
     "fakes/table_servo.py": {"import hilbench.fakes.dynamixel.motion"},
     # family -> family: the Protocol 1.0 bus core and tracker into a servo-bus kit (PLAN24 §1, "should")
     "fakes/feetech/bus.py": {"import hilbench.fakes.dynamixel.bus1"},
-    "monitor/feetech/__init__.py": {"import hilbench.monitor.dynamixel.devices", "import hilbench.monitor.dynamixel1",
-                                    "import hilbench.monitor.dynamixel1.tracker"},
+    "monitor/feetech/__init__.py": {"import hilbench.monitor.dynamixel1"},
+    "monitor/feetech/dialect.py": {"import hilbench.monitor.dynamixel.devices", "import hilbench.monitor.dynamixel1.tracker"},
     # family -> family: the shared RTPS part into a kit (families/rtps_kit.py, PLAN24 §1, "should")
     "families/micro_ros_agent.py": {"import hilbench.families.freertps"},
     "fakes/xrce_agent/bridge.py": {"import hilbench.fakes.rtps_node.participant"},

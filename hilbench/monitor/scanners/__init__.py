@@ -10,10 +10,12 @@ health, errors and checksum failures, shown by the scanner dashboard views
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from hilbench.monitor.instrument import Instrument
-from hilbench.monitor.scanners.tracker import TRACKERS, ScannerTracker
+
+if TYPE_CHECKING:  # the trackers (numpy) are imported when one is made: the plug-ins stay light
+    from hilbench.monitor.scanners.tracker import ScannerTracker
 
 
 class ScannerInstrument(Instrument):
@@ -22,6 +24,8 @@ class ScannerInstrument(Instrument):
     views_path = "hilbench.dashboard.scanner_views:VIEW_SET"
 
     def make_tracker(self, *, baud: int | None, timestamps: bool, **options: Any) -> ScannerTracker:
+        from hilbench.monitor.scanners.tracker import TRACKERS
+
         return TRACKERS[self.protocol](baud=baud, timestamps=timestamps)
 
     def summary(self, tracker: ScannerTracker, *, source: str, timestamps: str | None, errors: int = 50) -> dict:
