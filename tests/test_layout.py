@@ -290,7 +290,7 @@ OWNED: dict[str, tuple[str, ...]] = {
                   "monitor/dynamixel1/*", "dashboard/dynamixel_views.py", "clients/dynamixel.py", "cli/dxl.py"),
     "feetech": ("protocols/feetech*.py", "fakes/feetech/*", "families/feetech.py", "monitor/feetech/*"),
     "stm32-rover": ("protocols/vel2d*.py", "protocols/tracestamp*.py", "fakes/stm32_board/*",
-                    "families/stm32_rover*.py"),
+                    "families/stm32_rover*.py", "cli/stm32_rover.py"),
     "rplidar": ("protocols/rplidar*.py", "fakes/scanners/rplidar.py", "families/rplidar*.py"),
     "sick-lms200": ("protocols/sick_lms200*.py", "fakes/scanners/sick_lms200.py", "families/sick_lms200*.py"),
     "scip2": ("protocols/scip*.py", "fakes/scanners/scip.py", "families/scip2*.py"),
@@ -309,9 +309,6 @@ GENERIC_WORDS = {"can"}
 #: (P3, P5, P8a-d, P11 in PLAN24 §10) empty it. An import of a family's protocol codec is not counted:
 #: codecs are libraries anyone may use (DESIGN.md §3); a string naming it (its protocol) is.
 NAMES_A_FAMILY: dict[str, set[str]] = {
-    # P8c: the rover board's verbs become the family's own module cli/stm32_rover.py
-    "cli/board.py": {"import hilbench.families.stm32_rover"},
-    "cli/rover.py": {"import hilbench.families.stm32_rover"},
     # P8c: the CANopen board's subcommands become the verb extension cli/canopen_board.py
     "cli/can.py": {"'canopen'", "import hilbench.clients.can_rover", "import hilbench.families.canopen_board"},
     # P8c: --view choices from the servo bus's instrument

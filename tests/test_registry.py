@@ -148,7 +148,7 @@ def test_a_command_registers_only_its_own_verbs_and_help_lists_them_all_from_the
     # `hilbench dxl ...` does not load the monitor's sources and instruments (dpkt among them) for help texts,
     # and neither does the list of verbs
     assert loaded("dxl", "ping", "/dev/null") == "['dxl'] False"
-    assert loaded("send-vel", "--help") == "['send-vel', 'teleop'] False"
+    assert loaded("send-vel", "--help") == "['board', 'send-vel', 'teleop'] False"  # the rover family's verbs
     assert loaded("monitor", "x.hbcap") == "['monitor', 'record', 'tap'] False"  # dpkt: once a pcap is read
     full = loaded("--help")
     assert "'emulate'" in full and "'monitor'" in full and "'teleop'" in full and full.endswith("False")

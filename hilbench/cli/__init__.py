@@ -4,8 +4,9 @@ Verbs are plug-ins (:mod:`hilbench.registry`): each entry point of the
 ``hilbench.verbs`` group is named after a verb and names the module that adds
 it (``monitor``, ``record`` and ``tap`` all name :mod:`hilbench.cli.monitor`).
 The module has a ``register(subparsers)`` function adding its verbs, an
-optional ``ORDER`` number for where ``--help`` lists them (built-ins use
-10-90; a lab's package adds its own verbs the same way), and an optional
+optional ``ORDER`` number for where ``--help`` lists them, or a dict of one
+per verb (built-ins use 10-90; a lab's package adds its own verbs the same
+way), and an optional
 ``VERBS`` dict, each verb ``register`` adds and its one-line help. An entry
 point named ``VERB.NAME`` is an extension of VERB: a module whose
 ``extend(subparsers)`` adds sub-commands to VERB's once VERB is registered
@@ -73,25 +74,35 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
         if verb in getattr(module, "VERBS", (verb,)):
             _register(sub, module)
             return p
-    modules: dict[int, tuple[str, ModuleType]] = {}  # one entry per module, in the order of its first verb
+    modules: dict[int, tuple[str, ModuleType]] = {}  # one entry per module: its first verb's name, the module
     for name, module in registry.verbs.items():
         if "." not in name:
             modules.setdefault(id(module), (name, module))
-    ordered = sorted(modules.values(), key=lambda item: (getattr(item[1], "ORDER", 100), item[0]))
-    if any(verb in getattr(module, "VERBS", ()) for _, module in ordered):  # a verb its entry point does not name
-        for _name, module in ordered:
+    if any(verb in getattr(module, "VERBS", ()) for _, module in modules.values()):  # a verb no entry point names
+        for _name, module in modules.values():
             if verb in getattr(module, "VERBS", (verb,)):  # (a module without VERBS may have it)
                 _register(sub, module)
         return p
-    for _name, module in ordered:
+    # Each verb where its module's ORDER puts it; a module without VERBS registers all of its own at once.
+    entries: list[tuple[int, str, int, str | None, ModuleType]] = []
+    for first, module in modules.values():
         listed = getattr(module, "VERBS", None)
         if listed is None:
+            entries.append((_order(module, first), first, 0, None, module))
+        else:
+            entries += [(_order(module, name), first, n, name, module) for n, name in enumerate(listed)]
+    for *_, name, module in sorted(entries, key=lambda e: e[:3]):
+        if name is None:
             _register(sub, module)
         else:
-            for name, help_line in listed.items():
-                sub.add_parser(name, help=help_line)
+            sub.add_parser(name, help=module.VERBS[name])
     return p
 
+
+def _order(module: ModuleType, verb: str) -> int:
+    """Where ``hilbench --help`` lists ``verb``: the module's ``ORDER``, a number or one per verb (default 100)."""
+    order = getattr(module, "ORDER", 100)
+    return order.get(verb, 100) if isinstance(order, dict) else order
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``hilbench`` command."""
