@@ -287,7 +287,7 @@ def test_no_upward_imports():
 #: (the CAN, UDP and trace instruments) and verbs.
 OWNED: dict[str, tuple[str, ...]] = {
     "dynamixel": ("protocols/dynamixel*.py", "fakes/dynamixel/*", "families/dynamixel.py", "monitor/dynamixel/*",
-                  "monitor/dynamixel1/*", "dashboard/dynamixel_views.py", "clients/dynamixel.py", "cli/dxl.py"),
+                  "monitor/dynamixel1/*", "dashboard/dynamixel_views.py", "clients/dynamixel.py", "cli/dynamixel.py"),
     "feetech": ("protocols/feetech*.py", "fakes/feetech/*", "families/feetech.py", "monitor/feetech/*"),
     "stm32-rover": ("protocols/vel2d*.py", "protocols/tracestamp*.py", "fakes/stm32_board/*",
                     "families/stm32_rover*.py", "cli/stm32_rover.py"),

@@ -1,4 +1,7 @@
-"""``hilbench dxl``: Dynamixel tools for any port, real or emulated, through the official SDK."""
+"""``hilbench dxl``: Dynamixel tools for any port, real or emulated, through the official SDK.
+
+The Dynamixel family's own verb module (entry point ``dxl``).
+"""
 
 from __future__ import annotations
 
