@@ -24,7 +24,9 @@ kind                   entry-point group          the object an entry point name
 :data:`instruments`    ``hilbench.instruments``   an :class:`~hilbench.monitor.instrument.Instrument`
 :data:`clients`        ``hilbench.clients``       a :class:`~hilbench.clients.base.ClientDriver` (a device's host
                                                   side, for the verb of its role: ``hilbench lidar``)
-:data:`verbs`          ``hilbench.verbs``         a module with ``register(subparsers)``
+:data:`verbs`          ``hilbench.verbs``         a module with ``register(subparsers)``, named once per
+                                                  verb it adds; ``VERB.NAME``: an extension of VERB, a
+                                                  module with ``extend(subparsers)``
 :data:`fuzz_targets`   ``hilbench.fuzz_targets``  a :class:`~hilbench.fuzzing.FuzzTarget` (fuzzing,
                                                   rough-input benchmarks)
 :data:`servers`        ``hilbench.servers``       a :class:`~hilbench.bench.server.Server` (``emulate --serve``)
@@ -35,9 +37,15 @@ kind                   entry-point group          the object an entry point name
                                                   (``profiles from-capture``)
 =====================  =========================  =============================================
 
-Entry points load on first use of their kind. A plug-in that fails to load
-is skipped with one warning naming its package (a lab's broken package must
-not take the whole command down); :meth:`Kind.failures` lists them.
+Entry points load one by one, when asked for: ``kind.get(name)`` imports
+the module of that entry point alone, ``kind.names()`` and ``name in kind``
+read the names without importing anything, and ``values()``, ``items()``,
+``find()`` load the whole group. So ``hilbench monitor`` on a Dynamixel
+capture imports no CAN or laser scanner code, and plug-in modules stay light
+(what they name imports its heavy parts when it runs). A plug-in that fails
+to load is skipped with one warning naming its package (a lab's broken
+package must not take the whole command down); :meth:`Kind.failures` lists
+them.
 Objects can also be registered in code (:meth:`Kind.register`), e.g. by tests.
 
 A registration that clashes with one already made is refused: two families
@@ -58,6 +66,7 @@ import importlib.metadata
 import threading
 import warnings
 from collections.abc import Callable, Iterable, Iterator
+from importlib.metadata import EntryPoint
 from typing import Any
 
 from hilbench.errors import UsageError
@@ -73,11 +82,31 @@ class PluginWarning(UserWarning):
 Claim = tuple[str, str] | tuple[str, str, str]
 
 
+_ENTRY_POINTS: importlib.metadata.EntryPoints | None = None
+
+
+def _group(group: str) -> importlib.metadata.EntryPoints:
+    """The entry points of ``group`` (every installed package's metadata read once for all kinds)."""
+    global _ENTRY_POINTS
+    if _ENTRY_POINTS is None:
+        _ENTRY_POINTS = importlib.metadata.entry_points()
+    return _ENTRY_POINTS.select(group=group)
+
+
+def _dist(ep: EntryPoint) -> str:
+    return ep.dist.name if ep.dist is not None else "?"
+
+
 class Kind:
-    """One kind of plug-in: a name -> object table filled from an entry-point group on first use.
+    """One kind of plug-in: a name -> object table filled from an entry-point group, one entry point at a time.
+
+    Entry points are kept by name and loaded when asked for: :meth:`get` loads the one it names,
+    :meth:`names` and ``in`` read the names alone, :meth:`items`, :meth:`values`, :meth:`find` and
+    :meth:`failures` load them all (a verb that needs one family's plug-in imports that one).
 
     ``claims(obj)`` lists what a registration takes besides its name (:data:`Claim`); a registration whose
-    name or claims another one holds is refused.
+    name or claims another one holds is refused. A clash between two entry points is found once both are
+    loaded; the first in order (hilbench's own, then by name) keeps the claim either way.
     """
 
     def __init__(self, name: str, group: str, *, what: str,
@@ -90,7 +119,10 @@ class Kind:
         self._origin: dict[str, str] = {}
         self._failed: dict[str, str] = {}
         self._held: dict[tuple[str, str], tuple[str, str | None]] = {}  # (what, value) -> (name, token)
-        self._loaded = False
+        self._eps: dict[str, EntryPoint] | None = None  # name -> the entry point that has it, in load order
+        self._rank: dict[str, int] = {}  # name -> its place in that order (code registrations come last)
+        self._tried: set[str] = set()  # entry points loaded (or failed to)
+        self._loaded = False  # every entry point tried
         self._lock = threading.RLock()
 
     # ------------------------------------------------------------------ claims
@@ -100,14 +132,15 @@ class Kind:
             return []
         return [(c[0], c[1], c[2] if len(c) > 2 else None) for c in self._claims_of(obj)]
 
-    def _clash(self, name: str, obj: Any) -> str | None:
-        """Why ``obj`` cannot be registered as ``name`` (a claim another registration holds), else None."""
+    def _clashes(self, name: str, obj: Any) -> Iterator[tuple[str, str, str]]:
+        """``(owner, what, value)`` for each claim of ``obj`` another registration holds."""
         for what, value, token in self._claims(obj):
             held = self._held.get((what, value))
             if held is not None and held[0] != name and (token is None or held[1] != token):
-                owner = held[0]
-                return f"its {what} {value!r} is taken by {self.what} {owner!r} (from {self._origin.get(owner, '?')})"
-        return None
+                yield held[0], what, value
+
+    def _why(self, owner: str, what: str, value: str) -> str:
+        return f"its {what} {value!r} is taken by {self.what} {owner!r} (from {self._origin.get(owner, '?')})"
 
     def _add(self, name: str, obj: Any, origin: str) -> None:
         self._items[name] = obj
@@ -122,37 +155,70 @@ class Kind:
 
     # ------------------------------------------------------------------ loading
 
+    def _entry_points(self) -> dict[str, EntryPoint]:
+        """The group's entry points by name, read once (names only: nothing is imported)."""
+        if self._eps is None:
+            with self._lock:
+                if self._eps is None:
+                    eps = sorted(_group(self.group), key=lambda ep: (_dist(ep) != "hilbench", ep.name))
+                    chosen: dict[str, EntryPoint] = {}
+                    for ep in eps:
+                        first = chosen.get(ep.name)
+                        if first is None:
+                            chosen[ep.name] = ep
+                        elif _dist(first) != _dist(ep):  # another package wants the name: skipped unloaded
+                            why = f"{_dist(first)} registers it already"
+                            self._failed[f"{ep.name} ({_dist(ep)})"] = f"{_dist(ep)}: {why}"
+                            warnings.warn(f"hilbench: {self.what} {ep.name!r} from {_dist(ep)} skipped: {why}",
+                                          PluginWarning, stacklevel=4)
+                    self._rank = {name: n for n, name in enumerate(chosen)}
+                    self._eps = chosen
+        return self._eps
+
+    def _load_one(self, name: str) -> None:
+        """Load the entry point ``name`` (once); a failure or a clash is a warning and a :meth:`failures` entry."""
+        eps = self._entry_points()
+        if name in self._tried or name not in eps or name in self._items:
+            return
+        with self._lock:
+            if name in self._tried:
+                return
+            self._tried.add(name)
+            ep = eps[name]
+            dist = _dist(ep)
+            try:
+                obj = ep.load()
+            except Exception as exc:  # noqa: BLE001 (any plug-in failure is reported, not raised)
+                self._failed[name] = f"{dist}: {type(exc).__name__}: {exc}"
+                warnings.warn(f"hilbench: {self.what} {name!r} from {dist} could not be loaded "
+                              f"({type(exc).__name__}: {exc}); skipped", PluginWarning, stacklevel=4)
+                return
+            # Whichever of two clashing entry points loads first, the one earlier in order keeps the claim.
+            rank = self._rank[name]
+            for owner, what, value in list(self._clashes(name, obj)):
+                if owner in self._items and self._rank.get(owner, len(self._rank)) > rank:
+                    why = f"its {what} {value!r} is taken by {self.what} {name!r} (from {dist})"
+                    self._skip(owner, self._origin[owner], why)
+                    self._drop(owner)
+            clash = next(self._clashes(name, obj), None)
+            if clash is not None:
+                self._skip(name, dist, self._why(*clash))
+                return
+            self._add(name, obj, dist)
+
+    def _skip(self, name: str, dist: str, why: str) -> None:
+        self._failed[name] = f"{dist}: clashes: {why}"
+        warnings.warn(f"hilbench: {self.what} {name!r} from {dist} skipped: {why}", PluginWarning, stacklevel=5)
+
     def _load(self) -> None:
+        """Load every entry point of the group."""
         if self._loaded:
             return
         with self._lock:
             if self._loaded:
                 return
-            eps = sorted(importlib.metadata.entry_points(group=self.group),
-                         key=lambda ep: (ep.dist is None or ep.dist.name != "hilbench", ep.name))
-            for ep in eps:
-                dist = ep.dist.name if ep.dist is not None else "?"
-                if ep.name in self._items:
-                    if self._origin.get(ep.name) != dist:
-                        why = f"{self._origin.get(ep.name)} registers it already"
-                        self._failed[f"{ep.name} ({dist})"] = f"{dist}: {why}"
-                        warnings.warn(f"hilbench: {self.what} {ep.name!r} from {dist} skipped: {why}", PluginWarning,
-                                      stacklevel=3)
-                    continue
-                try:
-                    obj = ep.load()
-                except Exception as exc:  # noqa: BLE001 (any plug-in failure is reported, not raised)
-                    self._failed[ep.name] = f"{dist}: {type(exc).__name__}: {exc}"
-                    warnings.warn(f"hilbench: {self.what} {ep.name!r} from {dist} could not be loaded "
-                                  f"({type(exc).__name__}: {exc}); skipped", PluginWarning, stacklevel=3)
-                    continue
-                clash = self._clash(ep.name, obj)
-                if clash is not None:
-                    self._failed[ep.name] = f"{dist}: clashes: {clash}"
-                    warnings.warn(f"hilbench: {self.what} {ep.name!r} from {dist} skipped: {clash}", PluginWarning,
-                                  stacklevel=3)
-                    continue
-                self._add(ep.name, obj, dist)
+            for name in self._entry_points():
+                self._load_one(name)
             self._loaded = True
 
     def reload(self) -> None:
@@ -161,6 +227,8 @@ class Kind:
             for name in [n for n, o in self._origin.items() if o != "<code>"]:
                 self._drop(name)
             self._failed.clear()
+            self._tried.clear()
+            self._eps = None
             self._loaded = False
 
     # ------------------------------------------------------------------ access
@@ -172,13 +240,13 @@ class Kind:
         registration holds (a model, a protocol, ...)."""
 
         def add(o: Any) -> Any:
-            self._load()
+            self._load()  # every claim known before this one is checked
             with self._lock:
                 if name in self._items and not replace:
                     raise ValueError(f"{self.what} {name!r} is registered already (by {self._origin[name]})")
-                clash = self._clash(name, o)
+                clash = next(self._clashes(name, o), None)
                 if clash is not None:
-                    raise ValueError(f"{self.what} {name!r} clashes: {clash}")
+                    raise ValueError(f"{self.what} {name!r} clashes: {self._why(*clash)}")
                 self._drop(name)
                 self._add(name, o, "<code>")
             return o
@@ -191,37 +259,55 @@ class Kind:
             self._drop(name)
 
     def get(self, name: str) -> Any:
-        """The object registered as ``name``; raises :class:`~hilbench.errors.UsageError` naming the known ones."""
-        self._load()
+        """The object registered as ``name`` (its entry point alone is loaded); raises
+        :class:`~hilbench.errors.UsageError` naming the known ones."""
+        self._load_one(name)
         try:
             return self._items[name]
         except KeyError:
-            known = ", ".join(sorted(self._items)) or "none"
-            raise UsageError(f"unknown {self.what} {name!r} (known: {known})") from None
+            pass
+        if name in self._failed:
+            raise UsageError(f"{self.what} {name!r} could not be loaded ({self._failed[name]})") from None
+        known = ", ".join(sorted(self.names())) or "none"
+        raise UsageError(f"unknown {self.what} {name!r} (known: {known})") from None
 
     def __contains__(self, name: object) -> bool:
-        self._load()
-        return name in self._items
+        """Whether ``name`` is registered (read from the entry points' names: nothing is loaded)."""
+        return name in self._items or (name in self._entry_points() and name not in self._failed)
 
     def names(self) -> list[str]:
-        self._load()
-        return list(self._items)
+        """The registered names, from the entry points' names (nothing is loaded; one that fails to load
+        later is skipped then)."""
+        eps = self._entry_points()
+        with self._lock:
+            return [*(n for n in eps if n not in self._failed), *(n for n in self._items if n not in eps)]
+
+    def _ordered(self) -> list[str]:
+        """The registered names in order: the entry points' (hilbench's own, then by name), then code's."""
+        eps = self._entry_points()
+        return [*(n for n in eps if n in self._items), *(n for n in self._items if n not in eps)]
 
     def items(self) -> list[tuple[str, Any]]:
+        """``(name, object)`` of every registration, in order (every entry point is loaded)."""
         self._load()
-        return list(self._items.items())
+        with self._lock:
+            return [(n, self._items[n]) for n in self._ordered()]
 
     def values(self) -> list[Any]:
-        self._load()
-        return list(self._items.values())
+        """Every registered object, in order (every entry point is loaded)."""
+        return [obj for _, obj in self.items()]
 
     def __iter__(self) -> Iterator[str]:
         return iter(self.names())
 
     def origin(self, name: str) -> str:
         """The distribution that registered ``name`` (``<code>`` for in-code registrations)."""
-        self._load()
-        return self._origin[name]
+        if name in self._origin:
+            return self._origin[name]
+        eps = self._entry_points()
+        if name in eps:
+            return _dist(eps[name])
+        raise KeyError(name)
 
     def failures(self) -> dict[str, str]:
         """Entry points that could not be loaded: name -> ``"package: error"``."""
@@ -263,8 +349,9 @@ def _client_claims(client: Any) -> Iterator[Claim]:
 
 
 def _verb_claims(module: Any) -> Iterator[Claim]:
+    # A module is registered once per verb it adds (and once per extension): it shares its verbs with itself.
     for verb in getattr(module, "VERBS", {}):
-        yield ("verb", verb)
+        yield ("verb", verb, getattr(module, "__name__", repr(module)))
 
 
 #: Device families (:class:`~hilbench.bench.family.DeviceFamily`), by name; chosen per device model.
@@ -300,7 +387,9 @@ KINDS: tuple[Kind, ...] = (families, bus_kinds, host_ports, media, sources, inst
 
 def reload() -> None:
     """Re-read every entry-point group (after a plug-in package was installed in this process)."""
+    global _ENTRY_POINTS
     importlib.invalidate_caches()
+    _ENTRY_POINTS = None
     for kind in KINDS:
         kind.reload()
 

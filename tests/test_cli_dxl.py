@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from hilbench.cli import main
-from hilbench.cli.dxl import ScanCounter, found_line
+from hilbench.cli.dynamixel import ScanCounter, found_line
 
 PROFILE = str(Path(__file__).resolve().parent / "data" / "protocol1_bus.toml")
 pytestmark = pytest.mark.hilbench_profile(PROFILE)

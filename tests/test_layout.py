@@ -275,11 +275,11 @@ def test_no_upward_imports():
 OWNED: dict[str, tuple[str, ...]] = {
     "dynamixel": ("protocols/dynamixel*.py", "fakes/dynamixel/*", "families/dynamixel.py", "families/dynamixel_*.py",
                   "monitor/dynamixel/*", "monitor/dynamixel1/*", "dashboard/dynamixel_views.py", "clients/dynamixel.py",
-                  "cli/dxl.py", "labgrid/dynamixel.py"),
+                  "cli/dynamixel.py", "labgrid/dynamixel.py"),
     "feetech": ("protocols/feetech*.py", "fakes/feetech/*", "families/feetech.py", "families/feetech_*.py",
                 "monitor/feetech/*"),
     "stm32-rover": ("protocols/vel2d*.py", "protocols/tracestamp*.py", "fakes/stm32_board/*",
-                    "families/stm32_rover*.py"),
+                    "families/stm32_rover*.py", "cli/stm32_rover.py"),
     "rplidar": ("protocols/rplidar*.py", "fakes/scanners/rplidar.py", "families/rplidar*.py",
                 "monitor/scanners/rplidar*.py", "clients/rplidar.py"),
     "sick-lms200": ("protocols/sick_lms200*.py", "fakes/scanners/sick_lms200.py", "families/sick_lms200*.py",
@@ -301,9 +301,6 @@ GENERIC_WORDS = {"can"}
 #: (P5, P8a-d, P11 in PLAN24 §10) empty it. An import of a family's protocol codec is not counted:
 #: codecs are libraries anyone may use (DESIGN.md §3); a string naming it (its protocol) is.
 NAMES_A_FAMILY: dict[str, set[str]] = {
-    # P8c: the rover board's verbs become the family's own module cli/stm32_rover.py
-    "cli/board.py": {"import hilbench.families.stm32_rover"},
-    "cli/rover.py": {"import hilbench.families.stm32_rover"},
     # P8c: the CANopen board's subcommands become the verb extension cli/canopen_board.py
     "cli/can.py": {"'canopen'", "import hilbench.clients.can_rover", "import hilbench.families.canopen_board"},
     # P8c: --view choices from the servo bus's instrument
@@ -315,8 +312,8 @@ NAMES_A_FAMILY: dict[str, set[str]] = {
     "clients/servo_links.py": {"'dynamixel'", "'dynamixel1'", "'feetech'", "import hilbench.clients.dynamixel"},
     # family -> family: the Protocol 1.0 bus core and tracker into a servo-bus kit (PLAN24 §1, "should")
     "fakes/feetech/bus.py": {"import hilbench.fakes.dynamixel.bus1"},
-    "monitor/feetech/__init__.py": {"import hilbench.monitor.dynamixel.devices", "import hilbench.monitor.dynamixel1",
-                                    "import hilbench.monitor.dynamixel1.tracker"},
+    "monitor/feetech/__init__.py": {"import hilbench.monitor.dynamixel1"},
+    "monitor/feetech/dialect.py": {"import hilbench.monitor.dynamixel.devices", "import hilbench.monitor.dynamixel1.tracker"},
     # family -> family: the shared RTPS part into a kit (families/rtps_kit.py, PLAN24 §1, "should")
     "families/micro_ros_agent.py": {"import hilbench.families.freertps"},
     "fakes/xrce_agent/bridge.py": {"import hilbench.fakes.rtps_node.participant"},

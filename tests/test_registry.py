@@ -12,6 +12,7 @@ from pathlib import Path
 import pytest
 
 from hilbench import registry
+from hilbench.errors import UsageError
 
 ROOT = Path(__file__).resolve().parents[1]
 #: The generic modules: none of them may name a device family or its protocol.
@@ -68,14 +69,40 @@ def test_a_broken_plugin_is_skipped_with_one_warning(tmp_path, monkeypatch):
     monkeypatch.syspath_prepend(str(tmp_path))
     registry.reload()
     try:
+        assert "acme" in registry.families.names()  # names are read without loading anything
         with pytest.warns(registry.PluginWarning, match="acme.*broken-lab-plugin.*skipped"):
-            names = registry.families.names()
+            names = [name for name, _ in registry.families.items()]
         assert "acme" not in names and "dynamixel" in names
+        assert "acme" not in registry.families.names() and "acme" not in registry.families  # known to fail now
         assert "ModuleNotFoundError" in registry.families.failures()["acme"]
+        with pytest.raises(UsageError, match="device family 'acme' could not be loaded .*ModuleNotFoundError"):
+            registry.families.get("acme")
     finally:
         monkeypatch.undo()
         registry.reload()
     assert registry.families.failures() == {}
+
+
+LAZY = """
+import sys
+from hilbench import registry
+before = set(sys.modules)
+names = registry.instruments.names()
+assert "dynamixel" in registry.instruments and "can" in names, names
+assert not {m for m in set(sys.modules) - before if m.startswith("hilbench.monitor")}, "names() loaded a plug-in"
+registry.instruments.get("dynamixel")
+loaded = {m for m in set(sys.modules) - before if m.startswith("hilbench.monitor")}
+assert "hilbench.monitor.dynamixel" in loaded, loaded
+assert not {m for m in loaded if m.startswith(("hilbench.monitor.can", "hilbench.monitor.udp"))}, loaded
+order = [name for name, _ in registry.instruments.items()]
+assert order == sorted(order) and order[0] != "dynamixel", order  # by name, not in the order they loaded
+print("ok")
+"""
+
+
+def test_names_load_nothing_and_get_loads_the_one_asked_for():
+    proc = subprocess.run([sys.executable, "-c", LAZY], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0 and proc.stdout == "ok\n", proc.stderr
 
 
 def test_plugins_verb_lists_every_kind():
@@ -92,7 +119,10 @@ def test_each_verb_module_names_the_verbs_it_registers():
     import argparse
 
     declared = {name: module for name, module in registry.verbs.items() if hasattr(module, "VERBS")}
-    assert {"emulate", "monitor", "dxl", "rover"} <= set(declared)
+    assert {"emulate", "monitor", "dxl", "send-vel", "teleop"} <= set(declared)
+    for name, module in declared.items():  # one entry point per verb, each naming the module that adds it
+        assert name in module.VERBS or "." in name, name
+        assert set(module.VERBS) <= set(declared), name
     for name, module in declared.items():
         sub = argparse.ArgumentParser().add_subparsers()
         module.register(sub)
@@ -118,16 +148,30 @@ def test_a_command_registers_only_its_own_verbs_and_help_lists_them_all_from_the
     # `hilbench dxl ...` does not load the monitor's sources and instruments (dpkt among them) for help texts,
     # and neither does the list of verbs
     assert loaded("dxl", "ping", "/dev/null") == "['dxl'] False"
-    assert loaded("send-vel", "--help") == "['send-vel', 'teleop'] False"
-    assert loaded("monitor", "x.hbcap").endswith("True")
+    assert loaded("send-vel", "--help") == "['board', 'send-vel', 'teleop'] False"  # the rover family's verbs
+    assert loaded("monitor", "x.hbcap") == "['monitor', 'record', 'tap'] False"  # dpkt: once a pcap is read
     full = loaded("--help")
     assert "'emulate'" in full and "'monitor'" in full and "'teleop'" in full and full.endswith("False")
     assert loaded("emulat") == full  # a typo: every verb, for argparse's list of choices
 
 
-def test_an_unknown_name_is_a_usage_error_naming_the_known_ones():
-    from hilbench.errors import UsageError
+def test_an_extension_adds_sub_commands_to_its_verb_only():
+    from hilbench.cli import build_parser
 
+    ext = type(sys)("acme_can_extension")
+    ext.extend = lambda subs: subs.add_parser("acme", help="an extension's sub-command").set_defaults(acme=True)
+    registry.verbs.register("can.acme", ext)  # as an entry point named can.acme would
+    try:
+        args = build_parser(["can", "acme"]).parse_args(["can", "acme"])
+        assert args.acme is True
+        with pytest.raises(SystemExit):  # another verb does not get it
+            build_parser(["dxl", "acme"]).parse_args(["dxl", "acme"])
+        assert "can.acme" not in build_parser(["--help"])._subparsers._group_actions[0].choices  # not a verb
+    finally:
+        registry.verbs.unregister("can.acme")
+
+
+def test_an_unknown_name_is_a_usage_error_naming_the_known_ones():
     with pytest.raises(UsageError, match=r"unknown endpoint type 'serial9' \(known: .*pty"):
         registry.host_ports.get("serial9")
     with pytest.raises(UsageError, match=r"unknown bus kind 'canbus' \(known: can, "):
@@ -167,8 +211,8 @@ def test_a_clashing_plugin_is_skipped_with_a_warning_naming_both_packages(tmp_pa
     registry.reload()
     try:
         with pytest.warns(registry.PluginWarning) as caught:
-            families = registry.families.names()
-            kinds = registry.bus_kinds.names()
+            families = [name for name, _ in registry.families.items()]
+            kinds = [name for name, _ in registry.bus_kinds.items()]
         messages = [str(w.message) for w in caught]
         assert ("hilbench: device family 'acme' from acme-lab-plugin skipped: its model 'MX-64' is taken by device "
                 "family 'dynamixel' (from hilbench)") in messages

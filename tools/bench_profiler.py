@@ -26,7 +26,7 @@ import time
 
 import numpy as np
 
-from hilbench.profiler import Profiler
+from hilbench.profiler.ingest import Profiler
 from hilbench.protocols import tracestamp as ts
 from hilbench.protocols import tracestamp_binary as tb
 from hilbench.protocols.tracestamp import RuntimeReport, RuntimeRow, TaskRow

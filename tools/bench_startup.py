@@ -9,6 +9,10 @@ run, so the ratio survives a loaded machine. Cases: ``help`` (``hilbench --help`
 ``profiles``, ``plugins``, the ``--help`` of ``emulate``, ``record``, the trace profiler's verb, ``lidar``,
 ``can``, ``dxl`` and ``demo``, and ``emulate_arm``.
 
+Each figure (but ``emulate_arm``'s) also gives ``cpu``, the least CPU time (user + system) of the runs, and
+``reference_cpu``, the same of ``python -c pass``: on a machine other sessions load, the wall time is mostly
+waiting for a core, the CPU time is what the command costs.
+
 Each figure also says what the verb imported (``python -X importtime``): ``modules`` (all), ``hilbench``
 (hilbench's), ``heavy`` (the large third-party packages among them) and ``unexpected``: heavy packages
 and hilbench modules of the instruments, fakes, families, dashboard, bench and clients that the case does
@@ -27,6 +31,7 @@ import fnmatch
 import importlib.metadata
 import json
 import re
+import resource
 import signal
 import subprocess
 import sys
@@ -87,6 +92,14 @@ def cases(capture: Path) -> list[Case]:
               "hilbench.fakes.control_table_servo", "hilbench.fakes.table_servo", "hilbench.fakes.servo_line"),
              first_line=True),
     ]
+
+
+def cpu_once(argv: list[str]) -> float:
+    """CPU time (user + system) of one run to its end: what the run costs whatever else the machine runs."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    subprocess.run(argv, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=REPO, check=False, timeout=120)
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
 
 
 def run_once(argv: list[str], first_line: bool, stderr: int | None = subprocess.DEVNULL) -> float:
@@ -220,10 +233,15 @@ def main() -> None:
                 ap.error(f"--only: no case {', '.join(bad)} (known: {', '.join(known)})")
             todo = [c for c in todo if c.name in wanted]
         reference = least([PY, "-c", "pass"], args.runs)
+        reference_cpu = min(cpu_once([PY, "-c", "pass"]) for _ in range(args.runs))
         for case in todo:
-            took = least([PY, "-m", "hilbench.cli", *case.args], args.runs, case.first_line)
+            argv = [PY, "-m", "hilbench.cli", *case.args]
+            took = least(argv, args.runs, case.first_line)
+            # (a bench runs until stopped: its CPU time to the first line is not the process's)
+            cpu = None if case.first_line else min(cpu_once(argv) for _ in range(args.runs))
             modules = imported(case)
             benchlib.emit(f"startup_{case.name}", took, "s", reference, took / reference, ratio_digits=1,
+                          cpu=round(cpu, 3) if cpu is not None else None, reference_cpu=round(reference_cpu, 3),
                           modules=len(modules), hilbench=sum(m.startswith("hilbench") for m in modules),
                           heavy=sorted({h for m in modules if (h := heavy(m))}),
                           unexpected=sorted(unexpected(case, modules)))

@@ -50,9 +50,9 @@ from typing import Any, TypeVar
 from hilbench import registry
 from hilbench.bench.checks import Checker, ProfileError
 from hilbench.bench.family import DeviceFamily, DeviceSpec
+from hilbench.profiles import DEFAULT_PROFILE
 
 SCHEMA = 1
-DEFAULT_PROFILE = "wolfgang"
 #: Keys of ``[endpoints.NAME]`` the core reads itself.
 CORE_ENDPOINT_KEYS = ("type", "protocol", "baud", "paced")
 #: Top-level keys the core reads itself.

@@ -1,10 +1,9 @@
-"""``hilbench demo`` and ``hilbench profiles``: the main job, and what profiles come bundled."""
+"""``hilbench demo``: the main job (a servo bench driven by its own SDK, watched live)."""
 
 from __future__ import annotations
 
 import argparse
 
-from hilbench.bench.profile import DEFAULT_PROFILE, bundled_profiles, load_profile
 from hilbench.cli.common import add_set_option
 from hilbench.errors import DeviceError
 from hilbench.rules import SECONDS
@@ -45,6 +44,7 @@ def demo_report(result) -> list[str]:
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
+    from hilbench.bench.profile import load_profile
     from hilbench.clients.dynamixel_demo import run_demo
 
     result = run_demo(load_profile(args.profile, args.overrides), args.seconds, paced=not args.unpaced,
@@ -59,23 +59,15 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return 0
 
 
-def cmd_profiles(args: argparse.Namespace) -> int:
-    for name, path in sorted(bundled_profiles().items()):
-        prof = load_profile(path)
-        marker = " (default)" if name == DEFAULT_PROFILE else ""
-        print(f"{name}{marker}: {prof.description}  [{path}]")
-    return 0
-
-
 ORDER = 70
 VERBS = {  # each verb register() adds and its line in `hilbench --help` (see hilbench.cli)
     "demo": "run a servo bench, drive it with its own SDK, watch it live",
-    "profiles": "list the bundled profiles; from-capture: a profile from a capture of a real bus",
 }
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     from hilbench.dashboard.dynamixel_views import VIEWS
+    from hilbench.profiles import DEFAULT_PROFILE
 
     dm = sub.add_parser("demo", help=VERBS["demo"],
                         description="Start a bench, run a control loop against its servo bus with that bus's own "
@@ -88,10 +80,3 @@ def register(sub: argparse._SubParsersAction) -> None:
     dm.add_argument("--unpaced", action="store_true", help="deliver bytes at once instead of at wire speed")
     dm.add_argument("--view", choices=VIEWS, default="devices", help="dashboard view to start with (keys: 1-4)")
     dm.set_defaults(func=cmd_demo)
-
-    pr = sub.add_parser("profiles", help=VERBS["profiles"], description="List the bundled profiles, or write one "
-                                                                       "from a capture (from-capture).")
-    pr.set_defaults(func=cmd_profiles)
-    from hilbench.cli.capture_profile import add_commands
-
-    add_commands(pr)

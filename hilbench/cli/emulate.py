@@ -9,14 +9,13 @@ import sys
 from pathlib import Path
 
 from hilbench import registry
-from hilbench.bench.control import BENCH_COMMANDS
-from hilbench.bench.profile import DEFAULT_PROFILE, load_profile
 from hilbench.cli.common import add_set_option, warn_beyond_machine
 from hilbench.transports.host_port import DEFAULT_BIND, bind_address
 
 
 def cmd_emulate(args: argparse.Namespace) -> int:
-    from hilbench.bench import Bench
+    from hilbench.bench import Bench, load_profile
+    from hilbench.bench.control import BENCH_COMMANDS
     from hilbench.bench.line_server import serve_lines
 
     profile = load_profile(args.profile, args.overrides)
@@ -114,6 +113,8 @@ VERBS = {  # each verb register() adds and its line in `hilbench --help` (see hi
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    from hilbench.profiles import DEFAULT_PROFILE
+
     e = sub.add_parser("emulate", help=VERBS["emulate"],
                        description="Start the devices of a profile behind pseudo-terminals and run until Ctrl-C. "
                                    "Once every endpoint is ready, the manifest (JSON) is written.")

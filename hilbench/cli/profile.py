@@ -90,7 +90,7 @@ def _names(text: str) -> list[str]:
 
 
 def settings_from(args: argparse.Namespace):
-    from hilbench.profiler import ProfileSettings
+    from hilbench.profiler.settings import ProfileSettings
 
     denominator: str | float = "span"
     if args.denominator not in (None, "span"):
@@ -219,8 +219,8 @@ def _check_baseline_capture(args: argparse.Namespace) -> None:
 
 def cmd_profile(args: argparse.Namespace) -> int:
     from hilbench.console import Console
-    from hilbench.profiler import Profiler
     from hilbench.profiler.compare import compare, load_summary
+    from hilbench.profiler.ingest import Profiler
     from hilbench.profiler.report import compare_table, full_report
 
     _check_outputs(args)

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from hilbench.fuzzing import FuzzTarget
-from hilbench.profiler import Profiler
+from hilbench.profiler.ingest import Profiler
 from hilbench.protocols.tracestamp_targets import BOARD_LINE, stream_traffic
 
 

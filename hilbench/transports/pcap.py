@@ -22,8 +22,6 @@ import sys
 from collections.abc import Iterator
 from typing import Any, BinaryIO
 
-import dpkt
-
 from hilbench.transports.chunk import CaptureError, Chunk
 
 PCAP_MAGICS = {b"\xd4\xc3\xb2\xa1", b"\xa1\xb2\xc3\xd4", b"\x4d\x3c\xb2\xa1", b"\xa1\xb2\x3c\x4d"}
@@ -43,6 +41,8 @@ class PcapReader:
     """UDP datagrams of a pcap/pcapng file (path, ``-`` or binary file); see the module docstring."""
 
     def __init__(self, target: str | os.PathLike[str] | BinaryIO) -> None:
+        import dpkt  # (here, not at the top: the recorder plug-in is loaded for every monitor's --help)
+
         self.name = str(target) if isinstance(target, str | os.PathLike) else getattr(target, "name", "pcap")
         if isinstance(target, str | os.PathLike):
             self._f = sys.stdin.buffer if str(target) == "-" else open(target, "rb")  # noqa: SIM115
@@ -68,6 +68,8 @@ class PcapReader:
         self.fragments = 0
 
     def __iter__(self) -> Iterator[Chunk]:
+        import dpkt
+
         link = self.linktype
         try:
             for ts, buf in self._reader:
@@ -82,6 +84,8 @@ class PcapReader:
             return  # a capture cut short: what was read stands
 
     def _datagram(self, ts: float, buf: bytes, link: int) -> Chunk | None:
+        import dpkt
+
         try:
             if link == LINK_ETHERNET:
                 ip = dpkt.ethernet.Ethernet(buf).data
@@ -156,6 +160,8 @@ def _mac(host: str) -> bytes:
 
 def frame(data: bytes, addr: tuple[str, int, str, int]) -> bytes:
     """An Ethernet II frame carrying ``data`` as a UDP datagram between ``addr``'s endpoints."""
+    import dpkt
+
     src, sport, dst, dport = addr
     udp = dpkt.udp.UDP(sport=sport, dport=dport, data=data)
     udp.ulen = 8 + len(data)
@@ -205,6 +211,8 @@ class PcapWriter:
 
     def _writer(self) -> Any:
         """The dpkt writer (its file created, and its header written, on first use)."""
+        import dpkt
+
         if self._w is None:
             if self._f is None:
                 self._f = open(self._target, "wb")  # noqa: SIM115 (closed by close())

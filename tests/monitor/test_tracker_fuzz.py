@@ -9,7 +9,8 @@ import json
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hilbench.monitor.dynamixel import BusTracker, summary
+from hilbench.monitor.dynamixel.summary import summary
+from hilbench.monitor.dynamixel.tracker import BusTracker
 from hilbench.protocols import dynamixel as dxl
 from hilbench.protocols.dynamixel import Instruction as I  # noqa: N814
 

@@ -6,7 +6,8 @@ from types import SimpleNamespace
 
 import pytest
 
-from hilbench.profiler import Profiler, ProfileSettings
+from hilbench.profiler.ingest import Profiler
+from hilbench.profiler.settings import ProfileSettings
 from tests.stm32_vectors import LISTING_34, LISTING_35, LISTING_38, LISTING_39, REPORT_65, TRACE_64, lines
 
 # §6.4 settings: tasks {IDLE, wheel_ctrl, tsink}, function pid; wheel_ctrl T = 1000, merge_gap 500, D = 25.

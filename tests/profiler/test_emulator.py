@@ -13,7 +13,8 @@ import serial
 
 from hilbench.fakes.stm32_board.board import Board
 from hilbench.fakes.stm32_board.presets import BoardConfig, make_preset
-from hilbench.profiler import Profiler, ProfileSettings
+from hilbench.profiler.ingest import Profiler
+from hilbench.profiler.settings import ProfileSettings
 from hilbench.protocols import vel2d
 from hilbench.pytest_plugin import wait_until
 

@@ -9,8 +9,9 @@ import json
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hilbench.profiler import Profiler, ProfileSettings
 from hilbench.profiler.export_perfetto import trace_events
+from hilbench.profiler.ingest import Profiler
+from hilbench.profiler.settings import ProfileSettings
 from hilbench.protocols import tracestamp_binary as tsb
 
 WRAP = 19_884_107  # µs: the board's 32-bit cycle counter at 216 MHz

@@ -13,11 +13,12 @@ import pytest
 from rich.console import Console
 
 from hilbench.errors import MissingExtra
-from hilbench.profiler import Profiler, ProfileSettings
 from hilbench.profiler.compare import compare
 from hilbench.profiler.export_perfetto import trace_document
 from hilbench.profiler.gantt import render_gantt, text_gantt
+from hilbench.profiler.ingest import Profiler
 from hilbench.profiler.live import LiveView
+from hilbench.profiler.settings import ProfileSettings
 
 PH = {"X", "B", "E", "i", "I", "C", "M", "b", "e", "n", "s", "t", "f", "P", "O", "N", "D"}
 

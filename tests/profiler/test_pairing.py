@@ -7,8 +7,8 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hilbench.profiler import ProfileSettings
 from hilbench.profiler.pairing import pair, pair_reference
+from hilbench.profiler.settings import ProfileSettings
 from hilbench.profiler.stats import net_durations
 
 
@@ -138,7 +138,7 @@ def test_net_time_without_task_stamps_subtracts_children(spec):
 
 def test_net_time_on_a_trace_longer_than_2_pow_31_us():
     """An hour-long run: the owner's running time must not wrap in 32-bit arithmetic (it used to raise)."""
-    from hilbench.profiler import Profiler
+    from hilbench.profiler.ingest import Profiler
 
     lines = []
     for k in range(3):

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import pytest
 
-from hilbench.profiler import ProfileSettings
 from hilbench.profiler.histogram import px4_histogram, px4_lines
+from hilbench.profiler.settings import ProfileSettings
 
 
 def test_px4_histogram_vector_63():

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hilbench.profiler import ProfileSettings
+from hilbench.profiler.settings import ProfileSettings
 from hilbench.profiler.timeline import WRAP_US
 from hilbench.protocols import tracestamp as ts
 from hilbench.protocols import tracestamp_binary as tb

@@ -10,13 +10,14 @@
 from __future__ import annotations
 
 import argparse
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from hilbench.monitor.can.summary import summary
-from hilbench.monitor.can.tracker import CanTracker
 from hilbench.monitor.instrument import Instrument
 from hilbench.protocols import can_frame as cf
 from hilbench.rules import Rule
+
+if TYPE_CHECKING:  # the tracker is imported when one is made: the plug-in stays light
+    from hilbench.monitor.can.tracker import CanTracker
 
 #: ``--miss-factor``: a heartbeat gap longer than this many periods is a miss.
 MISS_FACTOR = Rule(float, 1, 1000, above=True)
@@ -55,15 +56,21 @@ class CanInstrument(Instrument):
                        help="a heartbeat gap longer than this many periods is a miss (default 1.5)")
 
     def tracker_options(self, args: argparse.Namespace) -> dict[str, Any]:
-        from hilbench.monitor.can.decoders import load_dbc, load_eds
+        decoders = []
+        if args.dbc or args.eds:  # (cantools and canopen only for a monitor that was given a file to load)
+            from hilbench.monitor.can.decoders import load_dbc, load_eds
 
-        decoders = [load_dbc(spec) for spec in args.dbc] + [load_eds(spec) for spec in args.eds]
+            decoders = [load_dbc(spec) for spec in args.dbc] + [load_eds(spec) for spec in args.eds]
         return {"decoders": decoders, "canopen": not args.no_canopen, "miss_factor": args.miss_factor}
 
     def make_tracker(self, *, baud: int | None, timestamps: bool, **options: Any) -> CanTracker:
+        from hilbench.monitor.can.tracker import CanTracker
+
         return CanTracker(baud=baud, timestamps=timestamps, **options)
 
     def summary(self, tracker: CanTracker, *, source: str, timestamps: str | None, errors: int = 50) -> dict:
+        from hilbench.monitor.can.summary import summary
+
         return summary(tracker, source=source, timestamps=timestamps, errors=errors)
 
     def print_summary(self, report: dict[str, Any], console: Any) -> None:
@@ -75,4 +82,4 @@ class CanInstrument(Instrument):
 #: The plug-in (entry point ``can`` of ``hilbench.instruments``).
 INSTRUMENT = CanInstrument()
 
-__all__ = ["INSTRUMENT", "CanInstrument", "CanTracker", "summary"]
+__all__ = ["INSTRUMENT", "CanInstrument"]

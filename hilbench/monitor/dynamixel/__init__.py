@@ -11,13 +11,13 @@
 from __future__ import annotations
 
 import argparse
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from hilbench.monitor.dynamixel.devices import DeviceState
-from hilbench.monitor.dynamixel.summary import summary
-from hilbench.monitor.dynamixel.tracker import BusTracker
 from hilbench.monitor.instrument import Instrument
 from hilbench.rules import SECONDS, Rule
+
+if TYPE_CHECKING:  # the tracker (numpy) is imported when one is made: the plug-in stays light
+    from hilbench.monitor.dynamixel.tracker import BusTracker
 
 #: ``--miss-limit``: consecutive missed replies before a device counts as disconnected.
 MISS_LIMIT = Rule(int, 0, 1_000_000)
@@ -56,9 +56,13 @@ class DynamixelInstrument(Instrument):
         return {"silence": args.silence, "max_length": args.max_length, "miss_limit": args.miss_limit}
 
     def make_tracker(self, *, baud: int | None, timestamps: bool, **options: Any) -> BusTracker:
+        from hilbench.monitor.dynamixel.tracker import BusTracker
+
         return BusTracker(baud=baud, timestamps=timestamps, **options)
 
     def summary(self, tracker: BusTracker, *, source: str, timestamps: str | None, errors: int = 50) -> dict:
+        from hilbench.monitor.dynamixel.summary import summary
+
         return summary(tracker, source=source, protocol=self.protocol, timestamps=timestamps, errors=errors)
 
     def print_summary(self, report: dict[str, Any], console: Any) -> None:
@@ -70,4 +74,4 @@ class DynamixelInstrument(Instrument):
 #: The plug-in (entry point ``dynamixel`` of ``hilbench.instruments``).
 INSTRUMENT = DynamixelInstrument()
 
-__all__ = ["INSTRUMENT", "BusTracker", "DeviceState", "DynamixelInstrument", "summary"]
+__all__ = ["INSTRUMENT", "DynamixelInstrument"]

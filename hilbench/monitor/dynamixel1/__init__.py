@@ -2,7 +2,7 @@
 
 :data:`INSTRUMENT` is the ``hilbench.instruments`` plug-in ``dynamixel1``: a
 :class:`~hilbench.monitor.dynamixel1.tracker.Bus1Tracker` with the Protocol 1.0
-:data:`DIALECT`, the Dynamixel monitor's summary and dashboard views. A bench's
+:data:`~hilbench.monitor.dynamixel1.dialect.DIALECT`, the Dynamixel monitor's summary and dashboard views. A bench's
 Protocol 1.0 endpoint names its traffic ``dynamixel1``; a raw dump is told from
 Protocol 2.0 (whose header is ``FF FF FD 00``) and from Feetech (whose traffic
 reads other addresses and uses SYNC_READ 0x82) by its first bytes.
@@ -11,15 +11,15 @@ reads other addresses and uses SYNC_READ 0x82) by its first bytes.
 from __future__ import annotations
 
 import argparse
-from typing import Any, ClassVar
+import importlib
+from typing import TYPE_CHECKING, Any, ClassVar
 
 from hilbench.errors import UsageError
-from hilbench.monitor.dynamixel.devices import DeviceState
-from hilbench.monitor.dynamixel1.tracker import Bus1Tracker, Dialect
 from hilbench.monitor.instrument import Instrument
 from hilbench.protocols import dynamixel_protocol1 as p1
-from hilbench.protocols.dynamixel_classic_models import MX28_1
-from hilbench.protocols.dynamixel_models import MODEL_NAMES, MODELS_BY_NUMBER
+
+if TYPE_CHECKING:
+    from hilbench.monitor.dynamixel1.tracker import Bus1Tracker, Dialect
 
 
 def describe_error(err: int) -> str:
@@ -28,25 +28,6 @@ def describe_error(err: int) -> str:
         return "ok"
     return ", ".join(name for bit, name in p1.ERROR_BITS.items() if err & bit) or f"0x{err:02x}"
 
-
-class Device1(DeviceState):
-    """A device of a Protocol 1.0 bus (its control table read with the 1.0 layouts)."""
-
-    __slots__ = ()
-    models_by_number: ClassVar = MODELS_BY_NUMBER
-    model_names: ClassVar = MODEL_NAMES
-    fallback_layout: ClassVar = MX28_1
-
-
-#: What Protocol 1.0-framed bytes mean on a Dynamixel bus (:class:`Dialect`).
-DIALECT = Dialect(
-    protocol="dynamixel1",
-    instruction_names=dict(p1.INSTRUCTION_NAMES),
-    describe_error=describe_error,
-    device_class=Device1,
-    usb2ax_sync_read=p1.Instruction1.SYNC_READ,
-    bulk_read=p1.Instruction1.BULK_READ,
-)
 
 #: Addresses Protocol 1.0 clients read and write (model, limits, goal/present position, torque, LED).
 _TYPICAL = {(0x02, 0), (0x02, 36), (0x02, 6), (0x02, 5), (0x02, 43), (0x02, 42), (0x83, 30), (0x83, 24), (0x83, 26),
@@ -76,14 +57,24 @@ def _int(text: str) -> int:
 class Protocol1Instrument(Instrument):
     """A Protocol 1.0-framed servo bus monitor; subclasses give the dialect."""
 
-    dialect: ClassVar[Dialect] = DIALECT
+    #: ``"module:ATTRIBUTE"`` of its :class:`~hilbench.monitor.dynamixel1.tracker.Dialect`, imported when first
+    #: used (a tracker, a summary line): the plug-in itself imports no tracker and no device table.
+    dialect_path: ClassVar[str] = "hilbench.monitor.dynamixel1.dialect:DIALECT"
     views_path = "hilbench.dashboard.dynamixel_views:VIEW_SET"
     _typical: ClassVar[set[tuple[int, int]]] = _TYPICAL
     _own: ClassVar[set[int]] = {0x84, 0x92}
+    #: Whether a USB2AX may sit on the bus (it answers SYNC_READ from ID 0xFD), as the dialect says.
+    _usb2ax: ClassVar[bool] = True
+
+    @property
+    def dialect(self) -> Dialect:
+        """What Protocol 1.0-framed bytes mean on this bus (imported on first use)."""
+        module, _, attr = self.dialect_path.partition(":")
+        return getattr(importlib.import_module(module), attr)
 
     def sniff(self, data: bytes) -> float:
         score = sniff_protocol1(data, self._typical, self._own)
-        if score and self.dialect.usb2ax_sync_read and b"\xff\xff\xfd" in data and b"\xff\xff\xfd\x00" not in data:
+        if score and self._usb2ax and b"\xff\xff\xfd" in data and b"\xff\xff\xfd\x00" not in data:
             score = min(1.0, score + 0.1)  # the USB2AX answers from ID 0xFD
         return score
 
@@ -99,6 +90,8 @@ class Protocol1Instrument(Instrument):
         return {"silence": silence, "miss_limit": miss_limit}
 
     def make_tracker(self, *, baud: int | None, timestamps: bool, **options: Any) -> Bus1Tracker:
+        from hilbench.monitor.dynamixel1.tracker import Bus1Tracker
+
         options.pop("max_length", None)
         return Bus1Tracker(self.dialect, baud=baud, timestamps=timestamps, **options)
 
@@ -124,5 +117,4 @@ class Dynamixel1Instrument(Protocol1Instrument):
 #: The plug-in (entry point ``dynamixel1`` of ``hilbench.instruments``).
 INSTRUMENT = Dynamixel1Instrument()
 
-__all__ = ["DIALECT", "INSTRUMENT", "Bus1Tracker", "Device1", "Dynamixel1Instrument", "Protocol1Instrument",
-           "describe_error", "sniff_protocol1"]
+__all__ = ["INSTRUMENT", "Dynamixel1Instrument", "Protocol1Instrument", "describe_error", "sniff_protocol1"]

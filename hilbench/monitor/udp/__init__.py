@@ -11,11 +11,13 @@
 from __future__ import annotations
 
 import argparse
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from hilbench.monitor.instrument import Instrument
-from hilbench.monitor.udp.tracker import UdpTracker
 from hilbench.rules import PORT
+
+if TYPE_CHECKING:  # the tracker is imported when one is made: the plug-in stays light
+    from hilbench.monitor.udp.tracker import UdpTracker
 
 
 class UdpInstrument(Instrument):
@@ -48,6 +50,8 @@ class UdpInstrument(Instrument):
         return {"agent_ports": tuple(ports)}
 
     def make_tracker(self, *, baud: int | None, timestamps: bool, **options: Any) -> UdpTracker:
+        from hilbench.monitor.udp.tracker import UdpTracker
+
         return UdpTracker(baud=baud, timestamps=timestamps, **options)
 
     def summary(self, tracker: UdpTracker, *, source: str, timestamps: str | None, errors: int = 50) -> dict:
@@ -64,4 +68,4 @@ class UdpInstrument(Instrument):
 #: The plug-in (entry point ``udp`` of ``hilbench.instruments``).
 INSTRUMENT = UdpInstrument()
 
-__all__ = ["INSTRUMENT", "UdpInstrument", "UdpTracker"]
+__all__ = ["INSTRUMENT", "UdpInstrument"]

@@ -1,4 +1,7 @@
-"""``hilbench dxl``: Dynamixel tools for any port, real or emulated, through the official SDK."""
+"""``hilbench dxl``: Dynamixel tools for any port, real or emulated, through the official SDK.
+
+The Dynamixel family's own verb module (entry point ``dxl``).
+"""
 
 from __future__ import annotations
 
@@ -8,11 +11,17 @@ import sys
 import time
 
 from hilbench.cli.common import int_arg
-from hilbench.protocols.dynamixel_models import SDK_BAUDS
 from hilbench.rules import Rule
 
-#: ``--baud``: a rate the official SDK opens (what a real or emulated port can be driven at).
-SDK_BAUD = Rule(int, choices=SDK_BAUDS, what="a baud rate the Dynamixel SDK can open")
+
+def sdk_baud() -> Rule:
+    """``--baud``: a rate the official SDK opens (what a real or emulated port can be driven at)."""
+    # (the model tables import construct: once dxl is registered, not for every verb's --help)
+    from hilbench.protocols.dynamixel_models import SDK_BAUDS
+
+    return Rule(int, choices=SDK_BAUDS, what="a baud rate the Dynamixel SDK can open")
+
+
 #: LENGTH of a read or write by address, in bytes.
 DATA_LENGTH = Rule(int, 1, 1024)
 
@@ -135,11 +144,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     d = sub.add_parser("dxl", help=VERBS["dxl"],
                        description="Talk to Dynamixel devices on a serial port through the official dynamixel-sdk.")
     dsub = d.add_subparsers(dest="dxl_verb", required=True, metavar="TOOL")
+    sdk_rate = sdk_baud()
 
     def port_args(q: argparse.ArgumentParser, baud: bool = True) -> None:
         q.add_argument("port", help="serial port, e.g. /dev/ttyUSB0, an emulated pty or a remote rfc2217://HOST:PORT")
         if baud:
-            q.add_argument("--baud", type=SDK_BAUD, default=57_600, help="baud rate (default: 57600)")
+            q.add_argument("--baud", type=sdk_rate, default=57_600, help="baud rate (default: 57600)")
         q.add_argument("--protocol", choices=("1", "2"), default="2",
                        help="protocol version: 2, or 1 for AX/MX servos with 1.0 firmware (default: 2)")
 
@@ -148,7 +158,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                                     "about 9 s per rate; a terminal shows the progress) and list every device "
                                     "that answers.")
     port_args(s, baud=False)
-    s.add_argument("--baud", type=SDK_BAUD, action="append", help="baud rate to try (repeatable; default: all)")
+    s.add_argument("--baud", type=sdk_rate, action="append", help="baud rate to try (repeatable; default: all)")
     s.add_argument("--json", action="store_true", help="print JSON instead of a table")
     s.set_defaults(func=cmd_dxl_scan)
 
