@@ -3,7 +3,7 @@
 Feed a :class:`Profiler` the bytes a board sends (text stamps of either
 dialect, binary stamp words, logs and run-time statistics reports, mixed),
 then call :meth:`Profiler.analyse` for an :class:`Analysis`. Definitions
-follow the spec sheet ``stm32_board.md`` §5. See README.md, "Trace profiler".
+follow the spec sheet ``stm32_board.md`` §5. See docs/instruments/trace.md.
 """
 
 from hilbench.profiler.analysis import Analysis, analyse
