@@ -53,6 +53,19 @@ def test_the_readme_names_only_docs_files_that_exist():
     assert missing(paths) == []
 
 
+def test_readme_is_short_and_links_resolve():
+    """The README is the landing page (what hilbench is, the two commands, the tour, links): 400 lines at
+    most, and every relative link it makes (to a docs page, to the data's README) is a file that exists."""
+    text = (ROOT / "README.md").read_text()
+    assert len(text.splitlines()) <= 400
+    links = [t.split("#", 1)[0] for t in markdown_links(text) if not re.match(r"[a-z][a-z0-9+.-]*:", t)]
+    docs_links = [t for t in links if t.startswith("docs/")]
+    assert "docs/start/two-commands.md" in docs_links and "docs/extending/tutorial.md" in docs_links
+    assert sorted(t for t in links if t and not (ROOT / t).exists()) == []
+    # the two commands stay on the landing page
+    assert "make demo    #" in text and "make test    #" in text
+
+
 def test_the_code_names_only_docs_files_that_exist():
     paths: set[str] = set()
     for path in [*ROOT.glob("hilbench/**/*.py"), *ROOT.glob("profiles/**/*.toml"), *ROOT.glob("tools/*.py")]:

@@ -12,7 +12,7 @@
      process's CPU per cycle (the SDK busy-polls, so it is the cycle time
      less the time it was descheduled);
    - paced at 2 Mbaud and at 4.5 Mbaud (the profile's bus at 4_500_000; the SDK
-     opens it as users do, see the README): measured cycle time against the
+     opens it as users do, see docs/families/dynamixel.md): measured cycle time against the
      wire-time model of the cycle (target: within 10%, i.e. ratio 0.9..1.1).
    With ``--load N`` (default 1) every cycle figure is measured twice, on the
    machine as it is and with N CPU-bound neighbour processes running (figures

@@ -66,7 +66,7 @@ from hilbench.protocols.dynamixel_models import BAUD_CODES, find_model, model_na
 from hilbench.rules import Rule
 
 #: Protocol 2.0 baud codes. The official SDK's list (spec §7.1) lacks 4.5 Mbaud, which pyserial opens on
-#: Linux all the same (BOTHER): the README shows the one-method PortHandler subclass that lifts the list.
+#: Linux all the same (BOTHER): docs/families/dynamixel.md shows the one-method PortHandler subclass that lifts the list.
 DYNAMIXEL_BAUDS = tuple(sorted(set(BAUD_CODES.values())))
 #: Rates of the Protocol 1.0 baud codes hosts open (1 Mbaud is code 1, 57 600 code 34, ...).
 PROTOCOL1_BAUDS = tuple(sorted(set(P1_NOMINAL_BAUDS.values())))

@@ -5,7 +5,7 @@ dialect, binary stamp words, logs and run-time statistics reports, mixed),
 then call :meth:`~hilbench.profiler.ingest.Profiler.analyse` for an
 :class:`~hilbench.profiler.analysis.Analysis` (its settings:
 :class:`~hilbench.profiler.settings.ProfileSettings`). Definitions follow the
-spec sheet ``stm32_board.md`` §5. See README.md, "Trace profiler".
+spec sheet ``stm32_board.md`` §5. See docs/instruments/trace.md.
 
 The package imports none of its modules: its trace instrument plug-in
 (:mod:`hilbench.profiler.instrument`) is loaded by every ``hilbench monitor``

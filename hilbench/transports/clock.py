@@ -281,8 +281,8 @@ class CpuLatency:
     client woken by them. Written to ``/dev/cpu_dma_latency`` (what
     ``cyclictest`` does), 0 keeps idle CPUs polling instead of halting: on a
     2-core VM a timed wake-up then came 11 - 15 us late instead of 22 - 27 us
-    and a pty round trip took 20 us instead of 54 us (the README's benchmark
-    notes have what it did to the SDK's cycle). The cost: idle CPUs stay busy
+    and a pty round trip took 20 us instead of 54 us (the benchmark
+    notes, docs/benchmarks/index.md, have what it did to the SDK's cycle). The cost: idle CPUs stay busy
     (power and heat on a laptop) while the bench runs, which is why it ends
     with the last paced medium. Needs root or write access to the device;
     elsewhere nothing changes and :meth:`hold` says why.

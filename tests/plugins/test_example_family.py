@@ -9,6 +9,7 @@ blinker's line from a Dynamixel bus by its bytes) and the verb table.
 
 from __future__ import annotations
 
+import ast
 import json
 import os
 import subprocess
@@ -21,6 +22,10 @@ from hilbench import registry
 from hilbench.pytest_plugin import wait_until
 
 PACKAGE = Path(__file__).resolve().parents[1] / "example_family"
+ROOT = PACKAGE.parents[1]
+# What the example calls its parts: package, family, model, bus protocol, classes.
+EXAMPLE_WORDS = ("hilbench_example", "example_family", "acme-blinker", "blinker")
+EXAMPLE_NAMES = {"blink", "blinker", "acme-blinker", "hilbench_example"}
 
 
 @pytest.fixture(scope="module")
@@ -55,6 +60,65 @@ def hb(installed: Path, *args: str, timeout: float = 60) -> subprocess.Completed
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(installed), os.environ.get("PYTHONPATH", "")])}
     return subprocess.run([sys.executable, "-m", "hilbench.cli", *args], capture_output=True, text=True,
                           timeout=timeout, env=env)
+
+
+def _code_names(source: str) -> set[str]:
+    """Identifiers and string constants of a module, docstrings left out (an example in a docstring is prose)."""
+    tree = ast.parse(source)
+    docstrings = {id(node.body[0].value) for node in ast.walk(tree)
+                  if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef))
+                  and node.body and isinstance(node.body[0], ast.Expr)
+                  and isinstance(node.body[0].value, ast.Constant) and isinstance(node.body[0].value.value, str)}
+    names: set[str] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Constant) and isinstance(node.value, str) and id(node) not in docstrings:
+            names.add(node.value)
+        elif isinstance(node, ast.Name):
+            names.add(node.id)
+        elif isinstance(node, ast.Attribute):
+            names.add(node.attr)
+        elif isinstance(node, (ast.alias, ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+            names.add(node.name)
+    return names
+
+
+def test_the_example_needs_nothing_outside_its_package(installed):
+    """The example family is its own files and its entry points: hilbench names none of it (no table, branch or
+    import of the family, its bus protocol or its package), the installed package is its own directory and
+    nothing else, and its fuzz target joins the rough-input benchmark by its entry point alone (the other tests
+    here drive its bus kind, family, instrument, control command and verb the same way)."""
+    tracked = subprocess.run(["git", "ls-files", "hilbench"], cwd=ROOT, capture_output=True, text=True, check=True)
+    files = [ROOT / name for name in tracked.stdout.split()]
+    assert len(files) > 100
+    naming = []
+    for path in files:
+        try:
+            text = path.read_text()
+        except (UnicodeDecodeError, FileNotFoundError):
+            continue
+        if any(word in text.lower() for word in EXAMPLE_WORDS):
+            naming.append(str(path.relative_to(ROOT)))
+        elif path.suffix == ".py":
+            names = _code_names(text)
+            if names & EXAMPLE_NAMES or any("blink" in n.lower() for n in names if n.isidentifier()):
+                naming.append(str(path.relative_to(ROOT)))
+    assert naming == []
+    assert _code_names('"""protocol = \'blink\'"""\nX = "blink"\n') == {"X", "blink"}  # the check sees code only
+
+    assert sorted(p.name for p in installed.iterdir() if p.name != "__pycache__") == [
+        "hilbench_example", "hilbench_example_family-0.1.0.dist-info"]
+    entry_points = (installed / "hilbench_example_family-0.1.0.dist-info" / "entry_points.txt").read_text()
+    for group in ("bus_kinds", "families", "instruments", "fuzz_targets", "verbs"):
+        assert f"[hilbench.{group}]" in entry_points
+
+    env = {**os.environ, "PYTHONPATH": str(installed)}
+    rough = subprocess.run([sys.executable, str(ROOT / "tools" / "rough.py"), "--only", "blink", "--size", "20000",
+                            "--repeats", "1"], capture_output=True, text=True, timeout=120, env=env)
+    assert rough.returncode == 0, rough.stderr
+    rows = {row["name"]: row for row in map(json.loads, rough.stdout.splitlines())}
+    assert rows["blink_clean"]["good"] > 1000 and rows["blink_clean"]["dropped"] == 0
+    assert rows["blink_noise"]["good"] == 0 and rows["blink_noise"]["dropped"] > 0
+    assert rows["blink_mutated"]["ratio"] >= 10
 
 
 def test_without_the_package_hilbench_knows_no_blinker():
