@@ -462,26 +462,32 @@ class CanMedium(LoopMedium):
                 if waker.fd in ready:
                     waker.drain()
             for port, listen_only in hosts:
-                try:
-                    if ready and any(fd in ready for fd in port.filenos()):
-                        frames = port.read_frames(now)
-                    else:
-                        frames = []
-                    frames += port.poll(now)
-                except Exception:
-                    self.stats.callback_errors += 1
-                    log.exception("host port %s failed", getattr(port, "name", port))
-                    continue
-                if not listen_only:
-                    for src, frame in frames:
-                        self._submit(src, frame, now)
+                self._take(port, listen_only, now, bool(ready) and any(fd in ready for fd in port.filenos()), True)
             self._run_due()
-            for port, _ in hosts:
-                try:
-                    port.flush()
-                except Exception:
-                    self.stats.callback_errors += 1
-                    log.exception("host port %s failed to flush", getattr(port, "name", port))
+            self._flush_hosts(hosts)
+
+    def _take(self, port, listen_only: bool, now: float, read: bool, poll: bool) -> None:
+        """What a host port's doors received (``read``: its descriptors are ready) and what their timers made
+        (``poll``), onto the bus; a door that fails is counted and logged, and the bus goes on."""
+        try:
+            frames = port.read_frames(now) if read else []
+            if poll:
+                frames += port.poll(now)
+        except Exception:
+            self.stats.callback_errors += 1
+            log.exception("host port %s failed", getattr(port, "name", port))
+            return
+        if not listen_only:
+            for src, frame in frames:
+                self._submit(src, frame, now)
+
+    def _flush_hosts(self, hosts) -> None:
+        for port, _ in hosts:
+            try:
+                port.flush()
+            except Exception:
+                self.stats.callback_errors += 1
+                log.exception("host port %s failed to flush", getattr(port, "name", port))
 
     # ------------------------------------------------------------------ virtual time (a VirtualLoop runs it)
 
@@ -498,39 +504,17 @@ class CanMedium(LoopMedium):
     def vt_read(self, ready: list[int], now: float) -> bool:
         got = super().vt_read(ready, now)
         for port, listen_only in list(self._hosts):
-            if not any(fd in ready for fd in port.filenos()):
-                continue
-            got = True
-            try:
-                frames = port.read_frames(now)
-            except Exception:
-                self.stats.callback_errors += 1
-                log.exception("host port %s failed", getattr(port, "name", port))
-                continue
-            if not listen_only:
-                for src, frame in frames:
-                    self._submit(src, frame, now)
+            if any(fd in ready for fd in port.filenos()):
+                got = True
+                self._take(port, listen_only, now, True, False)
         return got
 
     def vt_poll(self, now: float) -> None:
         for port, listen_only in list(self._hosts):
-            try:
-                frames = port.poll(now)
-            except Exception:
-                self.stats.callback_errors += 1
-                log.exception("host port %s failed", getattr(port, "name", port))
-                continue
-            if not listen_only:
-                for src, frame in frames:
-                    self._submit(src, frame, now)
+            self._take(port, listen_only, now, False, True)
 
     def vt_flush(self) -> None:
-        for port, _ in list(self._hosts):
-            try:
-                port.flush()
-            except Exception:
-                self.stats.callback_errors += 1
-                log.exception("host port %s failed to flush", getattr(port, "name", port))
+        self._flush_hosts(list(self._hosts))
 
 
 __all__ = ["DEFAULT_BITRATE", "BusStats", "CanDevice", "CanDevicePort", "CanMedium"]
