@@ -22,6 +22,7 @@ from hilbench.bench.capture_profile import Table
 from hilbench.families.dynamixel import DYNAMIXEL_BAUDS, PROTOCOL1_BAUDS, PROTOCOL1_TRAFFIC, speaks_protocol1
 from hilbench.families.servo_bus_inference import (
     Damaged,
+    DecoderSplitter,
     ItemDecoder,
     Owed,
     Reply,
@@ -142,14 +143,6 @@ def _request(pkt: dxl.InstructionPacket, t: float, source: str) -> Request:
     return req
 
 
-class _Protocol2Splitter:
-    def __init__(self) -> None:
-        self.dec = dxl.Decoder()
-
-    def feed(self, data: bytes) -> list[tuple[int, bytes]]:
-        return [(i.id, i.raw) for i in self.dec.feed(data) if isinstance(i, dxl.StatusPacket)]
-
-
 class Protocol2Dialect(ServoDialect):
     """Dynamixel Protocol 2.0: X and MX(2.0) servos, the XL-320, custom boards."""
 
@@ -171,8 +164,8 @@ class Protocol2Dialect(ServoDialect):
     def decoder(self) -> ItemDecoder:
         return _Protocol2Decoder()
 
-    def splitter(self) -> _Protocol2Splitter:
-        return _Protocol2Splitter()
+    def splitter(self) -> DecoderSplitter:
+        return DecoderSplitter(dxl.Decoder(), lambda item: isinstance(item, dxl.StatusPacket))
 
     def ping_data(self, reply: Reply) -> tuple[int, int | None] | None:
         if len(reply.data) != 3:
@@ -279,16 +272,6 @@ def _p1_request(pkt: p1.Packet1, t: float, source: str) -> Request:
     return req
 
 
-class Protocol1Splitter:
-    """Statuses of a Protocol 1.0-framed bus, as ``(id, raw)``."""
-
-    def __init__(self) -> None:
-        self.dec = p1.Decoder1()
-
-    def feed(self, data: bytes) -> list[tuple[int, bytes]]:
-        return [(i.id, i.raw) for i in self.dec.feed(data) if not isinstance(i, Problem)]
-
-
 class Protocol1Dialect(ServoDialect):
     """Dynamixel Protocol 1.0: AX, MX with 1.0 firmware, X series switched to Protocol 1.0; a USB2AX."""
 
@@ -311,8 +294,8 @@ class Protocol1Dialect(ServoDialect):
     def decoder(self) -> ItemDecoder:
         return _Protocol1Decoder(_P1_INSTRUCTIONS, _p1_request)
 
-    def splitter(self) -> Protocol1Splitter:
-        return Protocol1Splitter()
+    def splitter(self) -> DecoderSplitter:
+        return DecoderSplitter(p1.Decoder1(), lambda item: not isinstance(item, Problem))
 
     def split_combined(self, reply: Reply, request: Request) -> list[Reply]:
         out, pos = [], 0
@@ -335,4 +318,4 @@ class Protocol1Dialect(ServoDialect):
 #: The ``hilbench.inferrers`` plug-in: Dynamixel Protocol 2.0 and 1.0 buses.
 INFERRER = ServoBusInferrer("Dynamixel servo buses (Protocol 2.0 and 1.0)", (Protocol2Dialect(), Protocol1Dialect()))
 
-__all__ = ["INFERRER", "Protocol1Dialect", "Protocol1Splitter", "Protocol2Dialect"]
+__all__ = ["INFERRER", "Protocol1Dialect", "Protocol2Dialect"]

@@ -17,6 +17,7 @@ from typing import Any
 from hilbench.families.feetech import FEETECH_BAUDS
 from hilbench.families.servo_bus_inference import (
     Damaged,
+    DecoderSplitter,
     ItemDecoder,
     Owed,
     Reply,
@@ -99,14 +100,6 @@ class _Decoder(ItemDecoder):
             return Damaged(t, it.raw, "layout")
 
 
-class _Splitter:
-    def __init__(self) -> None:
-        self.dec = ft.Decoder1()
-
-    def feed(self, data: bytes) -> list[tuple[int, bytes]]:
-        return [(i.id, i.raw) for i in self.dec.feed(data) if not isinstance(i, Problem)]
-
-
 class FeetechDialect(ServoDialect):
     """Feetech STS/SCS servos."""
 
@@ -127,8 +120,8 @@ class FeetechDialect(ServoDialect):
     def decoder(self) -> ItemDecoder:
         return _Decoder()
 
-    def splitter(self) -> _Splitter:
-        return _Splitter()
+    def splitter(self) -> DecoderSplitter:
+        return DecoderSplitter(ft.Decoder1(), lambda item: not isinstance(item, Problem))
 
     def position_range(self, model: Model) -> tuple[int, int]:
         return 0, model.motion.position_max if model.motion else 4095

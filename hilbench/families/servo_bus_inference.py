@@ -1307,5 +1307,17 @@ class ServoBusInferrer:
         return f"ServoBusInferrer({self.title!r})"
 
 
-__all__ = ["Choice", "Damaged", "DeviceObs", "ItemDecoder", "Owed", "Reply", "Request", "ServoBusInferrer",
+class DecoderSplitter:
+    """A :class:`~hilbench.bench.capture_replay.Splitter` over a servo bus's stream decoder: the items
+    ``keep`` accepts (its status packets), as ``(id, raw)``."""
+
+    def __init__(self, decoder: Any, keep: Callable[[Any], bool]) -> None:
+        self.dec = decoder
+        self.keep = keep
+
+    def feed(self, data: bytes) -> list[tuple[int, bytes]]:
+        return [(i.id, i.raw) for i in self.dec.feed(data) if self.keep(i)]
+
+
+__all__ = ["DecoderSplitter", "Choice", "Damaged", "DeviceObs", "ItemDecoder", "Owed", "Reply", "Request", "ServoBusInferrer",
            "ServoBusSession", "ServoDialect", "field_values", "hex_number", "is_live", "misfit", "role_field"]
