@@ -340,6 +340,59 @@ def send_some(sock: socket.socket, data: bytes) -> bool:
     return True
 
 
+class TcpSession:
+    """A fuzz session against a TCP server run in this process: the input goes out in writes of
+    :data:`SESSION_WRITE` bytes, the server runs one round after each (``_round``), and at the end the
+    client leaves and the server must let it go within 20 rounds (``_client_gone``, else
+    ``kept_client`` is the failure). A subclass sets up its server, then calls ``_connect``."""
+
+    kept_client = "the server kept a client that left"
+
+    def _connect(self, address: tuple[str, int]) -> None:
+        self.watch = TracebackWatch.shared()
+        self.watch.clear()
+        self.received = 0
+        self.pending = bytearray()
+        self.sock: socket.socket | None = session_socket(address)
+
+    def _round(self) -> None:
+        raise NotImplementedError
+
+    def _client_gone(self) -> bool:
+        raise NotImplementedError
+
+    def _write(self) -> None:
+        if self.sock is not None and not send_some(self.sock, bytes(self.pending)):
+            self.sock.close()
+            self.sock = None
+        self.pending.clear()
+        self._round()
+
+    def feed(self, data: bytes) -> None:
+        self.pending += data
+        if len(self.pending) >= SESSION_WRITE:
+            self._write()
+
+    def finish(self) -> None:
+        try:
+            self._write()
+            if self.sock is not None:
+                self.sock.close()
+                self.sock = None
+            for _ in range(20):  # the server notices the client left within a few rounds
+                self._round()
+                if self._client_gone():
+                    break
+            assert self._client_gone(), self.kept_client
+            self.watch.check()
+        finally:
+            if self.sock is not None:
+                self.sock.close()
+
+    def good(self) -> int:
+        return self.received
+
+
 def drain(sock: socket.socket) -> bytes:
     """Whatever the server sent that a non-blocking read gets now."""
     out = bytearray()
@@ -409,5 +462,5 @@ class NetPort:
 
 
 __all__ = ["DATAGRAM_MAGIC", "LINK_100M", "MAX_DATAGRAM", "Counting", "DatagramFrames", "FuzzTarget",
-           "LoggedTraceback", "NetPort", "Reader", "SESSION_WRITE", "TracebackWatch", "check_address", "drain",
+           "LoggedTraceback", "NetPort", "Reader", "SESSION_WRITE", "TcpSession", "TracebackWatch", "check_address", "drain",
            "frame_datagram", "mutate", "noise", "run", "send_some", "session_socket", "targets"]

@@ -12,11 +12,10 @@ from __future__ import annotations
 
 import atexit
 import random
-import socket
 import threading
 from typing import Any
 
-from hilbench.fuzzing import SESSION_WRITE, FuzzTarget, TracebackWatch, drain, send_some, session_socket
+from hilbench.fuzzing import FuzzTarget, TcpSession, drain
 from hilbench.protocols import rfc2217 as p
 from hilbench.transports.clock import WALL
 
@@ -92,16 +91,14 @@ def _rfc2217_port() -> tuple[Any, _Loop]:
         return _server
 
 
-class _Rfc2217Session:
+class _Rfc2217Session(TcpSession):
+    kept_client = "the RFC 2217 port kept a client that left"
+
     def __init__(self) -> None:
         self.port, self.loop = _rfc2217_port()
-        self.watch = TracebackWatch.shared()
-        self.watch.clear()
         self.problems0 = self.port.problems
-        self.received = 0
-        self.pending = bytearray()
         self.writes = 0
-        self.sock: socket.socket | None = session_socket(self.port.address)
+        self._connect(self.port.address)
 
     def _round(self) -> None:
         port = self.port
@@ -117,36 +114,8 @@ class _Rfc2217Session:
         if self.sock is not None:
             self.received += len(drain(self.sock))
 
-    def _write(self) -> None:
-        if self.sock is not None and not send_some(self.sock, bytes(self.pending)):
-            self.sock.close()
-            self.sock = None
-        self.pending.clear()
-        self._round()
-
-    def feed(self, data: bytes) -> None:
-        self.pending += data
-        if len(self.pending) >= SESSION_WRITE:
-            self._write()
-
-    def finish(self) -> None:
-        try:
-            self._write()
-            if self.sock is not None:
-                self.sock.close()
-                self.sock = None
-            for _ in range(20):  # the port notices the client left and hangs up
-                self._round()
-                if self.port.client is None:
-                    break
-            assert self.port.client is None, "the RFC 2217 port kept a client that left"
-            self.watch.check()
-        finally:
-            if self.sock is not None:
-                self.sock.close()
-
-    def good(self) -> int:
-        return self.received
+    def _client_gone(self) -> bool:
+        return self.port.client is None  # the port notices the client left and hangs up
 
     def dropped(self) -> int:
         return self.port.problems - self.problems0

@@ -14,11 +14,10 @@ from __future__ import annotations
 
 import atexit
 import random
-import socket
 import threading
 from typing import Any
 
-from hilbench.fuzzing import SESSION_WRITE, FuzzTarget, TracebackWatch, drain, send_some, session_socket
+from hilbench.fuzzing import FuzzTarget, TcpSession, drain
 from hilbench.protocols import socketcand as scd
 from hilbench.protocols.can_frame import CanFrame
 from hilbench.protocols.can_targets import SOCKETCAND_LINE
@@ -86,16 +85,14 @@ def _socketcand_server() -> Any:
         return _server
 
 
-class _SocketcandSession:
+class _SocketcandSession(TcpSession):
+    kept_client = "the socketcand door kept a client that left"
+
     def __init__(self) -> None:
         self.server = _socketcand_server()
-        self.watch = TracebackWatch.shared()
-        self.watch.clear()
         self.malformed0 = self.server.malformed
         self.now = 0.0
-        self.received = 0
-        self.pending = bytearray()
-        self.sock: socket.socket | None = session_socket(self.server.address)
+        self._connect(self.server.address)
 
     def _round(self) -> None:
         server = self.server
@@ -109,36 +106,8 @@ class _SocketcandSession:
         if self.sock is not None:
             self.received += drain(self.sock).count(b">")
 
-    def _write(self) -> None:
-        if self.sock is not None and not send_some(self.sock, bytes(self.pending)):
-            self.sock.close()
-            self.sock = None
-        self.pending.clear()
-        self._round()
-
-    def feed(self, data: bytes) -> None:
-        self.pending += data
-        if len(self.pending) >= SESSION_WRITE:
-            self._write()
-
-    def finish(self) -> None:
-        try:
-            self._write()
-            if self.sock is not None:
-                self.sock.close()
-                self.sock = None
-            for _ in range(20):  # the door notices the client left within a few rounds
-                self._round()
-                if not self.server.clients:
-                    break
-            assert not self.server.clients, "the socketcand door kept a client that left"
-            self.watch.check()
-        finally:
-            if self.sock is not None:
-                self.sock.close()
-
-    def good(self) -> int:
-        return self.received
+    def _client_gone(self) -> bool:
+        return not self.server.clients
 
     def dropped(self) -> int:
         return self.server.malformed - self.malformed0
