@@ -169,7 +169,15 @@ def test_a_whole_session_decodes_with_the_exported_dbc(can_bench, tmp_path):
         assert out.returncode == 0, out.stderr
         status = json.loads(hb("can", "status", "--manifest", manifest).stdout)
         assert status["status"]["heartbeat_ms"] == 500 and status["status"]["pose"]["x"] > 0.12
-        time.sleep(0.6)  # one more heartbeat at the new period
+        # the record must hold heartbeats at the new period: see three on the bus (two 500 ms gaps)
+        s = data["endpoints"][0]["socketcand"]
+        with can.Bus(interface="socketcand", host=s["host"], port=s["port"], channel=s["channel"]) as bus:
+            seen = 0
+            deadline = time.monotonic() + 10
+            while seen < 3 and time.monotonic() < deadline:
+                frame = bus.recv(timeout=1)
+                seen += frame is not None and frame.arbitration_id == 0x702
+            assert seen == 3
     finally:
         _, err = interrupt(recorder, timeout=30)
     assert recorder.returncode == 0, err

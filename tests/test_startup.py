@@ -98,8 +98,8 @@ def test_emulate_arm_loads_no_other_family_s_fakes(tmp_path):
     others = {m for m in under(modules, "hilbench.fakes") if not m.startswith("hilbench.fakes.dynamixel")}
     kits = {"hilbench.fakes", "hilbench.fakes.control_table_servo", "hilbench.fakes.table_servo",
             "hilbench.fakes.servo_line", "hilbench.fakes.motion",  # what the servo families build on
-            # every bench's world and its geometry (the scene, still in the scanners' package)
-            "hilbench.fakes.world", "hilbench.fakes.scanners", "hilbench.fakes.scanners.scene"}
+            # every bench's world and its geometry
+            "hilbench.fakes.world", "hilbench.fakes.scene"}
     assert not others - kits, f"other families' fakes: {sorted(others - kits)}"
     assert not under(modules, "hilbench.monitor", "hilbench.dashboard", "hilbench.profiler", "dpkt")
 

@@ -111,7 +111,7 @@ def bench_delivery(seconds: float) -> None:
 
 
 def bench_raycast(repeats: int) -> None:
-    from hilbench.fakes.scanners.scene import Scene
+    from hilbench.fakes.scene import Scene
 
     rng = np.random.default_rng(7)
     boxes = [{"center": (rng.uniform(-5, 5), rng.uniform(-3.5, 3.5)), "size": tuple(rng.uniform(0.2, 0.6, 2)),

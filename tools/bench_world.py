@@ -27,8 +27,8 @@ import time
 
 from benchlib import emit
 
-from hilbench.fakes.scanners.scene import Mover, Pose, RangeModel, Scene
 from hilbench.fakes.scanners.sick_lms200 import SickLms200
+from hilbench.fakes.scene import Mover, Pose, RangeModel, Scene
 from hilbench.fakes.stm32_board.robot import Robot
 from hilbench.fakes.world import Body, Shape, World
 

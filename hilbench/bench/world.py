@@ -35,7 +35,7 @@ from hilbench.bench.checks import Checker
 from hilbench.errors import UsageError
 
 if TYPE_CHECKING:
-    from hilbench.fakes.scanners.scene import Scene
+    from hilbench.fakes.scene import Scene
     from hilbench.fakes.world import Body, Recorder, World
 
 SCENE_KEYS = ("walls", "wall_reflectivity", "boxes", "circles", "moving")
@@ -88,8 +88,8 @@ def _array(c: Checker, value: Any, key: str) -> list:
 
 def check_scene(c: Checker, raw: Any, name: str = "scene", extra: tuple[str, ...] = ()) -> Scene:
     """Scene geometry (``walls``, ``boxes``, ``circles``, ``moving``) of a table -> a
-    :class:`~hilbench.fakes.scanners.scene.Scene` (one-line errors); ``extra``: other keys the table may have."""
-    from hilbench.fakes.scanners.scene import Mover, Scene
+    :class:`~hilbench.fakes.scene.Scene` (one-line errors); ``extra``: other keys the table may have."""
+    from hilbench.fakes.scene import Mover, Scene
 
     raw = c.table(raw, name)
     c.unknown(raw, name, (*SCENE_KEYS, *extra))
@@ -220,7 +220,7 @@ def build_world(profile, t: float, clock: Any = None) -> World:
     """The world of a checked profile at bench time ``t``: its geometry (``[world]``, or the older
     ``[scene]``) and bodies, on the bench's ``clock`` (a :class:`~hilbench.transports.clock.WallClock`,
     the wall clock if None; a virtual clock's loop steps the world)."""
-    from hilbench.fakes.scanners.scene import Scene
+    from hilbench.fakes.scene import Scene
     from hilbench.fakes.world import Body, Shape, World
 
     spec: WorldSpec = profile.world or WorldSpec()

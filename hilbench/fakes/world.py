@@ -2,7 +2,7 @@
 
 The world is the truth every device shares (DESIGN.md §12). It holds:
 
-- the **scene** (:class:`~hilbench.fakes.scanners.scene.Scene`): walls, boxes
+- the **scene** (:class:`~hilbench.fakes.scene.Scene`): walls, boxes
   and circles that never move, and movers on closed paths whose position is a
   pure function of time;
 - **bodies** (:class:`Body`): named rigid bodies with a footprint (a box
@@ -41,7 +41,7 @@ from typing import Any
 
 import numpy as np
 
-from hilbench.fakes.scanners.scene import Scene
+from hilbench.fakes.scene import Scene, hit_circles
 from hilbench.transports.clock import WALL
 
 #: Default world step (s): 200 Hz, so every body's pose is known at least every 5 ms.
@@ -610,27 +610,7 @@ def _cast_chunk(ox: np.ndarray, oy: np.ndarray, angles: np.ndarray, segs, srefl,
         cos_inc = np.where(hit, np.abs(dx * nx[k] + dy * ny[k]), 0.0)
         refl = np.where(hit, srefl[k], 0.0)
     if len(circ):
-        fx, fy = ox[:, None] - circ[None, :, 0], oy[:, None] - circ[None, :, 1]
-        bq = dx[:, None] * fx + dy[:, None] * fy
-        c = fx * fx + fy * fy - circ[None, :, 2] ** 2
-        disc = bq * bq - c
-        with np.errstate(invalid="ignore"):
-            root = np.sqrt(disc)
-        t1, t2 = -bq - root, -bq + root
-        tc = np.where(t1 > 1e-9, t1, np.where(t2 > 1e-9, t2, np.inf))
-        tc = np.where(disc >= 0, tc, np.inf)
-        k = np.argmin(tc, axis=1)
-        r = tc[np.arange(n), k]
-        closer = r < best
-        if closer.any():
-            hr = np.where(closer, r, 0.0)
-            px = ox + dx * hr - circ[k, 0]
-            py = oy + dy * hr - circ[k, 1]
-            with np.errstate(invalid="ignore", divide="ignore"):
-                ci = np.abs(dx * px + dy * py) / circ[k, 2]
-            best = np.where(closer, r, best)
-            cos_inc = np.where(closer, ci, cos_inc)
-            refl = np.where(closer, crefl[k], refl)
+        best, cos_inc, refl = hit_circles(ox, oy, dx, dy, circ, crefl, best, cos_inc, refl)
     np.clip(cos_inc, 0.0, 1.0, out=cos_inc)
     cos_inc[np.isnan(cos_inc)] = 0.0
     return best, cos_inc, refl

@@ -39,7 +39,7 @@ NOISE_KEYS = ("sigma0_mm", "sigma_k", "dropout")
 
 def scene_of(profile) -> Any:
     """The profile's checked scene (its ``[world]`` geometry, or its ``[scene]``; an empty one without)."""
-    from hilbench.fakes.scanners.scene import Scene
+    from hilbench.fakes.scene import Scene
 
     world = getattr(profile, "world", None)
     if world is not None and world.scene is not None:
@@ -149,7 +149,7 @@ class ScannerFamily(DeviceFamily):
 
     def range_model(self, spec: ScannerSpec, defaults: dict[str, float]):
         """The device's range model: the model's defaults with the profile's overrides."""
-        from hilbench.fakes.scanners.scene import RangeModel
+        from hilbench.fakes.scene import RangeModel
 
         n = spec.noise
         return RangeModel(
@@ -202,7 +202,7 @@ class ScannerFamily(DeviceFamily):
 
 
 def pose_of(spec: ScannerSpec):
-    from hilbench.fakes.scanners.scene import Pose
+    from hilbench.fakes.scene import Pose
 
     return Pose(spec.x, spec.y, spec.heading)
 

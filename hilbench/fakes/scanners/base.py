@@ -4,7 +4,7 @@ A scanner measures the scene from its pose: beam angles in the sensor's own
 convention are turned into world directions by the model (clockwise for the
 RPLIDAR, right-to-left for the LMS 200, counter-clockwise steps for SCIP
 units), cast against the scene at the time each beam is taken, and passed
-through the model's :class:`~hilbench.fakes.scanners.scene.RangeModel`.
+through the model's :class:`~hilbench.fakes.scene.RangeModel`.
 Every measurement is kept with its true time (:attr:`Scanner.truth`) so
 tests can compare what a client decoded with what the emulator meant.
 
@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from hilbench.fakes.scanners.scene import Pose, RangeModel, Scene
+from hilbench.fakes.scene import Pose, RangeModel, Scene
 from hilbench.fakes.world import World
 from hilbench.transports.clock import WALL
 

@@ -33,8 +33,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from hilbench.fakes.scanners.base import Scanner
-from hilbench.fakes.scanners.scene import Pose, RangeModel, Scene
 from hilbench.fakes.scanners.uart import UartTx
+from hilbench.fakes.scene import Pose, RangeModel, Scene
 from hilbench.fakes.world import World
 from hilbench.protocols import scip
 

@@ -1,4 +1,5 @@
-"""A 2D scene for emulated laser scanners: walls, boxes, circles and moving objects, and ray casting.
+"""The static and scripted geometry of a bench's world: walls, boxes, circles and moving objects, and ray
+casting (the world adds its bodies; every laser scanner casts its beams here).
 
 Geometry is in metres in a world frame (x right, y up, angles counter-clockwise
 from +x). Walls are polylines, boxes and circles are static obstacles, movers
@@ -205,32 +206,43 @@ class Scene:
             refl = srefl[k]
             refl[~hit] = 0.0
         if len(circ):
-            fx, fy = ox - circ[:, 0], oy - circ[:, 1]
-            b = dx[:, None] * fx[None, :] + dy[:, None] * fy[None, :]
-            c = (fx * fx + fy * fy - circ[:, 2] ** 2)[None, :]
-            disc = b * b - c
-            with np.errstate(invalid="ignore"):
-                root = np.sqrt(disc)
-            t1, t2 = -b - root, -b + root
-            tc = np.where(t1 > 1e-9, t1, np.where(t2 > 1e-9, t2, np.inf))
-            tc = np.where(disc >= 0, tc, np.inf)
-            k = np.argmin(tc, axis=1)
-            rng = tc[np.arange(n), k]
-            closer = rng < best
-            if closer.any():
-                hit_r = np.where(closer, rng, 0.0)  # no inf * 0 for beams that miss every circle
-                px = ox + dx * hit_r - circ[k, 0]
-                py = oy + dy * hit_r - circ[k, 1]
-                with np.errstate(invalid="ignore", divide="ignore"):
-                    ci = np.abs(dx * px + dy * py) / circ[k, 2]
-                best = np.where(closer, rng, best)
-                cos_inc = np.where(closer, ci, cos_inc)
-                refl = np.where(closer, crefl[k], refl)
+            best, cos_inc, refl = hit_circles(ox, oy, dx, dy, circ, crefl, best, cos_inc, refl)
         if max_range < math.inf:
             best = np.where(best <= max_range, best, np.inf)
         np.clip(cos_inc, 0.0, 1.0, out=cos_inc)  # (a zero-length edge has no normal: NaN clips to NaN)
         cos_inc[np.isnan(cos_inc)] = 0.0
         return best, cos_inc, refl
+
+
+def hit_circles(ox, oy, dx: np.ndarray, dy: np.ndarray, circ: np.ndarray, crefl: np.ndarray, best: np.ndarray,
+                cos_inc: np.ndarray, refl: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Beams (directions ``dx``, ``dy``; from one origin, or one origin per beam as arrays) against circles
+    ``circ`` (rows x, y, r) in closed form: where a circle is nearer than ``best``, its range, cos(incidence)
+    and reflectivity replace the beam's. The scene's caster and the world's share it."""
+    n = len(dx)
+    ox, oy = np.asarray(ox, dtype=float), np.asarray(oy, dtype=float)
+    fx, fy = ox[..., None] - circ[:, 0], oy[..., None] - circ[:, 1]  # (m,) from one origin, (n, m) per beam
+    b = dx[:, None] * fx + dy[:, None] * fy
+    c = fx * fx + fy * fy - circ[:, 2] ** 2
+    disc = b * b - c
+    with np.errstate(invalid="ignore"):
+        root = np.sqrt(disc)
+    t1, t2 = -b - root, -b + root
+    tc = np.where(t1 > 1e-9, t1, np.where(t2 > 1e-9, t2, np.inf))
+    tc = np.where(disc >= 0, tc, np.inf)
+    k = np.argmin(tc, axis=1)
+    rng = tc[np.arange(n), k]
+    closer = rng < best
+    if closer.any():
+        hit_r = np.where(closer, rng, 0.0)  # no inf * 0 for beams that miss every circle
+        px = ox + dx * hit_r - circ[k, 0]
+        py = oy + dy * hit_r - circ[k, 1]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            ci = np.abs(dx * px + dy * py) / circ[k, 2]
+        best = np.where(closer, rng, best)
+        cos_inc = np.where(closer, ci, cos_inc)
+        refl = np.where(closer, crefl[k], refl)
+    return best, cos_inc, refl
 
 
 def _segments_dense(ox, oy, angles, dx, dy, segs):

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from hilbench.bench.profile import load_profile
-from hilbench.fakes.scanners.scene import Mover, RangeModel, Scene
+from hilbench.fakes.scene import Mover, RangeModel, Scene
 from tests.fakes.scanners.conftest import room_range
 
 
