@@ -77,6 +77,21 @@ def test_monitor_of_a_dynamixel_capture_loads_no_other_instrument_code(tmp_path,
     assert not under(modules, "hilbench.fakes", "hilbench.families", "hilbench.dashboard", "hilbench.clients",
                      "hilbench.bench.control", "hilbench.bench.server", "hilbench.servers", "dpkt", "cantools",
                      "canopen", "can")
+    # the bench package's profile loader and the monitor's frame come with the names, not with the packages;
+    # numpy comes with the first large buffer or damaged stretch, not with reading a capture's first bytes
+    assert not modules & {"hilbench.bench.bench", "hilbench.bench.profile", "hilbench.bench.world", "numpy"}
+
+
+@pytest.mark.parametrize("package", ["hilbench.bench", "hilbench.monitor"])
+def test_a_package_s_names_come_from_their_modules_when_used(package):
+    """``hilbench.bench`` and ``hilbench.monitor`` export their classes lazily (:mod:`hilbench.exports`):
+    every name listed resolves, to the object its module defines, and each one listed is exported."""
+    code = (f"import sys, {package} as p; before = set(sys.modules); "
+            "names = {n: getattr(p, n) for n in p.__all__}; "
+            "print(sorted(p._HOMES) == sorted(p.__all__), all(v.__module__.startswith(p.__name__ + '.') "
+            "for v in names.values() if hasattr(v, '__module__')), len(set(sys.modules) - before) > 0)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, cwd=ROOT)
+    assert out.stdout.split() == ["True", "True", "True"], out.stderr
 
 
 def test_help_loads_no_verb_s_dependencies(tmp_path):

@@ -8,8 +8,19 @@
 - :mod:`hilbench.monitor.dynamixel`: the Dynamixel Protocol 2.0 bus tracker.
 """
 
-from hilbench.monitor.errorlog import ErrorLog
-from hilbench.monitor.instrument import Instrument
-from hilbench.monitor.live import Monitor
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from hilbench.exports import lazy_exports
+
+if TYPE_CHECKING:
+    from hilbench.monitor.errorlog import ErrorLog
+    from hilbench.monitor.instrument import Instrument
+    from hilbench.monitor.live import Monitor
+
+#: Imported when first used: an instrument plug-in (a subpackage) loads none of the frame's modules.
+_HOMES = {"ErrorLog": "errorlog", "Instrument": "instrument", "Monitor": "live"}
 
 __all__ = ["ErrorLog", "Instrument", "Monitor"]
+__getattr__, __dir__ = lazy_exports(__name__, _HOMES)

@@ -24,9 +24,8 @@ from collections.abc import Iterator, Sequence
 from enum import IntEnum
 from functools import cache
 from struct import Struct as Struct_
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
-import numpy as np
 from construct import (
     Adapter,
     Bytes,
@@ -47,6 +46,9 @@ from construct import (
 
 from hilbench.protocols.checksums import crc16_buypass, raw_crc_routine
 from hilbench.protocols.problem import Problem
+
+if TYPE_CHECKING:
+    import numpy as np
 
 HEADER = b"\xff\xff\xfd\x00"
 #: The pattern that stuffing escapes, and its escaped form.
@@ -80,19 +82,25 @@ def _crc_residues() -> tuple[int, ...]:
 _CRC_RESIDUE = _crc_residues()
 
 
-def _verdicts() -> np.ndarray:
-    """:func:`_judge_candidates`' lookup: (CRC field as u16 LE) | (0x10000 for an instruction) -> verdict.
+@cache
+def _tables() -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_judge_candidates`' lookups, made (with numpy's import) the first time a large buffer comes:
+    a program that reads a few packets starts without numpy.
 
-    The verdict is the residue a matching CRC leaves (plus 0x10000 for an
-    instruction); the extra last entry (-1) is for candidates that need the
-    general path.
+    - verdicts: (CRC field as u16 LE) | (0x10000 for an instruction) -> verdict: the residue a matching CRC
+      leaves (plus 0x10000 for an instruction); the extra last entry (-1) is for candidates that need the
+      general path;
+    - kind: INSTRUCTION byte -> 0 for a status, 0x10000 for an instruction (the offset of its verdicts).
     """
+    import numpy as np
+
     crc = np.arange(0x10000)
     residue = np.array(_CRC_RESIDUE, dtype=np.int64)[(crc & 0xFF) ^ (crc >> 8)]
-    return np.concatenate((residue, residue + 0x10000, [-1]))
+    kind = np.full(256, 0x10000, dtype=np.int64)
+    kind[STATUS] = 0
+    return np.concatenate((residue, residue + 0x10000, [-1])), kind
 
 
-_VERDICTS = _verdicts()
 _GENERAL = 0x20000  # index of the -1 verdict
 
 
@@ -897,6 +905,9 @@ def _judge_candidates(buf: bytes, max_length: int) -> tuple[list[int], list[int]
     if n < 8:
         starts = [i for i in range(n - 3) if buf.startswith(HEADER, i)]
         return starts, starts, [-1] * len(starts)
+    import numpy as np
+
+    verdict_of, kind_of = _tables()
     # At 4 KiB per feed numpy's fixed cost per call is what limits this function: the checks are
     # folded into as few calls as possible (lookup tables instead of comparisons, 4-byte views).
     a = np.frombuffer(buf, dtype=np.uint8)
@@ -911,7 +922,7 @@ def _judge_candidates(buf: bytes, max_length: int) -> tuple[list[int], list[int]
     h = heads[:m] if m < len(starts) else heads
     w4 = words[h + 4]  # ID | LEN_L << 8 | LEN_H << 16 | INSTRUCTION << 24
     length = (w4 >> 8) & 0xFFFF
-    kind = _KIND[w4 >> 24]  # 0 for a status, 0x10000 for an instruction
+    kind = kind_of[w4 >> 24]  # 0 for a status, 0x10000 for an instruction
     end = h + length + 7
     ok = _length_ok(max_length)[length + kind]
     # A packet is plain if nothing that looks like a header starts inside it. Where FF FF FD
@@ -925,7 +936,7 @@ def _judge_candidates(buf: bytes, max_length: int) -> tuple[list[int], list[int]
     ok &= first >= end
     end = np.minimum(end, n)
     crc = np.ndarray((n - 1,), "<u2", buf, 0, (1,))[end - 2]  # the CRC field (for the general path: any)
-    verdicts = _VERDICTS[np.where(ok, crc + kind, _GENERAL)].tolist()
+    verdicts = verdict_of[np.where(ok, crc + kind, _GENERAL)].tolist()
     ends = end.tolist()
     if m < len(starts):
         ends += starts[m:]
@@ -933,14 +944,11 @@ def _judge_candidates(buf: bytes, max_length: int) -> tuple[list[int], list[int]
     return starts, ends, verdicts
 
 
-#: INSTRUCTION byte -> 0 for a status, 0x10000 for an instruction (the offset of its verdicts).
-_KIND = np.full(256, 0x10000, dtype=np.int64)
-_KIND[STATUS] = 0
-
-
 @cache
 def _length_ok(max_length: int) -> np.ndarray:
     """LENGTH + kind offset -> whether LENGTH is valid: 3..max_length, 4..max_length for a status."""
+    import numpy as np
+
     length = np.arange(0x10000)
     return np.concatenate(((length >= 4) & (length <= max_length), (length >= 3) & (length <= max_length)))
 

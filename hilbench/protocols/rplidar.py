@@ -25,9 +25,8 @@ from __future__ import annotations
 import struct
 from dataclasses import dataclass
 from enum import IntEnum
-from typing import Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
-import numpy as np
 from construct import (
     Array,
     BitsInteger,
@@ -43,6 +42,9 @@ from construct import (
 )
 
 from hilbench.protocols.problem import Problem
+
+if TYPE_CHECKING:
+    import numpy as np
 
 SYNC = 0xA5
 SYNC2 = 0x5A
@@ -211,6 +213,8 @@ def node(quality: int, angle_q6: int, distance_q2: int, start: bool) -> bytes:
 def encode_nodes(quality: np.ndarray, angle_q6: np.ndarray, distance_q2: np.ndarray,
                  start: np.ndarray) -> bytes:
     """Many standard scan nodes at once (numpy); byte-identical to :func:`node` for each."""
+    import numpy as np  # here: the emulated scanner needs it, a monitor sniffing a capture does not
+
     n = len(angle_q6)
     out = np.empty((n, NODE_SIZE), np.uint8)
     s = start.astype(np.uint8)

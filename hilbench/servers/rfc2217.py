@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from hilbench import __version__
 from hilbench.bench.server import DEFAULT_BIND, Server
-from hilbench.transports.rfc2217 import Rfc2217Port
+
+if TYPE_CHECKING:  # imported when a port starts: `emulate --help` lists this server without the protocol
+    from hilbench.transports.rfc2217 import Rfc2217Port
 
 
 class Rfc2217Server(Server):
@@ -21,6 +23,8 @@ class Rfc2217Server(Server):
         return getattr(port, "lines", None) is not None and getattr(port, "carries", "bytes") == "bytes"
 
     def start(self, bench: Any, endpoint: Any, bind: str = DEFAULT_BIND) -> Rfc2217Port:
+        from hilbench.transports.rfc2217 import Rfc2217Port
+
         port = Rfc2217Port(f"{endpoint.name}:rfc2217", endpoint.port.lines, endpoint.medium, bind=bind,
                            baud=endpoint.spec.baud,
                            signature=f"hilbench {__version__} bench {bench.profile.name} endpoint {endpoint.name}")

@@ -14,8 +14,6 @@ from __future__ import annotations
 
 import bisect
 
-import numpy as np
-
 from hilbench.protocols import capture as cap
 from hilbench.protocols.capture import MAX_PAYLOAD, RECORD_HEADER_SIZE, CaptureInfo, Flags, RecordKind
 from hilbench.transports.chunk import CaptureError, Chunk
@@ -131,7 +129,6 @@ class CaptureParser:
         self._cand: tuple | None = None  # (buffer, epoch, candidate offsets) of the last prefilter
         self._names: dict[int, str] = {}
         self._declared = bytearray(256)  # source ids a SOURCE record named (1)
-        self._declared_np = np.zeros(256, dtype=bool)  # the same, for the numpy prefilter
         self._named = False  # any source named yet
         self._addr: dict[int, tuple[str, int, str, int] | None] = {}  # ADDRESS records waiting for their DATA
         self._offset = 0  # raw: bytes emitted so far
@@ -533,7 +530,6 @@ class CaptureParser:
         self._names[source] = name
         if not self._declared[source]:
             self._declared[source] = 1
-            self._declared_np[source] = True
             self._named = True
             self._verdicts.clear()  # plausibility depends on which sources are named
             self._epoch += 1
@@ -642,6 +638,8 @@ class CaptureParser:
         buffer and naming of sources (a damaged stretch makes hundreds of searches, each a record or
         two long: one pass, not hundreds).
         """
+        import numpy as np  # here: only a damaged stretch needs it, and reading a capture starts without it
+
         cache = self._cand
         if cache is None or cache[0] is not buf or cache[1] != self._epoch or start < cache[2]:
             n = len(buf)
@@ -653,7 +651,7 @@ class CaptureParser:
                 length = np.ndarray((count,), "<u2", buf, start + 2, (1,))  # unaligned view: no copy
                 data, gap, addr = kind == _DATA, kind == _GAP, kind == _ADDRESS
                 if self._named:  # where reading resumes, a data record must be of a named source
-                    named = self._declared_np[np.frombuffer(buf, dtype=np.uint8, count=count, offset=start + 1)]
+                    named = np.frombuffer(self._declared, dtype=bool)[np.frombuffer(buf, dtype=np.uint8, count=count, offset=start + 1)]
                     data &= named
                     gap &= named
                     addr &= named
