@@ -116,10 +116,10 @@ def test_control_channel_turns_scanner_knobs(emulator):
 
 
 def test_mecarover_lidar_sees_the_lab():
-    proc = hb("lidar", "bench:mecarover#lidar", "--scans", "3", "--json")
+    proc = hb("lidar", "bench:mecarover#lidar", "--scans", "8", "--json")
     assert proc.returncode == 0, proc.stderr
     rep = json.loads(proc.stdout)
-    assert rep["protocol"] == "rplidar" and rep["scans"] >= 3 and 5.0 <= rep["scan_rate_hz"] <= 6.0
+    assert rep["protocol"] == "rplidar" and rep["scans"] >= 8 and 5.0 <= rep["scan_rate_hz"] <= 6.0  # over 7 intervals: a late read under load moves the rate a few %, not 30 %
 
 
 def test_lidar_finds_an_lms200_left_at_another_speed_and_leaves_it_at_9600(emulator):
