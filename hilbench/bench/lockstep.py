@@ -1,7 +1,7 @@
 """The lockstep controller: clients under ``hilbench run`` share a virtual-time bench's clock.
 
 A virtual-time bench (:class:`~hilbench.transports.virtual_loop.VirtualLoop`) gets one :class:`Lockstep`
-(PLAN26 §3, §5). It owns the *clock page* (:mod:`hilbench.run.vclock_page`) and the FIFOs beside it in a
+(PLAN26 §3, §5). It owns the *clock page* (:mod:`hilbench.bench.clock_page`) and the FIFOs beside it in a
 private 0700 directory; the manifest's ``clock`` entry names them, and ``hilbench run`` hands the page to
 the client's preload shim (``vclock.c``), which claims one slot per client thread and publishes there
 whether the thread runs or waits, and until when. The loop uses the controller in its phases:
@@ -47,8 +47,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from hilbench.bench import clock_page as vp
 from hilbench.errors import BenchError
-from hilbench.run import vclock_page as vp
 
 #: Wall seconds a running thread may hold the clock before a lockstep stall starts (None: never).
 STALL = 1.0

@@ -363,7 +363,7 @@ class VirtualLoop:
         wall clock); returns the time to move to (None: another round at ``now``: input came, or a client
         was woken to look again). ``nxt``: the bench's next event."""
         while not self._stop.is_set():
-            real = time.monotonic()
+            real = time.monotonic()  # wall-clock: the stall watchdog and /proc looks run in real time
             v = ls.look(real)
             if self._input(now, 0):
                 return None  # what clients wrote is committed at now: its zero-delay work runs first
