@@ -62,6 +62,8 @@ BLOCKED_CHECK = 200e-6
 BLOCKED_CONFIRM = 100e-6
 #: Real seconds B waits at most for a pty's delivered bytes to show on the client's side.
 SETTLE_LIMIT = 0.002
+#: Bytes a pty's input queue shows at most (FIONREAD on the client's side; N_TTY's buffer less one).
+TTY_INQ_MAX = 4095
 #: Real seconds a quiescence wait looks again at most (no notification comes for a thread that fell
 #: asleep in an unwrapped call).
 LOOK_AGAIN = 0.005
@@ -192,7 +194,7 @@ class Lockstep:
         self._warned: set[tuple[int, int]] = set()
         self._blocked_since: float | None = None
         self._stall_at: tuple[int, float] | None = None  # (vnow ns, real) when the stall began
-        self.wakes = self.rechecks = self.asleep_elsewhere = 0
+        self.wakes = self.rechecks = self.asleep_elsewhere = self.settle_timeouts = 0
         self.participants_seen = 0
         self.last_stall: dict[str, Any] | None = None
         self.warnings: list[str] = []
@@ -254,17 +256,23 @@ class Lockstep:
             self._set_port(i, vp.P_DELIVERED, delivered)
             fresh.append(i)
             unread = delivered - self._port(i, vp.P_READ) - self._port(i, vp.P_DISCARDED)
-            end = time.monotonic() + SETTLE_LIMIT
-            last = -1
+            end = None
             while True:
                 try:
                     inq = struct.unpack("i", fcntl.ioctl(port.slave_fd, termios.FIONREAD, b"\0" * 4))[0]
                 except OSError:
                     break
-                if inq >= unread or time.monotonic() > end or (inq == last and inq >= 4095):
-                    break  # (a full tty buffer grows no more: its reader is not a shim client)
-                last = inq
+                # (a tty's input queue holds TTY_INQ_MAX bytes at most: the rest waits in the kernel until read)
+                if inq >= min(unread, TTY_INQ_MAX):
+                    break
+                now = time.monotonic()  # wall-clock: the kernel's hand-over takes microseconds of real time
+                if end is None:
+                    end = now + SETTLE_LIMIT
+                elif now > end:  # (read by a program outside the lockstep, whose reads are not counted)
+                    self.settle_timeouts += 1
+                    break
                 os.sched_yield()
+                unread = delivered - self._port(i, vp.P_READ) - self._port(i, vp.P_DISCARDED)
         return fresh
 
     def wake_due(self, fresh_ports: Iterable[int] = ()) -> int:
@@ -505,6 +513,7 @@ class Lockstep:
                 "stalled_s": self._h(vp.H_STALLED_NS) / 1e9, "stalling": self._stall_at is not None,
                 "last_stall": self.last_stall, "threads": sum(1 for s in states if s not in (vp.FREE, vp.EXITED)),
                 "threads_seen": self.participants_seen, "wakes": self.wakes, "rechecks": self.rechecks,
+                "asleep_elsewhere": self.asleep_elsewhere, "settle_timeouts": self.settle_timeouts,
                 "unvirtualised": self._h(vp.H_UNVIRTUALISED)}
 
     def describe(self) -> dict[str, Any]:

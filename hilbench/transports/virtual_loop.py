@@ -334,7 +334,9 @@ class VirtualLoop:
         if nxt is not None and nxt <= now:
             stats.delta_rounds += 1
             return  # zero-delay work: another round at the same instant
-        if ls is not None and ls.active():
+        if ls is not None and not ls.active():
+            ls.end_stall()  # (the last client left while time followed the wall clock)
+        elif ls is not None:
             t = self._lockstep(ls, now, nxt)
             with self._cv:
                 self._settled = now
