@@ -192,7 +192,8 @@ class Lockstep:
         self._pidfds: dict[int, int] = {}  # pid -> pidfd
         self._wake_fds: dict[int, int] = {}
         self._warned: set[tuple[int, int]] = set()
-        self._blocked_since: float | None = None
+        self._blocked_since: float | None = None  # real time quiescence began to be blocked
+        self._counted_since: float | None = None  # real time it began to be blocked by what counts for a stall
         self._stall_at: tuple[int, float] | None = None  # (vnow ns, real) when the stall began
         self.wakes = self.rechecks = self.asleep_elsewhere = self.settle_timeouts = 0
         self.participants_seen = 0
@@ -376,8 +377,9 @@ class Lockstep:
                 continue  # waiting in a call the shim does not wrap: no deadline
             v.quiet = False
             v.blockers.append(i)
-            if pid in self._waited or real - info.since > self.startup_grace:
-                v.counted = True
+        # (after every slot: a process's start-up is over once any of its threads waited)
+        v.counted = any(self._slots[i].pid in self._waited or real - self._slots[i].since > self.startup_grace
+                        for i in v.blockers)
         for i, p in enumerate(self.ptys):
             if self._port(i, vp.P_WRITTEN) > p.port.bytes_in - p.base_in:
                 v.quiet = False
@@ -388,12 +390,18 @@ class Lockstep:
             self._blocked_since = None
         elif self._blocked_since is None:
             self._blocked_since = real
+        if not v.counted:
+            self._counted_since = None
+        elif self._counted_since is None:
+            self._counted_since = real
         return v
 
     def _asleep_elsewhere(self, i: int, info: _Slot, real: float) -> bool:
         """A RUNNING thread that /proc shows asleep twice, :data:`BLOCKED_CONFIRM` apart, with no wrapped
         call in between (PLAN26 §4.3): it waits in a call the shim does not see (a mutex, a blocking read)."""
-        if self._blocked_since is None or real - self._blocked_since < BLOCKED_CHECK or not info.tid:
+        confirmed = info.asleep is not None and info.asleep[1] < 0  # (seen asleep before, time moved since)
+        if not info.tid or (not confirmed and (self._blocked_since is None
+                                               or real - self._blocked_since < BLOCKED_CHECK)):
             info.asleep = None
             return False
         try:
@@ -409,8 +417,11 @@ class Lockstep:
         if info.asleep is None or info.asleep[0] != progress:
             info.asleep = (progress, real)
             return False
+        if confirmed:
+            return True
         if real - info.asleep[1] < BLOCKED_CONFIRM:
             return False
+        info.asleep = (progress, -1.0)  # confirmed: later looks need one /proc read while it stays asleep
         self.asleep_elsewhere += 1
         return True
 
@@ -448,8 +459,8 @@ class Lockstep:
             since = real - self._blocked_since
             if since < BLOCKED_CHECK + BLOCKED_CONFIRM * 2:
                 timeout = BLOCKED_CONFIRM
-            if self.stall is not None and self._stall_at is None and v.counted:
-                timeout = min(timeout, max(0.0, self.stall - since))
+            if self.stall is not None and self._stall_at is None and self._counted_since is not None:
+                timeout = min(timeout, max(0.0, self.stall - (real - self._counted_since)))
         if self._stall_at is not None:
             timeout = min(timeout, 0.001)
         return timeout
@@ -459,8 +470,8 @@ class Lockstep:
     def stall_target(self, v: Verdict, real: float) -> int | None:
         """While not quiet: the virtual ns the clock may follow the wall clock to (a stall), or None."""
         if self._stall_at is None:
-            if (self.stall is None or not v.counted or self._blocked_since is None
-                    or real - self._blocked_since < self.stall):
+            if (self.stall is None or not v.counted or self._counted_since is None
+                    or real - self._counted_since < self.stall):
                 return None
             self._start_stall(v, real)
         v0, r0 = self._stall_at  # type: ignore[misc]
@@ -470,7 +481,7 @@ class Lockstep:
         self._stall_at = (self._vnow_ns, real)
         self.u64[vp.H_STALLS // 8] += 1
         self.u32[vp.H_FLAGS // 4] |= vp.FLAG_STALL
-        ran = real - (self._blocked_since or real)
+        ran = real - (self._counted_since or real)
         for i in v.blockers:
             pid, tid, st = self._s32(i, vp.S_PID), self._s32(i, vp.S_TID), self._s32(i, vp.S_STATE)
             comm = _comm(pid, tid)
@@ -525,6 +536,8 @@ class Lockstep:
     status = stats
 
     def close(self) -> None:
+        if self.map.closed:
+            return
         for fd in [self.notify, *self._wake_fds.values(), *self._pidfds.values()]:
             with contextlib.suppress(OSError):
                 os.close(fd)
