@@ -20,6 +20,7 @@ import pytest
 
 from hilbench.bench import Bench
 from hilbench.bench.control import ControlClient
+from hilbench.pytest_plugin import wait_until
 from hilbench.run.build import ShimBuildError, shim_library
 
 HILBENCH = [sys.executable, "-m", "hilbench.cli"]
@@ -139,8 +140,9 @@ def test_a_thread_that_never_waits_makes_a_counted_stall(tmp_path, capfd):
     """PLAN26 §9.1 (g): after the stall threshold time follows the wall clock, counted and warned once."""
     with Bench("mecarover-can", virtual_time=True, lockstep_stall=0.3) as bench:
         proc, wall = client(bench, tmp_path, SPINNER, "5")
-        stats = bench.services["clock"].stats()
         lockstep = bench.services["clock"]
+        wait_until(lambda: not lockstep.stats()["stalling"], timeout=5)  # (the loop sees the client's end)
+        stats = lockstep.stats()
     out = json.loads(proc.stdout)
     # in the stall virtual time runs at the wall's rate: the main thread's wake-ups (the spinner gives the GIL up
     # every 5 ms) take time too
