@@ -170,3 +170,35 @@ def test_without_a_stall_limit_a_spinning_thread_holds_the_clock(tmp_path):
         finally:
             proc.kill()
             proc.wait()
+
+
+PYSERIAL = """
+    import json, sys, time
+    import serial
+    port = serial.Serial(sys.argv[1], 115200, timeout=1)
+    out = []
+    for _ in range(3):
+        t0 = time.monotonic_ns()
+        port.write(bytes([0xA5, 0x50]))  # RPLIDAR GET_INFO
+        reply = port.read(27)
+        t1 = time.monotonic_ns()
+        silence = port.read(10)  # nothing more comes: the whole timeout, in virtual time
+        out.append([len(reply), t1 - t0, len(silence), time.monotonic_ns() - t1])
+    print(json.dumps(out))
+"""
+
+
+def test_a_pyserial_client_on_a_bench_pty_sees_the_wire_model_exactly(tmp_path):
+    """The pty path in lockstep: the request is taken before time moves (written == taken), the reply is
+    settled on the client's side before the client wakes, and a read's timeout is virtual."""
+    with Bench("mecarover-can", virtual_time=True) as bench:
+        path = bench.endpoint("lidar").port.client_path
+        proc, wall = client(bench, tmp_path, PYSERIAL, path)
+        stats = bench.services["clock"].stats()
+    runs = json.loads(proc.stdout)
+    wire = (2 + 27) * 10 * S // 115_200  # request and reply at 115200 baud, 8N1
+    assert all(r[0] == 27 and r[2] == 0 and r[3] == S for r in runs), runs
+    assert len({r[1] for r in runs}) == 1, runs  # the same exchange takes the same virtual time every time
+    assert wire <= runs[0][1] < wire + S // 1000
+    assert stats["stalls"] == 0 and stats["settle_timeouts"] == 0
+    assert wall < 6.0
