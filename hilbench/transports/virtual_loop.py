@@ -374,6 +374,8 @@ class VirtualLoop:
                 continue
             if v.quiet:
                 ls.end_stall()
+                if not ls.active():
+                    return None  # the last client just left: time is the mode's again (hold: it stays)
                 if v.next_ns is not None and (nxt is None or v.next_ns / 1e9 <= nxt):
                     return ls.moved_to(max(v.next_ns, ls.vnow_ns))
                 if nxt is not None:

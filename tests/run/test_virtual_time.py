@@ -74,7 +74,7 @@ def test_a_sleeping_client_takes_exact_virtual_seconds_and_little_wall_time(tmp_
         now = bench.clock.now()
     assert out["steps"] == [S] * 60 and out["total"] == 60 * S
     # the held clock did not move before the client joined: it starts where the bench started
-    assert out["m0"] == 1000 * S and now == pytest.approx(1060.0, abs=0.01)
+    assert out["m0"] == 1000 * S and now == 1060.0  # (and a held bench holds again once its client left)
     assert out["real"] == pytest.approx(60.0, abs=1e-3)  # virtual realtime moves with the monotonic clock
     assert out["hashseed"] == "0"
     assert stats["stalls"] == 0 and stats["threads"] == 0 and stats["threads_seen"] >= 1
@@ -202,3 +202,44 @@ def test_a_pyserial_client_on_a_bench_pty_sees_the_wire_model_exactly(tmp_path):
     assert wire <= runs[0][1] < wire + S // 1000
     assert stats["stalls"] == 0 and stats["settle_timeouts"] == 0
     assert wall < 6.0
+
+
+def test_the_fixture_bench_and_hilbench_run_share_the_clock(hilbench_bench, hilbench_run, tmp_path):
+    bench = hilbench_bench("mecarover-can", virtual_time=True, virtual_epoch=1_767_225_600.0, lockstep_stall=None)
+    script = tmp_path / "client.py"
+    script.write_text("import time\nw = time.time()\ntime.sleep(2.5)\nprint(time.monotonic(), w, time.time())\n")
+    proc = subprocess.run(hilbench_run.command(bench, sys.executable, str(script)), capture_output=True, text=True,
+                          timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    assert [float(x) for x in proc.stdout.split()] == [1002.5, 1_767_225_600.0, 1_767_225_602.5]
+    assert bench.clock.now() == 1002.5 and bench.manifest()["clock"]["stall"] is None
+
+
+def test_emulate_virtual_time_from_the_command_line(hilbench_emulator, hilbench_run, tmp_path):
+    manifest = hilbench_emulator("mecarover-can", "--virtual-epoch", "2026-01-01T00:00:00Z", "--lockstep-stall",
+                                 "2.5", "--seed", "7", virtual_time=True)
+    clock = manifest["clock"]
+    assert clock["virtual"] and clock["epoch"] == 1_767_225_600.0 and clock["stall"] == 2.5
+    script = tmp_path / "client.py"
+    script.write_text("import time\nfor _ in range(30):\n    time.sleep(1)\nprint(time.monotonic(), time.time())\n")
+    t0 = time.monotonic()
+    proc = subprocess.run(hilbench_run.command(manifest, sys.executable, str(script)), capture_output=True,
+                          text=True, timeout=60)
+    wall = time.monotonic() - t0
+    assert proc.returncode == 0, proc.stderr
+    assert [float(x) for x in proc.stdout.split()] == [1030.0, 1_767_225_630.0]
+    status = ControlClient(manifest["control"]).call("clock")["clock"]
+    assert status["virtual"] and status["mode"] == "hold" and status["now"] == 1030.0
+    assert status["stats"]["stalls"] == 0 and status["stats"]["threads_seen"] >= 1
+    assert wall < 5.0
+
+
+@pytest.mark.parametrize(("args", "error"), [
+    (["--lockstep-stall", "2"], "hilbench: error: --lockstep-stall need --virtual-time"),
+    (["--virtual-time", "--unpaced"], "hilbench: error: virtual time is paced: --unpaced and --virtual-time do not"),
+    (["--virtual-time", "--lockstep-stall", "0"], "'0': expected seconds above 0, or never"),
+    (["--virtual-time", "--virtual-epoch", "yesterday"], "'yesterday' is neither an ISO 8601 time"),
+])
+def test_emulate_refuses_bad_virtual_time_options_in_one_line(args, error):
+    proc = subprocess.run([*HILBENCH, "emulate", "mecarover-can", *args], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2 and error in proc.stderr and proc.stderr.count("\n") == 1, proc.stderr
