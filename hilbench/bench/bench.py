@@ -259,7 +259,11 @@ class Bench:
         clock = self.clock
         self.loop.lockstep = self.services["clock"] = Lockstep(
             ptys, vnow_ns=round(clock.now() * 1e9), origin_ns=round(clock.origin * 1e9),
-            epoch_ns=round(clock.epoch * 1e9), stall=self.lockstep_stall)
+            epoch_ns=round(clock.epoch * 1e9), stall=self.lockstep_stall, holding=self._holding)
+
+    def _holding(self) -> bool:
+        """Whether a service has a lockstep client's request in hand (the line server's modem-line requests)."""
+        return any(service.holding() for service in list(self.services.values()) if hasattr(service, "holding"))
 
     def _medium(self, bus_kind: BusKind, spec: EndpointSpec, paced: bool) -> Any:
         """The medium of an endpoint, on the bench's clock (a medium class without ``clock=`` gets the wall

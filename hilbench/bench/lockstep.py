@@ -42,7 +42,7 @@ import sys
 import tempfile
 import termios
 import time
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -121,6 +121,7 @@ class Verdict:
     counted: bool = False  # whether a blocker counts toward a stall (not in its start-up grace)
     recheck: list[int] = field(default_factory=list)  # waiters to wake: a hand-over since they began to wait
     flight: list[str] = field(default_factory=list)  # ptys with bytes written and not yet taken
+    held: bool = False  # a client's request is in the bench's hands outside the loop (a line request)
 
 
 @dataclass
@@ -145,14 +146,16 @@ class Lockstep:
 
     ``ptys``: (endpoint name, pty host port) of each bench pty; the port's ``bytes_out``/``bytes_in`` are
     the bench's side of the page's port counters. ``stall``: wall seconds before a lockstep stall (None:
-    never). ``epoch_ns``: virtual Unix time at ``origin_ns``.
+    never). ``epoch_ns``: virtual Unix time at ``origin_ns``. ``holding()``: whether the bench has a
+    client's request in hand outside the loop (the line server's), which keeps time still.
     """
 
     def __init__(self, ptys: Iterable[tuple[str, Any]] = (), *, vnow_ns: int = vp.ORIGIN_NS,
                  origin_ns: int = vp.ORIGIN_NS, epoch_ns: int | None = None, stall: float | None = STALL,
                  nslots: int = vp.DEFAULT_SLOTS, poll_k: int = 32, quantum_ns: int = 100_000,
-                 startup_grace: float = STARTUP_GRACE) -> None:
+                 startup_grace: float = STARTUP_GRACE, holding: Callable[[], bool] | None = None) -> None:
         self.atomics = _Atomics()
+        self._holding = holding
         self.stall = stall
         self.startup_grace = startup_grace
         self.nslots = nslots
@@ -269,12 +272,21 @@ class Lockstep:
                 now = time.monotonic()  # wall-clock: the kernel's hand-over takes microseconds of real time
                 if end is None:
                     end = now + SETTLE_LIMIT
+                elif self._reading(i):
+                    break  # a client thread woke on the bytes and reads them (its count follows the read)
                 elif now > end:  # (read by a program outside the lockstep, whose reads are not counted)
                     self.settle_timeouts += 1
                     break
                 os.sched_yield()
                 unread = delivered - self._port(i, vp.P_READ) - self._port(i, vp.P_DISCARDED)
         return fresh
+
+    def _reading(self, port: int) -> bool:
+        """Whether a client thread that waited on ``port`` runs now (it may be reading it)."""
+        bit = 1 << port
+        states = self.u32[_STATE_WORD:_STATE_WORD + _SLOT_WORDS * self.nslots:_SLOT_WORDS].tolist()
+        return any(st in (vp.RUNNING, vp.RUNNABLE, vp.WOKEN) and self._s64(i, vp.S_PORTS) & bit
+                   for i, st in enumerate(states))
 
     def wake_due(self, fresh_ports: Iterable[int] = ()) -> int:
         """C: wake the waiters whose deadline came and those waiting on a pty just delivered to."""
@@ -385,6 +397,9 @@ class Lockstep:
                 v.quiet = False
                 v.counted = True
                 v.flight.append(p.name)
+        if v.quiet and self._holding is not None and self._holding():
+            v.quiet = False
+            v.held = True  # (bounded by the line server's own timeouts: not a stall)
         v.next_ns = None if nxt == vp.NO_DEADLINE else nxt
         if v.quiet or not (v.blockers or v.flight):
             self._blocked_since = None
@@ -454,7 +469,7 @@ class Lockstep:
 
     def wait_hint(self, v: Verdict, real: float) -> float:
         """Real seconds D may block for news given ``v`` (a stall, or a /proc look, is due sooner)."""
-        timeout = LOOK_AGAIN
+        timeout = BLOCKED_CONFIRM if v.held else LOOK_AGAIN
         if v.blockers and self._blocked_since is not None:
             since = real - self._blocked_since
             if since < BLOCKED_CHECK + BLOCKED_CONFIRM * 2:
