@@ -250,3 +250,19 @@ def test_emulate_virtual_time_from_the_command_line(hilbench_emulator, hilbench_
 def test_emulate_refuses_bad_virtual_time_options_in_one_line(args, error):
     proc = subprocess.run([*HILBENCH, "emulate", "mecarover-can", *args], capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2 and error in proc.stderr and proc.stderr.count("\n") == 1, proc.stderr
+
+
+def test_hilbench_run_refuses_the_python_fallback_on_a_virtual_clock(tmp_path):
+    with Bench("mecarover-can", virtual_time=True) as bench:
+        manifest = tmp_path / "bench.json"
+        bench.write_manifest(manifest)
+        shim = subprocess.run([*HILBENCH, "run", "--shim", "python", "--manifest", str(manifest), "--", "true"],
+                              capture_output=True, text=True, timeout=60)
+        env = {**os.environ, "CC": str(tmp_path / "no-cc"), "XDG_CACHE_HOME": str(tmp_path / "cache")}
+        cc = subprocess.run([*HILBENCH, "run", "--manifest", str(manifest), "--", "true"], capture_output=True,
+                            text=True, timeout=60, env=env)
+        assert bench.clock.now() == 1000.0 and bench.services["clock"].stats()["threads_seen"] == 0
+    assert shim.returncode == 2 and shim.stderr.count("\n") == 1
+    assert "virtual time needs the preload shim: --shim python cannot put a client on the bench's clock" in shim.stderr
+    assert cc.returncode == 1 and cc.stderr.count("\n") == 1
+    assert "virtual time needs the preload shim: no C compiler" in cc.stderr
