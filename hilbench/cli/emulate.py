@@ -91,11 +91,11 @@ def _virtual_options(args: argparse.Namespace) -> dict:
     from hilbench.errors import UsageError
 
     if not args.virtual_time:
-        given = [opt for opt, value in (("--virtual-epoch", args.virtual_epoch), ("--lockstep-stall", args.lockstep_stall))
-                 if value is not None]
+        given = [opt for opt, value in (("--virtual-epoch", args.virtual_epoch), ("--lockstep-stall", args.lockstep_stall),
+                                        ("--seed", args.seed)) if value is not None]
         if given:
             raise UsageError(f"{' and '.join(given)} need --virtual-time")
-        return {"seed": args.seed} if args.seed is not None else {}
+        return {}
     if args.unpaced:
         raise UsageError("virtual time is paced: --unpaced and --virtual-time do not go together")
     out: dict = {"virtual_time": args.virtual_time, "seed": args.seed or 0}
@@ -196,12 +196,12 @@ def register(sub: argparse._SubParsersAction) -> None:
                          "`hilbench run` take part; free: an idle bench runs ahead on its own")
     vt.add_argument("--virtual-epoch", metavar="TIME", type=_epoch_arg,
                     help="the Unix time the virtual clock starts at: ISO 8601 (2026-01-01T00:00:00Z) or seconds "
-                         "(default: now); pins the stamps in payloads and captures")
+                         "(default: now); pins the Unix time stamps in payloads")
     vt.add_argument("--lockstep-stall", metavar="SECONDS|never", type=_stall_arg,
                     help="wall seconds a client thread that never waits holds the clock before time follows the "
                          "wall clock (counted and warned; default 1)")
     vt.add_argument("--seed", type=int, metavar="N",
-                    help="seed what is random on the bench (fault draws; default 0)")
+                    help="seed what a profile leaves random (a bus's fault draws), per medium (default 0)")
     e.set_defaults(func=cmd_emulate)
 
 

@@ -242,7 +242,7 @@ def test_emulate_virtual_time_from_the_command_line(hilbench_emulator, hilbench_
 
 
 @pytest.mark.parametrize(("args", "error"), [
-    (["--lockstep-stall", "2"], "hilbench: error: --lockstep-stall need --virtual-time"),
+    (["--lockstep-stall", "2", "--seed", "1"], "hilbench: error: --lockstep-stall and --seed need --virtual-time"),
     (["--virtual-time", "--unpaced"], "hilbench: error: virtual time is paced: --unpaced and --virtual-time do not"),
     (["--virtual-time", "--lockstep-stall", "0"], "'0': expected seconds above 0, or never"),
     (["--virtual-time", "--virtual-epoch", "yesterday"], "'yesterday' is neither an ISO 8601 time"),
