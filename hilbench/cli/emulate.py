@@ -10,6 +10,7 @@ from pathlib import Path
 
 from hilbench import registry
 from hilbench.cli.common import add_set_option, warn_beyond_machine
+from hilbench.rules import Rule
 from hilbench.transports.host_port import DEFAULT_BIND, bind_address
 
 
@@ -200,7 +201,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     vt.add_argument("--lockstep-stall", metavar="SECONDS|never", type=_stall_arg,
                     help="wall seconds a client thread that never waits holds the clock before time follows the "
                          "wall clock (counted and warned; default 1)")
-    vt.add_argument("--seed", type=int, metavar="N",
+    vt.add_argument("--seed", type=Rule(int, 0), metavar="N",
                     help="seed what a profile leaves random (a bus's fault draws), per medium (default 0)")
     e.set_defaults(func=cmd_emulate)
 
