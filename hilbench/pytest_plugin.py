@@ -9,7 +9,10 @@ Fixtures
     the pty to open; ``bench.device(3)`` is the emulated device with ID 3, whose
     fault knobs the test may turn.
 ``hilbench_bench``
-    A factory for more benches: ``hilbench_bench("wolfgang", paced=True)``.
+    A factory for more benches: ``hilbench_bench("wolfgang", paced=True)``;
+    ``hilbench_bench("mecarover-can", virtual_time=True)`` runs one in virtual time (the
+    ``Bench`` keywords: ``virtual_epoch``, ``lockstep_stall``, ``seed``), whose clock clients started
+    with ``hilbench_run`` share.
 ``hilbench_emulator``
     A factory that runs ``hilbench emulate`` in a separate process, as a user
     would, and returns its manifest once every endpoint is ready.
@@ -191,7 +194,8 @@ def _labgrid_bench(request: pytest.FixtureRequest) -> Any:
 @pytest.fixture
 def hilbench_emulator() -> Iterator[Callable[..., dict[str, Any]]]:
     """Factory: run ``hilbench emulate PROFILE [ARGS]`` in a subprocess (``set={KEY: VALUE}``: ``--set``
-    overrides); returns its manifest.
+    overrides; ``virtual_time=True`` (or ``"free"``): ``--virtual-time``, clients under ``hilbench_run`` then
+    share its clock); returns its manifest.
 
     The manifest also carries ``"process"`` (the :class:`subprocess.Popen`) and
     ``"manifest_path"`` (the file, for ``hilbench run --manifest``).
@@ -200,9 +204,11 @@ def hilbench_emulator() -> Iterator[Callable[..., dict[str, Any]]]:
     tmp = tempfile.TemporaryDirectory(prefix="hilbench-")
 
     def start(profile: str | Path = DEFAULT_PROFILE, *args: str, timeout: float = 20.0,
-              set: dict[str, Any] | None = None) -> dict[str, Any]:
+              set: dict[str, Any] | None = None, virtual_time: bool | str = False) -> dict[str, Any]:
         manifest = Path(tmp.name) / f"manifest-{len(procs)}.json"
         overrides = [a for key, value in (set or {}).items() for a in ("--set", f"{key}={_toml_text(value)}")]
+        if virtual_time:
+            overrides += ["--virtual-time"] + ([] if virtual_time is True else [str(virtual_time)])
         cmd = [sys.executable, "-m", "hilbench.cli", "emulate", str(profile), "--manifest", str(manifest), *overrides,
                *args]
         proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,

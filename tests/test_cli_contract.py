@@ -60,6 +60,8 @@ NOT_A_RANGE = {
     ("dxl", "write", "id"): "dxl_id",
     ("dxl", "write", "value"): "the written item's own range (the client checks it against the model's table)",
     ("emulate", "bind"): "an address",
+    ("emulate", "virtual_epoch"): "a time: ISO 8601 or Unix seconds",
+    ("emulate", "lockstep_stall"): "seconds above 0, or never",
     ("monitor", "view"): "a view name",
     ("tap", "view"): "a view name",
 }

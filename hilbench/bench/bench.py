@@ -119,7 +119,10 @@ class Bench:
     time jumps from event to event (``"hold"``, the default: only when ``bench.clock.run_for(s)`` asks;
     ``"free"``: on its own). A virtual bench is paced. ``virtual_epoch`` pins the Unix time of its start
     (stamps then repeat from run to run); ``seed`` seeds what would otherwise be random (a bus's fault
-    draws), so two runs of the same inputs do the same.
+    draws), so two runs of the same inputs do the same. A virtual bench also shares its clock with clients
+    under ``hilbench run`` (:mod:`hilbench.bench.lockstep`; the manifest's ``clock`` entry);
+    ``lockstep_stall`` is how many wall seconds a client thread that never waits holds the clock before
+    time follows the wall clock (None: for ever).
     """
 
     def __init__(
@@ -134,6 +137,7 @@ class Bench:
         virtual_time: bool | str = False,
         virtual_epoch: float | None = None,
         seed: int = 0,
+        lockstep_stall: float | None = 1.0,
     ) -> None:
         self.profile = profile if isinstance(profile, Profile) else load_profile(profile)
         if virtual_time and paced is False:
@@ -148,6 +152,7 @@ class Bench:
         #: What runs the bench in virtual time (None on the wall clock).
         self.loop: VirtualLoop | None = None
         self.seed = seed
+        self.lockstep_stall = lockstep_stall
         if virtual_time:
             mode = "hold" if virtual_time is True else str(virtual_time)
             if mode not in MODES:
@@ -230,6 +235,7 @@ class Bench:
                 else:
                     ep.medium.start()
             if self.loop is not None:
+                self._start_lockstep()
                 self.loop.start()
             for ep in self.endpoints.values():
                 ep.bus_kind.start(ep, t)
@@ -242,6 +248,22 @@ class Bench:
             raise
         self.started_at = t
         return self
+
+    def _start_lockstep(self) -> None:
+        """The clock page clients under ``hilbench run`` share (listed in the manifest as ``clock``)."""
+        from hilbench.bench.lockstep import Lockstep
+
+        assert self.loop is not None and isinstance(self.clock, VirtualClock)
+        ptys = [(ep.name, ep.port) for ep in self.endpoints.values()
+                if getattr(ep.port, "rdev", None) is not None and hasattr(ep.port, "bytes_in")]
+        clock = self.clock
+        self.loop.lockstep = self.services["clock"] = Lockstep(
+            ptys, vnow_ns=round(clock.now() * 1e9), origin_ns=round(clock.origin * 1e9),
+            epoch_ns=round(clock.epoch * 1e9), stall=self.lockstep_stall, holding=self._holding)
+
+    def _holding(self) -> bool:
+        """Whether a service has a lockstep client's request in hand (the line server's modem-line requests)."""
+        return any(service.holding() for service in list(self.services.values()) if hasattr(service, "holding"))
 
     def _medium(self, bus_kind: BusKind, spec: EndpointSpec, paced: bool) -> Any:
         """The medium of an endpoint, on the bench's clock (a medium class without ``clock=`` gets the wall

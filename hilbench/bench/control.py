@@ -15,7 +15,9 @@ under and its counters, e.g. how late a paced serial line handed transmissions
 over against its wire model; ``host``: the host port's own, e.g. a socketcand
 server's clients and what it refused or dropped),
 ``servers`` (each endpoint's network servers, e.g. RFC 2217, with their
-client and counters), ``control`` (this channel's limits and counters), ``manifest`` (the bench's
+client and counters), ``control`` (this channel's limits and counters), ``clock`` (the bench's clock:
+virtual or not, its time, and with virtual time the lockstep counters: stalls, ``stalled_s``,
+``last_stall``, client threads), ``manifest`` (the bench's
 manifest, for programs that reach the bench only through this channel, e.g. over labgrid),
 ``world`` (the truth: every body's pose and velocity, each device's body and pose, as ``hilbench world
 --json`` prints it) and ``world_place`` (put a body somewhere: ``body``, ``x``, ``y``, ``theta``);
@@ -673,6 +675,8 @@ class ControlServer:
                               for ep in self.bench.endpoints.values() if ep.medium is not None}}
         if cmd == "control":
             return {"control": self.status()}
+        if cmd == "clock":
+            return {"clock": clock_status(self.bench)}
         if cmd == "taps":
             return {"taps": {ep.name: {"url": ep.tap.url, **ep.tap.status()}
                              for ep in self.bench.endpoints.values() if ep.tap is not None}}
@@ -686,6 +690,19 @@ class ControlServer:
             return ep.bus_kind.control(self.bench, ep, cmd, req)
         _name, device, family = self._device(cmd, req)
         return family.control(self.bench, device, cmd, req)
+
+
+def clock_status(bench: Any) -> dict[str, Any]:
+    """The bench's clock for ``clock``: virtual or not, now, and the lockstep's counters (virtual time)."""
+    clock = bench.clock
+    out: dict[str, Any] = {"virtual": clock.virtual, "now": clock.now()}
+    lockstep = bench.services.get("clock")
+    if lockstep is not None:
+        out.update(lockstep.describe())
+    if bench.loop is not None:
+        out["mode"] = bench.loop.mode
+        out["loop"] = dataclasses.asdict(bench.loop.stats)
+    return out
 
 
 def medium_status(medium: Any) -> dict[str, Any]:

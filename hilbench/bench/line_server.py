@@ -50,8 +50,10 @@ newcomer answered ``err too many clients`` and closed. A connection idle for
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import os
 import socket
+import struct
 import tempfile
 import termios
 import threading
@@ -81,15 +83,23 @@ TIOCM = {"dtr": termios.TIOCM_DTR, "rts": termios.TIOCM_RTS, "cts": termios.TIOC
          "dsr": termios.TIOCM_DSR, "ri": termios.TIOCM_RNG, "cd": termios.TIOCM_CAR}
 
 
+SIOCOUTQ = termios.TIOCOUTQ  # (the same number: bytes a socket's peer has not read yet, on a Unix socket)
+
+
+def _queued(fd: int, request: int) -> int:
+    return struct.unpack("i", fcntl.ioctl(fd, request, b"\0" * 4))[0]
+
+
 class _Conn:
     """A connection's state, for choosing one to close for a newcomer."""
 
-    __slots__ = ("sock", "last", "busy")
+    __slots__ = ("sock", "last", "busy", "queued")
 
     def __init__(self, sock: socket.socket) -> None:
         self.sock = sock
         self.last = time.monotonic()  # when it last connected or was answered (wall-clock: idle service timer)
         self.busy = False  # a request has begun
+        self.queued = False  # its work is in the bench's timeline (it waits for the bench's time, not for us)
 
 
 class _Port:
@@ -137,6 +147,7 @@ class LineServer:
                       lambda _rdev=rdev: self.board.writers_idle(_rdev),
                       lambda _rdev=rdev: self.board.draining(_rdev))
         self._conns: dict[socket.socket, _Conn] = {}
+        self._tls = threading.local()  # the connection a request thread serves
         self._conns_lock = threading.Lock()
         self._eviction: Eviction[_Conn] = Eviction(
             lambda c, now: None if c.busy or now - c.last < EVICT_IDLE else (0, c.last))
@@ -293,12 +304,35 @@ class LineServer:
         medium.call_at(None, take)
         if not took.wait(MEDIUM_TIMEOUT):
             raise RequestRefused(f"the bench's line did not answer within {MEDIUM_TIMEOUT:g} s")
+        conn = getattr(self._tls, "conn", None)
+        if conn is not None:
+            conn.queued = True  # (virtual time may move now: what remains happens at the line's instants)
         wire = max(0.0, box.get("end", 0.0) - medium.clock.now())  # a paced line's wire time
         if not done.wait(MEDIUM_TIMEOUT + wire):
             raise RequestRefused(f"the bench's line did not answer within {MEDIUM_TIMEOUT:g} s")
         if "error" in box:
             raise box["error"]
         return box.get("taken", 0) if taken else int(box.get("value") or 0)
+
+    def holding(self) -> bool:
+        """Whether a client's request is on its way into the bench, or its answer on its way out: a
+        virtual-time bench's clock waits (:mod:`hilbench.bench.lockstep`), since the client that asked
+        sleeps in a call its clock shim does not see. A request whose work is queued on the line's
+        timeline (a drain waiting for the wire) holds nothing."""
+        with self._conns_lock:
+            conns = list(self._conns.values())
+            if readable([self._sock.fileno()], 0):
+                return True  # a client connecting (its first request waits in a connection not accepted yet)
+        for c in conns:
+            if c.busy and not c.queued:
+                return True
+            try:
+                fd = c.sock.fileno()
+                if fd >= 0 and (_queued(fd, termios.FIONREAD) or _queued(fd, SIOCOUTQ)):
+                    return True  # a request not read yet, or an answer its client has not read yet
+            except OSError:
+                continue
+        return False
 
     # ------------------------------------------------------------------ socket
 
@@ -335,6 +369,7 @@ class LineServer:
         """Answer requests on one connection, one line each, until the client closes it (or idles)."""
         conn = state.sock
         data = b""
+        self._tls.conn = state
         try:
             while not self._closed.is_set():
                 while b"\n" not in data and len(data) <= MAX_REQUEST:
@@ -348,7 +383,7 @@ class LineServer:
                     conn.sendall(b"err request too long\n")
                     return
                 conn.sendall(self.handle(line.decode("ascii", "replace")).encode() + b"\n")
-                state.busy, state.last = bool(data), time.monotonic()  # wall-clock: service
+                state.busy, state.queued, state.last = bool(data), False, time.monotonic()  # wall-clock: service
         except OSError:
             pass  # the client went away: it fails open on its side
         finally:

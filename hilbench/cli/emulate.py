@@ -10,6 +10,7 @@ from pathlib import Path
 
 from hilbench import registry
 from hilbench.cli.common import add_set_option, warn_beyond_machine
+from hilbench.rules import Rule
 from hilbench.transports.host_port import DEFAULT_BIND, bind_address
 
 
@@ -21,7 +22,9 @@ def cmd_emulate(args: argparse.Namespace) -> int:
     profile = load_profile(args.profile, args.overrides)
     paced = True if args.paced else (False if args.unpaced else None)
     serve = _server_names(args.serve)
-    bench = Bench(profile, paced=paced, link_dir=args.link_dir, tap=not args.no_tap, serve=serve, bind=args.bind)
+    virtual = _virtual_options(args)
+    bench = Bench(profile, paced=paced, link_dir=args.link_dir, tap=not args.no_tap, serve=serve, bind=args.bind,
+                  **virtual)
     manifest = Path(args.manifest) if args.manifest else None
     if manifest:
         bench.check_manifest_path(manifest)  # refuse a user's file or a live bench's manifest before starting
@@ -67,6 +70,10 @@ def cmd_emulate(args: argparse.Namespace) -> int:
             print(f"  control: {bench.control.address_text}  ({takers or ', '.join(BENCH_COMMANDS)})")
         if lines is not None and manifest:
             print(f"  modem lines: hilbench run --manifest {manifest} -- COMMAND")
+        if bench.loop is not None:
+            stall = "never" if bench.lockstep_stall is None else f"{bench.lockstep_stall:g} s"
+            print(f"  clock: virtual ({bench.loop.mode}; lockstep stall after {stall}; seed {bench.seed})"
+                  + (f"; clients join with: hilbench run --manifest {manifest} -- COMMAND" if manifest else ""))
         if manifest:
             print(f"  manifest: {manifest}")
         sys.stdout.flush()
@@ -78,6 +85,57 @@ def cmd_emulate(args: argparse.Namespace) -> int:
         os.close(wake_r)
         os.close(wake_w)
     return 0
+
+
+def _virtual_options(args: argparse.Namespace) -> dict:
+    """Bench keywords from --virtual-time, --virtual-epoch, --lockstep-stall and --seed (one-line errors)."""
+    from hilbench.errors import UsageError
+
+    if not args.virtual_time:
+        given = [opt for opt, value in (("--virtual-epoch", args.virtual_epoch), ("--lockstep-stall", args.lockstep_stall),
+                                        ("--seed", args.seed)) if value is not None]
+        if given:
+            raise UsageError(f"{' and '.join(given)} need --virtual-time")
+        return {}
+    if args.unpaced:
+        raise UsageError("virtual time is paced: --unpaced and --virtual-time do not go together")
+    out: dict = {"virtual_time": args.virtual_time, "seed": args.seed or 0}
+    if args.virtual_epoch is not None:
+        out["virtual_epoch"] = args.virtual_epoch
+    if args.lockstep_stall is not None:
+        out["lockstep_stall"] = args.lockstep_stall
+    return out
+
+
+def _epoch_arg(text: str) -> float:
+    """--virtual-epoch: an ISO 8601 date and time (UTC unless it says otherwise) or Unix seconds."""
+    import datetime as dt
+
+    try:
+        return float(text)
+    except ValueError:
+        pass
+    try:
+        when = dt.datetime.fromisoformat(text.strip().replace("Z", "+00:00").replace("z", "+00:00"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is neither an ISO 8601 time (2026-01-01T00:00:00Z) nor "
+                                         "Unix seconds") from None
+    if when.tzinfo is None:
+        when = when.replace(tzinfo=dt.UTC)
+    return when.timestamp()
+
+
+def _stall_arg(text: str) -> float | None:
+    """--lockstep-stall: wall seconds (> 0) or ``never``."""
+    if text.strip().lower() == "never":
+        return None
+    try:
+        value = float(text)
+    except ValueError:
+        value = -1.0
+    if not value > 0 or value == float("inf"):
+        raise argparse.ArgumentTypeError(f"{text!r}: expected seconds above 0, or never")
+    return value
 
 
 def _where(ep) -> str:
@@ -132,6 +190,19 @@ def register(sub: argparse._SubParsersAction) -> None:
     e.add_argument("--bind", metavar="ADDR", default=DEFAULT_BIND, type=_bind_arg,
                    help="address the servers, traffic taps and control channel listen on (default: 127.0.0.1; "
                         "anything else is reachable from other machines and warned about)")
+    vt = e.add_argument_group("virtual time", "run the bench on a virtual clock that clients under `hilbench run` "
+                                              "share: time jumps from event to event when everyone waits")
+    vt.add_argument("--virtual-time", nargs="?", const="hold", choices=("hold", "free"), metavar="MODE",
+                    help="run in virtual time (paced); MODE hold (default): time moves only while clients under "
+                         "`hilbench run` take part; free: an idle bench runs ahead on its own")
+    vt.add_argument("--virtual-epoch", metavar="TIME", type=_epoch_arg,
+                    help="the Unix time the virtual clock starts at: ISO 8601 (2026-01-01T00:00:00Z) or seconds "
+                         "(default: now); pins the Unix time stamps in payloads")
+    vt.add_argument("--lockstep-stall", metavar="SECONDS|never", type=_stall_arg,
+                    help="wall seconds a client thread that never waits holds the clock before time follows the "
+                         "wall clock (counted and warned; default 1)")
+    vt.add_argument("--seed", type=Rule(int, 0), metavar="N",
+                    help="seed what a profile leaves random (a bus's fault draws), per medium (default 0)")
     e.set_defaults(func=cmd_emulate)
 
 

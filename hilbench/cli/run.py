@@ -26,6 +26,15 @@ pyserial patch loaded through PYTHONPATH covers Python clients using pyserial
 only. hilbench run replaces itself with COMMAND (exec): signals reach the
 program directly and its exit status is hilbench run's.
 
+Against a bench started with --virtual-time (its manifest has a `clock`
+entry), COMMAND also runs on the bench's virtual clock: its clocks, sleeps and
+timeouts are virtual, and time advances only when every thread of COMMAND (and
+of its children) waits. This needs the preload library (no Python fallback),
+and sets PYTHONHASHSEED=0 unless it is set. A thread that runs without ever
+waiting holds the clock for at most the bench's --lockstep-stall (1 s wall by
+default); after that time follows the wall clock until it waits, counted as a
+lockstep stall and warned about once per thread.
+
 Limits: statically linked and setuid programs ignore LD_PRELOAD; programs that
 make raw system calls bypass libc; Linux with glibc only; the shim is built for
 the machine's own word size (a 32-bit program on a 64-bit system sees a plain pty).
@@ -52,7 +61,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     env, notes = run_environment(benches, shim)
     for note in notes:
         print(f"hilbench run: note: {note}", file=sys.stderr)
-    if not any(b.ports for b in benches):
+    if not any(b.ports or b.clock for b in benches):
         print("hilbench run: note: the bench has no pty endpoints; COMMAND runs unchanged", file=sys.stderr)
     if args.verbose:
         for b in benches:
@@ -60,6 +69,9 @@ def cmd_run(args: argparse.Namespace) -> int:
                 print(f"hilbench run: {name}: {port.get('path')} (rdev {port.get('rdev')}) via {b.socket}",
                       file=sys.stderr)
         print(f"hilbench run: shim: {env['HILBENCH_RUN']}", file=sys.stderr)
+        for b in benches:
+            if b.clock:
+                print(f"hilbench run: clock: virtual, {b.clock.get('page')} ({b.manifest})", file=sys.stderr)
     sys.stdout.flush()
     sys.stderr.flush()
     try:

@@ -21,8 +21,10 @@ class BenchLines:
     """A running bench's line server as its manifest lists it: the socket and the ptys by endpoint."""
 
     manifest: str
-    socket: str
+    socket: str | None  # None: the bench has no ptys (no line server)
     ports: dict[str, dict[str, Any]] = field(default_factory=dict)
+    #: The manifest's ``clock`` entry of a virtual-time bench (its clock page), else None.
+    clock: dict[str, Any] | None = None
 
     @property
     def rdevs(self) -> list[int]:
@@ -58,14 +60,30 @@ def read_bench(manifest: str | os.PathLike[str] | Mapping[str, Any], *, check: b
         name = str(manifest)
         data = read_manifest(manifest)
     lines = data.get("lines")
-    if not isinstance(lines, Mapping) or not isinstance(lines.get("socket"), str):
-        raise BenchError(f"{name}: the bench serves no modem lines (no 'lines' entry: no pty endpoint, "
-                         "or a hilbench older than `hilbench run`)")
-    bench = BenchLines(name, lines["socket"], dict(lines.get("ports") or {}))
-    if check and not ping(bench.socket):
-        pid = data.get("pid")
+    clock = data.get("clock")
+    clock = dict(clock) if isinstance(clock, Mapping) and clock.get("virtual") else None
+    if isinstance(lines, Mapping) and isinstance(lines.get("socket"), str):
+        bench = BenchLines(name, lines["socket"], dict(lines.get("ports") or {}), clock)
+    else:  # a bench without ptys (sockets only): nothing to serve but its clock, if it has one
+        bench = BenchLines(name, None, {}, clock)
+    pid = data.get("pid")
+    if check and bench.socket is not None and not ping(bench.socket):
         raise BenchError(f"{name}: the bench (pid {pid}) does not answer on {bench.socket}; is it still running?")
+    if check and bench.socket is None and isinstance(pid, int) and not _alive(pid):
+        raise BenchError(f"{name}: the bench (pid {pid}) is not running")
+    if check and clock is not None and not os.path.exists(str(clock.get("page"))):
+        raise BenchError(f"{name}: the bench's clock page {clock.get('page')} is gone; is it still running?")
     return bench
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
 
 
 def ping(path: str, timeout: float = 2.0) -> bool:
@@ -82,7 +100,7 @@ def ping(path: str, timeout: float = 2.0) -> bool:
 
 def ports_value(benches: Iterable[BenchLines]) -> str:
     """``HILBENCH_RUN_PORTS``: ``RDEV=SOCKET`` for every served pty, joined with ``;``."""
-    return ";".join(f"{rdev}={b.socket}" for b in benches for rdev in b.rdevs)
+    return ";".join(f"{rdev}={b.socket}" for b in benches if b.socket for rdev in b.rdevs)
 
 
 def python_site_dir() -> str:
@@ -100,17 +118,35 @@ def run_environment(benches: Iterable[BenchLines], shim: str = "auto",
     """
     if shim not in SHIMS:
         raise UsageError(f"unknown shim {shim!r}; expected one of {', '.join(SHIMS)}")
+    benches = list(benches)
     env = dict(os.environ if environ is None else environ)
     env["HILBENCH_RUN_PORTS"] = ports_value(benches)
+    clocks = [b for b in benches if b.clock is not None]
+    if len(clocks) > 1:
+        raise UsageError(f"{clocks[0].manifest} and {clocks[1].manifest} both run in virtual time: a client "
+                         "can follow one bench's clock only")
+    if clocks and shim == "python":
+        raise UsageError("virtual time needs the preload shim: --shim python cannot put a client on the bench's "
+                         "clock")
     notes: list[str] = []
     library = None
     if shim in ("auto", "c"):
         try:
             library = shim_library()
         except ShimBuildError as exc:
+            if clocks:
+                raise BenchError(f"virtual time needs the preload shim: {exc}") from None
             if shim == "c":
                 raise
             notes.append(f"{exc}; pyserial clients get the Python fallback, compiled programs see a plain pty")
+    if clocks:
+        from hilbench.run.vclock_page import ENV
+
+        env[ENV] = str(clocks[0].clock["page"])  # type: ignore[index]
+        # Python clients iterate sets of strings in the same order in every run (PLAN26 §6.5)
+        env.setdefault("PYTHONHASHSEED", "0")
+    else:
+        env.pop("HILBENCH_CLOCK", None)  # (a client of a wall-clock bench never follows a stale page)
     if library is not None:
         env["LD_PRELOAD"] = ":".join(p for p in (str(library), env.get("LD_PRELOAD", "")) if p)
         env["HILBENCH_RUN"] = "c"

@@ -36,6 +36,7 @@ import heapq
 import itertools
 import logging
 import threading
+import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any
@@ -93,6 +94,10 @@ class VirtualLoop:
         self._holding = False  # the loop waits in paused()
         self._thread: threading.Thread | None = None
         self._readiness = Readiness([])
+        self._news = Readiness([])
+        #: The lockstep controller (:class:`~hilbench.bench.lockstep.Lockstep`) when clients under
+        #: ``hilbench run`` share the clock (phases B, C, D and F wait for them); None: no clients.
+        self.lockstep: Any = None
 
     # ------------------------------------------------------------------ wiring
 
@@ -318,12 +323,28 @@ class VirtualLoop:
                 self._holding = False
         now = clock.now()
         stats.rounds += 1
+        ls = self.lockstep
+        if ls is not None:
+            ls.publish(now)
         self._bench_phase(now)
+        if ls is not None:
+            ls.wake_due(ls.settle())  # B and C: clients see what the bench did at now before they act at now
         self._input(now, 0)
         nxt = self._next_time(now)
         if nxt is not None and nxt <= now:
             stats.delta_rounds += 1
             return  # zero-delay work: another round at the same instant
+        if ls is not None and not ls.active():
+            ls.end_stall()  # (the last client left while time followed the wall clock)
+        elif ls is not None:
+            t = self._lockstep(ls, now, nxt)
+            with self._cv:
+                self._settled = now
+                if t is not None and t > now:
+                    self._advance(t)
+                else:
+                    self._cv.notify_all()
+            return
         with self._cv:
             self._settled = now
             target = self._target
@@ -338,6 +359,57 @@ class VirtualLoop:
             self._cv.notify_all()
         # Nothing to do at this instant and time may not (or need not) move: wait for input or another thread.
         self._input(now, IDLE_LOOK)
+
+    def _lockstep(self, ls: Any, now: float, nxt: float | None) -> float | None:
+        """D with lockstep clients: wait until every client thread waits (or a stall lets time follow the
+        wall clock); returns the time to move to (None: another round at ``now``: input came, or a client
+        was woken to look again). ``nxt``: the bench's next event."""
+        while not self._stop.is_set():
+            real = time.monotonic()  # wall-clock: the stall watchdog and /proc looks run in real time
+            v = ls.look(real)
+            if self._input(now, 0):
+                return None  # what clients wrote is committed at now: its zero-delay work runs first
+            if v.recheck:
+                ls.wake(v.recheck)
+                continue
+            if v.quiet:
+                ls.end_stall()
+                if not ls.active():
+                    return None  # the last client just left: time is the mode's again (hold: it stays)
+                if v.next_ns is not None and (nxt is None or v.next_ns / 1e9 <= nxt):
+                    return ls.moved_to(max(v.next_ns, ls.vnow_ns))
+                if nxt is not None:
+                    return nxt
+                # everyone waits without a deadline and the bench has nothing scheduled: only input moves it
+                self._wait_news(ls, IDLE_LOOK)
+                return None
+            if self._paused:
+                return None
+            target = ls.stall_target(v, real)
+            if target is not None:  # a stall: time follows the wall clock, events and deadlines as it reaches them
+                due = [t for t in (nxt, None if v.next_ns is None else v.next_ns / 1e9) if t is not None]
+                t = min([target / 1e9, *due])
+                if t > now:
+                    return t
+            self._wait_news(ls, ls.wait_hint(v, real))
+        return None
+
+    def _wait_news(self, ls: Any, timeout: float) -> None:
+        """Block up to ``timeout`` real seconds for a client's notification, a process's end, host input or
+        another thread's call."""
+        states = ls.arm()
+        ready: list[int] = []
+        try:
+            if ls.unchanged(states):
+                fds = [self._waker.fd, *ls.fds()]
+                for medium in self.media:
+                    fds += medium.vt_fds()
+                r = self._news
+                if fds != r.key:
+                    r = self._news = Readiness(fds)
+                ready = r.wait(timeout)
+        finally:
+            ls.disarm(ready)
 
     def _advance(self, t: float) -> None:
         """F: the clock moves to ``t`` (called with the condition held)."""

@@ -50,10 +50,17 @@ def test_missing_manifest_and_stopped_bench(tmp_path):
     proc = run("run", "--manifest", path, "--", "true")
     assert proc.returncode == 1
     assert f"the bench (pid {data['pid']}) does not answer on {data['lines']['socket']}" in proc.stderr
-    del data["lines"]
+    del data["lines"]  # a bench without ptys (or one that stopped: its pid is gone)
+    gone = subprocess.Popen(["true"])
+    gone.wait()
+    data["pid"] = gone.pid
     (tmp_path / "old.json").write_text(json.dumps(data))
     proc = run("run", "--manifest", str(tmp_path / "old.json"), "--", "true")
-    assert proc.returncode == 1 and "serves no modem lines" in proc.stderr
+    assert proc.returncode == 1 and f"bench not running (stale manifest, pid {data['pid']} gone)" in proc.stderr
+    data["pid"] = os.getpid()  # running, no ptys: the command runs unchanged
+    (tmp_path / "nolines.json").write_text(json.dumps(data))
+    proc = run("run", "--manifest", str(tmp_path / "nolines.json"), "--", "true")
+    assert proc.returncode == 0 and "has no pty endpoints; COMMAND runs unchanged" in proc.stderr
     (tmp_path / "junk.json").write_text("{")
     proc = run("run", "--manifest", str(tmp_path / "junk.json"), "--", "true")
     assert proc.returncode == 2 and "not a bench manifest" in proc.stderr

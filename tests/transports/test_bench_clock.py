@@ -33,6 +33,7 @@ ALLOWED = {
     "transports/sources/": "sources read programs and devices outside the bench, in real time",
     "transports/tap_server.py": "its clients' stall and eviction timers",
     "transports/udp_relay.py": "its clients' idle timeouts",
+    "bench/lockstep.py": "the lockstep's real-time settle waits and stall watchdog, and the clock page's epoch",
     "bench/control.py": "the control channel's connection timeouts and command waits",
     "bench/capture_replay.py": "--verify replays a capture through the bench's ptys and sockets as a client "
                                "does, in real time",

@@ -1,0 +1,574 @@
+"""The lockstep controller: clients under ``hilbench run`` share a virtual-time bench's clock.
+
+A virtual-time bench (:class:`~hilbench.transports.virtual_loop.VirtualLoop`) gets one :class:`Lockstep`
+(PLAN26 §3, §5). It owns the *clock page* (:mod:`hilbench.bench.clock_page`) and the FIFOs beside it in a
+private 0700 directory; the manifest's ``clock`` entry names them, and ``hilbench run`` hands the page to
+the client's preload shim (``vclock.c``), which claims one slot per client thread and publishes there
+whether the thread runs or waits, and until when. The loop uses the controller in its phases:
+
+- **B, settle**: every byte the bench wrote to a pty is visible on the client's side (``FIONREAD`` on the
+  slave the bench holds) before any client is woken;
+- **C, wake**: threads whose deadline came, and threads waiting on a pty the bench just delivered to, are
+  woken (FUTEX_WAKE on the slot's word, a byte on its wake FIFO for descriptor waits), *after* the bench's
+  events at that instant ran: a client sees what the bench did at an instant before it acts at it;
+- **D, quiescence**: time may move only when every live thread waits (or polls), every byte a client wrote
+  to a pty was taken by the bench (``written == taken``), and no waiter has a hand-over to re-check;
+- **F, next time**: the earliest of the bench's next event and the waiting threads' deadlines (a poller's
+  deadline is ``vnow`` + the quantum).
+
+A thread that computes without ever waiting does not freeze the world: after :attr:`Lockstep.stall` wall
+seconds (default 1 s, None: never) the loop counts a *lockstep stall*, warns once per thread on stderr,
+and lets virtual time follow the wall clock until every thread waits again (§5.6). A run with no stall is
+deterministic; :meth:`Lockstep.stats` has the counters. A process's first thread gets a start-up grace
+(:data:`STARTUP_GRACE`): interpreter start-up and imports run under a held clock without counting.
+
+Atomic compare-and-swap and futex wake-ups come from gcc's ``libatomic`` and libc through ctypes (the
+bench side needs no compiled module of its own).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import ctypes
+import ctypes.util
+import fcntl
+import mmap
+import os
+import platform
+import select
+import shutil
+import struct
+import sys
+import tempfile
+import termios
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from hilbench.bench import clock_page as vp
+from hilbench.errors import BenchError
+
+#: Wall seconds a running thread may hold the clock before a lockstep stall starts (None: never).
+STALL = 1.0
+#: Wall seconds a process's threads may run before any of them first waits (start-up, imports) without
+#: counting toward a stall.
+STARTUP_GRACE = 30.0
+#: Real seconds quiescence must have been blocked by RUNNING threads before their /proc state is read
+#: (a thread asleep in a call the shim does not wrap counts as waiting, PLAN26 §4.3).
+BLOCKED_CHECK = 200e-6
+#: Real seconds between the two /proc looks that must both find such a thread asleep.
+BLOCKED_CONFIRM = 100e-6
+#: Real seconds B waits at most for a pty's delivered bytes to show on the client's side.
+SETTLE_LIMIT = 0.002
+#: Bytes a pty's input queue shows at most (FIONREAD on the client's side; N_TTY's buffer less one).
+TTY_INQ_MAX = 4095
+#: Real seconds a quiescence wait looks again at most (no notification comes for a thread that fell
+#: asleep in an unwrapped call).
+LOOK_AGAIN = 0.005
+
+_FUTEX_WAKE = 1
+_SYS_FUTEX = {"x86_64": 202, "aarch64": 98, "riscv64": 98, "ppc64le": 221, "s390x": 238}
+_STATE_WORD = vp.HEADER_SIZE // 4  # u32 index of slot 0's state
+_SLOT_WORDS = vp.SLOT_SIZE // 4
+
+
+class _Atomics:
+    """Compare-and-swap, atomic add and FUTEX_WAKE on the shared page."""
+
+    def __init__(self) -> None:
+        name = ctypes.util.find_library("atomic") or "libatomic.so.1"
+        try:
+            lib = ctypes.CDLL(name)
+        except OSError:
+            raise BenchError("virtual time for clients needs libatomic (gcc's runtime library, e.g. the "
+                             "libatomic1 package)") from None
+        self._cas = getattr(lib, "__atomic_compare_exchange_4")
+        self._cas.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_uint32, ctypes.c_int, ctypes.c_int]
+        self._cas.restype = ctypes.c_bool
+        self._add8 = getattr(lib, "__atomic_fetch_add_8")
+        self._add8.argtypes = [ctypes.c_void_p, ctypes.c_uint64, ctypes.c_int]
+        self._add8.restype = ctypes.c_uint64
+        self._add4 = getattr(lib, "__atomic_fetch_add_4")
+        self._add4.argtypes = [ctypes.c_void_p, ctypes.c_uint32, ctypes.c_int]
+        self._add4.restype = ctypes.c_uint32
+        self._syscall = ctypes.CDLL(None, use_errno=True).syscall
+        self._futex = _SYS_FUTEX.get(platform.machine())
+        self._expected = ctypes.c_uint32()
+
+    def cas32(self, address: int, expected: int, desired: int) -> bool:
+        self._expected.value = expected
+        return self._cas(address, ctypes.addressof(self._expected), desired, 5, 5)
+
+    def add64(self, address: int, n: int) -> int:
+        return self._add8(address, n, 5)
+
+    def wake(self, address: int) -> None:
+        """Bump the futex word at ``address`` and wake every thread waiting on it."""
+        self._add4(address, 1, 5)
+        if self._futex is not None:
+            self._syscall(self._futex, ctypes.c_void_p(address), _FUTEX_WAKE, 0x7FFFFFFF, None, None, 0)
+
+
+@dataclass
+class Verdict:
+    """What :meth:`Lockstep.look` found: whether time may move, and until when the waiters wait."""
+
+    quiet: bool
+    next_ns: int | None = None  # earliest deadline among the waiting threads (None: none)
+    blockers: list[int] = field(default_factory=list)  # slots that keep time from moving
+    counted: bool = False  # whether a blocker counts toward a stall (not in its start-up grace)
+    recheck: list[int] = field(default_factory=list)  # waiters to wake: a hand-over since they began to wait
+    flight: list[str] = field(default_factory=list)  # ptys with bytes written and not yet taken
+    held: bool = False  # a client's request is in the bench's hands outside the loop (a line request)
+
+
+@dataclass
+class _Slot:
+    pid: int
+    tid: int
+    since: float  # real time first seen
+    asleep: tuple[int, float] | None = None  # (progress, real time) when /proc last showed it asleep
+
+
+@dataclass
+class _Pty:
+    name: str
+    port: Any  # a PtyEndpoint: bytes_in, bytes_out, slave_fd, rdev
+    base_in: int
+    base_out: int
+    delivered: int = 0
+
+
+class Lockstep:
+    """The clock page and the lockstep rules of one virtual-time bench (see the module docstring).
+
+    ``ptys``: (endpoint name, pty host port) of each bench pty; the port's ``bytes_out``/``bytes_in`` are
+    the bench's side of the page's port counters. ``stall``: wall seconds before a lockstep stall (None:
+    never). ``epoch_ns``: virtual Unix time at ``origin_ns``. ``holding()``: whether the bench has a
+    client's request in hand outside the loop (the line server's), which keeps time still.
+    """
+
+    def __init__(self, ptys: Iterable[tuple[str, Any]] = (), *, vnow_ns: int = vp.ORIGIN_NS,
+                 origin_ns: int = vp.ORIGIN_NS, epoch_ns: int | None = None, stall: float | None = STALL,
+                 nslots: int = vp.DEFAULT_SLOTS, poll_k: int = 32, quantum_ns: int = 100_000,
+                 startup_grace: float = STARTUP_GRACE, holding: Callable[[], bool] | None = None) -> None:
+        self.atomics = _Atomics()
+        self._holding = holding
+        self.stall = stall
+        self.startup_grace = startup_grace
+        self.nslots = nslots
+        self.ptys = [_Pty(name, port, port.bytes_in, port.bytes_out) for name, port in ptys]
+        self.dir = Path(tempfile.mkdtemp(prefix="hilbench-clock-"))  # (0700)
+        self.page = self.dir / vp.PAGE_FILE
+        self.notify_path = self.dir / vp.NOTIFY_FILE
+        size = vp.page_size(nslots, len(self.ptys))
+        self.page.write_bytes(bytes(size))
+        os.mkfifo(self.notify_path, 0o600)
+        for i in range(nslots):
+            os.mkfifo(self.dir / vp.WAKE_FILE.format(slot=i), 0o600)
+        fd = os.open(self.page, os.O_RDWR)
+        try:
+            self.map = mmap.mmap(fd, size)
+        finally:
+            os.close(fd)
+        self.notify = os.open(self.notify_path, os.O_RDWR | os.O_NONBLOCK | os.O_CLOEXEC)
+        self._buf = (ctypes.c_char * size).from_buffer(self.map)
+        self.base = ctypes.addressof(self._buf)
+        self.u32, self.u64 = memoryview(self.map).cast("I"), memoryview(self.map).cast("Q")
+        m = self.map
+        struct.pack_into("III", m, vp.H_VERSION, vp.VERSION, nslots, len(self.ptys))
+        self.epoch_ns = time.time_ns() if epoch_ns is None else int(epoch_ns)
+        self.origin_ns = origin_ns
+        struct.pack_into("QQ", m, vp.H_VNOW, vnow_ns, self.epoch_ns)
+        struct.pack_into("I", m, vp.H_POLL_K, poll_k)
+        struct.pack_into("Q", m, vp.H_POLL_QUANTUM, quantum_ns)
+        struct.pack_into("Q", m, vp.H_ORIGIN, origin_ns)
+        for i, p in enumerate(self.ptys):
+            struct.pack_into("Q", m, vp.port_offset(nslots, i) + vp.P_RDEV, p.port.rdev)
+        m[0:8] = vp.MAGIC  # last: a client that maps the page early sees no magic until it is whole
+        self._vnow_ns = vnow_ns
+        self._hint: int | None = None  # the deadline time moved to (float seconds lose no ns, but be sure)
+        self._slots: dict[int, _Slot] = {}
+        self._waited: set[int] = set()  # pids one of whose threads has waited (their start-up is over)
+        self._pidfds: dict[int, int] = {}  # pid -> pidfd
+        self._wake_fds: dict[int, int] = {}
+        self._warned: set[tuple[int, int]] = set()
+        self._blocked_since: float | None = None  # real time quiescence began to be blocked
+        self._counted_since: float | None = None  # real time it began to be blocked by what counts for a stall
+        self._stall_at: tuple[int, float] | None = None  # (vnow ns, real) when the stall began
+        self.wakes = self.rechecks = self.asleep_elsewhere = self.settle_timeouts = 0
+        self.participants_seen = 0
+        self.last_stall: dict[str, Any] | None = None
+        self.warnings: list[str] = []
+
+    # ------------------------------------------------------------------ page access
+
+    def _h(self, off: int) -> int:
+        return self.u64[off // 8]
+
+    def _s32(self, i: int, off: int) -> int:
+        return self.u32[(vp.slot_offset(i) + off) // 4]
+
+    def _s64(self, i: int, off: int) -> int:
+        return self.u64[(vp.slot_offset(i) + off) // 8]
+
+    def _port(self, i: int, off: int) -> int:
+        return self.u64[(vp.port_offset(self.nslots, i) + off) // 8]
+
+    def _set_port(self, i: int, off: int, value: int) -> None:
+        self.u64[(vp.port_offset(self.nslots, i) + off) // 8] = value
+
+    @property
+    def vnow_ns(self) -> int:
+        return self._vnow_ns
+
+    @property
+    def stalled(self) -> bool:
+        return self._stall_at is not None
+
+    @property
+    def env(self) -> dict[str, str]:
+        """What a client's environment needs to join (``hilbench run`` adds it from the manifest)."""
+        return {vp.ENV: str(self.page)}
+
+    # ------------------------------------------------------------------ the loop's phases
+
+    def publish(self, t: float) -> None:
+        """The loop is at virtual time ``t`` (seconds) for a new round: clients read it from now on."""
+        ns = round(t * 1e9)
+        if self._hint is not None and abs(self._hint - ns) <= 2:
+            ns = self._hint
+        self._hint = None
+        if ns > self._vnow_ns:
+            self._vnow_ns = ns
+            self.u64[vp.H_VNOW // 8] = ns
+        self.u64[vp.H_ROUND // 8] += 1
+
+    def settle(self) -> list[int]:
+        """B: publish the bench's pty counters; wait (briefly, in real time) until what was delivered since
+        the last round shows on the client's side. Returns the ports delivered to."""
+        fresh = []
+        for i, p in enumerate(self.ptys):
+            port = p.port
+            self._set_port(i, vp.P_TAKEN, port.bytes_in - p.base_in)
+            delivered = port.bytes_out - p.base_out
+            if delivered == p.delivered:
+                continue
+            p.delivered = delivered
+            self._set_port(i, vp.P_DELIVERED, delivered)
+            fresh.append(i)
+            unread = delivered - self._port(i, vp.P_READ) - self._port(i, vp.P_DISCARDED)
+            end = None
+            while True:
+                try:
+                    inq = struct.unpack("i", fcntl.ioctl(port.slave_fd, termios.FIONREAD, b"\0" * 4))[0]
+                except OSError:
+                    break
+                # (a tty's input queue holds TTY_INQ_MAX bytes at most: the rest waits in the kernel until read)
+                if inq >= min(unread, TTY_INQ_MAX):
+                    break
+                now = time.monotonic()  # wall-clock: the kernel's hand-over takes microseconds of real time
+                if end is None:
+                    end = now + SETTLE_LIMIT
+                elif self._reading(i):
+                    break  # a client thread woke on the bytes and reads them (its count follows the read)
+                elif now > end:  # (read by a program outside the lockstep, whose reads are not counted)
+                    self.settle_timeouts += 1
+                    break
+                os.sched_yield()
+                unread = delivered - self._port(i, vp.P_READ) - self._port(i, vp.P_DISCARDED)
+        return fresh
+
+    def _reading(self, port: int) -> bool:
+        """Whether a client thread that waited on ``port`` runs now (it may be reading it)."""
+        bit = 1 << port
+        states = self.u32[_STATE_WORD:_STATE_WORD + _SLOT_WORDS * self.nslots:_SLOT_WORDS].tolist()
+        return any(st in (vp.RUNNING, vp.RUNNABLE, vp.WOKEN) and self._s64(i, vp.S_PORTS) & bit
+                   for i, st in enumerate(states))
+
+    def wake_due(self, fresh_ports: Iterable[int] = ()) -> int:
+        """C: wake the waiters whose deadline came and those waiting on a pty just delivered to."""
+        mask = 0
+        for i in fresh_ports:
+            mask |= 1 << i
+        vnow, n = self._vnow_ns, 0
+        states = self.u32[_STATE_WORD:_STATE_WORD + _SLOT_WORDS * self.nslots:_SLOT_WORDS].tolist()
+        for i, st in enumerate(states):
+            if st != vp.WAITING and st != vp.POLLING:
+                continue
+            if self._s64(i, vp.S_DEADLINE) <= vnow or (mask and self._s64(i, vp.S_PORTS) & mask):
+                n += self._wake(i)
+        return n
+
+    def _wake(self, i: int) -> bool:
+        state = self.base + vp.slot_offset(i) + vp.S_STATE
+        cas = self.atomics.cas32
+        if not (cas(state, vp.WAITING, vp.WOKEN) or cas(state, vp.POLLING, vp.WOKEN)):
+            return False
+        self.wakes += 1
+        self.atomics.wake(self.base + vp.slot_offset(i) + vp.S_WAKE)
+        if self._s32(i, vp.S_FLAGS) & vp.SF_FDWAIT:
+            try:
+                if i not in self._wake_fds:
+                    self._wake_fds[i] = os.open(self.dir / vp.WAKE_FILE.format(slot=i),
+                                                os.O_WRONLY | os.O_NONBLOCK | os.O_CLOEXEC)
+                os.write(self._wake_fds[i], b"w")
+            except OSError:  # no reader (yet, or any more), or full: the thread re-checks on its own
+                fd = self._wake_fds.pop(i, None)
+                if fd is not None:
+                    os.close(fd)
+        return True
+
+    def wake(self, slots: Iterable[int]) -> None:
+        """RECHECK: wake ``slots`` (waiters that must look again at what they wait on)."""
+        for i in slots:
+            self.rechecks += self._wake(i)
+
+    def _free(self, i: int) -> None:
+        self.u32[(vp.slot_offset(i) + vp.S_STATE) // 4] = vp.FREE
+        self._slots.pop(i, None)
+        self.atomics.add64(self.base + vp.H_ACTIVITY, 1)  # an exit is a hand-over (a joiner re-checks)
+
+    def _dead(self, pid: int) -> bool:
+        """Whether ``pid`` is gone (a pidfd is opened on first sight; :meth:`_reap` watches them)."""
+        if pid in self._pidfds:
+            return False
+        try:
+            self._pidfds[pid] = os.pidfd_open(pid)
+        except OSError:  # gone already
+            return True
+        return False
+
+    def _reap(self, ready: Iterable[int] | None = None) -> None:
+        """Free the slots of processes whose pidfd says they ended (``ready``: already polled)."""
+        if not self._pidfds:
+            return
+        if ready is None:
+            ready = select.select(list(self._pidfds.values()), [], [], 0)[0]
+        ready = set(ready)
+        for pid in [pid for pid, fd in self._pidfds.items() if fd in ready]:
+            os.close(self._pidfds.pop(pid))
+            self._waited.discard(pid)
+            for i, info in list(self._slots.items()):
+                if info.pid == pid and self._s32(i, vp.S_PID) == pid and self._s32(i, vp.S_STATE) != vp.FREE:
+                    self._free(i)
+
+    def look(self, real: float | None = None) -> Verdict:
+        """D: may time move now? Frees the slots of exited threads and dead processes on the way."""
+        real = time.monotonic() if real is None else real
+        self._reap()
+        states = self.u32[_STATE_WORD:_STATE_WORD + _SLOT_WORDS * self.nslots:_SLOT_WORDS].tolist()
+        activity = self._h(vp.H_ACTIVITY)
+        v = Verdict(quiet=True)
+        nxt = vp.NO_DEADLINE
+        for i, st in enumerate(states):
+            if st == vp.FREE:
+                continue
+            if st == vp.EXITED:
+                self._free(i)
+                continue
+            pid = self._s32(i, vp.S_PID)
+            info = self._slots.get(i)
+            if info is None or info.pid != pid or info.tid != self._s32(i, vp.S_TID):
+                info = self._slots[i] = _Slot(pid, self._s32(i, vp.S_TID), real)
+                self.participants_seen += 1
+            if pid and self._dead(pid):
+                self._free(i)
+                continue
+            if st == vp.WAITING or st == vp.POLLING:
+                self._waited.add(pid)
+                if self._s32(i, vp.S_FLAGS) & vp.SF_FOREIGN and self._s64(i, vp.S_ACT_SEEN) < activity:
+                    v.recheck.append(i)
+                    v.quiet = False
+                    continue
+                nxt = min(nxt, self._s64(i, vp.S_DEADLINE))
+                continue
+            if st == vp.RUNNING and self._asleep_elsewhere(i, info, real):
+                continue  # waiting in a call the shim does not wrap: no deadline
+            v.quiet = False
+            v.blockers.append(i)
+        # (after every slot: a process's start-up is over once any of its threads waited)
+        v.counted = any(self._slots[i].pid in self._waited or real - self._slots[i].since > self.startup_grace
+                        for i in v.blockers)
+        for i, p in enumerate(self.ptys):
+            if self._port(i, vp.P_WRITTEN) > p.port.bytes_in - p.base_in:
+                v.quiet = False
+                v.counted = True
+                v.flight.append(p.name)
+        if v.quiet and self._holding is not None and self._holding():
+            v.quiet = False
+            v.held = True  # (bounded by the line server's own timeouts: not a stall)
+        v.next_ns = None if nxt == vp.NO_DEADLINE else nxt
+        if v.quiet or not (v.blockers or v.flight):
+            self._blocked_since = None
+        elif self._blocked_since is None:
+            self._blocked_since = real
+        if not v.counted:
+            self._counted_since = None
+        elif self._counted_since is None:
+            self._counted_since = real
+        return v
+
+    def _asleep_elsewhere(self, i: int, info: _Slot, real: float) -> bool:
+        """A RUNNING thread that /proc shows asleep twice, :data:`BLOCKED_CONFIRM` apart, with no wrapped
+        call in between (PLAN26 §4.3): it waits in a call the shim does not see (a mutex, a blocking read)."""
+        confirmed = info.asleep is not None and info.asleep[1] < 0  # (seen asleep before, time moved since)
+        if not info.tid or (not confirmed and (self._blocked_since is None
+                                               or real - self._blocked_since < BLOCKED_CHECK)):
+            info.asleep = None
+            return False
+        try:
+            with open(f"/proc/{info.pid}/task/{info.tid}/stat", "rb") as f:
+                stat = f.read()
+            state = stat[stat.rindex(b")") + 2:stat.rindex(b")") + 3]
+        except (OSError, ValueError):
+            return False
+        progress = self._s64(i, vp.S_PROGRESS)
+        if state != b"S":
+            info.asleep = None
+            return False
+        if info.asleep is None or info.asleep[0] != progress:
+            info.asleep = (progress, real)
+            return False
+        if confirmed:
+            return True
+        if real - info.asleep[1] < BLOCKED_CONFIRM:
+            return False
+        info.asleep = (progress, -1.0)  # confirmed: later looks need one /proc read while it stays asleep
+        self.asleep_elsewhere += 1
+        return True
+
+    def active(self) -> bool:
+        """Whether any client thread holds a slot (the bench then waits for its clients)."""
+        states = self.u32[_STATE_WORD:_STATE_WORD + _SLOT_WORDS * self.nslots:_SLOT_WORDS]
+        return any(states.tolist())
+
+    # ------------------------------------------------------------------ waiting for news (D)
+
+    def fds(self) -> list[int]:
+        """What D waits on besides the bench's host ports: the notify FIFO and the clients' pidfds."""
+        return [self.notify, *self._pidfds.values()]
+
+    def arm(self) -> list[int]:
+        """Ask clients to write to the notify FIFO from now on; returns the slot states as they are, to
+        compare before blocking (a change before the arming would otherwise go unnoticed)."""
+        self.u32[vp.H_ARMED // 4] = 1
+        return self.u32[_STATE_WORD:_STATE_WORD + _SLOT_WORDS * self.nslots:_SLOT_WORDS].tolist()
+
+    def disarm(self, ready: Iterable[int] = ()) -> None:
+        self.u32[vp.H_ARMED // 4] = 0
+        if self.notify in ready:
+            with contextlib.suppress(BlockingIOError):
+                os.read(self.notify, 4096)
+        self._reap([fd for fd in ready if fd != self.notify])
+
+    def unchanged(self, states: list[int]) -> bool:
+        return states == self.u32[_STATE_WORD:_STATE_WORD + _SLOT_WORDS * self.nslots:_SLOT_WORDS].tolist()
+
+    def wait_hint(self, v: Verdict, real: float) -> float:
+        """Real seconds D may block for news given ``v`` (a stall, or a /proc look, is due sooner)."""
+        timeout = BLOCKED_CONFIRM if v.held else LOOK_AGAIN
+        if v.blockers and self._blocked_since is not None:
+            since = real - self._blocked_since
+            if since < BLOCKED_CHECK + BLOCKED_CONFIRM * 2:
+                timeout = BLOCKED_CONFIRM
+            if self.stall is not None and self._stall_at is None and self._counted_since is not None:
+                timeout = min(timeout, max(0.0, self.stall - (real - self._counted_since)))
+        if self._stall_at is not None:
+            timeout = min(timeout, 0.001)
+        return timeout
+
+    # ------------------------------------------------------------------ the stall watchdog
+
+    def stall_target(self, v: Verdict, real: float) -> int | None:
+        """While not quiet: the virtual ns the clock may follow the wall clock to (a stall), or None."""
+        if self._stall_at is None:
+            if (self.stall is None or not v.counted or self._counted_since is None
+                    or real - self._counted_since < self.stall):
+                return None
+            self._start_stall(v, real)
+        v0, r0 = self._stall_at  # type: ignore[misc]
+        return v0 + int((real - r0) * 1e9)
+
+    def _start_stall(self, v: Verdict, real: float) -> None:
+        self._stall_at = (self._vnow_ns, real)
+        self.u64[vp.H_STALLS // 8] += 1
+        self.u32[vp.H_FLAGS // 4] |= vp.FLAG_STALL
+        ran = real - (self._counted_since or real)
+        for i in v.blockers:
+            pid, tid, st = self._s32(i, vp.S_PID), self._s32(i, vp.S_TID), self._s32(i, vp.S_STATE)
+            comm = _comm(pid, tid)
+            self.last_stall = {"pid": pid, "tid": tid, "comm": comm, "state": vp.STATE_NAMES[st],
+                               "since": self._vnow_ns / 1e9}
+            if (pid, tid) in self._warned:
+                continue
+            self._warned.add((pid, tid))
+            self._say(f"hilbench: lockstep stall: thread {pid}/{tid} ({comm}) ran {ran:.1f} s without waiting; "
+                      "time follows the wall clock until it waits")
+        if v.flight and not v.blockers:
+            self.last_stall = {"pid": 0, "tid": 0, "comm": "", "state": "FLIGHT", "since": self._vnow_ns / 1e9,
+                               "ptys": list(v.flight)}
+            self._say(f"hilbench: lockstep stall: bytes written to {', '.join(v.flight)} were not taken for "
+                      f"{ran:.1f} s; time follows the wall clock")
+
+    def _say(self, msg: str) -> None:
+        self.warnings.append(msg)
+        print(msg, file=sys.stderr, flush=True)
+
+    def end_stall(self) -> None:
+        """Quiescence again: back to lockstep (the stall's virtual seconds are counted)."""
+        if self._stall_at is None:
+            return
+        self.u64[vp.H_STALLED_NS // 8] += self._vnow_ns - self._stall_at[0]
+        self.u32[vp.H_FLAGS // 4] &= ~vp.FLAG_STALL
+        self._stall_at = None
+
+    def moved_to(self, ns: int) -> float:
+        """The loop is about to move time to ``ns`` (a client deadline): seconds, remembered exactly."""
+        self._hint = ns
+        return ns / 1e9
+
+    # ------------------------------------------------------------------ reporting
+
+    def stats(self) -> dict[str, Any]:
+        """The counters: stalls, the virtual seconds they lasted, the last one; clients, wakes."""
+        states = self.u32[_STATE_WORD:_STATE_WORD + _SLOT_WORDS * self.nslots:_SLOT_WORDS].tolist()
+        return {"vnow": self._vnow_ns / 1e9, "round": self._h(vp.H_ROUND), "stalls": self._h(vp.H_STALLS),
+                "stalled_s": self._h(vp.H_STALLED_NS) / 1e9, "stalling": self._stall_at is not None,
+                "last_stall": self.last_stall, "threads": sum(1 for s in states if s not in (vp.FREE, vp.EXITED)),
+                "threads_seen": self.participants_seen, "wakes": self.wakes, "rechecks": self.rechecks,
+                "asleep_elsewhere": self.asleep_elsewhere, "settle_timeouts": self.settle_timeouts,
+                "unvirtualised": self._h(vp.H_UNVIRTUALISED)}
+
+    def describe(self) -> dict[str, Any]:
+        """The manifest's ``clock`` entry (what ``hilbench run`` reads)."""
+        return {"virtual": True, "page": str(self.page), "notify": str(self.notify_path),
+                "epoch": self.epoch_ns / 1e9, "origin": self.origin_ns / 1e9,
+                "stall": self.stall, "stats": self.stats()}
+
+    status = stats
+
+    def close(self) -> None:
+        if self.map.closed:
+            return
+        for fd in [self.notify, *self._wake_fds.values(), *self._pidfds.values()]:
+            with contextlib.suppress(OSError):
+                os.close(fd)
+        self._wake_fds.clear()
+        self._pidfds.clear()
+        del self.u32, self.u64, self._buf
+        with contextlib.suppress(BufferError):
+            self.map.close()
+        shutil.rmtree(self.dir, ignore_errors=True)
+
+
+def _comm(pid: int, tid: int) -> str:
+    try:
+        return Path(f"/proc/{pid}/task/{tid}/comm").read_text().strip()
+    except OSError:
+        return "?"
+
+
+__all__ = ["BLOCKED_CHECK", "STALL", "STARTUP_GRACE", "Lockstep", "Verdict"]

@@ -1,0 +1,274 @@
+"""The lockstep controller (:mod:`hilbench.bench.lockstep`) without the shim: this test plays the client by
+writing its slots on the clock page the way ``vclock.c`` does, and checks the controller's verdicts (when time
+may move, and to when), its wake-ups, the pty counters, the stall watchdog, and the loop's order at one
+instant (the bench's events before the clients' wake-ups)."""
+
+from __future__ import annotations
+
+import fcntl
+import os
+import struct
+import subprocess
+import termios
+import threading
+import tty
+from types import SimpleNamespace
+
+import pytest
+
+from hilbench.bench import clock_page as vp
+from hilbench.bench.lockstep import Lockstep
+from hilbench.pytest_plugin import wait_until
+from hilbench.transports.clock import VirtualClock
+from hilbench.transports.virtual_loop import VirtualLoop
+
+S = 10**9
+V0 = vp.ORIGIN_NS
+
+
+@pytest.fixture
+def lockstep():
+    made: list[Lockstep] = []
+
+    def make(*args, **kw) -> Lockstep:
+        kw.setdefault("nslots", 8)
+        made.append(Lockstep(*args, **kw))
+        return made[-1]
+
+    yield make
+    for ls in made:
+        ls.close()
+
+
+def put(ls: Lockstep, i: int, state: int, deadline: int = vp.NO_DEADLINE, *, pid: int | None = None,
+        tid: int | None = None, flags: int = 0, ports: int = 0, act_seen: int = 0) -> None:
+    """Write slot ``i`` as a client thread would (state last)."""
+    base = vp.slot_offset(i)
+    struct.pack_into("II", ls.map, base + vp.S_PID, os.getpid() if pid is None else pid,
+                     threading.get_native_id() if tid is None else tid)
+    struct.pack_into("QQQ", ls.map, base + vp.S_DEADLINE, deadline, ports, act_seen)
+    struct.pack_into("I", ls.map, base + vp.S_FLAGS, flags)
+    struct.pack_into("I", ls.map, base + vp.S_STATE, state)
+
+
+def state(ls: Lockstep, i: int) -> int:
+    return struct.unpack_from("I", ls.map, vp.slot_offset(i) + vp.S_STATE)[0]
+
+
+def word(ls: Lockstep, i: int) -> int:
+    return struct.unpack_from("I", ls.map, vp.slot_offset(i) + vp.S_WAKE)[0]
+
+
+def test_the_page_is_laid_out_for_the_shim(lockstep):
+    ls = lockstep(nslots=4, epoch_ns=1_700_000_000 * S, stall=2.0)
+    m = ls.map
+    assert m[0:8] == vp.MAGIC
+    assert struct.unpack_from("III", m, vp.H_VERSION) == (vp.VERSION, 4, 0)
+    assert struct.unpack_from("QQ", m, vp.H_VNOW) == (V0, 1_700_000_000 * S)
+    assert struct.unpack_from("Q", m, vp.H_ORIGIN)[0] == V0
+    assert len(m) == vp.page_size(4, 0)
+    names = sorted(p.name for p in ls.dir.iterdir())
+    assert names == sorted([vp.PAGE_FILE, vp.NOTIFY_FILE] + [vp.WAKE_FILE.format(slot=i) for i in range(4)])
+    assert os.stat(ls.dir).st_mode & 0o777 == 0o700
+    entry = ls.describe()
+    assert entry["virtual"] and entry["page"] == str(ls.page) and entry["stall"] == 2.0
+    assert entry["stats"]["stalls"] == 0 and entry["stats"]["threads"] == 0
+    directory = ls.dir
+    ls.close()
+    assert not directory.exists()
+
+
+def test_time_moves_to_the_earliest_deadline_when_every_thread_waits(lockstep):
+    ls = lockstep()
+    v = ls.look()
+    assert v.quiet and v.next_ns is None and not ls.active()
+    put(ls, 0, vp.WAITING, V0 + 3 * S)
+    put(ls, 1, vp.POLLING, V0 + 100_000)  # a poller's quantum
+    put(ls, 2, vp.WAITING)  # no deadline (a join, a blocking read)
+    v = ls.look()
+    assert ls.active() and v.quiet and v.next_ns == V0 + 100_000
+    put(ls, 3, vp.RUNNING)
+    v = ls.look()
+    assert not v.quiet and v.blockers == [3]
+    for st in (vp.STARTING, vp.RUNNABLE, vp.WOKEN):
+        put(ls, 3, st)
+        assert not ls.look().quiet, vp.STATE_NAMES[st]
+
+
+def test_exited_threads_and_dead_processes_give_their_slots_back(lockstep):
+    ls = lockstep()
+    gone = subprocess.Popen(["true"])
+    gone.wait()
+    put(ls, 0, vp.EXITED)
+    put(ls, 1, vp.RUNNING, pid=gone.pid, tid=gone.pid)  # killed while it ran
+    activity = ls.u64[vp.H_ACTIVITY // 8]
+    assert ls.look().quiet
+    assert state(ls, 0) == state(ls, 1) == vp.FREE
+    assert ls.u64[vp.H_ACTIVITY // 8] == activity + 2  # exits are hand-overs: joiners re-check
+
+
+def test_a_waiter_on_a_hand_over_is_woken_to_look_again(lockstep):
+    ls = lockstep()
+    put(ls, 0, vp.WAITING, flags=vp.SF_FOREIGN, act_seen=0)
+    assert ls.look().quiet
+    ls.atomics.add64(ls.base + vp.H_ACTIVITY, 1)  # another client thread posted, wrote to a pipe, ...
+    v = ls.look()
+    assert not v.quiet and v.recheck == [0]
+    before = word(ls, 0)
+    ls.wake(v.recheck)
+    assert state(ls, 0) == vp.WOKEN and word(ls, 0) == before + 1 and ls.rechecks == 1
+
+
+def test_due_waiters_are_woken_and_the_others_left(lockstep):
+    ls = lockstep()
+    put(ls, 0, vp.WAITING, V0 + S)
+    put(ls, 1, vp.WAITING, V0 + 2 * S)
+    put(ls, 2, vp.POLLING, V0 + S)
+    ls.publish(1001.0)
+    assert ls.vnow_ns == V0 + S and ls.u64[vp.H_VNOW // 8] == V0 + S
+    assert ls.wake_due() == 2
+    assert [state(ls, i) for i in range(3)] == [vp.WOKEN, vp.WAITING, vp.WOKEN]
+    assert word(ls, 0) == 1 and word(ls, 1) == 0
+    ls.publish(1000.5)  # never backwards
+    assert ls.vnow_ns == V0 + S
+
+
+@pytest.fixture
+def pty():
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    os.set_blocking(master, False)
+    port = SimpleNamespace(bytes_in=0, bytes_out=0, rdev=os.fstat(slave).st_rdev, slave_fd=slave)
+    yield master, port
+    os.close(master)
+    os.close(slave)
+
+
+def test_bytes_in_flight_on_a_pty_keep_time_still(lockstep, pty):
+    master, port = pty
+    ls = lockstep([("lidar", port)])
+    rec = vp.port_offset(ls.nslots, 0)
+    assert struct.unpack_from("Q", ls.map, rec + vp.P_RDEV)[0] == port.rdev
+    put(ls, 0, vp.WAITING, V0 + S)
+    struct.pack_into("Q", ls.map, rec + vp.P_WRITTEN, 5)  # the client wrote 5 bytes the bench has not read
+    v = ls.look()
+    assert not v.quiet and v.flight == ["lidar"] and v.counted
+    port.bytes_in = 5  # the bench took them
+    ls.settle()
+    assert struct.unpack_from("Q", ls.map, rec + vp.P_TAKEN)[0] == 5
+    assert ls.look().quiet
+
+
+def test_a_delivery_is_settled_and_wakes_its_waiter(lockstep, pty):
+    master, port = pty
+    ls = lockstep([("lidar", port)])
+    reader = os.open(ls.dir / vp.WAKE_FILE.format(slot=0), os.O_RDONLY | os.O_NONBLOCK)
+    try:
+        put(ls, 0, vp.WAITING, flags=vp.SF_FDWAIT, ports=1)  # select() on the pty, no timeout
+        put(ls, 1, vp.WAITING, flags=vp.SF_FDWAIT, ports=2)  # another port
+        port.bytes_out += os.write(master, b"x" * 300)
+        assert ls.settle() == [0]
+        inq = struct.unpack("i", fcntl.ioctl(port.slave_fd, termios.FIONREAD, b"\0" * 4))[0]
+        assert inq == 300  # visible on the client's side before anyone is woken
+        assert struct.unpack_from("Q", ls.map, vp.port_offset(ls.nslots, 0) + vp.P_DELIVERED)[0] == 300
+        assert ls.wake_due([0]) == 1
+        assert state(ls, 0) == vp.WOKEN and state(ls, 1) == vp.WAITING
+        assert os.read(reader, 16) == b"w"  # descriptor waits also get a byte on their wake FIFO
+        assert ls.settle() == []  # nothing new: no settling, no waking
+    finally:
+        os.close(reader)
+
+
+def test_the_stall_watchdog(lockstep, capfd):
+    ls = lockstep(stall=0.5, startup_grace=10.0)
+    put(ls, 0, vp.RUNNING)  # this thread: /proc shows it running
+    v = ls.look(real=100.0)
+    assert not v.quiet and not v.counted  # start-up grace: the process never waited yet
+    assert ls.stall_target(v, 100.9) is None
+    put(ls, 1, vp.WAITING, V0 + 5 * S)  # one of its threads waits: its start-up is over
+    v = ls.look(real=101.0)
+    assert v.counted and ls.stall_target(v, 101.2) is None
+    assert ls.stall_target(v, 101.5) == V0  # the stall begins: time follows the wall clock from here
+    assert ls.stalled and ls.u64[vp.H_STALLS // 8] == 1 and ls.u32[vp.H_FLAGS // 4] & vp.FLAG_STALL
+    assert ls.stall_target(v, 102.0) == V0 + S // 2
+    (warning,) = ls.warnings
+    assert f"lockstep stall: thread {os.getpid()}/{threading.get_native_id()} (" in warning
+    assert "ran 0.5 s without waiting; time follows the wall clock until it waits" in warning
+    assert warning in capfd.readouterr().err
+    ls.publish(1000.5)
+    put(ls, 0, vp.WAITING)
+    v = ls.look(real=102.1)
+    assert v.quiet
+    ls.end_stall()
+    stats = ls.stats()
+    assert stats["stalls"] == 1 and stats["stalled_s"] == 0.5 and not stats["stalling"]
+    assert stats["last_stall"]["tid"] == threading.get_native_id() and stats["last_stall"]["state"] == "RUNNING"
+    put(ls, 0, vp.RUNNING)  # the same thread again: counted, not warned again
+    ls.look(real=200.0)
+    v = ls.look(real=201.0)
+    assert ls.stall_target(v, 201.0) is not None and ls.stats()["stalls"] == 2 and len(ls.warnings) == 1
+
+
+def test_never_stalls_without_a_limit(lockstep):
+    ls = lockstep(stall=None)
+    put(ls, 0, vp.WAITING, V0 + S)
+    put(ls, 1, vp.RUNNING)
+    ls.look(real=0.0)
+    v = ls.look(real=1e6)
+    assert not v.quiet and ls.stall_target(v, 1e6) is None and ls.stats()["stalls"] == 0
+
+
+def test_a_thread_asleep_in_an_unwrapped_call_counts_as_waiting(lockstep):
+    ls = lockstep()
+    ready = threading.Event()
+    done = threading.Event()
+    tid: list[int] = []
+
+    def blocked() -> None:
+        tid.append(threading.get_native_id())
+        ready.set()
+        done.wait()  # asleep in the kernel (a futex the shim would not see)
+
+    t = threading.Thread(target=blocked)
+    t.start()
+    try:
+        ready.wait(5)
+        put(ls, 0, vp.RUNNING, tid=tid[0])
+        put(ls, 1, vp.WAITING, V0 + S)
+        real = iter(10.0 + k * 1e-4 for k in range(10**6))  # a look every 100 us
+        assert not ls.look(real=next(real)).quiet
+        assert not ls.look(real=next(real)).quiet  # blocked for less than BLOCKED_CHECK: no /proc look yet
+        wait_until(lambda: ls.look(real=next(real)).quiet, timeout=5)  # asleep twice, 100 us apart
+        assert ls.asleep_elsewhere == 1 and ls.look(real=next(real)).quiet  # (one /proc read while it sleeps)
+        put(ls, 0, vp.RUNNING, tid=threading.get_native_id())  # this thread runs
+        assert not ls.look(real=next(real)).quiet
+    finally:
+        done.set()
+        t.join()
+
+
+def test_the_loop_runs_the_bench_at_an_instant_before_waking_clients_there(lockstep):
+    clock = VirtualClock(epoch=1_700_000_000.0)
+    loop = VirtualLoop(clock, name="t")
+    ls = loop.lockstep = lockstep(vnow_ns=V0, epoch_ns=1_700_000_000 * S)
+    seen: list[tuple[float, int]] = []
+    loop.call_at(1005.0, lambda: seen.append((clock.now(), state(ls, 0))))
+    loop.call_at(1007.0, lambda: seen.append((clock.now(), state(ls, 0))))
+    put(ls, 0, vp.WAITING, V0 + 5 * S)  # a client sleeping 5 virtual seconds, in a held bench
+    loop.start()
+    try:
+        wait_until(lambda: state(ls, 0) == vp.WOKEN, timeout=5)
+        # the bench's event at 1005 ran first (the client still waited), then the client was woken at 1005
+        assert seen == [(1005.0, vp.WAITING)] and clock.now() == 1005.0 and ls.vnow_ns == V0 + 5 * S
+        put(ls, 0, vp.RUNNING)  # it computes: time stays, the bench's event at 1007 waits
+        assert ls.look().blockers == [0]
+        assert clock.now() == 1005.0
+        put(ls, 0, vp.WAITING)  # it waits without a deadline: time moves to the bench's next event
+        wait_until(lambda: len(seen) == 2, timeout=5)
+        assert seen[1] == (1007.0, vp.WAITING) and clock.now() == 1007.0
+        put(ls, 0, vp.EXITED)  # the last client left: a held bench holds again
+        wait_until(lambda: not ls.active(), timeout=5)
+        loop.call_at(1010.0, lambda: seen.append((clock.now(), -1)))
+        assert clock.now() == 1007.0 and len(seen) == 2
+    finally:
+        loop.close()
