@@ -262,7 +262,7 @@ class Bench:
             epoch_ns=round(clock.epoch * 1e9), stall=self.lockstep_stall, holding=self._holding)
 
     def _holding(self) -> bool:
-        """Whether a service has a lockstep client's request in hand (the line server's modem-line requests)."""
+        """Whether a service has a lockstep client's request in hand (the port-state server's modem-port-state requests)."""
         return any(service.holding() for service in list(self.services.values()) if hasattr(service, "holding"))
 
     def _medium(self, bus_kind: BusKind, spec: EndpointSpec, paced: bool) -> Any:
