@@ -28,7 +28,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import fnmatch
-import importlib.metadata
 import json
 import re
 import resource
@@ -66,12 +65,6 @@ class Case:
     first_line: bool = False
 
 
-def trace_verb() -> str:
-    """The trace profiler's verb: ``trace`` once renamed (issue 24), ``profile`` before."""
-    names = {ep.name for ep in importlib.metadata.entry_points(group="hilbench.verbs")}
-    return "trace" if "trace" in names else "profile"
-
-
 def cases(capture: Path) -> list[Case]:
     dynamixel_monitor = ("numpy", "rich", "construct", "hilbench.monitor", "hilbench.monitor.instrument",
                          "hilbench.monitor.detect", "hilbench.monitor.errorlog", "hilbench.monitor.live",
@@ -84,7 +77,7 @@ def cases(capture: Path) -> list[Case]:
         Case("plugins", ("plugins",), ("rich", "construct", "hilbench.bench*", "hilbench.families*",
                                        "hilbench.servers*", "hilbench.monitor*", "hilbench.profiler",
                                        "hilbench.profiler.instrument")),
-        *(Case(f"{verb}_help", (verb, "--help")) for verb in ("emulate", "record", trace_verb(), "lidar", "can",
+        *(Case(f"{verb}_help", (verb, "--help")) for verb in ("emulate", "record", "trace", "lidar", "can",
                                                              "dxl", "demo")),
         Case("emulate_arm", ("emulate", "arm"),
              ("numpy", "rich", "construct", "serial", "hilbench.bench*", "hilbench.families", "hilbench.fakes",
