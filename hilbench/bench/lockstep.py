@@ -156,7 +156,7 @@ class Lockstep:
                  startup_grace: float = STARTUP_GRACE, holding: Callable[[], bool] | None = None) -> None:
         self.atomics = _Atomics()
         self._holding = holding
-        self.stall = stall
+        self.stall = stall  #: wall seconds a non-waiting thread may hold the clock (None: no limit)
         self.startup_grace = startup_grace
         self.nslots = nslots
         self.ptys = [_Pty(name, port, port.bytes_in, port.bytes_out) for name, port in ptys]
