@@ -279,7 +279,7 @@ OWNED: dict[str, tuple[str, ...]] = {
     "feetech": ("protocols/feetech*.py", "fakes/feetech/*", "families/feetech.py", "families/feetech_*.py",
                 "monitor/feetech/*"),
     "stm32-rover": ("protocols/vel2d*.py", "protocols/tracestamp*.py", "fakes/stm32_board/*",
-                    "families/stm32_rover*.py", "cli/stm32_rover.py"),
+                    "families/stm32_rover*.py", "cli/stm32_rover.py", "clients/stm32_rover.py"),
     "rplidar": ("protocols/rplidar*.py", "fakes/scanners/rplidar.py", "families/rplidar*.py",
                 "monitor/scanners/rplidar*.py", "clients/rplidar.py"),
     "sick-lms200": ("protocols/sick_lms200*.py", "fakes/scanners/sick_lms200.py", "families/sick_lms200*.py",
@@ -287,7 +287,8 @@ OWNED: dict[str, tuple[str, ...]] = {
     "scip2": ("protocols/scip*.py", "fakes/scanners/scip.py", "families/scip2*.py", "monitor/scanners/scip2*.py",
               "clients/scip2.py"),
     "canopen": ("protocols/board_can.py", "fakes/canopen/rover.py", "fakes/canopen/recorded.py",
-                "families/canopen_*.py", "clients/can_rover.py"),
+                "families/canopen_*.py", "clients/can_rover.py", "clients/canopen_board.py",
+                "cli/canopen_board.py"),
     "micro-ros-agent": ("protocols/xrce_dds.py", "fakes/xrce_agent/*", "families/micro_ros_agent*.py",
                         "monitor/udp/xrce_state.py"),
     "freertps": ("protocols/rtps.py", "fakes/rtps_node/*", "families/freertps.py", "monitor/udp/rtps_state.py"),
@@ -301,8 +302,6 @@ GENERIC_WORDS = {"can"}
 #: (P5, P8a-d, P11 in PLAN24 §10) empty it. An import of a family's protocol codec is not counted:
 #: codecs are libraries anyone may use (DESIGN.md §3); a string naming it (its protocol) is.
 NAMES_A_FAMILY: dict[str, set[str]] = {
-    # P8c: the CANopen board's subcommands become the verb extension cli/canopen_board.py
-    "cli/can.py": {"'canopen'", "import hilbench.clients.can_rover", "import hilbench.families.canopen_board"},
     # P8c: --view choices from the servo bus's instrument
     "cli/demo.py": {"'dynamixel'", "import hilbench.dashboard.dynamixel_views"},
     # P8c: the trace instrument's device_sources and default_baud
@@ -340,6 +339,7 @@ NAMES_A_FAMILY: dict[str, set[str]] = {
 #: the family's name (``require("canopen", ...)`` imports python-canopen, not the family).
 NOT_A_FAMILY: dict[str, set[str]] = {
     "monitor/can/decoders.py": {"'canopen'"},
+    "cli/can.py": {"'canopen'"},  # `can sdo` needs python-canopen (CiA 301 SDO: any node's, not the family's)
 }
 
 
