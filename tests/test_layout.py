@@ -279,7 +279,8 @@ OWNED: dict[str, tuple[str, ...]] = {
     "feetech": ("protocols/feetech*.py", "fakes/feetech/*", "families/feetech.py", "families/feetech_*.py",
                 "monitor/feetech/*"),
     "stm32-rover": ("protocols/vel2d*.py", "protocols/tracestamp*.py", "fakes/stm32_board/*",
-                    "families/stm32_rover*.py", "cli/stm32_rover.py", "clients/stm32_rover.py"),
+                    "families/stm32_rover*.py", "cli/stm32_rover.py", "clients/stm32_rover.py",
+                    "profiler/stm32_rover.py"),
     "rplidar": ("protocols/rplidar*.py", "fakes/scanners/rplidar.py", "families/rplidar*.py",
                 "monitor/scanners/rplidar*.py", "clients/rplidar.py"),
     "sick-lms200": ("protocols/sick_lms200*.py", "fakes/scanners/sick_lms200.py", "families/sick_lms200*.py",
@@ -304,8 +305,6 @@ GENERIC_WORDS = {"can"}
 NAMES_A_FAMILY: dict[str, set[str]] = {
     # P8c: --view choices from the servo bus's instrument
     "cli/demo.py": {"'dynamixel'", "import hilbench.dashboard.dynamixel_views"},
-    # P8c: the trace instrument's device_sources and default_baud
-    "cli/profile.py": {"'stm32f767-rover'", "'vel2d'"},
     # P8c: servo clients from the registry (clients/servo_demo.py, clients/{dynamixel,feetech}.py)
     "clients/dynamixel_demo.py": {"'Wolfgang Foot'", "'dynamixel'", "'feetech'"},
     "clients/servo_links.py": {"'dynamixel'", "'dynamixel1'", "'feetech'", "import hilbench.clients.dynamixel"},
@@ -330,10 +329,6 @@ NAMES_A_FAMILY: dict[str, set[str]] = {
     "monitor/udp/summary.py": {"'rtps'"},
     "monitor/udp/tracker.py": {"import hilbench.monitor.udp.rtps_state", "import hilbench.monitor.udp.xrce_state"},
     "dashboard/udp_views.py": {"'rtps'"},
-    # not in PLAN24 §1: the trace profiler is registered for the rover board's bus protocol and names the
-    # board in its Perfetto export (P8c moves the trace instrument's defaults, P9 renames the verb `trace`)
-    "profiler/instrument.py": {"'vel2d'"},
-    "profiler/export_perfetto.py": {"'stm32f767-rover'"},
 }
 #: Strings equal to a family's word that name something else, for good: a third-party package that shares
 #: the family's name (``require("canopen", ...)`` imports python-canopen, not the family).

@@ -83,7 +83,7 @@ def cases(capture: Path) -> list[Case]:
         # the plug-ins themselves (light objects), not what they use when they run
         Case("plugins", ("plugins",), ("rich", "construct", "hilbench.bench*", "hilbench.families*",
                                        "hilbench.servers*", "hilbench.monitor*", "hilbench.profiler",
-                                       "hilbench.profiler.instrument")),
+                                       "hilbench.profiler.instrument", "hilbench.profiler.stm32_rover")),
         *(Case(f"{verb}_help", (verb, "--help")) for verb in ("emulate", "record", trace_verb(), "lidar", "can",
                                                              "dxl", "demo")),
         Case("emulate_arm", ("emulate", "arm"),

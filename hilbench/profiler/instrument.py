@@ -1,23 +1,35 @@
-"""The trace profiler as an instrument plug-in: a rover board's UART carries trace stamps, not a bus.
+"""The trace profiler as an instrument plug-in: a board's UART carries trace stamps, not a bus.
 
-``hilbench monitor`` points a user at ``hilbench profile`` for this protocol
-(:attr:`~hilbench.monitor.instrument.Instrument.verb`), and ``hilbench
-profile`` accepts only sources whose instrument it is. :meth:`~TraceInstrument.sniff` tells
-trace output in a raw capture (text stamp lines, logs, reports, binary words).
+``hilbench monitor`` points a user at ``hilbench profile`` for the protocols
+of trace instruments (:attr:`~hilbench.monitor.instrument.Instrument.verb`),
+and ``hilbench profile`` accepts only sources whose instrument it is.
+:meth:`~TraceInstrument.sniff` tells trace output in a raw capture (text stamp
+lines, logs, reports, binary words). A device family whose board writes trace
+stamps registers a :class:`TraceInstrument` under its bus protocol with the
+device's defaults (:attr:`~TraceInstrument.device_sources`,
+:attr:`~TraceInstrument.default_baud`, :attr:`~TraceInstrument.device_name`):
+the STM32 rover board's is :mod:`hilbench.profiler.stm32_rover`.
 """
 
 from __future__ import annotations
+
+from typing import ClassVar
 
 from hilbench.monitor.instrument import Instrument
 
 
 class TraceInstrument(Instrument):
-    """Trace stamps (text and binary), logs and run-time reports of the rover board."""
+    """Trace stamps (text and binary), logs and run-time reports of a board; subclasses name the protocol."""
 
-    protocol = "vel2d"
-    aliases = ("tracestamp",)
     title = "a board's trace output"
     verb = "profile"
+    #: The chunk sources of a bench line that carry the board's output (a glob): a bench names the host's
+    #: side after the endpoint and the device's side after the device (None: every source).
+    device_sources: ClassVar[str | None] = None
+    #: The rate a serial port to the board is opened at when the user gives none.
+    default_baud: ClassVar[int | None] = None
+    #: The process name of an exported trace (``hilbench profile --export``) when the user gives none.
+    device_name: ClassVar[str] = "board"
 
     def sniff(self, data: bytes) -> float:
         from hilbench.protocols.problem import Problem
@@ -29,11 +41,29 @@ class TraceInstrument(Instrument):
         # binary words (a 11xxxxxx byte then three 10xxxxxx: one in 256) among hundreds of broken ones.
         bad = sum(i.count or 1 for i in items if type(i) is Problem)  # words (count) or one line
         good = sum(1 for i in items if type(i) is not Problem)
-        if good <= bad:  # more damage than trace: not a trace (--protocol vel2d still reads it)
+        if good <= bad:  # more damage than trace: not a trace (--protocol of the instrument still reads it)
             return 0.0
         return good / (good + bad + 1)
 
 
-INSTRUMENT = TraceInstrument()
+def trace_instruments() -> list[TraceInstrument]:
+    """The registered trace instruments (every family's whose boards write trace stamps), hilbench's first."""
+    from hilbench import registry
 
-__all__ = ["INSTRUMENT", "TraceInstrument"]
+    return registry.instruments.find(lambda inst: isinstance(inst, TraceInstrument))
+
+
+def trace_instrument(protocol: str | None) -> TraceInstrument | None:
+    """The trace instrument of ``protocol`` (a source's), else None."""
+    if not protocol:
+        return None
+    return next((i for i in trace_instruments() if protocol in (i.protocol, *i.aliases)), None)
+
+
+def default_baud(fallback: int = 115_200) -> int:
+    """The rate a serial port is opened at for ``hilbench profile``: the first trace instrument's that has
+    one, else ``fallback``."""
+    return next((i.default_baud for i in trace_instruments() if i.default_baud), fallback)
+
+
+__all__ = ["TraceInstrument", "default_baud", "trace_instrument", "trace_instruments"]
