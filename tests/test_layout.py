@@ -275,9 +275,10 @@ def test_no_upward_imports():
 OWNED: dict[str, tuple[str, ...]] = {
     "dynamixel": ("protocols/dynamixel*.py", "fakes/dynamixel/*", "families/dynamixel.py", "families/dynamixel_*.py",
                   "monitor/dynamixel/*", "monitor/dynamixel1/*", "dashboard/dynamixel_views.py", "clients/dynamixel.py",
+                  "clients/dynamixel_servos.py",
                   "cli/dynamixel.py", "labgrid/dynamixel.py"),
     "feetech": ("protocols/feetech*.py", "fakes/feetech/*", "families/feetech.py", "families/feetech_*.py",
-                "monitor/feetech/*"),
+                "monitor/feetech/*", "clients/feetech.py"),
     "stm32-rover": ("protocols/vel2d*.py", "protocols/tracestamp*.py", "fakes/stm32_board/*",
                     "families/stm32_rover*.py", "cli/stm32_rover.py", "clients/stm32_rover.py",
                     "profiler/stm32_rover.py"),
@@ -303,11 +304,6 @@ GENERIC_WORDS = {"can"}
 #: (P5, P8a-d, P11 in PLAN24 §10) empty it. An import of a family's protocol codec is not counted:
 #: codecs are libraries anyone may use (DESIGN.md §3); a string naming it (its protocol) is.
 NAMES_A_FAMILY: dict[str, set[str]] = {
-    # P8c: --view choices from the servo bus's instrument
-    "cli/demo.py": {"'dynamixel'", "import hilbench.dashboard.dynamixel_views"},
-    # P8c: servo clients from the registry (clients/servo_demo.py, clients/{dynamixel,feetech}.py)
-    "clients/dynamixel_demo.py": {"'Wolfgang Foot'", "'dynamixel'", "'feetech'"},
-    "clients/servo_links.py": {"'dynamixel'", "'dynamixel1'", "'feetech'", "import hilbench.clients.dynamixel"},
     # family -> family: the Protocol 1.0 bus core and tracker into a servo-bus kit (PLAN24 §1, "should")
     "fakes/feetech/bus.py": {"import hilbench.fakes.dynamixel.bus1"},
     "monitor/feetech/__init__.py": {"import hilbench.monitor.dynamixel1"},
