@@ -269,7 +269,7 @@ def test_no_upward_imports():
 
 #: The files each built-in family owns (globs under hilbench/). Everything else is shared: the frame, the
 #: kits families build on (families/scanner.py, families/servo_bus.py, fakes/scanners/{base,scene,uart}.py,
-#: fakes/{control_table_servo,table_servo,motion,servo_line,xrce_client}.py, fakes/canopen/{node,dictionary,
+#: fakes/{control_table_servo,table_servo,motion,servo_line,xrce_client,mecanum_robot}.py, fakes/canopen/{node,dictionary,
 #: sdo_server}.py, protocols/{control_table,canopen,canopen_od,cdr}.py, monitor/scanners/{__init__,tracker}.py,
 #: clients/{base,scanners}.py, ...) and the generic instruments (the CAN, UDP and trace instruments) and verbs.
 OWNED: dict[str, tuple[str, ...]] = {
@@ -311,13 +311,6 @@ NAMES_A_FAMILY: dict[str, set[str]] = {
     # family -> family: the shared RTPS part into a kit (families/rtps_kit.py, PLAN24 §1, "should")
     "families/micro_ros_agent.py": {"import hilbench.families.freertps"},
     "fakes/xrce_agent/bridge.py": {"import hilbench.fakes.rtps_node.participant"},
-    # not in PLAN24 §1: the CANopen board drives the rover board's robot model (a robot kit would hold it)
-    "fakes/canopen/rover.py": {"import hilbench.fakes.stm32_board.robot"},
-    # not in PLAN24 §1: the generic CANopen node package re-exports the board's node (importing the kit
-    # loads the rover model)
-    "fakes/canopen/__init__.py": {"import hilbench.fakes.canopen.rover"},
-    # not in PLAN24 §1: the CAN instrument's alias names the family ("monitor --protocol canopen")
-    "monitor/can/__init__.py": {"'canopen'"},
     # not in PLAN24 §1: the UDP instrument classifies XRCE-DDS, RTPS and Vel2d datagrams itself (families
     # should contribute their classifiers and states)
     "monitor/udp/__init__.py": {"'rtps'", "'xrce-dds'"},
@@ -327,10 +320,14 @@ NAMES_A_FAMILY: dict[str, set[str]] = {
     "dashboard/udp_views.py": {"'rtps'"},
 }
 #: Strings equal to a family's word that name something else, for good: a third-party package that shares
-#: the family's name (``require("canopen", ...)`` imports python-canopen, not the family).
+#: the family's name (``require("canopen", ...)`` imports python-canopen, not the family), or the protocol
+#: itself where a generic part serves every family speaking it.
 NOT_A_FAMILY: dict[str, set[str]] = {
     "monitor/can/decoders.py": {"'canopen'"},
     "cli/can.py": {"'canopen'"},  # `can sdo` needs python-canopen (CiA 301 SDO: any node's, not the family's)
+    # `monitor --protocol canopen`: CiA 301, which the CAN monitor tracks for every node (NMT, heartbeats,
+    # SDO, EMCY), whichever family emulates it
+    "monitor/can/__init__.py": {"'canopen'"},
 }
 
 

@@ -51,8 +51,8 @@ from hilbench.rules import SWITCH, Rule
 
 if TYPE_CHECKING:
     from hilbench.bench.profile import Profile
-    from hilbench.fakes.canopen import RoverNode
     from hilbench.fakes.canopen.recorded import RecordedNode
+    from hilbench.fakes.canopen.rover import RoverNode
 
 MODELS = ("stm32f767-rover-canopen", "mecarover-canopen", RECORDED)
 DEVICE_KEYS = ("model", "name", "endpoint", "node_id", "heartbeat_ms", "setpoint_timeout_ms", "autostart",
@@ -148,7 +148,7 @@ class CanopenBoardFamily(DeviceFamily):
     # ------------------------------------------------------------------ bench
 
     def build(self, bench, endpoint, devices: list[NodeSpec], t: float) -> None:
-        from hilbench.fakes.canopen import RoverNode
+        from hilbench.fakes.canopen.rover import RoverNode
 
         for spec in devices:
             if isinstance(spec, RecordedSpec):
