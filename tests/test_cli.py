@@ -200,7 +200,7 @@ def test_the_demo_reaches_servo_buses_through_each_family_s_servo_client():
     from hilbench.cli import build_parser
     from hilbench.clients.dynamixel_demo import check_profile
     from hilbench.clients.servo_links import ServoClient, servo_clients
-    from hilbench.dashboard.dynamixel_views import VIEWS
+    from hilbench.dashboard.servo_bus_views import VIEWS
     from hilbench.protocols.control_table import Model
 
     clients = servo_clients()

@@ -274,7 +274,7 @@ def test_no_upward_imports():
 #: clients/{base,scanners}.py, ...) and the generic instruments (the CAN, UDP and trace instruments) and verbs.
 OWNED: dict[str, tuple[str, ...]] = {
     "dynamixel": ("protocols/dynamixel*.py", "fakes/dynamixel/*", "families/dynamixel.py", "families/dynamixel_*.py",
-                  "monitor/dynamixel/*", "monitor/dynamixel1/*", "dashboard/dynamixel_views.py", "clients/dynamixel.py",
+                  "monitor/dynamixel/*", "monitor/dynamixel1/*", "clients/dynamixel.py",
                   "clients/dynamixel_servos.py",
                   "cli/dynamixel.py", "labgrid/dynamixel.py"),
     "feetech": ("protocols/feetech*.py", "fakes/feetech/*", "families/feetech.py", "families/feetech_*.py",
@@ -304,10 +304,6 @@ GENERIC_WORDS = {"can"}
 #: (P5, P8a-d, P11 in PLAN24 §10) empty it. An import of a family's protocol codec is not counted:
 #: codecs are libraries anyone may use (DESIGN.md §3); a string naming it (its protocol) is.
 NAMES_A_FAMILY: dict[str, set[str]] = {
-    # family -> family: the Protocol 1.0 bus core and tracker into a servo-bus kit (PLAN24 §1, "should")
-    "fakes/feetech/bus.py": {"import hilbench.fakes.dynamixel.bus1"},
-    "monitor/feetech/__init__.py": {"import hilbench.monitor.dynamixel1"},
-    "monitor/feetech/dialect.py": {"import hilbench.monitor.dynamixel.devices", "import hilbench.monitor.dynamixel1.tracker"},
     # family -> family: the shared RTPS part into a kit (families/rtps_kit.py, PLAN24 §1, "should")
     "families/micro_ros_agent.py": {"import hilbench.families.freertps"},
     "fakes/xrce_agent/bridge.py": {"import hilbench.fakes.rtps_node.participant"},

@@ -1,5 +1,6 @@
 """The Dynamixel family's servo client: its buses through the official ``dynamixel-sdk``, as ``hilbench demo``
-drives them (entry point ``dynamixel`` of ``hilbench.clients``, :data:`CLIENT`).
+drives them (entry point ``dynamixel`` of ``hilbench.clients``,
+:data:`~hilbench.clients.dynamixel_servos.CLIENT`).
 
 - Protocol 2.0 (X series, MX 2.0, XL-320): Sync Read and Sync Write (:class:`Dxl2Link`);
 - Protocol 1.0 (AX, MX 1.0, pypot's robots): the same SDK's Protocol 1.0 handler, which has no Sync Read:
@@ -99,6 +100,7 @@ class DynamixelServoClient(ServoClient):
         return [(i, *FOOT_READ) for i, model in devices if model.name == FOOT_MODEL]
 
 
+#: The client driver this module registers (entry point ``hilbench.clients``).
 CLIENT = DynamixelServoClient()
 
 __all__ = ["CLIENT", "Dxl1Link", "Dxl2Link", "DynamixelServoClient"]

@@ -1,6 +1,6 @@
 """The Feetech family's servo client: its buses through Feetech's own ``scservo_sdk``, as LeRobot's motor bus
 drives them (Sync Read 0x82 and Sync Write), for ``hilbench demo`` (entry point ``feetech`` of
-``hilbench.clients``, :data:`CLIENT`).
+``hilbench.clients``, :data:`~hilbench.clients.feetech.CLIENT`).
 """
 
 from __future__ import annotations
@@ -89,6 +89,7 @@ class FeetechServoClient(ServoClient):
         return FeetechLink(path, baud, big_endian=big)
 
 
+#: The client driver this module registers (entry point ``hilbench.clients``).
 CLIENT = FeetechServoClient()
 
 __all__ = ["CLIENT", "FeetechLink", "FeetechServoClient", "feetech_sdk"]

@@ -22,6 +22,7 @@ class RoverTraceInstrument(TraceInstrument):
     device_name = "stm32f767-rover"
 
 
+#: The instrument this module registers (entry point ``vel2d`` of ``hilbench.instruments``).
 INSTRUMENT = RoverTraceInstrument()
 
 __all__ = ["INSTRUMENT", "RoverTraceInstrument"]
