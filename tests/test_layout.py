@@ -323,7 +323,7 @@ NOT_A_FAMILY: dict[str, set[str]] = {
     # (Cyclone DDS, Fast DDS, micro-ROS), whichever family emulates one: its classes, aliases, summary keys
     # and views (its protocol state: monitor/udp/{rtps,xrce}_state.py)
     "monitor/udp/__init__.py": {"'rtps'", "'xrce-dds'"},
-    "monitor/udp/classify.py": {"'rtps'", "'vel2d'"},  # and Vel2d frames, by their codec (protocols/vel2d.py)
+    "monitor/udp/classify.py": {"'rtps'"},
     "monitor/udp/summary.py": {"'rtps'"},
     "monitor/udp/rtps_state.py": {"'rtps'"},
     "dashboard/udp_views.py": {"'rtps'"},
@@ -385,3 +385,6 @@ def test_no_shared_module_names_a_family():
     gone = {rel: sorted(v - found.get(rel, set())) for rel, v in NAMES_A_FAMILY.items()}
     gone = {rel: v for rel, v in gone.items() if v}
     assert not gone, f"delete from NAMES_A_FAMILY, these names are gone: {gone}"
+    unused = {rel: sorted(v - found.get(rel, set())) for rel, v in NOT_A_FAMILY.items()}
+    unused = {rel: v for rel, v in unused.items() if v}
+    assert not unused, f"delete from NOT_A_FAMILY, these names are gone: {unused}"

@@ -30,6 +30,22 @@ class TraceInstrument(Instrument):
     default_baud: ClassVar[int | None] = None
     #: The process name of an exported trace (``hilbench profile --export``) when the user gives none.
     device_name: ClassVar[str] = "board"
+    datagram_classes = ("stamps",)
+
+    def classify_datagram(self, data: bytes) -> str | None:
+        """``"stamps"`` for a board's trace output sent over UDP: binary stamp words (every byte >= 0x80, a
+        11xxxxxx byte every 4) or text lines of stamps, logs and reports."""
+        n = len(data)
+        if not n:
+            return None
+        if data[0] >= 0xC0:
+            return "stamps" if all(b >= 0x80 for b in data[:64]) else None
+        if data[0] < 0x80 and data.count(b"\n") and all(b < 0x80 for b in data[:256]):
+            from hilbench.protocols.tracestamp import classify
+
+            line = data.split(b"\n", 1)[0]
+            return "stamps" if classify(line) not in ("error", "blank") else None
+        return None
 
     def sniff(self, data: bytes) -> float:
         from hilbench.protocols.problem import Problem
