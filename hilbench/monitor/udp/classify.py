@@ -25,8 +25,8 @@ RTPS, XRCE, UNKNOWN = "rtps", "xrce", "unknown"
 
 
 def datagram_classifiers() -> list[Instrument]:
-    """The instruments that classify datagrams of their own (:attr:`~hilbench.monitor.instrument.Instrument.
-    datagram_classes`), in registration order."""
+    """The instruments that classify datagrams of their own (their
+    :attr:`~hilbench.monitor.instrument.Instrument.datagram_classes`), in registration order."""
     from hilbench import registry
 
     return registry.instruments.find(lambda inst: bool(inst.datagram_classes))
