@@ -199,7 +199,7 @@ def test_the_demo_reaches_servo_buses_through_each_family_s_servo_client():
     from hilbench import registry
     from hilbench.cli import build_parser
     from hilbench.clients.dynamixel_demo import check_profile
-    from hilbench.clients.servo_links import ServoClient, servo_clients
+    from hilbench.clients.servo_connections import ServoClient, servo_clients
     from hilbench.dashboard.servo_bus_views import VIEWS
     from hilbench.protocols.control_table import Model
 
@@ -207,8 +207,8 @@ def test_the_demo_reaches_servo_buses_through_each_family_s_servo_client():
     assert {p: type(c).__module__ for p, c in clients.items()} == {
         "dynamixel": "hilbench.clients.dynamixel_servos", "feetech": "hilbench.clients.feetech"}
     dxl = clients["dynamixel"]
-    assert type(dxl.link({"protocol_version": 1}, "/dev/null", 57_600)).__name__ == "Dxl1Link"
-    assert type(dxl.link({}, "/dev/null", 57_600)).__name__ == "Dxl2Link"
+    assert type(dxl.link({"protocol_version": 1}, "/dev/null", 57_600)).__name__ == "Dxl1Connection"
+    assert type(dxl.link({}, "/dev/null", 57_600)).__name__ == "Dxl2Connection"
     assert dxl.link({}, "/dev/null", 1).status_errors is False and clients["feetech"].link({}, "x", 1).status_errors
     foot, servo = (Model(name=n, number=0, firmware=0, fields=(), table_size=0) for n in ("Wolfgang Foot", "XH540"))
     assert dxl.sensor_reads([(101, foot), (1, servo)]) == [(101, 36, 16)]
@@ -236,7 +236,7 @@ def test_profiles_lists_the_bundled_ones():
     assert "wolfgang (default)" in proc.stdout and "arm:" in proc.stdout
 
 
-@pytest.mark.parametrize("args", [[], ["dxl", "read"], ["profile", "x", "--period", "foo=bar"],
+@pytest.mark.parametrize("args", [[], ["dxl", "read"], ["trace", "x", "--period", "foo=bar"],
                                   ["send-vel", "P", "a", "b", "c"], ["monitor", "x", "--view", "nope"]])
 def test_usage_errors_are_one_line(args):
     proc = hb(*args)

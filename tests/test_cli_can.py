@@ -53,7 +53,7 @@ def test_can_help_lists_the_canopen_board_commands_its_extension_adds():
     # the extension's synopsis lines join the verb's list of commands, before the text after it
     synopsis = out.stdout.split("positional arguments:")[0]
     assert (synopsis.index("hilbench can bus --manifest") < synopsis.index("hilbench can dbc PROFILE")
-            < synopsis.index("hilbench can status|fault|emcy|reset|state") < synopsis.index("TARGET is a bench"))
+            < synopsis.index("hilbench can status|fault|emcy|reset|state") < synopsis.index("BUS is a bench"))
 
 
 def test_dbc_and_eds_exports(tmp_path):

@@ -271,7 +271,7 @@ def test_no_upward_imports():
 
 #: The files each built-in family owns (globs under hilbench/). Everything else is shared: the frame, the
 #: kits families build on (families/scanner.py, families/servo_bus.py, fakes/scanners/{base,scene,uart}.py,
-#: fakes/{control_table_servo,table_servo,motion,servo_line,xrce_client,mecanum_robot}.py, fakes/canopen/{node,dictionary,
+#: fakes/{control_table_servo,table_servo,motion,servo_bus,xrce_client,mecanum_robot}.py, fakes/canopen/{node,dictionary,
 #: sdo_server}.py, protocols/{control_table,canopen,canopen_od,cdr}.py, monitor/scanners/{__init__,tracker}.py,
 #: clients/{base,scanners}.py, ...) and the generic instruments (the CAN, UDP and trace instruments) and verbs.
 OWNED: dict[str, tuple[str, ...]] = {

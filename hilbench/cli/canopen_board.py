@@ -4,7 +4,7 @@
 
     hilbench can dbc PROFILE [-o FILE]                 the DBC of the profile's CANopen boards
     hilbench can eds PROFILE [--device NAME] [-o FILE] a board's EDS
-    hilbench can drive TARGET [--node N] --vx V [--vy V] [--omega W] [--seconds S]
+    hilbench can drive BUS [--node N] --vx V [--vy V] [--omega W] [--seconds S]
     hilbench can status|fault|emcy|reset|state --manifest FILE ...   a running bench's boards
 
 ``hilbench can`` (:mod:`hilbench.cli.can`) is the generic CAN verb; this
@@ -19,7 +19,7 @@ import json
 import sys
 import time
 
-from hilbench.cli.can import NODE_ID, TARGET_HELP, add_control_options, knobs, open_target
+from hilbench.cli.can import BUS_HELP, NODE_ID, add_control_options, knobs, open_bus
 from hilbench.cli.common import CliError, add_set_option, terminate_on_sigterm
 from hilbench.errors import DeviceError
 from hilbench.rules import Rule
@@ -40,7 +40,7 @@ ERROR_REGISTER = Rule(int, 0, 0xFF, what="an error register")
 SYNOPSIS = """\
   hilbench can dbc PROFILE [-o FILE]                  the DBC of the profile's CANopen boards
   hilbench can eds PROFILE [--device NAME] [-o FILE]  a board's EDS
-  hilbench can drive TARGET [--node N] --vx V [--vy V] [--omega W] [--seconds S]
+  hilbench can drive BUS [--node N] --vx V [--vy V] [--omega W] [--seconds S]
   hilbench can status|fault|emcy|reset|state --manifest FILE ...   the boards' control channel"""
 
 
@@ -101,7 +101,7 @@ def cmd_drive(args: argparse.Namespace) -> int:
     warning = beyond_top_speed(args.vx, args.vy, args.omega)
     if warning:  # sent as given, as a ROS driver would: the board saturates its wheels (the real one and ours)
         print(f"hilbench can drive: warning: {warning}", file=sys.stderr)
-    bus = open_target(args.target)
+    bus = open_bus(args.bus)
     with RoverCanClient(bus, args.node, period=args.period, own_bus=True) as rover:
         if not args.no_start:
             rover.start()
@@ -174,7 +174,7 @@ def extend(cs: argparse._SubParsersAction) -> None:
                                   "refused; one the rover cannot follow (a wheel beyond 105 rpm: |vx| + |vy| + "
                                   "0.3125 m x |omega| above 0.55 m/s) is sent as given, with a warning: the board "
                                   "saturates its wheels as the real one does.")
-    v.add_argument("target", help=TARGET_HELP)
+    v.add_argument("bus", metavar="BUS", help=BUS_HELP)
     v.add_argument("--node", type=NODE_ID, default=2, help="node id (default 2)")
     v.add_argument("--vx", type=SETPOINT_VALUE, default=0.0, help="forward velocity in m/s")
     v.add_argument("--vy", type=SETPOINT_VALUE, default=0.0, help="sideways velocity in m/s (left positive)")

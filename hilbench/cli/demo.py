@@ -68,7 +68,7 @@ VERBS = {  # each verb register() adds and its line in `hilbench --help` (see hi
 def views() -> tuple[str, ...]:
     """The dashboard views ``--view`` takes: those of the instruments of the buses a servo client drives."""
     from hilbench import registry
-    from hilbench.clients.servo_links import servo_clients
+    from hilbench.clients.servo_connections import servo_clients
 
     found: dict[str, None] = {}
     for protocol in servo_clients():

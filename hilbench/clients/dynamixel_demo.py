@@ -9,8 +9,8 @@ Position, now and then voltage, temperature, Hardware Error Status and the
 foot sensor that never answers), the same SDK's Protocol 1.0 handler on a
 Protocol 1.0 bus (a Read per servo: it has no Sync Read), Feetech's
 ``scservo_sdk`` on a Feetech bus (Sync Read 0x82, as LeRobot does). Each
-servo family brings its SDK as a servo client (:mod:`hilbench.clients.servo_links`:
-:class:`~hilbench.clients.servo_links.ServoClient`); the demo finds them in the
+servo family brings its SDK as a servo client (:mod:`hilbench.clients.servo_connections`:
+:class:`~hilbench.clients.servo_connections.ServoClient`); the demo finds them in the
 registry and names no family.
 
 Meanwhile the monitor taps the bench's line and the dashboard shows what it
@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 
 from hilbench.bench import Bench
 from hilbench.bench.profile import DEFAULT_PROFILE, Profile, load_profile
-from hilbench.clients.servo_links import Layout, ServoLink, layout, servo_clients
+from hilbench.clients.servo_connections import Layout, ServoConnection, layout, servo_clients
 from hilbench.console import Console
 from hilbench.dashboard import Dashboard
 from hilbench.errors import UsageError
@@ -93,7 +93,7 @@ class DemoResult:
     scenario: Scenario | None = None
     summary: dict = field(default_factory=dict)
     sdk_packets: dict[str, int] = field(default_factory=dict)
-    #: The driven bus's traffic (its link's :attr:`~hilbench.clients.servo_links.ServoLink.protocol`).
+    #: The driven bus's traffic (its connection's :attr:`~hilbench.clients.servo_connections.ServoConnection.protocol`).
     protocol: str = ""
     #: Whether its servos report their condition in every status's error byte (Protocol 1.0, Feetech), not in
     #: a Hardware Error Status register.
@@ -152,9 +152,9 @@ class Controller:
                 self.layouts[s.id] = lay
                 groups.setdefault(lay, []).append(s.id)
         self.groups = list(groups.items())
-        self.link = client.link(self.ep.spec.options, self.ep.path, self.ep.spec.baud, [s.model for s in servos])
-        self.result = DemoResult(scenario=Scenario.for_run(self.ids, seconds), protocol=self.link.protocol,
-                                 status_errors=self.link.status_errors)
+        self.connection = client.connection(self.ep.spec.options, self.ep.path, self.ep.spec.baud, [s.model for s in servos])
+        self.result = DemoResult(scenario=Scenario.for_run(self.ids, seconds), protocol=self.connection.protocol,
+                                 status_errors=self.connection.status_errors)
         self.stop = threading.Event()
         self.done = threading.Event()
         self.error: BaseException | None = None
@@ -192,18 +192,18 @@ class Controller:
         servo.ambient_temperature = servo.get(lay.temperature_limit.key) + OVERHEAT_MARGIN
 
     def _read(self, address: int, size: int, ids: list[int], what: str) -> dict[int, bytes]:
-        got, failed = self.link.group_read(address, size, ids)
-        self.result.failed_reads += failed if self.link.group_reads else len(ids) - len(got)
-        self._count(what, 1 if self.link.group_reads else len(ids))
+        got, failed = self.connection.group_read(address, size, ids)
+        self.result.failed_reads += failed if self.connection.group_reads else len(ids) - len(got)
+        self._count(what, 1 if self.connection.group_reads else len(ids))
         return got
 
-    def _sweeps(self, link: ServoLink) -> dict[int, tuple[float, float]]:
+    def _sweeps(self, connection: ServoConnection) -> dict[int, tuple[float, float]]:
         """(middle, amplitude) of each servo that tells its angle limits (a servo in wheel mode sweeps not)."""
         out = {}
         for i, lay in self.layouts.items():
             if lay.min_position is None or lay.max_position is None:
                 continue
-            lo, hi = link.read_field(i, lay.min_position), link.read_field(i, lay.max_position)
+            lo, hi = connection.read_field(i, lay.min_position), connection.read_field(i, lay.max_position)
             self._count("read", 2)
             if lo is None or hi is None or hi <= lo:
                 continue
@@ -212,15 +212,15 @@ class Controller:
 
     def _loop(self) -> None:
         res, sc, ep = self.result, self.result.scenario, self.ep
-        kind = "sync_read" if self.link.group_reads else "read"
-        with self.link as link:
+        kind = "sync_read" if self.connection.group_reads else "read"
+        with self.connection as connection:
             for dev_id in self.ids + self.others:  # start-up: who is there (the foot sensor 101 is not)
-                if link.ping(dev_id):
+                if connection.ping(dev_id):
                     res.pings.append(dev_id)
                 self._count("ping")
-            sweeps = self._sweeps(link)
+            sweeps = self._sweeps(connection)
             for lay, ids in self.groups:
-                link.sync_write(lay.torque, dict.fromkeys(ids, 1))
+                connection.sync_write(lay.torque, dict.fromkeys(ids, 1))
                 self._count("sync_write")
             start = time.monotonic()
             vanished = errored = False
@@ -244,7 +244,7 @@ class Controller:
                             phase = 2 * math.pi * elapsed / self.period + (k + j) * 0.3
                             goals[i] = int(mid + amp * math.sin(phase))
                     if goals:
-                        link.sync_write(lay.goal, goals)
+                        connection.sync_write(lay.goal, goals)
                         self._count("sync_write")
                 res.cycles += 1
                 if res.cycles % SLOW_EVERY == 1:
@@ -254,11 +254,11 @@ class Controller:
                         if lay.hardware_error is not None:
                             self._read(lay.hardware_error.address, lay.hardware_error.size, ids, kind)
                     for dev_id, address, size in self.sensor_reads:  # the foot sensor of the Wolfgang capture
-                        link.read(dev_id, address, size)
+                        connection.read(dev_id, address, size)
                         self._count("read")
             res.seconds = time.monotonic() - start
             for lay, ids in self.groups:
-                link.sync_write(lay.torque, dict.fromkeys(ids, 0))
+                connection.sync_write(lay.torque, dict.fromkeys(ids, 0))
                 self._count("sync_write")
 
 

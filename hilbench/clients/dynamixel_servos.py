@@ -2,9 +2,9 @@
 drives them (entry point ``dynamixel`` of ``hilbench.clients``,
 :data:`~hilbench.clients.dynamixel_servos.CLIENT`).
 
-- Protocol 2.0 (X series, MX 2.0, XL-320): Sync Read and Sync Write (:class:`Dxl2Link`);
+- Protocol 2.0 (X series, MX 2.0, XL-320): Sync Read and Sync Write (:class:`Dxl2Connection`);
 - Protocol 1.0 (AX, MX 1.0, pypot's robots): the same SDK's Protocol 1.0 handler, which has no Sync Read:
-  one Read per servo, and Sync Write (:class:`Dxl1Link`).
+  one Read per servo, and Sync Write (:class:`Dxl1Connection`).
 
 The SDK is imported when a link opens (:mod:`hilbench.clients.dynamixel`'s port handler): listing the
 clients loads neither.
@@ -16,7 +16,7 @@ import contextlib
 from collections.abc import Iterable, Mapping
 from typing import Any, ClassVar
 
-from hilbench.clients.servo_links import ServoClient, ServoLink
+from hilbench.clients.servo_connections import ServoClient, ServoConnection
 from hilbench.protocols.control_table import Field, Model
 
 #: The Wolfgang robot's foot sensor (a device on the servo bus that is not a servo): what its robot reads of it.
@@ -24,7 +24,7 @@ FOOT_MODEL = "Wolfgang Foot"
 FOOT_READ = (36, 16)
 
 
-class _DynamixelLink(ServoLink):
+class _DynamixelConnection(ServoConnection):
     version: ClassVar[float] = 2.0
 
     def open(self) -> None:
@@ -55,7 +55,7 @@ class _DynamixelLink(ServoLink):
         writer.txPacket()
 
 
-class Dxl2Link(_DynamixelLink):
+class Dxl2Connection(_DynamixelConnection):
     """Dynamixel Protocol 2.0 through the official SDK: Sync Read and Sync Write."""
 
     protocol = "dynamixel"
@@ -77,7 +77,7 @@ class Dxl2Link(_DynamixelLink):
         return {i: bytes(reader.data_dict[i]) for i in ids if len(reader.data_dict.get(i) or ()) == size}, 0
 
 
-class Dxl1Link(_DynamixelLink):
+class Dxl1Connection(_DynamixelConnection):
     """Dynamixel Protocol 1.0 through the official SDK: a Read per servo (it has no Sync Read), Sync Write."""
 
     protocol = "dynamixel1"
@@ -93,8 +93,8 @@ class DynamixelServoClient(ServoClient):
     title = "Dynamixel servo bus host (dynamixel-sdk)"
     bus_title = "Dynamixel"
 
-    def link(self, options: Mapping[str, Any], path: str, baud: int, models: Iterable[Model] = ()) -> ServoLink:
-        return (Dxl1Link if options.get("protocol_version", 2) == 1 else Dxl2Link)(path, baud)
+    def link(self, options: Mapping[str, Any], path: str, baud: int, models: Iterable[Model] = ()) -> ServoConnection:
+        return (Dxl1Connection if options.get("protocol_version", 2) == 1 else Dxl2Connection)(path, baud)
 
     def sensor_reads(self, devices: Iterable[tuple[int, Model]]) -> list[tuple[int, int, int]]:
         return [(i, *FOOT_READ) for i, model in devices if model.name == FOOT_MODEL]
@@ -103,4 +103,4 @@ class DynamixelServoClient(ServoClient):
 #: The client driver this module registers (entry point ``hilbench.clients``).
 CLIENT = DynamixelServoClient()
 
-__all__ = ["CLIENT", "Dxl1Link", "Dxl2Link", "DynamixelServoClient"]
+__all__ = ["CLIENT", "Dxl1Connection", "Dxl2Connection", "DynamixelServoClient"]

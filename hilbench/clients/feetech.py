@@ -8,12 +8,12 @@ from __future__ import annotations
 from collections.abc import Iterable, Mapping
 from typing import Any
 
-from hilbench.clients.servo_links import ServoClient, ServoLink, role_field
+from hilbench.clients.servo_connections import ServoClient, ServoConnection, role_field
 from hilbench.errors import DeviceError, require
 from hilbench.protocols.control_table import Field, Model
 
 
-class FeetechLink(ServoLink):
+class FeetechConnection(ServoConnection):
     """Feetech STS/SCS through Feetech's own ``scservo_sdk``: Sync Read 0x82 and Sync Write."""
 
     protocol = "feetech"
@@ -82,14 +82,14 @@ class FeetechServoClient(ServoClient):
     def check(self) -> None:
         feetech_sdk()
 
-    def link(self, options: Mapping[str, Any], path: str, baud: int, models: Iterable[Model] = ()) -> ServoLink:
+    def link(self, options: Mapping[str, Any], path: str, baud: int, models: Iterable[Model] = ()) -> ServoConnection:
         models = list(models)
         big = bool(models) and all((f := role_field(m, "present_position")) is not None and f.big_endian
                                    for m in models)
-        return FeetechLink(path, baud, big_endian=big)
+        return FeetechConnection(path, baud, big_endian=big)
 
 
 #: The client driver this module registers (entry point ``hilbench.clients``).
 CLIENT = FeetechServoClient()
 
-__all__ = ["CLIENT", "FeetechLink", "FeetechServoClient", "feetech_sdk"]
+__all__ = ["CLIENT", "FeetechConnection", "FeetechServoClient", "feetech_sdk"]

@@ -22,7 +22,7 @@ import numpy as np
 from hilbench.profiler.analysis import Analysis
 from hilbench.transports.atomic_file import atomic_write
 
-#: The process name when the caller gives none (``hilbench profile`` gives the trace instrument's device name).
+#: The process name when the caller gives none (``hilbench trace`` gives the trace instrument's device name).
 BOARD_NAME = "board"
 FUNCTION_TID_BASE = 101
 

@@ -1,8 +1,8 @@
 """The trace profiler as an instrument plug-in: a board's UART carries trace stamps, not a bus.
 
-``hilbench monitor`` points a user at ``hilbench profile`` for the protocols
+``hilbench monitor`` points a user at ``hilbench trace`` for the protocols
 of trace instruments (:attr:`~hilbench.monitor.instrument.Instrument.verb`),
-and ``hilbench profile`` accepts only sources whose instrument it is.
+and ``hilbench trace`` accepts only sources whose instrument it is.
 :meth:`~TraceInstrument.sniff` tells trace output in a raw capture (text stamp
 lines, logs, reports, binary words). A device family whose board writes trace
 stamps registers a :class:`TraceInstrument` under its bus protocol with the
@@ -22,13 +22,13 @@ class TraceInstrument(Instrument):
     """Trace stamps (text and binary), logs and run-time reports of a board; subclasses name the protocol."""
 
     title = "a board's trace output"
-    verb = "profile"
+    verb = "trace"
     #: The chunk sources of a bench line that carry the board's output (a glob): a bench names the host's
     #: side after the endpoint and the device's side after the device (None: every source).
     device_sources: ClassVar[str | None] = None
     #: The rate a serial port to the board is opened at when the user gives none.
     default_baud: ClassVar[int | None] = None
-    #: The process name of an exported trace (``hilbench profile --export``) when the user gives none.
+    #: The process name of an exported trace (``hilbench trace --export``) when the user gives none.
     device_name: ClassVar[str] = "board"
     datagram_classes = ("stamps",)
 
@@ -77,7 +77,7 @@ def trace_instrument(protocol: str | None) -> TraceInstrument | None:
 
 
 def default_baud(fallback: int = 115_200) -> int:
-    """The rate a serial port is opened at for ``hilbench profile``: the first trace instrument's that has
+    """The rate a serial port is opened at for ``hilbench trace``: the first trace instrument's that has
     one, else ``fallback``."""
     return next((i.default_baud for i in trace_instruments() if i.default_baud), fallback)
 

@@ -2,13 +2,13 @@
 
 Each servo family registers a :class:`ServoClient` (role ``servo``, entry
 point ``hilbench.clients`` named after its bus protocol) that opens its buses
-the way its robots drive them, with a :class:`ServoLink` of its own: the
+the way its robots drive them, with a :class:`ServoConnection` of its own: the
 Dynamixel family's through the official ``dynamixel-sdk``
 (:mod:`hilbench.clients.dynamixel_servos`), the Feetech family's through
 Feetech's ``scservo_sdk`` (:mod:`hilbench.clients.feetech`). The demo finds
 them with :func:`servo_clients` and names no family.
 
-A link reads and writes control-table :class:`~hilbench.protocols.control_table.Field` s
+A connection reads and writes control-table :class:`~hilbench.protocols.control_table.Field` s
 (so it encodes sign-magnitude and big-endian words as the model says) and
 answers ``None`` for what did not come back; it never raises for a device
 that is silent. :func:`layout` finds the registers the demo uses in any
@@ -77,7 +77,7 @@ def layout(model: Model) -> Layout | None:
                   role_field(model, "temperature_limit"))
 
 
-class ServoLink:
+class ServoConnection:
     """A servo bus opened through an SDK (see the module docstring); use as a context manager."""
 
     #: The traffic's name to taps and monitors.
@@ -94,7 +94,7 @@ class ServoLink:
         self.port: Any = None
         self.ph: Any = None
 
-    def __enter__(self) -> ServoLink:
+    def __enter__(self) -> ServoConnection:
         self.open()
         return self
 
@@ -148,8 +148,8 @@ class ServoClient(ClientDriver):
         """Raise :class:`~hilbench.errors.MissingExtra` (one line) if the SDK is not installed, before a bench
         starts."""
 
-    def link(self, options: Mapping[str, Any], path: str, baud: int, models: Iterable[Model] = ()) -> ServoLink:
-        """The link that drives a bench endpoint of its protocol (``options``: the endpoint's, e.g. the
+    def connection(self, options: Mapping[str, Any], path: str, baud: int, models: Iterable[Model] = ()) -> ServoConnection:
+        """The connection that drives a bench endpoint of its protocol (``options``: the endpoint's, e.g. the
         Dynamixel ``protocol_version``; ``models``: its servos')."""
         raise NotImplementedError
 
@@ -166,4 +166,4 @@ def servo_clients() -> dict[str, ServoClient]:
     return {c.protocol: c for c in registry.clients.values() if c.role == ServoClient.role}
 
 
-__all__ = ["Layout", "ServoClient", "ServoLink", "layout", "role_field", "servo_clients"]
+__all__ = ["Layout", "ServoClient", "ServoConnection", "layout", "role_field", "servo_clients"]
