@@ -193,6 +193,43 @@ def test_demo_on_a_feetech_bus_without_feetechs_sdk_names_it(monkeypatch, capsys
         "hilbench: error: driving a Feetech bus needs scservo_sdk: pip install feetech-servo-sdk"]
 
 
+def test_the_demo_reaches_servo_buses_through_each_family_s_servo_client():
+    """The demo names no family: the servo clients registered (role "servo") say which buses it drives, with
+    which SDK link, what else it reads on the bus, and which dashboard views --view takes."""
+    from hilbench import registry
+    from hilbench.cli import build_parser
+    from hilbench.clients.dynamixel_demo import check_profile
+    from hilbench.clients.servo_connections import ServoClient, servo_clients
+    from hilbench.dashboard.servo_bus_views import VIEWS
+    from hilbench.protocols.control_table import Model
+
+    clients = servo_clients()
+    assert {p: type(c).__module__ for p, c in clients.items()} == {
+        "dynamixel": "hilbench.clients.dynamixel_servos", "feetech": "hilbench.clients.feetech"}
+    dxl = clients["dynamixel"]
+    assert type(dxl.connection({"protocol_version": 1}, "/dev/null", 57_600)).__name__ == "Dxl1Connection"
+    assert type(dxl.connection({}, "/dev/null", 57_600)).__name__ == "Dxl2Connection"
+    assert dxl.connection({}, "/dev/null", 1).status_errors is False and clients["feetech"].connection({}, "x", 1).status_errors
+    foot, servo = (Model(name=n, number=0, firmware=0, fields=(), table_size=0) for n in ("Wolfgang Foot", "XH540"))
+    assert dxl.sensor_reads([(101, foot), (1, servo)]) == [(101, 36, 16)]
+    demo = build_parser(["demo"])._subparsers._group_actions[0].choices["demo"]
+    view = next(a for a in demo._actions if a.dest == "view")
+    assert tuple(view.choices) == VIEWS and view.default == VIEWS[0]
+
+    class AcmeServos(ServoClient):  # an outside family's servo bus joins the list the demo drives
+        protocol = "acme-servo"
+        bus_title = "Acme"
+
+    registry.clients.register("acme-servo", AcmeServos())
+    try:
+        from hilbench.bench.profile import load_profile
+
+        with pytest.raises(Exception, match=r"demo drives a servo bus \(Dynamixel or Feetech or Acme\)"):
+            check_profile(load_profile("mecarover"))
+    finally:
+        registry.clients.unregister("acme-servo")
+
+
 def test_profiles_lists_the_bundled_ones():
     proc = hb("profiles")
     assert proc.returncode == 0

@@ -30,6 +30,32 @@ def hb(*args: str, timeout: float = 60) -> subprocess.CompletedProcess:
                           timeout=timeout, cwd=REPO)
 
 
+#: `hilbench can`'s own sub-commands, and those the CANopen board family adds (entry point `can.canopen`).
+GENERIC_COMMANDS = ("dump", "send", "nmt", "sdo", "bus")
+BOARD_COMMANDS = ("dbc", "eds", "drive", "status", "fault", "emcy", "reset", "state")
+
+
+def test_can_help_lists_the_canopen_board_commands_its_extension_adds():
+    from hilbench import registry
+    from hilbench.cli import build_parser
+
+    assert registry.verbs.get("can.canopen").__name__ == "hilbench.cli.canopen_board"
+    parser = build_parser(["can", "--help"])
+    verb = parser._subparsers._group_actions[0].choices["can"]
+    commands = verb._subparsers._group_actions[0].choices
+    assert tuple(commands) == GENERIC_COMMANDS + BOARD_COMMANDS
+    assert {commands[c].get_default("func").__module__ for c in GENERIC_COMMANDS} == {"hilbench.cli.can"}
+    assert {commands[c].get_default("func").__module__ for c in BOARD_COMMANDS} == {"hilbench.cli.canopen_board"}
+    out = hb("can", "--help")
+    assert out.returncode == 0, out.stderr
+    listed = out.stdout.split("positional arguments:")[1]
+    assert all(f"\n    {c} " in listed for c in GENERIC_COMMANDS + BOARD_COMMANDS), listed
+    # the extension's synopsis lines join the verb's list of commands, before the text after it
+    synopsis = out.stdout.split("positional arguments:")[0]
+    assert (synopsis.index("hilbench can bus --manifest") < synopsis.index("hilbench can dbc PROFILE")
+            < synopsis.index("hilbench can status|fault|emcy|reset|state") < synopsis.index("BUS is a bench"))
+
+
 def test_dbc_and_eds_exports(tmp_path):
     out = hb("can", "dbc", "mecarover-can")
     assert out.returncode == 0, out.stderr

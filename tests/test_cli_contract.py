@@ -117,9 +117,9 @@ def test_an_out_of_range_value_is_one_line_naming_option_value_and_range(argv, l
 
 
 def test_can_drive_ranges_are_the_setpoint_pdo_and_the_rover_wheels():
-    from hilbench.cli.can import SETPOINT_VALUE
+    from hilbench.cli.canopen_board import SETPOINT_VALUE
     from hilbench.clients import can_rover, rover_speed
-    from hilbench.fakes.stm32_board import robot
+    from hilbench.fakes import mecanum_robot as robot
     from hilbench.protocols import board_can
 
     for signal in board_can.SETPOINT.signals:

@@ -67,7 +67,7 @@ def test_monitor_of_a_dynamixel_capture_loads_no_other_instrument_code(tmp_path,
     # Every instrument is asked whether the bytes are its protocol, so each plug-in module is loaded (light:
     # the instrument class alone); none of their trackers, decoders, dialects or summaries.
     light = {"hilbench.monitor.can", "hilbench.monitor.udp", "hilbench.monitor.scanners", "hilbench.monitor.dynamixel1",
-             "hilbench.monitor.feetech", "hilbench.profiler", "hilbench.profiler.instrument",
+             "hilbench.monitor.feetech", "hilbench.profiler", "hilbench.profiler.instrument", "hilbench.profiler.stm32_rover",
              # each scanner family's instrument module (its tracker is *_tracker.py, imported when one is made)
              "hilbench.monitor.scanners.rplidar", "hilbench.monitor.scanners.scip2",
              "hilbench.monitor.scanners.sick_lms200"}
@@ -112,7 +112,7 @@ def test_emulate_arm_loads_no_other_family_s_fakes(tmp_path):
     assert "hilbench.fakes.dynamixel.servo" in modules  # the arm's servos are running
     others = {m for m in under(modules, "hilbench.fakes") if not m.startswith("hilbench.fakes.dynamixel")}
     kits = {"hilbench.fakes", "hilbench.fakes.control_table_servo", "hilbench.fakes.table_servo",
-            "hilbench.fakes.servo_bus", "hilbench.fakes.motion",  # what the servo families build on
+            "hilbench.fakes.servo_bus", "hilbench.fakes.motion", "hilbench.fakes.protocol1_bus",  # servo kits
             # every bench's world and its geometry
             "hilbench.fakes.world", "hilbench.fakes.scene"}
     assert not others - kits, f"other families' fakes: {sorted(others - kits)}"

@@ -76,13 +76,14 @@ def cases(capture: Path) -> list[Case]:
         # the plug-ins themselves (light objects), not what they use when they run
         Case("plugins", ("plugins",), ("rich", "construct", "hilbench.bench*", "hilbench.families*",
                                        "hilbench.servers*", "hilbench.monitor*", "hilbench.profiler",
-                                       "hilbench.profiler.instrument")),
+                                       "hilbench.profiler.instrument", "hilbench.profiler.stm32_rover")),
         *(Case(f"{verb}_help", (verb, "--help")) for verb in ("emulate", "record", "trace", "lidar", "can",
                                                              "dxl", "demo")),
         Case("emulate_arm", ("emulate", "arm"),
              ("numpy", "rich", "construct", "serial", "hilbench.bench*", "hilbench.families", "hilbench.fakes",
               "hilbench.families.dynamixel", "hilbench.families.servo_bus", "hilbench.fakes.dynamixel*",
-              "hilbench.fakes.control_table_servo", "hilbench.fakes.table_servo", "hilbench.fakes.servo_bus"),
+              "hilbench.fakes.control_table_servo", "hilbench.fakes.table_servo", "hilbench.fakes.servo_bus",
+              "hilbench.fakes.protocol1_bus"),
              first_line=True),
     ]
 

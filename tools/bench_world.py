@@ -2,7 +2,7 @@
 """World benchmarks; prints one JSON object per figure (see DESIGN.md §10).
 
 1. World steps per second with 2 and 10 bodies, each driven by the rover
-   firmware's motion model (a :class:`~hilbench.fakes.stm32_board.robot.Robot`
+   firmware's motion model (a :class:`~hilbench.fakes.mecanum_robot.Robot`
    turning on a circle) and carrying a SICK LMS 200 (181 beams at 75 Hz, each
    ray from its body's pose at its time), in an arena with obstacles and a
    moving object, stepped at 200 Hz in simulated time as fast as this machine
@@ -27,9 +27,9 @@ import time
 
 from benchlib import emit
 
+from hilbench.fakes.mecanum_robot import Robot
 from hilbench.fakes.scanners.sick_lms200 import SickLms200
 from hilbench.fakes.scene import Mover, Pose, RangeModel, Scene
-from hilbench.fakes.stm32_board.robot import Robot
 from hilbench.fakes.world import Body, Shape, World
 
 STEP = 0.005

@@ -728,7 +728,7 @@ class ControlClient:
     """Talks to a bench's control channel (``host:port``, or the manifest that lists it).
 
     :meth:`call` sends any command; families add clients with named methods
-    (:class:`hilbench.families.stm32_rover.BoardClient`: ``button()``, ``status()``, ...).
+    (:class:`hilbench.clients.stm32_rover.BoardClient`: ``button()``, ``status()``, ...).
     """
 
     def __init__(self, address: str | tuple[str, int], timeout: float = 10.0) -> None:

@@ -99,6 +99,9 @@ class DeviceFamily:
     device_word: ClassVar[str] = "device"
     #: Control commands it answers for its devices: name -> one-line help.
     control_commands: ClassVar[dict[str, str]] = {}
+    #: Files it writes about its devices for other tools (``"dbc"``, ``"eds"``): name -> one-line help; see
+    #: :meth:`artefact`.
+    artefacts: ClassVar[dict[str, str]] = {}
     #: What ``bench.family(name)`` returns for it: a :class:`FamilyAccess` (sub)class with its typed lookups.
     access: ClassVar[type[FamilyAccess]]
 
@@ -146,6 +149,16 @@ class DeviceFamily:
         ``family``)."""
         return {"name": spec.name, "model": spec.model, "endpoint": spec.endpoint,
                 "protocol": profile.endpoints[spec.endpoint].protocol}
+
+    def artefact(self, kind: str, profile: Profile | str, device: str | None = None) -> str | None:
+        """The text of artefact ``kind`` (one of :attr:`artefacts`) describing ``profile``'s devices of this
+        family, or the one named ``device``; None if the profile has none (or the family makes no ``kind``).
+
+        ``profile`` may be a profile's name or file, which the family reads itself (one that cannot be read:
+        None): so an instrument, which knows no profiles, finds a bench's CAN database by the profile's name
+        (``hilbench monitor --dbc mecarover-can``) through :data:`hilbench.registry.families`.
+        """
+        return None
 
     # ------------------------------------------------------------------ control channel
 

@@ -10,7 +10,10 @@ way), and an optional
 ``VERBS`` dict, each verb ``register`` adds and its one-line help. An entry
 point named ``VERB.NAME`` is an extension of VERB: a module whose
 ``extend(subparsers)`` adds sub-commands to VERB's once VERB is registered
-(a family adding its own commands to a generic verb).
+(a family adding its own commands to a generic verb: ``can.canopen`` names
+:mod:`hilbench.cli.canopen_board`), and whose optional ``SYNOPSIS`` lines join
+the list of commands that opens VERB's ``--help`` (its description's first
+block of indented lines).
 
 ``hilbench VERB ...`` imports the module of VERB (and VERB's extensions)
 alone, so no command pays for every other verb's imports, options and help
@@ -45,9 +48,24 @@ def _extend(sub: argparse._SubParsersAction, verb: str) -> None:
     if parser is None:
         return
     subs = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
-    for name in registry.verbs.names():
+    for name in sorted(registry.verbs.names()):
         if name.startswith(verb + ".") and subs:
-            registry.verbs.get(name).extend(subs[0])
+            extension = registry.verbs.get(name)
+            extension.extend(subs[0])
+            synopsis = getattr(extension, "SYNOPSIS", "")
+            if synopsis and parser.description:
+                parser.description = _add_synopsis(parser.description, synopsis)
+
+
+def _add_synopsis(description: str, lines: str) -> str:
+    """``description`` with ``lines`` after its first block of indented lines (a verb's list of commands), or
+    at its end."""
+    text = description.split("\n")
+    start = next((i for i, line in enumerate(text) if line.startswith("  ")), None)
+    if start is None:
+        return f"{description}\n\n{lines}"
+    end = next((i for i in range(start, len(text)) if not text[i].startswith("  ")), len(text))
+    return "\n".join([*text[:end], *lines.split("\n"), *text[end:]])
 
 
 def _register(sub: argparse._SubParsersAction, module: ModuleType) -> None:

@@ -1,20 +1,22 @@
-"""``hilbench can``: the CAN side of a bench, the board's DBC and EDS, and small CAN tools.
+"""``hilbench can``: the CAN side of a bench and small CAN tools; CAN families add their own sub-commands.
 
 Subcommands::
 
-    hilbench can dbc PROFILE [-o FILE]                 the DBC of the profile's CANopen boards
-    hilbench can eds PROFILE [--device NAME] [-o FILE] a board's EDS
     hilbench can dump SOURCE [--dbc F] [--eds F:N]     frames as candump -L lines (decoded with --dbc/--eds)
     hilbench can send BUS ID#DATA ...               send frames (cansend syntax; ID#R for remote)
     hilbench can nmt BUS start|stop|preop|reset|reset-comm [--node N]
     hilbench can sdo BUS --node N read INDEX[:SUB] [--type T]
     hilbench can sdo BUS --node N write INDEX[:SUB] VALUE --type T
-    hilbench can drive BUS [--node N] --vx V [--vy V] [--omega W] [--seconds S]
-    hilbench can status|fault|emcy|bus --manifest FILE ...   a running bench's control channel
+    hilbench can bus --manifest FILE [KEY=VALUE ...]   a running bench's CAN bus (control channel)
 
 BUS is a bench manifest (``hilbench emulate --manifest``; its socketcand
 server is used) or a CAN bus URL (``socketcand://127.0.0.1:PORT/can0``,
 ``slcan:///dev/pts/N``, ``socketcan://vcan0``).
+
+A device family adds sub-commands of its own through an extension of the verb
+(entry point ``can.NAME`` of ``hilbench.verbs``, see :mod:`hilbench.cli`): the
+CANopen board's ``dbc``, ``eds``, ``drive`` and control commands are
+:mod:`hilbench.cli.canopen_board`'s.
 """
 
 from __future__ import annotations
@@ -23,7 +25,6 @@ import argparse
 import contextlib
 import json
 import logging
-import sys
 import time
 from collections.abc import Iterator
 from typing import Any
@@ -34,56 +35,21 @@ from hilbench.rules import POSITIVE_COUNT, SECONDS, SPEED, Rule
 
 TYPES = {"u8": (1, False), "u16": (2, False), "u32": (4, False), "i8": (1, True), "i16": (2, True),
          "i32": (4, True)}
-#: ``--node`` of sdo and drive: a CANopen node id.
+#: ``--node`` of sdo (and of the families' commands): a CANopen node id.
 NODE_ID = Rule(int, 1, 127, what="a CANopen node id")
 #: ``--node`` of nmt: a node id, or 0 for every node.
 NMT_NODE = Rule(int, 0, 127, what="a CANopen node id, or 0 for all nodes")
-#: ``--vx``/``--vy`` (m/s) and ``--omega`` (rad/s): what the setpoint PDO carries (int16, 0.001 per count;
-#: :data:`hilbench.protocols.board_can.SETPOINT`, held equal by a test).
-SETPOINT_VALUE = Rule(float, -32.768, 32.767)
-#: ``drive --seconds``: how long to drive.
-DRIVE_SECONDS = Rule(float, 0, 1e9, above=True)
-#: ``drive --period``: the setpoint repeat (the board's setpoint timeout is 150 ms by default: longer periods
-#: rehearse timeouts).
-SETPOINT_PERIOD = Rule(float, 0.001, 60)
 #: ``send --gap`` (s).
 GAP = Rule(float, 0, 60)
 #: ``sdo --timeout`` (s).
 SDO_TIMEOUT = Rule(float, 0, 3600, above=True)
-#: ``emcy``: the error code and error register (CiA 301's EMCY frame: u16, u8).
-EMCY_CODE = Rule(int, 0, 0xFFFF, what="an EMCY error code")
-ERROR_REGISTER = Rule(int, 0, 0xFF, what="an error register")
+#: What a BUS argument takes (the help of every sub-command that opens a bus).
+BUS_HELP = "a bench manifest (its socketcand server) or a CAN bus URL (socketcand://, slcan://, socketcan://)"
 NMT = {"start": 0x01, "stop": 0x02, "preop": 0x80, "pre-operational": 0x80, "reset": 0x81, "reset-node": 0x81,
        "reset-comm": 0x82, "reset-communication": 0x82}
 
 
 # --------------------------------------------------------------------------- helpers
-
-def _boards(profile_name: str, overrides: list[str] | None = None) -> list[tuple[str, Any]]:
-    from hilbench.bench.profile import load_profile
-    from hilbench.families.canopen_board import profile_boards
-
-    boards = profile_boards(load_profile(profile_name, overrides))
-    if not boards:
-        raise CliError(f"{profile_name}: the profile has no CANopen boards")
-    return boards
-
-
-def _check_output(args: argparse.Namespace) -> None:
-    """Refuse ``-o`` onto the profile read (or into no directory) before anything is read."""
-    from hilbench.cli.outputs import check_outputs
-
-    check_outputs([("-o", args.output)], inputs=[args.profile])
-
-
-def _write(text: str, out: str | None) -> None:
-    """To stdout, or replacing ``out`` in one step (a full disk leaves an old file whole)."""
-    from hilbench.cli.outputs import write_output
-
-    write_output(out, text)
-    if out not in (None, "-"):
-        print(f"wrote {out}", file=sys.stderr)
-
 
 def manifest_socketcand(path: str) -> str:
     """The socketcand URL of a bench manifest's CAN endpoint (``file.json#endpoint`` picks one)."""
@@ -137,33 +103,6 @@ def _index(text: str) -> tuple[int, int]:
         raise CliError(f"{text!r}: expected INDEX[:SUB] (index 0..FFFF in hex, sub 0..255), e.g. 1018:1 or "
                        "0x1017") from None
     return i, s
-
-
-# --------------------------------------------------------------------------- artefacts
-
-def cmd_dbc(args: argparse.Namespace) -> int:
-    from hilbench.protocols import board_can
-
-    _check_output(args)
-    _write(board_can.dbc(_boards(args.profile, args.overrides)), args.output)
-    return 0
-
-
-def cmd_eds(args: argparse.Namespace) -> int:
-    from hilbench.protocols import board_can
-
-    _check_output(args)
-    boards = _boards(args.profile, args.overrides)
-    if args.device:
-        boards = [b for b in boards if b[0] == args.device]
-        if not boards:
-            raise CliError(f"{args.profile}: no CANopen board named {args.device!r}")
-    if len(boards) > 1:
-        raise CliError(f"{args.profile} has several boards ({', '.join(b[0] for b in boards)}): name one with "
-                       "--device")
-    name, cfg = boards[0]
-    _write(board_can.eds(cfg, name), args.output)
-    return 0
 
 
 # --------------------------------------------------------------------------- bus tools
@@ -340,52 +279,10 @@ def _show(raw: bytes, kind: str) -> str:
     return raw.hex(" ").upper()
 
 
-def cmd_drive(args: argparse.Namespace) -> int:
-    from hilbench.clients.can_rover import RoverCanClient
-    from hilbench.clients.rover_speed import beyond_top_speed
-
-    terminate_on_sigterm()
-    warning = beyond_top_speed(args.vx, args.vy, args.omega)
-    if warning:  # sent as given, as a ROS driver would: the board saturates its wheels (the real one and ours)
-        print(f"hilbench can drive: warning: {warning}", file=sys.stderr)
-    bus = open_bus(args.bus)
-    with RoverCanClient(bus, args.node, period=args.period, own_bus=True) as rover:
-        if not args.no_start:
-            rover.start()
-        start = time.monotonic()
-        rover.drive(args.vx, args.vy, args.omega)
-        try:
-            while time.monotonic() - start < args.seconds:
-                time.sleep(min(0.5, args.seconds))
-                pose = rover.pose()
-                if pose is not None and args.verbose:
-                    print(f"t={time.monotonic() - start:5.2f} s  x={pose[0]:+.3f} m  y={pose[1]:+.3f} m  "
-                          f"theta={pose[2]:+.4f} rad", flush=True)
-        except KeyboardInterrupt:
-            pass
-        rover.drive(0.0, 0.0, 0.0)
-        time.sleep(0.3)
-        rover.halt()
-        try:
-            odo = rover.wait_for("odometry", timeout=1.0)
-        except TimeoutError:
-            raise DeviceError(f"node {args.node} sent no odometry (is it OPERATIONAL? sent {rover.sent} setpoints)") \
-                from None
-        print(json.dumps({"node": args.node, "setpoints_sent": rover.sent,
-                          "pose": {"x": odo["x"], "y": odo["y"], "theta": odo["theta"]},
-                          "nmt_state": rover.nmt_state, "emcy": [f"0x{c:04X}" for c, _ in rover.emcy]}))
-    return 0
-
-
 # --------------------------------------------------------------------------- control channel
 
-def _client(args: argparse.Namespace):
-    from hilbench.families.canopen_board import CanClient
-
-    return CanClient.from_manifest(args.manifest)
-
-
-def _knobs(items: list[str]) -> dict[str, Any]:
+def knobs(items: list[str]) -> dict[str, Any]:
+    """``KEY=VALUE`` words as a control command's knobs (booleans, integers, numbers, else strings)."""
     out: dict[str, Any] = {}
     for item in items:
         key, sep, value = item.partition("=")
@@ -407,25 +304,6 @@ def _knobs(items: list[str]) -> dict[str, Any]:
     return out
 
 
-def cmd_control(args: argparse.Namespace) -> int:
-    client = _client(args)
-    if args.cmd == "status":
-        reply = client.status(args.device)
-        out = {"status": reply["status"], "bus": reply["bus"]}
-    elif args.cmd == "fault":
-        out = {"faults": client.fault(args.device, **_knobs(args.knobs))}
-    elif args.cmd == "emcy":
-        out = {"status": client.emcy(args.code, args.register, args.data, args.device)}
-    elif args.cmd == "bus":
-        out = {"bus": client.bus(args.device, **_knobs(args.knobs))}
-    elif args.cmd == "reset":
-        out = {"status": client.reset(args.device)}
-    else:
-        out = {"status": client.nmt(args.state, args.device)}
-    print(json.dumps(out, indent=None if args.compact else 2))
-    return 0
-
-
 # --------------------------------------------------------------------------- parser
 
 ORDER = 45
@@ -434,39 +312,40 @@ VERBS = {  # each verb register() adds and its line in `hilbench --help` (see hi
 }
 
 HELP = """\
-The CAN side of a bench (the rover board as CANopen node) and small CAN tools:
+The CAN side of a bench and small CAN tools:
 
-  hilbench can dbc PROFILE [-o FILE]                  the DBC of the profile's CANopen boards
-  hilbench can eds PROFILE [--device NAME] [-o FILE]  a board's EDS
   hilbench can dump SOURCE [--dbc F] [--eds F:N]      frames as candump -L lines, decoded
   hilbench can send BUS ID#DATA ...                send frames (cansend syntax, ID#R for remote)
   hilbench can nmt BUS start|stop|preop|reset|reset-comm [--node N]
   hilbench can sdo BUS read|write INDEX[:SUB] [VALUE] --node N [--type T]
-  hilbench can drive BUS [--node N] --vx V [--vy V] [--omega W] [--seconds S]
-  hilbench can status|fault|emcy|bus|reset|state --manifest FILE ...   control channel
+  hilbench can bus --manifest FILE [KEY=VALUE ...]    control channel: the bus's figures and faults
 
 BUS is a bench manifest (hilbench emulate --manifest; its socketcand server)
 or a CAN bus URL: socketcand://127.0.0.1:PORT/can0, slcan:///dev/pts/N,
 socketcan://vcan0."""
 
 
+def cmd_bus(args: argparse.Namespace) -> int:
+    """The CAN bus's own control command (every CAN bench has it, whatever its nodes' families)."""
+    from hilbench.bench.control import ControlClient
+
+    client = ControlClient.from_manifest(args.manifest)
+    out = {"bus": client.call("bus", device=args.device, knobs=knobs(args.knobs))["bus"]}
+    print(json.dumps(out, indent=None if args.compact else 2))
+    return 0
+
+
+def add_control_options(parser: argparse.ArgumentParser) -> None:
+    """``--manifest``, ``--device`` and ``--compact``: what every control-channel sub-command takes."""
+    parser.add_argument("--manifest", required=True, help="manifest of `hilbench emulate --manifest`")
+    parser.add_argument("--device", help="node name (when the bench has several)")
+    parser.add_argument("--compact", action="store_true", help="JSON on one line")
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("can", help=VERBS["can"],
                        description=HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
     cs = p.add_subparsers(dest="can_cmd", required=True, metavar="COMMAND")
-
-    d = cs.add_parser("dbc", help="export the DBC of a profile's CANopen boards (cantools reads it)")
-    d.add_argument("profile", help="profile file or bundled profile name (e.g. mecarover-can)")
-    d.add_argument("-o", "--output", metavar="FILE", help="write to FILE instead of stdout")
-    add_set_option(d)
-    d.set_defaults(func=cmd_dbc)
-
-    e = cs.add_parser("eds", help="export a board's EDS (the canopen package and CANopen tools import it)")
-    e.add_argument("profile", help="profile file or bundled profile name")
-    e.add_argument("--device", help="the board (when the profile has several)")
-    e.add_argument("-o", "--output", metavar="FILE", help="write to FILE instead of stdout")
-    add_set_option(e)
-    e.set_defaults(func=cmd_eds)
 
     u = cs.add_parser("dump", help="print frames as candump -L lines, decoded with --dbc/--eds",
                       description="Print every frame of SOURCE (anything `hilbench monitor` opens: a CAN bus URL, "
@@ -483,7 +362,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_set_option(u, "bench:PROFILE: ")
     u.set_defaults(func=cmd_dump)
 
-    bus_help = "a bench manifest (its socketcand server) or a CAN bus URL (socketcand://, slcan://, socketcan://)"
+    bus_help = BUS_HELP
     s = cs.add_parser("send", help="send frames (cansend syntax: 123#DEADBEEF, 12345678#01, 123#R)")
     s.add_argument("bus", metavar="BUS", help=bus_help)
     s.add_argument("frames", nargs="+", metavar="ID#DATA")
@@ -508,41 +387,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     o.add_argument("--timeout", type=SDO_TIMEOUT, default=1.0, help="SDO response timeout in seconds (default 1)")
     o.set_defaults(func=cmd_sdo)
 
-    v = cs.add_parser("drive", help="drive the rover board: NMT start, setpoints every 50 ms, the odometry after",
-                      description="NMT start, then the velocity setpoint every --period until --seconds pass, then "
-                                  "a stop setpoint and the odometry as JSON. A setpoint the PDO cannot carry is "
-                                  "refused; one the rover cannot follow (a wheel beyond 105 rpm: |vx| + |vy| + "
-                                  "0.3125 m x |omega| above 0.55 m/s) is sent as given, with a warning: the board "
-                                  "saturates its wheels as the real one does.")
-    v.add_argument("bus", metavar="BUS", help=bus_help)
-    v.add_argument("--node", type=NODE_ID, default=2, help="node id (default 2)")
-    v.add_argument("--vx", type=SETPOINT_VALUE, default=0.0, help="forward velocity in m/s")
-    v.add_argument("--vy", type=SETPOINT_VALUE, default=0.0, help="sideways velocity in m/s (left positive)")
-    v.add_argument("--omega", type=SETPOINT_VALUE, default=0.0, help="yaw rate in rad/s")
-    v.add_argument("--seconds", type=DRIVE_SECONDS, default=1.0, help="how long (default 1)")
-    v.add_argument("--period", type=SETPOINT_PERIOD, default=0.05, help="setpoint repeat in seconds (default 0.05)")
-    v.add_argument("--no-start", action="store_true", help="do not send NMT start first")
-    v.add_argument("-v", "--verbose", action="store_true", help="print the pose twice a second")
-    v.set_defaults(func=cmd_drive)
 
-    for name, help_text in (("status", "a node's state and the bus's figures"),
-                            ("fault", "turn a node's fault knobs (KEY=VALUE ...)"),
-                            ("emcy", "make a node send an EMCY"),
-                            ("bus", "the bus's figures; bus fault knobs KEY=VALUE (error_rate, error_next, "
-                                    "auto_recover, bus_off=SENDER)"),
-                            ("reset", "reboot a node"),
-                            ("state", "put a node into an NMT state from inside")):
-        c = cs.add_parser(name, help=f"control channel: {help_text}")
-        c.add_argument("--manifest", required=True, help="manifest of `hilbench emulate --manifest`")
-        c.add_argument("--device", help="node name (when the bench has several)")
-        c.add_argument("--compact", action="store_true", help="JSON on one line")
-        if name in ("fault", "bus"):
-            c.add_argument("knobs", nargs="*", metavar="KEY=VALUE")
-        if name == "emcy":
-            c.add_argument("code", type=EMCY_CODE, help="error code, e.g. 0x2310")
-            c.add_argument("--register", type=ERROR_REGISTER, default=0x80, help="error register bits (default 0x80)")
-            c.add_argument("--data", default="", help="up to 5 vendor bytes in hex")
-        if name == "state":
-            c.add_argument("state", choices=("operational", "stopped", "pre-operational", "reset",
-                                             "reset-communication"))
-        c.set_defaults(func=cmd_control, cmd=name if name != "state" else "nmt")
+    b = cs.add_parser("bus", help="control channel: the bus's figures; bus fault knobs KEY=VALUE (error_rate, "
+                                  "error_next, auto_recover, bus_off=SENDER)")
+    add_control_options(b)
+    b.add_argument("knobs", nargs="*", metavar="KEY=VALUE")
+    b.set_defaults(func=cmd_bus)

@@ -28,7 +28,7 @@ def demo_report(result) -> list[str]:
                          f"missed {gone.get('misses', 0)} replies, {back}")
         else:  # a run too short to reach the staged drop-out
             lines.append(f"monitor: ID {sc.vanish_id} did not drop out (missed {gone.get('misses', 0)} replies)")
-    if hot and getattr(result, "protocol", "dynamixel") == "dynamixel":
+    if hot and not getattr(result, "status_errors", False):  # Protocol 2.0: Hardware Error Status and the Alert bit
         bits = ", ".join(hot.get("hardware_error_bits") or []) or "none read"
         lines.append(f"monitor: ID {sc.error_id} alert {'on' if hot.get('alert') else 'off'}, hardware error: {bits}")
     elif hot:  # Protocol 1.0 and Feetech: the servo's condition is in every status's error byte
@@ -65,9 +65,23 @@ VERBS = {  # each verb register() adds and its line in `hilbench --help` (see hi
 }
 
 
+def views() -> tuple[str, ...]:
+    """The dashboard views ``--view`` takes: those of the instruments of the buses a servo client drives."""
+    from hilbench import registry
+    from hilbench.clients.servo_connections import servo_clients
+
+    found: dict[str, None] = {}
+    for protocol in servo_clients():
+        inst = registry.instruments.get(protocol) if protocol in registry.instruments else None
+        view_set = inst.views() if inst is not None else None
+        found.update(dict.fromkeys(getattr(view_set, "views", ())))
+    return tuple(found)
+
+
 def register(sub: argparse._SubParsersAction) -> None:
-    from hilbench.dashboard.dynamixel_views import VIEWS
     from hilbench.profiles import DEFAULT_PROFILE
+
+    choices = views()
 
     dm = sub.add_parser("demo", help=VERBS["demo"],
                         description="Start a bench, run a control loop against its servo bus with that bus's own "
@@ -78,5 +92,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_set_option(dm)
     dm.add_argument("--seconds", type=SECONDS, default=10.0, help="how long to run (0: until Ctrl-C; default 10)")
     dm.add_argument("--unpaced", action="store_true", help="deliver bytes at once instead of at wire speed")
-    dm.add_argument("--view", choices=VIEWS, default="devices", help="dashboard view to start with (keys: 1-4)")
+    dm.add_argument("--view", choices=choices, default=choices[0] if choices else None,
+                    help="dashboard view to start with (keys: 1-4)")
     dm.set_defaults(func=cmd_demo)

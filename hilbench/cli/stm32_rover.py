@@ -116,7 +116,7 @@ def cmd_teleop(args: argparse.Namespace) -> int:
 
 
 def _client(args: argparse.Namespace):
-    from hilbench.families.stm32_rover import BoardClient as ControlClient
+    from hilbench.clients.stm32_rover import BoardClient as ControlClient
 
     # A ControlError's exit status is the bench's judgement (2: the request, 1: the bench or board failed).
     if args.control:

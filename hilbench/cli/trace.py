@@ -27,9 +27,6 @@ BINS = Rule(int, 1, 10_000)
 #: ``--tick``: histogram tick in µs.
 TICK_US = Rule(float, 0, 1e9, above=True)
 
-#: The rover board's UART rate on the firmware branch heads (spec §1.1).
-DEFAULT_BAUD = 115_200
-
 _UNITS_US = {"": 1.0, "us": 1.0, "µs": 1.0, "ms": 1e3, "s": 1e6}
 _TIME = re.compile(r"\s*([0-9]*\.?[0-9]+(?:e[+-]?\d+)?)\s*(us|µs|ms|s|hz|khz)?\s*", re.I)
 
@@ -110,14 +107,33 @@ def settings_from(args: argparse.Namespace):
 
 
 def board_sources(source, pattern: str | None):
-    """Which chunk sources carry the board's output: ``--from`` globs, or by default everything except
-    the host's side of a board line (a bench names it after the endpoint, the board ``<name>-board``)."""
+    """Which chunk sources carry the board's output: ``--from`` globs, or by default on a board line the
+    board's side (the trace instrument's :attr:`~hilbench.profiler.instrument.TraceInstrument.device_sources`:
+    a bench names the host's side after the endpoint, the board's after the board), elsewhere everything."""
+    from hilbench.profiler.instrument import trace_instrument
+
     if pattern:
         globs = _names(pattern)
         return lambda name: any(fnmatch.fnmatchcase(name, g) for g in globs)
-    if source.protocol == "vel2d":
-        return lambda name: name.endswith("-board")
+    inst = trace_instrument(source.protocol)
+    if inst is not None and inst.device_sources:
+        glob = inst.device_sources
+        return lambda name: fnmatch.fnmatchcase(name, glob)
     return lambda name: True
+
+
+def _device_name(protocol: str | None) -> str:
+    """The process name of an exported trace: the source's trace instrument's device, else the first's."""
+    from hilbench.profiler.instrument import trace_instrument, trace_instruments
+
+    inst = trace_instrument(protocol) or next(iter(trace_instruments()), None)
+    return inst.device_name if inst is not None else "board"
+
+
+def _default_baud() -> int:
+    from hilbench.profiler.instrument import default_baud
+
+    return default_baud()
 
 
 def _read(args, profiler, source, console) -> int:
@@ -198,17 +214,17 @@ def _is_json(path: str) -> bool:
 def _check_baseline_capture(args: argparse.Namespace) -> None:
     """``--compare`` names a capture: it must be a file that carries a board's trace output (one line if not)."""
     from hilbench.errors import UsageError
-    from hilbench.profiler.instrument import INSTRUMENT
+    from hilbench.profiler.instrument import trace_instruments
     from hilbench.transports.sources import peek
 
     name = args.compare
     try:
-        with open_cli_source(name, baud=args.baud, default_baud=DEFAULT_BAUD) as source:
+        with open_cli_source(name, baud=args.baud, default_baud=_default_baud()) as source:
             if source.live:
                 raise CliError(f"--compare {name}: give a file or a saved --json document")
             _check_protocol(source)  # a capture that says it carries something else (a servo bus)
             data, _ = peek(source, min_bytes=8192)
-            if source.protocol is None and not INSTRUMENT.sniff(data):
+            if source.protocol is None and not any(inst.sniff(data) for inst in trace_instruments()):
                 raise CliError(f"--compare {name}: neither a `hilbench trace --json` document nor a board's "
                                f"trace (no stamps, logs or reports in its first {len(data)} bytes)")
     except CliError as exc:
@@ -235,7 +251,7 @@ def cmd_profile(args: argparse.Namespace) -> int:
         if base is None:  # checked before a live capture is taken, read after it
             _check_baseline_capture(args)
     terminate_on_sigterm()
-    with open_cli_source(args.source, baud=args.baud, default_baud=DEFAULT_BAUD, overrides=args.overrides) as source:
+    with open_cli_source(args.source, baud=args.baud, default_baud=_default_baud(), overrides=args.overrides) as source:
         _check_protocol(source)
         endless = source.live and not (args.source == "-" and not sys.stdin.isatty())  # a pipe ends by itself
         if endless and not args.live and not args.duration and not args.reports:
@@ -246,7 +262,7 @@ def cmd_profile(args: argparse.Namespace) -> int:
         console = Console(stderr=to_stderr, width=None if tty else 132)
         profiler = Profiler(settings.with_(joined_mid_stream=source.live))
         lost = _read(args, profiler, source, console)
-        source_name = source.name
+        source_name, source_protocol = source.name, source.protocol
         damage = source.quality()
     a = profiler.analyse()
     q = a.quality
@@ -260,7 +276,7 @@ def cmd_profile(args: argparse.Namespace) -> int:
         q["reasons"].extend(f"capture {line}" for line in damage["findings"])
     if args.compare and base is None:
         other = Profiler(settings)
-        with open_cli_source(args.compare, baud=args.baud, default_baud=DEFAULT_BAUD) as s2:
+        with open_cli_source(args.compare, baud=args.baud, default_baud=_default_baud()) as s2:
             if s2.live:
                 raise CliError(f"--compare {args.compare}: give a file or a saved --json document")
             _read(argparse.Namespace(**{**vars(args), "live": False, "duration": None, "reports": None}),
@@ -276,7 +292,7 @@ def cmd_profile(args: argparse.Namespace) -> int:
     if args.export:
         from hilbench.profiler.export_perfetto import write_trace
 
-        n = write_trace(a, args.export, board=args.board_name)
+        n = write_trace(a, args.export, board=args.board_name or _device_name(source_protocol))
         print(f"wrote {n} trace events to {args.export} (open it in ui.perfetto.dev)", file=sys.stderr)
     if args.gantt:
         from hilbench.profiler.gantt import render_gantt
@@ -361,7 +377,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--json", action="store_true", help="print the JSON document instead of tables")
     p.add_argument("--json-out", metavar="FILE", help="also write the JSON document to FILE")
     p.add_argument("--export", metavar="TRACE.json", help="write Chrome/Perfetto trace-event JSON")
-    p.add_argument("--board-name", default="stm32f767-rover", help="process name in the exported trace")
+    p.add_argument("--board-name", help="process name in the exported trace (default: the board's model)")
     p.add_argument("--gantt", metavar="OUT.png|OUT.svg", help="write a Gantt chart (needs hilbench[plot])")
     p.add_argument("--gantt-window", type=window_arg, metavar="A:B", help="time window of the Gantt chart")
     p.add_argument("--compare", metavar="OTHER", help="compare with another run: a capture file or a --json "

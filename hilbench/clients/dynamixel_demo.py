@@ -8,8 +8,10 @@ the spec sheet shows it: Sync Read of Present Position, Sync Write of Goal
 Position, now and then voltage, temperature, Hardware Error Status and the
 foot sensor that never answers), the same SDK's Protocol 1.0 handler on a
 Protocol 1.0 bus (a Read per servo: it has no Sync Read), Feetech's
-``scservo_sdk`` on a Feetech bus (Sync Read 0x82, as LeRobot does); see
-:mod:`hilbench.clients.servo_connections`.
+``scservo_sdk`` on a Feetech bus (Sync Read 0x82, as LeRobot does). Each
+servo family brings its SDK as a servo client (:mod:`hilbench.clients.servo_connections`:
+:class:`~hilbench.clients.servo_connections.ServoClient`); the demo finds them in the
+registry and names no family.
 
 Meanwhile the monitor taps the bench's line and the dashboard shows what it
 sees. Two things go wrong on purpose, so a newcomer sees every state: one
@@ -30,7 +32,7 @@ from dataclasses import dataclass, field
 
 from hilbench.bench import Bench
 from hilbench.bench.profile import DEFAULT_PROFILE, Profile, load_profile
-from hilbench.clients.servo_connections import Layout, ServoConnection, connection_for, feetech_sdk, layout
+from hilbench.clients.servo_connections import Layout, ServoConnection, layout, servo_clients
 from hilbench.console import Console
 from hilbench.dashboard import Dashboard
 from hilbench.errors import UsageError
@@ -41,8 +43,6 @@ from hilbench.transports.sources import MediumSource
 OVERHEATING = 0x04
 #: Every this many cycles: voltage/temperature, hardware error status, and the foot sensor.
 SLOW_EVERY = 25
-#: The endpoint protocols the demo drives (with the SDK :func:`~hilbench.clients.servo_connections.connection_for` picks).
-SERVO_PROTOCOLS = ("dynamixel", "feetech")
 
 
 class DemoUsageError(UsageError):
@@ -51,14 +51,15 @@ class DemoUsageError(UsageError):
 
 def check_profile(prof: Profile) -> None:
     """Refuse a profile without a servo bus, or whose bus needs an SDK that is not installed (one line)."""
-    eps = [ep for ep in prof.endpoints.values() if ep.protocol in SERVO_PROTOCOLS]
+    clients = servo_clients()
+    eps = [ep for ep in prof.endpoints.values() if ep.protocol in clients]
     if not eps:
         kinds = ", ".join(f"{ep.name}: {ep.protocol}" for ep in prof.endpoints.values())
-        raise DemoUsageError(f"demo drives a servo bus (Dynamixel or Feetech) and profile {prof.name!r} has none "
+        buses = " or ".join(c.bus_title or c.protocol for c in clients.values())
+        raise DemoUsageError(f"demo drives a servo bus ({buses}) and profile {prof.name!r} has none "
                              f"({kinds}); start it with `hilbench emulate {prof.name}` and drive it with your "
                              f"own program")
-    if eps[0].protocol == "feetech":
-        feetech_sdk()
+    clients[eps[0].protocol].check()
 
 
 @dataclass
@@ -92,8 +93,11 @@ class DemoResult:
     scenario: Scenario | None = None
     summary: dict = field(default_factory=dict)
     sdk_packets: dict[str, int] = field(default_factory=dict)
-    #: The driven bus's traffic: ``dynamixel``, ``dynamixel1`` or ``feetech``.
-    protocol: str = "dynamixel"
+    #: The driven bus's traffic (its connection's :attr:`~hilbench.clients.servo_connections.ServoConnection.protocol`).
+    protocol: str = ""
+    #: Whether its servos report their condition in every status's error byte (Protocol 1.0, Feetech), not in
+    #: a Hardware Error Status register.
+    status_errors: bool = False
 
     @property
     def rate(self) -> float:
@@ -107,9 +111,12 @@ OVERHEAT_MARGIN = 10
 
 
 def servo_endpoint(bench: Bench):
-    """The bench's first servo bus (a Dynamixel or Feetech endpoint with servos)."""
+    """The bench's first servo bus (an endpoint with servos, of a protocol a servo client drives)."""
+    clients = servo_clients()
     for name in bench.endpoints:
         ep = bench.endpoint(name)
+        if ep.spec.protocol not in clients:
+            continue
         bus = ep.bus
         if bus is not None and any(getattr(s, "is_servo", False) for s in getattr(bus, "servos", ())):
             return ep
@@ -134,7 +141,9 @@ class Controller:
         self.ids = [s.id for s in servos]
         others = sorted((s for s in self.ep.bus.servos if not s.is_servo), key=lambda s: s.id)
         self.others = [s.id for s in others]
-        self.feet = [s.id for s in others if s.model.name == "Wolfgang Foot"]
+        client = servo_clients()[self.ep.spec.protocol]
+        # devices the robot reads now and then that are not servos (the Wolfgang foot sensor, which never answers)
+        self.sensor_reads = client.sensor_reads((s.id, s.model) for s in others)
         self.layouts: dict[int, Layout] = {}
         groups: dict[Layout, list[int]] = {}
         for s in servos:
@@ -143,10 +152,10 @@ class Controller:
                 self.layouts[s.id] = lay
                 groups.setdefault(lay, []).append(s.id)
         self.groups = list(groups.items())
-        opts = self.ep.spec.options
-        self.connection = connection_for(self.ep.spec.protocol, opts.get("protocol_version", 2), self.ep.path,
-                             self.ep.spec.baud, [s.model for s in servos])
-        self.result = DemoResult(scenario=Scenario.for_run(self.ids, seconds), protocol=self.connection.protocol)
+        self.connection = client.connection(self.ep.spec.options, self.ep.path, self.ep.spec.baud,
+                                            [s.model for s in servos])
+        self.result = DemoResult(scenario=Scenario.for_run(self.ids, seconds), protocol=self.connection.protocol,
+                                 status_errors=self.connection.status_errors)
         self.stop = threading.Event()
         self.done = threading.Event()
         self.error: BaseException | None = None
@@ -245,8 +254,8 @@ class Controller:
                             self._read(lay.voltage.address, lay.condition_size, ids, kind)
                         if lay.hardware_error is not None:
                             self._read(lay.hardware_error.address, lay.hardware_error.size, ids, kind)
-                    for foot in self.feet:  # the foot sensor of the Wolfgang capture: 101 never answers
-                        connection.read(foot, 36, 16)
+                    for dev_id, address, size in self.sensor_reads:  # the foot sensor of the Wolfgang capture
+                        connection.read(dev_id, address, size)
                         self._count("read")
             res.seconds = time.monotonic() - start
             for lay, ids in self.groups:

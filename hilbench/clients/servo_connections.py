@@ -1,14 +1,12 @@
-"""One servo bus seen through its vendor's own SDK: what ``hilbench demo`` drives.
+"""One servo bus seen through its vendor's own SDK: what ``hilbench demo`` drives (the kit).
 
-Each kind of bus is driven the way its robots drive it:
-
-- Dynamixel Protocol 2.0 (X series, MX 2.0, XL-320): the official
-  ``dynamixel-sdk`` with Sync Read and Sync Write (:class:`Dxl2Connection`);
-- Dynamixel Protocol 1.0 (AX, MX 1.0, pypot's robots): the same SDK's
-  Protocol 1.0 handler, which has no Sync Read: one Read per servo, and Sync
-  Write (:class:`Dxl1Connection`);
-- Feetech STS/SCS (SO-100/SO-101): Feetech's ``scservo_sdk`` with its Sync
-  Read 0x82 and Sync Write, as LeRobot's motor bus does (:class:`FeetechConnection`).
+Each servo family registers a :class:`ServoClient` (role ``servo``, entry
+point ``hilbench.clients`` named after its bus protocol) that opens its buses
+the way its robots drive them, with a :class:`ServoConnection` of its own: the
+Dynamixel family's through the official ``dynamixel-sdk``
+(:mod:`hilbench.clients.dynamixel_servos`), the Feetech family's through
+Feetech's ``scservo_sdk`` (:mod:`hilbench.clients.feetech`). The demo finds
+them with :func:`servo_clients` and names no family.
 
 A connection reads and writes control-table :class:`~hilbench.protocols.control_table.Field` s
 (so it encodes sign-magnitude and big-endian words as the model says) and
@@ -20,11 +18,11 @@ model's table.
 from __future__ import annotations
 
 import contextlib
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
-from hilbench.errors import DeviceError, UsageError, require
+from hilbench.clients.base import ClientDriver
 from hilbench.protocols.control_table import Field, Model
 
 #: Register roles the demo uses, and their names in the X-series tables (which have no roles).
@@ -86,6 +84,9 @@ class ServoConnection:
     protocol: ClassVar[str] = ""
     #: Whether one request reads a range from every listed servo (Sync Read); else one Read each.
     group_reads: ClassVar[bool] = True
+    #: Whether its servos report their condition in every status's error byte (Protocol 1.0, Feetech) rather
+    #: than in a Hardware Error Status register (Protocol 2.0).
+    status_errors: ClassVar[bool] = False
 
     def __init__(self, path: str, baud: int) -> None:
         self.path = path
@@ -136,135 +137,34 @@ class ServoConnection:
         raise NotImplementedError
 
 
-class _DynamixelConnection(ServoConnection):
-    version: ClassVar[float] = 2.0
+class ServoClient(ClientDriver):
+    """A servo family's host side for ``hilbench demo`` (role ``servo``): subclasses open their links."""
 
-    def open(self) -> None:
-        import dynamixel_sdk as sdk
+    role = "servo"
+    #: The bus's name in messages ("a servo bus (Dynamixel or Feetech)").
+    bus_title: ClassVar[str] = ""
 
-        from hilbench.clients.dynamixel import open_port
+    def check(self) -> None:
+        """Raise :class:`~hilbench.errors.MissingExtra` (one line) if the SDK is not installed, before a bench
+        starts."""
 
-        self._sdk = sdk
-        self._ctx = open_port(self.path, self.baud)
-        self.port = self._ctx.__enter__()
-        self.ph = sdk.PacketHandler(self.version)
+    def connection(self, options: Mapping[str, Any], path: str, baud: int,
+                   models: Iterable[Model] = ()) -> ServoConnection:
+        """The connection that drives a bench endpoint of its protocol (``options``: the endpoint's, e.g. the
+        Dynamixel ``protocol_version``; ``models``: its servos')."""
+        raise NotImplementedError
 
-    def close(self) -> None:
-        with contextlib.suppress(Exception):
-            self._ctx.__exit__(None, None, None)
-
-    def ping(self, dev_id: int) -> bool:
-        return self.ph.ping(self.port, dev_id)[1] == self._sdk.COMM_SUCCESS
-
-    def read(self, dev_id: int, address: int, size: int) -> bytes | None:
-        data, result, _ = self.ph.readTxRx(self.port, dev_id, address, size)
-        return bytes(data) if result == self._sdk.COMM_SUCCESS else None
-
-    def sync_write(self, f: Field, values: dict[int, int]) -> None:
-        writer = self._sdk.GroupSyncWrite(self.port, self.ph, f.address, f.size)
-        for i, v in values.items():
-            writer.addParam(i, list(f.encode(v)))
-        writer.txPacket()
+    def sensor_reads(self, devices: Iterable[tuple[int, Model]]) -> list[tuple[int, int, int]]:
+        """``(id, address, size)`` reads a robot makes now and then of the bus's devices that are not servos
+        (``devices``: their IDs and models), e.g. the Wolfgang foot sensor."""
+        return []
 
 
-class Dxl2Connection(_DynamixelConnection):
-    """Dynamixel Protocol 2.0 through the official SDK: Sync Read and Sync Write."""
+def servo_clients() -> dict[str, ServoClient]:
+    """Protocol -> its :class:`ServoClient`, for every registered servo client (hilbench's first)."""
+    from hilbench import registry
 
-    protocol = "dynamixel"
-    version = 2.0
-
-    def open(self) -> None:
-        super().open()
-        self._readers: dict[tuple[int, int, tuple[int, ...]], Any] = {}
-
-    def group_read(self, address: int, size: int, ids: list[int]) -> tuple[dict[int, bytes], int]:
-        key = (address, size, tuple(ids))
-        reader = self._readers.get(key)
-        if reader is None:  # made once per range and list, as a control loop does
-            reader = self._readers[key] = self._sdk.GroupSyncRead(self.port, self.ph, address, size)
-            for i in ids:
-                reader.addParam(i)
-        if reader.txRxPacket() != self._sdk.COMM_SUCCESS:
-            return {}, 1
-        return {i: bytes(reader.data_dict[i]) for i in ids if len(reader.data_dict.get(i) or ()) == size}, 0
+    return {c.protocol: c for c in registry.clients.values() if c.role == ServoClient.role}
 
 
-class Dxl1Connection(_DynamixelConnection):
-    """Dynamixel Protocol 1.0 through the official SDK: a Read per servo (it has no Sync Read), Sync Write."""
-
-    protocol = "dynamixel1"
-    version = 1.0
-    group_reads = False
-
-
-class FeetechConnection(ServoConnection):
-    """Feetech STS/SCS through Feetech's own ``scservo_sdk``: Sync Read 0x82 and Sync Write."""
-
-    protocol = "feetech"
-
-    def __init__(self, path: str, baud: int, *, big_endian: bool = False) -> None:
-        super().__init__(path, baud)
-        self.big_endian = big_endian
-
-    def open(self) -> None:
-        scs = feetech_sdk()
-        self._scs = scs
-        # the SDK keeps the word order in a global: SCS servos store words big-endian (END 1), STS little
-        scs.scservo_def.SCS_SETEND(1 if self.big_endian else 0)
-        self.port = scs.PortHandler(self.path)
-        try:
-            opened = self.port.openPort() and self.port.setBaudRate(self.baud)
-        except Exception as exc:  # pyserial's SerialException with the OS reason
-            raise DeviceError(f"cannot open {self.path}: {exc}") from None
-        if not opened:
-            raise DeviceError(f"Feetech's SDK cannot open {self.path} at {self.baud} baud")
-        self.ph = scs.PacketHandler(1 if self.big_endian else 0)
-        self._readers: dict[tuple[int, int, tuple[int, ...]], Any] = {}
-
-    def ping(self, dev_id: int) -> bool:
-        return self.ph.ping(self.port, dev_id)[1] == self._scs.COMM_SUCCESS
-
-    def read(self, dev_id: int, address: int, size: int) -> bytes | None:
-        data, result, _ = self.ph.readTxRx(self.port, dev_id, address, size)
-        return bytes(data) if result == self._scs.COMM_SUCCESS else None
-
-    def group_read(self, address: int, size: int, ids: list[int]) -> tuple[dict[int, bytes], int]:
-        key = (address, size, tuple(ids))
-        reader = self._readers.get(key)
-        if reader is None:
-            reader = self._readers[key] = self._scs.GroupSyncRead(self.port, self.ph, address, size)
-            for i in ids:
-                reader.addParam(i)
-        # The SDK stops at the first servo that stays silent and leaves the others' statuses unread;
-        # drop them before asking again (its clearPort only flushes output).
-        self.port.ser.reset_input_buffer()
-        result = reader.txRxPacket()
-        got = {i: bytes(reader.data_dict[i]) for i in ids if len(reader.data_dict.get(i) or ()) == size}
-        return got, 0 if result == self._scs.COMM_SUCCESS else 1
-
-    def sync_write(self, f: Field, values: dict[int, int]) -> None:
-        writer = self._scs.GroupSyncWrite(self.port, self.ph, f.address, f.size)
-        for i, v in values.items():
-            writer.addParam(i, list(f.encode(v)))
-        writer.txPacket()
-
-
-def feetech_sdk() -> Any:
-    """Feetech's ``scservo_sdk``, or a one-line :class:`~hilbench.errors.MissingExtra` naming what to install."""
-    return require("scservo_sdk", "feetech", "driving a Feetech bus", package="feetech-servo-sdk")
-
-
-def connection_for(protocol: str, version: int, path: str, baud: int, models: Iterable[Model] = ()) -> ServoConnection:
-    """The connection that drives a bench endpoint of ``protocol`` (``protocol_version`` for Dynamixel)."""
-    if protocol == "feetech":
-        models = list(models)
-        big = bool(models) and all((f := role_field(m, "present_position")) is not None and f.big_endian
-                                   for m in models)
-        return FeetechConnection(path, baud, big_endian=big)
-    if protocol == "dynamixel":
-        return (Dxl1Connection if version == 1 else Dxl2Connection)(path, baud)
-    raise UsageError(f"no SDK connection for {protocol!r} buses")
-
-
-__all__ = ["Dxl1Connection", "Dxl2Connection", "FeetechConnection", "Layout", "ServoConnection", "feetech_sdk", "layout", "connection_for",
-           "role_field"]
+__all__ = ["Layout", "ServoClient", "ServoConnection", "layout", "role_field", "servo_clients"]

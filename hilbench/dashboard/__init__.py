@@ -2,7 +2,7 @@
 
 :class:`Dashboard` refreshes at most :data:`MAX_FPS` times a second and handles
 keys; what it shows comes from the view set (:class:`~hilbench.dashboard.app.ViewSet`)
-of the tracker's instrument, e.g. :mod:`hilbench.dashboard.dynamixel_views`
+of the tracker's instrument, e.g. :mod:`hilbench.dashboard.servo_bus_views`
 (device overview, model overview, device details, error log).
 """
 

@@ -1,7 +1,7 @@
 """The CAN monitor's dashboard views: identifiers, CANopen nodes, decoded signals, event log.
 
 Every view renders exactly the height it is given (80x24 at least), ASCII
-marks only, like the other view sets (:mod:`hilbench.dashboard.dynamixel_views`).
+marks only, like the other view sets (:mod:`hilbench.dashboard.servo_bus_views`).
 Keys: ``1``/``i`` identifiers, ``2``/``n`` nodes, ``3``/``s``/Enter signals of
 the selected identifier, ``4``/``e`` event log; Left/Right select the
 identifier (the node in the node view).

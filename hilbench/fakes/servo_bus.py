@@ -1,7 +1,7 @@
 """What the emulated servo buses share: joining the line, who hears a packet, and putting statuses on it.
 
 The Dynamixel Protocol 2.0 bus (:class:`~hilbench.fakes.dynamixel.bus.DynamixelBus`)
-and the Protocol 1.0-framed ones (:class:`~hilbench.fakes.dynamixel.bus1.Protocol1Bus`,
+and the Protocol 1.0-framed ones (:class:`~hilbench.fakes.protocol1_bus.Protocol1Bus`,
 Feetech's bus) decode and execute instructions their own way; the replies then
 go out the same way: in the order given, each after its Return Delay Time when
 the line is paced, through the servo's fault knobs (drop, corrupt, delay), and,

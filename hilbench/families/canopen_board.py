@@ -35,7 +35,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from hilbench.bench.checks import Checker
-from hilbench.bench.control import ControlClient, ControlError, ControlRequestError
+from hilbench.bench.control import ControlError, ControlRequestError
 from hilbench.bench.family import DeviceFamily, DeviceSpec, FamilyAccess
 from hilbench.bench.knobs import KnobRules, check_fault_table, check_knobs, requested_knobs
 from hilbench.bench.world import check_odometry, refuse_second_driver
@@ -50,8 +50,9 @@ from hilbench.families.canopen_recorded import (
 from hilbench.rules import SWITCH, Rule
 
 if TYPE_CHECKING:
-    from hilbench.fakes.canopen import RoverNode
+    from hilbench.bench.profile import Profile
     from hilbench.fakes.canopen.recorded import RecordedNode
+    from hilbench.fakes.canopen.rover import RoverNode
 
 MODELS = ("stm32f767-rover-canopen", "mecarover-canopen", RECORDED)
 DEVICE_KEYS = ("model", "name", "endpoint", "node_id", "heartbeat_ms", "setpoint_timeout_ms", "autostart",
@@ -147,7 +148,7 @@ class CanopenBoardFamily(DeviceFamily):
     # ------------------------------------------------------------------ bench
 
     def build(self, bench, endpoint, devices: list[NodeSpec], t: float) -> None:
-        from hilbench.fakes.canopen import RoverNode
+        from hilbench.fakes.canopen.rover import RoverNode
 
         for spec in devices:
             if isinstance(spec, RecordedSpec):
@@ -180,17 +181,31 @@ class CanopenBoardFamily(DeviceFamily):
 
     # ------------------------------------------------------------------ artefacts
 
-    def dbc_for_profile(self, spec: str) -> str | None:
-        """The DBC of a profile's boards (``--dbc PROFILE`` of the CAN monitor); None if it has none."""
-        from hilbench.bench.checks import ProfileError
-        from hilbench.bench.profile import load_profile
+    artefacts = {
+        "dbc": "the DBC of a profile's boards (cantools reads it; ``--dbc PROFILE`` of the CAN monitor)",
+        "eds": "a board's EDS (the canopen package and CANopen tools import it)",
+    }
+
+    def artefact(self, kind: str, profile: Profile | str, device: str | None = None) -> str | None:
         from hilbench.protocols import board_can
 
-        try:
-            boards = profile_boards(load_profile(spec))
-        except ProfileError:
+        if isinstance(profile, str):
+            from hilbench.bench.checks import ProfileError
+            from hilbench.bench.profile import load_profile
+
+            try:
+                profile = load_profile(profile)
+            except ProfileError:
+                return None
+        boards = [b for b in profile_boards(profile) if device is None or b[0] == device]
+        if not boards:
             return None
-        return board_can.dbc(boards) if boards else None
+        if kind == "dbc":
+            return board_can.dbc(boards)
+        if kind == "eds":
+            name, cfg = boards[0]
+            return board_can.eds(cfg, name)
+        return None
 
     # ------------------------------------------------------------------ control channel
 
@@ -272,29 +287,7 @@ class CanopenNodes(FamilyAccess):
 CanopenBoardFamily.access = CanopenNodes
 
 
-class CanClient(ControlClient):
-    """The CANopen board family's control commands from another process (``hilbench can`` uses it)."""
-
-    def status(self, device: str | None = None) -> dict[str, Any]:
-        return self.call("status", device=device)
-
-    def nmt(self, state: str, device: str | None = None) -> dict[str, Any]:
-        return self.call("nmt", device=device, state=state)["status"]
-
-    def reset(self, device: str | None = None) -> dict[str, Any]:
-        return self.call("reset", device=device)["status"]
-
-    def fault(self, device: str | None = None, **knobs: Any) -> dict[str, Any]:
-        return self.call("fault", device=device, knobs=knobs)["faults"]
-
-    def emcy(self, code: int, register: int = 0x80, data: str = "", device: str | None = None) -> dict[str, Any]:
-        return self.call("emcy", device=device, code=code, register=register, data=data)["status"]
-
-    def bus(self, device: str | None = None, **knobs: Any) -> dict[str, Any]:
-        return self.call("bus", device=device, knobs=knobs)["bus"]
-
-
 FAMILY = CanopenBoardFamily()
 
-__all__ = ["FAMILY", "MODELS", "CanClient", "CanopenBoardFamily", "CanopenNodes", "NodeSpec", "board_config",
+__all__ = ["FAMILY", "MODELS", "CanopenBoardFamily", "CanopenNodes", "NodeSpec", "board_config",
            "profile_boards"]

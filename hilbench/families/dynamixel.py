@@ -135,7 +135,7 @@ class DynamixelBusKind(ServoBusKind):
 
     def open(self, bench, endpoint):
         from hilbench.fakes.dynamixel.bus import DynamixelBus
-        from hilbench.fakes.dynamixel.bus1 import Protocol1Bus
+        from hilbench.fakes.protocol1_bus import Protocol1Bus
 
         spec = endpoint.spec
         if spec.options.get("protocol_version", 2) == 1:

@@ -40,12 +40,11 @@ from hilbench.bench.bus import BusKind
 from hilbench.bench.checks import Checker
 from hilbench.bench.control import ControlError, ControlRequestError
 from hilbench.bench.family import DeviceFamily, DeviceSpec, FamilyAccess
+from hilbench.families.rtps_kit import DEFAULT_DOMAIN, check_peers
 
 if TYPE_CHECKING:
     from hilbench.fakes.rtps_node import FreeRtpsNode
 
-#: The default domain: non-zero, so the nodes do not meet a real DDS on the machine (domain 0).
-DEFAULT_DOMAIN = 42
 NODE_MODELS = ("freertps-node", "stm32f407-freertps")
 NODE_KEYS = ("model", "name", "endpoint", "participant_index", "mac", "topics", "clock")
 TOPIC_KEYS = ("name", "type", "direction", "rate_hz", "value", "reliable", "echo_of")
@@ -63,25 +62,6 @@ class NodeSpec(DeviceSpec):
     mac: str = ""
     topics: list[dict[str, Any]] = field(default_factory=list)
     clock: str = "freertps"
-
-
-def check_peers(c: Checker, key: str, raw: Any) -> list[str]:
-    """A list of peer hosts (``"127.0.0.1"``) or ``"host:port"`` strings (default: 127.0.0.1)."""
-    from hilbench.transports.udp import parse_address
-
-    if raw is None:
-        return ["127.0.0.1"]
-    if not isinstance(raw, list) or not raw:
-        c.fail(key, f"expected a list of \"host\" or \"host:port\" strings, got {raw!r}")
-    for i, peer in enumerate(raw):
-        if not isinstance(peer, str) or not peer:
-            c.fail(f"{key}[{i}]", f"expected \"host\" or \"host:port\", got {peer!r}")
-        if ":" in peer:
-            try:
-                parse_address(peer)
-            except ValueError:
-                c.fail(f"{key}[{i}]", f"expected \"host:port\", got {peer!r}")
-    return list(raw)
 
 
 def _check_topics(c: Checker, key: str, raw: Any) -> list[dict[str, Any]]:

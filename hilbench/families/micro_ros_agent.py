@@ -73,7 +73,7 @@ def check_bridge(c: Checker, key: str, raw: Any) -> dict[str, Any] | None:
         raw = {}
     raw = c.table(raw, key)
     c.unknown(raw, key, BRIDGE_KEYS)
-    from hilbench.families.freertps import DEFAULT_DOMAIN, check_peers
+    from hilbench.families.rtps_kit import DEFAULT_DOMAIN, check_peers
 
     return {"domain_id": c.integer(raw.get("domain_id", DEFAULT_DOMAIN), f"{key}.domain_id", 0, 232),
             "participant_index": c.integer(raw.get("participant_index", 9), f"{key}.participant_index", 0, 119),

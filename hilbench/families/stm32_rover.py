@@ -31,7 +31,7 @@ Profile schema (endpoint ``protocol = "vel2d"``, a pty or UDP)::
 
 An endpoint carries one board (a UART is point to point):
 ``bench.family("stm32-rover").board()`` (:class:`RoverBoards`). The board paces its own UART, so its medium delivers at
-once. Control commands (``hilbench board``, :class:`BoardClient`): status,
+once. Control commands (``hilbench board``, :class:`hilbench.clients.stm32_rover.BoardClient`): status,
 button, reset, fault, log, wait_report.
 """
 
@@ -42,7 +42,7 @@ from typing import TYPE_CHECKING, Any
 
 from hilbench.bench.bus import BusKind
 from hilbench.bench.checks import Checker
-from hilbench.bench.control import ControlClient, ControlError, ControlRequestError, client_waits
+from hilbench.bench.control import ControlError, ControlRequestError, client_waits
 from hilbench.bench.family import DeviceFamily, DeviceSpec, FamilyAccess
 from hilbench.bench.knobs import check_fault_table, check_knobs
 from hilbench.bench.world import check_odometry, refuse_second_driver
@@ -385,36 +385,10 @@ class RoverBoards(FamilyAccess):
 Stm32RoverFamily.access = RoverBoards
 
 
-class BoardClient(ControlClient):
-    """The rover board's control commands from another process (``hilbench board`` uses it)."""
-
-    def status(self, device: str | None = None) -> dict[str, Any]:
-        return self.call("status", device=device)["status"]
-
-    def button(self, device: str | None = None) -> dict[str, Any]:
-        return self.call("button", device=device)["status"]
-
-    def reset(self, device: str | None = None) -> dict[str, Any]:
-        return self.call("reset", device=device)["status"]
-
-    def fault(self, device: str | None = None, **knobs: float) -> dict[str, Any]:
-        return self.call("fault", device=device, knobs=knobs)["faults"]
-
-    def log(self, device: str | None = None) -> list[str]:
-        return self.call("log", device=device)["log"]
-
-    def micro_ros(self, device: str | None = None, **knobs: int) -> dict[str, Any]:
-        """The micro-ROS client's status (``zeroed_next=N``: zero its next N datagrams first)."""
-        return self.call("micro_ros", device=device, **knobs)["micro_ros"]
-
-    def wait_report(self, device: str | None = None, timeout: float = 10.0, after: int | None = None) -> dict:
-        return self.call("wait_report", device=device, timeout=timeout, after=after)
-
-
 #: The bus kind this module registers (entry point ``hilbench.bus_kinds``).
 BUS_KIND = Vel2dBusKind()
 #: The device family this module registers (entry point ``hilbench.families``).
 FAMILY = Stm32RoverFamily()
 
-__all__ = ["BOARD_BAUD", "BOARD_MODELS", "BUS_KIND", "FAMILY", "FAULT_RULES", "BoardClient", "BoardSpec",
+__all__ = ["BOARD_BAUD", "BOARD_MODELS", "BUS_KIND", "FAMILY", "FAULT_RULES", "BoardSpec",
            "RoverBoards", "Stm32RoverFamily", "Vel2dBusKind", "board_config", "check_fault_knobs"]

@@ -59,10 +59,18 @@ class Instrument:
     verb: ClassVar[str] = "monitor"
     #: ``"module:ATTRIBUTE"`` of its dashboard view set, imported only when a dashboard is shown.
     views_path: ClassVar[str | None] = None
+    #: Classes of UDP datagrams its traffic comes in (:meth:`classify_datagram`), which the UDP monitor counts
+    #: beside XRCE-DDS and RTPS (the rover board's ``vel2d`` frames and trace ``stamps``).
+    datagram_classes: ClassVar[tuple[str, ...]] = ()
 
     def sniff(self, data: bytes) -> float:
         """How sure (0..1) it is that raw ``data`` (the start of a source) is its protocol."""
         return 0.0
+
+    def classify_datagram(self, data: bytes) -> str | None:
+        """Which of its :attr:`datagram_classes` one UDP datagram's payload is, or None (called for every
+        datagram the UDP monitor cannot tell as XRCE-DDS or RTPS: keep it cheap, import inside)."""
+        return None
 
     def add_arguments(self, parser: argparse.ArgumentParser) -> None:
         """Options of its own for ``hilbench monitor`` and ``tap`` (names must not clash with others')."""

@@ -22,7 +22,8 @@ import numpy as np
 from hilbench.profiler.analysis import Analysis
 from hilbench.transports.atomic_file import atomic_write
 
-BOARD_NAME = "stm32f767-rover"
+#: The process name when the caller gives none (``hilbench trace`` gives the trace instrument's device name).
+BOARD_NAME = "board"
 FUNCTION_TID_BASE = 101
 
 

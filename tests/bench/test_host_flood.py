@@ -15,7 +15,7 @@ import tty
 import dynamixel_sdk as sdk
 
 from hilbench.bench.control import ControlClient
-from hilbench.families.stm32_rover import BoardClient
+from hilbench.clients.stm32_rover import BoardClient
 from hilbench.protocols import vel2d
 from hilbench.pytest_plugin import wait_until
 

@@ -10,8 +10,8 @@ import pytest
 from rich.console import Console
 
 from hilbench.dashboard import Dashboard
-from hilbench.dashboard.dynamixel_views import TITLES, VIEWS
 from hilbench.dashboard.keys import split_keys
+from hilbench.dashboard.servo_bus_views import TITLES, VIEWS
 from hilbench.monitor.dynamixel.tracker import BusTracker
 from hilbench.protocols import dynamixel as dxl
 

@@ -8,8 +8,8 @@ from collections import defaultdict
 import numpy as np
 import pytest
 
+from hilbench.fakes.mecanum_robot import forward_kinematics
 from hilbench.fakes.stm32_board import Board, BoardConfig, make_preset
-from hilbench.fakes.stm32_board.robot import forward_kinematics
 from hilbench.protocols import vel2d
 from hilbench.protocols.tracestamp import RuntimeReport, Stamp
 from hilbench.protocols.tracestamp_stream import StreamDecoder, stamps_of

@@ -9,8 +9,8 @@ import subprocess
 import sys
 import time
 
+from hilbench.clients.stm32_rover import BoardClient
 from hilbench.fakes.stm32_board.firmware import RX_FIFO
-from hilbench.families.stm32_rover import BoardClient
 from hilbench.protocols import vel2d
 from hilbench.pytest_plugin import wait_until
 

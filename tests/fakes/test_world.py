@@ -8,9 +8,9 @@ import math
 import numpy as np
 import pytest
 
+from hilbench.fakes.mecanum_robot import Robot
 from hilbench.fakes.scanners.sick_lms200 import SickLms200
 from hilbench.fakes.scene import Pose, RangeModel, Scene
-from hilbench.fakes.stm32_board.robot import Robot
 from hilbench.fakes.world import Body, Recorder, Shape, World, footprint_hits, read_record
 
 

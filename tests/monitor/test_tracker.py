@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-from hilbench.monitor.dynamixel.devices import CONNECTED, DISCONNECTED, UNKNOWN
-from hilbench.monitor.dynamixel.summary import summary
 from hilbench.monitor.dynamixel.tracker import BusTracker
+from hilbench.monitor.servo_bus.devices import CONNECTED, DISCONNECTED, UNKNOWN
+from hilbench.monitor.servo_bus.summary import summary
 from hilbench.protocols import dynamixel as dxl
 from hilbench.protocols.dynamixel import Instruction as I  # noqa: N814
 

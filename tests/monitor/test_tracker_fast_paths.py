@@ -7,8 +7,8 @@ import random
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hilbench.monitor.dynamixel.summary import summary
 from hilbench.monitor.dynamixel.tracker import BusTracker
+from hilbench.monitor.servo_bus.summary import summary
 from hilbench.protocols import dynamixel as dxl
 from hilbench.protocols.dynamixel import Instruction as I  # noqa: N814
 from hilbench.protocols.dynamixel import ReplySlots

@@ -67,6 +67,33 @@ def test_classification() -> None:
     assert classify(b"\x17garbage that is not xrce", 5000, 6000, ports) == "unknown"
 
 
+def test_instruments_contribute_their_datagram_classes() -> None:
+    """The UDP monitor names no family: Vel2d frames and trace stamps are the rover board's trace instrument's
+    classes, and an outside instrument's class is counted the same way."""
+    from hilbench import registry
+    from hilbench.monitor.instrument import Instrument
+
+    rover = registry.instruments.get("vel2d")
+    assert rover.datagram_classes == ("vel2d", "stamps") and type(rover).__module__ == "hilbench.profiler.stm32_rover"
+
+    class AcmeInstrument(Instrument):
+        protocol = "acme-udp"
+        datagram_classes = ("acme",)
+
+        def classify_datagram(self, data: bytes) -> str | None:
+            return "acme" if data.startswith(b"ACME") else None
+
+    registry.instruments.register("acme-udp", AcmeInstrument())
+    try:
+        tr = UdpTracker()
+        assert list(tr.classes) == ["xrce", "rtps", "vel2d", "stamps", "acme", "unknown"]
+        for data in (b"ACME 1", vel2d.build(0.1, 0.0, 0.0), b"ACME 2", b"\x17nothing"):
+            tr.feed_datagram(1.0, "net", data, ("127.0.0.1", 5000, "127.0.0.1", 6000))
+        assert {k: v[0] for k, v in tr.classes.items() if v[0]} == {"acme": 2, "vel2d": 1, "unknown": 1}
+    finally:
+        registry.instruments.unregister("acme-udp")
+
+
 def test_xus_broken_session_raises_every_flag(tmp_path: Path) -> None:
     rep = run(str(xu_capture(tmp_path / "xu.hbcap")))
     flags = rep["flags"]

@@ -10,8 +10,8 @@ from hilbench.dashboard import Dashboard
 from hilbench.monitor.can.summary import print_summary as print_can
 from hilbench.monitor.can.summary import summary as can_summary
 from hilbench.monitor.can.tracker import CanTracker
-from hilbench.monitor.dynamixel.summary import print_summary, summary
 from hilbench.monitor.dynamixel.tracker import BusTracker
+from hilbench.monitor.servo_bus.summary import print_summary, summary
 from hilbench.protocols import can_frame as cf
 from hilbench.protocols import dynamixel as dxl
 from hilbench.protocols.can_frame import data_frame

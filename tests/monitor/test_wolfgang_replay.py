@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import pytest
 
-from hilbench.monitor.dynamixel.devices import CONNECTED, DISCONNECTED
-from hilbench.monitor.dynamixel.summary import summary
 from hilbench.monitor.dynamixel.tracker import BusTracker
+from hilbench.monitor.servo_bus.devices import CONNECTED, DISCONNECTED
+from hilbench.monitor.servo_bus.summary import summary
 
 MX64 = {1, 2, 3, 4, 5, 6, 19, 20}
 MX106 = {8, 9, 11, 13, 14, 15, 16, 17, 18}

@@ -180,3 +180,28 @@ def test_a_duration_that_cuts_a_line_is_no_damage(spec, tmp_path):
     cut.write_bytes(data[:-3])
     q = json.loads(run(str(cut), "--json").stdout)["quality"]
     assert q["untrustworthy"] is True and q["parse_errors"] == 1 and q["cut_bytes"] == 0
+
+
+def test_the_board_s_defaults_come_from_its_family_s_trace_instrument():
+    """`hilbench trace` names no board: the serial rate, the board's side of a bench line and the exported
+    process name are the trace instrument's the rover family registers (hilbench.profiler.stm32_rover)."""
+    from types import SimpleNamespace
+
+    from hilbench import registry
+    from hilbench.cli import build_parser
+    from hilbench.cli.trace import _device_name, board_sources
+    from hilbench.profiler.instrument import default_baud, trace_instrument
+
+    rover = registry.instruments.get("vel2d")
+    assert type(rover).__module__ == "hilbench.profiler.stm32_rover"
+    assert trace_instrument("vel2d") is rover and trace_instrument("tracestamp") is rover
+    assert trace_instrument("dynamixel") is None and trace_instrument(None) is None
+    assert default_baud() == rover.default_baud == 115_200
+    verb = build_parser(["trace"])._subparsers._group_actions[0].choices["trace"]
+    baud = next(a for a in verb._actions if a.dest == "baud")
+    assert f"(default {rover.default_baud})" in baud.help  # the help says what default_baud() gives
+    on_board_line = board_sources(SimpleNamespace(protocol="vel2d"), None)
+    assert on_board_line("rover-board") and not on_board_line("rover")
+    assert board_sources(SimpleNamespace(protocol=None), None)("rover")  # elsewhere: every source
+    assert board_sources(SimpleNamespace(protocol="vel2d"), "rov*")("rover")  # --from wins
+    assert _device_name("vel2d") == _device_name(None) == rover.device_name == "stm32f767-rover"

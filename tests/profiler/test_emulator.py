@@ -178,7 +178,7 @@ def test_cli_on_the_emulated_board_over_udp(hilbench_bench):
 def test_cli_follows_a_running_bench_through_its_tap(hilbench_emulator, tmp_path):
     """`hilbench emulate mecarover` in its own process; the profiler reads the board's side of its traffic
     tap (manifest.json#rover), while a host sends a frame on the same line (which it must skip)."""
-    from hilbench.families.stm32_rover import BoardClient as ControlClient
+    from hilbench.clients.stm32_rover import BoardClient as ControlClient
 
     manifest = hilbench_emulator("mecarover")
     path = tmp_path / "bench.json"

@@ -90,7 +90,7 @@ SAMPLE_66 = [
 
 def test_perfetto_export_of_64_contains_the_66_sample_and_follows_the_rules(spec):
     a, _ = spec.profile(spec.lines(spec.TRACE_64), spec.SETTINGS_64)
-    doc = json.loads(json.dumps(trace_document(a)))
+    doc = json.loads(json.dumps(trace_document(a, board="stm32f767-rover")))
     assert doc["displayTimeUnit"] == "ms" and validate_trace_events(doc) == []
     for e in SAMPLE_66:
         assert e in doc["traceEvents"], e

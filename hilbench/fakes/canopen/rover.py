@@ -2,7 +2,7 @@
 
 The CAN interface is :mod:`hilbench.protocols.board_can` (PDOs, object
 dictionary); the motion is the rover firmware's own model
-(:class:`hilbench.fakes.stm32_board.robot.Robot`: setpoint queue, 3 % ramp per
+(:class:`hilbench.fakes.mecanum_robot.Robot`: setpoint queue, 3 % ramp per
 pose cycle, mecanum kinematics, odometry), run with equal wheel and pose
 periods so the odometry integrates exactly the motion commanded.
 
@@ -34,7 +34,7 @@ import threading
 from typing import Any
 
 from hilbench.fakes.canopen.node import CanopenNode
-from hilbench.fakes.stm32_board.robot import INC2RAD, Robot
+from hilbench.fakes.mecanum_robot import INC2RAD, Robot
 from hilbench.protocols import board_can as bc
 from hilbench.protocols import canopen as co
 from hilbench.protocols.can_frame import CanFrame

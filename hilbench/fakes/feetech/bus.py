@@ -1,6 +1,6 @@
 """The emulated servos of one Feetech bus: Dynamixel Protocol 1.0 framing with Feetech's instruction set.
 
-Differences from :class:`~hilbench.fakes.dynamixel.bus1.Protocol1Bus`
+Differences from :class:`~hilbench.fakes.protocol1_bus.Protocol1Bus`
 (spec sheet ``servo_buses.md`` §4):
 
 - SYNC_READ is 0x82, and every listed servo answers with its own status, in
@@ -16,7 +16,7 @@ Differences from :class:`~hilbench.fakes.dynamixel.bus1.Protocol1Bus`
 
 from __future__ import annotations
 
-from hilbench.fakes.dynamixel.bus1 import Protocol1Bus
+from hilbench.fakes.protocol1_bus import Protocol1Bus
 from hilbench.protocols import feetech as ft
 from hilbench.protocols.dynamixel_protocol1 import Instruction1 as I1  # noqa: N814
 from hilbench.protocols.feetech import BROADCAST_ID, Packet1

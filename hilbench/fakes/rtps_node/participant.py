@@ -173,7 +173,7 @@ class RtpsParticipant:
     def __init__(self, name: str, port: Any, *, domain_id: int, participant_index: int, guid_prefix: bytes,
                  peers: list[Address | str] | None = None, vendor_id: bytes = r.VENDOR_FREERTPS,
                  pl_vendor_id: bytes = b"\x2c\x2f", max_index: int = 9, spdp_period: float = 1.0,
-                 heartbeat_period: float = 0.1, lease_s: int = 100, clock: str = "freertps",
+                 heartbeat_period: float = 0.1, lease_s: int = 100, clock: str = "uptime",
                  entity_name: str | None = None, max_remotes: int = MAX_REMOTES) -> None:
         self.name = name
         self.port = port
@@ -186,7 +186,7 @@ class RtpsParticipant:
         self.spdp_period = spdp_period  #: seconds between SPDP announcements
         self.heartbeat_period = heartbeat_period
         self.lease_s = lease_s
-        self.clock = clock
+        self.clock = clock  # "wall", or anything else: uptime on FreeRTPS's fake epoch (a node's `clock` key)
         self.entity_name = entity_name
         self.max_remotes = max_remotes
         self.ports = r.ports(domain_id, participant_index)

@@ -5,7 +5,7 @@
 - :mod:`fast_path`: the kernel's vectorised fast path (whole runs of periodic ticks with numpy).
 - :mod:`firmware`: the firmware's tasks, output paths (V1/V2/V3/binary), recv_vel and the report.
 - :mod:`sink`: record buffers, the 2048-byte output ring, UART DMA, the wire, fault knobs.
-- :mod:`robot`: setpoint queue, ramp, kinematics and odometry.
+- :mod:`~hilbench.fakes.mecanum_robot` (a kit the CANopen board shares): setpoint queue, ramp, kinematics and odometry.
 - :mod:`board`: :class:`Board`, offline and live (paced onto a serial line).
 """
 

@@ -26,9 +26,9 @@ from collections.abc import Callable
 from dataclasses import asdict
 from typing import Any
 
+from hilbench.fakes.mecanum_robot import RobotState
 from hilbench.fakes.stm32_board.firmware import Firmware
 from hilbench.fakes.stm32_board.presets import BoardConfig, make_preset
-from hilbench.fakes.stm32_board.robot import RobotState
 from hilbench.fakes.stm32_board.sink import Truth
 from hilbench.protocols.tracestamp import LogMessage, RuntimeReport
 from hilbench.transports.clock import WALL, WallClock

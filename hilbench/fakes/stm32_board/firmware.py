@@ -4,7 +4,7 @@ One :class:`Firmware` is one boot of the board. It builds the task set of its
 preset (spec §2.2) on a :class:`~hilbench.fakes.stm32_board.kernel.Kernel`,
 wires the output path chosen by the configuration (§3.4), frames received
 bytes as the UART does (§1.4) and keeps the robot's control data flow
-(:mod:`~hilbench.fakes.stm32_board.robot`). Times are µs since boot.
+(:mod:`~hilbench.fakes.mecanum_robot`). Times are µs since boot.
 
 Output paths:
 
@@ -33,6 +33,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from hilbench.fakes.mecanum_robot import Robot
 from hilbench.fakes.stm32_board.kernel import (
     CALL,
     DELAY,
@@ -54,7 +55,6 @@ from hilbench.fakes.stm32_board.presets import (
     TaskSpec,
     Timing,
 )
-from hilbench.fakes.stm32_board.robot import Robot
 from hilbench.fakes.stm32_board.sink import (
     RING_SIZE,
     BinaryWriter,

@@ -273,7 +273,7 @@ class BoardConfig:
     #: has more than half of HOST_FIFO to take in, as the real USB link does: :meth:`Board.input_backlog`).
     rx_fifo: int | None = None
     #: Encoder noise (standard deviation in counts per wheel per pose cycle while it turns): see
-    #: :class:`~hilbench.fakes.stm32_board.robot.Robot`.
+    #: :class:`~hilbench.fakes.mecanum_robot.Robot`.
     encoder_noise: float = 0.0
 
     @property

@@ -72,8 +72,8 @@ def _cantools():
 def load_dbc(spec: str) -> DbcDecoder:
     """A DBC/KCD/SYM/ARXML file, or a bench profile whose boards a family describes; UsageError in one line.
 
-    A profile is resolved through the device families (a family with CAN boards offers
-    ``dbc_for_profile(spec) -> DBC text or None``), so the monitor knows no family.
+    A profile is resolved through the device families (a family with CAN boards offers the artefact
+    ``"dbc"``: :meth:`~hilbench.bench.family.DeviceFamily.artefact`), so the monitor knows no family.
     """
     cantools = _cantools()
     path = Path(spec)
@@ -86,9 +86,8 @@ def load_dbc(spec: str) -> DbcDecoder:
             raise UsageError(f"{spec}: cannot load it as a CAN database: {str(exc).splitlines()[0]}") from None
     from hilbench import registry
 
-    for family in registry.families.values():
-        describe = getattr(family, "dbc_for_profile", None)
-        text = describe(spec) if describe is not None else None
+    for family in registry.families.find(lambda f: "dbc" in f.artefacts):
+        text = family.artefact("dbc", spec)
         if text:
             return DbcDecoder(cantools.database.load_string(text, "dbc", strict=False), f"{spec} (profile)")
     raise UsageError(f"{spec}: neither a CAN database file nor a profile with CAN boards")

@@ -2,8 +2,8 @@
 
 - :class:`~hilbench.monitor.dynamixel.tracker.BusTracker`: pure state machine, fed bytes
   with times (no I/O), testable with bytes alone;
-- :class:`~hilbench.monitor.dynamixel.devices.DeviceState`: what is known about one device;
-- :func:`~hilbench.monitor.dynamixel.summary.summary`: the JSON summary;
+- :class:`~hilbench.monitor.servo_bus.devices.DeviceState`: what is known about one device;
+- :func:`~hilbench.monitor.servo_bus.summary.summary`: the JSON summary;
 - :data:`INSTRUMENT`: the plug-in (``hilbench.instruments`` entry point ``dynamixel``):
   options, tracker, summary and dashboard views for the generic monitor frames.
 """
@@ -30,7 +30,7 @@ class DynamixelInstrument(Instrument):
 
     protocol = "dynamixel"
     title = "Dynamixel Protocol 2.0 bus"
-    views_path = "hilbench.dashboard.dynamixel_views:VIEW_SET"
+    views_path = "hilbench.dashboard.servo_bus_views:VIEW_SET"
 
     def sniff(self, data: bytes) -> float:
         from hilbench.protocols.dynamixel import Decoder
@@ -61,12 +61,12 @@ class DynamixelInstrument(Instrument):
         return BusTracker(baud=baud, timestamps=timestamps, **options)
 
     def summary(self, tracker: BusTracker, *, source: str, timestamps: str | None, errors: int = 50) -> dict:
-        from hilbench.monitor.dynamixel.summary import summary
+        from hilbench.monitor.servo_bus.summary import summary
 
         return summary(tracker, source=source, protocol=self.protocol, timestamps=timestamps, errors=errors)
 
     def print_summary(self, report: dict[str, Any], console: Any) -> None:
-        from hilbench.monitor.dynamixel.summary import print_summary
+        from hilbench.monitor.servo_bus.summary import print_summary
 
         print_summary(report, console)
 

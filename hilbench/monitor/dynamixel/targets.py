@@ -19,7 +19,7 @@ class _TrackerReader:
         self.tracker.feed(self.n * 5e-6, "bus", data)
 
     def finish(self) -> None:
-        from hilbench.monitor.dynamixel.summary import summary
+        from hilbench.monitor.servo_bus.summary import summary
 
         self.tracker.finish()
         summary(self.tracker)  # the summary must survive whatever was tracked

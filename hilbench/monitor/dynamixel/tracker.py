@@ -38,9 +38,9 @@ from __future__ import annotations
 
 from typing import ClassVar
 
-from hilbench.monitor.dynamixel.bus_state import ANY_PING, DATA, NODATA, PING, Period, ServoBusState
-from hilbench.monitor.dynamixel.bus_state import COMBINED as FAST
-from hilbench.monitor.dynamixel.devices import CONNECTED, OBS_LIMIT, READ, WRITTEN, DeviceState
+from hilbench.monitor.servo_bus.bus_state import ANY_PING, DATA, NODATA, PING, Period, ServoBusState
+from hilbench.monitor.servo_bus.bus_state import COMBINED as FAST
+from hilbench.monitor.servo_bus.devices import CONNECTED, OBS_LIMIT, READ, WRITTEN, DeviceState
 from hilbench.protocols import dynamixel as dxl
 from hilbench.protocols.dynamixel import (
     BROADCAST_ID,
@@ -93,7 +93,7 @@ def _covers_special(address: int, length: int) -> bool:
 class Expectation(Period):
     """Who owes what for one distinct request; built once and reused while the request repeats.
 
-    It is the device's :class:`~hilbench.monitor.dynamixel.devices.RequestGroup` for
+    It is the device's :class:`~hilbench.monitor.servo_bus.devices.RequestGroup` for
     that request: it counts the requests, keeps each device's newest plain
     reply, and accumulates the request's period (the main cycle's rate).
     """

@@ -1,7 +1,7 @@
 """What Protocol 1.0-framed bytes mean on a Dynamixel bus: the dialect its tracker reads them with.
 
 :data:`DIALECT` names the device tables, the error bits and the USB2AX's SYNC_READ for
-:class:`~hilbench.monitor.dynamixel1.tracker.Bus1Tracker`. Its own module, imported when a tracker is
+:class:`~hilbench.monitor.servo_bus.protocol1.Bus1Tracker`. Its own module, imported when a tracker is
 made: the instrument plug-in stays light (``hilbench monitor`` loads every instrument to tell a raw dump's
 protocol)."""
 
@@ -9,9 +9,9 @@ from __future__ import annotations
 
 from typing import ClassVar
 
-from hilbench.monitor.dynamixel.devices import DeviceState
 from hilbench.monitor.dynamixel1 import describe_error
-from hilbench.monitor.dynamixel1.tracker import Dialect
+from hilbench.monitor.servo_bus.devices import DeviceState
+from hilbench.monitor.servo_bus.protocol1 import Dialect
 from hilbench.protocols import dynamixel_protocol1 as p1
 from hilbench.protocols.dynamixel_classic_models import MX28_1
 from hilbench.protocols.dynamixel_models import MODEL_NAMES, MODELS_BY_NUMBER

@@ -1,7 +1,7 @@
 """The Feetech bus monitor (STS/SCS servos: SO-100/SO-101 arms).
 
 :data:`INSTRUMENT` is the ``hilbench.instruments`` plug-in ``feetech``: the
-Protocol 1.0-framed tracker (:mod:`hilbench.monitor.dynamixel1.tracker`) with
+Protocol 1.0-framed tracker (:mod:`hilbench.monitor.servo_bus.protocol1`) with
 Feetech's :data:`~hilbench.monitor.feetech.dialect.DIALECT` (SYNC_READ 0x82 answered servo by servo, broadcast
 PING answered by all, the model number at address 3, Response Status Level at
 8), Feetech's control tables and ERR bits, and the servo-bus summary and views.
@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from typing import ClassVar
 
-from hilbench.monitor.dynamixel1 import Protocol1Instrument
+from hilbench.monitor.servo_bus import Protocol1Instrument
 
 
 class FeetechInstrument(Protocol1Instrument):

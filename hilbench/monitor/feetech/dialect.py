@@ -7,8 +7,8 @@ from __future__ import annotations
 
 from typing import ClassVar
 
-from hilbench.monitor.dynamixel.devices import DeviceState
-from hilbench.monitor.dynamixel1.tracker import Dialect
+from hilbench.monitor.servo_bus.devices import DeviceState
+from hilbench.monitor.servo_bus.protocol1 import Dialect
 from hilbench.protocols import feetech as ft
 from hilbench.protocols.feetech_models import MODELS_BY_NUMBER, SCS0009, STS3215
 

@@ -37,8 +37,9 @@ class UdpTracker:
         self.t0: float | None = None
         self.t_last: float | None = None
         self.agent_ports: set[int] = set(agent_ports)
-        self.classes: dict[str, list[int]] = {c: [0, 0] for c in cl.CLASSES}
-        self.rates: dict[str, Rate] = {c: Rate() for c in cl.CLASSES}
+        self.classifiers = cl.datagram_classifiers()  # the instruments' own datagram classes (Vel2d, ...)
+        self.classes: dict[str, list[int]] = {c: [0, 0] for c in cl.classes(self.classifiers)}
+        self.rates: dict[str, Rate] = {c: Rate() for c in self.classes}
         self.flags: dict[str, int] = {}
         self.events: deque[tuple[float, str, str]] = deque(maxlen=max_events)
         self.events_total = 0
@@ -92,7 +93,7 @@ class UdpTracker:
         else:
             counts[0] += 1
             counts[1] += n
-        kind = cl.classify(data, sport, dport, self.agent_ports)
+        kind = cl.classify(data, sport, dport, self.agent_ports, self.classifiers)
         c = self.classes[kind]
         c[0] += 1
         c[1] += n

@@ -30,9 +30,9 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import ClassVar
 
-from hilbench.monitor.dynamixel.bus_state import ANY_PING, DATA, NODATA, PING, Period, ServoBusState
-from hilbench.monitor.dynamixel.bus_state import COMBINED as USB2AX
-from hilbench.monitor.dynamixel.devices import READ, WRITTEN, DeviceState
+from hilbench.monitor.servo_bus.bus_state import ANY_PING, DATA, NODATA, PING, Period, ServoBusState
+from hilbench.monitor.servo_bus.bus_state import COMBINED as USB2AX
+from hilbench.monitor.servo_bus.devices import READ, WRITTEN, DeviceState
 from hilbench.protocols.dynamixel_protocol1 import BROADCAST_ID, USB2AX_ID, Decoder1, Packet1
 from hilbench.protocols.problem import Problem
 

@@ -1,4 +1,8 @@
-"""The rover's control data flow (spec §2.4, §2.5): setpoint queue, ramp, kinematics, odometry.
+"""The mecanum rover's motion model as its firmware runs it (spec §2.4, §2.5): setpoint queue, ramp, kinematics,
+odometry.
+
+A kit: the STM32 rover board (:mod:`hilbench.fakes.stm32_board`) and its CANopen firmware
+(:mod:`hilbench.fakes.canopen.rover`) both drive their wheels with it.
 
 The firmware's control tasks exchange data through queues with timeout 0, so
 the data never changes when a task runs; only how often. This model therefore

@@ -1,7 +1,7 @@
 """What every servo-bus tracker shares: input bookkeeping, liveness, misses and the bus figures (no I/O).
 
 The Protocol 2.0 tracker (:class:`~hilbench.monitor.dynamixel.tracker.BusTracker`)
-and the Protocol 1.0-framed one (:class:`~hilbench.monitor.dynamixel1.tracker.Bus1Tracker`)
+and the Protocol 1.0-framed one (:class:`~hilbench.monitor.servo_bus.protocol1.Bus1Tracker`)
 decode and pair packets their own way; both then apply the same rules to the
 devices (a reply proves a device is there; more than ``miss_limit``
 consecutive misses, or ``silence`` seconds owing a reply, disconnects it; an
@@ -16,8 +16,8 @@ import math
 from collections import deque
 from typing import Any, ClassVar
 
-from hilbench.monitor.dynamixel.devices import CONNECTED, DISCONNECTED, UNKNOWN, DeviceState
 from hilbench.monitor.errorlog import ErrorLog
+from hilbench.monitor.servo_bus.devices import CONNECTED, DISCONNECTED, UNKNOWN, DeviceState
 
 # What a pending request expects back.
 DATA = 1  # one status per listed ID, carrying data for (address, length)

@@ -18,8 +18,10 @@ from hilbench.dashboard.widgets import line as _line
 from hilbench.dashboard.widgets import ms as _ms
 from hilbench.dashboard.widgets import pad as _pad
 from hilbench.dashboard.widgets import row as _row
-from hilbench.monitor.dynamixel.devices import CONNECTED, DISCONNECTED, UNKNOWN, DeviceState, FieldValue
-from hilbench.monitor.dynamixel.tracker import BusTracker
+from hilbench.monitor.servo_bus.bus_state import (
+    ServoBusState as BusTracker,  # a Protocol 2.0 or 1.0-framed tracker
+)
+from hilbench.monitor.servo_bus.devices import CONNECTED, DISCONNECTED, UNKNOWN, DeviceState, FieldValue
 from hilbench.protocols.dynamixel import describe_error
 from hilbench.transports.line_load import is_unpaced
 

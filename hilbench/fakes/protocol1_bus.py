@@ -85,7 +85,7 @@ class Protocol1Bus(ServoBusBase):
         self,
         servos: list,
         *,
-        name: str = "dynamixel1",
+        name: str = "protocol1",
         usb2ax: bool = True,
         inter_byte_timeout: float | None = 0.0015,
     ) -> None:

@@ -27,7 +27,9 @@ from __future__ import annotations
 
 from typing import Any
 
-from hilbench.monitor.dynamixel.tracker import BusTracker
+from hilbench.monitor.servo_bus.bus_state import (
+    ServoBusState as BusTracker,  # a Protocol 2.0 or 1.0-framed tracker
+)
 from hilbench.transports.line_load import is_unpaced
 
 
@@ -79,7 +81,7 @@ def summary(
     tracker: BusTracker,
     *,
     source: str = "",
-    protocol: str = "dynamixel",
+    protocol: str = "",
     timestamps: str | None = None,
     errors: int = 50,
 ) -> dict[str, Any]:
