@@ -271,7 +271,7 @@ def test_no_upward_imports():
 
 #: The files each built-in family owns (globs under hilbench/). Everything else is shared: the frame, the
 #: kits families build on (families/scanner.py, families/servo_bus.py, fakes/scanners/{base,uart}.py,
-#: fakes/{scene,control_table_servo,table_servo,motion,servo_bus,xrce_client,mecanum_robot}.py, fakes/canopen/{node,dictionary,
+#: fakes/{scene,control_table_servo,table_servo,motion,servo_bus,xrce_client,mecanum_robot,rtps_participant}.py, fakes/canopen/{node,dictionary,
 #: sdo_server}.py, protocols/{control_table,canopen,canopen_od,cdr}.py, monitor/scanners/{__init__,tracker}.py,
 #: clients/{base,scanners}.py, ...) and the generic instruments (the CAN, UDP and trace instruments) and verbs.
 OWNED: dict[str, tuple[str, ...]] = {
@@ -294,9 +294,6 @@ OWNED: dict[str, tuple[str, ...]] = {
                 "families/canopen_*.py", "clients/can_rover.py", "clients/canopen_board.py",
                 "cli/canopen_board.py"),
     "micro-ros-agent": ("protocols/xrce_dds.py", "fakes/xrce_agent/*", "families/micro_ros_agent*.py"),
-    # fakes/rtps_node/participant.py is not the family's: the RTPS participant kit (the micro-ROS agent's bridge
-    # is one too); it stays in the family's package until PLAN24 P9 renames its classes, then moves to
-    # fakes/rtps_participant.py
     "freertps": ("protocols/rtps.py", "fakes/rtps_node/__init__.py", "fakes/rtps_node/node.py",
                  "fakes/rtps_node/targets.py", "families/freertps.py"),
 }

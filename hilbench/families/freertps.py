@@ -26,7 +26,7 @@ echo_of}``: an output with ``echo_of = "INPUT"`` republishes what the input
 receives. The manifest's device entries give ``domain_id``,
 ``participant_index``, ``guid_prefix``, ``ports``, ``topics`` (each with
 its ``dds_name``) and ``limits`` (the remote participants, endpoints, locator
-ports and leases a node keeps: :mod:`hilbench.fakes.rtps_node.participant`).
+ports and leases a node keeps: :mod:`hilbench.fakes.rtps_participant`).
 Control commands: ``status`` (with the participant's counters: refused,
 expired, invalid locators ...) and ``publish``.
 """
@@ -197,7 +197,7 @@ class FreeRtpsFamily(DeviceFamily):
 
     def describe_device(self, spec: NodeSpec, device, endpoint, profile) -> dict[str, Any]:
         from hilbench.fakes.rtps_node.node import mac_prefix
-        from hilbench.fakes.rtps_node.participant import limits
+        from hilbench.fakes.rtps_participant import limits
         from hilbench.protocols import rtps
 
         ep = profile.endpoints[spec.endpoint]

@@ -12,7 +12,7 @@ import pytest
 
 from hilbench.bench.control import ControlClient
 from hilbench.bench.profile import parse_profile
-from hilbench.fakes.rtps_node.participant import LOCATOR_PORTS, MAX_REMOTES
+from hilbench.fakes.rtps_participant import LOCATOR_PORTS, MAX_REMOTES
 from hilbench.protocols import rtps
 from hilbench.pytest_plugin import wait_until
 from tests.helpers.domains import free_domain

@@ -16,7 +16,7 @@ from collections import deque
 from dataclasses import dataclass
 from typing import Any
 
-from hilbench.fakes.rtps_node.participant import RtpsParticipant
+from hilbench.fakes.rtps_participant import RtpsParticipant
 from hilbench.protocols import cdr
 
 log = logging.getLogger(__name__)

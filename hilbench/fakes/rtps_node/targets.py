@@ -5,7 +5,7 @@ A session is what another DDS participant sends a node over unicast, framed in o
 second participant's): SPDP announcements, SEDP publications and subscriptions for the node's topic,
 user DATA (with INFO_TS) to its reader, HEARTBEATs, ACKNACKs for its writers, GAPs; now and then a
 locator a hostile peer would plant (a port beyond 65535). Each session meets
-a fresh :class:`~hilbench.fakes.rtps_node.participant.RtpsParticipant` (the bench's own, with a reliable
+a fresh :class:`~hilbench.fakes.rtps_participant.RtpsParticipant` (the bench's own, with a reliable
 writer and a reader on ``rt/chatter``) through ``on_datagram``; what it sends goes through the checks a
 UDP socket's ``sendto`` makes, and its timers (SPDP announcements, HEARTBEATs) run once after the
 session, so a locator the session planted is used as the node would use it. ``good`` counts the
@@ -91,7 +91,7 @@ def participant_session(rng: random.Random, size: int) -> bytes:
 
 class _ParticipantSession:
     def __init__(self) -> None:
-        from hilbench.fakes.rtps_node.participant import RtpsParticipant
+        from hilbench.fakes.rtps_participant import RtpsParticipant
 
         self.net = NetPort()
         self.node = RtpsParticipant("fuzz-node", self.net, domain_id=0, participant_index=0, guid_prefix=PREFIX,

@@ -1,7 +1,7 @@
 """The agent's DDS side: XRCE topics on RTPS, so micro-ROS clients and ROS 2 nodes see each other.
 
 The real agent creates a Fast DDS participant per client participant; this
-bridge is one RTPS participant (:class:`~hilbench.fakes.rtps_node.participant.RtpsParticipant`,
+bridge is one RTPS participant (:class:`~hilbench.fakes.rtps_participant.RtpsParticipant`,
 vendor eProsima) on the agent's datagram net, at the standard ports of its
 domain and participant index, 127.0.0.1 only. Every XRCE datawriter gets an
 RTPS writer on its topic and type (its reliability), every XRCE datareader an
@@ -16,7 +16,7 @@ import os
 import random
 from typing import Any
 
-from hilbench.fakes.rtps_node.participant import RtpsParticipant
+from hilbench.fakes.rtps_participant import RtpsParticipant
 
 VENDOR_EPROSIMA = b"\x01\x0f"
 
