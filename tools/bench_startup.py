@@ -68,7 +68,9 @@ class Case:
 def cases(capture: Path) -> list[Case]:
     dynamixel_monitor = ("numpy", "rich", "construct", "hilbench.monitor", "hilbench.monitor.instrument",
                          "hilbench.monitor.detect", "hilbench.monitor.errorlog", "hilbench.monitor.live",
-                         "hilbench.monitor.dynamixel", "hilbench.monitor.dynamixel.*")
+                         "hilbench.monitor.dynamixel", "hilbench.monitor.dynamixel.*",
+                         "hilbench.monitor.servo_bus*",  # the servo-bus kit the Dynamixel tracker builds on
+                         "hilbench.profiler.instrument")  # every instrument plug-in is asked (light)
     return [
         Case("help", ("--help",)),
         Case("monitor_dynamixel", ("monitor", str(capture), "--summary"), dynamixel_monitor),
@@ -83,7 +85,8 @@ def cases(capture: Path) -> list[Case]:
              ("numpy", "rich", "construct", "serial", "hilbench.bench*", "hilbench.families", "hilbench.fakes",
               "hilbench.families.dynamixel", "hilbench.families.servo_bus", "hilbench.fakes.dynamixel*",
               "hilbench.fakes.control_table_servo", "hilbench.fakes.table_servo", "hilbench.fakes.servo_bus",
-              "hilbench.fakes.protocol1_bus"),
+              "hilbench.fakes.protocol1_bus", "hilbench.fakes.motion",
+              "hilbench.fakes.world", "hilbench.fakes.scene"),  # every bench has a world
              first_line=True),
     ]
 
