@@ -211,19 +211,25 @@ def test_patch_is_removed_when_the_bench_stops(hilbench_bench):
     assert posix.termios is termios
 
 
-def test_connections_beyond_the_limit_are_refused_and_idle_ones_closed(hilbench_bench, monkeypatch):
-    monkeypatch.setattr(port_state_server, "MAX_CLIENTS", 2)
-    monkeypatch.setattr(port_state_server, "IDLE_TIMEOUT", 0.5)
-    monkeypatch.setattr(port_state_server, "EVICT_IDLE", 60.0)  # (none waited long enough to be closed for the newcomer)
-    server = hilbench_bench("arm").services["port_state"]
+def served_connections(server, n: int) -> list[socket.socket]:
+    """``n`` connections to the port-state server, each served one ping (they count as its clients)."""
     held = []
-    for _ in range(2):
+    for _ in range(n):
         s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
         s.settimeout(5)
         s.connect(server.path)
         s.sendall(b"0 ping\n")
         assert s.recv(256) == b"ok 1\n"
         held.append(s)
+    return held
+
+
+def test_connections_beyond_the_limit_are_refused_and_idle_ones_closed(hilbench_bench, monkeypatch):
+    monkeypatch.setattr(port_state_server, "MAX_CLIENTS", 2)
+    monkeypatch.setattr(port_state_server, "IDLE_TIMEOUT", 0.5)
+    monkeypatch.setattr(port_state_server, "EVICT_IDLE", 60.0)  # (none waited long enough to be closed for the newcomer)
+    server = hilbench_bench("arm").services["port_state"]
+    held = served_connections(server, 2)
     with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as extra:
         extra.settimeout(5)
         extra.connect(server.path)
@@ -239,15 +245,8 @@ def test_a_newcomer_takes_the_place_of_the_connection_idle_longest(hilbench_benc
     monkeypatch.setattr(port_state_server, "MAX_CLIENTS", 2)
     monkeypatch.setattr(port_state_server, "EVICT_IDLE", 0.2)
     server = hilbench_bench("arm").services["port_state"]
-    held = []
-    for _ in range(2):
-        s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-        s.settimeout(5)
-        s.connect(server.path)
-        s.sendall(b"0 ping\n")
-        assert s.recv(256) == b"ok 1\n"
-        held.append(s)
-        t_last = time.monotonic()
+    held = served_connections(server, 2)
+    t_last = time.monotonic()
     wait_until(lambda: time.monotonic() - t_last > 0.2)  # both have waited long enough for a next request
     assert ask(server, "0 ping") == "ok 1\n"  # served: the one idle longest made room
     assert held[0].recv(256) == b""  # closed as an idle one is (a client connects anew for its next request)
