@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 import textwrap
@@ -25,6 +26,7 @@ from hilbench.pytest_plugin import wait_until
 from hilbench.run.build import ShimBuildError, shim_library
 
 HILBENCH = [sys.executable, "-m", "hilbench.cli"]
+CLIENTS = Path(__file__).parent / "clients"
 S = 10**9
 
 
@@ -266,3 +268,40 @@ def test_hilbench_run_refuses_the_python_fallback_on_a_virtual_clock(tmp_path):
     assert "virtual time needs the preload shim: --shim python cannot put a client on the bench's clock" in shim.stderr
     assert cc.returncode == 1 and cc.stderr.count("\n") == 1
     assert "virtual time needs the preload shim: no C compiler" in cc.stderr
+
+
+@pytest.fixture(scope="module")
+def c_client(tmp_path_factory) -> str:
+    cc = shutil.which("cc") or shutil.which("gcc")
+    if cc is None:
+        pytest.skip("no C compiler (cc or gcc): the C test client cannot be built")
+    exe = tmp_path_factory.mktemp("vtime-bench-client") / "vtime_bench_client"
+    subprocess.run([cc, "-O2", "-Wall", "-Wextra", "-Werror", "-pthread", "-o", str(exe),
+                    str(CLIENTS / "vtime_bench_client.c")], check=True, capture_output=True)
+    return str(exe)
+
+
+def test_a_c_client_waits_on_the_bench_pty_in_exact_virtual_time(hilbench_bench, hilbench_run, c_client):
+    """PLAN26 §9.1 (e): a compiled client (plain libc calls) under ``hilbench run`` against the arm's bus pty,
+    where nothing is said unless asked: each sleep, timeout and child's run takes its virtual duration to the
+    nanosecond, the lot (10.45 virtual seconds) a fraction of a wall second."""
+    bench = hilbench_bench("arm", virtual_time=True, lockstep_stall=None)  # (no stall can hide a stuck wait)
+    t0 = time.monotonic()
+    proc = subprocess.run(hilbench_run.command(bench, c_client, bench.endpoint().path), capture_output=True,
+                          text=True, timeout=60)
+    wall = time.monotonic() - t0
+    assert proc.returncode == 0, proc.stderr
+    got = json.loads(proc.stdout)
+    total, client_wall = got.pop("total"), got.pop("wall")
+    assert got == {
+        "nanosleep": [S, 0], "usleep": [S // 4, 0], "sleep": [2 * S, 0], "clock_nanosleep_abs": [S * 3 // 2, 0],
+        "select_pty": [S * 7 // 10, 0], "select_left_us": [S * 7 // 10, 0],  # (0 left, as Linux writes back)
+        "poll_pty": [S * 3 // 10, 0], "epoll_wait_pty": [S * 6 // 5, 0],
+        "read_vtime": [S // 2, 0],  # VMIN=0, VTIME=5: nothing, 0 after 0.5 s
+        "pthread_cond_clockwait": [S * 3 // 5, 1], "pthread_cond_timedwait": [S * 2 // 5, 1],
+        "fork_exec_sleep": [2 * S, 0],  # the child's sleep is virtual too, and waitpid waits for it
+    }
+    assert total == S * 209 // 20 and bench.clock.now() == 1010.45  # nothing else moved the clock
+    assert bench.services["clock"].stats()["stalls"] == 0
+    assert client_wall < total // 10, f"{client_wall / 1e9:.3f} s wall for {total / 1e9:.2f} s virtual"
+    assert wall < 5.0
