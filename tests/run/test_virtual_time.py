@@ -305,3 +305,67 @@ def test_a_c_client_waits_on_the_bench_pty_in_exact_virtual_time(hilbench_bench,
     assert bench.services["clock"].stats()["stalls"] == 0
     assert client_wall < total // 10, f"{client_wall / 1e9:.3f} s wall for {total / 1e9:.2f} s virtual"
     assert wall < 5.0
+
+
+PYTHON_WAITS = """
+    import json, os, queue, select, selectors, subprocess, threading, time
+    out = {}
+    def measure(name, fn):
+        t0 = time.monotonic_ns()
+        result = fn()
+        out[name] = [time.monotonic_ns() - t0, result]
+    def expired(argv, timeout):
+        try:
+            subprocess.run(argv, timeout=timeout)
+        except subprocess.TimeoutExpired:
+            return "expired"
+        return "ran"
+    def empty_get(timeout):
+        try:
+            queue.Queue().get(timeout=timeout)
+        except queue.Empty:
+            return "empty"
+    start, wall0 = time.monotonic_ns(), os.times().elapsed
+    r, w = os.pipe()
+    sel = selectors.DefaultSelector()
+    sel.register(r, selectors.EVENT_READ)
+    measure("time.sleep", lambda: time.sleep(1.25))
+    measure("Event.wait", lambda: threading.Event().wait(1.5))
+    measure("Queue.get", lambda: empty_get(2))
+    measure("select.select", lambda: len(select.select([r], [], [], 0.75)[0]))
+    measure("selectors", lambda: len(sel.select(timeout=0.5)))
+    threading.Timer(0.25, os.write, (w, b"x")).start()  # a byte from another thread ends a 10 s wait at 0.25 s
+    measure("selectors_ready", lambda: len(sel.select(timeout=10)))
+    measure("subprocess_expired", lambda: expired(["/bin/sleep", "10"], 1.5))  # killed after 1.5 s
+    measure("subprocess_ran", lambda: expired(["/bin/sleep", "1"], 5))
+    while (left := 60 * 10**9 - (time.monotonic_ns() - start)) > 0:
+        time.sleep(min(1.0, left / 1e9))
+    out["total"] = time.monotonic_ns() - start
+    out["wall"] = os.times().elapsed - wall0
+    print(json.dumps(out))
+"""
+
+
+def test_a_python_client_waits_in_exact_virtual_time(tmp_path):
+    """PLAN26 §9.1 (f): the ways a Python program waits (sleep, threading and queue timeouts, select and
+    selectors on a pipe, a subprocess with a timeout), each its exact virtual duration; a minute in all, in about
+    a second of wall time."""
+    with Bench("mecarover-can", virtual_time=True) as bench:
+        proc, wall = client(bench, tmp_path, PYTHON_WAITS)
+        stats = bench.services["clock"].stats()
+    out = json.loads(proc.stdout)
+    total, client_wall = out.pop("total"), out.pop("wall")
+    assert out == {
+        "time.sleep": [S * 5 // 4, None], "Event.wait": [S * 3 // 2, False], "Queue.get": [2 * S, "empty"],
+        "select.select": [S * 3 // 4, 0], "selectors": [S // 2, 0], "selectors_ready": [S // 4, 1],
+        # killed at its 1.5 s deadline (+1 ns: subprocess's float deadline, 1007.75 - 1007.713 = 0.03700000000004 s,
+        # makes its last sleep 37 000 001 ns); kill(SIGKILL) returns once the child is dead, so reaping it takes no
+        # virtual time (before, the bench ran on for the real milliseconds of the death: 1.505 or 1.515 s)
+        "subprocess_expired": [S * 3 // 2 + 1, "expired"],
+        # subprocess's own wait loop (sleeps of 1, 2, 4, ... 32 ms, then 50 ms) sees the child's end (at 1 s,
+        # its /bin/sleep is virtual too) at its first look after it: at 1.013 s, in every run
+        "subprocess_ran": [1_013_000_000, "ran"],
+    }
+    assert total == 60 * S and stats["stalls"] == 0
+    assert client_wall < 3.0, f"60 virtual seconds took {client_wall:.2f} s of wall time"
+    assert wall < 8.0
