@@ -369,3 +369,34 @@ def test_a_python_client_waits_in_exact_virtual_time(tmp_path):
     assert total == 60 * S and stats["stalls"] == 0
     assert client_wall < 3.0, f"60 virtual seconds took {client_wall:.2f} s of wall time"
     assert wall < 8.0
+
+
+MONOTONIC_SPIN = """
+    import json, os, time
+    w0 = os.times().elapsed
+    v0 = time.monotonic()
+    reads = 0
+    while time.monotonic() < v0 + 1.0:
+        reads += 1
+    print(json.dumps({"v0": v0, "v1": time.monotonic(), "reads": reads, "wall": os.times().elapsed - w0}))
+"""
+
+
+def test_a_client_polling_the_clock_moves_it_in_quanta(tmp_path):
+    """PLAN26 §9.1 (i): a client that spins on ``time.monotonic()`` to +1 virtual second, with nothing else on the
+    bench (the arm's servos speak only when asked), counts as waiting: time moves in 100 us quanta, the spin ends,
+    and it is no stall (the control channel's ``clock`` answer says so)."""
+    with Bench("arm", virtual_time=True) as bench:
+        bench.serve_control()
+        control = ControlClient(bench.control.address_text)
+        before = control.call("clock")["clock"]
+        proc, wall = client(bench, tmp_path, MONOTONIC_SPIN)
+        after = control.call("clock")["clock"]
+    out = json.loads(proc.stdout)
+    assert before["now"] == 1000.0 and before["loop"]["advances"] == 0
+    assert out["v0"] == 1000.0 and out["v1"] == 1001.0 and after["now"] == 1001.0
+    # 10 000 quanta of 100 us and nothing else: each advance was a poller's deadline
+    assert after["loop"]["advances"] == 10_000 and after["loop"]["events"] == 0
+    assert after["stats"]["stalls"] == 0 and after["stats"]["stalled_s"] == 0.0 and after["stats"]["threads_seen"] >= 1
+    assert out["reads"] > 10_000  # (it did spin: K = 32 unchanged reads make a wait, each quantum)
+    assert wall < 10.0, f"1 virtual second of polling took {wall:.2f} s of wall time"
