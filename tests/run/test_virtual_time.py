@@ -400,3 +400,40 @@ def test_a_client_polling_the_clock_moves_it_in_quanta(tmp_path):
     assert after["stats"]["stalls"] == 0 and after["stats"]["stalled_s"] == 0.0 and after["stats"]["threads_seen"] >= 1
     assert out["reads"] > 10_000  # (it did spin: K = 32 unchanged reads make a wait, each quantum)
     assert wall < 10.0, f"1 virtual second of polling took {wall:.2f} s of wall time"
+
+
+def test_rplidar_roboticia_scans_at_the_model_rate_in_virtual_time(hilbench_bench, hilbench_run):
+    """PLAN26 §9.1 (d): rplidar-roboticia, unmodified (pyserial: it polls ``in_waiting`` with 1 ms sleeps, then
+    reads; its DTR starts the A1's motor), on the ``scanners`` bench in virtual time: info, health, 5 scans of
+    ``iter_scans``. The scan rate per virtual second is the model's rpm / 60, each scan's end is seen within the
+    client's 1 ms poll of the node that ends it, and a second run on a second bench sees the same, to the ns."""
+    pytest.importorskip("rplidar")
+    script = Path(__file__).parents[1] / "fakes" / "scanners" / "clients" / "rplidar_roboticia.py"
+    runs, walls = [], []
+    for _ in range(2):
+        bench = hilbench_bench("scanners", virtual_time=True, set={"devices.lidar.speed_wander": 0.0})
+        t0 = time.monotonic()
+        proc = subprocess.run(hilbench_run.command(bench, sys.executable, str(script), bench.endpoint("lidar").path,
+                                                   "normal", "5"), capture_output=True, text=True, timeout=60)
+        walls.append(time.monotonic() - t0)
+        assert proc.returncode == 0, proc.stderr
+        runs.append(json.loads(proc.stdout))
+        assert bench.services["clock"].stats()["stalls"] == 0
+    out, lidar = runs[0], bench.device("lidar")
+    assert out["info"] == {"model": 24, "firmware": [1, 29], "hardware": 7,
+                           "serialnumber": "D8E0EDF9C7E29BD1A7E39EF24833431B"}
+    assert out["health"] == ["Good", 0]
+    # the first scan is the part of a turn left once the motor was stable (0.5 s after DTR fell), then whole turns
+    # of 358 samples (508 us each at 5.5 turns a second)
+    assert out["counts"][1:] == [358] * 4 and out["counts"][0] < 358
+    times = out["times"]
+    rate = (len(times) - 1) / (times[-1] - times[0])
+    assert rate == pytest.approx(330 / 60, rel=0.005), rate
+    # iter_scans ends a scan at the next turn's first node (a sample, 508 us, after the turn's last): the node is
+    # complete 5 bytes (434 us) after its sample, and the client sees it at its next look (a 1 ms sleep at most)
+    node = 5 * 10 / 115_200
+    starts = [scan.t_last + 508e-6 for scan in lidar.truth][:len(times)]
+    assert all(start + node <= t <= start + node + 0.001 for start, t in zip(starts, times, strict=True)), \
+        (starts, times)
+    assert runs[1] == runs[0]  # the same times, counts and ranges
+    assert max(walls) < 8.0
