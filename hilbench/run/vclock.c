@@ -1393,24 +1393,31 @@ int pthread_join(pthread_t t, void **ret)
     return ctx.rc;
 }
 
-/* kill(PID, SIGKILL) returns once PID has died (at most KILL_WAIT_MS real): the sender's slot stays
- * RUNNING meanwhile, so the world cannot move while the victim dies. Without this, a parent that kills a
- * child and reaps it (subprocess's timeout: kill, then waitpid) waited with the dead child's slot still
- * WAITING until the loop saw its pidfd, and the bench's events ran for those real milliseconds (1.500,
- * 1.505 or 1.515 virtual s for a 1.5 s timeout). Other signals may be caught: they stay asynchronous. */
+/* kill(PID, SIGKILL) returns once PID has died (at most KILL_WAIT_MS real): the sender's slot is RUNNABLE
+ * meanwhile (not RUNNING: the loop would take a thread asleep in the kernel for one waiting where the shim
+ * cannot see), so the world cannot move while the victim dies. Without this, a parent that kills a child
+ * and reaps it (subprocess's timeout: kill, then waitpid) waited with the dying child's slot still WAITING
+ * until the loop saw its pidfd, and the bench's events ran for those real milliseconds (5 to 500 virtual
+ * ms). Other signals may be caught: they stay asynchronous. */
 #define KILL_WAIT_MS 2000
 int kill(pid_t pid, int sig)
 {
+    struct vc_slot *s = NULL;
     int pfd = -1, rc, err;
-    if (vc_on && sig == SIGKILL && pid > 0 && pid != vc_pid && cur())
+    if (vc_on && sig == SIGKILL && pid > 0 && pid != vc_pid && (s = cur()) != NULL)
         pfd = (int)syscall(SYS_pidfd_open, pid, 0);
     rc = REAL(kill)(pid, sig);
     err = errno;
     if (pfd >= 0) {
         struct pollfd p = {pfd, POLLIN, 0};
+        uint32_t before = __atomic_load_n(&s->state, __ATOMIC_RELAXED);
+        if (before == ST_RUNNING)
+            __atomic_store_n(&s->state, ST_RUNNABLE, __ATOMIC_SEQ_CST);
         if (rc == 0)
             while (REAL(poll)(&p, 1, KILL_WAIT_MS) < 0 && errno == EINTR)
                 ;
+        if (before == ST_RUNNING)
+            __atomic_store_n(&s->state, ST_RUNNING, __ATOMIC_SEQ_CST);
         syscall(SYS_close, pfd);
     }
     errno = err;

@@ -437,3 +437,30 @@ def test_rplidar_roboticia_scans_at_the_model_rate_in_virtual_time(hilbench_benc
         (starts, times)
     assert runs[1] == runs[0]  # the same times, counts and ranges
     assert max(walls) < 8.0
+
+
+KILLER = """
+    import json, subprocess, sys, time
+    # a child with 100 MB written: SIGKILL takes the kernel some milliseconds to take its memory back
+    VICTIM = "import time\\nb = b'x' * 100_000_000\\ntime.sleep(100)"
+    reaped = []
+    for _ in range(5):
+        child = subprocess.Popen([sys.executable, "-c", VICTIM])
+        time.sleep(0.25)
+        child.kill()
+        t0 = time.monotonic_ns()
+        child.wait()
+        reaped.append([time.monotonic_ns() - t0, child.returncode])
+    print(json.dumps(reaped))
+"""
+
+
+def test_a_killed_child_takes_no_virtual_time_to_die(tmp_path):
+    """kill(PID, SIGKILL) returns once PID is dead, the killer not counted as waiting meanwhile: reaping the child
+    takes no virtual time, and neither does the kill (before, the bench's events ran on while the child died, its
+    slot still waiting: 25 to 515 virtual ms per reap for this child, whose 100 MB take the kernel a while)."""
+    with Bench("mecarover-can", virtual_time=True) as bench:
+        proc, _wall = client(bench, tmp_path, KILLER)
+        stats = bench.services["clock"].stats()
+    assert json.loads(proc.stdout) == [[0, -9]] * 5
+    assert stats["stalls"] == 0 and bench.clock.now() == 1001.25
