@@ -17,7 +17,8 @@
  * select, pselect, poll, ppoll, epoll_wait, epoll_pwait, epoll_pwait2; semaphores (sem_wait,
  * sem_timedwait, sem_clockwait: futex_waitv on the semaphore and the slot together); condition
  * variables outside the interpreter (1 ms real slices that re-check the virtual deadline); waiting
- * for children and threads (waitpid, wait4, wait, pthread_join). The interpreter's own lock (the
+ * for children and threads (waitpid, wait4, wait, pthread_join); kill(PID, SIGKILL) returns once PID
+ * is dead, so a killed child takes no virtual time to die. The interpreter's own lock (the
  * GIL: pthread_cond_timedwait/wait called from the object that defines PyEval_SaveThread) runs in
  * real time and marks the thread RUNNABLE: its 5 ms drop request is a scheduling heuristic, and a
  * thread waiting for the GIL is not waiting for the world.
@@ -188,7 +189,7 @@ R(pthread_cond_wait); R(pthread_cond_timedwait); R(pthread_cond_clockwait); R(pt
 R(pthread_cond_broadcast); R(pthread_create); R(pthread_join); R(fork);
 R(execve); R(execvpe); R(fexecve); R(posix_spawn); R(posix_spawnp);
 R(waitpid); R(wait4); R(waitid); R(send); R(sendto); R(sendmsg); R(read); R(readv); R(epoll_ctl);
-R(alarm); R(setitimer); R(timer_settime); R(timerfd_settime);
+R(alarm); R(setitimer); R(timer_settime); R(timerfd_settime); R(kill);
 static int (*r_epoll_pwait2)(int, struct epoll_event *, int, const struct timespec *, const sigset_t *);
 static int resolved;
 
@@ -202,7 +203,7 @@ static void resolve(void)
     D(pthread_cond_broadcast); D(pthread_create); D(pthread_join); D(fork);
     D(execve); D(execvpe); D(fexecve); D(posix_spawn); D(posix_spawnp);
     D(waitpid); D(wait4); D(waitid); D(send); D(sendto); D(sendmsg); D(read); D(readv); D(epoll_ctl);
-    D(alarm); D(setitimer); D(timer_settime); D(timerfd_settime);
+    D(alarm); D(setitimer); D(timer_settime); D(timerfd_settime); D(kill);
 #undef D
     __atomic_store_n(&resolved, 1, __ATOMIC_RELEASE);
 }
@@ -1390,6 +1391,37 @@ int pthread_join(pthread_t t, void **ret)
         wait_slices(s, join_done, &ctx, &intr);
     while (intr);  /* pthread_join never fails with EINTR */
     return ctx.rc;
+}
+
+/* kill(PID, SIGKILL) returns once PID has died (at most KILL_WAIT_MS real): the sender's slot is RUNNABLE
+ * meanwhile (not RUNNING: the loop would take a thread asleep in the kernel for one waiting where the shim
+ * cannot see), so the world cannot move while the victim dies. Without this, a parent that kills a child
+ * and reaps it (subprocess's timeout: kill, then waitpid) waited with the dying child's slot still WAITING
+ * until the loop saw its pidfd, and the bench's events ran for those real milliseconds (5 to 500 virtual
+ * ms). Other signals may be caught: they stay asynchronous. */
+#define KILL_WAIT_MS 2000
+int kill(pid_t pid, int sig)
+{
+    struct vc_slot *s = NULL;
+    int pfd = -1, rc, err;
+    if (vc_on && sig == SIGKILL && pid > 0 && pid != vc_pid && (s = cur()) != NULL)
+        pfd = (int)syscall(SYS_pidfd_open, pid, 0);
+    rc = REAL(kill)(pid, sig);
+    err = errno;
+    if (pfd >= 0) {
+        struct pollfd p = {pfd, POLLIN, 0};
+        uint32_t before = __atomic_load_n(&s->state, __ATOMIC_RELAXED);
+        if (before == ST_RUNNING)
+            __atomic_store_n(&s->state, ST_RUNNABLE, __ATOMIC_SEQ_CST);
+        if (rc == 0)
+            while (REAL(poll)(&p, 1, KILL_WAIT_MS) < 0 && errno == EINTR)
+                ;
+        if (before == ST_RUNNING)
+            __atomic_store_n(&s->state, ST_RUNNING, __ATOMIC_SEQ_CST);
+        syscall(SYS_close, pfd);
+    }
+    errno = err;
+    return rc;
 }
 
 /* ------------------------------------------------------------------ threads, fork, exec */

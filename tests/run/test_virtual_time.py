@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 import textwrap
@@ -25,6 +26,7 @@ from hilbench.pytest_plugin import wait_until
 from hilbench.run.build import ShimBuildError, shim_library
 
 HILBENCH = [sys.executable, "-m", "hilbench.cli"]
+CLIENTS = Path(__file__).parent / "clients"
 S = 10**9
 
 
@@ -266,3 +268,199 @@ def test_hilbench_run_refuses_the_python_fallback_on_a_virtual_clock(tmp_path):
     assert "virtual time needs the preload shim: --shim python cannot put a client on the bench's clock" in shim.stderr
     assert cc.returncode == 1 and cc.stderr.count("\n") == 1
     assert "virtual time needs the preload shim: no C compiler" in cc.stderr
+
+
+@pytest.fixture(scope="module")
+def c_client(tmp_path_factory) -> str:
+    cc = shutil.which("cc") or shutil.which("gcc")
+    if cc is None:
+        pytest.skip("no C compiler (cc or gcc): the C test client cannot be built")
+    exe = tmp_path_factory.mktemp("vtime-bench-client") / "vtime_bench_client"
+    subprocess.run([cc, "-O2", "-Wall", "-Wextra", "-Werror", "-pthread", "-o", str(exe),
+                    str(CLIENTS / "vtime_bench_client.c")], check=True, capture_output=True)
+    return str(exe)
+
+
+def test_a_c_client_waits_on_the_bench_pty_in_exact_virtual_time(hilbench_bench, hilbench_run, c_client):
+    """PLAN26 §9.1 (e): a compiled client (plain libc calls) under ``hilbench run`` against the arm's bus pty,
+    where nothing is said unless asked: each sleep, timeout and child's run takes its virtual duration to the
+    nanosecond, the lot (10.45 virtual seconds) a fraction of a wall second."""
+    bench = hilbench_bench("arm", virtual_time=True, lockstep_stall=None)  # (no stall can hide a stuck wait)
+    t0 = time.monotonic()
+    proc = subprocess.run(hilbench_run.command(bench, c_client, bench.endpoint().path), capture_output=True,
+                          text=True, timeout=60)
+    wall = time.monotonic() - t0
+    assert proc.returncode == 0, proc.stderr
+    got = json.loads(proc.stdout)
+    total, client_wall = got.pop("total"), got.pop("wall")
+    assert got == {
+        "nanosleep": [S, 0], "usleep": [S // 4, 0], "sleep": [2 * S, 0], "clock_nanosleep_abs": [S * 3 // 2, 0],
+        "select_pty": [S * 7 // 10, 0], "select_left_us": [S * 7 // 10, 0],  # (0 left, as Linux writes back)
+        "poll_pty": [S * 3 // 10, 0], "epoll_wait_pty": [S * 6 // 5, 0],
+        "read_vtime": [S // 2, 0],  # VMIN=0, VTIME=5: nothing, 0 after 0.5 s
+        "pthread_cond_clockwait": [S * 3 // 5, 1], "pthread_cond_timedwait": [S * 2 // 5, 1],
+        "fork_exec_sleep": [2 * S, 0],  # the child's sleep is virtual too, and waitpid waits for it
+    }
+    assert total == S * 209 // 20 and bench.clock.now() == 1010.45  # nothing else moved the clock
+    assert bench.services["clock"].stats()["stalls"] == 0
+    assert client_wall < total // 10, f"{client_wall / 1e9:.3f} s wall for {total / 1e9:.2f} s virtual"
+    assert wall < 5.0
+
+
+PYTHON_WAITS = """
+    import json, os, queue, select, selectors, subprocess, threading, time
+    out = {}
+    def measure(name, fn):
+        t0 = time.monotonic_ns()
+        result = fn()
+        out[name] = [time.monotonic_ns() - t0, result]
+    def expired(argv, timeout):
+        try:
+            subprocess.run(argv, timeout=timeout)
+        except subprocess.TimeoutExpired:
+            return "expired"
+        return "ran"
+    def empty_get(timeout):
+        try:
+            queue.Queue().get(timeout=timeout)
+        except queue.Empty:
+            return "empty"
+    start, wall0 = time.monotonic_ns(), os.times().elapsed
+    r, w = os.pipe()
+    sel = selectors.DefaultSelector()
+    sel.register(r, selectors.EVENT_READ)
+    measure("time.sleep", lambda: time.sleep(1.25))
+    measure("Event.wait", lambda: threading.Event().wait(1.5))
+    measure("Queue.get", lambda: empty_get(2))
+    measure("select.select", lambda: len(select.select([r], [], [], 0.75)[0]))
+    measure("selectors", lambda: len(sel.select(timeout=0.5)))
+    threading.Timer(0.25, os.write, (w, b"x")).start()  # a byte from another thread ends a 10 s wait at 0.25 s
+    measure("selectors_ready", lambda: len(sel.select(timeout=10)))
+    measure("subprocess_expired", lambda: expired(["/bin/sleep", "10"], 1.5))  # killed after 1.5 s
+    measure("subprocess_ran", lambda: expired(["/bin/sleep", "1"], 5))
+    while (left := 60 * 10**9 - (time.monotonic_ns() - start)) > 0:
+        time.sleep(min(1.0, left / 1e9))
+    out["total"] = time.monotonic_ns() - start
+    out["wall"] = os.times().elapsed - wall0
+    print(json.dumps(out))
+"""
+
+
+def test_a_python_client_waits_in_exact_virtual_time(tmp_path):
+    """PLAN26 §9.1 (f): the ways a Python program waits (sleep, threading and queue timeouts, select and
+    selectors on a pipe, a subprocess with a timeout), each its exact virtual duration; a minute in all, in about
+    a second of wall time."""
+    with Bench("mecarover-can", virtual_time=True) as bench:
+        proc, wall = client(bench, tmp_path, PYTHON_WAITS)
+        stats = bench.services["clock"].stats()
+    out = json.loads(proc.stdout)
+    total, client_wall = out.pop("total"), out.pop("wall")
+    assert out == {
+        "time.sleep": [S * 5 // 4, None], "Event.wait": [S * 3 // 2, False], "Queue.get": [2 * S, "empty"],
+        "select.select": [S * 3 // 4, 0], "selectors": [S // 2, 0], "selectors_ready": [S // 4, 1],
+        # killed at its 1.5 s deadline (+1 ns: subprocess's float deadline, 1007.75 - 1007.713 = 0.03700000000004 s,
+        # makes its last sleep 37 000 001 ns); kill(SIGKILL) returns once the child is dead, so reaping it takes no
+        # virtual time (before, the bench ran on for the real milliseconds of the death: 1.505 or 1.515 s)
+        "subprocess_expired": [S * 3 // 2 + 1, "expired"],
+        # subprocess's own wait loop (sleeps of 1, 2, 4, ... 32 ms, then 50 ms) sees the child's end (at 1 s,
+        # its /bin/sleep is virtual too) at its first look after it: at 1.013 s, in every run
+        "subprocess_ran": [1_013_000_000, "ran"],
+    }
+    assert total == 60 * S and stats["stalls"] == 0
+    assert client_wall < 3.0, f"60 virtual seconds took {client_wall:.2f} s of wall time"
+    assert wall < 8.0
+
+
+MONOTONIC_SPIN = """
+    import json, os, time
+    w0 = os.times().elapsed
+    v0 = time.monotonic()
+    reads = 0
+    while time.monotonic() < v0 + 1.0:
+        reads += 1
+    print(json.dumps({"v0": v0, "v1": time.monotonic(), "reads": reads, "wall": os.times().elapsed - w0}))
+"""
+
+
+def test_a_client_polling_the_clock_moves_it_in_quanta(tmp_path):
+    """PLAN26 §9.1 (i): a client that spins on ``time.monotonic()`` to +1 virtual second, with nothing else on the
+    bench (the arm's servos speak only when asked), counts as waiting: time moves in 100 us quanta, the spin ends,
+    and it is no stall (the control channel's ``clock`` answer says so)."""
+    with Bench("arm", virtual_time=True) as bench:
+        bench.serve_control()
+        control = ControlClient(bench.control.address_text)
+        before = control.call("clock")["clock"]
+        proc, wall = client(bench, tmp_path, MONOTONIC_SPIN)
+        after = control.call("clock")["clock"]
+    out = json.loads(proc.stdout)
+    assert before["now"] == 1000.0 and before["loop"]["advances"] == 0
+    assert out["v0"] == 1000.0 and out["v1"] == 1001.0 and after["now"] == 1001.0
+    # 10 000 quanta of 100 us and nothing else: each advance was a poller's deadline
+    assert after["loop"]["advances"] == 10_000 and after["loop"]["events"] == 0
+    assert after["stats"]["stalls"] == 0 and after["stats"]["stalled_s"] == 0.0 and after["stats"]["threads_seen"] >= 1
+    assert out["reads"] > 10_000  # (it did spin: K = 32 unchanged reads make a wait, each quantum)
+    assert wall < 10.0, f"1 virtual second of polling took {wall:.2f} s of wall time"
+
+
+def test_rplidar_roboticia_scans_at_the_model_rate_in_virtual_time(hilbench_bench, hilbench_run):
+    """PLAN26 §9.1 (d): rplidar-roboticia, unmodified (pyserial: it polls ``in_waiting`` with 1 ms sleeps, then
+    reads; its DTR starts the A1's motor), on the ``scanners`` bench in virtual time: info, health, 5 scans of
+    ``iter_scans``. The scan rate per virtual second is the model's rpm / 60, each scan's end is seen within the
+    client's 1 ms poll of the node that ends it, and a second run on a second bench sees the same, to the ns."""
+    pytest.importorskip("rplidar")
+    script = Path(__file__).parents[1] / "fakes" / "scanners" / "clients" / "rplidar_roboticia.py"
+    runs, walls = [], []
+    for _ in range(2):
+        bench = hilbench_bench("scanners", virtual_time=True, set={"devices.lidar.speed_wander": 0.0})
+        t0 = time.monotonic()
+        proc = subprocess.run(hilbench_run.command(bench, sys.executable, str(script), bench.endpoint("lidar").path,
+                                                   "normal", "5"), capture_output=True, text=True, timeout=60)
+        walls.append(time.monotonic() - t0)
+        assert proc.returncode == 0, proc.stderr
+        runs.append(json.loads(proc.stdout))
+        assert bench.services["clock"].stats()["stalls"] == 0
+    out, lidar = runs[0], bench.device("lidar")
+    assert out["info"] == {"model": 24, "firmware": [1, 29], "hardware": 7,
+                           "serialnumber": "D8E0EDF9C7E29BD1A7E39EF24833431B"}
+    assert out["health"] == ["Good", 0]
+    # the first scan is the part of a turn left once the motor was stable (0.5 s after DTR fell), then whole turns
+    # of 358 samples (508 us each at 5.5 turns a second)
+    assert out["counts"][1:] == [358] * 4 and out["counts"][0] < 358
+    times = out["times"]
+    rate = (len(times) - 1) / (times[-1] - times[0])
+    assert rate == pytest.approx(330 / 60, rel=0.005), rate
+    # iter_scans ends a scan at the next turn's first node (a sample, 508 us, after the turn's last): the node is
+    # complete 5 bytes (434 us) after its sample, and the client sees it at its next look (a 1 ms sleep at most)
+    node = 5 * 10 / 115_200
+    starts = [scan.t_last + 508e-6 for scan in lidar.truth][:len(times)]
+    assert all(start + node <= t <= start + node + 0.001 for start, t in zip(starts, times, strict=True)), \
+        (starts, times)
+    assert runs[1] == runs[0]  # the same times, counts and ranges
+    assert max(walls) < 8.0
+
+
+KILLER = """
+    import json, subprocess, sys, time
+    # a child with 100 MB written: SIGKILL takes the kernel some milliseconds to take its memory back
+    VICTIM = "import time\\nb = b'x' * 100_000_000\\ntime.sleep(100)"
+    reaped = []
+    for _ in range(5):
+        child = subprocess.Popen([sys.executable, "-c", VICTIM])
+        time.sleep(0.25)
+        child.kill()
+        t0 = time.monotonic_ns()
+        child.wait()
+        reaped.append([time.monotonic_ns() - t0, child.returncode])
+    print(json.dumps(reaped))
+"""
+
+
+def test_a_killed_child_takes_no_virtual_time_to_die(tmp_path):
+    """kill(PID, SIGKILL) returns once PID is dead, the killer not counted as waiting meanwhile: reaping the child
+    takes no virtual time, and neither does the kill (before, the bench's events ran on while the child died, its
+    slot still waiting: 25 to 515 virtual ms per reap for this child, whose 100 MB take the kernel a while)."""
+    with Bench("mecarover-can", virtual_time=True) as bench:
+        proc, _wall = client(bench, tmp_path, KILLER)
+        stats = bench.services["clock"].stats()
+    assert json.loads(proc.stdout) == [[0, -9]] * 5
+    assert stats["stalls"] == 0 and bench.clock.now() == 1001.25
