@@ -141,6 +141,16 @@ def packet_handler(protocol: float = 2.0):
     return sdk.PacketHandler(protocol)
 
 
+def _once_more(call: Callable[[], tuple]) -> tuple:
+    """``call()`` (an SDK request: its result code second to last), sent once more if no reply came within the
+    SDK's timeout: a loaded host or a noisy bus loses one now and then, and every request made here (ping,
+    read, write of a register) may be repeated; a device that is not there costs two timeouts."""
+    out = call()
+    if out[-2] == sdk.COMM_RX_TIMEOUT:
+        out = call()
+    return out
+
+
 def _check(ph, result: int, error: int, what: str) -> None:
     if result != sdk.COMM_SUCCESS:
         raise DxlError(f"{what}: {ph.getTxRxResult(result)}")
@@ -156,14 +166,14 @@ def ping(path: str, dxl_id: int, baud: int, protocol: float = 2.0) -> Found:
     """Ping one ID; returns model and firmware."""
     ph = packet_handler(protocol)
     with open_port(path, baud) as port:
-        model, result, error = ph.ping(port, dxl_id)
+        model, result, error = _once_more(lambda: ph.ping(port, dxl_id))
         _check(ph, result, error, f"ping ID {dxl_id} at {baud} baud")
         known = MODELS_BY_NUMBER.get(model)
         if protocol == 2.0:
             fw_address = 2 if model in (0xABBA, 0xAFFE, 0xBAFF) else 6
         else:  # Protocol 1.0 has no firmware in its Ping reply: read it where the model keeps it
             fw_address = known.firmware_address if known is not None else 2
-        firmware, result, error = ph.read1ByteTxRx(port, dxl_id, fw_address)
+        firmware, result, error = _once_more(lambda: ph.read1ByteTxRx(port, dxl_id, fw_address))
         _check(ph, result, error, f"read firmware of ID {dxl_id}")
         return Found(dxl_id, model, firmware, baud)
 
@@ -224,10 +234,10 @@ def read(path: str, dxl_id: int, item: str, baud: int, length: int | None = None
     """Read an item (by name or address) with the SDK; returns (address, raw bytes, field)."""
     ph = packet_handler(protocol)
     with open_port(path, baud) as port:
-        number, result, error = ph.ping(port, dxl_id)
+        number, result, error = _once_more(lambda: ph.ping(port, dxl_id))
         _check(ph, result, error, f"ping ID {dxl_id} at {baud} baud")
         address, size, f = resolve_field(MODELS_BY_NUMBER.get(number), item, length)
-        data, result, error = ph.readTxRx(port, dxl_id, address, size)
+        data, result, error = _once_more(lambda: ph.readTxRx(port, dxl_id, address, size))
         _check(ph, result, error, f"read ID {dxl_id} address {address} length {size}")
         return address, bytes(data), f
 
@@ -237,7 +247,7 @@ def write(path: str, dxl_id: int, item: str, value: int, baud: int, length: int 
     """Write an item (by name or address) with the SDK; returns (address, field)."""
     ph = packet_handler(protocol)
     with open_port(path, baud) as port:
-        number, result, error = ph.ping(port, dxl_id)
+        number, result, error = _once_more(lambda: ph.ping(port, dxl_id))
         _check(ph, result, error, f"ping ID {dxl_id} at {baud} baud")
         address, size, f = resolve_field(MODELS_BY_NUMBER.get(number), item, length)
         signed = f.signed if f else value < 0
@@ -246,7 +256,7 @@ def write(path: str, dxl_id: int, item: str, value: int, baud: int, length: int 
         except OverflowError:
             kind = "a signed" if signed else "an unsigned"
             raise DxlRequestError(f"{value} does not fit in {size} byte(s) ({kind} item)") from None
-        result, error = ph.writeTxRx(port, dxl_id, address, size, data)
+        result, error = _once_more(lambda: ph.writeTxRx(port, dxl_id, address, size, data))
         _check(ph, result, error, f"write ID {dxl_id} address {address}")
         return address, f
 
