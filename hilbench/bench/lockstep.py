@@ -200,6 +200,7 @@ class Lockstep:
         self._stall_at: tuple[int, float] | None = None  # (vnow ns, real) when the stall began
         self.wakes = self.rechecks = self.asleep_elsewhere = self.settle_timeouts = 0
         self.participants_seen = 0
+        self._woke_at = -1  # the instant of the last wake_due
         self.last_stall: dict[str, Any] | None = None
         self.warnings: list[str] = []
 
@@ -289,16 +290,25 @@ class Lockstep:
                    for i, st in enumerate(states))
 
     def wake_due(self, fresh_ports: Iterable[int] = ()) -> int:
-        """C: wake the waiters whose deadline came and those waiting on a pty just delivered to."""
+        """C: wake the waiters whose deadline came and those waiting on a pty just delivered to, and every
+        poller once time moved or a pty was delivered to.
+
+        A poller (a thread whose clock reads kept returning the same instant) is POLLING only for the
+        instant it polled at: it does not block, and it notices news only at its next look. Left POLLING
+        after time moved to a bench event before its quantum's end, it would count as waiting until it
+        looked, and time could move on past the event in that (real-time) gap: the official SDK then saw
+        a reply a quantum late, one cycle in a hundred (a 2.265 ms cycle where the model says 2.24)."""
         mask = 0
         for i in fresh_ports:
             mask |= 1 << i
         vnow, n = self._vnow_ns, 0
+        moved = vnow != self._woke_at
+        self._woke_at = vnow
         states = self.u32[_STATE_WORD:_STATE_WORD + _SLOT_WORDS * self.nslots:_SLOT_WORDS].tolist()
         for i, st in enumerate(states):
-            if st != vp.WAITING and st != vp.POLLING:
-                continue
-            if self._s64(i, vp.S_DEADLINE) <= vnow or (mask and self._s64(i, vp.S_PORTS) & mask):
+            polled = st == vp.POLLING and (moved or mask)
+            if polled or st == vp.WAITING and (self._s64(i, vp.S_DEADLINE) <= vnow
+                                               or (mask and self._s64(i, vp.S_PORTS) & mask)):
                 n += self._wake(i)
         return n
 

@@ -286,9 +286,18 @@ class VirtualLoop:
             medium.vt_poll(now)  # timed work of host ports (a socketcand client's cyclic job)
             medium.vt_flush()
 
-    def _input(self, now: float, timeout: float | None) -> bool:
+    def _commit(self, now: float) -> None:
+        """E: put what the host ports had on the media, at ``now``."""
+        for medium in self.media:
+            medium.vt_commit(now)
+
+    def _held(self) -> bool:
+        return any(medium.vt_held() for medium in self.media if hasattr(medium, "vt_held"))
+
+    def _input(self, now: float, timeout: float | None, commit: bool = True) -> bool:
         """D and E: look at the host ports and wake-up pipes (waiting up to ``timeout`` real seconds,
-        None: until something comes), read what they have and commit it at ``now``. True if anything came."""
+        None: until something comes), read what they have and commit it at ``now`` (``commit``; else a
+        serial line deferring its clients' input keeps it for :meth:`_commit`). True if anything came."""
         fds = [self._waker.fd]
         for medium in self.media:
             fds += medium.vt_fds()
@@ -309,8 +318,8 @@ class VirtualLoop:
             except Exception:  # (a host port closed under the loop: count it, keep the bench's time going)
                 self.stats.callback_errors += 1
                 log.exception("reading the host ports of %s failed", medium.name)
-        for medium in self.media:
-            medium.vt_commit(now)
+        if commit:
+            self._commit(now)
         return got
 
     def _round(self) -> None:
@@ -366,12 +375,18 @@ class VirtualLoop:
         was woken to look again). ``nxt``: the bench's next event."""
         while not self._stop.is_set():
             real = time.monotonic()  # wall-clock: the stall watchdog and /proc looks run in real time
-            v = ls.look(real)
-            if self._input(now, 0):
+            # (input first: what a client wrote before it began to wait is read before the look that may find
+            # every client waiting, and a write after the look keeps its writer running or its bytes in flight)
+            if self._input(now, 0, commit=False):
+                self._commit(now)
                 return None  # what clients wrote is committed at now: its zero-delay work runs first
+            v = ls.look(real)
             if v.recheck:
                 ls.wake(v.recheck)
                 continue
+            if v.quiet and self._held():
+                self._commit(now)  # every client waits: what they wrote at now goes on the line, one burst a port
+                return None
             if v.quiet:
                 ls.end_stall()
                 if not ls.active():
@@ -384,12 +399,14 @@ class VirtualLoop:
                 self._wait_news(ls, IDLE_LOOK)
                 return None
             if self._paused:
+                self._commit(now)
                 return None
             target = ls.stall_target(v, real)
             if target is not None:  # a stall: time follows the wall clock, events and deadlines as it reaches them
                 due = [t for t in (nxt, None if v.next_ns is None else v.next_ns / 1e9) if t is not None]
                 t = min([target / 1e9, *due])
                 if t > now:
+                    self._commit(now)
                     return t
             self._wait_news(ls, ls.wait_hint(v, real))
         return None

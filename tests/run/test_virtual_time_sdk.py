@@ -107,7 +107,7 @@ def check_run(out: dict, stats: dict, model: float, seconds: float) -> None:
     rate = (len(done) - 1) / ((done[-1] - done[0]) / 1e9)
     assert rate * model == pytest.approx(1.0, abs=0.005), f"{rate:.2f} cycles/s, model {1 / model:.2f}"
     # every cycle takes the model's time (to the ns the clock page's integer time rounds a float to)
-    steps = {round((b - a) / 1e3) for a, b in zip(done, done[1:])}
+    steps = {round((b - a) / 1e3) for a, b in zip(done, done[1:], strict=False)}
     assert steps == {round(model * 1e6)}, steps
 
 
