@@ -338,12 +338,15 @@ class VirtualLoop:
         self._bench_phase(now)
         if ls is not None:
             ls.wake_due(ls.settle())  # B and C: clients see what the bench did at now before they act at now
-        self._input(now, 0)
+        # (with lockstep clients what they write is sent once they all wait, in _lockstep: a client woken
+        # in C may be between two writes of one instant now)
+        self._input(now, 0, commit=ls is None or not ls.active())
         nxt = self._next_time(now)
         if nxt is not None and nxt <= now:
             stats.delta_rounds += 1
             return  # zero-delay work: another round at the same instant
         if ls is not None and not ls.active():
+            self._commit(now)  # (what the last client wrote before it left)
             ls.end_stall()  # (the last client left while time followed the wall clock)
         elif ls is not None:
             t = self._lockstep(ls, now, nxt)

@@ -2,16 +2,21 @@
 (issue 26's test (a), PLAN26 §9.1 (a)): cycles per virtual second equal the wire model (the cycle's bytes at
 the bus's rate plus the servos' modelled response times) within 0.5 %, no failed read, no lockstep stall, and
 the same count, and the same virtual instant for every cycle, in every run, also beside a CPU-bound
-neighbour process (not under ``hilbench run``: it shares the machine, not the clock).
+neighbour process (not under ``hilbench run``: it shares the machine, not the clock). Two runs' captures
+(the bench's tap) are the same byte for byte but for the header's real date (test (h)).
 """
 
 from __future__ import annotations
 
 import contextlib
+import io
 import json
 import os
+import socket
 import subprocess
 import sys
+import threading
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -19,7 +24,10 @@ import pytest
 
 from hilbench.bench import Bench
 from hilbench.bench.line_server import serve_lines
+from hilbench.protocols import capture
+from hilbench.pytest_plugin import wait_until
 from hilbench.run.build import ShimBuildError, shim_library
+from hilbench.transports.capture_file import CaptureReader
 
 sdk = pytest.importorskip("dynamixel_sdk")
 
@@ -134,3 +142,43 @@ def test_the_sdk_cycle_is_the_same_in_every_run_with_or_without_a_neighbour(tmp_
     assert len({r["cycles"] for r in runs}) == 1, [r["cycles"] for r in runs]
     assert all(r["done"] == runs[0]["done"] for r in runs)
     assert runs[0]["cycles"] * model == pytest.approx(seconds, abs=2 * model)
+
+
+def tap_capture(tmp_path: Path, seconds: float) -> bytes:
+    """The bench's own capture of one SDK run (its tap's stream, header and records, until the bench stops)."""
+    with Bench("wolfgang", virtual_time=True, tap=True) as bench:
+        serve_lines(bench)
+        manifest = tmp_path / f"bench{len(list(tmp_path.glob('bench*.json')))}.json"
+        bench.write_manifest(manifest)
+        script = tmp_path / "sdk_client.py"
+        script.write_text(SDK_CLIENT)
+        tap = bench.endpoint("dxl").tap
+        sock = socket.create_connection((tap.host, tap.port))
+        stream = bytearray()
+        reader = threading.Thread(target=lambda: stream.extend(b"".join(iter(lambda: sock.recv(65536), b""))))
+        reader.start()
+        wait_until(lambda: tap.status()["clients"] == 1, timeout=20)
+        env = {k: v for k, v in os.environ.items() if k not in ("HILBENCH_CLOCK", "PYTHONHASHSEED")}
+        proc = subprocess.run([*HILBENCH, "run", "--manifest", str(manifest), "--", sys.executable, str(script),
+                               bench.endpoint("dxl").port.client_path, str(seconds), str(TOOLS)],
+                              capture_output=True, text=True, timeout=120, env=env)
+        assert proc.returncode == 0, proc.stderr
+    reader.join(timeout=20)  # (the tap closes with the bench: the stream ends)
+    sock.close()
+    assert not reader.is_alive()
+    return bytes(stream)
+
+
+def test_two_sdk_runs_make_the_same_capture_but_for_the_header_date(tmp_path):
+    """Issue 26's test (h): records in virtual time, byte for byte the same in two runs; the header's t0_wall
+    (the real date the bench started) is the one field that differs."""
+    started = time.time()
+    first, again = tap_capture(tmp_path, 0.05), tap_capture(tmp_path, 0.05)
+    size = 12 + capture.header_body_size(first[:12])
+    heads = [capture.parse_header(c) for c in (first, again)]
+    assert all(h.t0_monotonic == 1000.0 and started - 1 <= h.t0_wall <= time.time() for h in heads)
+    assert heads[0]._replace(t0_wall=0) == heads[1]._replace(t0_wall=0)
+    assert first[size:] == again[size:] and len(first) - size > 10_000  # (20 cycles and more)
+    chunks = list(CaptureReader(io.BytesIO(first)))
+    assert {c.source for c in chunks} == {"dxl", "dxl-devices"}
+    assert all(round(c.t * 1e9) % 5000 == 0 for c in chunks)  # virtual: each ends on a byte time (5 us)
