@@ -339,10 +339,8 @@ class SerialMedium(LoopMedium):
     def _take(self, endpoint, listen_only: bool, now: float, bounded: bool = False) -> tuple[int, float]:
         """Read what a host port has and put it on the line; returns (bytes, delivery time). ``bounded``: read
         only while its bytes ahead of the wire are under half of :data:`HOST_FIFO`, and at most the rest of
-        it; else hold the port back (unwatched) until they are. With clients in lockstep (:attr:`vt_defer`)
-        what is read waits for :meth:`vt_commit`."""
-        if self.vt_defer:
-            return self._vt_take(endpoint, listen_only, now, bounded)
+        it; else hold the port back (unwatched) until they are. With clients in lockstep (:meth:`vt_defer_input`)
+        :meth:`_vt_take` replaces it."""
         if not bounded:
             data = endpoint.read()
             if data and not listen_only:
@@ -557,14 +555,19 @@ class SerialMedium(LoopMedium):
                             for ep, listen_only in hosts if id(ep) not in self._held for fd in ep.filenos()}
         return [*self._vt_fds, self._waker.fd]
 
-    #: Clients run in lockstep with the loop: what they write is read as it comes and sent when they all
-    #: wait (:meth:`vt_commit`), one transmission per port per instant. Read and sent at once, a client's
-    #: writes at one instant made one transmission or two depending on whether the loop read between them
-    #: (the official SDK writes its Sync Write and the next Sync Read back to back), so the devices' and
-    #: the taps' records differed from run to run.
     vt_defer = False
 
-    def _vt_take(self, endpoint, listen_only: bool, now: float, bounded: bool) -> tuple[int, float]:
+    def vt_defer_input(self) -> None:
+        """Clients run in lockstep with the loop: what they write is read as it comes and sent when they all
+        wait (:meth:`vt_commit`), one transmission per port per instant. Read and sent at once, a client's
+        writes at one instant made one transmission or two depending on whether the loop read between them
+        (the official SDK writes its Sync Write and the next Sync Read back to back), so the devices' and
+        the taps' records differed from run to run. (An instance attribute replaces :meth:`_take`: the
+        wall-clock line's hot path has no branch for it.)"""
+        self.vt_defer = True
+        self._take = self._vt_take  # type: ignore[method-assign]
+
+    def _vt_take(self, endpoint, listen_only: bool, now: float, bounded: bool = False) -> tuple[int, float]:
         held = self._vt_in.get(id(endpoint))
         if bounded and held is not None and len(held[1]) >= HOST_FIFO:
             return 0, now  # (its writer blocks in the kernel until the clients wait and this is sent)
