@@ -144,8 +144,9 @@ def test_the_sdk_cycle_is_the_same_in_every_run_with_or_without_a_neighbour(tmp_
     assert runs[0]["cycles"] * model == pytest.approx(seconds, abs=2 * model)
 
 
-def tap_capture(tmp_path: Path, seconds: float) -> bytes:
-    """The bench's own capture of one SDK run (its tap's stream, header and records, until the bench stops)."""
+def tap_capture(tmp_path: Path, seconds: float) -> tuple[bytes, bytes]:
+    """The bench's own capture of one SDK run (its tap's stream, header and records, until the bench stops),
+    and ``hilbench record``'s file of the same tap."""
     with Bench("wolfgang", virtual_time=True, tap=True) as bench:
         serve_lines(bench)
         manifest = tmp_path / f"bench{len(list(tmp_path.glob('bench*.json')))}.json"
@@ -157,23 +158,28 @@ def tap_capture(tmp_path: Path, seconds: float) -> bytes:
         stream = bytearray()
         reader = threading.Thread(target=lambda: stream.extend(b"".join(iter(lambda: sock.recv(65536), b""))))
         reader.start()
-        wait_until(lambda: tap.status()["clients"] == 1, timeout=20)
+        recording = tmp_path / f"run{len(list(tmp_path.glob('run*.hbcap')))}.hbcap"
+        recorder = subprocess.Popen([*HILBENCH, "record", tap.url, str(recording)], stdout=subprocess.PIPE,
+                                    stderr=subprocess.PIPE, text=True)
+        wait_until(lambda: tap.status()["clients"] == 2, timeout=20)
         env = {k: v for k, v in os.environ.items() if k not in ("HILBENCH_CLOCK", "PYTHONHASHSEED")}
         proc = subprocess.run([*HILBENCH, "run", "--manifest", str(manifest), "--", sys.executable, str(script),
                                bench.endpoint("dxl").port.client_path, str(seconds), str(TOOLS)],
                               capture_output=True, text=True, timeout=120, env=env)
         assert proc.returncode == 0, proc.stderr
-    reader.join(timeout=20)  # (the tap closes with the bench: the stream ends)
+    reader.join(timeout=20)  # (the tap closes with the bench: the stream ends, and so does the recorder)
     sock.close()
     assert not reader.is_alive()
-    return bytes(stream)
+    _, err = recorder.communicate(timeout=20)
+    assert recorder.returncode == 0, err
+    return bytes(stream), recording.read_bytes()
 
 
 def test_two_sdk_runs_make_the_same_capture_but_for_the_header_date(tmp_path):
     """Issue 26's test (h): records in virtual time, byte for byte the same in two runs; the header's t0_wall
     (the real date the bench started) is the one field that differs."""
     started = time.time()
-    first, again = tap_capture(tmp_path, 0.05), tap_capture(tmp_path, 0.05)
+    (first, recorded), (again, recorded_again) = tap_capture(tmp_path, 0.05), tap_capture(tmp_path, 0.05)
     size = 12 + capture.header_body_size(first[:12])
     heads = [capture.parse_header(c) for c in (first, again)]
     assert all(h.t0_monotonic == 1000.0 and started - 1 <= h.t0_wall <= time.time() for h in heads)
@@ -182,3 +188,13 @@ def test_two_sdk_runs_make_the_same_capture_but_for_the_header_date(tmp_path):
     chunks = list(CaptureReader(io.BytesIO(first)))
     assert {c.source for c in chunks} == {"dxl", "dxl-devices"}
     assert all(round(c.t * 1e9) % 5000 == 0 for c in chunks)  # virtual: each ends on a byte time (5 us)
+    # hilbench record's files: the same but for the date too, which is the real one (the tap's clock mapped to
+    # Unix time, not this machine's monotonic clock: a virtual 1000 s is not the machine's uptime)
+    size = 12 + capture.header_body_size(recorded[:12])
+    heads = [capture.parse_header(c) for c in (recorded, recorded_again)]
+    assert heads[0]._replace(t0_wall=0) == heads[1]._replace(t0_wall=0)
+    assert heads[0].description == "bench wolfgang, endpoint dxl"  # (not the tap's address: its port changes)
+    assert all(started - 1 <= h.t0_wall <= time.time() for h in heads)
+    assert recorded[size:] == recorded_again[size:]
+    assert [(round(c.t * 1e9), c.source, bytes(c.data)) for c in CaptureReader(io.BytesIO(recorded))] == [
+        (round(c.t * 1e9), c.source, bytes(c.data)) for c in chunks]
