@@ -133,6 +133,24 @@ def test_due_waiters_are_woken_and_the_others_left(lockstep):
     assert ls.vnow_ns == V0 + S
 
 
+
+def test_a_poller_is_woken_whenever_time_moved_or_a_pty_was_delivered_to(lockstep):
+    """A POLLING thread holds for the instant it polled at: time moving to a bench event before its quantum
+    ends (or a delivery at that instant) wakes it to look, so time cannot pass the event before it did."""
+    ls = lockstep()
+    ls.publish(1000.0)
+    ls.wake_due()  # (the round at 1000.0 began)
+    put(ls, 0, vp.POLLING, V0 + 100_000)
+    put(ls, 1, vp.WAITING, V0 + 100_000)  # (a plain waiter stays: its deadline has not come)
+    assert ls.wake_due() == 0  # the instant it polled at, and no news: it stays POLLING
+    assert state(ls, 0) == vp.POLLING
+    ls.publish(1000.000075)  # a reply's delivery, before the poller's quantum ends
+    assert ls.wake_due() == 1
+    assert [state(ls, 0), state(ls, 1)] == [vp.WOKEN, vp.WAITING] and word(ls, 0) == 1
+    put(ls, 0, vp.POLLING, V0 + 175_000)  # it looked, and polls again at this instant
+    assert ls.wake_due() == 0 and state(ls, 0) == vp.POLLING
+    assert ls.wake_due([0]) == 1 and state(ls, 0) == vp.WOKEN  # a delivery at the same instant
+
 @pytest.fixture
 def pty():
     master, slave = os.openpty()
