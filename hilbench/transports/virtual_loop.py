@@ -296,8 +296,9 @@ class VirtualLoop:
 
     def _input(self, now: float, timeout: float | None, commit: bool = True) -> bool:
         """D and E: look at the host ports and wake-up pipes (waiting up to ``timeout`` real seconds,
-        None: until something comes), read what they have and commit it at ``now`` (``commit``; else a
-        serial line deferring its clients' input keeps it for :meth:`_commit`). True if anything came."""
+        None: until something comes), read what they have and commit it at ``now`` (``commit``, and no
+        lockstep client is there: a serial line deferring its clients' input keeps it for :meth:`_commit`,
+        also when a client joined during the wait). True if anything came."""
         fds = [self._waker.fd]
         for medium in self.media:
             fds += medium.vt_fds()
@@ -318,7 +319,8 @@ class VirtualLoop:
             except Exception:  # (a host port closed under the loop: count it, keep the bench's time going)
                 self.stats.callback_errors += 1
                 log.exception("reading the host ports of %s failed", medium.name)
-        if commit:
+        ls = self.lockstep
+        if commit and (ls is None or not ls.active()):  # (lockstep clients': when they all wait, in _lockstep)
             self._commit(now)
         return got
 
@@ -340,7 +342,7 @@ class VirtualLoop:
             ls.wake_due(ls.settle())  # B and C: clients see what the bench did at now before they act at now
         # (with lockstep clients what they write is sent once they all wait, in _lockstep: a client woken
         # in C may be between two writes of one instant now)
-        self._input(now, 0, commit=ls is None or not ls.active())
+        self._input(now, 0)
         nxt = self._next_time(now)
         if nxt is not None and nxt <= now:
             stats.delta_rounds += 1

@@ -290,3 +290,39 @@ def test_the_loop_runs_the_bench_at_an_instant_before_waking_clients_there(locks
         assert clock.now() == 1007.0 and len(seen) == 2
     finally:
         loop.close()
+
+
+def test_what_clients_write_at_an_instant_is_one_transmission_sent_when_they_all_wait():
+    """Two packets a client writes at one instant, read by the bench one at a time while the client runs,
+    go on the line together once every client waits: how the loop's reads fall between the writes does not
+    change the wire (the official SDK's Sync Write and Sync Read, back to back)."""
+    from hilbench.bench import Bench
+    from hilbench.protocols import dynamixel as dxl
+
+    with Bench("wolfgang", virtual_time=True) as bench:
+        ls = bench.services["clock"]
+        ep = bench.endpoint("dxl")
+        seen: list[tuple[float, str, bytes]] = []
+        ep.medium.add_tap(lambda t, source, data, addr=None: seen.append((t, source, bytes(data))))
+        fd = os.open(ep.port.client_path, os.O_RDWR | os.O_NOCTTY)
+        try:
+            tty.setraw(fd)
+            attrs = termios.tcgetattr(fd)
+            attrs[4] = attrs[5] = termios.B2000000  # (the bus's rate: the servos hear it)
+            termios.tcsetattr(fd, termios.TCSANOW, attrs)
+            put(ls, 0, vp.RUNNING, tid=0)  # a client thread that computes (tid 0: no /proc look)
+            pings = [dxl.instruction_packet(i, dxl.Instruction.PING) for i in (1, 2)]
+            taken = ep.port.bytes_in
+            for ping in pings:
+                os.write(fd, ping)
+                taken += len(ping)
+                wait_until(lambda n=taken: ep.port.bytes_in == n, timeout=5)  # the bench read it
+            assert bench.clock.now() == 1000.0
+            put(ls, 0, vp.WAITING, tid=0)  # it waits: what it wrote goes on the line, then time moves
+            wait_until(lambda: len([s for s in seen if s[1] != "dxl"]) == 2, timeout=5)  # both servos answered
+        finally:
+            put(ls, 0, vp.EXITED)
+            os.close(fd)
+    sent = [(t, data) for t, source, data in seen if source == "dxl"]
+    wire = len(pings[0] + pings[1]) * 10 / ep.spec.baud
+    assert sent == [(pytest.approx(1000.0 + wire, abs=1e-9), pings[0] + pings[1])]
