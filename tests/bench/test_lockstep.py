@@ -197,6 +197,30 @@ def test_a_delivery_is_settled_and_wakes_its_waiter(lockstep, pty):
         os.close(reader)
 
 
+def test_time_waits_until_delivered_bytes_show_on_the_clients_side(lockstep, pty):
+    """Quiescence needs every byte the bench delivered visible on the client's side (the kernel's hand-over
+    took up to 31 ms on a loaded machine, far past B's settle): a waiter would see them late otherwise. A
+    reader that takes them unseen (stdio, a program outside the lockstep) holds time for UNSEEN_LIMIT at most,
+    counted."""
+    from hilbench.bench import lockstep as lockstep_module
+
+    master, port = pty
+    ls = lockstep([("lidar", port)])
+    put(ls, 0, vp.WAITING, flags=vp.SF_FDWAIT, ports=1)
+    port.bytes_out += 300  # delivered, and still in the kernel's hands
+    assert ls.settle() == [0]  # (B gives up after SETTLE_LIMIT)
+    v = ls.look(real=10.0)
+    assert not v.quiet and v.flight == ["lidar"] and ls.stats()["settle_timeouts"] == 0
+    os.write(master, b"x" * 300)
+    wait_until(lambda: ls.look(real=10.01).quiet, timeout=5)  # they show: time may move
+    os.read(port.slave_fd, 300)  # taken by a reader the shim does not count
+    port.bytes_out += os.write(master, b"y" * 10)
+    ls.settle()
+    assert not ls.look(real=20.0).quiet
+    assert not ls.look(real=20.0 + lockstep_module.UNSEEN_LIMIT / 2).quiet
+    assert ls.look(real=20.0 + lockstep_module.UNSEEN_LIMIT * 1.5).quiet  # given up on, and counted
+    assert ls.stats()["settle_timeouts"] == 1
+
 def test_the_stall_watchdog(lockstep, capfd):
     ls = lockstep(stall=0.5, startup_grace=10.0)
     put(ls, 0, vp.RUNNING)  # this thread: /proc shows it running
