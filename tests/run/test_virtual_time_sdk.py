@@ -167,6 +167,9 @@ def tap_capture(tmp_path: Path, seconds: float) -> tuple[bytes, bytes]:
                                bench.endpoint("dxl").port.client_path, str(seconds), str(TOOLS)],
                               capture_output=True, text=True, timeout=120, env=env)
         assert proc.returncode == 0, proc.stderr
+        stats = bench.services["clock"].stats()
+    # (a run with a stall, or with delivered bytes given up on, is not deterministic: say so if it differs)
+    assert stats["stalls"] == 0 and stats["settle_timeouts"] == 0, stats
     reader.join(timeout=20)  # (the tap closes with the bench: the stream ends, and so does the recorder)
     sock.close()
     assert not reader.is_alive()
