@@ -31,10 +31,10 @@ changed before the bench starts and checked as the file is, as ``hilbench emulat
 copy of the profile.
 
 Benches started by these fixtures (emulators too) serve modem lines, BREAK and
-flushes: their line server runs, and pyserial in the test's own process talks
-to it for their ptys (``ser.dtr = False`` reaches the devices' ``on_line``, ``ser.cts`` reads
+flushes: their port-state server runs, and pyserial in the test's own process talks
+to it for their ptys (``ser.dtr = False`` reaches the devices' ``on_port_event``, ``ser.cts`` reads
 what they drive, ``reset_output_buffer()`` delivers instead of discarding), as
-it would under ``hilbench run``. ``hilbench_bench(profile, lines=False)`` opts out.
+it would under ``hilbench run``. ``hilbench_bench(profile, port_state=False)`` opts out.
 
 Remote benches: ``pytest --lg-env ENV.yaml --hilbench-labgrid`` takes ``bench``
 from the labgrid target of that environment (a ``RemotePlace`` acquired
@@ -59,8 +59,8 @@ from typing import Any
 import pytest
 
 from hilbench.bench import Bench
-from hilbench.bench.line_server import serve_lines
 from hilbench.bench.manifest import read_manifest
+from hilbench.bench.port_state_server import serve_port_state
 from hilbench.bench.profile import DEFAULT_PROFILE, load_profile
 from hilbench.run import pyserial_shim
 
@@ -113,22 +113,22 @@ def _check_labgrid(config: pytest.Config) -> None:
                                 "--lg-env), which is not loaded here (-p no:labgrid?)")
 
 
-def serve_lines_in_process(bench: Bench) -> list[int]:
-    """Start ``bench``'s line server and let pyserial in this process use it for the bench's ptys.
+def serve_port_state_in_process(bench: Bench) -> list[int]:
+    """Start ``bench``'s port-state server and let pyserial in this process use it for the bench's ptys.
 
     Returns the ptys' device numbers, for :func:`stop_lines_in_process`.
     """
-    server = serve_lines(bench)
+    server = serve_port_state(bench)
     if server is None:
         return []
     for rdev in server.rdevs:
-        pyserial_shim.register(rdev, server.handle, server.board.path)
+        pyserial_shim.register(rdev, server.handle, server.ledger.path)
     pyserial_shim.install()
     return server.rdevs
 
 
 def stop_lines_in_process(rdevs: list[int]) -> None:
-    """Undo :func:`serve_lines_in_process` (pyserial is unpatched once no bench is left)."""
+    """Undo :func:`serve_port_state_in_process` (pyserial is unpatched once no bench is left)."""
     for rdev in rdevs:
         pyserial_shim.unregister(rdev)
     if not pyserial_shim.PORTS:
@@ -137,17 +137,17 @@ def stop_lines_in_process(rdevs: list[int]) -> None:
 
 @pytest.fixture
 def hilbench_bench() -> Iterator[Callable[..., Bench]]:
-    """Factory: ``hilbench_bench(profile, paced=None, link_dir=None, lines=True, set=None)`` starts a bench,
-    stopped after the test; ``lines`` serves its modem lines, BREAK and flushes (see the module's docstring);
+    """Factory: ``hilbench_bench(profile, paced=None, link_dir=None, port_state=True, set=None)`` starts a bench,
+    stopped after the test; ``port_state`` serves its modem lines, BREAK and flushes (see the module's docstring);
     ``set`` changes profile keys first (``{"dxl.baud": 1_000_000}``, as ``hilbench emulate --set``)."""
     benches: list[tuple[Bench, list[int]]] = []
 
-    def start(profile: str | Path = DEFAULT_PROFILE, *, lines: bool = True, set: dict[str, Any] | None = None,
+    def start(profile: str | Path = DEFAULT_PROFILE, *, port_state: bool = True, set: dict[str, Any] | None = None,
               **kwargs: Any) -> Bench:
         if set:
             profile = load_profile(profile, set)
         b = Bench(profile, **kwargs).start()
-        benches.append((b, serve_lines_in_process(b) if lines else []))
+        benches.append((b, serve_port_state_in_process(b) if port_state else []))
         return b
 
     yield start
@@ -224,7 +224,7 @@ def hilbench_emulator() -> Iterator[Callable[..., dict[str, Any]]]:
         data = read_manifest(manifest)
         data["process"] = proc
         data["manifest_path"] = str(manifest)
-        lines = data.get("lines") or {}
+        lines = data.get("port_state") or {}
         for port in (lines.get("ports") or {}).values():  # pyserial in this process: as under hilbench run
             pyserial_shim.register(int(port["rdev"]), lines["socket"])
             registered.append(int(port["rdev"]))
@@ -272,9 +272,9 @@ class RunHelper:
         self._written: dict[int, Path] = {}
 
     def manifest(self, bench: Bench | dict[str, Any] | str | os.PathLike[str]) -> str:
-        """The manifest file of ``bench`` (written for an in-process bench, its line server started)."""
+        """The manifest file of ``bench`` (written for an in-process bench, its port-state server started)."""
         if isinstance(bench, Bench):
-            serve_lines(bench)
+            serve_port_state(bench)
             path = self._written.get(id(bench)) or self._dir / f"manifest-{len(self._written)}.json"
             bench.write_manifest(path)
             self._written[id(bench)] = path

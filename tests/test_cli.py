@@ -199,7 +199,7 @@ def test_profiles_lists_the_bundled_ones():
     assert "wolfgang (default)" in proc.stdout and "arm:" in proc.stdout
 
 
-@pytest.mark.parametrize("args", [[], ["dxl", "read"], ["profile", "x", "--period", "foo=bar"],
+@pytest.mark.parametrize("args", [[], ["dxl", "read"], ["trace", "x", "--period", "foo=bar"],
                                   ["send-vel", "P", "a", "b", "c"], ["monitor", "x", "--view", "nope"]])
 def test_usage_errors_are_one_line(args):
     proc = hb(*args)

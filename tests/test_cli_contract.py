@@ -24,7 +24,7 @@ import pytest
 
 from hilbench import registry
 from hilbench.cli import build_parser, main
-from hilbench.cli import profile as profile_cli
+from hilbench.cli import trace as trace_cli
 from tests.helpers.domains import free_domain
 
 HB = [sys.executable, "-m", "hilbench.cli"]
@@ -66,7 +66,7 @@ NOT_A_RANGE = {
     ("tap", "view"): "a view name",
 }
 #: profile's times with units (``1.5ms``, ``100Hz``): finite and not negative (profile.time_us).
-TIME_PARSERS = {profile_cli.time_us, profile_cli.window_arg, profile_cli.name_value, profile_cli.hist_kinds}
+TIME_PARSERS = {trace_cli.time_us, trace_cli.window_arg, trace_cli.name_value, trace_cli.hist_kinds}
 
 
 def test_every_numeric_option_is_a_rule_and_its_help_shows_the_range(monkeypatch):
@@ -83,7 +83,7 @@ def test_every_numeric_option_is_a_rule_and_its_help_shows_the_range(monkeypatch
             if hasattr(kind, "expected"):
                 seen += 1
                 assert f"[{kind.expected}]" in text, f"{' '.join(where)}: --help does not show its range"
-            elif getattr(kind, "__name__", "") == "<lambda>" and path == ("profile",):
+            elif getattr(kind, "__name__", "") == "<lambda>" and path == ("trace",):
                 continue  # --period NAME=T (name_value with rates)
             else:
                 assert where in NOT_A_RANGE or kind in TIME_PARSERS, f"{' '.join(where)}: {kind!r} is no Rule"
@@ -232,9 +232,9 @@ def cases(w: dict) -> dict[str, dict[str, list[str] | NA]]:
         "world": {"missing": ["world", m, "--json"], "refused": ["world", "--control", f"127.0.0.1:{r}", "--json"],
                   "taken": NA("listens nowhere"), "timeout": ["world", "--control", f"127.0.0.1:{s}", "--json"],
                   "bad": ["world", m, "--duration", "-1"]},
-        "profile": {"missing": ["profile", m], "refused": ["profile", tcp],
-                    "taken": ["profile", "bench:mecarover-udp", "--set", f"rover.port={w['udp']}"],
-                    "timeout": ["profile", f"tcp://127.0.0.1:{s}"], "bad": ["profile", "x", "--bins", "0"]},
+        "trace": {"missing": ["trace", m], "refused": ["trace", tcp],
+                    "taken": ["trace", "bench:mecarover-udp", "--set", f"rover.port={w['udp']}"],
+                    "timeout": ["trace", f"tcp://127.0.0.1:{s}"], "bad": ["trace", "x", "--bins", "0"]},
         "demo": {"missing": NA("starts its own bench"), "refused": NA("starts its own bench"),
                  "taken": NA("Dynamixel buses are ptys"), "timeout": NA("starts its own bench"),
                  "bad": ["demo", "--seconds", "-1"]},
@@ -389,7 +389,7 @@ def test_every_json_option_prints_one_json_document(tmp_path, hilbench_emulator)
         ("lidar",): ["lidar", f"{mfile}#lidar", "--scans", "2", "--json"],
         ("board",): ["board", "--manifest", mfile, "--json", "status"],
         ("world",): ["world", mfile, "--json"],
-        ("profile",): ["profile", f"{mfile}#rover", "--duration", "1", "--json"],
+        ("trace",): ["trace", f"{mfile}#rover", "--duration", "1", "--json"],
         ("profiles", "from-capture"): ["profiles", "from-capture", str(_small_capture(tmp_path)), "--baud", "1000000",
                                        "--verify", "--speed", "0", "--json"],
     }

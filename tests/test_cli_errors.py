@@ -44,12 +44,12 @@ def one_line(proc: subprocess.CompletedProcess, code: int, *needles: str) -> Non
     (["monitor", "x", "--miss-limit", "-1"], "--miss-limit"),
     (["monitor", "x", "--max-length", "2"], "--max-length: expected an integer 3..65535"),
     (["record", "x", "y", "--seconds", "nan"], "--seconds"),
-    (["profile", "x", "--duration", "-1"], "--duration: expected a number"),
-    (["profile", "x", "--bins", "-3"], "--bins: expected an integer 1..10000, got -3"),
-    (["profile", "x", "--bins", "1000000000"], "--bins"),
-    (["profile", "x", "--tick", "0"], "--tick: expected a number > 0"),
-    (["profile", "x", "--reports", "0"], "--reports"),
-    (["profile", "x", "--reorder", "1e999"], "expected a finite time"),
+    (["trace", "x", "--duration", "-1"], "--duration: expected a number"),
+    (["trace", "x", "--bins", "-3"], "--bins: expected an integer 1..10000, got -3"),
+    (["trace", "x", "--bins", "1000000000"], "--bins"),
+    (["trace", "x", "--tick", "0"], "--tick: expected a number > 0"),
+    (["trace", "x", "--reports", "0"], "--reports"),
+    (["trace", "x", "--reorder", "1e999"], "expected a finite time"),
     (["send-vel", "x", "0", "0", "0", "--count", "-5"], "--count: expected an integer 1.."),
     (["send-vel", "x", "0", "0", "0", "--rate", "-1"], "--rate: expected a number > 0"),
     (["send-vel", "x", "0", "0", "0", "--baud", "0"], "--baud: expected an integer 1200..12500000"),
@@ -111,7 +111,7 @@ def test_sdk_bauds_are_the_sdks_own():
 def test_a_profile_that_is_not_utf8_is_one_line_everywhere(tmp_path):
     bad = tmp_path / "bad.toml"
     bad.write_bytes(b'schema = 1\ndescription = "\xff\xfe"\n')
-    for args in (["emulate", str(bad)], ["monitor", f"bench:{bad}", "--summary"], ["profile", f"bench:{bad}"],
+    for args in (["emulate", str(bad)], ["monitor", f"bench:{bad}", "--summary"], ["trace", f"bench:{bad}"],
                  ["demo", "--profile", str(bad), "--seconds", "1"]):
         one_line(hb(*args), 2, f"{bad}: not a UTF-8 text file")
 

@@ -106,11 +106,11 @@ def test_every_verb_with_an_input_and_an_output_refuses_the_same_file(hb, captur
     manifest = tmp_path / "bench.json"
     manifest.write_text("{}")
     files = {p: snapshot(p) for p in (capture, trace, profile, manifest)}
-    refused(hb("profile", trace, "--json-out", trace), f"--json-out {trace} is the input")
-    refused(hb("profile", trace, "--export", trace), "--export")
-    refused(hb("profile", trace, "--gantt", tmp_path / "trace.png", "--compare", tmp_path / "trace.png"),
+    refused(hb("trace", trace, "--json-out", trace), f"--json-out {trace} is the input")
+    refused(hb("trace", trace, "--export", trace), "--export")
+    refused(hb("trace", trace, "--gantt", tmp_path / "trace.png", "--compare", tmp_path / "trace.png"),
             "--gantt")
-    refused(hb("profile", trace, "--json-out", tmp_path / "a.json", "--export", f"{tmp_path}/./a.json"),
+    refused(hb("trace", trace, "--json-out", tmp_path / "a.json", "--export", f"{tmp_path}/./a.json"),
             "--json-out and --export name the same file")
     refused(hb("can", "dbc", profile, "-o", profile), f"-o {profile} is the input")
     refused(hb("can", "eds", profile, "-o", profile), "is the input")

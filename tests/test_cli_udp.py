@@ -1,5 +1,5 @@
 """The UDP surfaces as a user runs them: `hilbench emulate` of an agent and of FreeRTPS nodes (manifests),
-`hilbench tap udp LISTEN TARGET`, `hilbench record` of a bench's datagrams with their addresses, to pcapng."""
+`hilbench tap udp LISTEN UPSTREAM`, `hilbench record` of a bench's datagrams with their addresses, to pcapng."""
 
 from __future__ import annotations
 
@@ -98,7 +98,7 @@ def test_tap_of_a_serial_port_refuses_extra_arguments() -> None:
     r = hb("tap", "/dev/ttyUSB0", "surplus")
     assert r.returncode == 2 and "unexpected arguments" in r.stderr and len(r.stderr.strip().splitlines()) == 1
     r = hb("tap", "udp", "8888")
-    assert r.returncode == 2 and "usage: hilbench tap udp LISTEN TARGET" in r.stderr
+    assert r.returncode == 2 and "usage: hilbench tap udp LISTEN UPSTREAM" in r.stderr
 
 
 def test_record_a_freertps_bench_with_addresses_then_pcapng(tmp_path: Path, hilbench_emulator) -> None:

@@ -269,7 +269,7 @@ def test_no_upward_imports():
 
 #: The files each built-in family owns (globs under hilbench/). Everything else is shared: the frame, the
 #: kits families build on (families/scanner.py, families/servo_bus.py, fakes/scanners/{base,uart}.py,
-#: fakes/{scene,control_table_servo,table_servo,motion,servo_line,xrce_client}.py, fakes/canopen/{node,dictionary,
+#: fakes/{scene,control_table_servo,table_servo,motion,servo_bus,xrce_client}.py, fakes/canopen/{node,dictionary,
 #: sdo_server}.py, protocols/{control_table,canopen,canopen_od,cdr}.py, monitor/scanners/{__init__,tracker}.py,
 #: clients/{base,scanners}.py, ...) and the generic instruments (the CAN, UDP and trace instruments) and verbs.
 OWNED: dict[str, tuple[str, ...]] = {
@@ -306,10 +306,10 @@ NAMES_A_FAMILY: dict[str, set[str]] = {
     # P8c: --view choices from the servo bus's instrument
     "cli/demo.py": {"'dynamixel'", "import hilbench.dashboard.dynamixel_views"},
     # P8c: the trace instrument's device_sources and default_baud
-    "cli/profile.py": {"'stm32f767-rover'", "'vel2d'"},
+    "cli/trace.py": {"'stm32f767-rover'", "'vel2d'"},
     # P8c: servo clients from the registry (clients/servo_demo.py, clients/{dynamixel,feetech}.py)
     "clients/dynamixel_demo.py": {"'Wolfgang Foot'", "'dynamixel'", "'feetech'"},
-    "clients/servo_links.py": {"'dynamixel'", "'dynamixel1'", "'feetech'", "import hilbench.clients.dynamixel"},
+    "clients/servo_connections.py": {"'dynamixel'", "'dynamixel1'", "'feetech'", "import hilbench.clients.dynamixel"},
     # family -> family: the Protocol 1.0 bus core and tracker into a servo-bus kit (PLAN24 §1, "should")
     "fakes/feetech/bus.py": {"import hilbench.fakes.dynamixel.bus1"},
     "monitor/feetech/__init__.py": {"import hilbench.monitor.dynamixel1"},

@@ -218,8 +218,8 @@ def test_a_scanner_client_brings_its_protocol_speed_and_options_to_lidar():
         master, slave = os.openpty()
         try:
             args = parser.parse_args(["lidar", os.ttyname(slave), "--protocol", "acme", "--acme-range", "8"])
-            drv = lidar._driver(lidar.Target(os.ttyname(slave), None), args)
-            drv.link.close()
+            drv = lidar._driver(lidar.ScannerAddress(os.ttyname(slave), None), args)
+            drv.connection.close()
         finally:
             os.close(slave)
             os.close(master)
@@ -234,12 +234,12 @@ def test_a_scanner_on_a_body_is_drawn_where_the_body_took_it():
     in the world (the truth's), not from the mount pose as if the rover had never moved."""
     from hilbench.cli.lidar import resolve
 
-    target = resolve("bench:mecarover#lidar")
+    address = resolve("bench:mecarover#lidar")
     try:
-        assert target.pose["x"] == pytest.approx(0.1)  # the mount on the body
-        target.bench.world.place("rover", 1.0, 0.5, math.pi / 2)
-        pose = target.world_pose()
+        assert address.pose["x"] == pytest.approx(0.1)  # the mount on the body
+        address.bench.world.place("rover", 1.0, 0.5, math.pi / 2)
+        pose = address.world_pose()
         assert pose["x"] == pytest.approx(1.0, abs=1e-6) and pose["y"] == pytest.approx(0.6, abs=1e-6)
-        assert pose["heading"] == pytest.approx(90.0 + target.pose["heading"], abs=1e-6)
+        assert pose["heading"] == pytest.approx(90.0 + address.pose["heading"], abs=1e-6)
     finally:
-        target.bench.stop()
+        address.bench.stop()

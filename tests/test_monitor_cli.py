@@ -191,7 +191,7 @@ def test_monitor_refuses_a_line_that_is_not_dynamixel(hilbench_emulator, tmp_pat
 
     mine = "/".join(i.protocol for i in registry.instruments.values() if i.verb == "monitor")
     assert proc.stderr.strip() == (f"hilbench: error: {mfile}#rover carries vel2d, not {mine} "
-                                   "(a board's trace output: use `hilbench profile`)")
+                                   "(a board's trace output: use `hilbench trace`)")
 
 
 @pytest.mark.parametrize("size", [300, 100_000])
@@ -216,4 +216,4 @@ def test_a_trace_is_still_told_from_its_bytes(tmp_path):
     path.write_bytes(lines(TRACE_64))
     proc = hb("monitor", str(path), "--summary")
     assert proc.returncode == 2
-    assert "carries vel2d" in proc.stderr and "use `hilbench profile`" in proc.stderr
+    assert "carries vel2d" in proc.stderr and "use `hilbench trace`" in proc.stderr

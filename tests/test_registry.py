@@ -38,8 +38,8 @@ def test_builtins_are_registered_through_entry_points_like_any_package():
     assert "serial" in registry.media
     assert {"file", "stdin", "serial", "fifo", "tcp", "udp", "manifest"} <= set(registry.sources)
     assert registry.instrument_for("dynamixel").verb == "monitor"
-    assert registry.instrument_for("vel2d").verb == "profile"
-    assert {"emulate", "monitor", "profile", "plugins"} <= set(registry.verbs)
+    assert registry.instrument_for("vel2d").verb == "trace"
+    assert {"emulate", "monitor", "trace", "plugins"} <= set(registry.verbs)
 
 
 @pytest.mark.parametrize("path", CORE)

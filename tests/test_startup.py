@@ -112,7 +112,7 @@ def test_emulate_arm_loads_no_other_family_s_fakes(tmp_path):
     assert "hilbench.fakes.dynamixel.servo" in modules  # the arm's servos are running
     others = {m for m in under(modules, "hilbench.fakes") if not m.startswith("hilbench.fakes.dynamixel")}
     kits = {"hilbench.fakes", "hilbench.fakes.control_table_servo", "hilbench.fakes.table_servo",
-            "hilbench.fakes.servo_line", "hilbench.fakes.motion",  # what the servo families build on
+            "hilbench.fakes.servo_bus", "hilbench.fakes.motion",  # what the servo families build on
             # every bench's world and its geometry
             "hilbench.fakes.world", "hilbench.fakes.scene"}
     assert not others - kits, f"other families' fakes: {sorted(others - kits)}"

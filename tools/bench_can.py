@@ -35,7 +35,7 @@ from benchlib import REPO
 from hilbench.protocols import can_frame as cf
 from hilbench.protocols.can_frame import data_frame
 from hilbench.transports.can_medium import CanMedium
-from hilbench.transports.can_port import CanHostPort
+from hilbench.transports.can_port import CanPort
 
 CLIENT = r"""
 import json, logging, sys, time, can
@@ -119,7 +119,7 @@ def flood(medium: CanMedium, port, n: int, batch: int = 500, backlog: int | None
 
 
 def bench_socketcand(n: int) -> None:
-    port = CanHostPort.open("can", CanHostPort.check_options({"slcan": False, "socketcand": {"rawmode_delay_ms": 0}}))
+    port = CanPort.open("can", CanPort.check_options({"slcan": False, "socketcand": {"rawmode_delay_ms": 0}}))
     medium = CanMedium("can", 1_000_000, paced=False)
     dport = medium.add_device(Source())
     medium.add_host(port)

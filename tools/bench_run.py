@@ -5,7 +5,7 @@ A pyserial client in its own process, under ``hilbench run`` (the preload shim, 
 fallback), against an unpaced ``arm`` bench in this process, times each call (median of
 ``--samples``; p90 alongside):
 
-- ``run_tiocmget_<shim>``: ``ser.cts`` (TIOCMGET, answered by the line server);
+- ``run_tiocmget_<shim>``: ``ser.cts`` (TIOCMGET, answered by the port-state server);
 - ``run_set_dtr_<shim>``: ``ser.dtr = ...`` (TIOCMBIS/TIOCMBIC, taken in the line's thread);
 - ``run_flush_<shim>``: ``ser.write(16 bytes); ser.reset_output_buffer()`` (the flush takes them);
 - ``run_drain_<shim>``: ``ser.write(16 bytes); ser.flush()`` (tcdrain: returns once delivered);
@@ -41,7 +41,7 @@ from pathlib import Path
 import benchlib
 
 from hilbench.bench import Bench
-from hilbench.bench.line_server import serve_lines
+from hilbench.bench.port_state_server import serve_port_state
 
 USB_FRAME = 0.001
 
@@ -115,7 +115,7 @@ def main() -> None:
     if os.path.isdir(os.path.join(SDK3, "dynamixel_sdk")):
         sdk_env["PYTHONPATH"] = os.pathsep.join(p for p in (SDK3, os.environ.get("PYTHONPATH")) if p)
     with Bench("arm", paced=False) as bench, tempfile.TemporaryDirectory() as tmp:
-        serve_lines(bench)
+        serve_port_state(bench)
         manifest = str(Path(tmp) / "arm.json")
         bench.write_manifest(manifest)
         path = bench.endpoint().path

@@ -89,7 +89,7 @@ def cases(capture: Path) -> list[Case]:
         Case("emulate_arm", ("emulate", "arm"),
              ("numpy", "rich", "construct", "serial", "hilbench.bench*", "hilbench.families", "hilbench.fakes",
               "hilbench.families.dynamixel", "hilbench.families.servo_bus", "hilbench.fakes.dynamixel*",
-              "hilbench.fakes.control_table_servo", "hilbench.fakes.table_servo", "hilbench.fakes.servo_line"),
+              "hilbench.fakes.control_table_servo", "hilbench.fakes.table_servo", "hilbench.fakes.servo_bus"),
              first_line=True),
     ]
 

@@ -265,7 +265,7 @@ class Bench:
                 medium.vt_defer_input()
 
     def _holding(self) -> bool:
-        """Whether a service has a lockstep client's request in hand (the line server's modem-line requests)."""
+        """Whether a service has a lockstep client's request in hand (the port-state server's modem-port-state requests)."""
         return any(service.holding() for service in list(self.services.values()) if hasattr(service, "holding"))
 
     def _medium(self, bus_kind: BusKind, spec: EndpointSpec, paced: bool) -> Any:

@@ -139,7 +139,7 @@ class _Slot:
 @dataclass
 class _Pty:
     name: str
-    port: Any  # a PtyEndpoint: bytes_in, bytes_out, slave_fd, rdev
+    port: Any  # a PtyPort: bytes_in, bytes_out, slave_fd, rdev
     base_in: int
     base_out: int
     delivered: int = 0
@@ -152,7 +152,7 @@ class Lockstep:
     ``ptys``: (endpoint name, pty host port) of each bench pty; the port's ``bytes_out``/``bytes_in`` are
     the bench's side of the page's port counters. ``stall``: wall seconds before a lockstep stall (None:
     never). ``epoch_ns``: virtual Unix time at ``origin_ns``. ``holding()``: whether the bench has a
-    client's request in hand outside the loop (the line server's), which keeps time still.
+    client's request in hand outside the loop (the port-state server's), which keeps time still.
     """
 
     def __init__(self, ptys: Iterable[tuple[str, Any]] = (), *, vnow_ns: int = vp.ORIGIN_NS,
@@ -445,7 +445,7 @@ class Lockstep:
                 v.flight.append(p.name)
         if v.quiet and self._holding is not None and self._holding():
             v.quiet = False
-            v.held = True  # (bounded by the line server's own timeouts: not a stall)
+            v.held = True  # (bounded by the port-state server's own timeouts: not a stall)
         v.next_ns = None if nxt == vp.NO_DEADLINE else nxt
         if v.quiet or not (v.blockers or v.flight):
             self._blocked_since = None

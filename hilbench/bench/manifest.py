@@ -13,7 +13,7 @@ Data safety comes first, because ``--manifest`` names a path the user typed:
 - :func:`remove_manifest` removes only the manifest this bench wrote, and only
   while it is still that one (same file, same token).
 - :func:`read_manifest` is the one reader every client uses (the ``manifest``
-  source of ``monitor``/``profile``/``record``, :meth:`ControlClient.from_manifest
+  source of ``monitor``/``trace``/``record``, :meth:`ControlClient.from_manifest
   <hilbench.bench.control.ControlClient.from_manifest>`, the ``can``, ``lidar``,
   ``labgrid`` and ``run`` verbs, the pytest plug-in, the benchmarks): a file
   that is not a manifest gives one line (exit status 2), a manifest whose bench

@@ -5,14 +5,14 @@ Subcommands::
     hilbench can dbc PROFILE [-o FILE]                 the DBC of the profile's CANopen boards
     hilbench can eds PROFILE [--device NAME] [-o FILE] a board's EDS
     hilbench can dump SOURCE [--dbc F] [--eds F:N]     frames as candump -L lines (decoded with --dbc/--eds)
-    hilbench can send TARGET ID#DATA ...               send frames (cansend syntax; ID#R for remote)
-    hilbench can nmt TARGET start|stop|preop|reset|reset-comm [--node N]
-    hilbench can sdo TARGET --node N read INDEX[:SUB] [--type T]
-    hilbench can sdo TARGET --node N write INDEX[:SUB] VALUE --type T
-    hilbench can drive TARGET [--node N] --vx V [--vy V] [--omega W] [--seconds S]
+    hilbench can send BUS ID#DATA ...               send frames (cansend syntax; ID#R for remote)
+    hilbench can nmt BUS start|stop|preop|reset|reset-comm [--node N]
+    hilbench can sdo BUS --node N read INDEX[:SUB] [--type T]
+    hilbench can sdo BUS --node N write INDEX[:SUB] VALUE --type T
+    hilbench can drive BUS [--node N] --vx V [--vy V] [--omega W] [--seconds S]
     hilbench can status|fault|emcy|bus --manifest FILE ...   a running bench's control channel
 
-TARGET is a bench manifest (``hilbench emulate --manifest``; its socketcand
+BUS is a bench manifest (``hilbench emulate --manifest``; its socketcand
 server is used) or a CAN bus URL (``socketcand://127.0.0.1:PORT/can0``,
 ``slcan:///dev/pts/N``, ``socketcan://vcan0``).
 """
@@ -98,13 +98,13 @@ def manifest_socketcand(path: str) -> str:
     return f"socketcand://{s['host']}:{s['port']}/{s['channel']}"
 
 
-def open_target(target: str):
-    """A python-can bus for TARGET (a manifest or a CAN bus URL); CliError in one line."""
-    from hilbench.transports.sources.can import open_bus
+def open_bus(spec: str):
+    """A python-can bus for BUS (a manifest or a CAN bus URL); CliError in one line."""
+    from hilbench.transports.sources.can import open_bus as open_bus_url
 
-    if target.split("#", 1)[0].endswith(".json"):
-        target = manifest_socketcand(target)
-    bus, _channel, _bitrate = open_bus(target)  # SourceError: one line, 2 or 1 (not there, refused)
+    if spec.split("#", 1)[0].endswith(".json"):
+        spec = manifest_socketcand(spec)
+    bus, _channel, _bitrate = open_bus_url(spec)  # SourceError: one line, 2 or 1 (not there, refused)
     return bus
 
 
@@ -224,14 +224,14 @@ def cmd_send(args: argparse.Namespace) -> int:
     from hilbench.transports.can_messages import to_message
 
     frames = [parse_frame(f) for f in args.frames]
-    bus = open_target(args.target)
+    bus = open_bus(args.bus)
     try:
         for frame in frames:
             bus.send(to_message(frame))
             if args.gap:
                 time.sleep(args.gap)
     except can.CanError as exc:
-        raise DeviceError(f"{args.target}: {exc}") from None
+        raise DeviceError(f"{args.bus}: {exc}") from None
     finally:
         time.sleep(0.05)  # let the last write leave before the connection closes
         bus.shutdown()
@@ -243,7 +243,7 @@ def cmd_nmt(args: argparse.Namespace) -> int:
     from hilbench.protocols.canopen import nmt_command
     from hilbench.transports.can_messages import to_message
 
-    bus = open_target(args.target)
+    bus = open_bus(args.bus)
     try:
         bus.send(to_message(data_frame(0x000, nmt_command(NMT[args.command], args.node))))
         time.sleep(0.05)
@@ -255,7 +255,7 @@ def cmd_nmt(args: argparse.Namespace) -> int:
 def cmd_sdo(args: argparse.Namespace) -> int:
     canopen = require("canopen", "can", "hilbench can sdo")
     index, sub = _index(args.object)
-    bus = open_target(args.target)
+    bus = open_bus(args.bus)
     # The notifier's thread looks at the bus every 50 ms and is waited for at the end: not waited for, it
     # could still be inside the bus's recv when the bus closes, and python-can prints that thread's failure.
     net = canopen.Network(bus)
@@ -348,7 +348,7 @@ def cmd_drive(args: argparse.Namespace) -> int:
     warning = beyond_top_speed(args.vx, args.vy, args.omega)
     if warning:  # sent as given, as a ROS driver would: the board saturates its wheels (the real one and ours)
         print(f"hilbench can drive: warning: {warning}", file=sys.stderr)
-    bus = open_target(args.target)
+    bus = open_bus(args.bus)
     with RoverCanClient(bus, args.node, period=args.period, own_bus=True) as rover:
         if not args.no_start:
             rover.start()
@@ -439,13 +439,13 @@ The CAN side of a bench (the rover board as CANopen node) and small CAN tools:
   hilbench can dbc PROFILE [-o FILE]                  the DBC of the profile's CANopen boards
   hilbench can eds PROFILE [--device NAME] [-o FILE]  a board's EDS
   hilbench can dump SOURCE [--dbc F] [--eds F:N]      frames as candump -L lines, decoded
-  hilbench can send TARGET ID#DATA ...                send frames (cansend syntax, ID#R for remote)
-  hilbench can nmt TARGET start|stop|preop|reset|reset-comm [--node N]
-  hilbench can sdo TARGET read|write INDEX[:SUB] [VALUE] --node N [--type T]
-  hilbench can drive TARGET [--node N] --vx V [--vy V] [--omega W] [--seconds S]
+  hilbench can send BUS ID#DATA ...                send frames (cansend syntax, ID#R for remote)
+  hilbench can nmt BUS start|stop|preop|reset|reset-comm [--node N]
+  hilbench can sdo BUS read|write INDEX[:SUB] [VALUE] --node N [--type T]
+  hilbench can drive BUS [--node N] --vx V [--vy V] [--omega W] [--seconds S]
   hilbench can status|fault|emcy|bus|reset|state --manifest FILE ...   control channel
 
-TARGET is a bench manifest (hilbench emulate --manifest; its socketcand server)
+BUS is a bench manifest (hilbench emulate --manifest; its socketcand server)
 or a CAN bus URL: socketcand://127.0.0.1:PORT/can0, slcan:///dev/pts/N,
 socketcan://vcan0."""
 
@@ -483,21 +483,21 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_set_option(u, "bench:PROFILE: ")
     u.set_defaults(func=cmd_dump)
 
-    target_help = "a bench manifest (its socketcand server) or a CAN bus URL (socketcand://, slcan://, socketcan://)"
+    bus_help = "a bench manifest (its socketcand server) or a CAN bus URL (socketcand://, slcan://, socketcan://)"
     s = cs.add_parser("send", help="send frames (cansend syntax: 123#DEADBEEF, 12345678#01, 123#R)")
-    s.add_argument("target", help=target_help)
+    s.add_argument("bus", metavar="BUS", help=bus_help)
     s.add_argument("frames", nargs="+", metavar="ID#DATA")
     s.add_argument("--gap", type=GAP, default=0.0, help="seconds between frames (default 0)")
     s.set_defaults(func=cmd_send)
 
     n = cs.add_parser("nmt", help="send an NMT command")
-    n.add_argument("target", help=target_help)
+    n.add_argument("bus", metavar="BUS", help=bus_help)
     n.add_argument("command", choices=sorted(NMT))
     n.add_argument("--node", type=NMT_NODE, default=0, help="node id (default 0: all nodes)")
     n.set_defaults(func=cmd_nmt)
 
     o = cs.add_parser("sdo", help="read or write an object over SDO (needs the canopen package)")
-    o.add_argument("target", help=target_help)
+    o.add_argument("bus", metavar="BUS", help=bus_help)
     o.add_argument("action", choices=("read", "write"))
     o.add_argument("object", metavar="INDEX[:SUB]", help="e.g. 1018:1, 0x1017, 2002:1")
     o.add_argument("value", nargs="?", help="the value to write")
@@ -514,7 +514,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                                   "refused; one the rover cannot follow (a wheel beyond 105 rpm: |vx| + |vy| + "
                                   "0.3125 m x |omega| above 0.55 m/s) is sent as given, with a warning: the board "
                                   "saturates its wheels as the real one does.")
-    v.add_argument("target", help=target_help)
+    v.add_argument("bus", metavar="BUS", help=bus_help)
     v.add_argument("--node", type=NODE_ID, default=2, help="node id (default 2)")
     v.add_argument("--vx", type=SETPOINT_VALUE, default=0.0, help="forward velocity in m/s")
     v.add_argument("--vy", type=SETPOINT_VALUE, default=0.0, help="sideways velocity in m/s (left positive)")

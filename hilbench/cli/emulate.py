@@ -17,7 +17,7 @@ from hilbench.transports.host_port import DEFAULT_BIND, bind_address
 def cmd_emulate(args: argparse.Namespace) -> int:
     from hilbench.bench import Bench, load_profile
     from hilbench.bench.control import BENCH_COMMANDS
-    from hilbench.bench.line_server import serve_lines
+    from hilbench.bench.port_state_server import serve_port_state
 
     profile = load_profile(args.profile, args.overrides)
     paced = True if args.paced else (False if args.unpaced else None)
@@ -40,7 +40,7 @@ def cmd_emulate(args: argparse.Namespace) -> int:
     bench.start()
     try:
         bench.serve_control()  # family commands, and what every bench answers (its media's timing, taps, ...)
-        lines = serve_lines(bench)  # modem lines, BREAK and flushes for clients under `hilbench run`
+        lines = serve_port_state(bench)  # modem lines, BREAK and flushes for clients under `hilbench run`
         if manifest:
             claim = bench.write_manifest(manifest)
             if claim.took_over is not None:

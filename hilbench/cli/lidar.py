@@ -52,15 +52,15 @@ def _default_protocols(clients: dict[str, Any]) -> dict[str, str]:
     return found
 
 
-class Target:
-    """What to open: a link target, its protocol, and (for benches) the scene and the scanner's pose.
+class ScannerAddress:
+    """What to open: a device path or HOST:PORT (its location), its protocol, and (for benches) the scene and the scanner's pose.
 
-    ``set_dtr(level)`` drives the port's DTR where pyserial cannot (a bench's pty seen without the line
-    shim): through the bench's line server or its control channel."""
+    ``set_dtr(level)`` drives the port's DTR where pyserial cannot (a bench's pty seen without the port-state
+    shim): through the bench's port-state server or its control channel."""
 
-    def __init__(self, link: str, protocol: str | None, *, scene=None, pose: dict | None = None,
+    def __init__(self, location: str, protocol: str | None, *, scene=None, pose: dict | None = None,
                  set_dtr=None, bench=None, label: str = "", world_pose=None) -> None:
-        self.link = link
+        self.location = location
         self.protocol = protocol
         self.scene = scene
         self.pose = pose
@@ -69,7 +69,7 @@ class Target:
         self.world_pose = world_pose
         self.set_dtr = set_dtr
         self.bench = bench
-        self.label = label or link
+        self.label = label or location
 
 
 def _endpoint_of(manifest: dict, fragment: str, where: str) -> dict:
@@ -94,9 +94,9 @@ def _control_dtr(address: str | None, device: str | None):
     return set_dtr
 
 
-def _carry_lines(manifest: dict) -> None:
-    """pyserial's DTR on the bench's ptys goes to its line server, as under ``hilbench run``."""
-    lines = manifest.get("lines") or {}
+def _carry_port_state(manifest: dict) -> None:
+    """pyserial's DTR on the bench's ptys goes to its port-state server, as under ``hilbench run``."""
+    lines = manifest.get("port_state") or {}
     if not isinstance(lines, dict) or not isinstance(lines.get("socket"), str):
         return  # an older bench: the control channel's dtr command is the way (see _control_motor)
     from hilbench.run import pyserial_shim
@@ -107,8 +107,8 @@ def _carry_lines(manifest: dict) -> None:
     pyserial_shim.install()
 
 
-def resolve(source: str, overrides: list[str] | None = None) -> Target:
-    """A :class:`Target` from the command line's SOURCE (``overrides``: ``--set`` of a ``bench:`` source)."""
+def resolve(source: str, overrides: list[str] | None = None) -> ScannerAddress:
+    """A :class:`ScannerAddress` from the command line's SOURCE (``overrides``: ``--set`` of a ``bench:`` source)."""
     if overrides and not source.startswith("bench:"):
         raise CliError(f"--set changes the profile of a bench this command starts: give bench:PROFILE, not {source}")
     if source.startswith("bench:"):
@@ -126,7 +126,7 @@ def resolve(source: str, overrides: list[str] | None = None) -> Target:
             raise
         dev = next(iter(devices_on(manifest, ep)), {})
         port = bench.endpoint(ep["name"]).port
-        lines = getattr(port, "lines", None)
+        lines = getattr(port, "port_state", None)
         set_dtr = (lambda level: lines.host_sets(dtr=level)) if lines is not None else None
         world_pose = None
         if dev.get("body"):
@@ -134,7 +134,7 @@ def resolve(source: str, overrides: list[str] | None = None) -> Target:
 
             def world_pose():
                 return _heading_pose(bench.world.devices()[name]["pose"])
-        return Target(ep["path"] if ep["type"] != "tcp" else f"{ep['host']}:{ep['port']}", ep["protocol"],
+        return ScannerAddress(ep["path"] if ep["type"] != "tcp" else f"{ep['host']}:{ep['port']}", ep["protocol"],
                       scene=bench.profile.tables.get("scene"), pose=dev.get("pose"), set_dtr=set_dtr, bench=bench,
                       label=f"bench {bench.profile.name}#{ep['name']}", world_pose=world_pose)
     path, _, frag = source.partition("#")
@@ -152,8 +152,8 @@ def resolve(source: str, overrides: list[str] | None = None) -> Target:
 
                 overrides = manifest.get("set") if isinstance(manifest.get("set"), dict) else None
                 scene = load_profile(manifest["profile"], overrides).tables.get("scene")
-        link = f"{ep['host']}:{ep['port']}" if ep.get("type") == "tcp" else ep["path"]
-        _carry_lines(manifest)
+        location = f"{ep['host']}:{ep['port']}" if ep.get("type") == "tcp" else ep["path"]
+        _carry_port_state(manifest)
         world_pose = None
         if dev.get("body") and manifest.get("control"):
             address, name = manifest["control"], dev.get("name")
@@ -162,37 +162,37 @@ def resolve(source: str, overrides: list[str] | None = None) -> Target:
                 from hilbench.bench.control import ControlClient
 
                 return _heading_pose(ControlClient(address).world()["devices"][name]["pose"])
-        return Target(link, ep.get("protocol"), scene=scene, pose=dev.get("pose"),
+        return ScannerAddress(location, ep.get("protocol"), scene=scene, pose=dev.get("pose"),
                       set_dtr=_control_dtr(manifest.get("control"), dev.get("name")), label=f"{path}#{ep['name']}",
                       world_pose=world_pose)
-    return Target(source, None)
+    return ScannerAddress(source, None)
 
 
-def _driver(target: Target, args: argparse.Namespace):
-    from hilbench.clients.scanners import ScannerLink
+def _driver(address: ScannerAddress, args: argparse.Namespace):
+    from hilbench.clients.scanners import ScannerConnection
 
     clients = scanner_clients()
-    protocol = target.protocol
+    protocol = address.protocol
     if args.protocol:
         asked = protocol_names(clients)[args.protocol]
         if protocol and protocol != asked:
-            raise CliError(f"{target.label} speaks {protocol}, not {asked}")
+            raise CliError(f"{address.label} speaks {protocol}, not {asked}")
         protocol = asked
     if protocol is None:
-        kind = ScannerLink.kind_of(target.link)
+        kind = ScannerConnection.kind_of(address.location)
         protocol = _default_protocols(clients).get(kind)
         if protocol is None:
-            raise CliError(f"{target.label}: which scanner is it? give --protocol")
+            raise CliError(f"{address.label}: which scanner is it? give --protocol")
     client = clients.get(protocol)
     if client is None:
-        raise CliError(f"{target.label}: {protocol} is not a scanner protocol")
+        raise CliError(f"{address.label}: {protocol} is not a scanner protocol")
     try:
-        link = ScannerLink.open(target.link, client.default_baud)
+        connection = ScannerConnection.open(address.location, client.default_baud)
     except OSError as exc:  # not there, refused, busy: exit status 1
-        raise UnavailableError(f"{target.link}: {getattr(exc, 'strerror', None) or exc}") from None
+        raise UnavailableError(f"{address.location}: {getattr(exc, 'strerror', None) or exc}") from None
     except ValueError as exc:
-        raise CliError(f"{target.link}: {exc}") from None
-    return client.open(link, args, set_dtr=target.set_dtr)
+        raise CliError(f"{address.location}: {exc}") from None
+    return client.open(connection, args, set_dtr=address.set_dtr)
 
 
 def _stats(tr) -> str:
@@ -208,7 +208,7 @@ def _heading_pose(pose: dict) -> dict:
     return {"x": pose["x"], "y": pose["y"], "heading": math.degrees(pose["theta"])}
 
 
-def save_png(path: str, scan, target: Target) -> None:
+def save_png(path: str, scan, address: ScannerAddress) -> None:
     """One scan as a picture: over the scene in world coordinates when the pose is known, else sensor frame."""
     matplotlib = require("matplotlib", "plot", "--png")
     matplotlib.use("Agg")
@@ -218,20 +218,20 @@ def save_png(path: str, scan, target: Target) -> None:
     ok = scan.ranges > 0
     a, r = scan.angles[ok], scan.ranges[ok]
     fig, ax = plt.subplots(figsize=(7, 6), dpi=100)
-    pose = target.pose
-    if target.world_pose is not None:  # on a body: where the body has taken it (at the end of the scan)
+    pose = address.pose
+    if address.world_pose is not None:  # on a body: where the body has taken it (at the end of the scan)
         try:
-            pose = target.world_pose()
+            pose = address.world_pose()
         except Exception:  # noqa: BLE001 - no world answer: the sensor frame, which is still right
             pose = None
     if pose is not None:
         x0, y0 = pose["x"], pose["y"]
         h = math.radians(pose["heading"])
         xs, ys = x0 + r * np.cos(h + a), y0 + r * np.sin(h + a)
-        if target.scene is not None:
-            for seg in target.scene.segments:
+        if address.scene is not None:
+            for seg in address.scene.segments:
                 ax.plot([seg[0], seg[2]], [seg[1], seg[3]], color="0.3", lw=2)
-            for cx, cy, rad in target.scene.circles:
+            for cx, cy, rad in address.scene.circles:
                 ax.add_patch(plt.Circle((cx, cy), rad, color="0.3", fill=False, lw=2))
         ax.plot([x0], [y0], "r^", ms=10, label="scanner")
         ax.arrow(x0, y0, 0.4 * math.cos(h), 0.4 * math.sin(h), color="r", width=0.01)
@@ -246,7 +246,7 @@ def save_png(path: str, scan, target: Target) -> None:
     ax.set_aspect("equal")
     ax.grid(True, alpha=0.3)
     ax.legend(loc="upper right")
-    ax.set_title(f"{target.label}: one scan")
+    ax.set_title(f"{address.label}: one scan")
     fig.tight_layout()
     from hilbench.cli.outputs import output_file
 
@@ -275,21 +275,21 @@ def cmd_lidar(args: argparse.Namespace) -> int:
     if args.png:
         _picture_format(args.png)
     terminate_on_sigterm()
-    target = resolve(args.source, args.overrides)
+    address = resolve(args.source, args.overrides)
     try:
-        drv = _driver(target, args)
+        drv = _driver(address, args)
         try:
             drv.start()
-            return _run(drv, target, args)
+            return _run(drv, address, args)
         finally:
             drv.stop()
-            drv.link.close()
+            drv.connection.close()
     finally:
-        if target.bench is not None:
-            target.bench.stop()
+        if address.bench is not None:
+            address.bench.stop()
 
 
-def _run(drv, target: Target, args: argparse.Namespace) -> int:
+def _run(drv, address: ScannerAddress, args: argparse.Namespace) -> int:
     from rich.console import Console
     from rich.live import Live
     from rich.text import Text
@@ -309,7 +309,7 @@ def _run(drv, target: Target, args: argparse.Namespace) -> int:
 
     def frame() -> Text:
         size = Console().size
-        lines = [f" hilbench lidar  {target.label}", " " + _stats(tr)]
+        lines = [f" hilbench lidar  {address.label}", " " + _stats(tr)]
         s = tr.last_scan
         h = max(6, size.height - 3)
         lines += polar_lines(s.angles, s.ranges, size.width - 2, h) if s is not None else [" waiting for scans"]
@@ -320,7 +320,7 @@ def _run(drv, target: Target, args: argparse.Namespace) -> int:
             while not done():
                 drv.pump(0.05)
                 if tr.scans == 0 and time.monotonic() > first_scan_timeout:
-                    raise DeviceError(f"{target.label}: no scan within {args.timeout:g} s ({_stats(tr)})")
+                    raise DeviceError(f"{address.label}: no scan within {args.timeout:g} s ({_stats(tr)})")
         else:
             with Live(frame(), auto_refresh=False, screen=True) as live:
                 last = 0.0
@@ -335,11 +335,11 @@ def _run(drv, target: Target, args: argparse.Namespace) -> int:
         raise DeviceError(str(exc)) from None
     if args.png:
         if tr.last_scan is None:
-            raise CliError(f"{target.label}: no scan to draw ({_stats(tr)})")
-        save_png(args.png, tr.last_scan, target)
+            raise CliError(f"{address.label}: no scan to draw ({_stats(tr)})")
+        save_png(args.png, tr.last_scan, address)
         print(f"hilbench lidar: one scan ({tr.last_scan.points} points) drawn to {args.png}")
         return 0
-    report: dict[str, Any] = tr.summary(source=target.label, timestamps="measured")
+    report: dict[str, Any] = tr.summary(source=address.label, timestamps="measured")
     if args.json:
         print(json.dumps(report, indent=2))
     else:

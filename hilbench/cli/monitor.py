@@ -105,7 +105,7 @@ def _check_record(args: argparse.Namespace, label: str, path: str | None, inputs
     check_outputs([(label, path)], inputs=inputs, recordings=(label,), force=args.force)
 
 
-#: Exit status of ``--strict`` when the input is damaged (as ``hilbench profile --strict``).
+#: Exit status of ``--strict`` when the input is damaged (as ``hilbench trace --strict``).
 STRICT_EXIT = 3
 
 
@@ -230,35 +230,35 @@ def cmd_record(args: argparse.Namespace) -> int:
 
 
 def cmd_tap_udp(args: argparse.Namespace) -> int:
-    """``hilbench tap udp LISTEN TARGET``: a UDP relay between clients and a target, decoding both ways."""
+    """``hilbench tap udp LISTEN UPSTREAM``: a UDP relay between clients and an upstream, decoding both ways."""
     from hilbench.monitor import Monitor
     from hilbench.transports.udp import parse_address
     from hilbench.transports.udp_relay import UdpRelay
 
     if len(args.more) != 2:
-        raise CliError("usage: hilbench tap udp LISTEN TARGET (LISTEN: PORT or HOST:PORT, TARGET: HOST:PORT)")
-    listen_text, target_text = args.more
+        raise CliError("usage: hilbench tap udp LISTEN UPSTREAM (LISTEN: PORT or HOST:PORT, UPSTREAM: HOST:PORT)")
+    listen_text, upstream_text = args.more
     try:
         host, _, port_text = listen_text.rpartition(":")
         if not port_text.isdigit() or int(port_text) > 65535:
             raise ValueError(f"LISTEN: expected PORT or HOST:PORT, got {listen_text!r}")
         listen = (host.strip("[]") or "127.0.0.1", int(port_text))
-        target = parse_address(target_text)
+        upstream = parse_address(upstream_text)
     except ValueError as exc:
         raise CliError(f"tap udp: {exc}") from None
     terminate_on_sigterm()
     options = _options(args)
     _check_record(args, "--record", args.record, [])
     try:
-        relay = UdpRelay(listen, target)
+        relay = UdpRelay(listen, upstream)
     except OSError as exc:  # taken (or not an address of this machine): exit status 1
         raise UnavailableError(f"tap udp: cannot listen on udp://{listen[0]}:{listen[1]}: {exc.strerror or exc} "
                                "(give another LISTEN port, or 0 for any free one)") from None
     warn_beyond_machine(relay.listen[0], f"the relay (LISTEN {listen_text})",
-                        "anyone who reaches this machine can send through it to the target; 127.0.0.1:PORT or "
+                        "anyone who reaches this machine can send through it to the upstream; 127.0.0.1:PORT or "
                         "PORT alone keeps it here")
     try:
-        label = f"udp relay {relay.listen[0]}:{relay.listen[1]} -> {target[0]}:{target[1]}"
+        label = f"udp relay {relay.listen[0]}:{relay.listen[1]} -> {upstream[0]}:{upstream[1]}"
         instrument = _instrument(args, relay.source)
         mon = Monitor(relay.source, instrument=instrument,
                       record=_writer(args.record, relay.source, label, force=args.force), options=options)
@@ -266,7 +266,7 @@ def cmd_tap_udp(args: argparse.Namespace) -> int:
         relay.start()
         # A banner, not a result: stderr, so stdout holds only the summary (one JSON document with --json).
         print(f"hilbench tap: clients send to udp://{relay.listen[0]}:{relay.listen[1]}, relayed to "
-              f"{target[0]}:{target[1]}", file=sys.stderr, flush=True)
+              f"{upstream[0]}:{upstream[1]}", file=sys.stderr, flush=True)
         code = _watch(mon, args, label, lambda: "relaying" if relay.error is None else "failed",
                       stop=lambda: relay.error is not None)
     finally:
@@ -274,7 +274,7 @@ def cmd_tap_udp(args: argparse.Namespace) -> int:
     if relay.error is not None:
         raise CliError(f"tap udp: {relay.error}")
     c = relay.counters()
-    print(f"hilbench tap: relayed {c['datagrams_up']} datagrams to the target, {c['datagrams_down']} back; "
+    print(f"hilbench tap: relayed {c['datagrams_up']} datagrams to the upstream, {c['datagrams_down']} back; "
           f"{c['send_errors']} not sent, {c['clients_dropped']} clients dropped (beyond {relay.max_clients}), "
           f"{c['unwatched_bytes']} bytes relayed unwatched", file=sys.stderr)
     return code
@@ -285,7 +285,7 @@ def cmd_tap(args: argparse.Namespace) -> int:
         return cmd_tap_udp(args)
     if args.more:
         raise CliError(f"unexpected arguments after the port: {' '.join(args.more)} (the UDP relay is "
-                       "`hilbench tap udp LISTEN TARGET`)")
+                       "`hilbench tap udp LISTEN UPSTREAM`)")
     from hilbench.monitor import Monitor
     from hilbench.transports.serial_tap import SerialTap
 
@@ -366,7 +366,7 @@ ORDER = 20
 VERBS = {  # each verb register() adds and its line in `hilbench --help` (see hilbench.cli)
     "monitor": "watch a bus: live dashboard, or a summary (--summary --json)",
     "record": "record a bus to a capture file",
-    "tap": "sit between an application and a serial port (or UDP clients and a target), forwarding and "
+    "tap": "sit between an application and a serial port (or UDP clients and an upstream), forwarding and "
            "decoding both ways",
 }
 
@@ -404,15 +404,15 @@ def register(sub: argparse._SubParsersAction) -> None:
 
     t = sub.add_parser(
         "tap", help=VERBS["tap"],
-        usage="%(prog)s [options] PORT | %(prog)s [options] udp LISTEN TARGET",
+        usage="%(prog)s [options] PORT | %(prog)s [options] udp LISTEN UPSTREAM",
         description="Create a pty for the application, forward every byte between it and PORT as soon as it is "
                     "read, and decode both directions: dashboard (in a terminal), --summary/--json at the end "
-                    "(Ctrl-C, SIGTERM or --seconds), --record FILE. `hilbench tap udp LISTEN TARGET` is a UDP "
+                    "(Ctrl-C, SIGTERM or --seconds), --record FILE. `hilbench tap udp LISTEN UPSTREAM` is a UDP "
                     "relay instead: clients send to LISTEN (PORT or HOST:PORT, 127.0.0.1 by default), each is "
-                    "relayed to TARGET (e.g. a micro-ROS agent at 127.0.0.1:8888) from a socket of its own, "
+                    "relayed to UPSTREAM (e.g. a micro-ROS agent at 127.0.0.1:8888) from a socket of its own, "
                     "and both directions are decoded with their addresses.")
     t.add_argument("port", help="the real port (e.g. /dev/ttyUSB0, or an emulated bench's pty), or udp")
-    t.add_argument("more", nargs="*", metavar="LISTEN TARGET", help="after udp: where clients send, and the target")
+    t.add_argument("more", nargs="*", metavar="LISTEN UPSTREAM", help="after udp: where clients send, and the upstream")
     t.add_argument("--baud", type=LINE_BAUD,
                    help="fixed baud rate for PORT (default: follow the rate the application sets)")
     t.add_argument("--link", metavar="PATH", help="also make PATH a symlink to the application's pty")

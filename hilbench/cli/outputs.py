@@ -68,7 +68,7 @@ def _named(path: str, *, stdio_fd: int) -> _File:
 
 
 def source_files(spec: str | None) -> list[str]:
-    """The files a source string (as ``monitor``, ``record``, ``profile`` take it) may read: the path of a
+    """The files a source string (as ``monitor``, ``record``, ``trace`` take it) may read: the path of a
     file, port or manifest (without its ``#endpoint``), ``-`` (stdin), a ``serial://`` URL's path, the profile
     file of ``bench:PROFILE``."""
     if not spec:

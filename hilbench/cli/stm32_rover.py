@@ -32,7 +32,7 @@ _board_baud = RuleRef("hilbench.families.stm32_rover", "BOARD_BAUD")
 def _print_logs(decoder, data: bytes) -> int:
     n = 0
     for item in decoder.feed(data):
-        if type(item).__name__ == "LogLine":
+        if type(item).__name__ == "LogMessage":
             print(f"board: {item.clock} [{item.level}]: {item.message}", flush=True)
             n += 1
     return n
@@ -41,10 +41,10 @@ def _print_logs(decoder, data: bytes) -> int:
 def cmd_send_vel(args: argparse.Namespace) -> int:
     from hilbench.protocols import vel2d
     from hilbench.protocols.tracestamp_stream import StreamDecoder
-    from hilbench.transports.host_link import HostLink
+    from hilbench.transports.host_connection import HostConnection
 
     try:
-        link = HostLink.open(args.port, args.baud)
+        link = HostConnection.open(args.port, args.baud)
     except ValueError as exc:
         raise CliError(str(exc)) from None
     except OSError as exc:  # not there, busy, refused: exit status 1

@@ -9,7 +9,7 @@ Position, now and then voltage, temperature, Hardware Error Status and the
 foot sensor that never answers), the same SDK's Protocol 1.0 handler on a
 Protocol 1.0 bus (a Read per servo: it has no Sync Read), Feetech's
 ``scservo_sdk`` on a Feetech bus (Sync Read 0x82, as LeRobot does); see
-:mod:`hilbench.clients.servo_links`.
+:mod:`hilbench.clients.servo_connections`.
 
 Meanwhile the monitor taps the bench's line and the dashboard shows what it
 sees. Two things go wrong on purpose, so a newcomer sees every state: one
@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 
 from hilbench.bench import Bench
 from hilbench.bench.profile import DEFAULT_PROFILE, Profile, load_profile
-from hilbench.clients.servo_links import Layout, ServoLink, feetech_sdk, layout, link_for
+from hilbench.clients.servo_connections import Layout, ServoConnection, connection_for, feetech_sdk, layout
 from hilbench.console import Console
 from hilbench.dashboard import Dashboard
 from hilbench.errors import UsageError
@@ -41,7 +41,7 @@ from hilbench.transports.sources import MediumSource
 OVERHEATING = 0x04
 #: Every this many cycles: voltage/temperature, hardware error status, and the foot sensor.
 SLOW_EVERY = 25
-#: The endpoint protocols the demo drives (with the SDK :func:`~hilbench.clients.servo_links.link_for` picks).
+#: The endpoint protocols the demo drives (with the SDK :func:`~hilbench.clients.servo_connections.connection_for` picks).
 SERVO_PROTOCOLS = ("dynamixel", "feetech")
 
 
@@ -144,9 +144,9 @@ class Controller:
                 groups.setdefault(lay, []).append(s.id)
         self.groups = list(groups.items())
         opts = self.ep.spec.options
-        self.link = link_for(self.ep.spec.protocol, opts.get("protocol_version", 2), self.ep.path,
+        self.connection = connection_for(self.ep.spec.protocol, opts.get("protocol_version", 2), self.ep.path,
                              self.ep.spec.baud, [s.model for s in servos])
-        self.result = DemoResult(scenario=Scenario.for_run(self.ids, seconds), protocol=self.link.protocol)
+        self.result = DemoResult(scenario=Scenario.for_run(self.ids, seconds), protocol=self.connection.protocol)
         self.stop = threading.Event()
         self.done = threading.Event()
         self.error: BaseException | None = None
@@ -184,18 +184,18 @@ class Controller:
         servo.ambient_temperature = servo.get(lay.temperature_limit.key) + OVERHEAT_MARGIN
 
     def _read(self, address: int, size: int, ids: list[int], what: str) -> dict[int, bytes]:
-        got, failed = self.link.group_read(address, size, ids)
-        self.result.failed_reads += failed if self.link.group_reads else len(ids) - len(got)
-        self._count(what, 1 if self.link.group_reads else len(ids))
+        got, failed = self.connection.group_read(address, size, ids)
+        self.result.failed_reads += failed if self.connection.group_reads else len(ids) - len(got)
+        self._count(what, 1 if self.connection.group_reads else len(ids))
         return got
 
-    def _sweeps(self, link: ServoLink) -> dict[int, tuple[float, float]]:
+    def _sweeps(self, connection: ServoConnection) -> dict[int, tuple[float, float]]:
         """(middle, amplitude) of each servo that tells its angle limits (a servo in wheel mode sweeps not)."""
         out = {}
         for i, lay in self.layouts.items():
             if lay.min_position is None or lay.max_position is None:
                 continue
-            lo, hi = link.read_field(i, lay.min_position), link.read_field(i, lay.max_position)
+            lo, hi = connection.read_field(i, lay.min_position), connection.read_field(i, lay.max_position)
             self._count("read", 2)
             if lo is None or hi is None or hi <= lo:
                 continue
@@ -204,15 +204,15 @@ class Controller:
 
     def _loop(self) -> None:
         res, sc, ep = self.result, self.result.scenario, self.ep
-        kind = "sync_read" if self.link.group_reads else "read"
-        with self.link as link:
+        kind = "sync_read" if self.connection.group_reads else "read"
+        with self.connection as connection:
             for dev_id in self.ids + self.others:  # start-up: who is there (the foot sensor 101 is not)
-                if link.ping(dev_id):
+                if connection.ping(dev_id):
                     res.pings.append(dev_id)
                 self._count("ping")
-            sweeps = self._sweeps(link)
+            sweeps = self._sweeps(connection)
             for lay, ids in self.groups:
-                link.sync_write(lay.torque, dict.fromkeys(ids, 1))
+                connection.sync_write(lay.torque, dict.fromkeys(ids, 1))
                 self._count("sync_write")
             start = time.monotonic()
             vanished = errored = False
@@ -236,7 +236,7 @@ class Controller:
                             phase = 2 * math.pi * elapsed / self.period + (k + j) * 0.3
                             goals[i] = int(mid + amp * math.sin(phase))
                     if goals:
-                        link.sync_write(lay.goal, goals)
+                        connection.sync_write(lay.goal, goals)
                         self._count("sync_write")
                 res.cycles += 1
                 if res.cycles % SLOW_EVERY == 1:
@@ -246,11 +246,11 @@ class Controller:
                         if lay.hardware_error is not None:
                             self._read(lay.hardware_error.address, lay.hardware_error.size, ids, kind)
                     for foot in self.feet:  # the foot sensor of the Wolfgang capture: 101 never answers
-                        link.read(foot, 36, 16)
+                        connection.read(foot, 36, 16)
                         self._count("read")
             res.seconds = time.monotonic() - start
             for lay, ids in self.groups:
-                link.sync_write(lay.torque, dict.fromkeys(ids, 0))
+                connection.sync_write(lay.torque, dict.fromkeys(ids, 0))
                 self._count("sync_write")
 
 

@@ -10,7 +10,7 @@ import argparse
 import contextlib
 from collections.abc import Callable
 
-from hilbench.clients.scanners import ScannerClient, ScannerDriver, ScannerLink
+from hilbench.clients.scanners import ScannerClient, ScannerConnection, ScannerDriver
 
 
 class RplidarDriver(ScannerDriver):
@@ -18,14 +18,14 @@ class RplidarDriver(ScannerDriver):
 
     protocol = "rplidar"
 
-    def __init__(self, link: ScannerLink, tracker=None, *, express: bool = False,
+    def __init__(self, connection: ScannerConnection, tracker=None, *, express: bool = False,
                  motor: Callable[[bool], None] | None = None) -> None:
-        super().__init__(link, tracker)
+        super().__init__(connection, tracker)
         self.express = express
         self.motor = motor  # how to reach DTR when the port has no modem lines (a bench pty)
 
     def _set_motor(self, on: bool) -> None:
-        if not self.link.set_dtr(not on) and self.motor is not None:
+        if not self.connection.set_dtr(not on) and self.motor is not None:
             self.motor(on)
 
     def start(self) -> None:
@@ -68,10 +68,10 @@ class RplidarClient(ScannerClient):
     def add_arguments(self, parser: argparse.ArgumentParser) -> None:
         parser.add_argument("--express", action="store_true", help="RPLIDAR: express scan (legacy capsules)")
 
-    def open(self, link: ScannerLink, args: argparse.Namespace | None = None, *,
+    def open(self, connection: ScannerConnection, args: argparse.Namespace | None = None, *,
              set_dtr: Callable[[bool], None] | None = None) -> RplidarDriver:
         motor = (lambda on: set_dtr(not on)) if set_dtr is not None else None  # the motor runs while DTR is low
-        return RplidarDriver(link, express=bool(getattr(args, "express", False)), motor=motor)
+        return RplidarDriver(connection, express=bool(getattr(args, "express", False)), motor=motor)
 
 
 #: The client driver this module registers (entry point ``hilbench.clients``).

@@ -1,6 +1,6 @@
-"""The kit of host-side laser-scanner drivers (real or emulated): open the link, start scans, feed a tracker.
+"""The kit of host-side laser-scanner drivers (real or emulated): open the connection, start scans, feed a tracker.
 
-A :class:`ScannerLink` is the byte pipe (a serial port or a TCP socket). A
+A :class:`ScannerConnection` is the byte pipe (a serial port or a TCP socket). A
 driver (a :class:`ScannerDriver` subclass in its family's own module, e.g.
 :class:`~hilbench.clients.rplidar.RplidarDriver`) speaks just enough of its
 protocol to get scans flowing and to stop them again; every byte each way
@@ -8,8 +8,8 @@ goes to the tracker of the protocol's instrument (the one ``hilbench monitor``
 uses, found through the registry), which decodes the scans, so ``hilbench
 lidar`` and ``hilbench monitor`` count the same way::
 
-    link = ScannerLink.open("/dev/ttyUSB0", baud=115200)
-    drv = RplidarDriver(link)
+    connection = ScannerConnection.open("/dev/ttyUSB0", baud=115200)
+    drv = RplidarDriver(connection)
     drv.start()
     while drv.tracker.scans < 10:
         drv.pump(0.1)
@@ -37,7 +37,7 @@ if TYPE_CHECKING:
     from hilbench.monitor.scanners.tracker import ScannerTracker
 
 
-class ScannerLink:
+class ScannerConnection:
     """A serial port (pyserial) or TCP socket, read and written in chunks."""
 
     def __init__(self, kind: str, handle, name: str) -> None:
@@ -51,7 +51,7 @@ class ScannerLink:
         return "tcp" if target.startswith("tcp://") or (":" in target and not target.startswith("/")) else "serial"
 
     @classmethod
-    def open(cls, target: str, baud: int | None = None) -> ScannerLink:
+    def open(cls, target: str, baud: int | None = None) -> ScannerConnection:
         """``tcp://HOST:PORT`` or ``HOST:PORT`` opens a socket; anything else a serial port."""
         if cls.kind_of(target) == "tcp":
             host, _, port = target.removeprefix("tcp://").rpartition(":")
@@ -105,13 +105,13 @@ class ScannerLink:
 
 
 class ScannerDriver:
-    """Base: a link, a tracker fed with both directions, start/stop."""
+    """Base: a connection, a tracker fed with both directions, start/stop."""
 
     #: The protocol it speaks: its tracker is that protocol's instrument's (``hilbench monitor``'s).
     protocol: ClassVar[str] = ""
 
-    def __init__(self, link: ScannerLink, tracker: ScannerTracker | None = None) -> None:
-        self.link = link
+    def __init__(self, connection: ScannerConnection, tracker: ScannerTracker | None = None) -> None:
+        self.connection = connection
         self.tracker = tracker or self.new_tracker()
 
     def new_tracker(self) -> ScannerTracker:
@@ -122,12 +122,12 @@ class ScannerDriver:
         return instrument.make_tracker(baud=None, timestamps=True)
 
     def send(self, data: bytes) -> None:
-        self.link.write(data)
+        self.connection.write(data)
         self.tracker.feed(time.monotonic(), "app", data)
 
     def pump(self, timeout: float = 0.05) -> int:
         """Read what arrived (waiting up to ``timeout``) into the tracker; returns the byte count."""
-        data = self.link.read(timeout)
+        data = self.connection.read(timeout)
         if data:
             self.tracker.feed(time.monotonic(), "device", data)
         return len(data)
@@ -155,15 +155,15 @@ class ScannerClient(ClientDriver):
     role = "scanner"
     #: The :class:`ScannerDriver` subclass it runs.
     driver: ClassVar[type[ScannerDriver]] = ScannerDriver
-    #: Link kinds (:meth:`~hilbench.clients.scanners.ScannerLink.kind_of`: ``"serial"``, ``"tcp"``) whose scanner is taken to speak this
+    #: Connection kinds (:meth:`~hilbench.clients.scanners.ScannerConnection.kind_of`: ``"serial"``, ``"tcp"``) whose scanner is taken to speak this
     #: protocol when nothing says which (no ``--protocol``, not a bench).
     default_on: ClassVar[tuple[str, ...]] = ()
 
-    def open(self, link: ScannerLink, args: argparse.Namespace | None = None, *,
+    def open(self, connection: ScannerConnection, args: argparse.Namespace | None = None, *,
              set_dtr: Callable[[bool], None] | None = None) -> ScannerDriver:
-        """A driver on ``link`` with the verb's parsed options (None: the defaults). ``set_dtr`` sets the
-        port's DTR where the link cannot (a bench pty seen without ``hilbench run``'s shim)."""
-        return self.driver(link)
+        """A driver on ``connection`` with the verb's parsed options (None: the defaults). ``set_dtr`` sets the
+        port's DTR where the connection cannot (a bench pty seen without ``hilbench run``'s shim)."""
+        return self.driver(connection)
 
 
-__all__ = ["ScannerClient", "ScannerDriver", "ScannerLink"]
+__all__ = ["ScannerClient", "ScannerDriver", "ScannerConnection"]

@@ -1,7 +1,7 @@
 """The SICK LMS 200's host side: :class:`~hilbench.clients.sick_lms200.SickDriver` and its ``hilbench lidar`` client.
 
 Registered as ``hilbench.clients`` entry point ``sick-lms200`` (:data:`CLIENT`,
-aliases ``sick``, ``lms200``), with the option ``--lms-baud``. The link speeds
+aliases ``sick``, ``lms200``), with the option ``--lms-baud``. The line speeds
 come from the protocol's one table (:data:`hilbench.protocols.sick_lms200.BAUD_MODES`).
 """
 
@@ -12,13 +12,13 @@ import contextlib
 import time
 from collections.abc import Callable
 
-from hilbench.clients.scanners import ScannerClient, ScannerDriver, ScannerLink
+from hilbench.clients.scanners import ScannerClient, ScannerConnection, ScannerDriver
 from hilbench.errors import DeviceError
 from hilbench.protocols import sick_lms200 as lms
 
 
 class SickDriver(ScannerDriver):
-    """Find the unit's link speed, change it if asked (mode 40/41/48, then the port follows), continuous
+    """Find the unit's line speed, change it if asked (mode 40/41/48, then the port follows), continuous
     output; mode 25 and the power-up speed again when done.
 
     An LMS 200 keeps a speed it was switched to until power-off, so a host that left it at 38 400 baud
@@ -30,14 +30,14 @@ class SickDriver(ScannerDriver):
 
     protocol = "sick-lms200"
     MODES = {v: k for k, v in lms.BAUD_MODES.items()}
-    #: Link speeds an LMS 200 can run at, in the order they are tried (its power-up speed first, then in
+    #: Line speeds an LMS 200 can run at, in the order they are tried (its power-up speed first, then in
     #: the order of the mode table).
     BAUDS = tuple(dict.fromkeys((lms.POWER_UP_BAUD, *lms.BAUD_MODES.values())))
     #: How long a status request waits for its reply at each speed (the reply: 160 bytes, 170 ms at 9600).
     PROBE_TIMEOUT = 1.0
 
-    def __init__(self, link: ScannerLink, tracker=None, *, baud: int = lms.POWER_UP_BAUD) -> None:
-        super().__init__(link, tracker)
+    def __init__(self, connection: ScannerConnection, tracker=None, *, baud: int = lms.POWER_UP_BAUD) -> None:
+        super().__init__(connection, tracker)
         self.baud = baud
         #: The speed the unit runs at now, once known.
         self.session_baud: int | None = None
@@ -47,29 +47,29 @@ class SickDriver(ScannerDriver):
 
         The exchange is kept from the tracker: at a wrong speed a real unit's bytes are noise.
         """
-        self.link.set_baud(baud)
+        self.connection.set_baud(baud)
         with contextlib.suppress(OSError):
-            while self.link.read(0.0):  # what came at the old speed
+            while self.connection.read(0.0):  # what came at the old speed
                 pass
         dec = lms.Decoder(handshakes=True)
-        self.link.write(lms.request(lms.Cmd.STATUS))
+        self.connection.write(lms.request(lms.Cmd.STATUS))
         deadline = time.monotonic() + (self.PROBE_TIMEOUT if timeout is None else timeout)
         while time.monotonic() < deadline:
-            for item in dec.feed(self.link.read(0.02)):
+            for item in dec.feed(self.connection.read(0.02)):
                 # a status reply, or the scans of a unit left streaming at this speed
                 if isinstance(item, lms.Frame) and item.is_reply and item.cmd in (0xB1, 0xB0):
                     return True
         return False
 
     def find_baud(self) -> int:
-        """The unit's link speed (tried as :attr:`BAUDS` says, the asked-for one second); a
+        """The unit's line speed (tried as :attr:`BAUDS` says, the asked-for one second); a
         :class:`~hilbench.errors.DeviceError` saying what was tried when none answers."""
         tried = list(dict.fromkeys((self.BAUDS[0], self.baud, *self.BAUDS)))
         for baud in tried:
             if self.answers_at(baud):
                 self.session_baud = baud
                 return baud
-        raise DeviceError(f"{self.link.name}: no LMS 200 answers a status request at "
+        raise DeviceError(f"{self.connection.name}: no LMS 200 answers a status request at "
                           f"{', '.join(map(str, tried))} baud (is it powered, on this port, and not used by "
                           f"another program?)")
 
@@ -78,12 +78,12 @@ class SickDriver(ScannerDriver):
         replies = tr.replies
         self.send(lms.mode_request(self.MODES[baud]))
         ok = self.wait_for(lambda: tr.replies > replies, wait)
-        self.link.set_baud(baud)  # the reply came at the old speed; the LMS now runs at the new
+        self.connection.set_baud(baud)  # the reply came at the old speed; the LMS now runs at the new
         self.session_baud = baud
         return ok
 
     def start(self) -> None:
-        if self.link.kind == "serial":
+        if self.connection.kind == "serial":
             self.find_baud()
         else:  # a serial server on TCP: its own port has the speed
             self.session_baud = self.baud
@@ -96,7 +96,7 @@ class SickDriver(ScannerDriver):
             tr = self.tracker
             replies = tr.replies
             self.send(lms.mode_request(lms.Mode.POLLED))
-            if self.session_baud not in (None, lms.POWER_UP_BAUD) and self.link.kind == "serial":
+            if self.session_baud not in (None, lms.POWER_UP_BAUD) and self.connection.kind == "serial":
                 self.wait_for(lambda: tr.replies > replies, 1.0)
                 self._switch(lms.POWER_UP_BAUD, wait=1.0)
 
@@ -112,12 +112,12 @@ class SickClient(ScannerClient):
 
     def add_arguments(self, parser: argparse.ArgumentParser) -> None:
         parser.add_argument("--lms-baud", type=int, choices=lms.LINK_BAUDS, default=lms.POWER_UP_BAUD,
-                            help=f"LMS 200: switch the link to this speed first (default {lms.POWER_UP_BAUD}, "
+                            help=f"LMS 200: switch the line to this speed first (default {lms.POWER_UP_BAUD}, "
                                  "the power-up rate)")
 
-    def open(self, link: ScannerLink, args: argparse.Namespace | None = None, *,
+    def open(self, connection: ScannerConnection, args: argparse.Namespace | None = None, *,
              set_dtr: Callable[[bool], None] | None = None) -> SickDriver:
-        return SickDriver(link, baud=getattr(args, "lms_baud", lms.POWER_UP_BAUD))
+        return SickDriver(connection, baud=getattr(args, "lms_baud", lms.POWER_UP_BAUD))
 
 
 #: The client driver this module registers (entry point ``hilbench.clients``).

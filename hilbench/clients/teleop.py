@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 from hilbench.protocols import vel2d
 from hilbench.protocols.tracestamp_stream import StreamDecoder
-from hilbench.transports.host_link import HostLink
+from hilbench.transports.host_connection import HostConnection
 from hilbench.transports.readiness import readable
 
 HELP = """\
@@ -95,7 +95,7 @@ def run(port: str, baud: int = 115_200, speed: float = 0.5, turn: float = 1.0, r
     fd = sys.stdin.fileno()
     if not os.isatty(fd):
         raise OSError("teleop needs a terminal: stdin is not a tty")
-    link = HostLink.open(port, baud)
+    connection = HostConnection.open(port, baud)
     state = Teleop(speed, turn)
     decoder = StreamDecoder()
     sent = 0
@@ -105,7 +105,7 @@ def run(port: str, baud: int = 115_200, speed: float = 0.5, turn: float = 1.0, r
     def send(reason: str) -> None:
         nonlocal sent
         x, y, z = state.twist()
-        link.send(vel2d.build(x, y, z))
+        connection.send(vel2d.build(x, y, z))
         sent += 1
         line = f"\r\x1b[Ksent x={x:+.3f} y={y:+.3f} z={z:+.3f} ({reason}, {sent} frames)"
         if last_log:
@@ -117,14 +117,14 @@ def run(port: str, baud: int = 115_200, speed: float = 0.5, turn: float = 1.0, r
         tty.setraw(fd)
         out.write(HELP.replace("\n", "\r\n") + "\r\n" + state.status().replace("\t", "  ") + "\r\n")
         out.flush()
-        link.register()
+        connection.register()
         next_repeat = time.monotonic() + (1 / repeat_rate if repeat_rate > 0 else 1e9)
         while True:
             timeout = max(0.0, min(0.05, next_repeat - time.monotonic()))
-            ready = readable([fd, link.fileno()], timeout)
-            if link.fileno() in ready:
-                for item in decoder.feed(link.read()):
-                    if type(item).__name__ == "LogLine":
+            ready = readable([fd, connection.fileno()], timeout)
+            if connection.fileno() in ready:
+                for item in decoder.feed(connection.read()):
+                    if type(item).__name__ == "LogMessage":
                         last_log = f"[{item.level}] {item.message}"
             if fd in ready:
                 keys = os.read(fd, 64).decode("latin-1")
@@ -144,10 +144,10 @@ def run(port: str, baud: int = 115_200, speed: float = 0.5, turn: float = 1.0, r
     finally:
         with contextlib.suppress(Exception):
             state.x = state.y = state.th = 0
-            link.send(vel2d.build(0.0, 0.0, 0.0))  # stop the robot on exit, as the ROS node does
+            connection.send(vel2d.build(0.0, 0.0, 0.0))  # stop the robot on exit, as the ROS node does
             sent += 1
         termios.tcsetattr(fd, termios.TCSADRAIN, saved)
-        link.close()
+        connection.close()
         out.write(f"\nteleop: {sent} frames sent\n")
         out.flush()
     return sent

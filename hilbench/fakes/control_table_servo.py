@@ -96,7 +96,7 @@ class ControlTableServo:
         self.mem = model.defaults()
         try:
             #: Where its Protocol Type register is (None: the model has none): a servo with one speaks the
-            #: protocol it names (see ServoLine._hearing).
+            #: protocol it names (see ServoBusBase._hearing).
             self.protocol_type_address: int | None = model.field_named("protocol_type").address
         except KeyError:
             self.protocol_type_address = None

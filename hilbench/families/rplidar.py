@@ -133,9 +133,9 @@ class RplidarFamily(ScannerFamily):
                                typical_mode=o["typical_mode"], baud=endpoint.spec.baud,
                                faults=RplidarFaults(seed=spec.seed, **spec.faults))
         dev = RplidarA1(*self.placement(bench, spec, A1_RANGE), config, t0=t, body=spec.body)
-        lines = getattr(endpoint.port, "lines", None)
+        lines = getattr(endpoint.port, "port_state", None)
         if lines is not None:
-            dev.dtr = lines.dtr  # the line's level now; changes arrive as on_line events
+            dev.dtr = lines.dtr  # the line's level now; changes arrive as on_port_event events
         return dev
 
     # ------------------------------------------------------------------ description
@@ -154,11 +154,11 @@ class RplidarFamily(ScannerFamily):
             if not isinstance(value, bool):
                 raise ControlRequestError("dtr: expected true or false")
             # The same path as hilbench run's shim: the host port's modem lines, heard by the device.
-            ports = [h for h in device.port.medium.hosts if getattr(h, "lines", None) is not None]
+            ports = [h for h in device.port.medium.hosts if getattr(h, "port_state", None) is not None]
             if not ports:
                 device.port.call_at(None, lambda: device.set_dtr(value))
             for host in ports:
-                host.lines.host_sets(dtr=value)
+                host.port_state.host_sets(dtr=value)
             return {"ok": True, "dtr": value}
         return super().control(bench, device, cmd, req)
 

@@ -43,7 +43,7 @@ class ServoBusSpec(DeviceSpec):
 
 class ServoBusKind(BusKind):
     """A servo bus on a pty: devices addressed by ``id`` join the bus object :meth:`open` makes
-    (``endpoint.bus``, a :class:`~hilbench.fakes.servo_line.ServoLine`)."""
+    (``endpoint.bus``, a :class:`~hilbench.fakes.servo_bus.ServoBusBase`)."""
 
     endpoint_types = ("pty",)
     address_key = "id"

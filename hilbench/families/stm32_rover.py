@@ -121,7 +121,7 @@ class Vel2dBusKind(BusKind):
     endpoint_types = ("pty", "udp")
     max_devices = 1
     one_device_reason = "a UART is point to point"
-    tap_reader = "profile"
+    tap_reader = "trace"
 
     def check_baud(self, c: Checker, key: str, value: Any, port_type: str) -> int:
         return c.rule(115_200 if value is None else value, key, BOARD_BAUD)
@@ -161,7 +161,7 @@ class Stm32RoverFamily(DeviceFamily):
         "fault": "turn fault knobs: drop_rate, corrupt_rate, drop_next, corrupt_next, stall",
         "log": "the board's recent log lines",
         "wait_report": "wait until the board printed another run-time report",
-        "micro_ros": "the micro-ROS link's session, topics and counters; zeroed_next=N zeroes its next N datagrams",
+        "micro_ros": "the micro-ROS client's session, topics and counters; zeroed_next=N zeroes its next N datagrams",
     }
 
     # ------------------------------------------------------------------ profile
@@ -231,9 +231,9 @@ class Stm32RoverFamily(DeviceFamily):
         for dev in devices:
             board = Board(board_config(dev, endpoint.spec.baud, endpoint.spec.type), name=dev.name)
             if dev.agent is not None:
-                from hilbench.fakes.stm32_board.micro_ros import MicroRosLink
+                from hilbench.fakes.stm32_board.micro_ros import MicroRosClient
 
-                board.attach_link(MicroRosLink(_agent_address(bench, dev.agent), **dev.micro_ros))
+                board.attach_client(MicroRosClient(_agent_address(bench, dev.agent), **dev.micro_ros))
             endpoint.add_device(dev.name, board)
             if dev.body is not None:  # the firmware's motion model moves its body, whichever door the setpoint took
                 refuse_second_driver(bench.world.world, dev.body, dev.name)
@@ -289,15 +289,15 @@ class Stm32RoverFamily(DeviceFamily):
         if cmd == "log":
             return {"log": board.status()["log"]}
         if cmd == "micro_ros":
-            links = [link for link in board.links if hasattr(link, "client")]
-            if not links:
-                raise ControlRequestError(f"board {board.name!r} has no micro-ROS link (set agent = \"HOST:PORT\")")
+            clients = [c for c in board.clients if hasattr(c, "client")]
+            if not clients:
+                raise ControlRequestError(f"board {board.name!r} has no micro-ROS client (set agent = \"HOST:PORT\")")
             zeroed = req.get("zeroed_next")
             if zeroed is not None:
                 if isinstance(zeroed, bool) or not isinstance(zeroed, int) or not 0 <= zeroed <= 1000:
                     raise ControlRequestError(f"zeroed_next: expected an integer 0..1000, got {zeroed!r}")
-                links[0].client.zero_next(zeroed)
-            return {"micro_ros": links[0].status()}
+                clients[0].client.zero_next(zeroed)
+            return {"micro_ros": clients[0].status()}
         if cmd == "wait_report":
             timeout, start = req.get("timeout", 10.0), req.get("after")
             if not WAIT_TIMEOUT.ok(timeout):
@@ -330,7 +330,7 @@ def _check_micro_ros(c: Checker, key: str, dev: dict[str, Any], preset: str) -> 
     raw = c.table(dev.get("micro_ros", {}), f"{key}.micro_ros")
     if agent is None:
         if raw:
-            c.fail(f"{key}.micro_ros", "only with agent = \"HOST:PORT\" (the micro-ROS link's agent)")
+            c.fail(f"{key}.micro_ros", "only with agent = \"HOST:PORT\" (the micro-ROS client's agent)")
         return {}
     if not preset.startswith("micro-ros-"):
         c.fail(f"{key}.agent", f"only for the micro-ros-* presets (the micro-ROS firmware), not {preset!r}")
@@ -404,7 +404,7 @@ class BoardClient(ControlClient):
         return self.call("log", device=device)["log"]
 
     def micro_ros(self, device: str | None = None, **knobs: int) -> dict[str, Any]:
-        """The micro-ROS link's status (``zeroed_next=N``: zero its next N datagrams first)."""
+        """The micro-ROS client's status (``zeroed_next=N``: zero its next N datagrams first)."""
         return self.call("micro_ros", device=device, **knobs)["micro_ros"]
 
     def wait_report(self, device: str | None = None, timeout: float = 10.0, after: int | None = None) -> dict:

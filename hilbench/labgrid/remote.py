@@ -27,7 +27,7 @@ import serial
 from hilbench.bench.control import ControlClient
 from hilbench.errors import BenchError
 from hilbench.labgrid.config import CONTROL_RESOURCE, TAP_SUFFIX
-from hilbench.transports.pty import PtyEndpoint
+from hilbench.transports.pty import PtyPort
 from hilbench.transports.readiness import readable
 from hilbench.transports.serial_url import open_url
 
@@ -37,7 +37,7 @@ class PtyBridge:
 
     def __init__(self, url: str, baud: int | None) -> None:
         self.url = url
-        self.pty = PtyEndpoint("bridge")
+        self.pty = PtyPort("bridge")
         self.serial = open_url(url, baudrate=baud or 115_200, timeout=0.05)
         self._stop = threading.Event()
         self.errors: list[str] = []

@@ -5,7 +5,7 @@ serial port or a pipe does not. Then every registered instrument scores the
 first bytes (:meth:`~hilbench.monitor.instrument.Instrument.sniff`) and the
 best one wins; with a single monitoring instrument registered there is
 nothing to choose. A source whose protocol another verb reads (a board's
-trace output is ``hilbench profile``'s) is refused in one line that says so.
+trace output is ``hilbench trace``'s) is refused in one line that says so.
 """
 
 from __future__ import annotations

@@ -55,7 +55,7 @@ class Instrument:
     aliases: ClassVar[tuple[str, ...]] = ()
     #: A few words for listings ("Dynamixel Protocol 2.0 bus").
     title: ClassVar[str] = ""
-    #: The verb that reads this protocol (``"monitor"``; ``"profile"`` for trace output).
+    #: The verb that reads this protocol (``"monitor"``; ``"trace"`` for trace output).
     verb: ClassVar[str] = "monitor"
     #: ``"module:ATTRIBUTE"`` of its dashboard view set, imported only when a dashboard is shown.
     views_path: ClassVar[str | None] = None

@@ -4,7 +4,7 @@ Feed a :class:`~hilbench.profiler.ingest.Profiler` the bytes a board sends (text
 dialect, binary stamp words, logs and run-time statistics reports, mixed),
 then call :meth:`~hilbench.profiler.ingest.Profiler.analyse` for an
 :class:`~hilbench.profiler.analysis.Analysis` (its settings:
-:class:`~hilbench.profiler.settings.ProfileSettings`). Definitions follow the
+:class:`~hilbench.profiler.settings.ProfilerSettings`). Definitions follow the
 spec sheet ``stm32_board.md`` §5. See docs/instruments/trace.md.
 
 The package imports none of its modules: its trace instrument plug-in

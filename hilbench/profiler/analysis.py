@@ -17,7 +17,7 @@ import numpy as np
 from hilbench.profiler.histogram import linear_histogram, px4_histogram
 from hilbench.profiler.pairing import Pairing, pair
 from hilbench.profiler.quality import decoder_counters, judge
-from hilbench.profiler.settings import KERNEL_TASKS, ProfileSettings
+from hilbench.profiler.settings import KERNEL_TASKS, ProfilerSettings
 from hilbench.profiler.stats import (
     Jobs,
     duration_stats,
@@ -42,7 +42,7 @@ class Analysis:
     quality: dict
     runtime_stats: dict | None
     classification: str
-    settings: ProfileSettings
+    settings: ProfilerSettings
     names: list[str]
     t: np.ndarray  # sorted stamp times (µs, timeline)
     ids: np.ndarray
@@ -102,7 +102,7 @@ def _report_names(reports) -> set[str]:
     return out
 
 
-def classify(names: list[str], present: np.ndarray, settings: ProfileSettings, reports,
+def classify(names: list[str], present: np.ndarray, settings: ProfilerSettings, reports,
              ids: np.ndarray, begin: np.ndarray, seg: np.ndarray) -> tuple[np.ndarray, str]:
     """Which names are tasks, and where that came from (``settings``, ``report`` or ``inferred``)."""
     if settings.tasks is not None:
@@ -154,7 +154,7 @@ def _tail_start(t: np.ndarray, cutoff: float, margin: float, block: int = 1 << 1
     return 0
 
 
-def _select(profiler, settings: ProfileSettings, last_us: float | None):
+def _select(profiler, settings: ProfilerSettings, last_us: float | None):
     t, ids, begin, seg = profiler.timeline.columns()
     if last_us is not None and len(t):
         k = _tail_start(t, profiler.timeline.global_end - last_us, settings.reorder_us)
@@ -171,7 +171,7 @@ def _select(profiler, settings: ProfileSettings, last_us: float | None):
     return t.copy(), ids.copy(), begin.copy(), seg.copy()
 
 
-def analyse(profiler, settings: ProfileSettings, *, last_us: float | None = None) -> Analysis:
+def analyse(profiler, settings: ProfilerSettings, *, last_us: float | None = None) -> Analysis:
     """Analyse what ``profiler`` holds (see the module docstring)."""
     t, ids, begin, seg = _select(profiler, settings, last_us)
     if len(t) > 1 and not bool(np.all(t[1:] >= t[:-1])):
@@ -292,7 +292,7 @@ def analyse(profiler, settings: ProfileSettings, *, last_us: float | None = None
                     is_task, jobs, misses, drop_marks, starts)
 
 
-def _window(t: np.ndarray, seg: np.ndarray, profiler, settings: ProfileSettings) -> dict:
+def _window(t: np.ndarray, seg: np.ndarray, profiler, settings: ProfilerSettings) -> dict:
     out: dict = {"t_first_us": None, "t_last_us": None, "span_us": 0, "windows": 0}
     if len(t):
         starts = np.flatnonzero(np.concatenate(([True], seg[1:] != seg[:-1])))

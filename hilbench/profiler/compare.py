@@ -24,7 +24,7 @@ def summary_of(run) -> dict[str, dict]:
 
 
 def load_summary(path: str | Path) -> dict:
-    """A ``--json`` document saved by ``hilbench profile --json``; ValueError (one line) otherwise."""
+    """A ``--json`` document saved by ``hilbench trace --json``; ValueError (one line) otherwise."""
     try:
         doc = json.loads(Path(path).read_bytes())
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
@@ -35,7 +35,7 @@ def load_summary(path: str | Path) -> dict:
     except ValueError:
         tasks = None
     if tasks is None or not all(isinstance(v, dict) for v in tasks.values()):
-        raise ValueError(f"{path}: not a `hilbench profile --json` document (no 'tasks' table of figures)")
+        raise ValueError(f"{path}: not a `hilbench trace --json` document (no 'tasks' table of figures)")
     return doc
 
 

@@ -15,10 +15,10 @@ from collections.abc import Iterable
 
 import numpy as np
 
-from hilbench.profiler.settings import ProfileSettings
+from hilbench.profiler.settings import ProfilerSettings
 from hilbench.profiler.timeline import Timeline
 from hilbench.protocols.problem import Problem
-from hilbench.protocols.tracestamp import UNREADABLE, LogLine, RuntimeReport, Stamp, StampBatch
+from hilbench.protocols.tracestamp import UNREADABLE, LogMessage, RuntimeReport, Stamp, StampBatch
 from hilbench.protocols.tracestamp_binary import Marker
 from hilbench.protocols.tracestamp_stream import StreamDecoder
 
@@ -36,12 +36,12 @@ class Profiler:
     10
     """
 
-    def __init__(self, settings: ProfileSettings | None = None) -> None:
-        self.settings = settings or ProfileSettings()
+    def __init__(self, settings: ProfilerSettings | None = None) -> None:
+        self.settings = settings or ProfilerSettings()
         self.decoder = StreamDecoder()
         self.timeline = Timeline(self.settings.reorder_us, self.settings.max_stamps)
         self.reports: list[tuple[int, RuntimeReport]] = []  # (window index, report)
-        self.log_lines: deque[LogLine] = deque(maxlen=50)
+        self.log_lines: deque[LogMessage] = deque(maxlen=50)
         self.bad_lines: deque[Problem] = deque(maxlen=20)  # the latest unreadable lines
         self.first_bad_lines: list[Problem] = []  # the first ones (what a damaged start looked like)
         self.word_problems: dict[str, int] = {}
@@ -99,7 +99,7 @@ class Profiler:
                     stamps = []
                 batches.append(item)
                 continue
-            if kind is LogLine:
+            if kind is LogMessage:
                 self.log_lines.append(item)
                 continue
             if kind is Problem:
@@ -148,7 +148,7 @@ class Profiler:
 
     # ------------------------------------------------------------------ output
 
-    def analyse(self, settings: ProfileSettings | None = None, *, last_us: float | None = None):
+    def analyse(self, settings: ProfilerSettings | None = None, *, last_us: float | None = None):
         """Statistics of everything so far (``settings`` overrides the profiler's own).
 
         ``last_us`` restricts the analysis to the last that many µs of the
@@ -159,7 +159,7 @@ class Profiler:
         return analyse(self, settings or self.settings, last_us=last_us)
 
 
-def profile_bytes(data: bytes, settings: ProfileSettings | None = None, chunk: int = 1 << 20):
+def analyse_bytes(data: bytes, settings: ProfilerSettings | None = None, chunk: int = 1 << 20):
     """Analyse a complete capture held in memory."""
     p = Profiler(settings)
     for i in range(0, len(data), chunk):

@@ -1,8 +1,8 @@
 """The trace profiler as an instrument plug-in: a rover board's UART carries trace stamps, not a bus.
 
-``hilbench monitor`` points a user at ``hilbench profile`` for this protocol
+``hilbench monitor`` points a user at ``hilbench trace`` for this protocol
 (:attr:`~hilbench.monitor.instrument.Instrument.verb`), and ``hilbench
-profile`` accepts only sources whose instrument it is. :meth:`~TraceInstrument.sniff` tells
+trace`` accepts only sources whose instrument it is. :meth:`~TraceInstrument.sniff` tells
 trace output in a raw capture (text stamp lines, logs, reports, binary words).
 """
 
@@ -24,7 +24,7 @@ class TraceInstrument(Instrument):
     protocol = "vel2d"
     aliases = ("tracestamp",)
     title = "a board's trace output"
-    verb = "profile"
+    verb = "trace"
 
     def sniff(self, data: bytes) -> float:
         sample = data[:8192]

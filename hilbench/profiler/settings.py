@@ -19,7 +19,7 @@ OVERRUN_SUSPECT_US = 10_000
 
 
 @dataclass(frozen=True)
-class ProfileSettings:
+class ProfilerSettings:
     """Settings of one analysis (all times in µs).
 
     - ``tasks``: the hook-produced (task) names. ``None`` takes them from the
@@ -56,7 +56,7 @@ class ProfileSettings:
     #: How many first offenders (deadline misses, overruns) to list per name.
     offenders: int = 5
 
-    def with_(self, **changes) -> ProfileSettings:
+    def with_(self, **changes) -> ProfilerSettings:
         """A copy with some fields changed."""
         return replace(self, **changes)
 

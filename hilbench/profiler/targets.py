@@ -28,7 +28,7 @@ class _ProfilerReader:
         return d.text.parse_errors + d.words.broken_words
 
 
-PROFILER = FuzzTarget("profiler", "trace profiler (hilbench profile: decode, pair, analyse)", _ProfilerReader,
+PROFILER = FuzzTarget("profiler", "trace profiler (hilbench trace: decode, pair, analyse)", _ProfilerReader,
                          BOARD_LINE, "12.5 Mbit/s UART", stream_traffic, kind="instrument")
 
 __all__ = ["PROFILER"]

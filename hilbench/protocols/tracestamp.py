@@ -11,7 +11,7 @@ lines it cannot classify become :class:`~hilbench.protocols.problem.Problem`
 items of kind :data:`UNREADABLE` (``detail`` says why) and are counted. Two
 entry points share one state:
 
-- ``feed(data)`` returns small NamedTuples: :class:`Stamp`, :class:`LogLine`,
+- ``feed(data)`` returns small NamedTuples: :class:`Stamp`, :class:`LogMessage`,
   :class:`RuntimeReport`, :class:`NameEntry`, :class:`TableStart`, and the
   problems;
 - ``feed_batch(data)`` returns the same items in the same order, except that
@@ -80,7 +80,7 @@ class Stamp(NamedTuple):
     begin: bool
 
 
-class LogLine(NamedTuple):
+class LogMessage(NamedTuple):
     """A ulog line ``HH:MM:SS [LEVEL]: message`` (``clock`` is the board's RTC time text)."""
 
     clock: str
@@ -181,7 +181,7 @@ class StampBatch(NamedTuple):
                 zip(self.ids.tolist(), self.t_us.tolist(), self.begin.tolist(), strict=True)]
 
 
-Item = Stamp | LogLine | RuntimeReport | NameEntry | TableStart | Problem
+Item = Stamp | LogMessage | RuntimeReport | NameEntry | TableStart | Problem
 
 
 # --------------------------------------------------------------------------- formatting (board side)
@@ -766,7 +766,7 @@ class TextDecoder:
         m = _LOG.fullmatch(line) if 0x30 <= c <= 0x39 else None
         if m:
             self.log_lines += 1
-            out.append(LogLine(m[1].decode(), m[2].decode(), m[3].decode("latin-1")))
+            out.append(LogMessage(m[1].decode(), m[2].decode(), m[3].decode("latin-1")))
             return
         if c == 0x40:
             meta = _meta(line)

@@ -39,7 +39,7 @@ StreamItem = Item | Marker
 class StreamDecoder:
     """Incremental decoder of a mixed text/binary board stream; never raises.
 
-    ``feed(data)`` returns :class:`Stamp`, :class:`~hilbench.protocols.tracestamp.LogLine`,
+    ``feed(data)`` returns :class:`Stamp`, :class:`~hilbench.protocols.tracestamp.LogMessage`,
     :class:`~hilbench.protocols.tracestamp.RuntimeReport`, :class:`NameEntry`, :class:`TableStart`,
     :class:`Marker` and :class:`~hilbench.protocols.problem.Problem` items (unreadable lines, damaged
     words) in arrival order; ``feed_batch(data)`` the same with runs of stamps

@@ -3,7 +3,7 @@
 A pseudo-terminal has no modem lines (TIOCM* ioctls fail with ENOTTY), ignores
 BREAK, and ``tcflush(TCOFLUSH)`` on it discards bytes the bench has not read.
 A client run under ``hilbench run`` has those calls, on the bench's ptys only,
-answered by the bench's line server (:mod:`hilbench.bench.line_server`):
+answered by the bench's port-state server (:mod:`hilbench.bench.port_state_server`):
 
 - ``shim.c``, an LD_PRELOAD library built with the
   system's C compiler on first use (:mod:`hilbench.run.build`), for every
@@ -19,6 +19,6 @@ environment; the ``hilbench run`` verb (:mod:`hilbench.cli.run`) execs the clien
 """
 
 from hilbench.run.build import ShimBuildError, shim_library
-from hilbench.run.environment import BenchLines, manifest_paths, read_bench, run_environment
+from hilbench.run.environment import BenchPorts, manifest_paths, read_bench, run_environment
 
-__all__ = ["BenchLines", "ShimBuildError", "manifest_paths", "read_bench", "run_environment", "shim_library"]
+__all__ = ["BenchPorts", "ShimBuildError", "manifest_paths", "read_bench", "run_environment", "shim_library"]

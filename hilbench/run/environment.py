@@ -17,11 +17,11 @@ SHIMS = ("auto", "c", "python")
 
 
 @dataclass
-class BenchLines:
-    """A running bench's line server as its manifest lists it: the socket and the ptys by endpoint."""
+class BenchPorts:
+    """A running bench's port-state server as its manifest lists it: the socket and the ptys by endpoint."""
 
     manifest: str
-    socket: str | None  # None: the bench has no ptys (no line server)
+    socket: str | None  # None: the bench has no ptys (no port-state server)
     ports: dict[str, dict[str, Any]] = field(default_factory=dict)
     #: The manifest's ``clock`` entry of a virtual-time bench (its clock page), else None.
     clock: dict[str, Any] | None = None
@@ -43,11 +43,11 @@ def manifest_paths(given: Iterable[str] | None, environ: Mapping[str, str] | Non
     return paths
 
 
-def read_bench(manifest: str | os.PathLike[str] | Mapping[str, Any], *, check: bool = True) -> BenchLines:
-    """The line server of the bench a manifest (a file, or its parsed content) describes.
+def read_bench(manifest: str | os.PathLike[str] | Mapping[str, Any], *, check: bool = True) -> BenchPorts:
+    """The port-state server of the bench a manifest (a file, or its parsed content) describes.
 
     A file is read with :func:`~hilbench.bench.manifest.read_manifest`. With ``check``, the bench must
-    answer on its socket. Raises :class:`BenchError` (not running, no line server) or :class:`UsageError`
+    answer on its socket. Raises :class:`BenchError` (not running, no port-state server) or :class:`UsageError`
     (not a manifest), one line each.
     """
     if isinstance(manifest, Mapping):
@@ -59,13 +59,13 @@ def read_bench(manifest: str | os.PathLike[str] | Mapping[str, Any], *, check: b
 
         name = str(manifest)
         data = read_manifest(manifest)
-    lines = data.get("lines")
+    lines = data.get("port_state")
     clock = data.get("clock")
     clock = dict(clock) if isinstance(clock, Mapping) and clock.get("virtual") else None
     if isinstance(lines, Mapping) and isinstance(lines.get("socket"), str):
-        bench = BenchLines(name, lines["socket"], dict(lines.get("ports") or {}), clock)
+        bench = BenchPorts(name, lines["socket"], dict(lines.get("ports") or {}), clock)
     else:  # a bench without ptys (sockets only): nothing to serve but its clock, if it has one
-        bench = BenchLines(name, None, {}, clock)
+        bench = BenchPorts(name, None, {}, clock)
     pid = data.get("pid")
     if check and bench.socket is not None and not ping(bench.socket):
         raise BenchError(f"{name}: the bench (pid {pid}) does not answer on {bench.socket}; is it still running?")
@@ -87,7 +87,7 @@ def _alive(pid: int) -> bool:
 
 
 def ping(path: str, timeout: float = 2.0) -> bool:
-    """Whether a line server answers on ``path``."""
+    """Whether a port-state server answers on ``path``."""
     try:
         with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as s:
             s.settimeout(timeout)
@@ -98,7 +98,7 @@ def ping(path: str, timeout: float = 2.0) -> bool:
         return False
 
 
-def ports_value(benches: Iterable[BenchLines]) -> str:
+def ports_value(benches: Iterable[BenchPorts]) -> str:
     """``HILBENCH_RUN_PORTS``: ``RDEV=SOCKET`` for every served pty, joined with ``;``."""
     return ";".join(f"{rdev}={b.socket}" for b in benches if b.socket for rdev in b.rdevs)
 
@@ -108,7 +108,7 @@ def python_site_dir() -> str:
     return str(resources.files("hilbench.run").joinpath("site"))
 
 
-def run_environment(benches: Iterable[BenchLines], shim: str = "auto",
+def run_environment(benches: Iterable[BenchPorts], shim: str = "auto",
                     environ: Mapping[str, str] | None = None) -> tuple[dict[str, str], list[str]]:
     """The environment for a client of ``benches`` and notes for the user (a fallback taken).
 
@@ -156,5 +156,5 @@ def run_environment(benches: Iterable[BenchLines], shim: str = "auto",
     return env, notes
 
 
-__all__ = ["SHIMS", "BenchLines", "manifest_paths", "ping", "ports_value", "python_site_dir", "read_bench",
+__all__ = ["SHIMS", "BenchPorts", "manifest_paths", "ping", "ports_value", "python_site_dir", "read_bench",
            "run_environment"]

@@ -15,7 +15,7 @@ that keep serialposix's structure (labgrid's ``pyserial-labgrid``); a
 A drain (``ser.flush()``, and the drain before a settings change) or an output
 flush (``reset_output_buffer()``) with nothing pending costs no request: the
 module's ``os`` is proxied too, so pyserial's writes to bench ports are
-stamped on the bench's delivery board (:mod:`hilbench.bench.delivery_board`),
+stamped on the bench's delivery ledger (:mod:`hilbench.bench.delivery_ledger`),
 and when the bench has delivered everything written before the last stamp,
 a drain returns at once, as on an adapter with an empty queue; so does an
 output flush when this process wrote nothing since its last drain or flush
@@ -24,8 +24,8 @@ bench in another process reuse connections from a small pool.
 
 Standard library only, and no hilbench import: the ``sitecustomize`` that loads
 it may run in any Python 3 on the machine (a ROS node's system interpreter), not
-only in hilbench's own. The request protocol is the line server's
-(:mod:`hilbench.bench.line_server`). If the bench does not answer, the real call
+only in hilbench's own. The request protocol is the port-state server's
+(:mod:`hilbench.bench.port_state_server`). If the bench does not answer, the real call
 runs (fail open), as in the C shim.
 """
 
@@ -45,20 +45,20 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-#: rdev -> the bench's line socket path, or (in-process) a callable answering one request line.
+#: rdev -> the bench's port-state socket path, or (in-process) a callable answering one request line.
 PORTS: dict[int, str | Callable[[str], str]] = {}
-#: rdev -> the bench's delivery board file (None: the bench has none; every drain asks).
-BOARDS: dict[int, str | None] = {}
+#: rdev -> the bench's delivery ledger file (None: the bench has none; every drain asks).
+LEDGERS: dict[int, str | None] = {}
 _lock = threading.Lock()
 TIMEOUT = 30.0
 
-# The delivery board's layout (hilbench/bench/delivery_board.py has the same numbers; a test compares).
-BOARD_MAGIC = b"HBBOARD1"
-BOARD_VERSION = 1
-BOARD_HEADER = 64
-BOARD_SLOT = 64
-BOARD_RDEV, BOARD_IDLE_NS, BOARD_DIRTY_NS, BOARD_DIRTY_PY_NS, BOARD_WRITING, BOARD_WRITING_PY, BOARD_DRAIN_NS = range(7)
-BOARD_FILE = "lines.board"
+# The delivery ledger's layout (hilbench/bench/delivery_ledger.py has the same numbers; a test compares).
+LEDGER_MAGIC = b"HBLEDGR1"
+LEDGER_VERSION = 1
+LEDGER_HEADER = 64
+LEDGER_SLOT = 64
+LEDGER_RDEV, LEDGER_IDLE_NS, LEDGER_DIRTY_NS, LEDGER_DIRTY_PY_NS, LEDGER_WRITING, LEDGER_WRITING_PY, LEDGER_DRAIN_NS = range(7)
+LEDGER_FILE = "port_state.ledger"
 
 _T = _termios
 TIOCMGET = getattr(_T, "TIOCMGET", 0x5415)
@@ -90,27 +90,27 @@ def load_env(value: str | None = None) -> int:
     return n
 
 
-def register(rdev: int, target: str | Callable[[str], str], board: str | None = None) -> None:
+def register(rdev: int, target: str | Callable[[str], str], ledger: str | None = None) -> None:
     """Treat the pty with device number ``rdev`` as a bench port reached through ``target``.
 
-    ``board``: the bench's delivery board; by default the one beside a socket ``target``.
+    ``ledger``: the bench's delivery ledger; by default the one beside a socket ``target``.
     """
-    if board is None and isinstance(target, str):
-        board = os.path.join(os.path.dirname(target), BOARD_FILE)
+    if ledger is None and isinstance(target, str):
+        ledger = os.path.join(os.path.dirname(target), LEDGER_FILE)
     with _lock, _state_lock:
         PORTS[rdev] = target
-        BOARDS[rdev] = board
+        LEDGERS[rdev] = ledger
         _slots.pop(rdev, None)
 
 
 def unregister(rdev: int) -> None:
-    """Forget a port (and unmap its bench's board once no registered port uses it)."""
+    """Forget a port (and unmap its bench's ledger once no registered port uses it)."""
     with _lock, _state_lock:
         PORTS.pop(rdev, None)
-        board = BOARDS.pop(rdev, None)
+        ledger = LEDGERS.pop(rdev, None)
         _slots.pop(rdev, None)
         _locals.pop(rdev, None)
-        words = _maps.pop(board, None) if board and board not in BOARDS.values() else None
+        words = _maps.pop(ledger, None) if ledger and ledger not in LEDGERS.values() else None
         if words is not None:
             mapped = words.obj
             words.release()
@@ -155,7 +155,7 @@ def ask(port: tuple[int, str | Callable[[str], str]], request: str, timeout: flo
     return None
 
 
-# Connections to line servers, kept for the next request (a connect and a server thread per request
+# Connections to port-state servers, kept for the next request (a connect and a server thread per request
 # cost more than the request): a few per socket, one request at a time on each.
 POOL_SIZE = 4
 _pool: dict[str, list[socket.socket]] = {}
@@ -230,7 +230,7 @@ class _Local:
 
 
 class _Slot:
-    """A port's slot on a bench's delivery board (words read and stored whole: 8 aligned bytes).
+    """A port's slot on a bench's delivery ledger (words read and stored whole: 8 aligned bytes).
 
     Python has no atomic read-modify-write: the Python words are stored under ``_state_lock``, so one
     process's own stores only grow; two Python processes writing to one pty at the same moment could
@@ -242,21 +242,21 @@ class _Slot:
         self._i = index
 
     def idle_ns(self) -> int:
-        self._words[self._i + BOARD_DRAIN_NS] = time.monotonic_ns()  # someone drains: keep it fresh
-        return self._words[self._i + BOARD_IDLE_NS]
+        self._words[self._i + LEDGER_DRAIN_NS] = time.monotonic_ns()  # someone drains: keep it fresh
+        return self._words[self._i + LEDGER_IDLE_NS]
 
     def dirty_ns(self) -> int:
-        return max(self._words[self._i + BOARD_DIRTY_NS], self._words[self._i + BOARD_DIRTY_PY_NS])
+        return max(self._words[self._i + LEDGER_DIRTY_NS], self._words[self._i + LEDGER_DIRTY_PY_NS])
 
     def begin(self, ns: int) -> None:
-        """A write begins (counted, then stamped: see hilbench/bench/delivery_board.py)."""
-        self._words[self._i + BOARD_WRITING_PY] = 1
-        i = self._i + BOARD_DIRTY_PY_NS
+        """A write begins (counted, then stamped: see hilbench/bench/delivery_ledger.py)."""
+        self._words[self._i + LEDGER_WRITING_PY] = 1
+        i = self._i + LEDGER_DIRTY_PY_NS
         if ns > self._words[i]:
             self._words[i] = ns
 
     def end(self) -> None:
-        self._words[self._i + BOARD_WRITING_PY] = 0
+        self._words[self._i + LEDGER_WRITING_PY] = 0
 
 
 _locals: dict[int, _Local] = {}
@@ -267,36 +267,36 @@ _state_lock = threading.Lock()
 _writes_seen = False
 
 
-def _board_words(path: str) -> memoryview | None:
+def _ledger_words(path: str) -> memoryview | None:
     if path not in _maps:
         words = None
         try:
             fd = os.open(path, os.O_RDWR | getattr(os, "O_CLOEXEC", 0))
             try:
                 size = os.fstat(fd).st_size
-                if size >= BOARD_HEADER:
+                if size >= LEDGER_HEADER:
                     words = memoryview(mmap.mmap(fd, size)).cast("Q")
             finally:
                 os.close(fd)
         except (OSError, ValueError):
             words = None
-        if words is not None and (words.obj[:8] != BOARD_MAGIC or words[1] != BOARD_VERSION  # type: ignore[index]
-                                  or words[3] != BOARD_SLOT or BOARD_HEADER + BOARD_SLOT * words[2] > len(words) * 8):
+        if words is not None and (words.obj[:8] != LEDGER_MAGIC or words[1] != LEDGER_VERSION  # type: ignore[index]
+                                  or words[3] != LEDGER_SLOT or LEDGER_HEADER + LEDGER_SLOT * words[2] > len(words) * 8):
             words = None
         _maps[path] = words
     return _maps[path]
 
 
 def _slot(rdev: int) -> _Slot | None:
-    """The port's slot on its bench's board (mapped on first use), or None."""
+    """The port's slot on its bench's ledger (mapped on first use), or None."""
     if rdev not in _slots:
-        path = BOARDS.get(rdev)
-        words = _board_words(path) if path else None
+        path = LEDGERS.get(rdev)
+        words = _ledger_words(path) if path else None
         slot = None
         if words is not None:
             for n in range(words[2]):
-                i = (BOARD_HEADER + BOARD_SLOT * n) // 8
-                if words[i + BOARD_RDEV] == rdev:
+                i = (LEDGER_HEADER + LEDGER_SLOT * n) // 8
+                if words[i + LEDGER_RDEV] == rdev:
                     slot = _Slot(words, i)
                     break
         _slots[rdev] = slot
@@ -311,7 +311,7 @@ def _local(rdev: int) -> _Local:
 
 
 def _delivered(rdev: int) -> bool:
-    """Whether everything this process (and, as far as the board knows, any other) wrote to the port
+    """Whether everything this process (and, as far as the ledger knows, any other) wrote to the port
     is delivered: then a drain has nothing to wait for. Call with ``_state_lock`` held."""
     if not _writes_seen:
         return False
@@ -521,7 +521,7 @@ class TermiosProxy(_Proxy):
 
 
 class OsProxy(_Proxy):
-    """``os`` with ``write`` stamping writes to bench ports on the delivery board."""
+    """``os`` with ``write`` stamping writes to bench ports on the delivery ledger."""
 
     def write(self, fd: Any, data: Any) -> int:
         return _write(self._real.write, fd, data)
@@ -620,5 +620,5 @@ if hasattr(os, "register_at_fork"):
     os.register_at_fork(after_in_child=_forget_pool_after_fork)
 
 
-__all__ = ["BOARDS", "PORTS", "FcntlProxy", "OsProxy", "TermiosProxy", "ask", "install", "load_env", "patch", "register",
+__all__ = ["LEDGERS", "PORTS", "FcntlProxy", "OsProxy", "TermiosProxy", "ask", "install", "load_env", "patch", "register",
            "uninstall", "unpatch"]

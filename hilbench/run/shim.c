@@ -6,7 +6,7 @@
  * the bench has not read yet, where a USB adapter has already put them on the
  * wire. Loaded with LD_PRELOAD into an unmodified client, this library takes those
  * calls on descriptors whose device number (st_rdev) is one of the bench's ptys
- * and asks the bench's line server instead (hilbench/bench/line_server.py has the
+ * and asks the bench's port-state server instead (hilbench/bench/port_state_server.py has the
  * protocol): HILBENCH_RUN_PORTS="RDEV=SOCKET;RDEV=SOCKET...".
  *
  * glibc's tcflush, tcdrain, tcsendbreak, tcsetattr and tcgetattr call the system call
@@ -18,7 +18,7 @@
  * A drain (tcdrain, TCSBRK n, and the drain before a settings change) with nothing
  * pending must cost what it costs on an adapter with an empty queue: nothing.
  * dynamixel-sdk 3.x drains before every packet. So writes to bench ptys are
- * stamped on the bench's delivery board (hilbench/bench/delivery_board.py, a
+ * stamped on the bench's delivery ledger (hilbench/bench/delivery_ledger.py, a
  * shared page beside the socket): a drain asks the bench only if something
  * written before the last stamp may not be delivered yet. An output flush also
  * asks if this process wrote since its last drain or flush (the devices then hear
@@ -61,11 +61,11 @@
 #define FD_CACHE 65536  /* descriptors above are looked up on every call */
 #define POOL_MAX 8
 
-/* The delivery board (hilbench/bench/delivery_board.py): a header, then one slot per pty. */
-#define BOARD_MAGIC "HBBOARD1"
-#define BOARD_VERSION 1
-#define BOARD_HEADER 64
-struct board_slot {
+/* The delivery ledger (hilbench/bench/delivery_ledger.py): a header, then one slot per pty. */
+#define LEDGER_MAGIC "HBLEDGR1"
+#define LEDGER_VERSION 1
+#define LEDGER_HEADER 64
+struct ledger_slot {
     uint64_t rdev;
     uint64_t idle_ns;      /* the bench: everything stamped before this CLOCK_MONOTONIC time is delivered */
     uint64_t dirty_ns;     /* C writers (an atomic maximum): the clock as the last write() began */
@@ -83,7 +83,7 @@ struct bench_socket {
 struct bench_port {
     dev_t rdev;
     int sock;                 /* index into sockets[] */
-    struct board_slot *slot;  /* NULL: the bench has no board; every drain asks */
+    struct ledger_slot *slot;  /* NULL: the bench has no ledger; every drain asks */
     int wrote;                /* this process wrote since its last drain or output flush */
     int unseen;               /* this process may write to it where we cannot see (stdio): always ask */
 };
@@ -133,7 +133,7 @@ static FILE *(*real_freopen)(const char *, const char *, FILE *);
 static FILE *(*real_freopen64)(const char *, const char *, FILE *);
 static int (*real_fclose)(FILE *);
 
-/* vclock.c, built into the same library: the real clock (board stamps are in the bench's real time,
+/* vclock.c, built into the same library: the real clock (ledger stamps are in the bench's real time,
  * also when the client's clock is virtual), the end of a descriptor, and every write. */
 __attribute__((visibility("hidden"))) int hb_real_clock_gettime(clockid_t clk, struct timespec *tp);
 __attribute__((visibility("hidden"))) void hb_vclock_forget(int fd);
@@ -153,7 +153,7 @@ struct shim_termios2 {
 #define SHIM_TCSETSW2 _IOW('T', 0x2C, struct shim_termios2)
 #define SHIM_TCSETSF2 _IOW('T', 0x2D, struct shim_termios2)
 
-/* ------------------------------------------------------------------ connections to line servers */
+/* ------------------------------------------------------------------ connections to port-state servers */
 
 struct conn {
     int fd, sock, timeout;
@@ -313,7 +313,7 @@ out:
 
 /* ------------------------------------------------------------------ which descriptors are bench ptys */
 
-static void map_board(int sock)
+static void map_ledger(int sock)
 {
     char path[sizeof sockets[0].path + 16];
     const char *slash = strrchr(sockets[sock].path, '/');
@@ -324,11 +324,11 @@ static void map_board(int sock)
 
     if (!slash || !real_open)
         return;
-    snprintf(path, sizeof path, "%.*s/lines.board", (int)(slash - sockets[sock].path), sockets[sock].path);
+    snprintf(path, sizeof path, "%.*s/port_state.ledger", (int)(slash - sockets[sock].path), sockets[sock].path);
     fd = real_open(path, O_RDWR | O_CLOEXEC);
     if (fd < 0)
         return;
-    if (fstat(fd, &st) != 0 || st.st_size < BOARD_HEADER) {
+    if (fstat(fd, &st) != 0 || st.st_size < LEDGER_HEADER) {
         close_fd(fd);
         return;
     }
@@ -337,14 +337,14 @@ static void map_board(int sock)
     if (page == MAP_FAILED)
         return;
     nslots = ((uint64_t *)page)[2];
-    if (memcmp(page, BOARD_MAGIC, 8) != 0 || ((uint64_t *)page)[1] != BOARD_VERSION ||
-        ((uint64_t *)page)[3] != sizeof(struct board_slot) || nslots > 4096 ||
-        BOARD_HEADER + nslots * sizeof(struct board_slot) > (uint64_t)st.st_size) {
+    if (memcmp(page, LEDGER_MAGIC, 8) != 0 || ((uint64_t *)page)[1] != LEDGER_VERSION ||
+        ((uint64_t *)page)[3] != sizeof(struct ledger_slot) || nslots > 4096 ||
+        LEDGER_HEADER + nslots * sizeof(struct ledger_slot) > (uint64_t)st.st_size) {
         munmap(page, (size_t)st.st_size);
         return;
     }
     for (i = 0; i < nslots; i++) {
-        struct board_slot *slot = (struct board_slot *)(page + BOARD_HEADER) + i;
+        struct ledger_slot *slot = (struct ledger_slot *)(page + LEDGER_HEADER) + i;
         for (j = 0; j < nports; j++)
             if (ports[j].sock == sock && (uint64_t)ports[j].rdev == slot->rdev)
                 ports[j].slot = slot;
@@ -414,7 +414,7 @@ static void init(void)
         spec = end ? end + 1 : NULL;
     }
     for (i = 0; i < nsockets; i++)
-        map_board(i);
+        map_ledger(i);
     if (nports) {
         pthread_atfork(before_fork, after_fork_parent, after_fork_child);
         for (fd = 0; fd <= 2; fd++)
@@ -511,7 +511,7 @@ static void write_ends(struct bench_port *p)
         __atomic_sub_fetch(&p->slot->writing, 1, __ATOMIC_SEQ_CST);
 }
 
-/* Everything written to the pty (by this process, and by others as far as the board knows) is delivered. */
+/* Everything written to the pty (by this process, and by others as far as the ledger knows) is delivered. */
 static int delivered(struct bench_port *p)
 {
     uint64_t idle, dirty, dirty_py;
@@ -858,7 +858,7 @@ int fclose(FILE *stream)
     return rc;
 }
 
-/* ------------------------------------------------------------------ line requests */
+/* ------------------------------------------------------------------ port-state requests */
 
 static int ask_break(const struct bench_port *p, double seconds)
 {

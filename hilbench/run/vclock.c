@@ -209,7 +209,7 @@ static void resolve(void)
 
 #define REAL(name) (__atomic_load_n(&resolved, __ATOMIC_ACQUIRE) ? r_##name : (resolve(), r_##name))
 
-/* The real clock, for the rest of the library (shim.c's delivery-board stamps stay in real time). */
+/* The real clock, for the rest of the library (shim.c's delivery ledger stamps stay in real time). */
 __attribute__((visibility("hidden"))) int hb_real_clock_gettime(clockid_t clk, struct timespec *tp)
 {
     int (*f)(clockid_t, struct timespec *) = REAL(clock_gettime);

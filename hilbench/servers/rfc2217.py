@@ -20,12 +20,12 @@ class Rfc2217Server(Server):
 
     def serves(self, endpoint: Any) -> bool:
         port = endpoint.port
-        return getattr(port, "lines", None) is not None and getattr(port, "carries", "bytes") == "bytes"
+        return getattr(port, "port_state", None) is not None and getattr(port, "carries", "bytes") == "bytes"
 
     def start(self, bench: Any, endpoint: Any, bind: str = DEFAULT_BIND) -> Rfc2217Port:
         from hilbench.transports.rfc2217 import Rfc2217Port
 
-        port = Rfc2217Port(f"{endpoint.name}:rfc2217", endpoint.port.lines, endpoint.medium, bind=bind,
+        port = Rfc2217Port(f"{endpoint.name}:rfc2217", endpoint.port.port_state, endpoint.medium, bind=bind,
                            baud=endpoint.spec.baud,
                            signature=f"hilbench {__version__} bench {bench.profile.name} endpoint {endpoint.name}")
         endpoint.medium.add_host(port)

@@ -1,6 +1,6 @@
 """What a door of the CAN host port is: one way for host programs onto an emulated CAN bus.
 
-:class:`~hilbench.transports.can_port.CanHostPort` opens the doors a profile
+:class:`~hilbench.transports.can_port.CanPort` opens the doors a profile
 asks for (socketcand, SLCAN, python-can ``virtual``, SocketCAN) and fans the
 bus's frames out to each; every door derives from :class:`CanDoor`. It lives
 apart from the port so that the doors import this base, not the port that
@@ -16,7 +16,7 @@ from hilbench.protocols.can_frame import CanFrame
 
 class CanDoor:
     """Base class of the doors of a CAN host port; the :class:`~hilbench.transports.can_medium.CanMedium` drives
-    them from its own thread, through :class:`~hilbench.transports.can_port.CanHostPort` (which fans out to
+    them from its own thread, through :class:`~hilbench.transports.can_port.CanPort` (which fans out to
     every door).
 
     A door implements :meth:`filenos`, :meth:`read_frames`, :meth:`write_frame` and :meth:`close`; the others

@@ -101,7 +101,7 @@ class CanDevicePort(DevicePort):
 
 
 @dataclass
-class BusStats:
+class CanMediumStats:
     """Counters of the bus."""
 
     frames: int = 0
@@ -123,7 +123,7 @@ class CanMedium(LoopMedium):
     def __init__(self, name: str, baud: int | None = None, *, paced: bool = False, seed: int | None = None,
                  clock: WallClock = WALL) -> None:
         super().__init__(name, baud or DEFAULT_BITRATE, paced=paced, clock=clock)
-        self.stats = BusStats()
+        self.stats = CanMediumStats()
         self.rng = random.Random(seed)
         self.faults: dict[str, Any] = {"error_rate": 0.0, "error_next": 0, "auto_recover": True}
         self.tec: dict[str, int] = {}
@@ -517,4 +517,4 @@ class CanMedium(LoopMedium):
         self._flush_hosts(list(self._hosts))
 
 
-__all__ = ["DEFAULT_BITRATE", "BusStats", "CanDevice", "CanDevicePort", "CanMedium"]
+__all__ = ["DEFAULT_BITRATE", "CanMediumStats", "CanDevice", "CanDevicePort", "CanMedium"]

@@ -92,7 +92,7 @@ def _name_option(value: Any, key: str, *, allow_true: bool) -> Any:
     raise OptionError(key, f"expected {extra}a name string or false, got {value!r}")
 
 
-class CanHostPort(HostPort):
+class CanPort(HostPort):
     """Every door of one CAN endpoint; a :class:`~hilbench.transports.can_medium.CanMedium` carries it."""
 
     kind = "can"
@@ -132,10 +132,10 @@ class CanHostPort(HostPort):
             if virtual:
                 self.open_virtual(virtual)
             if socketcan:
-                from hilbench.transports.socketcan import SocketCanLink
+                from hilbench.transports.socketcan import SocketCanDoor
 
                 try:
-                    self.socketcan = SocketCanLink.open(socketcan)
+                    self.socketcan = SocketCanDoor.open(socketcan)
                     self.doors.append(self.socketcan)
                 except OSError as exc:
                     self.socketcan_error = str(exc)
@@ -157,7 +157,7 @@ class CanHostPort(HostPort):
 
     @classmethod
     def open(cls, name: str, options: dict[str, Any], *, link_dir: str | os.PathLike[str] | None = None,
-             **_: Any) -> CanHostPort:
+             **_: Any) -> CanPort:
         slcan = options.get("slcan", True)
         if slcan and link_dir is not None:
             slcan = str(Path(link_dir) / name)
@@ -279,7 +279,7 @@ class CanHostPort(HostPort):
         self.doors = []
 
     def __repr__(self) -> str:
-        return f"CanHostPort({self.name!r}, {self.client_path})"
+        return f"CanPort({self.name!r}, {self.client_path})"
 
 
-__all__ = ["CanHostPort"]
+__all__ = ["CanPort"]

@@ -76,7 +76,7 @@ class CaptureParser:
 
     Damage is found, counted and survived, and everything readable is read;
     :meth:`quality` reports it (the data-quality findings of ``hilbench
-    monitor`` and ``hilbench profile``):
+    monitor`` and ``hilbench trace``):
 
     - **truncation**: a record cut off by the end of the input (a recording
       that was killed): :attr:`truncated_bytes`;

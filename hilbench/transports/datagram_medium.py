@@ -4,13 +4,13 @@ The serial line's shape (:class:`~hilbench.transports.medium.Medium`: add_host,
 add_device, add_tap, start, close) for datagrams, which keep their boundaries
 and their addresses:
 
-- **host ports** are bound UDP sockets (:class:`~hilbench.transports.udp.UdpEndpoint`):
+- **host ports** are bound UDP sockets (:class:`~hilbench.transports.udp.UdpPort`):
   the endpoint's own port (an agent's 8888), and sockets a device asks for with
-  :meth:`DatagramPort.open_socket` (a FreeRTPS node's metatraffic and user ports).
+  :meth:`DatagramDevicePort.open_socket` (a FreeRTPS node's metatraffic and user ports).
   A datagram arriving on a socket a device owns reaches that device; one on a
   shared socket (the endpoint's) reaches every device.
 - **devices** hear ``on_datagram(data, src, dst, t)`` and send with
-  :meth:`DatagramPort.send` (from a socket they name, by default the endpoint's),
+  :meth:`DatagramDevicePort.send` (from a socket they name, by default the endpoint's),
   so replies leave from the port the host wrote to, as from a real agent.
 - **taps** see every datagram once, in and out, as ``tap(t, source, data, addr)``
   with ``addr = (source host, source port, destination host, destination port)``;
@@ -35,7 +35,7 @@ from typing import Any
 from hilbench.transports.clock import WALL, WallClock, wait
 from hilbench.transports.medium import DevicePort
 from hilbench.transports.medium_loop import LoopMedium
-from hilbench.transports.udp import UdpEndpoint
+from hilbench.transports.udp import UdpPort
 
 log = logging.getLogger(__name__)
 
@@ -45,7 +45,7 @@ READ_BATCH = 64
 
 
 @dataclass
-class NetStats:
+class DatagramMediumStats:
     """Counters of the net."""
 
     datagrams_in: int = 0
@@ -65,12 +65,12 @@ class DatagramMedium(LoopMedium):
 
     def __init__(self, name: str, baud: int | None = None, *, paced: bool = False, clock: WallClock = WALL) -> None:
         super().__init__(name, baud, paced=False, clock=clock)
-        self.stats = NetStats()
+        self.stats = DatagramMediumStats()
         self._owner: dict[int, str | None] = {}  # id(socket) -> device name owning it (None: shared)
-        self._sockets: list[UdpEndpoint] = []
+        self._sockets: list[UdpPort] = []
         self._own_addresses: set[Address] = set()
         self._tap_kinds: dict[int, bool] = {}  # id(tap) -> takes addresses
-        self._opened: list[UdpEndpoint] = []
+        self._opened: list[UdpPort] = []
 
     # ------------------------------------------------------------------ wiring
 
@@ -83,11 +83,11 @@ class DatagramMedium(LoopMedium):
             self._own_addresses.add(tuple(port.address))
         self._wake()
 
-    def add_device(self, device: Any) -> DatagramPort:
+    def add_device(self, device: Any) -> DatagramDevicePort:
         """Attach a device (``on_datagram(data, src, dst, t)``); it sends through the returned port."""
         with self._lock:
             self._devices.append(device)
-        return DatagramPort(self, device.name)
+        return DatagramDevicePort(self, device.name)
 
     def add_tap(self, tap: Callable[..., None]) -> None:
         """Attach a tap: ``tap(t, source, data, addr)``, or ``tap(t, source, data)`` if it takes three."""
@@ -95,18 +95,18 @@ class DatagramMedium(LoopMedium):
         self._tap_kinds[id(tap)] = _takes_four(tap)
 
     def open_socket(self, owner: str | None, host: str = "127.0.0.1", port: int = 0, *,
-                    name: str | None = None) -> UdpEndpoint:
+                    name: str | None = None) -> UdpPort:
         """Bind a socket for device ``owner`` (None: shared); closed with the net. Raises OSError if taken."""
-        sock = UdpEndpoint(name or f"{owner or self.name}:{port}", host, port)
+        sock = UdpPort(name or f"{owner or self.name}:{port}", host, port)
         self._opened.append(sock)
         self.add_host(sock, owner=owner)
         return sock
 
     @property
-    def sockets(self) -> list[UdpEndpoint]:
+    def sockets(self) -> list[UdpPort]:
         return list(self._sockets)
 
-    def socket_of(self, owner: str | None) -> UdpEndpoint | None:
+    def socket_of(self, owner: str | None) -> UdpPort | None:
         """The first socket ``owner`` owns (None: the first shared one, the endpoint's)."""
         for s in self._sockets:
             if self._owner.get(id(s)) == owner:
@@ -115,7 +115,7 @@ class DatagramMedium(LoopMedium):
 
     # ------------------------------------------------------------------ sending
 
-    def send(self, source: str, data: bytes, dst: Address, *, via: UdpEndpoint | None = None,
+    def send(self, source: str, data: bytes, dst: Address, *, via: UdpPort | None = None,
              t: float | None = None) -> None:
         """Send ``data`` from device ``source`` to ``dst`` (from ``via``, by default its own socket or the
         endpoint's) now or at time ``t``; thread-safe."""
@@ -129,7 +129,7 @@ class DatagramMedium(LoopMedium):
         else:
             self.call_at(t, lambda: self._send_now(source, data, dst, via))
 
-    def _send_now(self, source: str, data: bytes, dst: Address, via: UdpEndpoint) -> None:
+    def _send_now(self, source: str, data: bytes, dst: Address, via: UdpPort) -> None:
         stats = self.stats
         if not via.send_to(data, dst):
             stats.send_errors += 1
@@ -163,7 +163,7 @@ class DatagramMedium(LoopMedium):
 
     # ------------------------------------------------------------------ receiving
 
-    def _receive(self, sock: UdpEndpoint, listen_only: bool) -> None:
+    def _receive(self, sock: UdpPort, listen_only: bool) -> None:
         owner = self._owner.get(id(sock))
         dst = sock.address
         for _ in range(READ_BATCH):
@@ -231,18 +231,18 @@ class DatagramMedium(LoopMedium):
             sock.close()
 
 
-class DatagramPort(DevicePort):
+class DatagramDevicePort(DevicePort):
     """What a device on a datagram net holds: send, timers, sockets of its own."""
 
     @property
     def net(self) -> DatagramMedium:
         return self._medium  # type: ignore[return-value]
 
-    def send(self, data: bytes, dst: Address, *, via: UdpEndpoint | None = None, t: float | None = None) -> None:
+    def send(self, data: bytes, dst: Address, *, via: UdpPort | None = None, t: float | None = None) -> None:
         """Send one datagram to ``dst`` (from ``via``, else the device's own socket or the endpoint's)."""
         self.net.send(self.name, data, dst, via=via, t=t)
 
-    def open_socket(self, host: str = "127.0.0.1", port: int = 0) -> UdpEndpoint:
+    def open_socket(self, host: str = "127.0.0.1", port: int = 0) -> UdpPort:
         """A socket only this device hears (raises OSError if the port is taken)."""
         return self.net.open_socket(self.name, host, port, name=f"{self.name}:{port}")
 
@@ -259,4 +259,4 @@ def _takes_four(fn: Callable[..., Any]) -> bool:
     return len(positional) >= 4 or any(p.kind == p.VAR_POSITIONAL for p in params)
 
 
-__all__ = ["Address", "DatagramMedium", "DatagramPort", "NetStats"]
+__all__ = ["Address", "DatagramMedium", "DatagramDevicePort", "DatagramMediumStats"]

@@ -8,7 +8,7 @@ to :meth:`~HostPort.write`. A port owns its profile keys
 (:attr:`~HostPort.profile_keys`, checked by :meth:`~HostPort.check_options`)
 and says where it is for the manifest (:meth:`~HostPort.describe`).
 
-Serial-like ports also carry a :class:`~hilbench.transports.line.LineState`
+Serial-like ports also carry a :class:`~hilbench.transports.port_state.PortState`
 (modem lines, BREAK, settings), which the medium passes on to devices.
 """
 
@@ -19,7 +19,7 @@ import re
 from typing import Any, ClassVar
 
 from hilbench.errors import OptionError
-from hilbench.transports.line import LineState
+from hilbench.transports.port_state import PortState
 
 
 class HostPort:
@@ -37,7 +37,7 @@ class HostPort:
     backpressure: ClassVar[bool] = False
 
     name: str
-    lines: LineState | None = None
+    lines: PortState | None = None
 
     # ------------------------------------------------------------------ profile
 

@@ -12,8 +12,8 @@ Media register by kind in the ``hilbench.media`` entry-point group; a bus kind
 names the kind its endpoints need (:attr:`BusKind.medium <hilbench.bench.bus.BusKind.medium>`).
 
 Besides traffic, a serial host port has modem lines and BREAK
-(:mod:`hilbench.transports.line`): the medium hands the host's changes to each
-device that has ``on_line(event, t)``, in the medium's own thread, and a
+(:mod:`hilbench.transports.port_state`): the medium hands the host's changes to each
+device that has ``on_port_event(event, t)``, in the medium's own thread, and a
 device drives CTS/DSR/RI/CD through :meth:`DevicePort.set_lines`.
 """
 
@@ -25,7 +25,7 @@ from collections.abc import Callable
 from typing import Any, ClassVar
 
 from hilbench.transports.clock import WALL, WallClock
-from hilbench.transports.line import LineEvent
+from hilbench.transports.port_state import PortEvent
 
 log = logging.getLogger(__name__)
 
@@ -34,7 +34,7 @@ Tap = Callable[[float, str, bytes], None]
 
 
 class Medium:
-    """Base class of media: host ports, devices, taps and line events. Subclasses move the traffic."""
+    """Base class of media: host ports, devices, taps and port events. Subclasses move the traffic."""
 
     #: The medium's kind, as families name it (``"serial"``).
     kind: ClassVar[str] = ""
@@ -57,12 +57,12 @@ class Medium:
     # ------------------------------------------------------------------ wiring
 
     def add_host(self, port: Any, *, listen_only: bool = False) -> None:
-        """Attach a host port; ``listen_only`` ignores what it sends. Its line events reach the devices."""
+        """Attach a host port; ``listen_only`` ignores what it sends. Its port events reach the devices."""
         with self._lock:
             self._hosts.append((port, listen_only))
-        lines = getattr(port, "lines", None)
+        lines = getattr(port, "port_state", None)
         if lines is not None:
-            lines.set_listener(lambda event, _name=port.name: self.line_event(_name, event))
+            lines.set_listener(lambda event, _name=port.name: self.port_event(_name, event))
 
     def add_device(self, device: Any) -> DevicePort:
         """Attach an in-process device; it transmits through the returned port."""
@@ -88,25 +88,25 @@ class Medium:
     def devices(self) -> list[Any]:
         return list(self._devices)
 
-    # ------------------------------------------------------------------ line events
+    # ------------------------------------------------------------------ port events
 
-    def line_event(self, source: str, event: LineEvent) -> None:
+    def port_event(self, source: str, event: PortEvent) -> None:
         """A host port's modem lines, BREAK or settings changed: tell the devices in the medium's thread.
 
         Called in the medium's own thread (a settings change found while reading the
-        port, a change ``hilbench run``'s line server applies there) the devices hear it
+        port, a change ``hilbench run``'s port-state server applies there) the devices hear it
         at once, so it comes before anything the medium delivers afterwards; from any
         other thread it is queued.
         """
         if self.in_medium_thread():
-            self._deliver_line_event(source, event)
+            self._deliver_port_event(source, event)
         else:
-            self.call_at(None, lambda: self._deliver_line_event(source, event))
+            self.call_at(None, lambda: self._deliver_port_event(source, event))
 
-    def _deliver_line_event(self, source: str, event: LineEvent) -> None:
+    def _deliver_port_event(self, source: str, event: PortEvent) -> None:
         t = self._now()
         for device in self._devices:
-            handler = getattr(device, "on_line", None)
+            handler = getattr(device, "on_port_event", None)
             if handler is None or device.name == source:
                 continue
             try:
@@ -118,7 +118,7 @@ class Medium:
     def set_device_lines(self, **lines: bool) -> None:
         """A device drives CTS/DSR/RI/CD: every host port with lines reads the new levels."""
         for port in self.hosts:
-            state = getattr(port, "lines", None)
+            state = getattr(port, "port_state", None)
             if state is not None:
                 state.device_sets(**lines)
 

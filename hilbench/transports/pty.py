@@ -16,7 +16,7 @@ from typing import Any
 
 from hilbench.errors import OptionError, UsageError
 from hilbench.transports.host_port import HostPort
-from hilbench.transports.line import LineSettings, LineState
+from hilbench.transports.port_state import PortState, SerialSettings
 
 #: termios speed constants to bit/s, for reading the baud a client configured.
 _SPEEDS: dict[int, int] = {}
@@ -40,7 +40,7 @@ _BYTESIZE = {termios.CS5: 5, termios.CS6: 6, termios.CS7: 7, termios.CS8: 8}
 _FRAMING = termios.CSIZE | termios.PARENB | termios.PARODD | _CMSPAR | termios.CSTOPB
 
 
-def termios_settings(fd: int, framing: int | None = None) -> LineSettings:
+def termios_settings(fd: int, framing: int | None = None) -> SerialSettings:
     """Baud rate and framing a tty is set to (raises termios.error if ``fd`` is none).
 
     A pty keeps the rate and CSTOPB but forces CS8 and clears PARENB, so the data
@@ -51,7 +51,7 @@ def termios_settings(fd: int, framing: int | None = None) -> LineSettings:
     return _decode_settings(fd, cflag, ospeed, framing)
 
 
-def _decode_settings(fd: int, cflag: int, ospeed: int, framing: int | None) -> LineSettings:
+def _decode_settings(fd: int, cflag: int, ospeed: int, framing: int | None) -> SerialSettings:
     baud = speed_to_baud(ospeed)
     if baud is None and ospeed == _BOTHER:
         with contextlib.suppress(OSError):
@@ -66,7 +66,7 @@ def _decode_settings(fd: int, cflag: int, ospeed: int, framing: int | None) -> L
     else:
         parity = "O" if cflag & termios.PARODD else "E"
     stopbits = (1.5 if bytesize == 5 else 2.0) if cflag & termios.CSTOPB else 1.0
-    return LineSettings(baud, bytesize, parity, stopbits)
+    return SerialSettings(baud, bytesize, parity, stopbits)
 
 
 class LinkRefused(UsageError):
@@ -99,7 +99,7 @@ def _what_is(path: Path, st: os.stat_result) -> str:
     return "a directory" if stat.S_ISDIR(st.st_mode) else "a file"
 
 
-class PtyEndpoint(HostPort):
+class PtyPort(HostPort):
     """One pseudo-terminal pair; the client side is :attr:`path` (and :attr:`link` if given).
 
     The master and the endpoint's own slave descriptor stay open for the
@@ -109,7 +109,7 @@ class PtyEndpoint(HostPort):
     non-blocking; bytes a client does not read in time are dropped and
     counted, as a UART with a full receive buffer drops them.
 
-    A pty has no modem lines of its own: :attr:`lines` holds the ones a host
+    A pty has no modem lines of its own: :attr:`port_state` holds the ones a host
     drives through ``hilbench run`` (or an RFC 2217 server) and the device drives.
     Profile key: ``link`` (a stable symlink to the pty). The link is made only
     where nothing is, or in place of a dead link to a pty that is gone (a
@@ -123,7 +123,7 @@ class PtyEndpoint(HostPort):
 
     def __init__(self, name: str = "pty", link: str | os.PathLike[str] | None = None) -> None:
         self.name = name
-        self.lines = LineState()
+        self.port_state = PortState()  #: modem signals, BREAK and serial settings (the host's and the devices')
         self.master_fd, self.slave_fd = os.openpty()
         tty.setraw(self.slave_fd)
         os.set_blocking(self.master_fd, False)
@@ -135,7 +135,7 @@ class PtyEndpoint(HostPort):
         self.dropped = 0
         self.framing: int | None = None  # c_cflag of the client's last tcsetattr, if reported
         self._settings_key: tuple | None = None
-        self._settings = self.lines.settings
+        self._settings = self.port_state.settings
         if link is not None:
             self._make_link(Path(link))
 
@@ -192,7 +192,7 @@ class PtyEndpoint(HostPort):
 
     @classmethod
     def open(cls, name: str, options: dict[str, Any], *, link_dir: str | os.PathLike[str] | None = None,
-             **_: Any) -> PtyEndpoint:
+             **_: Any) -> PtyPort:
         link = options.get("link")
         if link_dir is not None:
             link = str(Path(link_dir) / name)
@@ -214,12 +214,12 @@ class PtyEndpoint(HostPort):
         """The pty's device number (``st_rdev``): how ``hilbench run`` recognises it in a client."""
         return os.fstat(self.slave_fd).st_rdev
 
-    def client_settings(self) -> LineSettings:
-        """Baud rate and framing the client set with termios; a change becomes a LineSettings event."""
+    def client_settings(self) -> SerialSettings:
+        """Baud rate and framing the client set with termios; a change becomes a SerialSettings event."""
         try:
             _, _, cflag, _, _, ospeed, _ = termios.tcgetattr(self.slave_fd)
         except termios.error:
-            return self.lines.settings
+            return self.port_state.settings
         key = (cflag, ospeed, self.framing)
         # The medium asks on every read: skip decoding when nothing changed (a custom rate, BOTHER,
         # hides its number from tcgetattr, so that one is always read again).
@@ -227,10 +227,10 @@ class PtyEndpoint(HostPort):
             return self._settings
         settings = _decode_settings(self.slave_fd, cflag, ospeed, self.framing)
         self._settings_key, self._settings = key, settings
-        self.lines.host_settings(settings)  # emits only if something changed
+        self.port_state.host_settings(settings)  # emits only if something changed
         return settings
 
-    def report_framing(self, cflag: int) -> LineSettings:
+    def report_framing(self, cflag: int) -> SerialSettings:
         """The client's own ``c_cflag`` from its tcsetattr (the pty forgets data bits and parity)."""
         self.framing = cflag & _FRAMING
         return self.client_settings()
@@ -282,11 +282,11 @@ class PtyEndpoint(HostPort):
                 os.close(fd)
         self.master_fd = self.slave_fd = -1
 
-    def __enter__(self) -> PtyEndpoint:
+    def __enter__(self) -> PtyPort:
         return self
 
     def __exit__(self, *exc) -> None:
         self.close()
 
     def __repr__(self) -> str:
-        return f"PtyEndpoint({self.name!r}, path={self.client_path!r})"
+        return f"PtyPort({self.name!r}, path={self.client_path!r})"

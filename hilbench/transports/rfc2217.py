@@ -11,11 +11,11 @@ other RFC 2217 clients connect unmodified.
 A pty has no modem lines to forward, so the server does not wrap a
 ``serial.Serial`` (pyserial's ``PortManager`` would fail with ENOTTY): it
 keeps the line itself, in the endpoint's
-:class:`~hilbench.transports.line.LineState`:
+:class:`~hilbench.transports.port_state.PortState`:
 
 - SET-BAUDRATE / -DATASIZE / -PARITY / -STOPSIZE become
-  :class:`~hilbench.transports.line.LineSettings` (devices hear
-  ``on_line``; the baud is the sender's rate on the line, so servos at
+  :class:`~hilbench.transports.port_state.SerialSettings` (devices hear
+  ``on_port_event``; the baud is the sender's rate on the line, so servos at
   another rate do not hear the client, as on a real bus);
 - SET-CONTROL DTR/RTS/BREAK become ``host_sets`` / ``host_break``; flow
   control settings are kept and reported; every SET-CONTROL is answered
@@ -58,9 +58,9 @@ from typing import Any
 from hilbench import __version__
 from hilbench.protocols import rfc2217 as p
 from hilbench.transports.host_port import DEFAULT_BIND, HostPort, url_host
-from hilbench.transports.line import LineSettings, LineState
 from hilbench.transports.listener import NO_DESCRIPTORS, Listener
 from hilbench.transports.medium_loop import WakePipe
+from hilbench.transports.port_state import PortState, SerialSettings
 
 log = logging.getLogger(__name__)
 
@@ -85,19 +85,19 @@ _THEIRS = (p.BINARY, p.SGA, p.COM_PORT_OPTION)  # options we let the client do (
 class Rfc2217Port(HostPort):
     """A one-client RFC 2217 (telnet) server acting as a host port of a serial medium.
 
-    ``lines`` of the endpoint is where modem lines, BREAK and settings go
-    (:attr:`line_state`); the port itself has no :attr:`lines` of its own, so
+    ``port_state`` of the endpoint's host port is where modem lines, BREAK and settings go
+    (:attr:`endpoint_state`); the port itself has no :attr:`port_state` of its own, so
     the medium keeps its listener on the endpoint's port. ``medium`` (needed
     for :meth:`~hilbench.transports.medium.Medium.call_at`) is where it runs.
     """
 
     kind = "rfc2217"
-    lines = None
+    port_state = None
 
-    def __init__(self, name: str, line_state: LineState, medium: Any, *, bind: str = DEFAULT_BIND, port: int = 0,
+    def __init__(self, name: str, endpoint_state: PortState, medium: Any, *, bind: str = DEFAULT_BIND, port: int = 0,
                  baud: int | None = None, signature: str = "") -> None:
         self.name = name
-        self.line_state = line_state  #: the endpoint's modem lines, BREAK and settings
+        self.endpoint_state = endpoint_state  #: the endpoint's modem lines, BREAK and settings
         self.medium = medium
         self.signature = signature or f"hilbench {__version__}"
         self.listener = Listener(bind, port, 4, max_clients=1, refusal=self._refusal, send_buffer=SEND_BUFFER)
@@ -107,7 +107,7 @@ class Rfc2217Port(HostPort):
         self.client: socket.socket | None = None
         self.peer: tuple[str, int] | None = None
         self.since = 0.0
-        self.settings = LineSettings(baud)
+        self.settings = SerialSettings(baud)
         self.default_baud = baud
         # statistics
         self.connections = 0
@@ -118,7 +118,7 @@ class Rfc2217Port(HostPort):
         self.replies_dropped = 0
         self.problems = 0
         self._reset_session()
-        line_state.add_watcher(self._device_lines_changed)
+        endpoint_state.add_watcher(self._device_lines_changed)
 
     # ------------------------------------------------------------------ description
 
@@ -205,7 +205,7 @@ class Rfc2217Port(HostPort):
         return self._send(p.escape(data), droppable=len(data))
 
     def close(self) -> None:
-        self.line_state.remove_watcher(self._device_lines_changed)
+        self.endpoint_state.remove_watcher(self._device_lines_changed)
         self._hang_up(notify=False)
         with contextlib.suppress(OSError):
             self.listener.close()
@@ -239,9 +239,9 @@ class Rfc2217Port(HostPort):
                 self._reset_session()
                 self.client, self.peer, self.since = sock, addr[:2], time.time()  # wall-clock: connected at
             self.connections += 1
-            self.settings = LineSettings(self.default_baud)
+            self.settings = SerialSettings(self.default_baud)
             # Opening a real port asserts DTR and RTS (the client then sets them as it likes).
-            self.line_state.host_sets(dtr=True, rts=True)
+            self.endpoint_state.host_sets(dtr=True, rts=True)
             hello = b"".join(p.negotiation(p.WILL, o) for o in _OURS) + p.negotiation(p.DO, p.BINARY)
             self._asked_us.update(_OURS)
             self._asked_them.add(p.BINARY)
@@ -282,7 +282,7 @@ class Rfc2217Port(HostPort):
                     self.problems += 1
             elif isinstance(item, p.TelnetCommand):
                 if item.command == p.BRK:  # a plain telnet client's break key
-                    self._inbox.append(lambda: self.line_state.host_break(True, duration=0.25))
+                    self._inbox.append(lambda: self.endpoint_state.host_break(True, duration=0.25))
                 elif item.command == p.AYT:
                     if self._out:  # the last answer is not even sent: this one joins it (counted)
                         self.replies_dropped += 1
@@ -327,9 +327,9 @@ class Rfc2217Port(HostPort):
             self._out.clear()
             self._held.clear()
         if notify:
-            if self.line_state.break_active:
-                self.line_state.host_break(False)
-            self.line_state.host_sets(dtr=False, rts=False)
+            if self.endpoint_state.break_active:
+                self.endpoint_state.host_break(False)
+            self.endpoint_state.host_sets(dtr=False, rts=False)
 
     # ------------------------------------------------------------------ output
 
@@ -453,19 +453,19 @@ class Rfc2217Port(HostPort):
             if value and not MIN_BAUD <= value <= MAX_BAUD:
                 self.problems += 1  # not applied: the answer is the rate kept
             elif value:
-                self._apply(LineSettings(value, s.bytesize, s.parity, s.stopbits))
+                self._apply(SerialSettings(value, s.bytesize, s.parity, s.stopbits))
             self._reply(cmd, p.build_value(cmd, self.settings.baud or 0))
         elif cmd == p.Command.SET_DATASIZE:
             if 5 <= value <= 8:
-                self._apply(LineSettings(s.baud, value, s.parity, s.stopbits))
+                self._apply(SerialSettings(s.baud, value, s.parity, s.stopbits))
             self._reply(cmd, p.build_value(cmd, self.settings.bytesize))
         elif cmd == p.Command.SET_PARITY:
             if value in p.PARITY:
-                self._apply(LineSettings(s.baud, s.bytesize, p.PARITY[value], s.stopbits))
+                self._apply(SerialSettings(s.baud, s.bytesize, p.PARITY[value], s.stopbits))
             self._reply(cmd, p.build_value(cmd, p.PARITY_CODE[self.settings.parity]))
         elif cmd == p.Command.SET_STOPSIZE:
             if value in p.STOPSIZE:
-                self._apply(LineSettings(s.baud, s.bytesize, s.parity, p.STOPSIZE[value]))
+                self._apply(SerialSettings(s.baud, s.bytesize, s.parity, p.STOPSIZE[value]))
             self._reply(cmd, p.build_value(cmd, p.STOPSIZE_CODE[self.settings.stopbits]))
         elif cmd == p.Command.SET_CONTROL:
             answer = self._control(value)
@@ -486,13 +486,13 @@ class Rfc2217Port(HostPort):
             # The transmit side holds nothing: the client's bytes went on the line when they arrived.
             self._reply(cmd, p.build_value(cmd, value))
 
-    def _apply(self, settings: LineSettings) -> None:
+    def _apply(self, settings: SerialSettings) -> None:
         self.settings = settings
-        self.line_state.host_settings(settings)
+        self.endpoint_state.host_settings(settings)
 
     def _control(self, value: int) -> int | None:
         """SET-CONTROL: change or report a line; returns the value to answer with."""
-        c, state = p.Control, self.line_state
+        c, state = p.Control, self.endpoint_state
         flows = {c.FLOW_NONE: "none", c.FLOW_XONXOFF: "xonxoff", c.FLOW_HARDWARE: "hardware",
                  c.FLOW_DCD: "dcd", c.FLOW_DSR: "dsr"}
         flows_in = {c.FLOW_IN_NONE: "none", c.FLOW_IN_XONXOFF: "xonxoff", c.FLOW_IN_HARDWARE: "hardware",
@@ -532,7 +532,7 @@ class Rfc2217Port(HostPort):
     def _notify_modem(self, force: bool = False) -> None:
         if self.client is None or not (self._client_ok or force):
             return
-        state = p.modem_state(**self.line_state.device_lines())
+        state = p.modem_state(**self.endpoint_state.device_lines())
         if not force and state == self._reported:
             return
         value = p.with_deltas(state, self._reported) & self.modem_mask

@@ -2,7 +2,7 @@
 
 ``server-rfc2217`` drives an :class:`~hilbench.transports.rfc2217.Rfc2217Port` as a serial medium drives it
 (``read`` until it has nothing more, its timers run, the devices' bytes written now and then), with a real
-:class:`~hilbench.transports.line.LineState` whose events a device would hear. A client connects on
+:class:`~hilbench.transports.port_state.PortState` whose events a device would hear. A client connects on
 127.0.0.1 and sends the session in writes of at least :data:`~hilbench.fuzzing.SESSION_WRITE` bytes. When the
 client leaves, the port must hang up. One port per process serves session after session, as on a bench.
 ``good`` counts the bytes the client received, ``dropped`` what the port counted as a problem.
@@ -60,7 +60,7 @@ def rfc2217_session(rng: random.Random, size: int) -> bytes:
 
 class _Loop:
     """What the port needs of its medium: timers (run by the session after each round, as the line's thread
-    runs what is due), and line events for the devices (counted)."""
+    runs what is due), and port events for the devices (counted)."""
 
     def __init__(self) -> None:
         self.due: list[Any] = []
@@ -78,13 +78,13 @@ class _Loop:
 
 def _rfc2217_port() -> tuple[Any, _Loop]:
     global _server
-    from hilbench.transports.line import LineState
+    from hilbench.transports.port_state import PortState
     from hilbench.transports.rfc2217 import Rfc2217Port
 
     with _lock:
         if _server is None:
             loop = _Loop()
-            lines = LineState()
+            lines = PortState()
             lines.set_listener(lambda event: setattr(loop, "events", loop.events + 1))
             _server = (Rfc2217Port("fuzz:rfc2217", lines, loop, baud=115_200), loop)
             atexit.register(close_server)

@@ -34,7 +34,7 @@ write FIFO is one page) and then its writer waits. A paced line reads a host
 port with :attr:`~hilbench.transports.host_port.HostPort.backpressure` (a pty,
 a TCP port) only while its bytes not yet on the wire need less than half of
 that (in the host's own byte time), and then at most the rest; otherwise it
-stops watching the port until they do (:attr:`LineStats.held_back`), so the
+stops watching the port until they do (:attr:`SerialMediumStats.held_back`), so the
 kernel's buffer fills and the client's write() blocks (or a non-blocking one
 returns EAGAIN). An unpaced line delivers at once; it holds a host back only
 for a device that paces its own receiver (``input_backlog``: the rover
@@ -84,8 +84,8 @@ HOST_FIFO = 4096
 class Device(Protocol):
     """An in-process party on the line, e.g. a group of emulated servos.
 
-    It may also have ``on_line(event, t)`` to hear the host's modem lines, BREAK and
-    settings (:mod:`hilbench.transports.line`).
+    It may also have ``on_port_event(event, t)`` to hear the host's modem lines, BREAK and
+    settings (:mod:`hilbench.transports.port_state`).
     """
 
     name: str
@@ -99,7 +99,7 @@ class Device(Protocol):
 
 
 @dataclass
-class LineStats:
+class SerialMediumStats:
     """Counters of the line, by sender."""
 
     transmissions: int = 0
@@ -132,7 +132,7 @@ class SerialMedium(LoopMedium):
     def __init__(self, name: str, baud: int, *, paced: bool = False, realtime: bool | None = None,
                  clock: WallClock = WALL) -> None:
         super().__init__(name, baud, paced=paced, clock=clock)
-        self.stats = LineStats()  #: transmissions, bytes and lateness against the wire-time model
+        self.stats = SerialMediumStats()  #: transmissions, bytes and lateness against the wire-time model
         #: Run the line's thread under SCHED_FIFO if the OS allows it (None: when paced, unless
         #: HILBENCH_REALTIME=0). Unpaced lines gain nothing from it.
         self.realtime = (paced and os.environ.get("HILBENCH_REALTIME", "1") != "0") if realtime is None \
@@ -411,7 +411,7 @@ class SerialMedium(LoopMedium):
         ``CLOCK_MONOTONIC`` ``ns`` has been delivered (checked after each of its transmissions is
         delivered, and once now); None stops watching. ``ready()``, read after the clock, says whether
         no write to the port is under way; if one is and ``keen()`` (someone waits for the news), the
-        check is repeated a little later. ``hilbench run``'s delivery board uses it.
+        check is repeated a little later. ``hilbench run``'s delivery ledger uses it.
         """
         with self._lock:
             if watcher is None:
@@ -464,9 +464,9 @@ class SerialMedium(LoopMedium):
 
     @staticmethod
     def _board_ns() -> int:
-        # The delivery board's stamps are in the real CLOCK_MONOTONIC domain of the shim's writes (a
+        # The delivery ledger's stamps are in the real CLOCK_MONOTONIC domain of the shim's writes (a
         # client's write stamped before this read is counted), whatever the bench's clock: wall-clock.
-        return time.monotonic_ns()  # wall-clock: the delivery board's domain
+        return time.monotonic_ns()  # wall-clock: the delivery ledger's domain
 
     def _run_due(self) -> None:
         """Run what is due. Deliveries due together reach each host port in one write (a pty write costs
@@ -611,4 +611,4 @@ class SerialMedium(LoopMedium):
         return got
 
 
-__all__ = ["Device", "DevicePort", "LineStats", "SerialMedium", "Tap"]
+__all__ = ["Device", "DevicePort", "SerialMediumStats", "SerialMedium", "Tap"]

@@ -19,7 +19,7 @@ import os
 import threading
 import time
 
-from hilbench.transports.pty import PtyEndpoint
+from hilbench.transports.pty import PtyPort
 from hilbench.transports.readiness import Readiness
 from hilbench.transports.sources import PushSource, SourceError, SourceUnavailable
 
@@ -45,7 +45,7 @@ class SerialTap:
         except ValueError as exc:  # a malformed URL or setting
             raise SourceError(f"cannot open {real_port}: {exc}") from None
         try:
-            self.pty = PtyEndpoint(APP, link=link)
+            self.pty = PtyPort(APP, link=link)
         except BaseException:
             self._ser.close()
             raise

@@ -25,7 +25,7 @@ from typing import Any
 from hilbench.protocols import slcan
 from hilbench.protocols.can_frame import CanFrame
 from hilbench.transports.can_door import CanDoor
-from hilbench.transports.pty import PtyEndpoint
+from hilbench.transports.pty import PtyPort
 
 log = logging.getLogger(__name__)
 
@@ -41,7 +41,7 @@ class SlcanAdapter(CanDoor):
 
     def __init__(self, name: str = "can", link: str | None = None) -> None:
         self.name = name
-        self.pty = PtyEndpoint(f"{name}-slcan", link=link)
+        self.pty = PtyPort(f"{name}-slcan", link=link)
         self.source = f"slcan {self.pty.path}"
         self.splitter = slcan.LineSplitter()
         self.open = False

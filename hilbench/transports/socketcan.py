@@ -2,7 +2,7 @@
 
 :func:`af_can_status` probes for the address family once; where it is
 missing (many containers, this project's CI) every SocketCAN path says why
-in one line instead of failing deep inside. :class:`SocketCanLink` is the
+in one line instead of failing deep inside. :class:`SocketCanDoor` is the
 door of a CAN host port: it reads and writes ``struct can_frame`` records
 (:func:`hilbench.protocols.can_frame.pack`) on a raw CAN socket. It takes any
 connected datagram socket of that shape, so the same code runs on a kernel
@@ -52,7 +52,7 @@ def open_raw_socket(channel: str) -> socket.socket:
     return sock
 
 
-class SocketCanLink(CanDoor):
+class SocketCanDoor(CanDoor):
     """The SocketCAN door of a CAN host port: frames both ways between the emulated bus and ``sock``."""
 
     kind = "socketcan"
@@ -68,7 +68,7 @@ class SocketCanLink(CanDoor):
         self.malformed = 0
 
     @classmethod
-    def open(cls, channel: str) -> SocketCanLink:
+    def open(cls, channel: str) -> SocketCanDoor:
         """Join kernel interface ``channel``; raises OSError saying why it cannot."""
         return cls(open_raw_socket(channel), channel)
 
@@ -113,4 +113,4 @@ class SocketCanLink(CanDoor):
             self.sock.close()
 
 
-__all__ = ["SocketCanLink", "af_can_status", "open_raw_socket"]
+__all__ = ["SocketCanDoor", "af_can_status", "open_raw_socket"]

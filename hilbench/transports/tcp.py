@@ -1,6 +1,6 @@
 """A TCP host port: a device reached over Ethernet (a laser scanner's TCP port, a bench service).
 
-:class:`TcpEndpoint` listens on 127.0.0.1 (unless told otherwise) and serves
+:class:`TcpPort` listens on 127.0.0.1 (unless told otherwise) and serves
 one client at a time, as an embedded device's single TCP server does: a
 second client while one is connected is accepted and closed at once (and
 counted), and when the client leaves the port listens again (also when the
@@ -20,7 +20,7 @@ from hilbench.transports.host_port import HostPort, bind_address, port_number
 from hilbench.transports.listener import Listener
 
 
-class TcpEndpoint(HostPort):
+class TcpPort(HostPort):
     """A one-client TCP server acting as a host port; profile keys ``bind`` and ``port``."""
 
     kind = "tcp"
@@ -43,7 +43,7 @@ class TcpEndpoint(HostPort):
         return {"bind": bind_address(raw.get("bind", "127.0.0.1")), "port": port_number(raw.get("port", 0))}
 
     @classmethod
-    def open(cls, name: str, options: dict[str, Any], **_: Any) -> TcpEndpoint:
+    def open(cls, name: str, options: dict[str, Any], **_: Any) -> TcpPort:
         return cls(name, options["bind"], options["port"])
 
     @property
@@ -132,7 +132,7 @@ class TcpEndpoint(HostPort):
             self.listener.close()
 
     def __repr__(self) -> str:
-        return f"TcpEndpoint({self.name!r}, {self.url})"
+        return f"TcpPort({self.name!r}, {self.url})"
 
 
-__all__ = ["TcpEndpoint"]
+__all__ = ["TcpPort"]

@@ -1,6 +1,6 @@
 """A UDP endpoint: a bound socket acting as one host port (on a serial line, or on a datagram net).
 
-:class:`UdpEndpoint` has the pty endpoint's interface (``fileno``, ``read``,
+:class:`UdpPort` has the pty endpoint's interface (``fileno``, ``read``,
 ``write``, ``client_baud``, ``close``), so a
 :class:`~hilbench.transports.serial_medium.SerialMedium` carries it like a
 host port, with the same taps. Each datagram a host sends is one write on
@@ -10,8 +10,8 @@ most recent senders (a host registers by sending anything, even an empty
 datagram). It binds 127.0.0.1 unless told otherwise.
 
 On a :class:`~hilbench.transports.datagram_medium.DatagramMedium` the same port
-keeps datagrams whole and addressed: :meth:`UdpEndpoint.recv_from` gives each
-with its sender, :meth:`UdpEndpoint.send_to` answers one address.
+keeps datagrams whole and addressed: :meth:`UdpPort.recv_from` gives each
+with its sender, :meth:`UdpPort.send_to` answers one address.
 """
 
 from __future__ import annotations
@@ -41,7 +41,7 @@ def parse_address(text: str) -> tuple[str, int]:
     return host.strip("[]"), int(port)
 
 
-class UdpEndpoint(HostPort):
+class UdpPort(HostPort):
     """A bound UDP socket acting as one host port; see the module docstring.
 
     Profile keys: ``bind`` (default 127.0.0.1), ``port`` (0: any free port),
@@ -66,7 +66,7 @@ class UdpEndpoint(HostPort):
                 "peer": peer}
 
     @classmethod
-    def open(cls, name: str, options: dict[str, Any], **_: Any) -> UdpEndpoint:
+    def open(cls, name: str, options: dict[str, Any], **_: Any) -> UdpPort:
         return cls(name, options["bind"], options["port"], options["peer"])
 
     def describe(self) -> dict[str, Any]:
@@ -180,11 +180,11 @@ class UdpEndpoint(HostPort):
         with contextlib.suppress(OSError):
             self.sock.close()
 
-    def __enter__(self) -> UdpEndpoint:
+    def __enter__(self) -> UdpPort:
         return self
 
     def __exit__(self, *exc) -> None:
         self.close()
 
     def __repr__(self) -> str:
-        return f"UdpEndpoint({self.name!r}, {self.url})"
+        return f"UdpPort({self.name!r}, {self.url})"

@@ -1,12 +1,12 @@
-"""A UDP relay between clients and a target (``hilbench tap udp LISTEN TARGET``), watching both ways.
+"""A UDP relay between clients and an upstream (``hilbench tap udp LISTEN UPSTREAM``), watching both ways.
 
 Clients (a micro-ROS board, eProsima's client examples) send to LISTEN
 instead of to the agent; the relay forwards each datagram at once from a
-socket of that client's own (so the target sees one address per client, as
-it would without the relay) and sends the target's answers back to the client
+socket of that client's own (so the upstream sees one address per client, as
+it would without the relay) and sends the upstream's answers back to the client
 from LISTEN. Every datagram also goes to :attr:`UdpRelay.source` (a bounded
 :class:`~hilbench.transports.sources.PushSource`) with the addresses of the
-conversation it belongs to: ``(client, target)`` one way, ``(target, client)``
+conversation it belongs to: ``(client, upstream)`` one way, ``(upstream, client)``
 the other, the relay's own sockets left out. It binds 127.0.0.1 unless told
 otherwise.
 
@@ -42,8 +42,8 @@ WATCH_BYTES = 16 << 20
 class UdpRelay:
     """See the module docstring."""
 
-    def __init__(self, listen: Address, target: Address, *, max_clients: int = MAX_CLIENTS) -> None:
-        self.target = target
+    def __init__(self, listen: Address, upstream: Address, *, max_clients: int = MAX_CLIENTS) -> None:
+        self.upstream = upstream
         self.max_clients = max_clients  #: clients relayed at once
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
@@ -54,7 +54,7 @@ class UdpRelay:
         self.sock.setblocking(False)
         self.listen: Address = self.sock.getsockname()[:2]
         #: What the relay saw, both ways, for a monitor or recorder.
-        self.source = PushSource(f"udp relay {self.listen[0]}:{self.listen[1]} -> {target[0]}:{target[1]}",
+        self.source = PushSource(f"udp relay {self.listen[0]}:{self.listen[1]} -> {upstream[0]}:{upstream[1]}",
                                  max_bytes=WATCH_BYTES)
         self.source.protocol = "udp"
         self._up: dict[Address, socket.socket] = {}
@@ -124,14 +124,14 @@ class UdpRelay:
                     elif key.data is None:
                         self._from_clients()
                     elif self._up.get(key.data) is key.fileobj:  # (not a client dropped meanwhile)
-                        self._from_target(key.fileobj, key.data)
+                        self._from_upstream(key.fileobj, key.data)
         except Exception as exc:  # noqa: BLE001 (reported to the verb, which exits with it)
             self.error = f"{type(exc).__name__}: {exc}"
         finally:
             self.source.end()
 
     def _from_clients(self) -> None:
-        target = self.target
+        upstream = self.upstream
         for _ in range(READ_BATCH):
             try:
                 data, client = self.sock.recvfrom(65536)
@@ -142,21 +142,21 @@ class UdpRelay:
             client = client[:2]
             now = time.monotonic()
             try:
-                self._upstream(client).sendto(data, target)
+                self._upstream(client).sendto(data, upstream)
             except OSError:
                 self.send_errors += 1
             self.datagrams_up += 1
             self.bytes_up += len(data)
-            self.source.push(now, f"udp:{client[0]}:{client[1]}", data, (client[0], client[1], target[0], target[1]))
+            self.source.push(now, f"udp:{client[0]}:{client[1]}", data, (client[0], client[1], upstream[0], upstream[1]))
 
-    def _from_target(self, up: socket.socket, client: Address) -> None:
+    def _from_upstream(self, up: socket.socket, client: Address) -> None:
         for _ in range(READ_BATCH):
             try:
                 data, sender = up.recvfrom(65536)
             except (BlockingIOError, InterruptedError):
                 return
             except OSError:
-                return  # the target is not there (ICMP port unreachable): keep relaying
+                return  # the upstream is not there (ICMP port unreachable): keep relaying
             now = time.monotonic()
             try:
                 self.sock.sendto(data, client)

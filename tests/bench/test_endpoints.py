@@ -10,9 +10,9 @@ import pytest
 
 from hilbench.bench import Bench
 from hilbench.pytest_plugin import wait_until
-from hilbench.transports.line import BreakCondition, LineSettings, ModemLines
+from hilbench.transports.port_state import BreakCondition, ModemSignals, SerialSettings
 from hilbench.transports.serial_medium import SerialMedium
-from hilbench.transports.tcp import TcpEndpoint
+from hilbench.transports.tcp import TcpPort
 
 
 class Recorder:
@@ -26,12 +26,12 @@ class Recorder:
     def on_bytes(self, data: bytes, t: float, baud) -> None:
         self.data += data
 
-    def on_line(self, event, t: float) -> None:
+    def on_port_event(self, event, t: float) -> None:
         self.events.append(event)
 
 
 def test_tcp_port_serves_one_client_and_refuses_a_second():
-    port = TcpEndpoint("scanner")
+    port = TcpPort("scanner")
     medium = SerialMedium("scanner", 115_200)
     rec = Recorder()
     dport = medium.add_device(rec)
@@ -67,14 +67,14 @@ def test_line_events_of_a_host_port_reach_the_devices_and_device_lines_reach_the
         ep = bench.endpoint()
         rec = Recorder()
         dport = ep.medium.add_device(rec)
-        lines = ep.port.lines
+        lines = ep.port.port_state
         assert (lines.dtr, lines.rts) == (True, True)  # as a host's open() leaves them
         lines.host_sets(dtr=False)
         lines.host_break(True, 0.25)
-        lines.host_settings(LineSettings(1_000_000, 8, "N", 1))
+        lines.host_settings(SerialSettings(1_000_000, 8, "N", 1))
         lines.host_sets(dtr=False)  # no change, no event
         wait_until(lambda: len(rec.events) == 3)
-        assert rec.events == [ModemLines(False, True), BreakCondition(True, 0.25), LineSettings(1_000_000, 8, "N", 1)]
+        assert rec.events == [ModemSignals(False, True), BreakCondition(True, 0.25), SerialSettings(1_000_000, 8, "N", 1)]
         dport.set_lines(dsr=True, cts=True)
         assert lines.device_lines() == {"cts": True, "dsr": True, "ri": False, "cd": False}
 

@@ -119,7 +119,7 @@ def test_every_reader_reports_a_stale_manifest_in_one_line(tmp_path, dead_pid):
         open_source(str(path))
     with pytest.raises(BenchNotRunning, match="stale manifest"):
         ControlClient.from_manifest(path)
-    for args in (["monitor", str(path), "--summary"], ["profile", str(path)], ["record", str(path), "-"],
+    for args in (["monitor", str(path), "--summary"], ["trace", str(path)], ["record", str(path), "-"],
                  ["board", "--manifest", str(path), "status"]):
         proc = hb(*args)
         assert proc.returncode == 1, (args, proc.stderr)
@@ -153,7 +153,7 @@ def test_every_verb_reads_manifests_the_same_way(verb, given, tmp_path, dead_pid
     from hilbench.cli import main
 
     path = tmp_path / "bench.json"
-    if given == "other JSON":  # e.g. a `hilbench profile --json` document
+    if given == "other JSON":  # e.g. a `hilbench trace --json` document
         path.write_text('{"tasks": {}}')
         want, code = "not a bench manifest (no endpoints)", 2
     elif given == "directory":

@@ -40,7 +40,7 @@ def board(hilbench_bench, tmp_path, patient_sdk):
 
     path = tmp_path / "board.toml"
     path.write_text(BOARD)
-    bench = hilbench_bench(str(path), lines=False)
+    bench = hilbench_bench(str(path), port_state=False)
     port = sdk.PortHandler(bench.endpoint().path)
     assert port.openPort() and port.setBaudRate(1_000_000)
     yield bench, port, sdk.PacketHandler(2.0), sdk

@@ -9,7 +9,7 @@ came after the SDK gave up is read as the next exchange's).
 
 Both SDK generations run, under ``hilbench run`` as a user would: 4.x flushes input before every packet;
 3.x (``make install`` puts it beside) drains output, a tcdrain, which must cost nothing when nothing is
-pending (the delivery board of ``hilbench run``).
+pending (the delivery ledger of ``hilbench run``).
 """
 
 from __future__ import annotations

@@ -35,7 +35,7 @@ def _profile(domain: int, naming: str = "ros2") -> dict:
 def nodes(hilbench_bench):
     """Factory: the three nodes on a started bench in a free domain (``nodes(naming)``), stopped after."""
     return lambda naming="ros2": hilbench_bench(parse_profile(_profile(free_domain(), naming), "n.toml"),
-                                                lines=False, tap=False)
+                                                port_state=False, tap=False)
 
 
 def test_nodes_discover_each_other_and_echo(nodes) -> None:

@@ -105,7 +105,7 @@ def _low_port_socket() -> socket.socket:
 
 def test_spoofed_locators_naming_other_ports_are_never_sent_to(hilbench_bench) -> None:
     domain = free_domain()
-    b = hilbench_bench(parse_profile(_profile(domain), "n.toml"), lines=False, tap=False)
+    b = hilbench_bench(parse_profile(_profile(domain), "n.toml"), port_state=False, tap=False)
     p = b.device("talker").participant
     node = ("127.0.0.1", rtps.ports(domain, 0)["metatraffic_unicast"])
     victim, attacker = _low_port_socket(), udp()
@@ -125,7 +125,7 @@ def test_spoofed_locators_naming_other_ports_are_never_sent_to(hilbench_bench) -
 
 def test_remote_participants_are_bounded_and_expire_at_their_lease(hilbench_bench) -> None:
     domain = free_domain()
-    b = hilbench_bench(parse_profile(_profile(domain), "n.toml"), lines=False, tap=False)
+    b = hilbench_bench(parse_profile(_profile(domain), "n.toml"), port_state=False, tap=False)
     limits = next(d for d in b.manifest()["devices"] if d["name"] == "talker")["limits"]
     assert limits["participants"] == MAX_REMOTES and limits["locator_ports"] == [7400, 65535]
     p = b.device("talker").participant

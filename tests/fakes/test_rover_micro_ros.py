@@ -31,12 +31,12 @@ def rover_profile(zero: bool = False):
 @pytest.fixture
 def bench(hilbench_bench):
     """Factory: the agent and the rover board on one started bench (``bench(zero=True)``), stopped after."""
-    return lambda zero=False: hilbench_bench(rover_profile(zero), lines=False)
+    return lambda zero=False: hilbench_bench(rover_profile(zero), port_state=False)
 
 
 def test_board_session_entities_and_cmd_vel(bench) -> None:
     b = bench()
-    link = b.family("stm32-rover").board().links[0]
+    link = b.family("stm32-rover").board().clients[0]
     agent = b.family("micro-ros-agent").agent()
     wait_until(lambda: link.client.state == "running" and link.self_samples["odometry"] > 3, 10)
     s = agent.by_key[bytes.fromhex("60C93570")]
@@ -68,7 +68,7 @@ def test_board_session_entities_and_cmd_vel(bench) -> None:
 def test_zeroed_datagram_fault_breaks_every_session(bench) -> None:
     b = bench(zero=True)
     mon = Monitor(MediumSource(b.endpoint("agent").medium)).start()
-    link = b.family("stm32-rover").board().links[0]
+    link = b.family("stm32-rover").board().clients[0]
     agent = b.family("micro-ros-agent").agent()
     wait_until(lambda: agent.counters["takeovers"] >= 1 and link.client.counters["creation_failures"] >= 1, 10)
 
@@ -87,7 +87,7 @@ def test_control_channel_zeroes_the_next_datagram(bench) -> None:
     from hilbench.families.stm32_rover import FAMILY
 
     b = bench()
-    link = b.family("stm32-rover").board().links[0]
+    link = b.family("stm32-rover").board().clients[0]
     wait_until(lambda: link.client.state == "running" and link.self_samples["odometry"] > 0, 10)
     before = b.family("micro-ros-agent").agent().counters["takeovers"]
     out = FAMILY.control(b, b.family("stm32-rover").board(), "micro_ros", {"zeroed_next": 1})

@@ -49,7 +49,7 @@ def test_frames_from_hilbench_and_from_an_independent_crc_are_accepted_and_logge
     assert logs(b)[-2:] == ["[INFO]: [recv vel] [100.000000 -200.000000 0.300000]",
                             "[INFO]: [recv vel] [500.000000 0.000000 0.000000]"]
     items, dec = decode(b)
-    texts = [f"[{i.level}]: {i.message}" for i in items if type(i).__name__ == "LogLine"]
+    texts = [f"[{i.level}]: {i.message}" for i in items if type(i).__name__ == "LogMessage"]
     assert texts[-2:] == logs(b)[-2:]  # the same lines went out on the UART
     assert b.truth.frames_ok == 2 and b.fw.crc_err == 0
 

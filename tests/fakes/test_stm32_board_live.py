@@ -9,10 +9,10 @@ import pytest
 import serial
 
 from hilbench.protocols import vel2d
-from hilbench.protocols.tracestamp import LogLine, RuntimeReport
+from hilbench.protocols.tracestamp import LogMessage, RuntimeReport
 from hilbench.protocols.tracestamp_stream import StreamDecoder, stamps_of
 from hilbench.pytest_plugin import wait_until
-from hilbench.transports.host_link import HostLink
+from hilbench.transports.host_connection import HostConnection
 from tests.stm32_vectors import crc32_mpeg2_bitwise
 
 
@@ -32,7 +32,7 @@ class Reader:
 
     def logs(self) -> list[str]:
         self.poll()
-        return [i.message for i in self.items if isinstance(i, LogLine)]
+        return [i.message for i in self.items if isinstance(i, LogMessage)]
 
     def report(self):
         self.poll()
@@ -90,7 +90,7 @@ def test_udp_round_trip_frames_logs_and_binary_stamps(hilbench_bench):
     ep = bench.endpoint("rover")
     assert ep.path.startswith("udp://127.0.0.1:") and ep.port.kind == "udp" and ep.port.address[0] == "127.0.0.1"
     board = bench.family("stm32-rover").board()
-    link = HostLink.open(ep.path)
+    link = HostConnection.open(ep.path)
     rd = Reader(link.read)
     try:
         link.send(vel2d.build(0.1, -0.2, 0.3))  # one datagram, one frame; it also registers us
@@ -117,7 +117,7 @@ def test_udp_round_trip_frames_logs_and_binary_stamps(hilbench_bench):
 
 def test_udp_rejects_short_frames_like_the_uart(hilbench_bench):
     bench = hilbench_bench("mecarover-udp")
-    link = HostLink.open(bench.endpoint().path)
+    link = HostConnection.open(bench.endpoint().path)
     try:
         link.send(vel2d.build(0.0, 0.0, 0.0)[:20])
         board = bench.family("stm32-rover").board()

@@ -33,7 +33,7 @@ def agent_profile(**device) -> dict:
 @pytest.fixture
 def agent_bench(hilbench_bench):
     """Factory: a started bench of one agent (``agent_bench(refs=...)``), stopped after the test."""
-    return lambda **device: hilbench_bench(parse_profile(agent_profile(**device), "agent.toml"), lines=False)
+    return lambda **device: hilbench_bench(parse_profile(agent_profile(**device), "agent.toml"), port_state=False)
 
 
 class Raw:

@@ -18,7 +18,7 @@ S = x.SubmessageId
 
 @pytest.fixture
 def agent_bench(hilbench_bench):
-    return lambda **device: hilbench_bench(parse_profile(agent_profile(**device), "agent.toml"), lines=False)
+    return lambda **device: hilbench_bench(parse_profile(agent_profile(**device), "agent.toml"), port_state=False)
 
 
 class Client:

@@ -114,7 +114,7 @@ def test_round_trip_wolfgang_with_the_official_sdk(hilbench_bench, tmp_path, pat
     recording gives back the servos, the boards that answered and the foot sensor that does not."""
     import dynamixel_sdk as sdk
 
-    bench = hilbench_bench("wolfgang", lines=False)
+    bench = hilbench_bench("wolfgang", port_state=False)
     ep = bench.endpoint()
     servos = list(range(1, 21))
     with recording(ep, tmp_path / "wolfgang.hbcap") as path:
@@ -163,7 +163,7 @@ def test_round_trip_poppy_ergo_jr_xl320(hilbench_bench, tmp_path, patient_sdk):
     """XL-320s (their own Protocol 2.0 table): the angle limits the host read come back as init values."""
     import dynamixel_sdk as sdk
 
-    bench = hilbench_bench("poppy-ergo-jr", lines=False)
+    bench = hilbench_bench("poppy-ergo-jr", port_state=False)
     ep = bench.endpoint()
     with recording(ep, tmp_path / "ergo.hbcap") as path:
         port = sdk.PortHandler(ep.path)
@@ -196,7 +196,7 @@ def test_round_trip_so101_follower_feetech(hilbench_bench, tmp_path):
     """Feetech's own SDK reads an SO-101 arm's calibration as LeRobot does: the homing offsets, position limits
     and horn positions come back."""
     scs = pytest.importorskip("scservo_sdk")
-    bench = hilbench_bench("so101-follower", lines=False)
+    bench = hilbench_bench("so101-follower", port_state=False)
     ep = bench.endpoint()
     with recording(ep, tmp_path / "so101.hbcap") as path:
         port = scs.PortHandler(ep.path)
@@ -236,7 +236,7 @@ def test_round_trip_poppy_humanoid_protocol1(hilbench_bench, tmp_path, patient_s
     """Protocol 1.0 (AX-12A, MX-28/64 with 1.0 firmware): models from the Model Number the host read."""
     import dynamixel_sdk as sdk
 
-    bench = hilbench_bench("poppy-humanoid", lines=False)
+    bench = hilbench_bench("poppy-humanoid", port_state=False)
     orig = load_profile("poppy-humanoid")
     ep = bench.endpoint("upper")
     ids = [s.id for s in orig.devices if s.endpoint == "upper"]

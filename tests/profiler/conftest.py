@@ -7,13 +7,13 @@ from types import SimpleNamespace
 import pytest
 
 from hilbench.profiler.ingest import Profiler
-from hilbench.profiler.settings import ProfileSettings
+from hilbench.profiler.settings import ProfilerSettings
 from tests.stm32_vectors import LISTING_34, LISTING_35, LISTING_38, LISTING_39, REPORT_65, TRACE_64, lines
 
 # §6.4 settings: tasks {IDLE, wheel_ctrl, tsink}, function pid; wheel_ctrl T = 1000, merge_gap 500, D = 25.
-SETTINGS_64 = ProfileSettings(tasks=frozenset({"IDLE", "wheel_ctrl", "tsink"}), periods={"wheel_ctrl": 1000},
+SETTINGS_64 = ProfilerSettings(tasks=frozenset({"IDLE", "wheel_ctrl", "tsink"}), periods={"wheel_ctrl": 1000},
                               merge_gaps={"wheel_ctrl": 500}, deadlines={"wheel_ctrl": 25})
-def profile(data: bytes, settings: ProfileSettings | None = None, chunk: int | None = None):
+def profile(data: bytes, settings: ProfilerSettings | None = None, chunk: int | None = None):
     p = Profiler(settings)
     step = chunk or max(1, len(data))
     for i in range(0, len(data), step):

@@ -14,7 +14,7 @@ import serial
 from hilbench.fakes.stm32_board.board import Board
 from hilbench.fakes.stm32_board.presets import BoardConfig, make_preset
 from hilbench.profiler.ingest import Profiler
-from hilbench.profiler.settings import ProfileSettings
+from hilbench.profiler.settings import ProfilerSettings
 from hilbench.protocols import vel2d
 from hilbench.pytest_plugin import wait_until
 
@@ -43,7 +43,7 @@ def periods_of(preset) -> dict[str, float]:
             "odometry": round(pose / tick) * tick, "pose_control": round(pose / tick) * tick}
 
 
-def analyse(data: bytes, settings: ProfileSettings | None = None, chunk: int = 4096):
+def analyse(data: bytes, settings: ProfilerSettings | None = None, chunk: int = 4096):
     p = Profiler(settings)
     for i in range(0, len(data), chunk):
         p.feed(data[i : i + chunk])
@@ -57,7 +57,7 @@ def test_recovers_configured_rates_times_and_shares(output, baud, share_tol_pp):
     board, data = emulate(output, baud=baud)
     preset = board.config.preset
     periods = periods_of(preset)
-    a = analyse(data, ProfileSettings(periods=periods))
+    a = analyse(data, ProfilerSettings(periods=periods))
     q = a.quality
     assert a.classification == "report" and q["reports"] == 1 and q["windows"] == 1
     assert (q["parse_errors"], q["orphan_ends"], q["orphan_begins"], q["double_begins"], q["drops"]) == (0,) * 5
@@ -82,7 +82,7 @@ def test_recovers_configured_rates_times_and_shares(output, baud, share_tol_pp):
 def test_thesis_output_v1_micro_ros_functions_arrive_late_and_nest_in_the_executor():
     board, data = emulate("v1", "micro-ros-100-50", baud=2_000_000, window_ms=500)
     preset = board.config.preset
-    a = analyse(data, ProfileSettings(periods={"w_ctrl": 1e4, "p_ctrl": 2e4, "odom": 1e4}))
+    a = analyse(data, ProfilerSettings(periods={"w_ctrl": 1e4, "p_ctrl": 2e4, "odom": 1e4}))
     q = a.quality
     # V1 writes scope stamps at once and hook stamps at the next flush: many lines arrive out of order.
     assert q["out_of_order"] > 100 and q["late_beyond_reorder"] == 0
@@ -104,7 +104,7 @@ def test_thesis_output_v1_micro_ros_functions_arrive_late_and_nest_in_the_execut
 def test_overflow_drops_are_found_exactly(output):
     # 10000|5000 Hz makes ~8 stamps per 100 µs: the binary sink and V2's 512-record ring overflow (spec §4.3).
     board, data = emulate(output, "freertos-10000-5000", baud=2_000_000, window_ms=300)
-    a = analyse(data, ProfileSettings(periods=periods_of(board.config.preset)))
+    a = analyse(data, ProfilerSettings(periods=periods_of(board.config.preset)))
     q, truth = a.quality, board.truth
     lost = truth.stamps_dropped if output == "binary" else truth.records_lost
     assert lost > 1000
@@ -116,13 +116,13 @@ def test_overflow_drops_are_found_exactly(output):
 
 
 def _profile_cli(*args: str) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-m", "hilbench.cli", "profile", *args], stdout=subprocess.PIPE,
+    return subprocess.Popen([sys.executable, "-m", "hilbench.cli", "trace", *args], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
 
 
 @pytest.mark.hilbench_profile("mecarover-thesis")
 def test_cli_on_the_emulated_board_over_a_pty(bench):
-    """The thesis set-up (V1 at 1,152,000 baud): hilbench profile reads the pty while the button is pressed."""
+    """The thesis set-up (V1 at 1,152,000 baud): hilbench trace reads the pty while the button is pressed."""
     ep = bench.endpoint("rover")
     board = bench.family("stm32-rover").board()
     proc = _profile_cli(ep.path, "--baud", "1152000", "--reports", "1", "--json", "--period", "wheel_ctrl=10ms",
@@ -219,7 +219,7 @@ def test_every_preset_and_output_gives_clean_pairs_unless_stamps_were_lost():
                 if output != "v3":
                     board.press_button()
                 board.run_for(0.4 if output != "v3" else 1.5)
-                q = analyse(board.take_output(), ProfileSettings()).quality
+                q = analyse(board.take_output(), ProfilerSettings()).quality
                 lost = board.truth.records_lost + board.truth.stamps_dropped
                 anomalies = (q["double_begins"], q["orphan_ends"], q["orphan_begins"])
                 if any(anomalies) and not lost:

@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from hilbench.profiler.export_perfetto import trace_events
 from hilbench.profiler.ingest import Profiler
-from hilbench.profiler.settings import ProfileSettings
+from hilbench.profiler.settings import ProfilerSettings
 from hilbench.protocols import tracestamp_binary as tsb
 
 WRAP = 19_884_107  # µs: the board's 32-bit cycle counter at 216 MHz
@@ -32,7 +32,7 @@ piece = st.one_of(stamp, stamp, stamp, other, words, st.binary(max_size=12))
 @given(st.lists(piece, max_size=120), st.integers(1, 97), st.booleans())
 def test_anything_in_gives_an_analysis_never_an_exception(pieces, chunk, periods):
     data = b"".join(pieces)
-    settings_ = ProfileSettings(periods={"wheel_ctrl": 1000.0, "pid": 500.0} if periods else {},
+    settings_ = ProfilerSettings(periods={"wheel_ctrl": 1000.0, "pid": 500.0} if periods else {},
                                 deadlines={"wheel_ctrl": 25.0} if periods else {})
     p = Profiler(settings_)
     for i in range(0, len(data), chunk):
@@ -50,7 +50,7 @@ def test_a_huge_duration_alone_still_gets_linear_bins():
     """Found by the test above: one task instance 2**48 us long (a counter read as garbage) left a range numpy
     could not split into 20 finite bins, and the whole analysis raised."""
     data = b"IDLE 0 in\n" * 6 + b"IDLE 281474996594764 out\n"
-    p = Profiler(ProfileSettings())
+    p = Profiler(ProfilerSettings())
     p.feed(data)
     p.finish()
     hist = p.analyse().tasks["IDLE"]["histograms"]["duration_linear"]

@@ -18,7 +18,7 @@ from hilbench.profiler.export_perfetto import trace_document
 from hilbench.profiler.gantt import render_gantt, text_gantt
 from hilbench.profiler.ingest import Profiler
 from hilbench.profiler.live import LiveView
-from hilbench.profiler.settings import ProfileSettings
+from hilbench.profiler.settings import ProfilerSettings
 
 PH = {"X", "B", "E", "i", "I", "C", "M", "b", "e", "n", "s", "t", "f", "P", "O", "N", "D"}
 
@@ -103,7 +103,7 @@ def test_perfetto_rebases_near_zero_and_turns_crossing_slices_into_instants(spec
     data = b"".join(b"%s %d %s\n" % (n, t, e) for n, t, e in [
         (b"A", 7_000_000, b"in"), (b"f", 7_000_001, b"in"), (b"g", 7_000_002, b"in"), (b"f", 7_000_003, b"out"),
         (b"g", 7_000_004, b"out"), (b"A", 7_000_010, b"out")])
-    a, _ = spec.profile(data, ProfileSettings(tasks=frozenset({"A"})))
+    a, _ = spec.profile(data, ProfilerSettings(tasks=frozenset({"A"})))
     doc = trace_document(a)
     assert validate_trace_events(doc) == []
     assert min(e["ts"] for e in doc["traceEvents"] if "ts" in e) == 0

@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from hilbench.profiler.pairing import pair, pair_reference
-from hilbench.profiler.settings import ProfileSettings
+from hilbench.profiler.settings import ProfilerSettings
 from hilbench.profiler.stats import net_durations
 
 
@@ -131,7 +131,7 @@ def test_net_time_agrees_with_its_definition():
 
 
 def test_net_time_without_task_stamps_subtracts_children(spec):
-    a, _ = spec.profile(b"outer 0 in\ninner 2 in\ninner 5 out\nouter 10 out\n", ProfileSettings(tasks=frozenset()))
+    a, _ = spec.profile(b"outer 0 in\ninner 2 in\ninner 5 out\nouter 10 out\n", ProfilerSettings(tasks=frozenset()))
     assert a.tasks["outer"]["net_total_us"] == 7 and a.tasks["outer"]["net_preemption_not_removed"] == 1
     assert a.tasks["inner"]["net_total_us"] == 3
 
@@ -145,7 +145,7 @@ def test_net_time_on_a_trace_longer_than_2_pow_31_us():
         t = k * 1_500_000_000  # 25 minutes apart: the last job is at 3e9 us > 2^31
         lines += [f"uros {t} in", f"w_ctrl {t + 1} in", f"w_ctrl {t + 5} out", f"uros {t + 9} out",
                   f"IDLE {t + 10} in", f"IDLE {t + 1_000_000} out"]
-    p = Profiler(ProfileSettings(tasks=frozenset({"uros", "IDLE"})))
+    p = Profiler(ProfilerSettings(tasks=frozenset({"uros", "IDLE"})))
     p.feed(("\n".join(lines) + "\n").encode())
     p.finish()
     a = p.analyse()

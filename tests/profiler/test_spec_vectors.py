@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 
 from hilbench.profiler.histogram import px4_histogram, px4_lines
-from hilbench.profiler.settings import ProfileSettings
+from hilbench.profiler.settings import ProfilerSettings
 
 
 def test_px4_histogram_vector_63():
@@ -79,7 +79,7 @@ def test_synthetic_trace_64_every_expected_figure(spec):
       "hal_fetch": [7, 12], "wheel_ctrl": [11, 10]}),
 ])
 def test_thesis_listings_give_the_stated_slices(spec, listing, tasks, stamps, ooo, orphans, slices):
-    settings = ProfileSettings(tasks=frozenset(tasks)) if tasks else ProfileSettings()
+    settings = ProfilerSettings(tasks=frozenset(tasks)) if tasks else ProfilerSettings()
     a, p = spec.profile(spec.lines(getattr(spec, listing)), settings)
     assert a.quality["stamps"] == stamps and a.quality["out_of_order"] == ooo
     got = {n: (lambda be: (be[1] - be[0]).tolist())(a.intervals(n)) for n in a.tasks}
@@ -106,7 +106,7 @@ def test_listings_38_39_agree_with_table_9_means(spec):
 
 def test_listing_38_periods_of_section_43(spec):
     """§4.3: wheel_ctrl starts 96 and 313 µs (217 µs apart), odometry 289 and 788 µs (499 µs apart)."""
-    a, _ = spec.profile(spec.lines(spec.LISTING_38), ProfileSettings(periods={"wheel_ctrl": 200, "odometry": 500}))
+    a, _ = spec.profile(spec.lines(spec.LISTING_38), ProfilerSettings(periods={"wheel_ctrl": 200, "odometry": 500}))
     # Activations include the open begins' slices only once closed; use the stamps directly for the begins.
     begins = {n: [int(a.t[i]) for i in range(len(a.t)) if a.begin[i] and a.names[a.ids[i]] == n]
               for n in ("wheel_ctrl", "odometry")}

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hilbench.profiler.settings import ProfileSettings
+from hilbench.profiler.settings import ProfilerSettings
 from hilbench.profiler.timeline import WRAP_US
 from hilbench.protocols import tracestamp as ts
 from hilbench.protocols import tracestamp_binary as tb
@@ -27,7 +27,7 @@ def periodic_text(period_us: int, n: int, dur_us: int = 10, t0: int = 1) -> tupl
 
 def test_cycle_counter_wraps_are_unwrapped(spec):
     data, t = periodic_text(250_000, 200)  # 50 s: two wraps of 19.88 s
-    a, p = spec.profile(data, ProfileSettings(periods={"ctrl": 250_000}), chunk=4096)
+    a, p = spec.profile(data, ProfilerSettings(periods={"ctrl": 250_000}), chunk=4096)
     assert a.quality["wraps"] == 2 and a.quality["backward_jumps"] == 0 and a.quality["out_of_order"] == 0
     c = a.tasks["ctrl"]
     assert c["count"] == 200 and c["min_us"] >= 9 and c["max_us"] <= 11  # ±1 µs of truncation
@@ -40,7 +40,7 @@ def test_late_stamp_across_a_wrap_lands_before_it(spec):
     w = int(WRAP_US)
     data = ts.format_stamp("A", w - 20, True) + ts.format_stamp("A", 5, False) + ts.format_stamp("B", 30, True) \
         + ts.format_stamp("B", w - 10, False)  # B's end arrives late, from before the wrap... then a wrap again
-    a, _ = spec.profile(data, ProfileSettings(tasks=frozenset({"A", "B"})))
+    a, _ = spec.profile(data, ProfilerSettings(tasks=frozenset({"A", "B"})))
     b, e = a.intervals("A")
     assert (e - b).tolist() == [25]  # 19,884,087 -> 19,884,112 (the wrap adds 2^32/216)
     assert a.quality["wraps"] == 1 and a.quality["out_of_order"] == 1
@@ -68,7 +68,7 @@ def test_late_beyond_reorder_window_and_suspected_overrun(spec):
     a, _ = spec.profile(win + late)
     assert a.quality["late_beyond_reorder"] == 1 and a.quality["suspected_overruns"] == 1
     assert a.quality["untrustworthy"]
-    ok, _ = spec.profile(win, ProfileSettings(joined_mid_stream=True))
+    ok, _ = spec.profile(win, ProfilerSettings(joined_mid_stream=True))
     assert ok.quality["suspected_overruns"] == 0
 
 
@@ -98,7 +98,7 @@ def test_binary_windows_drops_and_text_report_mixed(spec):
     begin = np.tile([False, True, False, True], n)
     w1 = binary_stream(ids, t, begin, ["IDLE", "ctrl"], drops_after=4001, drops=9000)
     w2 = binary_stream(ids, t, begin, ["IDLE", "ctrl"], window=2)
-    a, p = spec.profile(w1 + spec.REPORT_65 + w2, ProfileSettings(periods={"ctrl": 1000}), chunk=1000)
+    a, p = spec.profile(w1 + spec.REPORT_65 + w2, ProfilerSettings(periods={"ctrl": 1000}), chunk=1000)
     q = a.quality
     assert q["drops"] == 9000 and q["checks_failed"] == 0 and q["broken_words"] == 0 and q["untrustworthy"]
     assert q["windows"] == 2 and q["windows_started"] == 2 and q["binary_stamps"] == 2 * 4 * n
@@ -118,6 +118,6 @@ def test_chunking_does_not_change_the_result(spec):
 
 def test_memory_bound_discards_the_oldest_stamps(spec):
     data, _ = periodic_text(1000, 3000)
-    a, p = spec.profile(data, ProfileSettings(max_stamps=4000), chunk=5000)
+    a, p = spec.profile(data, ProfilerSettings(max_stamps=4000), chunk=5000)
     assert p.timeline.count <= 4000 and a.quality["discarded_stamps"] == 12000 - p.timeline.count
     assert a.quality["untrustworthy"] and abs(a.tasks["ctrl"]["count"] - p.timeline.count / 4) <= 1

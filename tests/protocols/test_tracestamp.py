@@ -12,7 +12,14 @@ from hypothesis import strategies as st
 
 from hilbench.protocols import tracestamp as ts
 from hilbench.protocols.problem import Problem
-from hilbench.protocols.tracestamp import UNREADABLE, LogLine, RuntimeReport, Stamp, StampBatch, TextDecoder
+from hilbench.protocols.tracestamp import (
+    UNREADABLE,
+    LogMessage,
+    RuntimeReport,
+    Stamp,
+    StampBatch,
+    TextDecoder,
+)
 from tests.stm32_vectors import LISTING_34, LISTING_35, LISTING_38, LISTING_39, REPORT_65, TRACE_64, lines
 
 
@@ -103,7 +110,7 @@ def test_report_split_at_every_byte_and_interleaved_with_stamps_and_logs():
         assert len(reports) == 1 and reports[0].complete and len(reports[0].tasks) == 9
         assert [i for i in items if isinstance(i, Stamp)] == [Stamp("wheel_ctrl", 5, True),
                                                                Stamp("wheel_ctrl", 9, False)]
-        assert LogLine("00:00:01", "INFO", "hi") in items and dec.parse_errors == 0
+        assert LogMessage("00:00:01", "INFO", "hi") in items and dec.parse_errors == 0
 
 
 def test_thesis_report_variant_and_percent_header():
@@ -148,7 +155,7 @@ def test_log_lines_and_errors_never_raise():
             b"00:00:13 [ERROR]: parsing velocity failed: insufficient bytes received\n"
             b"garbage here\n\xff\xfe\n")
     items, dec = decode(data)
-    assert items[0] == LogLine("00:00:12", "INFO", "[recv vel] [100.000000 -200.000000 0.300000]")
+    assert items[0] == LogMessage("00:00:12", "INFO", "[recv vel] [100.000000 -200.000000 0.300000]")
     assert items[1].level == "ERROR"
     assert [(type(i), i.kind, i.raw) for i in items[2:]] == [
         (Problem, UNREADABLE, b"garbage here"), (Problem, UNREADABLE, b"\xff\xfe")]

@@ -11,7 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from hilbench.protocols import tracestamp_binary as tb
-from hilbench.protocols.tracestamp import LogLine, NameEntry, RuntimeReport, Stamp, StampBatch, TableStart
+from hilbench.protocols.tracestamp import LogMessage, NameEntry, RuntimeReport, Stamp, StampBatch, TableStart
 from hilbench.protocols.tracestamp_binary import Marker, Op, WordDecoder
 from hilbench.protocols.tracestamp_stream import StreamDecoder, decode_all, decode_words, stamps_of
 
@@ -97,8 +97,8 @@ def test_round_trip_any_chunking(chunk, n):
     n_words = 1 + len(t) + len(np.unique(t >> 15))  # WINDOW_START, stamps, TIME words
     assert w.checks_failed == 0 and w.checks_ok == -(-n_words // 64)
     assert (w.broken_words, w.unsynced_stamps, w.unnamed_stamps, dec.text.parse_errors) == (0, 0, 0, 0)
-    assert [i for i in items if type(i) is LogLine] == [LogLine("00:00:01", "INFO", "boot"),
-                                                         LogLine("00:00:02", "INFO", "done")]
+    assert [i for i in items if type(i) is LogMessage] == [LogMessage("00:00:01", "INFO", "boot"),
+                                                         LogMessage("00:00:02", "INFO", "done")]
 
 
 def test_late_stamps_unwrap_and_long_gaps_are_anchored():
@@ -143,7 +143,7 @@ def test_text_bytes_inside_a_word_do_not_break_it():
     mixed = data[: first_word + 41] + b"12:00:00 [INFO]: interleaved\n" + data[first_word + 41 :]
     items = decode_all(mixed)
     assert [s.t_us for s in stamps_of(items)] == t.tolist()
-    assert LogLine("12:00:00", "INFO", "interleaved") in items
+    assert LogMessage("12:00:00", "INFO", "interleaved") in items
 
 
 def test_unnamed_and_unsynced_stamps_are_counted():

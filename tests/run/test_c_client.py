@@ -14,7 +14,13 @@ from pathlib import Path
 import pytest
 
 from hilbench.run.build import shim_library
-from tests.run.line_recorder import BreakCondition, LineRecorder, LineSettings, ModemLines, OutputFlushed
+from tests.run.port_event_recorder import (
+    BreakCondition,
+    ModemSignals,
+    OutputFlushed,
+    PortEventRecorder,
+    SerialSettings,
+)
 
 pytestmark = [pytest.mark.slow, pytest.mark.skipif(shutil.which("cc") is None,
                                                    reason="no C compiler (cc): the test client cannot be built")]
@@ -49,7 +55,7 @@ def results(stdout: str) -> dict[str, tuple[int, int, int]]:
 def test_c_client_under_hilbench_run(hilbench_bench, hilbench_run, client, other_pty):
     bench = hilbench_bench("arm")
     ep = bench.endpoint()
-    rec = LineRecorder().attach(ep)
+    rec = PortEventRecorder().attach(ep)
     cmd = hilbench_run.command(bench, client, ep.path, other_pty, str(SIZE), shim="c")
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=60)
     assert proc.returncode == 0, proc.stderr
@@ -60,8 +66,8 @@ def test_c_client_under_hilbench_run(hilbench_bench, hilbench_run, client, other
     assert got["parenb"][2] == 1  # it reads back the parity it set, which the pty itself forgot
     assert got["other-TIOCMGET"][:2] == (-1, errno.ENOTTY)  # not a bench pty: untouched
     assert rec.sequence() == [
-        LineSettings(115_200, 8, "E", 1.0),
-        ModemLines(False, True), ModemLines(False, False), ModemLines(True, False), ModemLines(False, True),
+        SerialSettings(115_200, 8, "E", 1.0),
+        ModemSignals(False, True), ModemSignals(False, False), ModemSignals(True, False), ModemSignals(False, True),
         BreakCondition(True, 0.25), BreakCondition(True), BreakCondition(False),
         PAYLOAD,  # every byte, although tcflush(TCOFLUSH) came right after the write
         OutputFlushed(),
@@ -69,19 +75,19 @@ def test_c_client_under_hilbench_run(hilbench_bench, hilbench_run, client, other
 
 
 def test_c_client_without_hilbench_run_sees_a_plain_pty(hilbench_bench, client, other_pty):
-    bench = hilbench_bench("arm", lines=False)
-    rec = LineRecorder().attach(bench.endpoint())
+    bench = hilbench_bench("arm", port_state=False)
+    rec = PortEventRecorder().attach(bench.endpoint())
     proc = subprocess.run([client, bench.endpoint().path, other_pty, str(SIZE)], capture_output=True, text=True,
                           timeout=60)
     got = results(proc.stdout)
     for name in ("TIOCMBIC-dtr", "TIOCMBIC-rts", "TIOCMGET", "TIOCMBIS-dtr", "TIOCMSET-rts"):
         assert got[name][:2] == (-1, errno.ENOTTY)
     assert got["tcflush"][0] == 0 and got["parenb"][2] == 0
-    assert not [e for e in rec.events() if not isinstance(e, LineSettings)]
+    assert not [e for e in rec.events() if not isinstance(e, SerialSettings)]
 
 
 def test_shim_fails_open_when_the_bench_is_gone(hilbench_bench, client, other_pty, tmp_path):
-    bench = hilbench_bench("arm", lines=False)
+    bench = hilbench_bench("arm", port_state=False)
     rdev = bench.endpoint().port.rdev
     env = {**os.environ, "LD_PRELOAD": str(shim_library()),
            "HILBENCH_RUN_PORTS": f"{rdev}={tmp_path / 'gone.sock'}"}

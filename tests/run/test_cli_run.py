@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from hilbench.bench import Bench
-from hilbench.bench.line_server import serve_lines
+from hilbench.bench.port_state_server import serve_port_state
 from hilbench.pytest_plugin import wait_until
 
 HILBENCH = [sys.executable, "-m", "hilbench.cli"]
@@ -43,14 +43,14 @@ def test_missing_manifest_and_stopped_bench(tmp_path):
     proc = run("run", "--manifest", str(tmp_path / "none.json"), "--", "true")
     assert proc.returncode == 1 and "none.json: no such manifest (is the bench running?" in proc.stderr
     with Bench("arm") as bench:
-        serve_lines(bench)
+        serve_port_state(bench)
         path = str(tmp_path / "arm.json")
         bench.write_manifest(path)  # left behind, as after a crash
     data = json.loads(Path(path).read_text())
     proc = run("run", "--manifest", path, "--", "true")
     assert proc.returncode == 1
-    assert f"the bench (pid {data['pid']}) does not answer on {data['lines']['socket']}" in proc.stderr
-    del data["lines"]  # a bench without ptys (or one that stopped: its pid is gone)
+    assert f"the bench (pid {data['pid']}) does not answer on {data['port_state']['socket']}" in proc.stderr
+    del data["port_state"]  # a bench without ptys (or one that stopped: its pid is gone)
     gone = subprocess.Popen(["true"])
     gone.wait()
     data["pid"] = gone.pid
@@ -85,7 +85,7 @@ def test_exit_status_pid_and_environment_are_the_programs(hilbench_bench, hilben
     out, _ = proc.communicate(timeout=60)
     pid, ports = out.split()
     assert int(pid) == proc.pid
-    assert ports == f"{bench.endpoint().port.rdev}={bench.services['lines'].path}"
+    assert ports == f"{bench.endpoint().port.rdev}={bench.services['port_state'].path}"
 
 
 def test_signals_reach_the_program(hilbench_bench, hilbench_run):
@@ -112,7 +112,7 @@ def test_without_a_compiler_python_clients_get_the_fallback(hilbench_bench, hilb
     assert proc.stdout.strip() == "python"
     assert "hilbench run: note: no C compiler (CC='/nonexistent/cc' not found); pyserial clients get the " \
            "Python fallback" in proc.stderr
-    wait_until(lambda: bench.endpoint().port.lines.rts is False)
+    wait_until(lambda: bench.endpoint().port.port_state.rts is False)
     proc = run("run", "--shim", "c", "--manifest", path, "--", "true", env={"CC": "/nonexistent/cc"})
     assert proc.returncode == 1 and "no C compiler" in proc.stderr
 

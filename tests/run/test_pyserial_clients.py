@@ -12,7 +12,13 @@ from pathlib import Path
 
 import pytest
 
-from tests.run.line_recorder import BreakCondition, LineRecorder, LineSettings, ModemLines, OutputFlushed
+from tests.run.port_event_recorder import (
+    BreakCondition,
+    ModemSignals,
+    OutputFlushed,
+    PortEventRecorder,
+    SerialSettings,
+)
 
 CLIENT = str(Path(__file__).parent / "clients" / "pyserial_client.py")
 SIZE = 3000
@@ -31,12 +37,12 @@ def run_client(cmd: list[str], **kwargs) -> dict:
 def test_pyserial_client_under_hilbench_run(hilbench_bench, hilbench_run, shim):
     bench = hilbench_bench("arm")
     ep = bench.endpoint()
-    rec = LineRecorder().attach(ep)
+    rec = PortEventRecorder().attach(ep)
     out = run_client(hilbench_run.command(bench, sys.executable, CLIENT, ep.path, str(SIZE), shim=shim))
     assert out == {"shim": shim, "dtr": None, "rts": None, "lines": [True, True, False, True], "break": None}
     assert rec.sequence() == [
-        LineSettings(57_600),
-        ModemLines(False, True), ModemLines(False, False),
+        SerialSettings(57_600),
+        ModemSignals(False, True), ModemSignals(False, False),
         PAYLOAD,  # reset_output_buffer() right after write(): on an adapter the bytes are already out
         OutputFlushed(),
         BreakCondition(True, 0.1),  # pyserial's send_break(0.25) is tcsendbreak(fd, 1): glibc's 0.1 s
@@ -44,20 +50,20 @@ def test_pyserial_client_under_hilbench_run(hilbench_bench, hilbench_run, shim):
 
 
 def test_pyserial_client_without_hilbench_run(hilbench_bench):
-    bench = hilbench_bench("arm", lines=False)
-    rec = LineRecorder().attach(bench.endpoint())
+    bench = hilbench_bench("arm", port_state=False)
+    rec = PortEventRecorder().attach(bench.endpoint())
     out = run_client([sys.executable, CLIENT, bench.endpoint().path, str(SIZE)])
     # As on any pty: pyserial's modem-line calls fail with ENOTTY (pyserial ignores that only inside
     # open()), BREAK and the flush succeed without effect; the bytes that were not flushed away arrive.
     assert out == {"shim": None, "dtr": "errno 25", "rts": "errno 25", "lines": "errno 25", "break": None}
-    assert not [e for e in rec.events() if not isinstance(e, LineSettings)]
+    assert not [e for e in rec.events() if not isinstance(e, SerialSettings)]
     assert PAYLOAD.startswith(rec.received())
 
 
 def test_against_hilbench_emulate(hilbench_emulator, hilbench_run):
     manifest = hilbench_emulator("arm")
     path = manifest["endpoints"][0]["path"]
-    assert manifest["lines"]["ports"]["arm"]["path"] == path
+    assert manifest["port_state"]["ports"]["arm"]["path"] == path
     out = run_client(hilbench_run.command(manifest, sys.executable, CLIENT, path, str(SIZE), shim="python"))
     assert out == {"shim": "python", "dtr": None, "rts": None, "lines": [False, False, False, False],
                    "break": None}
@@ -74,7 +80,7 @@ def test_python_fallback_keeps_an_existing_sitecustomize(hilbench_bench, hilbenc
                           env=env, timeout=60)
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.split() == ["ran", "False"]
-    assert bench.endpoint().port.lines.dtr is False
+    assert bench.endpoint().port.port_state.dtr is False
 
 
 def test_in_process_pyserial_against_an_emulator(hilbench_emulator):
@@ -82,7 +88,7 @@ def test_in_process_pyserial_against_an_emulator(hilbench_emulator):
 
     path = hilbench_emulator("arm")["endpoints"][0]["path"]
     with serial.Serial(path, 1_000_000) as ser:
-        ser.dtr = False  # ENOTTY on a plain pty; the emulator's line server takes it
+        ser.dtr = False  # ENOTTY on a plain pty; the emulator's port-state server takes it
         assert ser.cts is False
         ser.write(b"x" * 100)
         ser.reset_output_buffer()

@@ -20,7 +20,7 @@ import pytest
 
 from hilbench.bench import Bench
 from hilbench.bench.control import ControlClient
-from hilbench.bench.line_server import serve_lines
+from hilbench.bench.port_state_server import serve_port_state
 from hilbench.pytest_plugin import wait_until
 from hilbench.run.build import ShimBuildError, shim_library
 
@@ -182,7 +182,7 @@ PYSERIAL = """
         t0 = time.monotonic_ns()
         port.write(bytes([0xA5, 0x50]))  # RPLIDAR GET_INFO
         port.flush()  # tcdrain
-        port.dtr = False  # a modem-line request to the line server: the clock waits for its answer
+        port.dtr = False  # a modem-line request to the port-state server: the clock waits for its answer
         port.dtr = True
         reply = port.read(27)
         t1 = time.monotonic_ns()
@@ -195,10 +195,10 @@ PYSERIAL = """
 def test_a_pyserial_client_on_a_bench_pty_sees_the_wire_model_exactly(tmp_path):
     """The pty path in lockstep: the request is taken before time moves (written == taken), the reply is
     settled on the client's side before the client wakes, and a read's timeout is virtual. DTR changes go
-    through the line server while the client sleeps in a call the shim does not see: time waits for their
+    through the port-state server while the client sleeps in a call the shim does not see: time waits for their
     answers (before, one exchange in three took 247 ms: time had jumped to the motor's next event)."""
     with Bench("mecarover-can", virtual_time=True) as bench:
-        serve_lines(bench)
+        serve_port_state(bench)
         path = bench.endpoint("lidar").port.client_path
         proc, wall = client(bench, tmp_path, PYSERIAL, path)
         stats = bench.services["clock"].stats()

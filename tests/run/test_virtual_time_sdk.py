@@ -23,7 +23,7 @@ from pathlib import Path
 import pytest
 
 from hilbench.bench import Bench
-from hilbench.bench.line_server import serve_lines
+from hilbench.bench.port_state_server import serve_port_state
 from hilbench.protocols import capture
 from hilbench.pytest_plugin import wait_until
 from hilbench.run.build import ShimBuildError, shim_library
@@ -93,7 +93,7 @@ def model_cycle(bench: Bench) -> float:
 def sdk_run(tmp_path: Path, seconds: float, *, busy: bool = False) -> tuple[dict, dict, float]:
     """One SDK run on a fresh virtual-time wolfgang bench: (the client's figures, the clock's stats, model)."""
     with Bench("wolfgang", virtual_time=True) as bench:
-        serve_lines(bench)  # (the SDK's open sets DTR and RTS, and its drains ask the line)
+        serve_port_state(bench)  # (the SDK's open sets DTR and RTS, and its drains ask the line)
         manifest = tmp_path / f"bench{len(list(tmp_path.glob('bench*.json')))}.json"
         bench.write_manifest(manifest)
         script = tmp_path / "sdk_client.py"
@@ -148,7 +148,7 @@ def tap_capture(tmp_path: Path, seconds: float) -> tuple[bytes, bytes]:
     """The bench's own capture of one SDK run (its tap's stream, header and records, until the bench stops),
     and ``hilbench record``'s file of the same tap."""
     with Bench("wolfgang", virtual_time=True, tap=True) as bench:
-        serve_lines(bench)
+        serve_port_state(bench)
         manifest = tmp_path / f"bench{len(list(tmp_path.glob('bench*.json')))}.json"
         bench.write_manifest(manifest)
         script = tmp_path / "sdk_client.py"

@@ -7,7 +7,7 @@ import threading
 import pytest
 
 from hilbench.transports.can_medium import CanMedium
-from hilbench.transports.can_port import CanHostPort
+from hilbench.transports.can_port import CanPort
 
 
 class Recorder:
@@ -31,7 +31,7 @@ def door_bus():
     made = []
 
     def make(options, bitrate=500_000, paced=False):
-        port = CanHostPort.open("can", CanHostPort.check_options(options))
+        port = CanPort.open("can", CanPort.check_options(options))
         medium = CanMedium("can", bitrate, paced=paced)
         dev = Recorder()
         dport = medium.add_device(dev)

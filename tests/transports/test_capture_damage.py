@@ -206,10 +206,10 @@ def test_profile_reports_a_damaged_capture(spec_capture, tmp_path):
     data = spec_capture.read_bytes()
     cut = tmp_path / "cut.hbcap"
     cut.write_bytes(data[:-5])
-    doc = json.loads(hb("profile", str(cut), "--json").stdout)
+    doc = json.loads(hb("trace", str(cut), "--json").stdout)
     assert doc["quality"]["untrustworthy"] and doc["quality"]["capture"]["truncated_bytes"] > 0
     assert any(r.startswith("capture truncated:") for r in doc["quality"]["reasons"])
-    strict = hb("profile", str(cut), "--strict")
+    strict = hb("trace", str(cut), "--strict")
     assert strict.returncode == 3 and "capture truncated" in strict.stderr
 
 

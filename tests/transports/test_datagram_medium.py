@@ -13,7 +13,7 @@ from hilbench.transports.capture_parser import CaptureParser
 from hilbench.transports.datagram_medium import DatagramMedium
 from hilbench.transports.sources.stream import TcpSource
 from hilbench.transports.tap_server import TapServer
-from hilbench.transports.udp import UdpEndpoint
+from hilbench.transports.udp import UdpPort
 
 
 class Echo:
@@ -31,7 +31,7 @@ class Echo:
 
 def test_devices_hear_and_answer_with_addresses() -> None:
     net = DatagramMedium("net")
-    host = UdpEndpoint("ep")
+    host = UdpPort("ep")
     echo = Echo("echo")
     echo.port = net.add_device(echo)
     net.add_host(host)
@@ -81,7 +81,7 @@ def test_owned_sockets_and_in_net_traffic_is_tapped_once() -> None:
 
 def test_timers_run_in_order_in_the_nets_thread() -> None:
     net = DatagramMedium("net")
-    host = UdpEndpoint("ep")
+    host = UdpPort("ep")
     net.add_host(host)
     net.start()
     order = []

@@ -14,9 +14,9 @@ import tty
 import pytest
 
 from hilbench.pytest_plugin import wait_until
-from hilbench.transports.pty import PtyEndpoint
+from hilbench.transports.pty import PtyPort
 from hilbench.transports.serial_medium import HOST_FIFO, SerialMedium
-from hilbench.transports.tcp import TcpEndpoint
+from hilbench.transports.tcp import TcpPort
 
 STREAM = bytes(i * 7 % 251 for i in range(1 << 16)) * 64  # 4 MiB, no period of 4 KiB: order shows
 
@@ -103,7 +103,7 @@ def paced_line():
 
 def test_a_paced_line_holds_a_flooding_pty_client_back(paced_line):
     baud = 1_000_000
-    ep = PtyEndpoint("host")
+    ep = PtyPort("host")
     medium, sink = paced_line(ep, baud)
     fd = pty_client(ep.path, baud)
     try:
@@ -127,7 +127,7 @@ def test_a_paced_line_holds_a_flooding_pty_client_back(paced_line):
 
 def test_a_paced_line_holds_a_flooding_tcp_client_back(paced_line):
     baud = 4_000_000
-    ep = TcpEndpoint("host")
+    ep = TcpPort("host")
     medium, sink = paced_line(ep, baud)
     client = socket.create_connection(ep.address)
     client.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, 16384)
@@ -145,7 +145,7 @@ def test_a_paced_line_holds_a_flooding_tcp_client_back(paced_line):
 
 def test_an_unpaced_line_takes_a_flood_at_once(paced_line):
     """No wire to wait for: what the client writes is delivered as it is read, and nobody is held back."""
-    ep = PtyEndpoint("host")
+    ep = PtyPort("host")
     medium, sink = paced_line(ep, 1_000_000, paced=False)
     fd = pty_client(ep.path, 1_000_000)
     try:
@@ -178,7 +178,7 @@ def test_a_device_pacing_its_receiver_holds_the_host_back_on_an_unpaced_line():
     medium = SerialMedium("line", baud)
     uart = SlowReceiver(baud)
     medium.add_device(uart)
-    ep = PtyEndpoint("host")
+    ep = PtyPort("host")
     medium.add_host(ep)
     medium.start()
     fd = pty_client(ep.path, baud)
@@ -196,10 +196,10 @@ def test_a_device_pacing_its_receiver_holds_the_host_back_on_an_unpaced_line():
 
 
 def test_a_held_back_host_is_not_quiet_and_a_drain_takes_everything(paced_line):
-    """The delivery board's quiet watch says nothing while bytes wait unread; drain_host (``hilbench run``'s
+    """The delivery ledger's quiet watch says nothing while bytes wait unread; drain_host (``hilbench run``'s
     tcdrain) takes them all, however far ahead of the wire."""
     baud = 1_000_000
-    ep = PtyEndpoint("host")
+    ep = PtyPort("host")
     medium, sink = paced_line(ep, baud)
     quiet: list[int] = []
     medium.watch_quiet(ep, quiet.append)

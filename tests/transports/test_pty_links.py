@@ -9,12 +9,12 @@ import sys
 
 import pytest
 
-from hilbench.transports.pty import LinkRefused, PtyEndpoint, left_by_a_gone_pty
+from hilbench.transports.pty import LinkRefused, PtyPort, left_by_a_gone_pty
 
 
 def test_a_link_is_made_and_removed(tmp_path):
     link = tmp_path / "dev" / "arm"
-    with PtyEndpoint("arm", link=link) as ep:
+    with PtyPort("arm", link=link) as ep:
         assert os.readlink(link) == ep.path and ep.client_path == str(link)
     assert not os.path.lexists(link)
 
@@ -32,7 +32,7 @@ def test_anything_at_the_links_name_is_refused_and_kept(tmp_path, kind):
         link.symlink_to(tmp_path / "gone")  # dangling, but no pty's: maybe the user's, so kept
     before = sorted(os.listdir(tmp_path))
     with pytest.raises(LinkRefused, match=f"^{link}: a .* is there; refusing to replace it"):
-        PtyEndpoint("arm", link=link)
+        PtyPort("arm", link=link)
     assert sorted(os.listdir(tmp_path)) == before
     if kind == "file":
         assert link.read_text() == "the user's notes"
@@ -41,37 +41,37 @@ def test_anything_at_the_links_name_is_refused_and_kept(tmp_path, kind):
 
 
 def test_a_link_to_a_live_pty_is_refused(tmp_path):
-    with PtyEndpoint("other") as other:
+    with PtyPort("other") as other:
         (tmp_path / "arm").symlink_to(other.path)  # another bench's link (or a reused pty number)
         assert not left_by_a_gone_pty(tmp_path / "arm")
         with pytest.raises(LinkRefused, match=f"a symlink to {other.path} is there"):
-            PtyEndpoint("arm", link=tmp_path / "arm")
+            PtyPort("arm", link=tmp_path / "arm")
         assert os.readlink(tmp_path / "arm") == other.path
 
 
 @pytest.mark.parametrize("target", ["the pty it had", "/dev/pts/99999"])
 def test_a_dead_link_a_killed_bench_left_is_replaced(tmp_path, target):
     if target == "the pty it had":
-        with PtyEndpoint("old") as old:
+        with PtyPort("old") as old:
             target = old.path  # gone with its bench (and likely the number the next pty gets)
     link = tmp_path / "arm"
     link.symlink_to(target)
     if target == "/dev/pts/99999":
         assert left_by_a_gone_pty(link)
-    with PtyEndpoint("arm", link=link) as ep:
+    with PtyPort("arm", link=link) as ep:
         assert os.readlink(link) == ep.path
     assert not os.path.lexists(link)
 
 
 def test_close_leaves_a_link_someone_else_put_there(tmp_path):
     link = tmp_path / "arm"
-    ep = PtyEndpoint("arm", link=link)
+    ep = PtyPort("arm", link=link)
     os.unlink(link)
     link.symlink_to("/dev/null")  # the user's own, made while the bench ran
     ep.close()
     assert os.readlink(link) == "/dev/null"
     os.unlink(link)
-    ep = PtyEndpoint("arm", link=link)
+    ep = PtyPort("arm", link=link)
     os.unlink(link)
     link.write_text("a file now")
     ep.close()

@@ -24,14 +24,14 @@ from hilbench.clients.dynamixel import UrlPortHandler
 from hilbench.protocols import dynamixel as dxl
 from hilbench.protocols import rfc2217 as p
 from hilbench.pytest_plugin import wait_until
-from hilbench.transports.line import BreakCondition, LineSettings, ModemLines
+from hilbench.transports.port_state import BreakCondition, ModemSignals, SerialSettings
 from hilbench.transports.rfc2217 import MAX_BACKLOG, MAX_HELD, RECV_SIZE
 
 OK = sdk.COMM_SUCCESS
 PING_1 = dxl.instruction_packet(1, dxl.Instruction.PING)
 
 
-class LineRecorder:
+class PortEventRecorder:
     """An in-process party on the line that records the line events it hears (as an RPLIDAR's motor would)."""
 
     name = "recorder"
@@ -42,7 +42,7 @@ class LineRecorder:
     def on_bytes(self, data: bytes, t: float, baud: int | None) -> None:
         pass
 
-    def on_line(self, event, t: float) -> None:
+    def on_port_event(self, event, t: float) -> None:
         self.events.append(event)
 
 
@@ -51,7 +51,7 @@ def served(hilbench_bench):
     """The arm bench (XM430s at 1 Mbaud) with its endpoint served over RFC 2217, and a line recorder."""
     bench = hilbench_bench("arm", serve=["rfc2217"])
     ep = bench.endpoint()
-    recorder = LineRecorder()
+    recorder = PortEventRecorder()
     ep.medium.add_device(recorder)
     return bench, ep, ep.services["rfc2217"].url, recorder
 
@@ -145,7 +145,7 @@ def test_a_baud_change_reaches_the_line(served):
         port.baudrate = 2_000_000
         assert _ping(port, 1).id == 1
         assert _ping(port, 2) is None  # still at 1 Mbaud
-    settings = [e for e in recorder.events if isinstance(e, LineSettings)]
+    settings = [e for e in recorder.events if isinstance(e, SerialSettings)]
     assert [s.baud for s in settings] == [57_600, 1_000_000, 2_000_000]
 
 
@@ -155,15 +155,15 @@ def test_framing_changes_reach_the_line(served):
         port.bytesize = serial.SEVENBITS
         port.parity = serial.PARITY_EVEN
         port.stopbits = serial.STOPBITS_TWO
-    wait_until(lambda: any(isinstance(e, LineSettings) and e.stopbits == 2.0 for e in recorder.events))
-    last = [e for e in recorder.events if isinstance(e, LineSettings)][-1]
+    wait_until(lambda: any(isinstance(e, SerialSettings) and e.stopbits == 2.0 for e in recorder.events))
+    last = [e for e in recorder.events if isinstance(e, SerialSettings)][-1]
     assert (last.baud, last.bytesize, last.parity, last.stopbits) == (1_000_000, 7, "E", 2.0)
-    assert ep.port.lines.settings == last
+    assert ep.port.port_state.settings == last
 
 
 def test_dtr_rts_and_break_reach_the_devices_in_order(served):
     _, ep, url, recorder = served
-    lines = ep.port.lines
+    lines = ep.port.port_state
     with serial.serial_for_url(url, baudrate=1_000_000, timeout=1) as port:
         port.dtr = False
         port.rts = False
@@ -173,18 +173,18 @@ def test_dtr_rts_and_break_reach_the_devices_in_order(served):
         wait_until(lambda: lines.dtr)
         assert not lines.rts
     wait_until(lambda: not lines.dtr)  # closing the port drops DTR (HUPCL), as a real adapter's close does
-    modem = [e for e in recorder.events if isinstance(e, ModemLines | BreakCondition)]
-    assert modem == [ModemLines(False, True), ModemLines(False, False), BreakCondition(True), BreakCondition(False),
-                     ModemLines(True, False), ModemLines(False, False)]
+    modem = [e for e in recorder.events if isinstance(e, ModemSignals | BreakCondition)]
+    assert modem == [ModemSignals(False, True), ModemSignals(False, False), BreakCondition(True), BreakCondition(False),
+                     ModemSignals(True, False), ModemSignals(False, False)]
 
 
 def test_device_driven_modem_lines_reach_the_client(served):
     _, ep, url, _ = served
     with serial.serial_for_url(url, baudrate=1_000_000, timeout=1) as port:
         assert (port.cts, port.dsr, port.ri, port.cd) == (False, False, False, False)
-        ep.port.lines.device_sets(cts=True, dsr=True)
+        ep.port.port_state.device_sets(cts=True, dsr=True)
         wait_until(lambda: port.cts and port.dsr)
-        ep.port.lines.device_sets(dsr=False, ri=True, cd=True)
+        ep.port.port_state.device_sets(dsr=False, ri=True, cd=True)
         wait_until(lambda: not port.dsr and port.ri and port.cd)
     # a polling client (poll_modem) asks for the state and gets it
     with serial.serial_for_url(url + "?poll_modem", baudrate=1_000_000, timeout=1) as port:
@@ -317,7 +317,7 @@ def test_raw_commands_are_answered(served):
         assert c.answer(p.Command.SET_CONTROL) == bytes([p.Control.FLOW_HARDWARE])
         c.command(p.Command.SET_MODEMSTATE_MASK, b"\x30")
         assert c.answer(p.Command.SET_MODEMSTATE_MASK) == b"\x30"
-        ep.port.lines.device_sets(cd=True, dsr=True)  # CD is masked out now
+        ep.port.port_state.device_sets(cd=True, dsr=True)  # CD is masked out now
         assert c.answer(p.Command.NOTIFY_MODEMSTATE)[0] & 0xF0 in (0x00, 0x20)
         assert ep.services["rfc2217"].status()["flow"] == "hardware"
     finally:

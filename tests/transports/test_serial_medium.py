@@ -9,7 +9,7 @@ import time
 import serial
 
 from hilbench.pytest_plugin import wait_until
-from hilbench.transports.pty import PtyEndpoint
+from hilbench.transports.pty import PtyPort
 from hilbench.transports.serial_medium import SerialMedium
 
 
@@ -41,7 +41,7 @@ def read_exactly(ser: serial.Serial, n: int, timeout: float = 2.0) -> bytes:
 
 
 def test_pty_is_raw_and_survives_reopen(tmp_path):
-    with PtyEndpoint("host", link=tmp_path / "dev" / "bus") as ep:
+    with PtyPort("host", link=tmp_path / "dev" / "bus") as ep:
         assert os.path.islink(tmp_path / "dev" / "bus")
         assert ep.client_path == str(tmp_path / "dev" / "bus")
         for _ in range(3):
@@ -56,7 +56,7 @@ def test_pty_is_raw_and_survives_reopen(tmp_path):
 
 
 def test_client_baud_is_read_from_termios():
-    with PtyEndpoint("host") as ep, serial.Serial(ep.path, 1_000_000) as ser:
+    with PtyPort("host") as ep, serial.Serial(ep.path, 1_000_000) as ser:
         assert ep.client_baud() == 1_000_000
         ser.baudrate = 57600
         assert ep.client_baud() == 57600
@@ -64,14 +64,14 @@ def test_client_baud_is_read_from_termios():
 
 
 def test_a_full_client_buffer_drops_and_counts_instead_of_blocking():
-    with PtyEndpoint("host") as ep:
+    with PtyPort("host") as ep:
         sent = ep.write(bytes(1 << 20))  # nobody reads: the pty buffer fills up
         assert sent < 1 << 20
         assert ep.dropped == (1 << 20) - sent
 
 
 def test_every_party_hears_every_other_and_taps_see_everything():
-    a, b = PtyEndpoint("a"), PtyEndpoint("b")
+    a, b = PtyPort("a"), PtyPort("b")
     dev1, dev2 = Recorder("dev1"), Recorder("dev2")
     line = SerialMedium("line", 115200)
     tapped: list[tuple[float, str, bytes]] = []
@@ -101,7 +101,7 @@ def test_every_party_hears_every_other_and_taps_see_everything():
 
 
 def test_listen_only_host_hears_but_is_not_heard():
-    host, sniffer = PtyEndpoint("host"), PtyEndpoint("sniffer")
+    host, sniffer = PtyPort("host"), PtyPort("sniffer")
     dev = Recorder("dev")
     line = SerialMedium("line", 115200)
     line.add_host(host)
@@ -123,7 +123,7 @@ def test_listen_only_host_hears_but_is_not_heard():
 
 def test_paced_line_models_wire_time_and_reply_gap():
     """10 bytes at 9600 baud take 10.4 ms each way; the reply waits its gap after the request."""
-    host = PtyEndpoint("host")
+    host = PtyPort("host")
     dev = Recorder("dev")
     line = SerialMedium("line", 9600, paced=True)
     line.add_host(host)
@@ -170,7 +170,7 @@ def test_a_burst_reaches_the_host_in_granules_never_early():
     and taps and devices still see each transmission at its own model time."""
     import hilbench.transports.serial_medium as sm
 
-    host = PtyEndpoint("host")
+    host = PtyPort("host")
     line = SerialMedium("line", 1_000_000, paced=True)  # 10 us per byte: ten 5-byte replies, 50 us apart
     line.add_host(host)
     tapped = []

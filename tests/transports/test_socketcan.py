@@ -13,7 +13,7 @@ from hilbench.protocols import can_frame as cf
 from hilbench.protocols.can_frame import data_frame, error_frame
 from hilbench.pytest_plugin import wait_until
 from hilbench.transports.can_medium import CanMedium
-from hilbench.transports.socketcan import SocketCanLink, af_can_status
+from hilbench.transports.socketcan import SocketCanDoor, af_can_status
 from tests.transports.conftest import Recorder
 
 AF_CAN_OK, AF_CAN_WHY = af_can_status()
@@ -23,7 +23,7 @@ def _vcan0_up() -> bool:
     if not AF_CAN_OK:
         return False
     try:
-        SocketCanLink.open("vcan0").close()
+        SocketCanDoor.open("vcan0").close()
         return True
     except OSError:
         return False
@@ -35,13 +35,13 @@ def test_status_says_why_when_missing():
     else:
         assert "AF_CAN" in AF_CAN_WHY  # one line a person can act on
         with pytest.raises(OSError, match="AF_CAN"):
-            SocketCanLink.open("vcan0")
+            SocketCanDoor.open("vcan0")
 
 
 def test_the_door_on_a_kernel_stand_in():
     """A SEQPACKET pair carries whole 16-byte can_frame records like a CAN_RAW socket does."""
     bench_side, kernel = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
-    link = SocketCanLink(bench_side, "vcan0")
+    link = SocketCanDoor(bench_side, "vcan0")
     medium = CanMedium("can", 500_000)
     dev = Recorder()
     dport = medium.add_device(dev)

@@ -12,7 +12,7 @@ import pytest
 
 from hilbench.pytest_plugin import wait_until
 from hilbench.transports import udp_relay
-from hilbench.transports.udp import MAX_PEERS, UdpEndpoint
+from hilbench.transports.udp import MAX_PEERS, UdpPort
 from hilbench.transports.udp_relay import UdpRelay
 
 
@@ -111,7 +111,7 @@ def test_tap_udp_on_every_interface_is_warned_about() -> None:
                           timeout=60)
     assert wide.returncode == 0, wide.stderr
     assert ("hilbench: warning: the relay (LISTEN 0.0.0.0:0) listens on 0.0.0.0, beyond this machine "
-            "(anyone who reaches this machine can send through it to the target") in wide.stderr
+            "(anyone who reaches this machine can send through it to the upstream") in wide.stderr
     here = subprocess.run([*run, "0", "127.0.0.1:9", "--seconds", "0.2"], capture_output=True, text=True,
                           timeout=60)
     assert here.returncode == 0 and "warning" not in here.stderr, here.stderr
@@ -119,7 +119,7 @@ def test_tap_udp_on_every_interface_is_warned_about() -> None:
 
 
 def test_a_udp_host_port_shows_its_traffic_and_losses() -> None:
-    ep = UdpEndpoint("u")
+    ep = UdpPort("u")
     peers = [client() for _ in range(MAX_PEERS + 2)]
     try:
         for p in peers:

@@ -13,7 +13,7 @@ from hilbench.pytest_plugin import wait_until
 from hilbench.transports.can_medium import CanMedium
 from hilbench.transports.clock import VirtualClock
 from hilbench.transports.datagram_medium import DatagramMedium
-from hilbench.transports.pty import PtyEndpoint
+from hilbench.transports.pty import PtyPort
 from hilbench.transports.serial_medium import SerialMedium
 from hilbench.transports.virtual_loop import VirtualLoop
 
@@ -163,7 +163,7 @@ def test_bench_side_threads_sleep_and_wait_in_virtual_time(loop):
 def test_a_hosts_writes_at_one_instant_are_one_transmission_at_that_instant(loop):
     baud = 1_000_000
     line = SerialMedium("line", baud, paced=True, clock=loop.clock)
-    host = PtyEndpoint("host")
+    host = PtyPort("host")
     dev = Echo("dev")
     dev.port = line.add_device(dev)
     line.add_host(host)
@@ -189,7 +189,7 @@ def test_a_hosts_writes_at_one_instant_are_one_transmission_at_that_instant(loop
         host.close()
 
 
-def _readable(host: PtyEndpoint) -> bool:
+def _readable(host: PtyPort) -> bool:
     import select
 
     return bool(select.select([host.master_fd], [], [], 0)[0])

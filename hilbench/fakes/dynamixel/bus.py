@@ -16,7 +16,7 @@ from itertools import repeat
 from typing import ClassVar
 
 from hilbench.fakes.dynamixel.servo import Servo
-from hilbench.fakes.servo_line import ServoLine
+from hilbench.fakes.servo_bus import ServoBusBase
 from hilbench.protocols import dynamixel as dxl
 from hilbench.protocols.dynamixel import BROADCAST_ID, ErrorNumber, InstructionPacket
 from hilbench.protocols.dynamixel import Instruction as I  # noqa: N814
@@ -30,7 +30,7 @@ CHAIN_POLICIES = ("continue", "stall")
 FAST_MISSING_POLICIES = ("truncate", "drop", "silent")
 
 
-class DynamixelBus(ServoLine):
+class DynamixelBus(ServoBusBase):
     """Emulated Dynamixel devices sharing one line.
 
     Policies for what the e-Manual leaves open: ``chain_policy`` (does a Sync/

@@ -27,7 +27,7 @@ import logging
 from collections.abc import Callable
 from typing import ClassVar
 
-from hilbench.fakes.servo_line import ServoLine
+from hilbench.fakes.servo_bus import ServoBusBase
 from hilbench.protocols import dynamixel_protocol1 as p1
 from hilbench.protocols.dynamixel import ErrorNumber
 from hilbench.protocols.dynamixel_protocol1 import BROADCAST_ID, USB2AX_ID, Packet1
@@ -65,7 +65,7 @@ class Usb2ax:
         self.mem[6] = 8
 
 
-class Protocol1Bus(ServoLine):
+class Protocol1Bus(ServoBusBase):
     """Emulated servos sharing one Protocol 1.0 line (see the module docstring)."""
 
     status_frame: ClassVar = staticmethod(p1.frame)

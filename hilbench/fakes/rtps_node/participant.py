@@ -102,7 +102,7 @@ class Remote:
 
 
 @dataclass
-class RemoteEndpoint:
+class RemoteRtpsEndpoint:
     guid: bytes
     topic: str
     type_name: str
@@ -168,7 +168,7 @@ class _WriterState:
 
 
 class RtpsParticipant:
-    """One participant on a datagram net (through a device's :class:`DatagramPort <hilbench.transports.datagram_medium.DatagramPort>`); see the module docstring."""
+    """One participant on a datagram net (through a device's :class:`DatagramDevicePort <hilbench.transports.datagram_medium.DatagramDevicePort>`); see the module docstring."""
 
     def __init__(self, name: str, port: Any, *, domain_id: int, participant_index: int, guid_prefix: bytes,
                  peers: list[Address | str] | None = None, vendor_id: bytes = r.VENDOR_FREERTPS,
@@ -194,7 +194,7 @@ class RtpsParticipant:
         self.meta_sock: Any = None
         self.user_sock: Any = None
         self.remotes: dict[bytes, Remote] = {}
-        self.remote_endpoints: dict[bytes, RemoteEndpoint] = {}
+        self.remote_endpoints: dict[bytes, RemoteRtpsEndpoint] = {}
         self.writers: dict[bytes, LocalWriter] = {}
         self.readers: dict[bytes, LocalReader] = {}
         self.sedp = {r.SEDP_PUB_WRITER: LocalWriter(r.SEDP_PUB_WRITER, "DCPSPublication", "", True),
@@ -437,7 +437,7 @@ class RtpsParticipant:
                            r.heartbeat(guid[12:], w.entity_id, first, w.sn, w.hb_count))
                 self.counters["heartbeats_sent"] += 1
 
-    def _locators(self, ep: RemoteEndpoint) -> list[Address]:
+    def _locators(self, ep: RemoteRtpsEndpoint) -> list[Address]:
         if ep.locators:
             return ep.locators
         remote = self.remotes.get(ep.guid[:12])
@@ -449,7 +449,7 @@ class RtpsParticipant:
         for ep in self.remote_endpoints.values():
             self._match(ep)
 
-    def _match(self, ep: RemoteEndpoint) -> None:
+    def _match(self, ep: RemoteRtpsEndpoint) -> None:
         if ep.writer:
             for rd in self.readers.values():
                 if rd.topic == ep.topic and rd.type_name == ep.type_name and (ep.reliable or not rd.reliable):
@@ -633,7 +633,7 @@ class RtpsParticipant:
             self.counters["endpoints_refused"] += 1
             return
         locs = self._usable(p.get("unicast_locator", []))  # none usable: the participant's own
-        ep = RemoteEndpoint(guid, p["topic"], p["type"], bool(p.get("reliable", publication)), publication, locs)
+        ep = RemoteRtpsEndpoint(guid, p["topic"], p["type"], bool(p.get("reliable", publication)), publication, locs)
         if not publication and "reliable" not in p:
             ep.reliable = False  # a reader's default reliability is best effort
         self.remote_endpoints[guid] = ep
@@ -695,7 +695,7 @@ class RtpsParticipant:
             return
         have = dict(w.history)
         dsts = remote.meta if sedp else self._locators(self.remote_endpoints.get(rguid) or
-                                                       RemoteEndpoint(rguid, "", "", False, False))
+                                                       RemoteRtpsEndpoint(rguid, "", "", False, False))
         sock = self.meta_sock if sedp else self.user_sock
         lost = [sn for sn in f["missing"] if sn not in have]
         for dst in dsts[:1]:
@@ -730,5 +730,5 @@ def _sedp_reader(writer_id: bytes) -> bytes:
 
 
 __all__ = ["DEFAULT_LEASE_S", "LOCATOR_PORTS", "MAX_LEASE_S", "MAX_LOCATORS", "MAX_REMOTES", "MAX_REMOTE_ENDPOINTS",
-           "MAX_REMOTE_ENDPOINTS_EACH", "LocalReader", "LocalWriter", "Remote", "RemoteEndpoint", "RtpsParticipant",
+           "MAX_REMOTE_ENDPOINTS_EACH", "LocalReader", "LocalWriter", "Remote", "RemoteRtpsEndpoint", "RtpsParticipant",
            "limits", "loopback"]

@@ -142,7 +142,7 @@ class Scanner:
                                     t if t_last is None else t_last))
         self.world.note_scan(self.name, self.body, t, t if t_last is None else t_last)
 
-    def on_line(self, event, t: float) -> None:  # noqa: D401 (modem lines: most scanners ignore them)
+    def on_port_event(self, event, t: float) -> None:  # noqa: D401 (modem lines: most scanners ignore them)
         """Modem lines, BREAK or settings from the host (ignored unless a model cares)."""
 
 
@@ -156,8 +156,8 @@ class _Party:
     def on_bytes(self, data: bytes, t: float, baud: int | None) -> None:
         self.scanner.on_bytes(data, t, baud)
 
-    def on_line(self, event, t: float) -> None:
-        self.scanner.on_line(event, t)
+    def on_port_event(self, event, t: float) -> None:
+        self.scanner.on_port_event(event, t)
 
 
 __all__ = ["Scanner", "TruthScan"]

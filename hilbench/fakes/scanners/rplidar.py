@@ -34,7 +34,7 @@ from hilbench.fakes.scanners.uart import UartTx
 from hilbench.fakes.scene import Pose, RangeModel, Scene
 from hilbench.fakes.world import World
 from hilbench.protocols import rplidar as rp
-from hilbench.transports.line import ModemLines
+from hilbench.transports.port_state import ModemSignals
 
 A1_SERIAL = bytes.fromhex("D8E0EDF9C7E29BD1A7E39EF24833431B")
 MOTOR_POLICIES = ("dtr", "always", "off")
@@ -148,9 +148,9 @@ class RplidarA1(Scanner):
             return None
         return self.motor_since + self.config.spin_up
 
-    def on_line(self, event, t: float) -> None:
+    def on_port_event(self, event, t: float) -> None:
         """DTR from the host (``hilbench run``, RFC 2217): DTR cleared runs the motor, set stops it."""
-        if not isinstance(event, ModemLines):
+        if not isinstance(event, ModemSignals):
             return
         self.set_dtr(event.dtr, t)
 

@@ -30,7 +30,7 @@ from hilbench.fakes.stm32_board.firmware import Firmware
 from hilbench.fakes.stm32_board.presets import BoardConfig, make_preset
 from hilbench.fakes.stm32_board.robot import RobotState
 from hilbench.fakes.stm32_board.sink import Truth
-from hilbench.protocols.tracestamp import LogLine, RuntimeReport
+from hilbench.protocols.tracestamp import LogMessage, RuntimeReport
 from hilbench.transports.clock import WALL, WallClock
 
 log = logging.getLogger(__name__)
@@ -61,18 +61,18 @@ class Board:
         self.lag_us = 0.0
         self.on_output: Callable[[bytes, float], None] | None = None
         self.rx_baud_mismatch = 0
-        #: Peripherals that run beside the firmware while the board is live (e.g. the micro-ROS link):
-        #: objects with start(board), stop() and reset(), see :meth:`attach_link`.
-        self.links: list[Any] = []
+        #: Peripherals that run beside the firmware while the board is live (e.g. the micro-ROS client):
+        #: objects with start(board), stop() and reset(), see :meth:`attach_client`.
+        self.clients: list[Any] = []
 
     @property
     def clock(self) -> WallClock:
         """The line's clock (its bench's) once attached; the wall clock before."""
         return self.port.clock if self.port is not None else WALL
 
-    def attach_link(self, link: Any) -> None:
+    def attach_client(self, client: Any) -> None:
         """Add a peripheral started and stopped with the live board and told about resets."""
-        self.links.append(link)
+        self.clients.append(client)
 
     # ------------------------------------------------------------------ time
 
@@ -133,8 +133,8 @@ class Board:
             self._carry = old_wire.take(now - self.boot_offset)[0]
             self.boot_offset = now
         self._wake.set()
-        for link in self.links:
-            link.reset()
+        for client in self.clients:
+            client.reset()
 
     _carry = b""
 
@@ -169,7 +169,7 @@ class Board:
         return self.fw.truth
 
     @property
-    def log(self) -> list[LogLine]:
+    def log(self) -> list[LogMessage]:
         """The log lines the firmware printed (most recent boot, last 200)."""
         with self.lock:
             return list(self.fw.log)
@@ -277,12 +277,12 @@ class Board:
         else:
             self._thread = threading.Thread(target=self._run, name=f"board-{self.name}", daemon=True)
             self._thread.start()
-        for link in self.links:
-            link.start(self)
+        for client in self.clients:
+            client.start(self)
 
     def stop(self) -> None:
-        for link in self.links:
-            link.stop()
+        for client in self.clients:
+            client.stop()
         self._vt_epoch = getattr(self, "_vt_epoch", 0) + 1  # (ends the loop timers of virtual time)
         self._stop.set()
         self._wake.set()

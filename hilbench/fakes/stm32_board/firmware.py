@@ -138,7 +138,7 @@ class Firmware:
         self.framer = vel2d.IdleLineFramer(config.baud)
         self.rx_pending: deque[tuple[bytes, float]] = deque()
         self.crc_err = 0
-        self.log: deque[ts.LogLine] = deque(maxlen=LOG_HISTORY)
+        self.log: deque[ts.LogMessage] = deque(maxlen=LOG_HISTORY)
         self.frames: deque[tuple[float, vel2d.Velocity | Problem]] = deque(maxlen=LOG_HISTORY)
         self.reports: list[RuntimeReport] = []
         # Sampling state.
@@ -206,7 +206,7 @@ class Firmware:
 
     def log_line(self, level: str, message: str, immediate: bool = False) -> bytes:
         line = ts.format_log(self.rtc(self.kernel.now), level, message)
-        self.log.append(ts.LogLine(line[:8].decode(), level, message))
+        self.log.append(ts.LogMessage(line[:8].decode(), level, message))
         if immediate:  # boot messages before the scheduler has anything else to do
             self.ring.write(line)
         return line

@@ -40,8 +40,8 @@ ENC_FRAME = "wheel encoder delta in radian"
 VEL_FRAME = "wheel angular velocity setpoint"
 
 
-class MicroRosLink:
-    """The board's XRCE client and its timers; a board link (:meth:`Board.attach_link`)."""
+class MicroRosClient:
+    """The board's XRCE client and its timers; a board client (:meth:`Board.attach_client`)."""
 
     def __init__(self, agent: Any, *, client_key: int | None = None, domain_id: int = 0,
                  zero_after_session: bool = False, node: str = "micro_ros_node") -> None:
@@ -60,7 +60,7 @@ class MicroRosLink:
         self._stop = threading.Event()
         self._epoch = 0
 
-    # ------------------------------------------------------------------ board link protocol
+    # ------------------------------------------------------------------ board client protocol
 
     def start(self, board: Any) -> None:
         self.board = board
@@ -78,7 +78,7 @@ class MicroRosLink:
         self._stop.clear()
         clock = board.clock
         if clock.virtual and board.port is not None:
-            # In virtual time the bench's loop runs the link's timers (the XRCE session itself still runs on
+            # In virtual time the bench's loop runs the client's timers (the XRCE session itself still runs on
             # its client's thread, on the wall clock).
             self._epoch += 1
             preset = board.config.preset
@@ -189,4 +189,4 @@ class MicroRosLink:
         return out
 
 
-__all__ = ["MicroRosLink"]
+__all__ = ["MicroRosClient"]

@@ -38,7 +38,7 @@ class Participant:
 
 
 @dataclass
-class Endpoint:
+class RtpsEndpoint:
     guid: bytes
     writer: bool
     topic: str
@@ -59,7 +59,7 @@ class RtpsState:
 
     def __init__(self, events: Any, flag: Any, max_items: int = 4096) -> None:
         self.participants: dict[bytes, Participant] = {}
-        self.endpoints: dict[bytes, Endpoint] = {}
+        self.endpoints: dict[bytes, RtpsEndpoint] = {}
         self.writers: dict[bytes, WriterFlow] = {}
         self.submessages: dict[str, int] = {}
         self.max_items = max_items
@@ -170,7 +170,7 @@ class RtpsState:
         new = guid not in self.endpoints
         if new and len(self.endpoints) >= self.max_items:
             return
-        self.endpoints[guid] = Endpoint(guid, writer_id == r.SEDP_PUB_WRITER, p["topic"], p.get("type", ""),
+        self.endpoints[guid] = RtpsEndpoint(guid, writer_id == r.SEDP_PUB_WRITER, p["topic"], p.get("type", ""),
                                         bool(p.get("reliable", writer_id == r.SEDP_PUB_WRITER)))
         if new:
             kind = "writer" if writer_id == r.SEDP_PUB_WRITER else "reader"
@@ -206,4 +206,4 @@ class RtpsState:
         return out
 
 
-__all__ = ["Endpoint", "Participant", "RtpsState", "WriterFlow"]
+__all__ = ["RtpsEndpoint", "Participant", "RtpsState", "WriterFlow"]

@@ -32,8 +32,8 @@ def _read(port, n: int, timeout: float = 2.0) -> bytes:
 
 
 def _motor(bench, dtr: bool) -> None:
-    """What `hilbench run`'s shim does when the client sets DTR: the pty's LineState changes."""
-    bench.endpoint("lidar").port.lines.host_sets(dtr=dtr)
+    """What `hilbench run`'s shim does when the client sets DTR: the pty's PortState changes."""
+    bench.endpoint("lidar").port.port_state.host_sets(dtr=dtr)
 
 
 def test_silent_on_open_and_single_responses(a1):

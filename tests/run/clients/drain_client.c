@@ -1,5 +1,5 @@
 /* Drains as C clients make them, on a bench pty at 9600 baud (a paced bench takes ~1 ms a byte, so a
- * drain that returned early is caught). Run by tests/run/test_delivery_board.py under `hilbench run`.
+ * drain that returned early is caught). Run by tests/run/test_delivery_ledger.py under `hilbench run`.
  * Usage: drain_client PORT N. Steps, each answered by one line on stdout, each after a line on stdin:
  *   start      write "hello" (write), tcdrain                      -> "hello"
  *   idle       N x (tcdrain, TCSBRK 1, tcflush(TCOFLUSH)): nothing pending -> "idle"

@@ -1,5 +1,5 @@
 """Drains and output flushes as pyserial clients make them (dynamixel-sdk 3.x drains before every packet,
-pypot flushes). Run by tests/run/test_delivery_board.py under `hilbench run`. Usage: drain_pyserial.py
+pypot flushes). Run by tests/run/test_delivery_ledger.py under `hilbench run`. Usage: drain_pyserial.py
 PORT N. Steps, each answered by one line on stdout, each after a line on stdin:
   start   write "hello", flush()                                           -> "hello"
   idle    N x (flush(), reset_output_buffer(), termios.tcdrain): nothing pending -> "idle"

@@ -3,14 +3,14 @@
 Each kind of bus is driven the way its robots drive it:
 
 - Dynamixel Protocol 2.0 (X series, MX 2.0, XL-320): the official
-  ``dynamixel-sdk`` with Sync Read and Sync Write (:class:`Dxl2Link`);
+  ``dynamixel-sdk`` with Sync Read and Sync Write (:class:`Dxl2Connection`);
 - Dynamixel Protocol 1.0 (AX, MX 1.0, pypot's robots): the same SDK's
   Protocol 1.0 handler, which has no Sync Read: one Read per servo, and Sync
-  Write (:class:`Dxl1Link`);
+  Write (:class:`Dxl1Connection`);
 - Feetech STS/SCS (SO-100/SO-101): Feetech's ``scservo_sdk`` with its Sync
-  Read 0x82 and Sync Write, as LeRobot's motor bus does (:class:`FeetechLink`).
+  Read 0x82 and Sync Write, as LeRobot's motor bus does (:class:`FeetechConnection`).
 
-A link reads and writes control-table :class:`~hilbench.protocols.control_table.Field` s
+A connection reads and writes control-table :class:`~hilbench.protocols.control_table.Field` s
 (so it encodes sign-magnitude and big-endian words as the model says) and
 answers ``None`` for what did not come back; it never raises for a device
 that is silent. :func:`layout` finds the registers the demo uses in any
@@ -79,7 +79,7 @@ def layout(model: Model) -> Layout | None:
                   role_field(model, "temperature_limit"))
 
 
-class ServoLink:
+class ServoConnection:
     """A servo bus opened through an SDK (see the module docstring); use as a context manager."""
 
     #: The traffic's name to taps and monitors.
@@ -93,7 +93,7 @@ class ServoLink:
         self.port: Any = None
         self.ph: Any = None
 
-    def __enter__(self) -> ServoLink:
+    def __enter__(self) -> ServoConnection:
         self.open()
         return self
 
@@ -136,7 +136,7 @@ class ServoLink:
         raise NotImplementedError
 
 
-class _DynamixelLink(ServoLink):
+class _DynamixelConnection(ServoConnection):
     version: ClassVar[float] = 2.0
 
     def open(self) -> None:
@@ -167,7 +167,7 @@ class _DynamixelLink(ServoLink):
         writer.txPacket()
 
 
-class Dxl2Link(_DynamixelLink):
+class Dxl2Connection(_DynamixelConnection):
     """Dynamixel Protocol 2.0 through the official SDK: Sync Read and Sync Write."""
 
     protocol = "dynamixel"
@@ -189,7 +189,7 @@ class Dxl2Link(_DynamixelLink):
         return {i: bytes(reader.data_dict[i]) for i in ids if len(reader.data_dict.get(i) or ()) == size}, 0
 
 
-class Dxl1Link(_DynamixelLink):
+class Dxl1Connection(_DynamixelConnection):
     """Dynamixel Protocol 1.0 through the official SDK: a Read per servo (it has no Sync Read), Sync Write."""
 
     protocol = "dynamixel1"
@@ -197,7 +197,7 @@ class Dxl1Link(_DynamixelLink):
     group_reads = False
 
 
-class FeetechLink(ServoLink):
+class FeetechConnection(ServoConnection):
     """Feetech STS/SCS through Feetech's own ``scservo_sdk``: Sync Read 0x82 and Sync Write."""
 
     protocol = "feetech"
@@ -254,17 +254,17 @@ def feetech_sdk() -> Any:
     return require("scservo_sdk", "feetech", "driving a Feetech bus", package="feetech-servo-sdk")
 
 
-def link_for(protocol: str, version: int, path: str, baud: int, models: Iterable[Model] = ()) -> ServoLink:
-    """The link that drives a bench endpoint of ``protocol`` (``protocol_version`` for Dynamixel)."""
+def connection_for(protocol: str, version: int, path: str, baud: int, models: Iterable[Model] = ()) -> ServoConnection:
+    """The connection that drives a bench endpoint of ``protocol`` (``protocol_version`` for Dynamixel)."""
     if protocol == "feetech":
         models = list(models)
         big = bool(models) and all((f := role_field(m, "present_position")) is not None and f.big_endian
                                    for m in models)
-        return FeetechLink(path, baud, big_endian=big)
+        return FeetechConnection(path, baud, big_endian=big)
     if protocol == "dynamixel":
-        return (Dxl1Link if version == 1 else Dxl2Link)(path, baud)
-    raise UsageError(f"no SDK link for {protocol!r} buses")
+        return (Dxl1Connection if version == 1 else Dxl2Connection)(path, baud)
+    raise UsageError(f"no SDK connection for {protocol!r} buses")
 
 
-__all__ = ["Dxl1Link", "Dxl2Link", "FeetechLink", "Layout", "ServoLink", "feetech_sdk", "layout", "link_for",
+__all__ = ["Dxl1Connection", "Dxl2Connection", "FeetechConnection", "Layout", "ServoConnection", "feetech_sdk", "layout", "connection_for",
            "role_field"]

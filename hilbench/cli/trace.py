@@ -1,4 +1,4 @@
-"""``hilbench profile SOURCE``: per-task timing, periodicity, jitter, histograms, Gantt and Perfetto export.
+"""``hilbench trace SOURCE``: per-task timing, periodicity, jitter, histograms, Gantt and Perfetto export.
 
 SOURCE is anything :func:`hilbench.transports.sources.open_source` opens: a
 file (text or binary stamps, or a hilbench capture), ``-`` (stdin), a serial
@@ -90,12 +90,12 @@ def _names(text: str) -> list[str]:
 
 
 def settings_from(args: argparse.Namespace):
-    from hilbench.profiler.settings import ProfileSettings
+    from hilbench.profiler.settings import ProfilerSettings
 
     denominator: str | float = "span"
     if args.denominator not in (None, "span"):
         denominator = "profiled" if args.denominator == "profiled" else time_us(args.denominator)
-    return ProfileSettings(
+    return ProfilerSettings(
         tasks=frozenset(_names(args.tasks)) if args.tasks is not None else None,
         periods=dict(args.period or []),
         merge_gaps=dict(args.merge_gap or []),
@@ -171,7 +171,7 @@ def _check_protocol(source) -> None:
     from hilbench.monitor.detect import choose
 
     if source.protocol:
-        choose(source.protocol, verb="profile", name=source.name)
+        choose(source.protocol, verb="trace", name=source.name)
 
 
 def _check_outputs(args: argparse.Namespace) -> None:
@@ -209,7 +209,7 @@ def _check_baseline_capture(args: argparse.Namespace) -> None:
             _check_protocol(source)  # a capture that says it carries something else (a servo bus)
             data, _ = peek(source, min_bytes=8192)
             if source.protocol is None and not INSTRUMENT.sniff(data):
-                raise CliError(f"--compare {name}: neither a `hilbench profile --json` document nor a board's "
+                raise CliError(f"--compare {name}: neither a `hilbench trace --json` document nor a board's "
                                f"trace (no stamps, logs or reports in its first {len(data)} bytes)")
     except CliError as exc:
         raise CliError(str(exc) if str(exc).startswith("--compare") else f"--compare {exc}") from None
@@ -310,23 +310,23 @@ def cmd_profile(args: argparse.Namespace) -> int:
 
 ORDER = 60
 VERBS = {  # each verb register() adds and its line in `hilbench --help` (see hilbench.cli)
-    "profile": "trace profiler: per-task timing, periods, jitter, Gantt, Perfetto export",
+    "trace": "trace profiler: per-task timing, periods, jitter, Gantt, Perfetto export",
 }
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
-        "profile", help=VERBS["profile"],
+        "trace", help=VERBS["trace"],
         description="Analyse a board's trace stamps (text in either dialect, or hilbench's binary words, mixed "
                     "with logs and run-time statistics reports): per task and function count, total, mean, min, "
                     "observed max, share of the window, gross and net time, frequency, period, jitter, "
                     "deadline misses, histograms, data quality. Definitions: spec sheet stm32_board.md §5.",
         formatter_class=argparse.RawDescriptionHelpFormatter,
         epilog="examples:\n"
-               "  hilbench profile trace.txt --period wheel_ctrl=10ms --gantt trace.png\n"
-               "  hilbench profile /dev/ttyACM0 --baud 1152000 --live\n"
-               "  hilbench profile udp://127.0.0.1:9000 --reports 1 --json > run.json\n"
-               "  hilbench profile caches_on.txt --compare caches_off.txt")
+               "  hilbench trace trace.txt --period wheel_ctrl=10ms --gantt trace.png\n"
+               "  hilbench trace /dev/ttyACM0 --baud 1152000 --live\n"
+               "  hilbench trace udp://127.0.0.1:9000 --reports 1 --json > run.json\n"
+               "  hilbench trace caches_on.txt --compare caches_off.txt")
     p.add_argument("source", help="file or capture, - (stdin), serial port or pty, serial://PATH?baud=N, "
                                   "udp://HOST:PORT[?peer=HOST:PORT], tcp://HOST:PORT (a bench tap), a bench "
                                   "manifest.json[#endpoint], or bench:PROFILE")

@@ -6,12 +6,18 @@ from __future__ import annotations
 import threading
 from typing import Any
 
-from hilbench.transports.line import BreakCondition, LineEvent, LineSettings, ModemLines, OutputFlushed
+from hilbench.transports.port_state import (
+    BreakCondition,
+    ModemSignals,
+    OutputFlushed,
+    PortEvent,
+    SerialSettings,
+)
 
 ANSWER = {"cts": True, "dsr": True, "ri": False, "cd": True}
 
 
-class LineRecorder:
+class PortEventRecorder:
     """Put it on a running bench's endpoint with :meth:`attach`."""
 
     def __init__(self, name: str = "recorder") -> None:
@@ -20,7 +26,7 @@ class LineRecorder:
         self._lock = threading.Lock()
         self.log: list[Any] = []
 
-    def attach(self, endpoint: Any) -> LineRecorder:
+    def attach(self, endpoint: Any) -> PortEventRecorder:
         self.port = endpoint.medium.add_device(self)
         return self
 
@@ -28,21 +34,21 @@ class LineRecorder:
         with self._lock:
             self.log.append(bytes(data))
 
-    def on_line(self, event: LineEvent, t: float) -> None:
+    def on_port_event(self, event: PortEvent, t: float) -> None:
         with self._lock:
             self.log.append(event)
-        if event == ModemLines(False, False):
+        if event == ModemSignals(False, False):
             self.port.set_lines(**ANSWER)
 
     def sequence(self, *, settings: bool = True) -> list[Any]:
-        """The log with consecutive byte chunks joined (and LineSettings left out unless ``settings``)."""
+        """The log with consecutive byte chunks joined (and SerialSettings left out unless ``settings``)."""
         out: list[Any] = []
         with self._lock:
             log = list(self.log)
         for item in log:
             if isinstance(item, bytes) and out and isinstance(out[-1], bytes):
                 out[-1] += item
-            elif settings or not isinstance(item, LineSettings):
+            elif settings or not isinstance(item, SerialSettings):
                 out.append(item)
         return out
 
@@ -55,4 +61,4 @@ class LineRecorder:
             return [x for x in self.log if not isinstance(x, bytes)]
 
 
-__all__ = ["ANSWER", "BreakCondition", "LineRecorder", "LineSettings", "ModemLines", "OutputFlushed"]
+__all__ = ["ANSWER", "BreakCondition", "PortEventRecorder", "SerialSettings", "ModemSignals", "OutputFlushed"]

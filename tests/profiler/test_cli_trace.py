@@ -1,4 +1,4 @@
-"""``hilbench profile`` as a user runs it (real subprocesses): files, stdin, JSON keys, export, Gantt, compare,
+"""``hilbench trace`` as a user runs it (real subprocesses): files, stdin, JSON keys, export, Gantt, compare,
 windows, strict mode and one-line errors."""
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ JSON_TASK_KEYS = {"count", "mean_us", "min_us", "max_us", "total_us", "share", "
 
 
 def run(*args: str, stdin: bytes | None = None, check_rc: int | None = 0) -> subprocess.CompletedProcess:
-    proc = subprocess.run([sys.executable, "-m", "hilbench.cli", "profile", *args], input=stdin,
+    proc = subprocess.run([sys.executable, "-m", "hilbench.cli", "trace", *args], input=stdin,
                           capture_output=True, timeout=60)
     if check_rc is not None:
         assert proc.returncode == check_rc, proc.stderr.decode()
@@ -95,7 +95,7 @@ def test_window_and_compare_with_a_saved_run(trace64, tmp_path):
 ])
 def test_errors_are_one_line(args, message, code, tmp_path):
     (tmp_path / "x.txt").write_bytes(b"a 1 in\n")
-    proc = subprocess.run([sys.executable, "-m", "hilbench.cli", "profile", *args], capture_output=True,
+    proc = subprocess.run([sys.executable, "-m", "hilbench.cli", "trace", *args], capture_output=True,
                           timeout=60, cwd=tmp_path)
     assert proc.returncode == code
     err = proc.stderr.decode().strip().splitlines()
@@ -143,10 +143,10 @@ def test_a_dynamixel_bench_is_refused_not_profiled(hilbench_emulator, tmp_path):
 
 
 @pytest.mark.parametrize(("content", "message"), [
-    (random.Random(23).randbytes(4096), "neither a `hilbench profile --json` document nor a board's trace"),
-    (b'{"devices": {"1": {}}}', "not a `hilbench profile --json` document (no 'tasks' table of figures)"),
-    (b'{"tasks": {"IDLE": 3}}', "not a `hilbench profile --json` document (no 'tasks' table of figures)"),
-    (b"[1, 2]", "not a `hilbench profile --json` document"),
+    (random.Random(23).randbytes(4096), "neither a `hilbench trace --json` document nor a board's trace"),
+    (b'{"devices": {"1": {}}}', "not a `hilbench trace --json` document (no 'tasks' table of figures)"),
+    (b'{"tasks": {"IDLE": 3}}', "not a `hilbench trace --json` document (no 'tasks' table of figures)"),
+    (b"[1, 2]", "not a `hilbench trace --json` document"),
     (b"{\xff\xfe", "not JSON"),
 ])
 def test_compare_refuses_what_is_not_a_run_in_one_line(trace64, tmp_path, content, message):
@@ -163,7 +163,7 @@ def test_a_duration_that_cuts_a_line_is_no_damage(spec, tmp_path):
     fifo = tmp_path / "trace"
     os.mkfifo(fifo)
     data = spec.lines(spec.TRACE_64)
-    proc = subprocess.Popen([sys.executable, "-m", "hilbench.cli", "profile", str(fifo), "--duration", "1", "--json"],
+    proc = subprocess.Popen([sys.executable, "-m", "hilbench.cli", "trace", str(fifo), "--duration", "1", "--json"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     fd = os.open(fifo, os.O_WRONLY)  # returns once the profiler has opened the FIFO
     try:

@@ -1,4 +1,4 @@
-"""The bench's line server, driven by pyserial in the test's own process (the pytest plugin's patch) and
+"""The bench's port-state server, driven by pyserial in the test's own process (the pytest plugin's patch) and
 by raw requests: modem lines, BREAK, flushes, drains and settings reach the devices in order."""
 
 from __future__ import annotations
@@ -12,11 +12,17 @@ import time
 import pytest
 import serial
 
-from hilbench.bench import line_server
-from hilbench.bench.line_server import TIOCM
+from hilbench.bench import port_state_server
+from hilbench.bench.port_state_server import TIOCM
 from hilbench.pytest_plugin import wait_until
 from hilbench.run import pyserial_shim
-from tests.run.line_recorder import BreakCondition, LineRecorder, LineSettings, ModemLines, OutputFlushed
+from tests.run.port_event_recorder import (
+    BreakCondition,
+    ModemSignals,
+    OutputFlushed,
+    PortEventRecorder,
+    SerialSettings,
+)
 
 PAYLOAD = bytes(range(0x20, 0x7F)) * 40  # 3 800 bytes, nothing a Dynamixel servo would take for a packet
 
@@ -32,7 +38,7 @@ def ask(server, line: str) -> str:
 @pytest.fixture
 def arm(hilbench_bench):
     bench = hilbench_bench("arm")
-    return bench, LineRecorder().attach(bench.endpoint())
+    return bench, PortEventRecorder().attach(bench.endpoint())
 
 
 def test_pyserial_modem_lines_reach_the_device_and_read_back(arm):
@@ -42,12 +48,12 @@ def test_pyserial_modem_lines_reach_the_device_and_read_back(arm):
         ser.write(b"before")
         ser.dtr = False
         ser.rts = False
-        # The device answered the cleared lines in its on_line, before the ioctl returned.
+        # The device answered the cleared lines in its on_port_event, before the ioctl returned.
         assert (ser.cts, ser.dsr, ser.ri, ser.cd) == (True, True, False, True)
         ser.dtr = True
-        assert rec.sequence(settings=False) == [b"before", ModemLines(False, True), ModemLines(False, False),
-                                                ModemLines(True, False)]
-        snap = bench.endpoint().port.lines.snapshot()
+        assert rec.sequence(settings=False) == [b"before", ModemSignals(False, True), ModemSignals(False, False),
+                                                ModemSignals(True, False)]
+        snap = bench.endpoint().port.port_state.snapshot()
         assert (snap["dtr"], snap["rts"], snap["cts"]) == (True, False, True)
 
 
@@ -64,9 +70,9 @@ def test_reset_output_buffer_delivers_instead_of_discarding(arm):
 
 
 def test_flush_discards_on_a_plain_pty(hilbench_bench):
-    """What the line server fixes: without it (lines=False), tcflush(TCOFLUSH) drops unread bytes."""
-    bench = hilbench_bench("arm", lines=False)
-    rec = LineRecorder().attach(bench.endpoint())
+    """What the port-state server fixes: without it (port_state=False), tcflush(TCOFLUSH) drops unread bytes."""
+    bench = hilbench_bench("arm", port_state=False)
+    rec = PortEventRecorder().attach(bench.endpoint())
     medium = bench.endpoint().medium
     with serial.Serial(bench.endpoint().path, 1_000_000) as ser:
         # the line's thread paused: nothing reads the pty, so whether a flush finds the bytes unread is no race
@@ -90,7 +96,7 @@ def test_flush_discards_on_a_plain_pty(hilbench_bench):
 @pytest.mark.parametrize("paced", [False, True])
 def test_flush_drain_waits_until_the_bytes_are_delivered(hilbench_bench, paced):
     bench = hilbench_bench("arm", paced=paced)
-    rec = LineRecorder().attach(bench.endpoint())
+    rec = PortEventRecorder().attach(bench.endpoint())
     with serial.Serial(bench.endpoint().path, 1_000_000) as ser:
         t0 = time.monotonic()
         ser.write(PAYLOAD)
@@ -105,7 +111,7 @@ def test_a_write_faster_than_the_wire_waits_and_a_drain_waits_for_all_of_it(hilb
     """A paced line holds a writer back as an adapter does (write() returns once the bytes beyond its FIFO and
     the pty's buffer could be taken); tcdrain then waits until every byte is delivered, however far ahead."""
     bench = hilbench_bench("arm", paced=True)
-    rec = LineRecorder().attach(bench.endpoint())
+    rec = PortEventRecorder().attach(bench.endpoint())
     data = PAYLOAD * 17  # 64 600 bytes: 0.65 s at 1 Mbaud
     wire = len(data) * 10 / 1_000_000
     with serial.Serial(bench.endpoint().path, 1_000_000) as ser:
@@ -127,7 +133,7 @@ def test_break_events(arm):
         ser.send_break(0.25)  # pyserial: tcsendbreak(fd, 1) -> glibc: one tenth of a second
         assert time.monotonic() - t0 >= 0.1
         ser.break_condition = True
-        assert bench.endpoint().port.lines.break_active
+        assert bench.endpoint().port.port_state.break_active
         ser.break_condition = False
     assert rec.sequence(settings=False) == [BreakCondition(True, 0.1), BreakCondition(True), BreakCondition(False)]
 
@@ -141,26 +147,26 @@ def test_baud_rate_and_framing_become_settings_events(arm):
         ser.baudrate = 4_500_000  # no B constant: BOTHER through TCSETS2
         ser.write(b"x")
         wait_until(lambda: rec.received() == b"x")
-    settings = [e for e in rec.events() if isinstance(e, LineSettings)]
-    assert settings == [LineSettings(57_600), LineSettings(57_600, 8, "E", 1.0), LineSettings(57_600, 7, "E", 1.0),
-                        LineSettings(57_600, 7, "E", 2.0), LineSettings(4_500_000, 7, "E", 2.0)]
-    assert bench.endpoint().port.lines.settings == LineSettings(4_500_000, 7, "E", 2.0)
+    settings = [e for e in rec.events() if isinstance(e, SerialSettings)]
+    assert settings == [SerialSettings(57_600), SerialSettings(57_600, 8, "E", 1.0), SerialSettings(57_600, 7, "E", 1.0),
+                        SerialSettings(57_600, 7, "E", 2.0), SerialSettings(4_500_000, 7, "E", 2.0)]
+    assert bench.endpoint().port.port_state.settings == SerialSettings(4_500_000, 7, "E", 2.0)
 
 
 def test_settings_are_seen_without_the_shim_too(hilbench_bench):
     """A client nobody intercepts: the bench reads the rate from termios on every read (framing it cannot
     see: a pty forces 8 data bits, no parity)."""
-    bench = hilbench_bench("arm", lines=False)
-    rec = LineRecorder().attach(bench.endpoint())
+    bench = hilbench_bench("arm", port_state=False)
+    rec = PortEventRecorder().attach(bench.endpoint())
     with serial.Serial(bench.endpoint().path, 115_200) as ser:
         ser.write(b"a")
         wait_until(lambda: rec.received() == b"a")
-    assert rec.sequence() == [LineSettings(115_200), b"a"]  # the settings before the bytes they carry
+    assert rec.sequence() == [SerialSettings(115_200), b"a"]  # the settings before the bytes they carry
 
 
 def test_requests_and_errors_on_the_socket(arm):
     bench, _ = arm
-    server = bench.services["lines"]
+    server = bench.services["port_state"]
     rdev = bench.endpoint().port.rdev
     assert server.describe()["ports"]["arm"] == {"rdev": rdev, "path": bench.endpoint().path}
     assert oct(os.stat(os.path.dirname(server.path)).st_mode & 0o777) == "0o700"
@@ -206,10 +212,10 @@ def test_patch_is_removed_when_the_bench_stops(hilbench_bench):
 
 
 def test_connections_beyond_the_limit_are_refused_and_idle_ones_closed(hilbench_bench, monkeypatch):
-    monkeypatch.setattr(line_server, "MAX_CLIENTS", 2)
-    monkeypatch.setattr(line_server, "IDLE_TIMEOUT", 0.5)
-    monkeypatch.setattr(line_server, "EVICT_IDLE", 60.0)  # (none waited long enough to be closed for the newcomer)
-    server = hilbench_bench("arm").services["lines"]
+    monkeypatch.setattr(port_state_server, "MAX_CLIENTS", 2)
+    monkeypatch.setattr(port_state_server, "IDLE_TIMEOUT", 0.5)
+    monkeypatch.setattr(port_state_server, "EVICT_IDLE", 60.0)  # (none waited long enough to be closed for the newcomer)
+    server = hilbench_bench("arm").services["port_state"]
     held = []
     for _ in range(2):
         s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
@@ -230,9 +236,9 @@ def test_connections_beyond_the_limit_are_refused_and_idle_ones_closed(hilbench_
 
 
 def test_a_newcomer_takes_the_place_of_the_connection_idle_longest(hilbench_bench, monkeypatch):
-    monkeypatch.setattr(line_server, "MAX_CLIENTS", 2)
-    monkeypatch.setattr(line_server, "EVICT_IDLE", 0.2)
-    server = hilbench_bench("arm").services["lines"]
+    monkeypatch.setattr(port_state_server, "MAX_CLIENTS", 2)
+    monkeypatch.setattr(port_state_server, "EVICT_IDLE", 0.2)
+    server = hilbench_bench("arm").services["port_state"]
     held = []
     for _ in range(2):
         s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)

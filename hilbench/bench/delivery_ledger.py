@@ -1,10 +1,10 @@
-"""The delivery board: a shared page where a bench says which bytes its ptys' clients wrote are delivered.
+"""The delivery ledger: a shared page where a bench says which bytes its ptys' clients wrote are delivered.
 
 ``tcdrain`` on a USB adapter with nothing queued returns at once, and clients
 call it when nothing is queued: dynamixel-sdk 3.x's ``clearPort()`` is
 ``ser.flush()`` before every packet. Under ``hilbench run`` a drain is a round
-trip to the line server (:mod:`hilbench.bench.line_server`), unless the client
-can tell that everything it wrote is already delivered. This board lets it:
+trip to the port-state server (:mod:`hilbench.bench.port_state_server`), unless the client
+can tell that everything it wrote is already delivered. This ledger lets it:
 
 - a client, before each ``write()`` to the pty, counts it in ``writing`` (the C
   shim, atomically; the Python fallback sets ``writing_py`` while its process has
@@ -23,11 +23,11 @@ can tell that everything it wrote is already delivered. This board lets it:
   under way only if its client drained just before it (dynamixel-sdk 3.x drains before
   every packet; 4.x never does, and its writes should not cost the bench wake-ups).
 
-A file of ``64 + 64 * slots`` bytes beside the line socket (``lines.board`` in
+A file of ``64 + 64 * slots`` bytes beside the port-state socket (``port_state.ledger`` in
 the same 0700 directory, so only this user's programs map it), native byte
 order, 8-byte aligned words::
 
-    header  magic "HBBOARD1" | version 1 | slots | slot size 64 | 4 reserved words
+    header  magic "HBLEDGR1" | version 1 | slots | slot size 64 | 4 reserved words
     slot    rdev | idle_ns | dirty_ns | dirty_py_ns | writing | writing_py | drain_ns | 1 reserved word
 
 Readers of this layout: ``hilbench/run/shim.c`` and
@@ -42,7 +42,7 @@ import mmap
 import os
 import threading
 
-MAGIC = b"HBBOARD1"
+MAGIC = b"HBLEDGR1"
 VERSION = 1
 HEADER_SIZE = 64
 SLOT_SIZE = 64
@@ -50,12 +50,12 @@ SLOT_SIZE = 64
 RDEV, IDLE_NS, DIRTY_NS, DIRTY_PY_NS, WRITING, WRITING_PY, DRAIN_NS = 0, 1, 2, 3, 4, 5, 6
 #: A drain at most this long before the latest write makes the bench look again while it is under way.
 DRAINING = 10_000_000
-#: The board's file name beside the line server's socket.
-FILE_NAME = "lines.board"
+#: The ledger's file name beside the port-state server's socket.
+FILE_NAME = "port_state.ledger"
 
 
-class DeliveryBoard:
-    """The bench's side of the board: one slot per served pty, ``idle_ns`` written here only."""
+class DeliveryLedger:
+    """The bench's side of the ledger: one slot per served pty, ``idle_ns`` written here only."""
 
     def __init__(self, path: str, rdevs: list[int]) -> None:
         self.path = path
@@ -87,7 +87,7 @@ class DeliveryBoard:
                     self._words[i] = ns  # one aligned 8-byte store: readers see the old or the new time
 
     def writers_idle(self, rdev: int) -> bool:
-        """No client is inside a write() to pty ``rdev`` (as far as the board counts them)."""
+        """No client is inside a write() to pty ``rdev`` (as far as the ledger counts them)."""
         with self._lock:
             if self._words is None or rdev not in self._slot:
                 return False
@@ -124,4 +124,4 @@ class DeliveryBoard:
 
 
 __all__ = ["DIRTY_NS", "DIRTY_PY_NS", "DRAINING", "DRAIN_NS", "FILE_NAME", "HEADER_SIZE", "IDLE_NS", "MAGIC", "RDEV", "SLOT_SIZE",
-           "VERSION", "WRITING", "WRITING_PY", "DeliveryBoard"]
+           "VERSION", "WRITING", "WRITING_PY", "DeliveryLedger"]

@@ -4,11 +4,11 @@ A real USB-serial adapter has modem lines. The host drives DTR and RTS (an
 RPLIDAR A1's adapter runs the motor while DTR is low; boards reset on
 DTR/RTS) and reads CTS, DSR, RI and CD, which the device drives; the host can
 hold the line in BREAK and changes baud rate and framing. A pseudo-terminal
-has none of that, so a host port keeps a :class:`LineState` that whoever
+has none of that, so a host port keeps a :class:`PortState` that whoever
 learns of a change feeds: ``hilbench run``'s shim (modem-line ioctls of an
 unmodified client on the bench's pty), an RFC 2217 server, a test. Changes
-become events a medium hands to its devices (``device.on_line(event, t)``);
-what the device drives goes the other way (:meth:`LineState.device_sets`).
+become events a medium hands to its devices (``device.on_port_event(event, t)``);
+what the device drives goes the other way (:meth:`PortState.device_sets`).
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 
 @dataclass(frozen=True)
-class ModemLines:
+class ModemSignals:
     """The host-driven modem outputs after a change: DTR and RTS (True: asserted)."""
 
     dtr: bool
@@ -35,7 +35,7 @@ class BreakCondition:
 
 
 @dataclass(frozen=True)
-class LineSettings:
+class SerialSettings:
     """The host set the line: baud rate (None if unknown), data bits, parity (N/E/O/M/S), stop bits."""
 
     baud: int | None
@@ -49,13 +49,13 @@ class OutputFlushed:
     """The host flushed its output (TCOFLUSH); under ``hilbench run`` the bytes were delivered first."""
 
 
-LineEvent = ModemLines | BreakCondition | LineSettings | OutputFlushed
+PortEvent = ModemSignals | BreakCondition | SerialSettings | OutputFlushed
 
 #: Device-driven lines a host can read, as in pyserial (``cts``, ``dsr``, ``ri``, ``cd``).
 DEVICE_LINES = ("cts", "dsr", "ri", "cd")
 
 
-class LineState:
+class PortState:
     """The modem lines, BREAK and settings of one host port; thread-safe.
 
     ``dtr``/``rts`` start asserted, as a host's open() leaves them on a real
@@ -68,16 +68,16 @@ class LineState:
         self.dtr = True
         self.rts = True
         self.break_active = False
-        self.settings = LineSettings(None)
+        self.settings = SerialSettings(None)
         self.cts = False
         self.dsr = False
         self.ri = False
         self.cd = False
         self.events = 0
-        self._listener: Callable[[LineEvent], None] | None = None
+        self._listener: Callable[[PortEvent], None] | None = None
         self._watchers: list[Callable[[dict[str, bool]], None]] = []
 
-    def set_listener(self, listener: Callable[[LineEvent], None] | None) -> None:
+    def set_listener(self, listener: Callable[[PortEvent], None] | None) -> None:
         """Who hears the host's changes (a medium, which passes them to its devices)."""
         self._listener = listener
 
@@ -90,7 +90,7 @@ class LineState:
         if watcher in self._watchers:
             self._watchers.remove(watcher)
 
-    def _emit(self, event: LineEvent) -> None:
+    def _emit(self, event: PortEvent) -> None:
         self.events += 1
         listener = self._listener
         if listener is not None:
@@ -98,14 +98,14 @@ class LineState:
 
     # ------------------------------------------------------------------ host side
 
-    def host_sets(self, *, dtr: bool | None = None, rts: bool | None = None) -> ModemLines:
-        """The host changed DTR and/or RTS; emits :class:`ModemLines` if anything changed."""
+    def host_sets(self, *, dtr: bool | None = None, rts: bool | None = None) -> ModemSignals:
+        """The host changed DTR and/or RTS; emits :class:`ModemSignals` if anything changed."""
         with self._lock:
             new_dtr = self.dtr if dtr is None else bool(dtr)
             new_rts = self.rts if rts is None else bool(rts)
             changed = (new_dtr, new_rts) != (self.dtr, self.rts)
             self.dtr, self.rts = new_dtr, new_rts
-            event = ModemLines(new_dtr, new_rts)
+            event = ModemSignals(new_dtr, new_rts)
         if changed:
             self._emit(event)
         return event
@@ -116,8 +116,8 @@ class LineState:
             self.break_active = active and duration is None
         self._emit(BreakCondition(active, duration))
 
-    def host_settings(self, settings: LineSettings) -> None:
-        """The host changed baud rate or framing; emits :class:`LineSettings` if anything changed."""
+    def host_settings(self, settings: SerialSettings) -> None:
+        """The host changed baud rate or framing; emits :class:`SerialSettings` if anything changed."""
         with self._lock:
             changed = settings != self.settings
             self.settings = settings
@@ -153,5 +153,5 @@ class LineState:
                     **{k: getattr(self, k) for k in DEVICE_LINES}}
 
 
-__all__ = ["DEVICE_LINES", "BreakCondition", "LineEvent", "LineSettings", "LineState", "ModemLines",
+__all__ = ["DEVICE_LINES", "BreakCondition", "PortEvent", "SerialSettings", "PortState", "ModemSignals",
            "OutputFlushed"]

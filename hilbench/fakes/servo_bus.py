@@ -19,7 +19,7 @@ from hilbench.transports.serial_medium import DevicePort, SerialMedium
 
 
 @dataclass
-class BusStats:
+class ServoBusStats:
     """What the emulated devices received and sent."""
 
     requests: Counter = field(default_factory=Counter)
@@ -30,7 +30,7 @@ class BusStats:
     invalid_received: int = 0
 
 
-class ServoLine:
+class ServoBusBase:
     """Emulated servos sharing one serial line; a subclass decodes and executes what the host sends."""
 
     #: The status packet builder of the bus's protocol: ``(id, err, data) -> bytes``.
@@ -47,7 +47,7 @@ class ServoLine:
     def __init__(self, servos: list, *, name: str) -> None:
         self.name = name
         self.servos = list(servos)
-        self.stats = BusStats()
+        self.stats = ServoBusStats()
         self.port: DevicePort | None = None
         self._packets: dict[int, tuple[bytes, int, bytes]] = {}  # reply id -> (data, err, its last status)
 
@@ -129,4 +129,4 @@ class ServoLine:
                 port.transmit(bytes(batch), t=end, baud=batch_baud)
 
 
-__all__ = ["BusStats", "ServoLine"]
+__all__ = ["ServoBusStats", "ServoBusBase"]

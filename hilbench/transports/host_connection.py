@@ -1,11 +1,11 @@
-"""A host program's end of a board link: a serial port (real or emulated) or a UDP address.
+"""A host program's end of a board connection: a serial port (real or emulated) or a UDP address.
 
-``HostLink.open("/dev/ttyACM0", 115200)`` opens a serial port with pyserial
-in raw mode, as the ROS bridge ``vel2d_bridge`` does; ``HostLink.open(
+``HostConnection.open("/dev/ttyACM0", 115200)`` opens a serial port with pyserial
+in raw mode, as the ROS bridge ``vel2d_bridge`` does; ``HostConnection.open(
 "udp://127.0.0.1:9000")`` talks to a board endpoint over UDP (the first
-datagram sent registers this socket for the board's output). :meth:`~HostLink.send`
+datagram sent registers this socket for the board's output). :meth:`~HostConnection.send`
 writes one message with one write and waits until it has left (tcdrain),
-like the bridge; :meth:`~HostLink.read` returns whatever the board sent.
+like the bridge; :meth:`~HostConnection.read` returns whatever the board sent.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from hilbench.transports.readiness import readable
 from hilbench.transports.udp import parse_address
 
 
-class HostLink:
+class HostConnection:
     """See the module docstring. Use :meth:`open`."""
 
     def __init__(self, port: str, *, serial_port=None, sock: socket.socket | None = None) -> None:
@@ -26,7 +26,7 @@ class HostLink:
         self._sock = sock
 
     @classmethod
-    def open(cls, port: str, baud: int = 115_200) -> HostLink:
+    def open(cls, port: str, baud: int = 115_200) -> HostConnection:
         """Open ``port``: a serial device path or ``udp://HOST:PORT``; raises OSError or ValueError."""
         if port.startswith("udp://"):
             host, udp_port = parse_address(port)
@@ -88,7 +88,7 @@ class HostLink:
             if self._serial is not None:
                 self._serial.close()
 
-    def __enter__(self) -> HostLink:
+    def __enter__(self) -> HostConnection:
         return self
 
     def __exit__(self, *exc) -> None:

@@ -1,11 +1,11 @@
-"""The line server: what a serial adapter does besides bytes, for clients of a bench's ptys.
+"""The port-state server: what a serial adapter does besides bytes, for clients of a bench's ptys.
 
 A pseudo-terminal has no modem lines and no BREAK, and ``tcflush(TCOFLUSH)`` on
 it throws away bytes the bench has not read yet (on a USB adapter they are
 already on the wire). ``hilbench run`` makes unmodified clients ask this server
 instead, through an LD_PRELOAD shim or a pyserial patch (:mod:`hilbench.run`).
 
-One server per bench, a :attr:`Bench.services <hilbench.bench.bench.Bench.services>` entry named ``lines``: a Unix
+One server per bench, a :attr:`Bench.services <hilbench.bench.bench.Bench.services>` entry named ``port_state``: a Unix
 socket in a private directory (mode 0700, so only this user's programs reach
 it), listed in the manifest with the device number (``st_rdev``) of every pty
 it serves. A client sends one line per request and reads one line back, on a
@@ -26,7 +26,7 @@ request                 what the bench does                                 ``ok
 ``framing``             the framing the client last set (a pty forgets it)  c_cflag bits, -1: none
 ======================  ==================================================  =======================
 
-Beside the socket, ``lines.board`` (:mod:`hilbench.bench.delivery_board`) tells
+Beside the socket, ``port_state.ledger`` (:mod:`hilbench.bench.delivery_ledger`) tells
 clients when everything they wrote is delivered, so a drain or an output flush
 with nothing pending needs no request at all.
 
@@ -61,8 +61,8 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from hilbench.bench.delivery_board import FILE_NAME as BOARD_FILE
-from hilbench.bench.delivery_board import DeliveryBoard
+from hilbench.bench.delivery_ledger import FILE_NAME as LEDGER_FILE
+from hilbench.bench.delivery_ledger import DeliveryLedger
 from hilbench.errors import RequestRefused
 from hilbench.transports.client_limit import Eviction
 from hilbench.transports.listener import Listener
@@ -102,18 +102,18 @@ class _Conn:
         self.queued = False  # its work is in the bench's timeline (it waits for the bench's time, not for us)
 
 
-class _Port:
+class _ServedPort:
     """One served host port: the endpoint's port object and the medium behind it."""
 
     def __init__(self, name: str, port: Any, medium: Any) -> None:
         self.name = name
         self.port = port
         self.medium = medium
-        self.lines = port.lines
+        self.port_state = port.port_state
 
 
-class LineServer:
-    """Serves line requests for every tty-backed host port of a bench (see the module's docstring).
+class PortStateServer:
+    """Serves port-state requests for every tty-backed host port of a bench (see the module's docstring).
 
     :meth:`handle` answers one request line; the socket server calls it for
     other processes, and in-process clients (the pytest plugin's pyserial patch)
@@ -121,16 +121,16 @@ class LineServer:
     """
 
     def __init__(self, bench: Any) -> None:
-        self._ports: dict[int, _Port] = {}
+        self._ports: dict[int, _ServedPort] = {}
         for ep in bench.endpoints.values():
             port = ep.port
             rdev = getattr(port, "rdev", None)  # only terminals have one (a pty)
-            if rdev is not None and getattr(port, "lines", None) is not None:
-                self._ports[rdev] = _Port(ep.name, port, ep.medium)
+            if rdev is not None and getattr(port, "port_state", None) is not None:
+                self._ports[rdev] = _ServedPort(ep.name, port, ep.medium)
         self._closed = threading.Event()
         self.requests = 0
         self.directory = _private_dir()
-        self.path = os.path.join(self.directory, "lines.sock")
+        self.path = os.path.join(self.directory, "port_state.sock")
         self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
         try:
             self._sock.bind(self.path)
@@ -139,13 +139,13 @@ class LineServer:
             self._sock.close()
             os.rmdir(self.directory)
             raise
-        self.board = DeliveryBoard(os.path.join(self.directory, BOARD_FILE), list(self._ports))
+        self.ledger = DeliveryLedger(os.path.join(self.directory, LEDGER_FILE), list(self._ports))
         for rdev, p in self._ports.items():
             watch = getattr(p.medium, "watch_quiet", None)
             if watch is not None:
-                watch(p.port, lambda ns, _rdev=rdev: self.board.delivered(_rdev, ns),
-                      lambda _rdev=rdev: self.board.writers_idle(_rdev),
-                      lambda _rdev=rdev: self.board.draining(_rdev))
+                watch(p.port, lambda ns, _rdev=rdev: self.ledger.delivered(_rdev, ns),
+                      lambda _rdev=rdev: self.ledger.writers_idle(_rdev),
+                      lambda _rdev=rdev: self.ledger.draining(_rdev))
         self._conns: dict[socket.socket, _Conn] = {}
         self._tls = threading.local()  # the connection a request thread serves
         self._conns_lock = threading.Lock()
@@ -154,7 +154,7 @@ class LineServer:
         self._listener = Listener("", 0, 0, max_clients=MAX_CLIENTS, sock=self._sock,
                                   refusal=lambda reason: f"err too many clients ({reason})\n".encode())
         self._wake_r, self._wake_w = os.pipe()
-        self._thread = threading.Thread(target=self._accept, name="line-server", daemon=True)
+        self._thread = threading.Thread(target=self._accept, name="port-state-server", daemon=True)
         self._thread.start()
 
     # ------------------------------------------------------------------ what the manifest says
@@ -165,8 +165,8 @@ class LineServer:
         return list(self._ports)
 
     def describe(self) -> dict[str, Any]:
-        """The manifest's ``lines`` entry: the socket and the served ptys by endpoint name."""
-        return {"socket": self.path, "board": self.board.path,
+        """The manifest's ``port_state`` entry: the socket and the served ptys by endpoint name."""
+        return {"socket": self.path, "ledger": self.ledger.path,
                 "ports": {p.name: {"rdev": rdev, "path": p.port.client_path} for rdev, p in self._ports.items()}}
 
     # ------------------------------------------------------------------ requests
@@ -211,44 +211,44 @@ class LineServer:
         raise RequestRefused(f"unknown request {verb!r}")
 
     @staticmethod
-    def _quiet(port: _Port) -> None:
-        """Tell the board if everything is delivered now: a client whose write() returned just after
+    def _quiet(port: _ServedPort) -> None:
+        """Tell the ledger if everything is delivered now: a client whose write() returned just after
         the medium's last check must not have to ask again and again."""
         check = getattr(port.medium, "check_quiet", None)
         if check is not None:
             check(port.port)
 
-    def _flushed(self, port: _Port) -> None:
-        port.lines.host_flushed_output()
+    def _flushed(self, port: _ServedPort) -> None:
+        port.port_state.host_flushed_output()
         self._quiet(port)
 
     @staticmethod
-    def _mask(port: _Port) -> int:
-        snap = port.lines.snapshot()
+    def _mask(port: _ServedPort) -> int:
+        snap = port.port_state.snapshot()
         return sum(bit for name, bit in TIOCM.items() if snap.get(name))
 
-    def _set_modem(self, port: _Port, verb: str, mask: int) -> int:
+    def _set_modem(self, port: _ServedPort, verb: str, mask: int) -> int:
         dtr, rts = bool(mask & TIOCM["dtr"]), bool(mask & TIOCM["rts"])
         if verb == "mset":
-            port.lines.host_sets(dtr=dtr, rts=rts)
+            port.port_state.host_sets(dtr=dtr, rts=rts)
         elif verb == "mbis":
-            port.lines.host_sets(dtr=True if dtr else None, rts=True if rts else None)
+            port.port_state.host_sets(dtr=True if dtr else None, rts=True if rts else None)
         else:
-            port.lines.host_sets(dtr=False if dtr else None, rts=False if rts else None)
+            port.port_state.host_sets(dtr=False if dtr else None, rts=False if rts else None)
         return self._mask(port)
 
-    def _break(self, port: _Port, args: list[str]) -> int:
+    def _break(self, port: _ServedPort, args: list[str]) -> int:
         if len(args) != 1:
             raise RequestRefused("expected: break on|off|SECONDS")
         if args[0] in ("on", "off"):
-            return self._after_taking(port, lambda: port.lines.host_break(args[0] == "on"))
+            return self._after_taking(port, lambda: port.port_state.host_break(args[0] == "on"))
         try:
             duration = float(args[0])
         except ValueError:
             raise RequestRefused(f"expected a break duration in seconds, got {args[0]!r}") from None
         if not 0.0 < duration <= 60.0:
             raise RequestRefused(f"break duration {duration} s is outside 0..60 s")
-        self._after_taking(port, lambda: port.lines.host_break(True, duration))
+        self._after_taking(port, lambda: port.port_state.host_break(True, duration))
         # tcsendbreak returns when the break is over, as on an adapter: in the line's time
         clock = port.medium.clock
         if clock.virtual:
@@ -261,16 +261,16 @@ class LineServer:
         return 0
 
     @staticmethod
-    def _sync(port: _Port, framing: int | None) -> int:
+    def _sync(port: _ServedPort, framing: int | None) -> int:
         report = getattr(port.port, "report_framing", None)
         if framing is not None and report is not None:
             settings = report(framing)
         else:
             port.port.client_baud()  # re-reads termios; a change becomes an event
-            settings = port.lines.settings
+            settings = port.port_state.settings
         return settings.baud or 0
 
-    def _after_taking(self, port: _Port, apply: Callable[[], Any], *, taken: bool = False,
+    def _after_taking(self, port: _ServedPort, apply: Callable[[], Any], *, taken: bool = False,
                       delivered: bool = False) -> int:
         """In the medium's thread: take what the client wrote, then ``apply`` (when it is delivered,
         if ``delivered``). Returns the bytes taken if ``taken``, else what ``apply`` returned."""
@@ -413,7 +413,7 @@ class LineServer:
             watch = getattr(p.medium, "watch_quiet", None)
             if watch is not None:
                 watch(p.port, None)
-        self.board.close()
+        self.ledger.close()
         for fd in (self._wake_r, self._wake_w):
             with contextlib.suppress(OSError):
                 os.close(fd)
@@ -437,21 +437,21 @@ def _int_arg(args: list[str]) -> int:
 
 def _private_dir() -> str:
     """A fresh 0700 directory whose socket path fits sockaddr_un (108 bytes) even with a long TMPDIR."""
-    path = tempfile.mkdtemp(prefix="hilbench-lines-")
-    if len(path) + len("/lines.sock") < 100:
+    path = tempfile.mkdtemp(prefix="hilbench-port-state-")
+    if len(path) + len("/port_state.sock") < 100:
         return path
     os.rmdir(path)
-    return tempfile.mkdtemp(prefix="hilbench-lines-", dir="/tmp")
+    return tempfile.mkdtemp(prefix="hilbench-port-state-", dir="/tmp")
 
 
-def serve_lines(bench: Any) -> LineServer | None:
-    """Start the bench's line server (once) as its ``lines`` service; None if no endpoint is a tty."""
-    server = bench.services.get("lines")
+def serve_port_state(bench: Any) -> PortStateServer | None:
+    """Start the bench's port-state server (once) as its ``port_state`` service; None if no endpoint is a tty."""
+    server = bench.services.get("port_state")
     if server is None:
         if not any(getattr(ep.port, "rdev", None) is not None for ep in bench.endpoints.values()):
             return None
-        server = bench.services["lines"] = LineServer(bench)
+        server = bench.services["port_state"] = PortStateServer(bench)
     return server
 
 
-__all__ = ["TIOCM", "LineServer", "serve_lines"]
+__all__ = ["TIOCM", "PortStateServer", "serve_port_state"]

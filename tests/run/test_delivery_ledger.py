@@ -1,4 +1,4 @@
-"""Drains and output flushes with nothing pending cost no request (the delivery board), and everything
+"""Drains and output flushes with nothing pending cost no request (the delivery ledger), and everything
 written is still delivered before a drain returns, through dup(), fork(), a reopened descriptor and stdio;
 requests reuse connections; the official SDK's ping costs what it costs on a plain pty."""
 
@@ -16,11 +16,11 @@ from pathlib import Path
 import pytest
 import serial
 
-from hilbench.bench import delivery_board
+from hilbench.bench import delivery_ledger
 from hilbench.pytest_plugin import wait_until
 from hilbench.run import pyserial_shim
 from tests import dynamixel_sdk3
-from tests.run.line_recorder import LineRecorder, OutputFlushed
+from tests.run.port_event_recorder import OutputFlushed, PortEventRecorder
 
 CLIENTS = Path(__file__).parent / "clients"
 HAVE_CC = shutil.which("cc") is not None
@@ -66,43 +66,43 @@ def drain_client(tmp_path_factory) -> str:
 
 
 def test_board_layout_is_the_same_for_every_reader():
-    board, shim = delivery_board, pyserial_shim
-    assert (board.MAGIC, board.VERSION, board.HEADER_SIZE, board.SLOT_SIZE, board.FILE_NAME) == (
-        shim.BOARD_MAGIC, shim.BOARD_VERSION, shim.BOARD_HEADER, shim.BOARD_SLOT, shim.BOARD_FILE)
-    assert (board.RDEV, board.IDLE_NS, board.DIRTY_NS, board.DIRTY_PY_NS, board.WRITING, board.WRITING_PY,
-            board.DRAIN_NS) == (shim.BOARD_RDEV, shim.BOARD_IDLE_NS, shim.BOARD_DIRTY_NS, shim.BOARD_DIRTY_PY_NS,
-                                shim.BOARD_WRITING, shim.BOARD_WRITING_PY, shim.BOARD_DRAIN_NS)
+    ledger, shim = delivery_ledger, pyserial_shim
+    assert (ledger.MAGIC, ledger.VERSION, ledger.HEADER_SIZE, ledger.SLOT_SIZE, ledger.FILE_NAME) == (
+        shim.LEDGER_MAGIC, shim.LEDGER_VERSION, shim.LEDGER_HEADER, shim.LEDGER_SLOT, shim.LEDGER_FILE)
+    assert (ledger.RDEV, ledger.IDLE_NS, ledger.DIRTY_NS, ledger.DIRTY_PY_NS, ledger.WRITING, ledger.WRITING_PY,
+            ledger.DRAIN_NS) == (shim.LEDGER_RDEV, shim.LEDGER_IDLE_NS, shim.LEDGER_DIRTY_NS, shim.LEDGER_DIRTY_PY_NS,
+                                shim.LEDGER_WRITING, shim.LEDGER_WRITING_PY, shim.LEDGER_DRAIN_NS)
     source = (Path(pyserial_shim.__file__).parent / "shim.c").read_text()
-    fields = re.search(r"struct board_slot \{(.*?)\};", source, re.S).group(1)
+    fields = re.search(r"struct ledger_slot \{(.*?)\};", source, re.S).group(1)
     assert re.findall(r"uint64_t (\w+)", fields) == ["rdev", "idle_ns", "dirty_ns", "dirty_py_ns", "writing",
                                                      "writing_py", "drain_ns", "reserved"]
-    assert f'#define BOARD_MAGIC "{board.MAGIC.decode()}"' in source
-    assert f"#define BOARD_VERSION {board.VERSION}" in source
-    assert f"#define BOARD_HEADER {board.HEADER_SIZE}" in source
+    assert f'#define LEDGER_MAGIC "{ledger.MAGIC.decode()}"' in source
+    assert f"#define LEDGER_VERSION {ledger.VERSION}" in source
+    assert f"#define LEDGER_HEADER {ledger.HEADER_SIZE}" in source
 
 
 def test_the_bench_publishes_only_after_writers_returned(hilbench_bench):
     """``idle_ns`` moves past a write once its bytes are delivered, not while a write is counted."""
     bench = hilbench_bench("arm")
-    rec = LineRecorder().attach(bench.endpoint())
-    server = bench.services["lines"]
+    rec = PortEventRecorder().attach(bench.endpoint())
+    server = bench.services["port_state"]
     rdev = bench.endpoint().port.rdev
-    words = memoryview(server.board._map).cast("Q")
-    writing = (delivery_board.HEADER_SIZE + delivery_board.SLOT_SIZE * 0) // 8 + delivery_board.WRITING
+    words = memoryview(server.ledger._map).cast("Q")
+    writing = (delivery_ledger.HEADER_SIZE + delivery_ledger.SLOT_SIZE * 0) // 8 + delivery_ledger.WRITING
     try:
         fd = os.open(bench.endpoint().path, os.O_RDWR | os.O_NOCTTY)
         stamp = time.monotonic_ns()
         os.write(fd, b"one")
-        wait_until(lambda: server.board.read(rdev)["idle_ns"] > stamp)
+        wait_until(lambda: server.ledger.read(rdev)["idle_ns"] > stamp)
         assert rec.received() == b"one"
         words[writing] = 1  # as a C client inside write()
         stamp = time.monotonic_ns()
         os.write(fd, b"two")
         wait_until(lambda: rec.received() == b"onetwo")
-        assert server.board.read(rdev)["idle_ns"] < stamp  # a writer is counted: nothing published
+        assert server.ledger.read(rdev)["idle_ns"] < stamp  # a writer is counted: nothing published
         words[writing] = 0
         assert server.handle(f"{rdev} drain") == "ok 0"  # nothing left to take; it looks again
-        assert server.board.read(rdev)["idle_ns"] > stamp
+        assert server.ledger.read(rdev)["idle_ns"] > stamp
         os.close(fd)
     finally:
         words.release()
@@ -110,18 +110,18 @@ def test_the_bench_publishes_only_after_writers_returned(hilbench_bench):
 
 def test_the_manifest_names_the_board(hilbench_bench):
     bench = hilbench_bench("arm")
-    lines = bench.manifest()["lines"]
-    assert lines["board"] == os.path.join(os.path.dirname(lines["socket"]), "lines.board")
-    assert os.path.exists(lines["board"])
+    lines = bench.manifest()["port_state"]
+    assert lines["ledger"] == os.path.join(os.path.dirname(lines["socket"]), "port_state.ledger")
+    assert os.path.exists(lines["ledger"])
     bench.stop()
-    assert not os.path.exists(lines["board"])
+    assert not os.path.exists(lines["ledger"])
 
 
 @pytest.mark.slow
 def test_c_client_drains_deliver_and_idle_ones_ask_nothing(hilbench_bench, hilbench_run, drain_client):
     bench = hilbench_bench("arm", paced=True)  # 9600 baud from the client: ~1 ms a byte on the wire
-    rec = LineRecorder().attach(bench.endpoint())
-    server = bench.services["lines"]
+    rec = PortEventRecorder().attach(bench.endpoint())
+    server = bench.services["port_state"]
     client = Stepper(hilbench_run.command(bench, drain_client, bench.endpoint().path, str(IDLE), shim="c"))
     client.step("start", "hello")
     assert rec.received() == b"hello"  # delivered (5 ms of wire time) before tcdrain returned
@@ -140,8 +140,8 @@ def test_c_client_drains_deliver_and_idle_ones_ask_nothing(hilbench_bench, hilbe
 @pytest.mark.parametrize("shim", SHIMS)
 def test_pyserial_drains_deliver_and_idle_ones_ask_nothing(hilbench_bench, hilbench_run, shim):
     bench = hilbench_bench("arm", paced=True)
-    rec = LineRecorder().attach(bench.endpoint())
-    server = bench.services["lines"]
+    rec = PortEventRecorder().attach(bench.endpoint())
+    server = bench.services["port_state"]
     client = Stepper(hilbench_run.command(bench, sys.executable, str(CLIENTS / "drain_pyserial.py"),
                                           bench.endpoint().path, str(IDLE), shim=shim))
     client.step("start", "hello")
@@ -157,8 +157,8 @@ def test_pyserial_drains_deliver_and_idle_ones_ask_nothing(hilbench_bench, hilbe
 
 def test_in_process_idle_drains_ask_nothing(hilbench_bench):
     bench = hilbench_bench("arm", paced=True)
-    rec = LineRecorder().attach(bench.endpoint())
-    server = bench.services["lines"]
+    rec = PortEventRecorder().attach(bench.endpoint())
+    server = bench.services["port_state"]
     with serial.Serial(bench.endpoint().path, 9600) as ser:
         ser.write(b"hello")
         ser.flush()
@@ -176,7 +176,7 @@ def test_in_process_idle_drains_ask_nothing(hilbench_bench):
 
 def test_requests_reuse_connections_and_survive_a_closed_one(hilbench_bench):
     bench = hilbench_bench("arm")
-    server = bench.services["lines"]
+    server = bench.services["port_state"]
     rdev = bench.endpoint().port.rdev
     pyserial_shim.register(rdev, server.path)  # as a client in another process: through the socket
     try:
@@ -189,7 +189,7 @@ def test_requests_reuse_connections_and_survive_a_closed_one(hilbench_bench):
         wait_until(lambda: not server._conns)
         assert pyserial_shim.ask(port, "mget") is not None  # sent again on a new connection
     finally:
-        pyserial_shim.register(rdev, server.handle, server.board.path)
+        pyserial_shim.register(rdev, server.handle, server.ledger.path)
 
 
 # ---------------------------------------------------------------------- the official SDK's timing
@@ -220,9 +220,9 @@ def close_to(got: float, reference: float) -> bool:
 def test_sdk3_ping_through_the_in_process_patch_costs_what_a_plain_pty_does(hilbench_bench):
     sdk = dynamixel_sdk3.load()
     assert "flush()" in Path(sdk.port_handler.__file__).read_text()  # clearPort() drains before every packet
-    plain = hilbench_bench("arm", lines=False)
+    plain = hilbench_bench("arm", port_state=False)
     patched = hilbench_bench("arm")
-    server = patched.services["lines"]
+    server = patched.services["port_state"]
     before = server.requests
     got = fastest_ping(sdk, patched.endpoint().path)
     requests = server.requests - before
@@ -251,7 +251,7 @@ print(best)
 @pytest.mark.parametrize("shim", SHIMS)
 def test_sdk3_ping_under_hilbench_run_costs_what_a_plain_pty_does(hilbench_bench, hilbench_run, shim):
     bench = hilbench_bench("arm")
-    server = bench.services["lines"]
+    server = bench.services["port_state"]
     path = bench.endpoint().path
     env = {**os.environ, "PYTHONPATH": str(dynamixel_sdk3.SDK3_DIR)}
 
