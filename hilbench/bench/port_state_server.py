@@ -277,6 +277,7 @@ class PortStateServer:
         medium = port.medium
         took, done = threading.Event(), threading.Event()
         box: dict[str, Any] = {}
+        conn = getattr(self._tls, "conn", None)
 
         def finish() -> None:
             try:
@@ -284,6 +285,8 @@ class PortStateServer:
             except BaseException as exc:
                 box["error"] = exc
             finally:
+                if conn is not None:
+                    conn.queued = False  # the answer is on its way out: virtual time waits for it again
                 done.set()
 
         def take() -> None:
@@ -304,9 +307,10 @@ class PortStateServer:
         medium.call_at(None, take)
         if not took.wait(MEDIUM_TIMEOUT):
             raise RequestRefused(f"the bench's line did not answer within {MEDIUM_TIMEOUT:g} s")
-        conn = getattr(self._tls, "conn", None)
         if conn is not None:
             conn.queued = True  # (virtual time may move now: what remains happens at the line's instants)
+            if done.is_set():
+                conn.queued = False  # (finish ran before: its answer is on its way out)
         wire = max(0.0, box.get("end", 0.0) - medium.clock.now())  # a paced line's wire time
         if not done.wait(MEDIUM_TIMEOUT + wire):
             raise RequestRefused(f"the bench's line did not answer within {MEDIUM_TIMEOUT:g} s")

@@ -82,10 +82,17 @@ def _writer(path: str | None, source, description: str | None = None, *, force: 
             for fmt in registry.recorders.values():
                 if fmt.accepts(path, source.protocol):  # (the .partial name keeps the suffix it decides by)
                     return fmt.open(write_path, source=source, description=description or source.name)
-        info = getattr(getattr(source, "reader", None), "info", None)
+        info = getattr(getattr(source, "reader", getattr(source, "parser", None)), "info", None)
+        if info is not None and info.measured and info.t0_monotonic:
+            # A capture's stream (a file, a bench's tap): its description, and its clock's mapping to Unix
+            # time (the copy's t0 is its first record, not the original's t0). A tap's address names a port
+            # that changes from run to run: two runs of a virtual-time bench then make the same file but for
+            # the date.
+            return CaptureWriter(write_path, baud=source.baud, protocol=source.protocol or "",
+                                 description=description or info.description or source.name,
+                                 timestamps=source.timestamps, wall_offset=info.t0_wall - info.t0_monotonic)
         return CaptureWriter(write_path, baud=source.baud, protocol=source.protocol or "",
                              description=description or source.name, timestamps=source.timestamps,
-                             t0_wall=info.t0_wall if info is not None and info.measured else None,
                              wall_offset=getattr(source, "wall_offset", None))
 
     return start_recording(path, open_writer, force=force)

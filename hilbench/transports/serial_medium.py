@@ -52,7 +52,7 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Any, Protocol
 
 from hilbench.transports.clock import WALL, Waiter, WallClock, reduce_timer_slack, wait
 from hilbench.transports.host_port import HostPort
@@ -339,7 +339,8 @@ class SerialMedium(LoopMedium):
     def _take(self, endpoint, listen_only: bool, now: float, bounded: bool = False) -> tuple[int, float]:
         """Read what a host port has and put it on the line; returns (bytes, delivery time). ``bounded``: read
         only while its bytes ahead of the wire are under half of :data:`HOST_FIFO`, and at most the rest of
-        it; else hold the port back (unwatched) until they are."""
+        it; else hold the port back (unwatched) until they are. With clients in lockstep (:meth:`vt_defer_input`)
+        :meth:`_vt_take` replaces it."""
         if not bounded:
             data = endpoint.read()
             if data and not listen_only:
@@ -400,6 +401,8 @@ class SerialMedium(LoopMedium):
                     break
                 taken += n
                 end = max(end, t)
+        if self.vt_defer:  # (in program order: what the client wrote before it asked goes first)
+            end = max(end, self.vt_commit(self._now(), port))
         return taken, end
 
     def watch_quiet(self, port, watcher: Callable[[int], None] | None, ready: Callable[[], bool] | None = None,
@@ -520,6 +523,7 @@ class SerialMedium(LoopMedium):
         super().vt_attach(loop)
         self._vt_version = -1
         self._vt_fds: dict[int, tuple] = {}
+        self._vt_in: dict[int, tuple[Any, bytearray]] = {}  # id(host port) -> (port, bytes read, not yet sent)
 
     def vt_run_one(self) -> None:
         """Run the next event (the loop chose it); host writes of deliveries wait for :meth:`vt_flush`."""
@@ -551,6 +555,48 @@ class SerialMedium(LoopMedium):
                             for ep, listen_only in hosts if id(ep) not in self._held for fd in ep.filenos()}
         return [*self._vt_fds, self._waker.fd]
 
+    vt_defer = False
+
+    def vt_defer_input(self) -> None:
+        """Clients run in lockstep with the loop: what they write is read as it comes and sent when they all
+        wait (:meth:`vt_commit`), one transmission per port per instant. Read and sent at once, a client's
+        writes at one instant made one transmission or two depending on whether the loop read between them
+        (the official SDK writes its Sync Write and the next Sync Read back to back), so the devices' and
+        the taps' records differed from run to run. (An instance attribute replaces :meth:`_take`: the
+        wall-clock line's hot path has no branch for it.)"""
+        self.vt_defer = True
+        self._take = self._vt_take  # type: ignore[method-assign]
+
+    def _vt_take(self, endpoint, listen_only: bool, now: float, bounded: bool = False) -> tuple[int, float]:
+        held = self._vt_in.get(id(endpoint))
+        if bounded and held is not None and len(held[1]) >= HOST_FIFO:
+            return 0, now  # (its writer blocks in the kernel until the clients wait and this is sent)
+        data = endpoint.read()
+        if not data or listen_only:
+            return len(data), now
+        if held is None:
+            held = self._vt_in[id(endpoint)] = (endpoint, bytearray())
+        held[1].extend(data)
+        return len(data), now
+
+    def vt_held(self) -> bool:
+        """Whether client bytes were read and wait for :meth:`vt_commit`."""
+        return bool(self._vt_in)
+
+    def vt_commit(self, now: float, port: Any = None) -> float:
+        """Send what was read from the host ports (or from ``port`` alone) at ``now``, one transmission
+        per port, in the order the ports joined; returns the last one's delivery time."""
+        end = now
+        if not self._vt_in:
+            return end
+        for endpoint, _listen_only in list(self._hosts):
+            if port is not None and endpoint is not port:
+                continue
+            held = self._vt_in.pop(id(endpoint), None)
+            if held:
+                end = max(end, self.transmit(endpoint.name, bytes(held[1]), t=now, baud=endpoint.client_baud()))
+        return end
+
     def vt_read(self, ready: list[int], now: float) -> bool:
         """Read each ready host port once, at ``now``: everything one read returns is one transmission (a
         program's writes at one instant are one burst). True if any descriptor of the line was ready."""
@@ -561,7 +607,7 @@ class SerialMedium(LoopMedium):
             if host is not None and id(host[0]) not in taken:
                 taken.add(id(host[0]))
                 self._take(host[0], host[1], now, host[2])
-                got = True
+                got = got or not self.vt_defer  # (deferred: the loop sends it when its clients wait)
         return got
 
 

@@ -286,9 +286,19 @@ class VirtualLoop:
             medium.vt_poll(now)  # timed work of host ports (a socketcand client's cyclic job)
             medium.vt_flush()
 
-    def _input(self, now: float, timeout: float | None) -> bool:
+    def _commit(self, now: float) -> None:
+        """E: put what the host ports had on the media, at ``now``."""
+        for medium in self.media:
+            medium.vt_commit(now)
+
+    def _held(self) -> bool:
+        return any(medium.vt_held() for medium in self.media if hasattr(medium, "vt_held"))
+
+    def _input(self, now: float, timeout: float | None, commit: bool = True) -> bool:
         """D and E: look at the host ports and wake-up pipes (waiting up to ``timeout`` real seconds,
-        None: until something comes), read what they have and commit it at ``now``. True if anything came."""
+        None: until something comes), read what they have and commit it at ``now`` (``commit``, and no
+        lockstep client is there: a serial line deferring its clients' input keeps it for :meth:`_commit`,
+        also when a client joined during the wait). True if anything came."""
         fds = [self._waker.fd]
         for medium in self.media:
             fds += medium.vt_fds()
@@ -309,8 +319,9 @@ class VirtualLoop:
             except Exception:  # (a host port closed under the loop: count it, keep the bench's time going)
                 self.stats.callback_errors += 1
                 log.exception("reading the host ports of %s failed", medium.name)
-        for medium in self.media:
-            medium.vt_commit(now)
+        ls = self.lockstep
+        if commit and (ls is None or not ls.active()):  # (lockstep clients': when they all wait, in _lockstep)
+            self._commit(now)
         return got
 
     def _round(self) -> None:
@@ -329,12 +340,15 @@ class VirtualLoop:
         self._bench_phase(now)
         if ls is not None:
             ls.wake_due(ls.settle())  # B and C: clients see what the bench did at now before they act at now
+        # (with lockstep clients what they write is sent once they all wait, in _lockstep: a client woken
+        # in C may be between two writes of one instant now)
         self._input(now, 0)
         nxt = self._next_time(now)
         if nxt is not None and nxt <= now:
             stats.delta_rounds += 1
             return  # zero-delay work: another round at the same instant
         if ls is not None and not ls.active():
+            self._commit(now)  # (what the last client wrote before it left)
             ls.end_stall()  # (the last client left while time followed the wall clock)
         elif ls is not None:
             t = self._lockstep(ls, now, nxt)
@@ -366,12 +380,18 @@ class VirtualLoop:
         was woken to look again). ``nxt``: the bench's next event."""
         while not self._stop.is_set():
             real = time.monotonic()  # wall-clock: the stall watchdog and /proc looks run in real time
-            v = ls.look(real)
-            if self._input(now, 0):
+            # (input first: what a client wrote before it began to wait is read before the look that may find
+            # every client waiting, and a write after the look keeps its writer running or its bytes in flight)
+            if self._input(now, 0, commit=False):
+                self._commit(now)
                 return None  # what clients wrote is committed at now: its zero-delay work runs first
+            v = ls.look(real)
             if v.recheck:
                 ls.wake(v.recheck)
                 continue
+            if v.quiet and self._held():
+                self._commit(now)  # every client waits: what they wrote at now goes on the line, one burst a port
+                return None
             if v.quiet:
                 ls.end_stall()
                 if not ls.active():
@@ -384,12 +404,14 @@ class VirtualLoop:
                 self._wait_news(ls, IDLE_LOOK)
                 return None
             if self._paused:
+                self._commit(now)
                 return None
             target = ls.stall_target(v, real)
             if target is not None:  # a stall: time follows the wall clock, events and deadlines as it reaches them
                 due = [t for t in (nxt, None if v.next_ns is None else v.next_ns / 1e9) if t is not None]
                 t = min([target / 1e9, *due])
                 if t > now:
+                    self._commit(now)
                     return t
             self._wait_news(ls, ls.wait_hint(v, real))
         return None

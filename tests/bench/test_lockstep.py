@@ -133,6 +133,24 @@ def test_due_waiters_are_woken_and_the_others_left(lockstep):
     assert ls.vnow_ns == V0 + S
 
 
+
+def test_a_poller_is_woken_whenever_time_moved_or_a_pty_was_delivered_to(lockstep):
+    """A POLLING thread holds for the instant it polled at: time moving to a bench event before its quantum
+    ends (or a delivery at that instant) wakes it to look, so time cannot pass the event before it did."""
+    ls = lockstep()
+    ls.publish(1000.0)
+    ls.wake_due()  # (the round at 1000.0 began)
+    put(ls, 0, vp.POLLING, V0 + 100_000)
+    put(ls, 1, vp.WAITING, V0 + 100_000)  # (a plain waiter stays: its deadline has not come)
+    assert ls.wake_due() == 0  # the instant it polled at, and no news: it stays POLLING
+    assert state(ls, 0) == vp.POLLING
+    ls.publish(1000.000075)  # a reply's delivery, before the poller's quantum ends
+    assert ls.wake_due() == 1
+    assert [state(ls, 0), state(ls, 1)] == [vp.WOKEN, vp.WAITING] and word(ls, 0) == 1
+    put(ls, 0, vp.POLLING, V0 + 175_000)  # it looked, and polls again at this instant
+    assert ls.wake_due() == 0 and state(ls, 0) == vp.POLLING
+    assert ls.wake_due([0]) == 1 and state(ls, 0) == vp.WOKEN  # a delivery at the same instant
+
 @pytest.fixture
 def pty():
     master, slave = os.openpty()
@@ -178,6 +196,30 @@ def test_a_delivery_is_settled_and_wakes_its_waiter(lockstep, pty):
     finally:
         os.close(reader)
 
+
+def test_time_waits_until_delivered_bytes_show_on_the_clients_side(lockstep, pty):
+    """Quiescence needs every byte the bench delivered visible on the client's side (the kernel's hand-over
+    took up to 31 ms on a loaded machine, far past B's settle): a waiter would see them late otherwise. A
+    reader that takes them unseen (stdio, a program outside the lockstep) holds time for UNSEEN_LIMIT at most,
+    counted."""
+    from hilbench.bench import lockstep as lockstep_module
+
+    master, port = pty
+    ls = lockstep([("lidar", port)])
+    put(ls, 0, vp.WAITING, flags=vp.SF_FDWAIT, ports=1)
+    port.bytes_out += 300  # delivered, and still in the kernel's hands
+    assert ls.settle() == [0]  # (B gives up after SETTLE_LIMIT)
+    v = ls.look(real=10.0)
+    assert not v.quiet and v.flight == ["lidar"] and ls.stats()["settle_timeouts"] == 0
+    os.write(master, b"x" * 300)
+    wait_until(lambda: ls.look(real=10.01).quiet, timeout=5)  # they show: time may move
+    os.read(port.slave_fd, 300)  # taken by a reader the shim does not count
+    port.bytes_out += os.write(master, b"y" * 10)
+    ls.settle()
+    assert not ls.look(real=20.0).quiet
+    assert not ls.look(real=20.0 + lockstep_module.UNSEEN_LIMIT / 2).quiet
+    assert ls.look(real=20.0 + lockstep_module.UNSEEN_LIMIT * 1.5).quiet  # given up on, and counted
+    assert ls.stats()["settle_timeouts"] == 1
 
 def test_the_stall_watchdog(lockstep, capfd):
     ls = lockstep(stall=0.5, startup_grace=10.0)
@@ -272,3 +314,39 @@ def test_the_loop_runs_the_bench_at_an_instant_before_waking_clients_there(locks
         assert clock.now() == 1007.0 and len(seen) == 2
     finally:
         loop.close()
+
+
+def test_what_clients_write_at_an_instant_is_one_transmission_sent_when_they_all_wait():
+    """Two packets a client writes at one instant, read by the bench one at a time while the client runs,
+    go on the line together once every client waits: how the loop's reads fall between the writes does not
+    change the wire (the official SDK's Sync Write and Sync Read, back to back)."""
+    from hilbench.bench import Bench
+    from hilbench.protocols import dynamixel as dxl
+
+    with Bench("wolfgang", virtual_time=True) as bench:
+        ls = bench.services["clock"]
+        ep = bench.endpoint("dxl")
+        seen: list[tuple[float, str, bytes]] = []
+        ep.medium.add_tap(lambda t, source, data, addr=None: seen.append((t, source, bytes(data))))
+        fd = os.open(ep.port.client_path, os.O_RDWR | os.O_NOCTTY)
+        try:
+            tty.setraw(fd)
+            attrs = termios.tcgetattr(fd)
+            attrs[4] = attrs[5] = termios.B2000000  # (the bus's rate: the servos hear it)
+            termios.tcsetattr(fd, termios.TCSANOW, attrs)
+            put(ls, 0, vp.RUNNING, tid=0)  # a client thread that computes (tid 0: no /proc look)
+            pings = [dxl.instruction_packet(i, dxl.Instruction.PING) for i in (1, 2)]
+            taken = ep.port.bytes_in
+            for ping in pings:
+                os.write(fd, ping)
+                taken += len(ping)
+                wait_until(lambda n=taken: ep.port.bytes_in == n, timeout=5)  # the bench read it
+            assert bench.clock.now() == 1000.0
+            put(ls, 0, vp.WAITING, tid=0)  # it waits: what it wrote goes on the line, then time moves
+            wait_until(lambda: len([s for s in seen if s[1] != "dxl"]) == 2, timeout=5)  # both servos answered
+        finally:
+            put(ls, 0, vp.EXITED)
+            os.close(fd)
+    sent = [(t, data) for t, source, data in seen if source == "dxl"]
+    wire = len(pings[0] + pings[1]) * 10 / ep.spec.baud
+    assert sent == [(pytest.approx(1000.0 + wire, abs=1e-9), pings[0] + pings[1])]

@@ -1,0 +1,203 @@
+"""The official dynamixel-sdk's 20-servo cycle under ``hilbench run`` on a virtual-time ``wolfgang`` bench
+(issue 26's test (a), PLAN26 §9.1 (a)): cycles per virtual second equal the wire model (the cycle's bytes at
+the bus's rate plus the servos' modelled response times) within 0.5 %, no failed read, no lockstep stall, and
+the same count, and the same virtual instant for every cycle, in every run, also beside a CPU-bound
+neighbour process (not under ``hilbench run``: it shares the machine, not the clock). Two runs' captures
+(the bench's tap) are the same byte for byte but for the header's real date (test (h)).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import os
+import socket
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from hilbench.bench import Bench
+from hilbench.bench.port_state_server import serve_port_state
+from hilbench.protocols import capture
+from hilbench.pytest_plugin import wait_until
+from hilbench.run.build import ShimBuildError, shim_library
+from hilbench.transports.capture_file import CaptureReader
+
+sdk = pytest.importorskip("dynamixel_sdk")
+
+HILBENCH = [sys.executable, "-m", "hilbench.cli"]
+TOOLS = Path(__file__).resolve().parents[2] / "tools"
+IDS = list(range(1, 21))
+#: Wire bytes of one cycle (tools/bench_dynamixel.py): Sync Read (14 + 20) + 20 replies (11 + 4) + Sync Write
+#: (14 + 20 * 5).
+CYCLE_BYTES = (14 + 20) + 20 * 15 + (14 + 20 * 5)
+
+#: The SDK's cycle as tools/bench_dynamixel.py drives it (tools/benchlib.sdk_cycle), for SECONDS virtual seconds:
+#: prints the cycle count, the failed reads and each Sync Read's completion (virtual ns).
+SDK_CLIENT = """
+import json, sys, time
+sys.path.insert(0, sys.argv[3])
+import dynamixel_sdk as sdk
+from benchlib import sdk_cycle
+port = sdk.PortHandler(sys.argv[1])
+port.openPort()
+assert port.setBaudRate(2_000_000)
+ph, reader, writer = sdk_cycle(port)
+n = failed = 0
+done = []
+end = time.monotonic() + float(sys.argv[2])
+while time.monotonic() < end:
+    failed += reader.txRxPacket() != sdk.COMM_SUCCESS
+    done.append(time.monotonic_ns())
+    writer.txPacket()
+    n += 1
+port.closePort()
+print(json.dumps({"cycles": n, "failed": failed, "done": done}))
+"""
+
+
+@pytest.fixture(scope="module", autouse=True)
+def library() -> Path:
+    try:
+        return shim_library()
+    except ShimBuildError as exc:
+        pytest.skip(f"the preload library cannot be built: {exc}")
+
+
+@contextlib.contextmanager
+def neighbour(on: bool) -> Iterator[None]:
+    """A CPU-bound process beside the run (``on``), outside the lockstep."""
+    proc = subprocess.Popen([sys.executable, "-c", "while True: pass"]) if on else None
+    try:
+        yield
+    finally:
+        if proc is not None:
+            proc.kill()
+            proc.wait()
+
+
+def model_cycle(bench: Bench) -> float:
+    """Virtual seconds per cycle the wire model gives: the cycle's bytes at the bus's rate (8N1) plus each
+    servo's Return Delay Time before its reply."""
+    ep = bench.endpoint("dxl")
+    response = sum(bench.device(i, "dxl").return_delay for i in IDS)
+    return CYCLE_BYTES * 10 / ep.spec.baud + response
+
+
+def sdk_run(tmp_path: Path, seconds: float, *, busy: bool = False) -> tuple[dict, dict, float]:
+    """One SDK run on a fresh virtual-time wolfgang bench: (the client's figures, the clock's stats, model)."""
+    with Bench("wolfgang", virtual_time=True) as bench:
+        serve_port_state(bench)  # (the SDK's open sets DTR and RTS, and its drains ask the line)
+        manifest = tmp_path / f"bench{len(list(tmp_path.glob('bench*.json')))}.json"
+        bench.write_manifest(manifest)
+        script = tmp_path / "sdk_client.py"
+        script.write_text(SDK_CLIENT)
+        env = {k: v for k, v in os.environ.items() if k not in ("HILBENCH_CLOCK", "PYTHONHASHSEED")}
+        with neighbour(busy):
+            proc = subprocess.run([*HILBENCH, "run", "--manifest", str(manifest), "--", sys.executable, str(script),
+                                   bench.endpoint("dxl").port.client_path, str(seconds), str(TOOLS)],
+                                  capture_output=True, text=True, timeout=300, env=env)
+        assert proc.returncode == 0, proc.stderr
+        return json.loads(proc.stdout), bench.services["clock"].stats(), model_cycle(bench)
+
+
+def check_run(out: dict, stats: dict, model: float, seconds: float) -> None:
+    done = out["done"]
+    assert out["failed"] == 0 and stats["stalls"] == 0
+    assert out["cycles"] == len(done) and out["cycles"] >= int(seconds / model) - 1
+    # cycles per virtual second, between the first and the last cycle's end, against the model
+    rate = (len(done) - 1) / ((done[-1] - done[0]) / 1e9)
+    assert rate * model == pytest.approx(1.0, abs=0.005), f"{rate:.2f} cycles/s, model {1 / model:.2f}"
+    # every cycle takes the model's time (to the ns the clock page's integer time rounds a float to)
+    steps = {round((b - a) / 1e3) for a, b in zip(done, done[1:], strict=False)}
+    assert steps == {round(model * 1e6)}, steps
+
+
+def test_the_sdk_cycle_follows_the_wire_model_in_virtual_time(tmp_path):
+    """A short run in the normal set (a quarter of a virtual second, two runs): the same cycles, each at the
+    wire model's time."""
+    seconds = 0.25
+    first, stats, model = sdk_run(tmp_path, seconds)
+    check_run(first, stats, model, seconds)
+    again, stats, _ = sdk_run(tmp_path, seconds)
+    check_run(again, stats, model, seconds)
+    assert again["done"] == first["done"]
+
+
+@pytest.mark.slow
+def test_the_sdk_cycle_is_the_same_in_every_run_with_or_without_a_neighbour(tmp_path):
+    """Issue 26's test (a): 2 virtual seconds, three runs and a fourth beside a CPU-bound neighbour."""
+    seconds = 2.0
+    runs = []
+    for busy in (False, False, False, True):
+        out, stats, model = sdk_run(tmp_path, seconds, busy=busy)
+        check_run(out, stats, model, seconds)
+        runs.append(out)
+    assert len({r["cycles"] for r in runs}) == 1, [r["cycles"] for r in runs]
+    assert all(r["done"] == runs[0]["done"] for r in runs)
+    assert runs[0]["cycles"] * model == pytest.approx(seconds, abs=2 * model)
+
+
+def tap_capture(tmp_path: Path, seconds: float) -> tuple[bytes, bytes]:
+    """The bench's own capture of one SDK run (its tap's stream, header and records, until the bench stops),
+    and ``hilbench record``'s file of the same tap."""
+    with Bench("wolfgang", virtual_time=True, tap=True) as bench:
+        serve_port_state(bench)
+        manifest = tmp_path / f"bench{len(list(tmp_path.glob('bench*.json')))}.json"
+        bench.write_manifest(manifest)
+        script = tmp_path / "sdk_client.py"
+        script.write_text(SDK_CLIENT)
+        tap = bench.endpoint("dxl").tap
+        sock = socket.create_connection((tap.host, tap.port))
+        stream = bytearray()
+        reader = threading.Thread(target=lambda: stream.extend(b"".join(iter(lambda: sock.recv(65536), b""))))
+        reader.start()
+        recording = tmp_path / f"run{len(list(tmp_path.glob('run*.hbcap')))}.hbcap"
+        recorder = subprocess.Popen([*HILBENCH, "record", tap.url, str(recording)], stdout=subprocess.PIPE,
+                                    stderr=subprocess.PIPE, text=True)
+        wait_until(lambda: tap.status()["clients"] == 2, timeout=20)
+        env = {k: v for k, v in os.environ.items() if k not in ("HILBENCH_CLOCK", "PYTHONHASHSEED")}
+        proc = subprocess.run([*HILBENCH, "run", "--manifest", str(manifest), "--", sys.executable, str(script),
+                               bench.endpoint("dxl").port.client_path, str(seconds), str(TOOLS)],
+                              capture_output=True, text=True, timeout=120, env=env)
+        assert proc.returncode == 0, proc.stderr
+        stats = bench.services["clock"].stats()
+    # (a run with a stall, or with delivered bytes given up on, is not deterministic: say so if it differs)
+    assert stats["stalls"] == 0 and stats["settle_timeouts"] == 0, stats
+    reader.join(timeout=20)  # (the tap closes with the bench: the stream ends, and so does the recorder)
+    sock.close()
+    assert not reader.is_alive()
+    _, err = recorder.communicate(timeout=20)
+    assert recorder.returncode == 0, err
+    return bytes(stream), recording.read_bytes()
+
+
+def test_two_sdk_runs_make_the_same_capture_but_for_the_header_date(tmp_path):
+    """Issue 26's test (h): records in virtual time, byte for byte the same in two runs; the header's t0_wall
+    (the real date the bench started) is the one field that differs."""
+    started = time.time()
+    (first, recorded), (again, recorded_again) = tap_capture(tmp_path, 0.05), tap_capture(tmp_path, 0.05)
+    size = 12 + capture.header_body_size(first[:12])
+    heads = [capture.parse_header(c) for c in (first, again)]
+    assert all(h.t0_monotonic == 1000.0 and started - 1 <= h.t0_wall <= time.time() for h in heads)
+    assert heads[0]._replace(t0_wall=0) == heads[1]._replace(t0_wall=0)
+    assert first[size:] == again[size:] and len(first) - size > 10_000  # (20 cycles and more)
+    chunks = list(CaptureReader(io.BytesIO(first)))
+    assert {c.source for c in chunks} == {"dxl", "dxl-devices"}
+    assert all(round(c.t * 1e9) % 5000 == 0 for c in chunks)  # virtual: each ends on a byte time (5 us)
+    # hilbench record's files: the same but for the date too, which is the real one (the tap's clock mapped to
+    # Unix time, not this machine's monotonic clock: a virtual 1000 s is not the machine's uptime)
+    size = 12 + capture.header_body_size(recorded[:12])
+    heads = [capture.parse_header(c) for c in (recorded, recorded_again)]
+    assert heads[0]._replace(t0_wall=0) == heads[1]._replace(t0_wall=0)
+    assert heads[0].description == "bench wolfgang, endpoint dxl"  # (not the tap's address: its port changes)
+    assert all(started - 1 <= h.t0_wall <= time.time() for h in heads)
+    assert recorded[size:] == recorded_again[size:]
+    assert [(round(c.t * 1e9), c.source, bytes(c.data)) for c in CaptureReader(io.BytesIO(recorded))] == [
+        (round(c.t * 1e9), c.source, bytes(c.data)) for c in chunks]

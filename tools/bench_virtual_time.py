@@ -1,0 +1,204 @@
+#!/usr/bin/env python3
+"""Virtual-time benchmarks (issue 26, PLAN26 §9.2); prints one JSON object per figure (DESIGN.md §10).
+
+Every bench runs in its own ``hilbench emulate PROFILE --virtual-time`` process and every client under
+``hilbench run`` against it, as a user would run them.
+
+- ``vt_idle_speed``: ``mecarover-can`` and a client sleeping 60 virtual seconds in 1 s steps: virtual
+  seconds per wall second (reference 1.0: the wall clock); the client's start-up (interpreter, imports)
+  is measured apart with a client that sleeps 0 s and taken off.
+- ``vt_busy_speed``: the official SDK's 20-servo Sync Read + Sync Write cycle on ``wolfgang`` (the loop of
+  tools/benchlib.sdk_cycle) for ``--seconds`` virtual seconds: virtual seconds per wall second, start-up
+  taken off the same way.
+- ``vt_sdk_cycle_spread`` and ``wall_sdk_cycle_spread``: ``--runs`` runs of that cycle beside ``--load``
+  CPU-bound neighbour processes, in virtual time and on the wall clock (``emulate wolfgang --paced``, the
+  SDK in this process as tools/bench_dynamixel.py drives it) side by side: the spread of the cycle time,
+  (max - min) / median, with each run's cycle time as a ratio to the wire model (``runs_ratio``), its
+  cycle count and failed reads. The model is the cycle's bytes at 2 Mbaud, 8N1 (the servos' Return Delay
+  Time is 0 on this profile).
+
+Not measured yet: ``vt_trace_speed`` (the rover board's trace stream), see docs/benchmarks/virtual-time.md.
+
+Usage: tools/bench_virtual_time.py [--seconds S] [--runs N] [--load N] [--only idle|busy|spread]
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+from benchlib import REPO, emit, emulator
+
+BAUD = 2_000_000
+#: Wire bytes of one cycle (tools/bench_dynamixel.py): Sync Read (14 + 20) + 20 replies (11 + 4) + Sync Write
+#: (14 + 20 * 5).
+CYCLE_BYTES = (14 + 20) + 20 * 15 + (14 + 20 * 5)
+MODEL = CYCLE_BYTES * 10 / BAUD  # seconds per cycle
+
+SLEEPER = "import sys, time\nfor _ in range(int(sys.argv[1])):\n    time.sleep(1)\n"
+
+SDK_CLIENT = """
+import json, sys, time
+sys.path.insert(0, sys.argv[3])
+import dynamixel_sdk as sdk
+from benchlib import sdk_cycle
+port = sdk.PortHandler(sys.argv[1])
+port.openPort()
+assert port.setBaudRate(2_000_000)
+ph, reader, writer = sdk_cycle(port)
+n = failed = 0
+done = []
+end = time.monotonic() + float(sys.argv[2])
+while time.monotonic() < end:
+    failed += reader.txRxPacket() != sdk.COMM_SUCCESS
+    done.append(time.monotonic_ns())
+    writer.txPacket()
+    n += 1
+port.closePort()
+print(json.dumps({"cycles": n, "failed": failed, "done": done}))
+"""
+
+
+def loadavg() -> float:
+    return round(os.getloadavg()[0], 2)
+
+
+@contextlib.contextmanager
+def neighbours(n: int) -> Iterator[None]:
+    """``n`` CPU-bound neighbour processes (pure-Python spinning), outside any lockstep."""
+    procs = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(n)]
+    try:
+        yield
+    finally:
+        for p in procs:
+            p.kill()
+        for p in procs:
+            p.wait()
+
+
+def run_client(manifest: dict, code: str, *args: str) -> tuple[str, float]:
+    """``hilbench run --manifest M -- python CODE ARGS``: (its stdout, wall seconds)."""
+    with tempfile.TemporaryDirectory(prefix="hilbench-vt-") as tmp:
+        path = Path(tmp) / "manifest.json"
+        path.write_text(json.dumps(manifest))
+        script = Path(tmp) / "client.py"
+        script.write_text(code)
+        env = {k: v for k, v in os.environ.items() if k not in ("HILBENCH_CLOCK", "PYTHONHASHSEED")}
+        t0 = time.monotonic()
+        proc = subprocess.run([sys.executable, "-m", "hilbench.cli", "run", "--manifest", str(path), "--",
+                               sys.executable, str(script), *args], capture_output=True, text=True, env=env,
+                              cwd=REPO, timeout=600)
+        wall = time.monotonic() - t0
+    if proc.returncode != 0:
+        raise SystemExit(f"the client failed: {proc.stderr}")
+    return proc.stdout, wall
+
+
+def clock_stats(manifest: dict) -> dict:
+    from hilbench.bench.control import ControlClient
+
+    return ControlClient(manifest["control"]).call("clock")["clock"]["stats"]
+
+
+def bench_idle(seconds: int = 60) -> None:
+    avg = loadavg()
+    with emulator("mecarover-can", "--virtual-time") as m:
+        _, startup = run_client(m, SLEEPER, "0")
+        _, wall = run_client(m, SLEEPER, str(seconds))
+        stats = clock_stats(m)
+    speed = seconds / max(wall - startup, 1e-6)
+    emit("vt_idle_speed", speed, "virtual s per wall s", 1.0, speed, digits=1, virtual_s=seconds,
+         wall_s=round(wall, 3), startup_s=round(startup, 3), stalls=stats["stalls"], loadavg=avg)
+
+
+def sdk_virtual(seconds: float) -> tuple[dict, float, float, dict]:
+    """One SDK run on a fresh virtual-time wolfgang emulator: (figures, wall s, start-up wall s, clock stats)."""
+    with emulator("wolfgang", "--virtual-time") as m:
+        path = m["endpoints"][0]["path"]
+        _, startup = run_client(m, SDK_CLIENT, path, "0", str(REPO / "tools"))
+        out, wall = run_client(m, SDK_CLIENT, path, str(seconds), str(REPO / "tools"))
+        stats = clock_stats(m)
+    return json.loads(out), wall, startup, stats
+
+
+def cycle_time(done: list[int]) -> float:
+    """Seconds per cycle between the first and the last cycle's end."""
+    return (done[-1] - done[0]) / 1e9 / (len(done) - 1)
+
+
+def bench_busy(seconds: float) -> None:
+    avg = loadavg()
+    out, wall, startup, stats = sdk_virtual(seconds)
+    speed = seconds / max(wall - startup, 1e-6)
+    emit("vt_busy_speed", speed, "virtual s per wall s", 1.0, speed, virtual_s=seconds, wall_s=round(wall, 3),
+         startup_s=round(startup, 3), cycles=out["cycles"], failed_reads=out["failed"],
+         cycle_ratio=round(cycle_time(out["done"]) / MODEL, 6), stalls=stats["stalls"], loadavg=avg)
+
+
+def sdk_wall(seconds: float) -> tuple[float, int, int]:
+    """One wall-clock paced run (tools/bench_dynamixel.py's): (seconds per cycle, cycles, failed reads)."""
+    import bench_dynamixel as bd
+
+    proc, path, tmp = bd.start_emulator(True)
+    try:
+        n, dt, _cpu, _own = bd.run_cycles(path, seconds, proc.pid)
+    finally:
+        proc.terminate()
+        proc.wait(timeout=5)
+        tmp.cleanup()
+    return dt / n, n, bd.CONDITION["failed_reads"]
+
+
+def spread(times: list[float]) -> float:
+    return (max(times) - min(times)) / statistics.median(times)
+
+
+def bench_spread(seconds: float, runs: int, load: int) -> None:
+    avg = loadavg()
+    vt, vt_counts, vt_failed, vt_stalls, vt_walls = [], [], [], [], []
+    with neighbours(load):
+        for _ in range(runs):
+            out, wall, _startup, stats = sdk_virtual(seconds)
+            vt.append(cycle_time(out["done"]))
+            vt_counts.append(out["cycles"])
+            vt_failed.append(out["failed"])
+            vt_stalls.append(stats["stalls"])
+            vt_walls.append(round(wall, 2))
+        wall_runs = [sdk_wall(seconds) for _ in range(runs)]
+    emit("vt_sdk_cycle_spread", spread(vt), "(max-min)/median", 0.0, spread(vt), digits=6, load=load, loadavg=avg,
+         runs=runs, runs_ratio=[round(t / MODEL, 6) for t in vt], cycles=vt_counts, failed_reads=vt_failed,
+         stalls=vt_stalls, wall_s=vt_walls, model_ms=round(MODEL * 1e3, 6),
+         note=f"{seconds:g} virtual s per run; runs_ratio: cycle time / wire model")
+    wt = [t for t, _, _ in wall_runs]
+    emit("wall_sdk_cycle_spread", spread(wt), "(max-min)/median", 0.0, spread(wt), digits=6, load=load,
+         loadavg=avg, runs=runs, runs_ratio=[round(t / MODEL, 4) for t in wt], cycles=[n for _, n, _ in wall_runs],
+         failed_reads=[f for _, _, f in wall_runs], model_ms=round(MODEL * 1e3, 6),
+         note=f"{seconds:g} wall s per run, emulate --paced; runs_ratio: cycle time / wire model")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seconds", type=float, default=2.0, help="virtual (or wall) seconds per SDK run")
+    ap.add_argument("--runs", type=int, default=5, help="SDK runs per mode for the spread")
+    ap.add_argument("--load", type=int, default=1, metavar="N", help="CPU-bound neighbours during the spread runs")
+    ap.add_argument("--only", choices=("idle", "busy", "spread"))
+    args = ap.parse_args()
+    if args.only in (None, "idle"):
+        bench_idle()
+    if args.only in (None, "busy"):
+        bench_busy(args.seconds)
+    if args.only in (None, "spread"):
+        bench_spread(args.seconds, args.runs, args.load)
+
+
+if __name__ == "__main__":
+    main()
