@@ -80,6 +80,7 @@ SF_FDWAIT = 1    # waits on descriptors: wake it with a byte on its wake FIFO to
 SF_FOREIGN = 2   # waits on something a client can hand over (a pipe, a semaphore): RECHECK it on activity
 SF_INTERP = 4    # inside the interpreter's own lock (the GIL): real time
 SF_TIMER = 8     # used a timer the shim does not virtualise
+SF_ENDING = 16   # left the clock because its process ends (not one thread): time waits until it has ended
 
 # Header flags.
 FLAG_STALL = 1

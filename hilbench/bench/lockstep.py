@@ -70,6 +70,9 @@ TTY_INQ_MAX = 4095
 #: Real seconds a quiescence wait looks again at most (no notification comes for a thread that fell
 #: asleep in an unwrapped call).
 LOOK_AGAIN = 0.005
+#: Wall seconds time waits for an ending process (its threads left the clock with ``SF_ENDING``) to have ended
+#: (its parent may be about to wait for it), before freeing its slots anyway.
+EXIT_GRACE = 1.0
 
 _FUTEX_WAKE = 1
 _SYS_FUTEX = {"x86_64": 202, "aarch64": 98, "riscv64": 98, "ppc64le": 221, "s390x": 238}
@@ -198,6 +201,7 @@ class Lockstep:
         self._slots: dict[int, _Slot] = {}
         self._waited: set[int] = set()  # pids one of whose threads has waited (their start-up is over)
         self._pidfds: dict[int, int] = {}  # pid -> pidfd
+        self._exiting: dict[int, float] = {}  # pid -> wall time its last thread left the clock (it is ending)
         self._wake_fds: dict[int, int] = {}
         self._warned: set[tuple[int, int]] = set()
         self._blocked_since: float | None = None  # real time quiescence began to be blocked
@@ -381,6 +385,16 @@ class Lockstep:
             return True
         return False
 
+    def _ended(self, pid: int) -> bool:
+        """Whether process ``pid`` has ended: a zombie its parent can reap, or gone."""
+        fd = self._pidfds.get(pid)
+        if fd is None:
+            try:
+                fd = self._pidfds[pid] = os.pidfd_open(pid)
+            except OSError:  # gone already
+                return True
+        return bool(select.select([fd], [], [], 0)[0])
+
     def _reap(self, ready: Iterable[int] | None = None) -> None:
         """Free the slots of processes whose pidfd says they ended (``ready``: already polled)."""
         if not self._pidfds:
@@ -407,6 +421,16 @@ class Lockstep:
             if st == vp.FREE:
                 continue
             if st == vp.EXITED:
+                pid = self._s32(i, vp.S_PID)
+                # A process is ending (the shim's destructor let go of its threads): time waits until it has
+                # ended, so a parent that waits for it (subprocess's polls, waitpid with WNOHANG) sees it gone
+                # at the instant it ended, not one poll later in some runs (the kernel's teardown takes wall
+                # time after the shim let go).
+                if pid and self._s32(i, vp.S_FLAGS) & vp.SF_ENDING and not self._ended(pid) and \
+                        real - self._exiting.setdefault(pid, real) < EXIT_GRACE:
+                    v.quiet = False
+                    continue
+                self._exiting.pop(pid, None)
                 self._free(i)
                 continue
             pid = self._s32(i, vp.S_PID)

@@ -83,7 +83,7 @@
 #define SLICE_NS 1000000LL  /* real slices of waits the loop cannot end directly */
 
 enum { ST_FREE, ST_STARTING, ST_RUNNING, ST_RUNNABLE, ST_WAITING, ST_POLLING, ST_REQUEST, ST_WOKEN, ST_EXITED };
-enum { SF_FDWAIT = 1, SF_FOREIGN = 2, SF_INTERP = 4, SF_TIMER = 8 };
+enum { SF_FDWAIT = 1, SF_FOREIGN = 2, SF_INTERP = 4, SF_TIMER = 8, SF_ENDING = 16 };
 enum { FLAG_STALL = 1, FLAG_HOLD = 2 };
 
 struct vc_header {
@@ -125,7 +125,7 @@ const char *hb_vclock_layout(void)
              "S_SEEN_ROUND=%zu\nS_UNPRODUCTIVE=%zu\nS_FLAGS=%zu\nS_PROGRESS=%zu\n"
              "P_RDEV=%zu\nP_KIND=%zu\nP_DELIVERED=%zu\nP_READ=%zu\nP_DISCARDED=%zu\nP_WRITTEN=%zu\nP_TAKEN=%zu\n"
              "FREE=%d\nSTARTING=%d\nRUNNING=%d\nRUNNABLE=%d\nWAITING=%d\nPOLLING=%d\nREQUEST=%d\nWOKEN=%d\n"
-             "EXITED=%d\nSF_FDWAIT=%d\nSF_FOREIGN=%d\nSF_INTERP=%d\nSF_TIMER=%d\nFLAG_STALL=%d\nFLAG_HOLD=%d\n",
+             "EXITED=%d\nSF_FDWAIT=%d\nSF_FOREIGN=%d\nSF_INTERP=%d\nSF_TIMER=%d\nSF_ENDING=%d\nFLAG_STALL=%d\nFLAG_HOLD=%d\n",
              VC_VERSION, VC_HEADER, sizeof(struct vc_slot), sizeof(struct vc_port),
              offsetof(struct vc_header, magic), offsetof(struct vc_header, version), offsetof(struct vc_header, nslots),
              offsetof(struct vc_header, nports), offsetof(struct vc_header, vnow), offsetof(struct vc_header, epoch),
@@ -143,7 +143,7 @@ const char *hb_vclock_layout(void)
              offsetof(struct vc_port, read), offsetof(struct vc_port, discarded), offsetof(struct vc_port, written),
              offsetof(struct vc_port, taken),
              ST_FREE, ST_STARTING, ST_RUNNING, ST_RUNNABLE, ST_WAITING, ST_POLLING, ST_REQUEST, ST_WOKEN, ST_EXITED,
-             SF_FDWAIT, SF_FOREIGN, SF_INTERP, SF_TIMER, FLAG_STALL, FLAG_HOLD);
+             SF_FDWAIT, SF_FOREIGN, SF_INTERP, SF_TIMER, SF_ENDING, FLAG_STALL, FLAG_HOLD);
     return buf;
 }
 
@@ -525,8 +525,11 @@ __attribute__((destructor)) static void vclock_fini(void)
         return;
     for (i = 0; i < nslots; i++) {
         uint32_t st = __atomic_load_n(&SL[i].state, __ATOMIC_SEQ_CST);
-        if (st != ST_FREE && st != ST_EXITED && __atomic_load_n(&SL[i].pid, __ATOMIC_SEQ_CST) == (uint32_t)vc_pid)
+        if (st != ST_FREE && st != ST_EXITED && __atomic_load_n(&SL[i].pid, __ATOMIC_SEQ_CST) == (uint32_t)vc_pid) {
+            /* the process ends (not one thread): the loop holds time until it has ended (a parent waits) */
+            __atomic_or_fetch(&SL[i].flags, SF_ENDING, __ATOMIC_SEQ_CST);
             release(&SL[i], ST_EXITED);
+        }
     }
     vc_on = 0;
 }

@@ -9,6 +9,7 @@ import fcntl
 import os
 import struct
 import subprocess
+import sys
 import termios
 import threading
 import tty
@@ -105,6 +106,24 @@ def test_exited_threads_and_dead_processes_give_their_slots_back(lockstep):
     assert ls.look().quiet
     assert state(ls, 0) == state(ls, 1) == vp.FREE
     assert ls.u64[vp.H_ACTIVITY // 8] == activity + 2  # exits are hand-overs: joiners re-check
+
+
+def test_time_waits_for_an_ending_process_to_have_ended(lockstep):
+    """A process whose shim let go at exit (SF_ENDING) holds time until it has ended, so a parent polling for
+    it sees it gone at that instant in every run; a thread that left alone (no SF_ENDING) does not."""
+    ls = lockstep()
+    ending = subprocess.Popen([sys.executable, "-c", "import sys; sys.stdin.read()"], stdin=subprocess.PIPE)
+    try:
+        put(ls, 0, vp.EXITED, pid=ending.pid, tid=ending.pid, flags=vp.SF_ENDING)
+        put(ls, 1, vp.EXITED, pid=ending.pid, tid=ending.pid + 1)  # one of its threads, earlier
+        v = ls.look()
+        assert not v.quiet and state(ls, 0) == vp.EXITED and state(ls, 1) == vp.FREE
+        ending.stdin.close()
+        ending.wait(timeout=30)  # (reaped here; a zombie counts as ended too)
+        assert ls.look().quiet and state(ls, 0) == vp.FREE
+    finally:
+        ending.kill()
+        ending.wait()
 
 
 def test_a_waiter_on_a_hand_over_is_woken_to_look_again(lockstep):
