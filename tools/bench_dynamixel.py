@@ -56,7 +56,7 @@ import time
 from pathlib import Path
 
 import dynamixel_sdk as sdk
-from benchlib import sdk_cycle
+from benchlib import CYCLE_BYTES, sdk_cycle
 
 from hilbench.bench.control import ControlClient
 from hilbench.bench.manifest import read_manifest
@@ -66,8 +66,6 @@ REPO = Path(__file__).resolve().parents[1]
 LINE_RATE_4M5 = 450_000  # bytes/s at 4.5 Mbaud, 8N1
 BAUD = 2_000_000
 IDS = list(range(1, 21))
-# Wire bytes of one cycle: Sync Read (14 + 20) + 20 replies (11 + 4) + Sync Write (14 + 20 * 5).
-CYCLE_BYTES = (14 + 20) + 20 * 15 + (14 + 20 * 5)
 
 
 def emit(name: str, value: float, unit: str, reference: float, ratio: float, **extra) -> None:

@@ -36,36 +36,15 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 
-from benchlib import REPO, emit, emulator
+from benchlib import CYCLE_BYTES, REPO, emit, emulator
 
 BAUD = 2_000_000
-#: Wire bytes of one cycle (tools/bench_dynamixel.py): Sync Read (14 + 20) + 20 replies (11 + 4) + Sync Write
-#: (14 + 20 * 5).
-CYCLE_BYTES = (14 + 20) + 20 * 15 + (14 + 20 * 5)
 MODEL = CYCLE_BYTES * 10 / BAUD  # seconds per cycle
 
 SLEEPER = "import sys, time\nfor _ in range(int(sys.argv[1])):\n    time.sleep(1)\n"
 
-SDK_CLIENT = """
-import json, sys, time
-sys.path.insert(0, sys.argv[3])
-import dynamixel_sdk as sdk
-from benchlib import sdk_cycle
-port = sdk.PortHandler(sys.argv[1])
-port.openPort()
-assert port.setBaudRate(2_000_000)
-ph, reader, writer = sdk_cycle(port)
-n = failed = 0
-done = []
-end = time.monotonic() + float(sys.argv[2])
-while time.monotonic() < end:
-    failed += reader.txRxPacket() != sdk.COMM_SUCCESS
-    done.append(time.monotonic_ns())
-    writer.txPacket()
-    n += 1
-port.closePort()
-print(json.dumps({"cycles": n, "failed": failed, "done": done}))
-"""
+#: The SDK's cycle as a program under `hilbench run` (PORT SECONDS: one JSON line).
+SDK_CLIENT = REPO / "tools" / "sdk_cycle_client.py"
 
 
 def loadavg() -> float:
@@ -85,13 +64,15 @@ def neighbours(n: int) -> Iterator[None]:
             p.wait()
 
 
-def run_client(manifest: dict, code: str, *args: str) -> tuple[str, float]:
-    """``hilbench run --manifest M -- python CODE ARGS``: (its stdout, wall seconds)."""
+def run_client(manifest: dict, code: str | Path, *args: str) -> tuple[str, float]:
+    """``hilbench run --manifest M -- python CODE ARGS`` (``code``: Python source, or a script's path): (its
+    stdout, wall seconds)."""
     with tempfile.TemporaryDirectory(prefix="hilbench-vt-") as tmp:
         path = Path(tmp) / "manifest.json"
         path.write_text(json.dumps(manifest))
-        script = Path(tmp) / "client.py"
-        script.write_text(code)
+        script = code if isinstance(code, Path) else Path(tmp) / "client.py"
+        if not isinstance(code, Path):
+            script.write_text(code)
         env = {k: v for k, v in os.environ.items() if k not in ("HILBENCH_CLOCK", "PYTHONHASHSEED")}
         t0 = time.monotonic()
         proc = subprocess.run([sys.executable, "-m", "hilbench.cli", "run", "--manifest", str(path), "--",
@@ -124,8 +105,8 @@ def sdk_virtual(seconds: float) -> tuple[dict, float, float, dict]:
     """One SDK run on a fresh virtual-time wolfgang emulator: (figures, wall s, start-up wall s, clock stats)."""
     with emulator("wolfgang", "--virtual-time") as m:
         path = m["endpoints"][0]["path"]
-        _, startup = run_client(m, SDK_CLIENT, path, "0", str(REPO / "tools"))
-        out, wall = run_client(m, SDK_CLIENT, path, str(seconds), str(REPO / "tools"))
+        _, startup = run_client(m, SDK_CLIENT, path, "0")
+        out, wall = run_client(m, SDK_CLIENT, path, str(seconds))
         stats = clock_stats(m)
     return json.loads(out), wall, startup, stats
 

@@ -51,11 +51,13 @@ def emulator(*args: str, timeout: float = 20.0) -> Iterator[dict[str, Any]]:
             proc.wait(timeout=10)
 
 
-__all__ = ["REPO", "emit", "emulator"]
+__all__ = ["CYCLE_BYTES", "CYCLE_IDS", "REPO", "emit", "emulator", "sdk_cycle"]
 
 
 #: The servos of the wolfgang bench's 20-servo SDK cycle.
 CYCLE_IDS = list(range(1, 21))
+#: Wire bytes of one :func:`sdk_cycle`: Sync Read (14 + 20) + 20 replies (11 + 4) + Sync Write (14 + 20 * 5).
+CYCLE_BYTES = (14 + 20) + 20 * 15 + (14 + 20 * 5)
 
 
 def sdk_cycle(port: Any, ids: list[int] = CYCLE_IDS) -> tuple[Any, Any, Any]:

@@ -34,7 +34,7 @@ from pathlib import Path
 
 import dynamixel_sdk as sdk
 from bench_dynamixel import CustomBaudPortHandler, neighbours, process_cpu_s, start_emulator, wolfgang_at
-from benchlib import sdk_cycle
+from benchlib import CYCLE_BYTES, sdk_cycle
 
 IDS = list(range(1, 21))
 HIST_BIN = 10e-6
@@ -137,7 +137,7 @@ def soak(minutes: float, rate: float, baud: int, sample_every: float) -> dict:
         proc.wait(timeout=5)
         tmp.cleanup()
     half = [s for s in emu_rss if s[0] >= elapsed / 2]
-    wire = ((14 + 20) + 20 * 15 + (14 + 20 * 5)) * 10 / baud
+    wire = CYCLE_BYTES * 10 / baud
     return {
         "name": f"dxl_soak_{baud / 1e6:g}M".replace(".5M", "M5"), "minutes": round(elapsed / 60, 2),
         "cycles": cycles, "rate_hz": round(cycles / elapsed, 1), "target_rate_hz": rate,

@@ -34,32 +34,12 @@ sdk = pytest.importorskip("dynamixel_sdk")
 HILBENCH = [sys.executable, "-m", "hilbench.cli"]
 TOOLS = Path(__file__).resolve().parents[2] / "tools"
 IDS = list(range(1, 21))
-#: Wire bytes of one cycle (tools/bench_dynamixel.py): Sync Read (14 + 20) + 20 replies (11 + 4) + Sync Write
-#: (14 + 20 * 5).
+#: Wire bytes of one cycle (the test's own count, not the tools'): Sync Read (14 + 20) + 20 replies (11 + 4) +
+#: Sync Write (14 + 20 * 5).
 CYCLE_BYTES = (14 + 20) + 20 * 15 + (14 + 20 * 5)
-
-#: The SDK's cycle as tools/bench_dynamixel.py drives it (tools/benchlib.sdk_cycle), for SECONDS virtual seconds:
+#: The SDK's cycle as tools/bench_dynamixel.py drives it (tools/benchlib.sdk_cycle), as a program: PORT SECONDS;
 #: prints the cycle count, the failed reads and each Sync Read's completion (virtual ns).
-SDK_CLIENT = """
-import json, sys, time
-sys.path.insert(0, sys.argv[3])
-import dynamixel_sdk as sdk
-from benchlib import sdk_cycle
-port = sdk.PortHandler(sys.argv[1])
-port.openPort()
-assert port.setBaudRate(2_000_000)
-ph, reader, writer = sdk_cycle(port)
-n = failed = 0
-done = []
-end = time.monotonic() + float(sys.argv[2])
-while time.monotonic() < end:
-    failed += reader.txRxPacket() != sdk.COMM_SUCCESS
-    done.append(time.monotonic_ns())
-    writer.txPacket()
-    n += 1
-port.closePort()
-print(json.dumps({"cycles": n, "failed": failed, "done": done}))
-"""
+SDK_CLIENT = TOOLS / "sdk_cycle_client.py"
 
 
 @pytest.fixture(scope="module", autouse=True)
@@ -96,12 +76,10 @@ def sdk_run(tmp_path: Path, seconds: float, *, busy: bool = False) -> tuple[dict
         serve_port_state(bench)  # (the SDK's open sets DTR and RTS, and its drains ask the line)
         manifest = tmp_path / f"bench{len(list(tmp_path.glob('bench*.json')))}.json"
         bench.write_manifest(manifest)
-        script = tmp_path / "sdk_client.py"
-        script.write_text(SDK_CLIENT)
         env = {k: v for k, v in os.environ.items() if k not in ("HILBENCH_CLOCK", "PYTHONHASHSEED")}
         with neighbour(busy):
-            proc = subprocess.run([*HILBENCH, "run", "--manifest", str(manifest), "--", sys.executable, str(script),
-                                   bench.endpoint("dxl").port.client_path, str(seconds), str(TOOLS)],
+            proc = subprocess.run([*HILBENCH, "run", "--manifest", str(manifest), "--", sys.executable, str(SDK_CLIENT),
+                                   bench.endpoint("dxl").port.client_path, str(seconds)],
                                   capture_output=True, text=True, timeout=300, env=env)
         assert proc.returncode == 0, proc.stderr
         return json.loads(proc.stdout), bench.services["clock"].stats(), model_cycle(bench)
@@ -151,8 +129,6 @@ def tap_capture(tmp_path: Path, seconds: float) -> tuple[bytes, bytes]:
         serve_port_state(bench)
         manifest = tmp_path / f"bench{len(list(tmp_path.glob('bench*.json')))}.json"
         bench.write_manifest(manifest)
-        script = tmp_path / "sdk_client.py"
-        script.write_text(SDK_CLIENT)
         tap = bench.endpoint("dxl").tap
         sock = socket.create_connection((tap.host, tap.port))
         stream = bytearray()
@@ -163,8 +139,8 @@ def tap_capture(tmp_path: Path, seconds: float) -> tuple[bytes, bytes]:
                                     stderr=subprocess.PIPE, text=True)
         wait_until(lambda: tap.status()["clients"] == 2, timeout=20)
         env = {k: v for k, v in os.environ.items() if k not in ("HILBENCH_CLOCK", "PYTHONHASHSEED")}
-        proc = subprocess.run([*HILBENCH, "run", "--manifest", str(manifest), "--", sys.executable, str(script),
-                               bench.endpoint("dxl").port.client_path, str(seconds), str(TOOLS)],
+        proc = subprocess.run([*HILBENCH, "run", "--manifest", str(manifest), "--", sys.executable, str(SDK_CLIENT),
+                               bench.endpoint("dxl").port.client_path, str(seconds)],
                               capture_output=True, text=True, timeout=120, env=env)
         assert proc.returncode == 0, proc.stderr
         stats = bench.services["clock"].stats()
