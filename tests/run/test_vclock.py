@@ -16,20 +16,13 @@ from pathlib import Path
 import pytest
 
 from hilbench.run import vclock_page as vp
-from hilbench.run.build import SOURCES, ShimBuildError, find_compiler, shim_library
+from hilbench.run.build import SOURCES, find_compiler
+from tests.run.conftest import build_c_client
 from tests.run.vt_controller import VtController
 
 CLIENTS = Path(__file__).parent / "clients"
 RUN_DIR = Path(__file__).parents[2] / "hilbench" / "run"
 S = 10**9
-
-
-@pytest.fixture(scope="module")
-def library() -> Path:
-    try:
-        return shim_library()
-    except ShimBuildError as exc:
-        pytest.skip(f"the preload library cannot be built: {exc}")
 
 
 @pytest.fixture
@@ -85,13 +78,7 @@ def test_the_library_compiles_without_warnings(tmp_path):
 
 @pytest.fixture(scope="module")
 def c_client(tmp_path_factory) -> str:
-    cc = shutil.which("cc") or shutil.which("gcc")
-    if cc is None:
-        pytest.skip("no C compiler (cc or gcc): the C test client cannot be built")
-    exe = tmp_path_factory.mktemp("vtime-client") / "vtime_client"
-    subprocess.run([cc, "-O2", "-Wall", "-Wextra", "-Werror", "-pthread", "-o", str(exe),
-                    str(CLIENTS / "vtime_client.c")], check=True, capture_output=True)
-    return str(exe)
+    return build_c_client(tmp_path_factory, "vtime_client")
 
 
 def test_c_client_waits_in_virtual_time(clock, library, c_client, tmp_path):

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import subprocess
 import sys
 import textwrap
@@ -23,19 +22,13 @@ from hilbench.bench import Bench
 from hilbench.bench.control import ControlClient
 from hilbench.bench.port_state_server import serve_port_state
 from hilbench.pytest_plugin import wait_until
-from hilbench.run.build import ShimBuildError, shim_library
+from tests.run.conftest import build_c_client
+
+pytestmark = pytest.mark.usefixtures("library")  # (tests/run/conftest.py: skipped without the shim)
 
 HILBENCH = [sys.executable, "-m", "hilbench.cli"]
 CLIENTS = Path(__file__).parent / "clients"
 S = 10**9
-
-
-@pytest.fixture(scope="module", autouse=True)
-def library() -> Path:
-    try:
-        return shim_library()
-    except ShimBuildError as exc:
-        pytest.skip(f"the preload library cannot be built: {exc}")
 
 
 def client(bench: Bench, tmp_path: Path, code: str, *args: str, timeout: float = 60.0,
@@ -272,13 +265,7 @@ def test_hilbench_run_refuses_the_python_fallback_on_a_virtual_clock(tmp_path):
 
 @pytest.fixture(scope="module")
 def c_client(tmp_path_factory) -> str:
-    cc = shutil.which("cc") or shutil.which("gcc")
-    if cc is None:
-        pytest.skip("no C compiler (cc or gcc): the C test client cannot be built")
-    exe = tmp_path_factory.mktemp("vtime-bench-client") / "vtime_bench_client"
-    subprocess.run([cc, "-O2", "-Wall", "-Wextra", "-Werror", "-pthread", "-o", str(exe),
-                    str(CLIENTS / "vtime_bench_client.c")], check=True, capture_output=True)
-    return str(exe)
+    return build_c_client(tmp_path_factory, "vtime_bench_client")
 
 
 def test_a_c_client_waits_on_the_bench_pty_in_exact_virtual_time(hilbench_bench, hilbench_run, c_client):

@@ -26,8 +26,9 @@ from hilbench.bench import Bench
 from hilbench.bench.port_state_server import serve_port_state
 from hilbench.protocols import capture
 from hilbench.pytest_plugin import wait_until
-from hilbench.run.build import ShimBuildError, shim_library
 from hilbench.transports.capture_file import CaptureReader
+
+pytestmark = pytest.mark.usefixtures("library")  # (tests/run/conftest.py: skipped without the shim)
 
 sdk = pytest.importorskip("dynamixel_sdk")
 
@@ -40,14 +41,6 @@ CYCLE_BYTES = (14 + 20) + 20 * 15 + (14 + 20 * 5)
 #: The SDK's cycle as tools/bench_dynamixel.py drives it (tools/benchlib.sdk_cycle), as a program: PORT SECONDS;
 #: prints the cycle count, the failed reads and each Sync Read's completion (virtual ns).
 SDK_CLIENT = TOOLS / "sdk_cycle_client.py"
-
-
-@pytest.fixture(scope="module", autouse=True)
-def library() -> Path:
-    try:
-        return shim_library()
-    except ShimBuildError as exc:
-        pytest.skip(f"the preload library cannot be built: {exc}")
 
 
 @contextlib.contextmanager
