@@ -386,14 +386,8 @@ class Lockstep:
         return False
 
     def _ended(self, pid: int) -> bool:
-        """Whether process ``pid`` has ended: a zombie its parent can reap, or gone."""
-        fd = self._pidfds.get(pid)
-        if fd is None:
-            try:
-                fd = self._pidfds[pid] = os.pidfd_open(pid)
-            except OSError:  # gone already
-                return True
-        return bool(select.select([fd], [], [], 0)[0])
+        """Whether process ``pid`` has ended: a zombie its parent can reap (its pidfd is readable), or gone."""
+        return self._dead(pid) or bool(select.select([self._pidfds[pid]], [], [], 0)[0])
 
     def _reap(self, ready: Iterable[int] | None = None) -> None:
         """Free the slots of processes whose pidfd says they ended (``ready``: already polled)."""
@@ -405,6 +399,7 @@ class Lockstep:
         for pid in [pid for pid, fd in self._pidfds.items() if fd in ready]:
             os.close(self._pidfds.pop(pid))
             self._waited.discard(pid)
+            self._exiting.pop(pid, None)
             for i, info in list(self._slots.items()):
                 if info.pid == pid and self._s32(i, vp.S_PID) == pid and self._s32(i, vp.S_STATE) != vp.FREE:
                     self._free(i)
