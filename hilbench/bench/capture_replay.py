@@ -17,13 +17,14 @@ from __future__ import annotations
 
 import os
 import queue
-import select
 import statistics
 import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Protocol
+
+from hilbench.transports.readiness import readable
 
 #: Mismatches kept for the report (the first ones).
 MAX_SHOWN = 10
@@ -213,8 +214,7 @@ def _collect(fd: int, split: Splitter, wanted: int, deadline: float) -> list[tup
         left = deadline - time.monotonic()
         if left <= 0 or (wanted and len(got) >= wanted):
             return got
-        ready, _, _ = select.select([fd], [], [], left)
-        if not ready:
+        if not readable([fd], left):
             return got
         try:
             data = os.read(fd, 65536)

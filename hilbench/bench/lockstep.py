@@ -35,7 +35,6 @@ import fcntl
 import mmap
 import os
 import platform
-import select
 import shutil
 import struct
 import sys
@@ -49,6 +48,7 @@ from typing import Any
 
 from hilbench.bench import clock_page as vp
 from hilbench.errors import BenchError
+from hilbench.transports.readiness import readable
 
 #: Wall seconds a running thread may hold the clock before a lockstep stall starts (None: never).
 STALL = 1.0
@@ -387,14 +387,14 @@ class Lockstep:
 
     def _ended(self, pid: int) -> bool:
         """Whether process ``pid`` has ended: a zombie its parent can reap (its pidfd is readable), or gone."""
-        return self._dead(pid) or bool(select.select([self._pidfds[pid]], [], [], 0)[0])
+        return self._dead(pid) or bool(readable([self._pidfds[pid]], 0))
 
     def _reap(self, ready: Iterable[int] | None = None) -> None:
         """Free the slots of processes whose pidfd says they ended (``ready``: already polled)."""
         if not self._pidfds:
             return
         if ready is None:
-            ready = select.select(list(self._pidfds.values()), [], [], 0)[0]
+            ready = readable(self._pidfds.values(), 0)
         ready = set(ready)
         for pid in [pid for pid, fd in self._pidfds.items() if fd in ready]:
             os.close(self._pidfds.pop(pid))
