@@ -27,6 +27,16 @@ class Checker:
     def fail(self, key: str, message: str) -> NoReturn:
         raise ProfileError(f"{self.path}: {key}: {message}")
 
+    def address(self, value: str, key: str, spelled: str = '"host:port"') -> tuple[str, int]:
+        """A ``host:port`` string read as the UDP transport will read it (``spelled``: how the message names
+        the form)."""
+        from hilbench.transports.udp import parse_address
+
+        try:
+            return parse_address(value)
+        except ValueError:
+            self.fail(key, f"expected {spelled}, got {value!r}")
+
     def table(self, value: Any, key: str) -> dict[str, Any]:
         if value is None:
             return {}

@@ -16,8 +16,6 @@ DEFAULT_DOMAIN = 42
 
 def check_peers(c: Checker, key: str, raw: Any) -> list[str]:
     """A list of peer hosts (``"127.0.0.1"``) or ``"host:port"`` strings (default: 127.0.0.1)."""
-    from hilbench.transports.udp import parse_address
-
     if raw is None:
         return ["127.0.0.1"]
     if not isinstance(raw, list) or not raw:
@@ -26,10 +24,7 @@ def check_peers(c: Checker, key: str, raw: Any) -> list[str]:
         if not isinstance(peer, str) or not peer:
             c.fail(f"{key}[{i}]", f"expected \"host\" or \"host:port\", got {peer!r}")
         if ":" in peer:
-            try:
-                parse_address(peer)
-            except ValueError:
-                c.fail(f"{key}[{i}]", f"expected \"host:port\", got {peer!r}")
+            c.address(peer, f"{key}[{i}]")
     return list(raw)
 
 

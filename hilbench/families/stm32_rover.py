@@ -337,12 +337,7 @@ def _check_micro_ros(c: Checker, key: str, dev: dict[str, Any], preset: str) -> 
     if not isinstance(agent, str) or not agent:
         c.fail(f"{key}.agent", f"expected \"HOST:PORT\" or the name of an xrce-dds endpoint, got {agent!r}")
     if ":" in agent:
-        from hilbench.transports.udp import parse_address
-
-        try:
-            parse_address(agent)
-        except ValueError:
-            c.fail(f"{key}.agent", f"expected \"HOST:PORT\", got {agent!r}")
+        c.address(agent, f"{key}.agent", '"HOST:PORT"')
     c.unknown(raw, f"{key}.micro_ros", MICRO_ROS_KEYS)
     opts: dict[str, Any] = {}
     if "client_key" in raw:
