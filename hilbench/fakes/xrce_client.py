@@ -32,6 +32,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from hilbench.protocols import xrce_dds as x
+from hilbench.protocols.xrce_streams import ReliableInput
 from hilbench.transports.medium_loop import WakePipe
 
 log = logging.getLogger(__name__)
@@ -120,13 +121,13 @@ class XrceClient:
     def _reset_session(self) -> None:
         self._be_out = 0xFFFF
         self._rel_out = _RelOut()
-        self._rel_in_last = 0xFFFF
-        self._rel_in_pending: dict[int, bytes] = {}
+        # The agent's own stream model: it NACKs up to what a HEARTBEAT announced, as uxr_compute_acknack
+        # does, so a lost last message is sent again (acknowledging only what arrived never asks for it).
+        self._rel_in = ReliableInput()
         self._be_in_last = 0xFFFF
         self._request = 10
         self._pending_status: dict[bytes, int | None] = {}
         self._zeroed_after = False
-        self._fragments = bytearray()
 
     # ------------------------------------------------------------------ running
 
@@ -153,7 +154,7 @@ class XrceClient:
 
     def stop(self, delete: bool = True) -> None:
         """End the session (DELETE of the client, X19, when it is established) and the thread."""
-        if delete and self.state == "running":
+        if delete and self.state in ("creating", "running"):
             with contextlib.suppress(OSError):
                 self._send_raw(x.build_message(self.session_id, 0, 0, [(S.DELETE, x.FLAG_E,
                                                                          x.delete(b"\x00\x02", x.OBJECT_CLIENT))]))
@@ -188,7 +189,7 @@ class XrceClient:
     def _send_raw(self, msg: bytes) -> None:
         if self._sock is None:
             return
-        if self._zero > 0 or (self.zero_after_session and self.state == "running" and not self._zeroed_after):
+        if self._zero > 0 or (self.zero_after_session and self.state in ("creating", "running") and not self._zeroed_after):
             if self._zero > 0:
                 self._zero -= 1
             else:
@@ -310,7 +311,7 @@ class XrceClient:
             self._event("ERROR", "session creation failed: no STATUS_AGENT")
             return False
         with self._lock:
-            self.state = "running"
+            self.state = "creating"
         self.counters["sessions"] += 1
         # 3. Entities in binary, on the reliable stream, each answered with STATUS.
         if not self._create_entities():
@@ -319,6 +320,10 @@ class XrceClient:
             with self._lock:
                 self.state = "failed"
             return False
+        # "running" once its writers and readers exist: a write before that was dropped unsent (the writer
+        # had no object id yet), and a caller's own reliable messages could take the creations' turn.
+        with self._lock:
+            self.state = "running"
         # 4. Time sync (rmw_uros_sync_session(1000)).
         self._send_none(S.TIMESTAMP, x.timestamp(*_now()))
         self._wait_for(self._is_timestamp_reply, 1.0)
@@ -435,25 +440,14 @@ class XrceClient:
                     self._be_in_last = seq
                     self._process(data)
             else:
-                ahead = (seq - self._rel_in_last) & 0xFFFF
-                if 0 < ahead <= 16:
-                    self._rel_in_pending.setdefault(seq, data)
-                while (nxt := (self._rel_in_last + 1) & 0xFFFF) in self._rel_in_pending:
-                    self._rel_in_last = nxt
-                    self._process(self._rel_in_pending.pop(nxt))
-                self._send_acknack()
+                self._rel_in.push(seq, data)
+                self._deliver_reliable()
 
-    def _send_acknack(self) -> None:
-        first = (self._rel_in_last + 1) & 0xFFFF
-        bitmap = 0
-        last = max(self._rel_in_pending, key=lambda s: (s - first) & 0xFFFF, default=None)
-        if last is not None:
-            for i in range(16):
-                s = (first + i) & 0xFFFF
-                if (s - first) & 0xFFFF > (last - first) & 0xFFFF:
-                    break
-                if s not in self._rel_in_pending:
-                    bitmap |= 1 << i
+    def _deliver_reliable(self) -> None:
+        """Process what is now in order on the reliable input, then say what is still missing."""
+        while (msg := self._rel_in.pop()) is not None:
+            self._process(msg)
+        first, bitmap = self._rel_in.acknack()
         self._send_none(S.ACKNACK, x.acknack(first, bitmap, x.STREAM_RELIABLE))
         self.counters["acknacks"] += 1
 
@@ -466,14 +460,9 @@ class XrceClient:
             if sub_id == S.FRAGMENT:
                 if depth >= MAX_FRAGMENT_DEPTH:
                     return
-                if not self._fragments:
-                    self._fragments += data[:4 if data[0] >= 0x80 else 8]
-                self._fragments += payload
-                if len(self._fragments) > 1 << 20:
-                    self._fragments.clear()
-                elif flags & x.FLAG_LAST_FRAGMENT:
-                    whole = bytes(self._fragments)
-                    self._fragments.clear()
+                whole = self._rel_in.fragment(data[:x.header_size(data[0])], payload,
+                                              bool(flags & x.FLAG_LAST_FRAGMENT))
+                if whole is not None:
                     self._process(whole, depth + 1)
             elif sub_id == S.STATUS and length >= 6:
                 req, status = payload[0:2], payload[4]
@@ -503,11 +492,11 @@ class XrceClient:
                 while out.waiting and ((out.last_sent - out.first_unacked + 1) & 0xFFFF) < HISTORY:
                     sub_id_w, flags_w, payload_w = out.waiting.pop(0)
                     self._send_reliable(sub_id_w, payload_w, flags_w)
-            elif sub_id == S.HEARTBEAT and length >= 5:
-                first = payload[0] | payload[1] << 8
-                if x.seq_newer(first, (self._rel_in_last + 1) & 0xFFFF):
-                    self._rel_in_last = (first - 1) & 0xFFFF
-                self._send_acknack()
+            elif sub_id == S.HEARTBEAT:
+                hb, problem = x.decode_payload(sub_id, flags, payload)
+                if problem is None and hb.stream_id == x.STREAM_RELIABLE:
+                    self._rel_in.heartbeat(hb.first_unacked, hb.last_unacked)
+                    self._deliver_reliable()
 
     def _housekeeping(self) -> None:
         now = time.monotonic()

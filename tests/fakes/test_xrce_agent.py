@@ -208,6 +208,50 @@ def test_fragmented_write_is_reassembled(agent_bench) -> None:
         sub.close()
 
 
+def test_a_client_is_running_once_its_writers_exist(agent_bench) -> None:
+    """"running" means it can publish: its DATAWRITER exists on the agent. (It used to say so as soon as its
+    session did: a write then was dropped unsent, and a caller's reliable messages took the creations' turn.)"""
+    b = agent_bench()
+    agent = b.family("micro-ros-agent").agent()
+    pub = XrceClient(tuple(b.endpoint().port.address), name="pub")
+    w = pub.publish_on("rt/early", STRING.dds_name, reliable=True)
+    try:
+        pub.start()
+        wait_until(lambda: running(pub), interval=0.0001)  # (the first look that sees it)
+        writers = [e for s in list(agent.sessions.values()) for e in list(s.entities.values())
+                   if e.kind == x.ObjectKind.DATAWRITER]
+        assert w.writer and len(writers) == 1
+    finally:
+        pub.close()
+
+
+def test_a_reader_recovers_the_last_message_lost_on_its_reliable_stream(agent_bench) -> None:
+    """The agent's DATA to the reader is the newest message on that stream and is lost: nothing after it shows
+    a gap, so only the agent's HEARTBEAT (it announces its last sequence number) can make the reader NACK it."""
+    b = agent_bench()
+    addr = tuple(b.endpoint().port.address)
+    got = []
+    sub = XrceClient(addr, name="sub")
+    sub.subscribe("rt/lossy", STRING.dds_name, lambda d, le: got.append(STRING.decode(d).data), reliable=True)
+    pub = XrceClient(addr, name="pub")
+    w = pub.publish_on("rt/lossy", STRING.dds_name, reliable=True)
+    agent = b.family("micro-ros-agent").agent()
+    try:
+        sub.start()
+        pub.start()
+        # Quiet: every reliable message both ways acknowledged, so the agent sends nothing of its own.
+        wait_until(lambda: running(pub) and running(sub) and any(s.reads for s in agent.sessions.values())
+                   and not pub._rel_out.history and not sub._rel_out.history
+                   and all(not o.history for s in agent.sessions.values() for o in s.rel_out.values()))
+        agent.faults["drop_next"] = 1  # the next datagram the agent sends: the DATA to the reader
+        pub.write(w, STRING.encode({"data": "once"}))
+        wait_until(lambda: got == ["once"])
+        assert agent.counters["dropped_out"] == 1 and agent.counters["retransmissions"] >= 1
+    finally:
+        pub.close()
+        sub.close()
+
+
 def test_zeroed_datagram_from_a_sessions_address_tears_it_down(agent_bench) -> None:
     b = agent_bench()
     raw = Raw(b)

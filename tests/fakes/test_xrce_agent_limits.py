@@ -181,7 +181,7 @@ def test_the_board_client_hears_only_its_agent_and_bounds_fragment_nests(agent_b
         wait_until(lambda: got, 5)
         assert got == ["from the agent"]
         c._process(nest(2000, seq=0))  # from the agent, it would be followed 4 levels deep, then dropped
-        assert not c._fragments and c._thread.is_alive()
+        assert not c._rel_in.fragments and c._thread.is_alive()
     finally:
         stranger.close()
         c.close()

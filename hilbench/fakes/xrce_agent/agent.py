@@ -52,8 +52,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from hilbench.fakes.xrce_agent.entities import Entity, EntityError, entity_from_create, same
-from hilbench.fakes.xrce_agent.streams import BestEffortInput, ReliableInput, ReliableOutput
 from hilbench.protocols import xrce_dds as x
+from hilbench.protocols.xrce_streams import BestEffortInput, ReliableInput, ReliableOutput
 from hilbench.transports.clock import WALL
 
 log = logging.getLogger(__name__)

@@ -1,4 +1,4 @@
-"""XRCE streams as the Micro XRCE-DDS agent keeps them per session (spec sheet §1.2, §1.7).
+"""XRCE streams as the Micro XRCE-DDS agent and client keep them per session (spec sheet §1.2, §1.7).
 
 Sequence numbers are u16 with serial arithmetic. A best-effort input accepts
 only newer messages; a reliable input buffers up to :data:`RELIABLE_DEPTH`
