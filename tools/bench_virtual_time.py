@@ -17,9 +17,14 @@ Every bench runs in its own ``hilbench emulate PROFILE --virtual-time`` process 
   cycle count and failed reads. The model is the cycle's bytes at 2 Mbaud, 8N1 (the servos' Return Delay
   Time is 0 on this profile).
 
+- ``vt_flood``: a client writing ``--flood-mib`` MiB as fast as it can into the ``arm`` bench's 1 Mbaud bus:
+  the virtual time its writes took against the wire's time for those bytes (reference 1.0: held back as
+  on the wall clock), virtual seconds per wall second, and the bench's RSS before and at the end (MB).
+
 Not measured yet: ``vt_trace_speed`` (the rover board's trace stream), see docs/benchmarks/virtual-time.md.
 
-Usage: tools/bench_virtual_time.py [--seconds S] [--runs N] [--load N] [--only idle|busy|spread]
+Usage: tools/bench_virtual_time.py [--seconds S] [--runs N] [--load N] [--flood-mib M]
+                                  [--only idle|busy|spread|flood]
 """
 
 from __future__ import annotations
@@ -111,6 +116,43 @@ def sdk_virtual(seconds: float) -> tuple[dict, float, float, dict]:
     return json.loads(out), wall, startup, stats
 
 
+FLOOD = """
+import json, os, sys, termios, time, tty
+fd = os.open(sys.argv[1], os.O_RDWR | os.O_NOCTTY)
+tty.setraw(fd)
+attrs = termios.tcgetattr(fd)
+attrs[4] = attrs[5] = termios.B1000000
+termios.tcsetattr(fd, termios.TCSANOW, attrs)
+n, total, chunk = 0, int(sys.argv[2]), bytes(4096)
+t0 = time.monotonic_ns()
+while n < total:
+    n += os.write(fd, chunk[:total - n])
+print(json.dumps({"written": n, "ns": time.monotonic_ns() - t0}))
+"""
+
+
+def rss_mb(pid: int) -> float:
+    with open(f"/proc/{pid}/status") as f:
+        return next(int(line.split()[1]) for line in f if line.startswith("VmRSS:")) / 1024
+
+
+def bench_flood(mib: int) -> None:
+    avg = loadavg()
+    total = mib * 1024 * 1024
+    with emulator("arm", "--virtual-time") as m:
+        path = m["endpoints"][0]["path"]
+        before = rss_mb(m["pid"])
+        out, wall = run_client(m, FLOOD, path, str(total))
+        after = rss_mb(m["pid"])
+        stats = clock_stats(m)
+    virtual = json.loads(out)["ns"] / 1e9
+    wire = total * 10 / 1_000_000
+    emit("vt_flood", virtual / wire, "client's write time / wire time", 1.0, virtual / wire, digits=4,
+         ratio_digits=4, mib=mib, virtual_s=round(virtual, 3), wire_s=round(wire, 3), wall_s=round(wall, 2),
+         speed=round(virtual / wall, 1), rss_mb=[round(before, 1), round(after, 1)], stalls=stats["stalls"],
+         loadavg=avg)
+
+
 def cycle_time(done: list[int]) -> float:
     """Seconds per cycle between the first and the last cycle's end."""
     return (done[-1] - done[0]) / 1e9 / (len(done) - 1)
@@ -171,7 +213,8 @@ def main() -> None:
     ap.add_argument("--seconds", type=float, default=2.0, help="virtual (or wall) seconds per SDK run")
     ap.add_argument("--runs", type=int, default=5, help="SDK runs per mode for the spread")
     ap.add_argument("--load", type=int, default=1, metavar="N", help="CPU-bound neighbours during the spread runs")
-    ap.add_argument("--only", choices=("idle", "busy", "spread"))
+    ap.add_argument("--flood-mib", type=int, default=16, metavar="M", help="MiB the flood client writes")
+    ap.add_argument("--only", choices=("idle", "busy", "spread", "flood"))
     args = ap.parse_args()
     if args.only in (None, "idle"):
         bench_idle()
@@ -179,6 +222,8 @@ def main() -> None:
         bench_busy(args.seconds)
     if args.only in (None, "spread"):
         bench_spread(args.seconds, args.runs, args.load)
+    if args.only in (None, "flood"):
+        bench_flood(args.flood_mib)
 
 
 if __name__ == "__main__":

@@ -259,10 +259,16 @@ class Bench:
         clock = self.clock
         self.loop.lockstep = self.services["clock"] = Lockstep(
             ptys, vnow_ns=round(clock.now() * 1e9), origin_ns=round(clock.origin * 1e9),
-            epoch_ns=round(clock.epoch * 1e9), stall=self.lockstep_stall, holding=self._holding)
+            epoch_ns=round(clock.epoch * 1e9), stall=self.lockstep_stall, holding=self._holding,
+            refuses=self._refuses)
         for medium in self.loop.media:
             if hasattr(medium, "vt_defer_input"):  # (serial lines: clients' writes are sent when they all wait)
                 medium.vt_defer_input()
+
+    def _refuses(self, port: Any) -> bool:
+        """Whether a medium leaves ``port``'s bytes unread on purpose (a serial line holding its writer back)."""
+        assert self.loop is not None
+        return any(medium.vt_refuses(port) for medium in self.loop.media if hasattr(medium, "vt_refuses"))
 
     def _holding(self) -> bool:
         """Whether a service has a lockstep client's request in hand (the port-state server's modem-port-state requests)."""

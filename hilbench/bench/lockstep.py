@@ -156,14 +156,18 @@ class Lockstep:
     the bench's side of the page's port counters. ``stall``: wall seconds before a lockstep stall (None:
     never). ``epoch_ns``: virtual Unix time at ``origin_ns``. ``holding()``: whether the bench has a
     client's request in hand outside the loop (the port-state server's), which keeps time still.
+    ``refuses(port)``: whether the bench leaves a pty's bytes unread on purpose (its line holds the writer
+    back until the wire has room): they are not in flight, and time moves to let the wire drain.
     """
 
     def __init__(self, ptys: Iterable[tuple[str, Any]] = (), *, vnow_ns: int = vp.ORIGIN_NS,
                  origin_ns: int = vp.ORIGIN_NS, epoch_ns: int | None = None, stall: float | None = STALL,
                  nslots: int = vp.DEFAULT_SLOTS, poll_k: int = 32, quantum_ns: int = 100_000,
-                 startup_grace: float = STARTUP_GRACE, holding: Callable[[], bool] | None = None) -> None:
+                 startup_grace: float = STARTUP_GRACE, holding: Callable[[], bool] | None = None,
+                 refuses: Callable[[Any], bool] | None = None) -> None:
         self.atomics = _Atomics()
         self._holding = holding
+        self._refuses = refuses
         self.stall = stall  #: wall seconds a non-waiting thread may hold the clock (None: no limit)
         self.startup_grace = startup_grace
         self.nslots = nslots
@@ -452,7 +456,8 @@ class Lockstep:
         v.counted = any(self._slots[i].pid in self._waited or real - self._slots[i].since > self.startup_grace
                         for i in v.blockers)
         for i, p in enumerate(self.ptys):
-            if self._port(i, vp.P_WRITTEN) > p.port.bytes_in - p.base_in:
+            if self._port(i, vp.P_WRITTEN) > p.port.bytes_in - p.base_in and not (
+                    self._refuses is not None and self._refuses(p.port)):
                 v.quiet = False
                 v.counted = True
                 v.flight.append(p.name)

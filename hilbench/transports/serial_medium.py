@@ -568,16 +568,53 @@ class SerialMedium(LoopMedium):
         self._take = self._vt_take  # type: ignore[method-assign]
 
     def _vt_take(self, endpoint, listen_only: bool, now: float, bounded: bool = False) -> tuple[int, float]:
-        held = self._vt_in.get(id(endpoint))
-        if bounded and held is not None and len(held[1]) >= HOST_FIFO:
-            return 0, now  # (its writer blocks in the kernel until the clients wait and this is sent)
-        data = endpoint.read()
+        """:meth:`_take` with clients in lockstep: what is read waits for :meth:`vt_commit`. ``bounded``: the
+        wall clock's rule in virtual time: the bytes ahead of the wire and those read but not yet sent stay
+        within :data:`HOST_FIFO`, and with half of it still to go out the port is held back; either way its
+        writer waits in the kernel, and :meth:`vt_refuses` tells the lockstep that time may move meanwhile."""
+        size = self._vt_room(endpoint, now) if bounded else 65536
+        if size <= 0:
+            return 0, now
+        data = endpoint.read(size)
         if not data or listen_only:
             return len(data), now
+        held = self._vt_in.get(id(endpoint))
         if held is None:
             held = self._vt_in[id(endpoint)] = (endpoint, bytearray())
         held[1].extend(data)
+        self._sent_baud[endpoint.name] = endpoint.client_baud()
         return len(data), now
+
+    def _vt_room(self, endpoint, now: float) -> int:
+        """How many bytes the line may read from ``endpoint`` now (0: none; held back if the wire has more
+        than half of :data:`HOST_FIFO` still to send)."""
+        waiting, on_wire, byte_time = self._vt_backlog(endpoint, now)
+        if on_wire > HOST_FIFO // 2:
+            self._hold(endpoint, now + (on_wire - HOST_FIFO // 2) * byte_time)
+            return 0
+        return HOST_FIFO - waiting - on_wire
+
+    def _vt_backlog(self, endpoint, now: float) -> tuple[int, int, float]:
+        """(bytes read and waiting for :meth:`vt_commit`, bytes ahead of the wire or of a receiver pacing
+        itself, in the sender's byte time; that byte time)."""
+        held = self._vt_in.get(id(endpoint))
+        name = endpoint.name
+        ahead = self._ahead(name, now) if self._receivers else self._last_end.get(name, 0.0) - now
+        byte_time = self.byte_time(self._sent_baud.get(name))
+        # (rounded: virtual time lands exactly on a release, where a floor of 2048.0000001 byte times would
+        # hold the port again for a femtosecond, and again)
+        on_wire = round(ahead / byte_time) if ahead > 0.0 else 0
+        return (len(held[1]) if held is not None else 0), on_wire, byte_time
+
+    def vt_refuses(self, port: Any) -> bool:
+        """Whether the line leaves ``port``'s bytes unread on purpose (held back, or its share of
+        :data:`HOST_FIFO` full): its writer waits for the wire, so the lockstep does not count them in flight."""
+        if id(port) in self._held:
+            return True
+        if not any(ep is port for ep, _ in self._hosts):
+            return False
+        waiting, on_wire, _ = self._vt_backlog(port, self._now())
+        return waiting + on_wire >= HOST_FIFO
 
     def vt_held(self) -> bool:
         """Whether client bytes were read and wait for :meth:`vt_commit`."""
