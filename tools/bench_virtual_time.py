@@ -21,10 +21,13 @@ Every bench runs in its own ``hilbench emulate PROFILE --virtual-time`` process 
   the virtual time its writes took against the wire's time for those bytes (reference 1.0: held back as
   on the wall clock), virtual seconds per wall second, and the bench's RSS before and at the end (MB).
 
-Not measured yet: ``vt_trace_speed`` (the rover board's trace stream), see docs/benchmarks/virtual-time.md.
+- ``vt_trace_speed``: ``mecarover`` (the FreeRTOS board at 115200 baud, its log lines, and after a button
+  press its 1000 ms trace window dumped) and a pyserial reader under ``hilbench run`` reading
+  ``--trace-seconds`` virtual seconds: virtual seconds per wall second, start-up taken off, and the bytes
+  read against what the wire can carry in that time.
 
-Usage: tools/bench_virtual_time.py [--seconds S] [--runs N] [--load N] [--flood-mib M]
-                                  [--only idle|busy|spread|flood]
+Usage: tools/bench_virtual_time.py [--seconds S] [--runs N] [--load N] [--flood-mib M] [--trace-seconds S]
+                                  [--only idle|busy|spread|flood|trace]
 """
 
 from __future__ import annotations
@@ -131,6 +134,36 @@ print(json.dumps({"written": n, "ns": time.monotonic_ns() - t0}))
 """
 
 
+TRACE_READER = """
+import json, sys, time
+import serial
+port = serial.Serial(sys.argv[1], 115200, timeout=0.05)
+seconds = float(sys.argv[2])
+n, t0 = 0, time.monotonic()
+while time.monotonic() - t0 < seconds:
+    n += len(port.read(4096))
+print(json.dumps({"bytes": n, "virtual_s": time.monotonic() - t0}))
+"""
+
+
+def bench_trace(seconds: float) -> None:
+    from hilbench.clients.stm32_rover import BoardClient
+
+    avg = loadavg()
+    with emulator("mecarover", "--virtual-time") as m:
+        path = next(e["path"] for e in m["endpoints"] if e["name"] == "rover")
+        _, startup = run_client(m, TRACE_READER, path, "0")
+        BoardClient(m["control"]).button()  # (the trace window starts at the next virtual instant)
+        out, wall = run_client(m, TRACE_READER, path, str(seconds))
+        stats = clock_stats(m)
+    got = json.loads(out)
+    speed = seconds / max(wall - startup, 1e-6)
+    emit("vt_trace_speed", speed, "virtual s per wall s", 1.0, speed, digits=2, virtual_s=seconds,
+         wall_s=round(wall, 3), startup_s=round(startup, 3), bytes=got["bytes"],
+         line_share=round(got["bytes"] * 10 / 115_200 / got["virtual_s"], 3), stalls=stats["stalls"],
+         loadavg=avg)
+
+
 def rss_mb(pid: int) -> float:
     with open(f"/proc/{pid}/status") as f:
         return next(int(line.split()[1]) for line in f if line.startswith("VmRSS:")) / 1024
@@ -214,7 +247,9 @@ def main() -> None:
     ap.add_argument("--runs", type=int, default=5, help="SDK runs per mode for the spread")
     ap.add_argument("--load", type=int, default=1, metavar="N", help="CPU-bound neighbours during the spread runs")
     ap.add_argument("--flood-mib", type=int, default=16, metavar="M", help="MiB the flood client writes")
-    ap.add_argument("--only", choices=("idle", "busy", "spread", "flood"))
+    ap.add_argument("--trace-seconds", type=float, default=5.0, metavar="S",
+                    help="virtual seconds the trace reader reads")
+    ap.add_argument("--only", choices=("idle", "busy", "spread", "flood", "trace"))
     args = ap.parse_args()
     if args.only in (None, "idle"):
         bench_idle()
@@ -224,6 +259,8 @@ def main() -> None:
         bench_spread(args.seconds, args.runs, args.load)
     if args.only in (None, "flood"):
         bench_flood(args.flood_mib)
+    if args.only in (None, "trace"):
+        bench_trace(args.trace_seconds)
 
 
 if __name__ == "__main__":
