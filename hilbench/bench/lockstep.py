@@ -17,7 +17,7 @@ whether the thread runs or waits, and until when. The loop uses the controller i
   deadline is ``vnow`` + the quantum).
 
 A thread that computes without ever waiting does not freeze the world: after :attr:`Lockstep.stall` wall
-seconds (default 1 s, None: never) the loop counts a *lockstep stall*, warns once per thread on stderr,
+seconds (default 1 s, None: never) the loop counts a *lockstep stall*, warns once per thread (or pty) on stderr,
 and lets virtual time follow the wall clock until every thread waits again (§5.6). A run with no stall is
 deterministic; :meth:`Lockstep.stats` has the counters. A process's first thread gets a start-up grace
 (:data:`STARTUP_GRACE`): interpreter start-up and imports run under a held clock without counting.
@@ -41,6 +41,7 @@ import sys
 import tempfile
 import termios
 import time
+from collections import deque
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -215,7 +216,8 @@ class Lockstep:
         self.participants_seen = 0
         self._woke_at = -1  # the instant of the last wake_due
         self.last_stall: dict[str, Any] | None = None
-        self.warnings: list[str] = []
+        self.warnings: deque[str] = deque(maxlen=64)  #: the latest warnings (also on stderr)
+        self._flight_warned: set[str] = set()  # ptys a stall on bytes in flight was reported for
 
     # ------------------------------------------------------------------ page access
 
@@ -404,6 +406,7 @@ class Lockstep:
             os.close(self._pidfds.pop(pid))
             self._waited.discard(pid)
             self._exiting.pop(pid, None)
+            self._warned = {w for w in self._warned if w[0] != pid}  # (a pid may come back)
             for i, info in list(self._slots.items()):
                 if info.pid == pid and self._s32(i, vp.S_PID) == pid and self._s32(i, vp.S_STATE) != vp.FREE:
                     self._free(i)
@@ -580,6 +583,9 @@ class Lockstep:
         if v.flight and not v.blockers:
             self.last_stall = {"pid": 0, "tid": 0, "comm": "", "state": "FLIGHT", "since": self._vnow_ns / 1e9,
                                "ptys": list(v.flight)}
+            if self._flight_warned.issuperset(v.flight):
+                return  # (once per pty, as once per thread above: the stall counter has every one)
+            self._flight_warned.update(v.flight)
             self._say(f"hilbench: lockstep stall: bytes written to {', '.join(v.flight)} were not taken (or bytes "
                       f"delivered did not show on the client's side) for {ran:.1f} s; time follows the wall clock")
 

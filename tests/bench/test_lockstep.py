@@ -196,6 +196,36 @@ def test_bytes_in_flight_on_a_pty_keep_time_still(lockstep, pty):
     assert ls.look().quiet
 
 
+def test_bytes_the_bench_leaves_unread_on_purpose_are_not_in_flight(lockstep, pty):
+    """A line holding its writer back (the wire is behind) leaves bytes unread: time must move for the wire to
+    drain, so they do not keep it still."""
+    master, port = pty
+    refused = {"lidar": True}
+    ls = lockstep([("lidar", port)], refuses=lambda p: refused["lidar"] if p is port else False)
+    rec = vp.port_offset(ls.nslots, 0)
+    put(ls, 0, vp.WAITING, V0 + S)
+    struct.pack_into("Q", ls.map, rec + vp.P_WRITTEN, 5)
+    assert ls.look().quiet
+    refused["lidar"] = False  # released: now they are in flight until read
+    v = ls.look()
+    assert not v.quiet and v.flight == ["lidar"]
+
+
+def test_a_stall_on_bytes_in_flight_warns_once_per_pty(lockstep, pty, capfd):
+    master, port = pty
+    ls = lockstep([("lidar", port)], stall=0.5)
+    rec = vp.port_offset(ls.nslots, 0)
+    put(ls, 0, vp.WAITING, V0 + S)
+    struct.pack_into("Q", ls.map, rec + vp.P_WRITTEN, 5)
+    for start in (100.0, 200.0):  # two stalls on the same pty, time back in lockstep between them
+        v = ls.look(real=start)
+        assert v.flight == ["lidar"] and ls.stall_target(v, start + 1.0) is not None
+        ls.end_stall()
+    assert ls.stats()["stalls"] == 2
+    (warning,) = ls.warnings
+    assert "bytes written to lidar were not taken" in warning and capfd.readouterr().err.count(warning) == 1
+
+
 def test_a_delivery_is_settled_and_wakes_its_waiter(lockstep, pty):
     master, port = pty
     ls = lockstep([("lidar", port)])
