@@ -167,9 +167,13 @@ def test_paced_nodes_and_own_decoder_agree_with_truth(scanners):
     rate = n[1:].sum() / span
     assert rate < 11520 * 1.05  # never faster than 115200 baud allows
     assert 0.85 * 9843 < rate < 1.15 * 9843  # 5 bytes every 508 us
-    # per-sample pacing, no revolution-sized bursts (1 800 B at once): no read brings more than the line
-    # could carry since the one before (a reader the machine held up reads more, and as much later)
-    assert (n[1:] <= 11520 * np.diff(t) * 1.1 + 60).all(), list(zip(np.diff(t).round(4), n[1:], strict=True))
+    # per-sample pacing, no revolution-sized bursts (1 800 B at once): a read brings no more than the line
+    # could carry since the one before (a reader the machine held up reads more, and as much later), except
+    # where the bench itself was held up and caught up at once (rare; a fake sending whole revolutions
+    # would break the rule once per revolution), and never ahead of the line since the first read
+    over = n[1:] > 11520 * np.diff(t) * 1.1 + 60
+    assert over.sum() < len(revs) - 1, list(zip(np.diff(t).round(4), n[1:], strict=True))
+    assert (np.cumsum(n[1:]) <= 11520 * (t[1:] - t[0]) * 1.05 + 60).all()
     rev = revs[-1]
     angles = np.array([p[0] for p in rev])
     dist = np.array([p[1] for p in rev]) / 1000.0
