@@ -114,7 +114,9 @@ def test_python_can_over_socketcand_sees_the_virtual_heartbeats(tmp_path):
     assert [data for _t, data in out["beats"]] == ["05"] * 60
     assert [t for t, _ in out["beats"]] == [float(k) for k in range(1, 61)]
     assert stats["stalls"] == 0
-    assert wall < VIRTUAL_NOT_WALL * 60, f"60 virtual seconds took {wall:.2f} s of wall time"
+    # issue 26's own test: "finishes in a tenth of the time or less" (on a machine that is not overloaded:
+    # with two other sessions' test runs, load 6, it took 10.9 s)
+    assert wall < 6.0, f"60 virtual seconds took {wall:.2f} s of wall time"
 
 
 SPINNER = """
