@@ -9,9 +9,10 @@ run, so the ratio survives a loaded machine. Cases: ``help`` (``hilbench --help`
 ``profiles``, ``plugins``, the ``--help`` of ``emulate``, ``record``, the trace profiler's verb, ``lidar``,
 ``can``, ``dxl`` and ``demo``, and ``emulate_arm``.
 
-Each figure (but ``emulate_arm``'s) also gives ``cpu``, the least CPU time (user + system) of the runs, and
-``reference_cpu``, the same of ``python -c pass``: on a machine other sessions load, the wall time is mostly
-waiting for a core, the CPU time is what the command costs.
+Each figure also gives ``cpu``, the least CPU time (user + system) of the runs, and ``reference_cpu``, the
+same of ``python -c pass``: on a machine other sessions load, the wall time is mostly waiting for a core, the
+CPU time is what the command costs. ``emulate_arm``'s is its CPU time until its first line: every thread's
+time on a core so far (``/proc/PID/task/*/schedstat``; Linux only, else none).
 
 Each figure also says what the verb imported (``python -X importtime``): ``modules`` (all), ``hilbench``
 (hilbench's), ``heavy`` (the large third-party packages among them) and ``unexpected``: heavy packages
@@ -111,6 +112,36 @@ def cpu_once(argv: list[str]) -> float:
                    env=ENV)
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     return (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+
+
+def cpu_so_far(pid: int) -> float | None:
+    """CPU time (s) of every thread of process ``pid`` so far (the first field of each thread's schedstat: ns
+    on a core), or None where /proc does not say."""
+    total = 0
+    try:
+        for task in Path(f"/proc/{pid}/task").iterdir():
+            with contextlib.suppress(FileNotFoundError):  # (a thread that just ended)
+                total += int((task / "schedstat").read_text().split()[0])
+    except (OSError, ValueError, IndexError):
+        return None
+    return total / 1e9
+
+
+def first_line_cpu(argv: list[str]) -> float | None:
+    """CPU time of one run until its first line of output (then it is interrupted)."""
+    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, cwd=REPO, env=ENV)
+    try:
+        if not proc.stdout.readline():
+            raise SystemExit(f"{' '.join(argv)}: no output")
+        return cpu_so_far(proc.pid)
+    finally:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(timeout=15)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+        proc.stdout.close()
 
 
 def run_once(argv: list[str], first_line: bool, stderr: int | None = subprocess.DEVNULL) -> float:
@@ -270,7 +301,11 @@ def main() -> None:
             argv = [PY, "-m", "hilbench.cli", *case.args]
             took = least(argv, args.runs, case.first_line)
             # (a bench runs until stopped: its CPU time to the first line is not the process's)
-            cpu = None if case.first_line else min(cpu_once(argv) for _ in range(args.runs))
+            if case.first_line:
+                cpus = [first_line_cpu(argv) for _ in range(args.runs)]
+                cpu = None if None in cpus else min(cpus)
+            else:
+                cpu = min(cpu_once(argv) for _ in range(args.runs))
             modules = imported(case)
             benchlib.emit(f"startup_{case.name}", took, "s", reference, took / reference, ratio_digits=1,
                           cpu=round(cpu, 3) if cpu is not None else None, reference_cpu=round(reference_cpu, 3),
