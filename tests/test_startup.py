@@ -118,6 +118,7 @@ def test_emulate_arm_loads_no_other_family_s_fakes(tmp_path):
     assert not others - kits, f"other families' fakes: {sorted(others - kits)}"
     assert not under(modules, "hilbench.monitor", "hilbench.dashboard", "hilbench.profiler", "dpkt")
     assert "numpy" not in modules  # a world without walls or bodies has no arrays
+    assert "construct" not in modules  # the servos and the tap run on the protocols' fast paths
 
 
 def test_record_help_loads_the_instrument_plug_ins_not_their_trackers(tmp_path):

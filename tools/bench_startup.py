@@ -96,7 +96,7 @@ def cases(capture: Path) -> list[Case]:
         *(Case(f"{verb}_help", (verb, "--help")) for verb in ("emulate", "record", "trace", "lidar", "can",
                                                              "dxl", "demo")),
         Case("emulate_arm", ("emulate", "arm"),
-             ("rich", "construct", "serial", "hilbench.bench*", "hilbench.families", "hilbench.fakes",
+             ("rich", "serial", "hilbench.bench*", "hilbench.families", "hilbench.fakes",
               "hilbench.families.dynamixel", "hilbench.families.servo_bus", "hilbench.fakes.dynamixel*",
               "hilbench.fakes.control_table_servo", "hilbench.fakes.table_servo", "hilbench.fakes.servo_bus",
               "hilbench.fakes.protocol1_bus", "hilbench.fakes.motion",
