@@ -80,6 +80,8 @@ def test_monitor_of_a_dynamixel_capture_loads_no_other_instrument_code(tmp_path,
     # the bench package's profile loader and the monitor's frame come with the names, not with the packages;
     # numpy comes with the first large buffer or damaged stretch, not with reading a capture's first bytes
     assert not modules & {"hilbench.bench.bench", "hilbench.bench.profile", "hilbench.bench.world", "numpy"}
+    # asking every instrument about the bytes runs their decoders, not their construct layouts
+    assert "construct" not in modules
 
 
 @pytest.mark.parametrize("package", ["hilbench.bench", "hilbench.monitor"])

@@ -80,7 +80,7 @@ class Case:
 
 
 def cases(capture: Path) -> list[Case]:
-    dynamixel_monitor = ("numpy", "rich", "construct", "hilbench.monitor", "hilbench.monitor.instrument",
+    dynamixel_monitor = ("numpy", "rich", "hilbench.monitor", "hilbench.monitor.instrument",
                          "hilbench.monitor.detect", "hilbench.monitor.errorlog", "hilbench.monitor.live",
                          "hilbench.monitor.dynamixel", "hilbench.monitor.dynamixel.*",
                          "hilbench.monitor.servo_bus*",  # the servo-bus kit the Dynamixel tracker builds on

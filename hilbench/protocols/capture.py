@@ -62,13 +62,13 @@ class Flags(IntFlag):
     SYNTHETIC = 2  # times were computed from byte counts at `baud`
 
 
-#: The construct layouts' names (the module's attributes, made on first use by :func:`_layouts`).
-LAYOUTS = ("HeaderBody", "Header", "RecordHeader", "Record", "GapPayload", "AddressPayload")
+#: The construct layouts' names: module attributes, made when first used (:func:`_layouts`).
+_LAYOUT_NAMES = ("HeaderBody", "Header", "RecordHeader", "Record", "GapPayload", "AddressPayload")
 
 
 @cache
 def _layouts() -> dict[str, Any]:
-    """The construct layouts (:data:`LAYOUTS`), made with construct's import when first used: the reader and
+    """The construct layouts (``_LAYOUT_NAMES``), made with construct's import when first used: the reader and
     writer run on the fast paths per record, and a tap server builds its header when a client connects, so a
     bench or monitor starts without construct."""
     from construct import (
@@ -128,11 +128,11 @@ def _layouts() -> dict[str, Any]:
         "dst_port" / Int16ul,
     )
 
-    return {name: value for name, value in locals().items() if name in LAYOUTS}
+    return {name: value for name, value in locals().items() if name in _LAYOUT_NAMES}
 
 
 def __getattr__(name: str) -> Any:
-    if name in LAYOUTS:
+    if name in _LAYOUT_NAMES:
         value = globals()[name] = _layouts()[name]
         return value
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
@@ -252,7 +252,8 @@ def build_address(addr: tuple[str, int, str, int]) -> bytes:
         src = ipaddress.IPv6Address(b"\x00" * 10 + b"\xff\xff" + src).packed if fam_s == 4 else src
         dst = ipaddress.IPv6Address(b"\x00" * 10 + b"\xff\xff" + dst).packed if fam_d == 4 else dst
         fam_s = 6
-    return _layouts()["AddressPayload"].build({"family": fam_s, "src": src, "src_port": addr[1], "dst": dst, "dst_port": addr[3]})
+    return _layouts()["AddressPayload"].build({"family": fam_s, "src": src, "src_port": addr[1], "dst": dst,
+                                               "dst_port": addr[3]})
 
 
 def parse_address(payload: bytes) -> tuple[str, int, str, int] | None:

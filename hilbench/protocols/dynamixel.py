@@ -191,15 +191,15 @@ def _wire_body_length(ctx) -> int:
 
 # --------------------------------------------------------------------------- layouts
 
-#: The construct layouts' names (the module's attributes, made on first use by :func:`_layouts`).
-LAYOUTS = ("Packet", "NoParams", "ReadParams", "WriteParams", "FactoryResetParams", "ClearParams", "BackupParams",
-           "SyncReadParams", "SyncWriteParams", "BulkReadEntry", "BulkReadParams", "BulkWriteEntry",
-           "BulkWriteParams", "StatusParams", "PingReply", "FastReplySlice", "PARAMS")
+#: The construct layouts' names: module attributes, made when first used (:func:`_layouts`).
+_LAYOUT_NAMES = ("Packet", "NoParams", "ReadParams", "WriteParams", "FactoryResetParams", "ClearParams",
+                 "BackupParams", "SyncReadParams", "SyncWriteParams", "BulkReadEntry", "BulkReadParams",
+                 "BulkWriteEntry", "BulkWriteParams", "StatusParams", "PingReply", "FastReplySlice", "PARAMS")
 
 
 @cache
 def _layouts() -> dict[str, Any]:
-    """The construct layouts, the reference definition of every packet (:data:`LAYOUTS`), made with
+    """The construct layouts, the reference definition of every packet (``_LAYOUT_NAMES``), made with
     construct's import when first used: benches and monitors run on the fast paths below and start without
     construct (tens of ms)."""
     from construct import (
@@ -288,11 +288,11 @@ def _layouts() -> dict[str, Any]:
         Instruction.STATUS: StatusParams,
     }
 
-    return {name: value for name, value in locals().items() if name in LAYOUTS}
+    return {name: value for name, value in locals().items() if name in _LAYOUT_NAMES}
 
 
 def __getattr__(name: str) -> Any:
-    if name in LAYOUTS:
+    if name in _LAYOUT_NAMES:
         value = globals()[name] = _layouts()[name]
         return value
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

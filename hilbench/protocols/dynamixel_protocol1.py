@@ -70,14 +70,14 @@ ERROR_BITS: dict[int, str] = {
     0x40: "instruction",
 }
 
-#: The construct layouts' names (the module's attributes, made on first use by :func:`_layouts`).
-LAYOUTS = ("Packet", "ReadParams", "WriteParams", "SyncWriteParams", "BulkReadParams", "SyncReadParams", "NoParams",
-           "PARAMS")
+#: The construct layouts' names: module attributes, made when first used (:func:`_layouts`).
+_LAYOUT_NAMES = ("Packet", "ReadParams", "WriteParams", "SyncWriteParams", "BulkReadParams", "SyncReadParams",
+                 "NoParams", "PARAMS")
 
 
 @cache
 def _layouts() -> dict[str, Any]:
-    """The construct layouts (:data:`LAYOUTS`), made with construct's import when first used: the decoder and
+    """The construct layouts (``_LAYOUT_NAMES``), made with construct's import when first used: the decoder and
     :func:`frame` do without them, so a bench or monitor starts without construct."""
     from construct import (
         Bytes,
@@ -138,11 +138,11 @@ def _layouts() -> dict[str, Any]:
         Instruction1.BULK_READ: BulkReadParams,
     }
 
-    return {name: value for name, value in locals().items() if name in LAYOUTS}
+    return {name: value for name, value in locals().items() if name in _LAYOUT_NAMES}
 
 
 def __getattr__(name: str) -> Any:
-    if name in LAYOUTS:
+    if name in _LAYOUT_NAMES:
         value = globals()[name] = _layouts()[name]
         return value
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
