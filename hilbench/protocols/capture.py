@@ -177,7 +177,7 @@ def build_header(
     protocol: str | None = "",
     description: str = "",
 ) -> bytes:
-    """The file header (the :data:`Header` layout, packed with ``struct``: a test proves both agree);
+    """The file header (the ``Header`` layout, packed with ``struct``: a test proves both agree);
     ``protocol`` None or "" means unknown."""
     fields = {
         "flags": int(flags),

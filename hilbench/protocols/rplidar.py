@@ -11,7 +11,8 @@ Wire layout (spec sheet laser_scanners.md §1), little-endian::
 The construct structures are the one definition of each layout: the emulated
 A1 builds with them, the decoders parse with them. Scan nodes are also
 encoded in bulk with numpy (:func:`encode_nodes`, a revolution at a time); a
-test proves it agrees with :data:`ScanNode` on every vector.
+test proves it agrees with ``ScanNode`` on every vector. The construct layouts are made when first
+used (``_layouts()``): the monitor runs the decoders on every raw capture's first bytes.
 
 Two incremental decoders never raise: :class:`RequestDecoder` frames what a
 host sends (as the device does: by bit 7 of CMD, XOR checked) and

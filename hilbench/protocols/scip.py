@@ -8,7 +8,7 @@ Wire layout (spec sheet laser_scanners.md §3)::
     data     6-bit characters (chr(v + 0x30)), 2, 3 or 4 per value; lines of at most 64 payload characters
 
 Request parameters are fixed-width decimal ASCII; their construct layouts
-(:data:`ScanParams`, :data:`ContinuousParams`) build and parse them. Replies
+(``ScanParams``, ``ContinuousParams``, made when first used) build and parse them. Replies
 are built by :func:`reply` and parsed by :func:`parse_reply`;
 :class:`ReplyDecoder` cuts a host's byte stream into replies (each ends with
 an empty line) and :class:`RequestDecoder` a device's input into request
