@@ -184,6 +184,12 @@ def _layouts() -> dict[str, Any]:
     return {name: value for name, value in locals().items() if name in _LAYOUT_NAMES}
 
 
+def layouts() -> None:
+    """Make the construct layouts now (an emulator that builds its replies with them calls this when it is
+    made, so that no client's first request waits for construct's import)."""
+    _layouts()
+
+
 def __getattr__(name: str) -> Any:
     if name in _LAYOUT_NAMES:
         value = globals()[name] = _layouts()[name]
@@ -634,6 +640,6 @@ __all__ = [
     "DeviceInfo", "ExpressRequest", "LidarConfAnswer", "MotorPwm", "Node", "PayloadRequest", "Problem",
     "Request", "RequestDecoder", "Response", "ResponseDecoder", "SampleRate", "ScanAssembler", "ScanNode",
     "ShortRequest", "capsule", "capsule_samples", "conf_answer", "descriptor", "encode_nodes", "has_payload",
-    "health_payload", "info_payload", "node", "parse_capsule", "parse_node", "parse_payload", "request",
+    "health_payload", "info_payload", "layouts", "node", "parse_capsule", "parse_node", "parse_payload", "request",
     "samplerate_payload", "xor",
 ]

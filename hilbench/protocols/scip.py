@@ -90,6 +90,12 @@ def _layouts() -> dict[str, Any]:
     return {name: value for name, value in locals().items() if name in _LAYOUT_NAMES}
 
 
+def layouts() -> None:
+    """Make the construct layouts now (an emulator that builds its replies with them calls this when it is
+    made, so that no client's first request waits for construct's import)."""
+    _layouts()
+
+
 def __getattr__(name: str) -> Any:
     if name in _LAYOUT_NAMES:
         value = globals()[name] = _layouts()[name]
@@ -371,6 +377,6 @@ class ReplyDecoder:
 __all__ = [
     "ENCODING", "INFO_COMMANDS", "LF", "LINE_PAYLOAD", "MAX_LINE", "PARAMS", "STATUS_TEXT", "TIMESTAMP_WRAP", "WITH_INTENSITY",
     "ContinuousParams", "Reply", "ReplyDecoder", "Request", "RequestDecoder", "ScanParams",
-    "check_line", "data_lines", "decode", "decode_values", "encode", "encode_values", "info_line",
+    "check_line", "data_lines", "decode", "decode_values", "encode", "encode_values", "info_line", "layouts",
     "parse_reply", "parse_request", "reply", "request", "status_line", "sum_char", "timestamp_line",
 ]

@@ -138,6 +138,12 @@ def _layouts() -> dict[str, Any]:
     return {name: value for name, value in locals().items() if name in _LAYOUT_NAMES}
 
 
+def layouts() -> None:
+    """Make the construct layouts now (an emulator that builds its replies with them calls this when it is
+    made, so that no client's first request waits for construct's import)."""
+    _layouts()
+
+
 def __getattr__(name: str) -> Any:
     if name in _LAYOUT_NAMES:
         value = globals()[name] = _layouts()[name]
@@ -331,6 +337,6 @@ __all__ = [
     "ACK", "BAUD_MODES", "CONFIG_SIZE", "CONFIG_UNITS", "LINK_BAUDS", "MAX_LEN", "MIRROR_PERIOD", "NAK", "PASSWORD",
     "POWER_UP_BAUD", "REPLY_INVALID", "REPLY_POWER_ON", "REPLY_RESET", "REVOLUTIONS", "STATUS_OK", "STX", "UNITS",
     "VARIANTS", "Cmd", "CountWord", "Decoder", "Frame", "Handshake", "Mode", "Telegram",
-    "VariantReply", "VariantRequest", "count_word", "mode_request", "parse_count_word", "parse_scan", "reply",
-    "request", "scan_data", "telegram", "variant_request",
+    "VariantReply", "VariantRequest", "count_word", "layouts", "mode_request", "parse_count_word", "parse_scan",
+    "reply", "request", "scan_data", "telegram", "variant_request",
 ]
