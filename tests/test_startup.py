@@ -80,6 +80,8 @@ def test_monitor_of_a_dynamixel_capture_loads_no_other_instrument_code(tmp_path,
     # the bench package's profile loader and the monitor's frame come with the names, not with the packages;
     # numpy comes with the first large buffer or damaged stretch, not with reading a capture's first bytes
     assert not modules & {"hilbench.bench.bench", "hilbench.bench.profile", "hilbench.bench.world", "numpy"}
+    # asking every instrument about the bytes runs their decoders, not their construct layouts
+    assert "construct" not in modules
 
 
 @pytest.mark.parametrize("package", ["hilbench.bench", "hilbench.monitor"])
@@ -117,6 +119,8 @@ def test_emulate_arm_loads_no_other_family_s_fakes(tmp_path):
             "hilbench.fakes.world", "hilbench.fakes.scene"}
     assert not others - kits, f"other families' fakes: {sorted(others - kits)}"
     assert not under(modules, "hilbench.monitor", "hilbench.dashboard", "hilbench.profiler", "dpkt")
+    assert "numpy" not in modules  # a world without walls or bodies has no arrays
+    assert "construct" not in modules  # the servos and the tap run on the protocols' fast paths
 
 
 def test_record_help_loads_the_instrument_plug_ins_not_their_trackers(tmp_path):

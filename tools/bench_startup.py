@@ -9,9 +9,10 @@ run, so the ratio survives a loaded machine. Cases: ``help`` (``hilbench --help`
 ``profiles``, ``plugins``, the ``--help`` of ``emulate``, ``record``, the trace profiler's verb, ``lidar``,
 ``can``, ``dxl`` and ``demo``, and ``emulate_arm``.
 
-Each figure (but ``emulate_arm``'s) also gives ``cpu``, the least CPU time (user + system) of the runs, and
-``reference_cpu``, the same of ``python -c pass``: on a machine other sessions load, the wall time is mostly
-waiting for a core, the CPU time is what the command costs.
+Each figure also gives ``cpu``, the least CPU time (user + system) of the runs, and ``reference_cpu``, the
+same of ``python -c pass``: on a machine other sessions load, the wall time is mostly waiting for a core, the
+CPU time is what the command costs. ``emulate_arm``'s is its CPU time until its first line: every thread's
+time on a core so far (``/proc/PID/task/*/schedstat``; Linux only, else none).
 
 Each figure also says what the verb imported (``python -X importtime``): ``modules`` (all), ``hilbench``
 (hilbench's), ``heavy`` (the large third-party packages among them) and ``unexpected``: heavy packages
@@ -20,7 +21,16 @@ not need (another family's tracker for a Dynamixel capture, the bench for a ``--
 package. ``--explain CASE`` prints, for each unexpected import, the chain of imports that brought it in
 (innermost first: ``module:line``).
 
-Usage: tools/bench_startup.py [--runs N] [--only CASE,...] [--explain CASE]
+The commands run as an installed package does, from its compiled bytecode (``__pycache__``): each case runs
+once untimed first, which writes the bytecode into a temporary ``PYTHONPYCACHEPREFIX`` (the repository and
+the environment are left alone), whatever ``PYTHONDONTWRITEBYTECODE`` says in the caller's environment.
+``--no-bytecode`` times every run compiling every module from its source instead (tens of ms more), the
+condition of a checkout whose environment sets ``PYTHONDONTWRITEBYTECODE``.
+
+The wall time is taken when the child is reaped (a blocking wait): ``subprocess.run(timeout=...)`` polls
+with sleeps of up to 50 ms, which rounded the figures up to steps of about 50 ms.
+
+Usage: tools/bench_startup.py [--runs N] [--only CASE,...] [--explain CASE] [--no-bytecode]
 """
 
 from __future__ import annotations
@@ -29,12 +39,14 @@ import argparse
 import contextlib
 import fnmatch
 import json
+import os
 import re
 import resource
 import signal
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -43,6 +55,8 @@ import benchlib
 
 REPO = benchlib.REPO
 PY = sys.executable
+#: The children's environment (:func:`set_bytecode`).
+ENV: dict[str, str] | None = None
 CAPTURE = REPO / "tests/data/dynamixel/wolfgang_trace.bin"
 CAPTURE_BYTES = 2000
 
@@ -66,7 +80,7 @@ class Case:
 
 
 def cases(capture: Path) -> list[Case]:
-    dynamixel_monitor = ("numpy", "rich", "construct", "hilbench.monitor", "hilbench.monitor.instrument",
+    dynamixel_monitor = ("numpy", "rich", "hilbench.monitor", "hilbench.monitor.instrument",
                          "hilbench.monitor.detect", "hilbench.monitor.errorlog", "hilbench.monitor.live",
                          "hilbench.monitor.dynamixel", "hilbench.monitor.dynamixel.*",
                          "hilbench.monitor.servo_bus*",  # the servo-bus kit the Dynamixel tracker builds on
@@ -82,7 +96,7 @@ def cases(capture: Path) -> list[Case]:
         *(Case(f"{verb}_help", (verb, "--help")) for verb in ("emulate", "record", "trace", "lidar", "can",
                                                              "dxl", "demo")),
         Case("emulate_arm", ("emulate", "arm"),
-             ("numpy", "rich", "construct", "serial", "hilbench.bench*", "hilbench.families", "hilbench.fakes",
+             ("rich", "serial", "hilbench.bench*", "hilbench.families", "hilbench.fakes",
               "hilbench.families.dynamixel", "hilbench.families.servo_bus", "hilbench.fakes.dynamixel*",
               "hilbench.fakes.control_table_servo", "hilbench.fakes.table_servo", "hilbench.fakes.servo_bus",
               "hilbench.fakes.protocol1_bus", "hilbench.fakes.motion",
@@ -94,18 +108,56 @@ def cases(capture: Path) -> list[Case]:
 def cpu_once(argv: list[str]) -> float:
     """CPU time (user + system) of one run to its end: what the run costs whatever else the machine runs."""
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
-    subprocess.run(argv, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=REPO, check=False, timeout=120)
+    subprocess.run(argv, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=REPO, check=False, timeout=120,
+                   env=ENV)
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     return (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+
+
+def cpu_so_far(pid: int) -> float | None:
+    """CPU time (s) of every thread of process ``pid`` so far (the first field of each thread's schedstat: ns
+    on a core), or None where /proc does not say."""
+    total = 0
+    try:
+        for task in Path(f"/proc/{pid}/task").iterdir():
+            with contextlib.suppress(FileNotFoundError):  # (a thread that just ended)
+                total += int((task / "schedstat").read_text().split()[0])
+    except (OSError, ValueError, IndexError):
+        return None
+    return total / 1e9
+
+
+def first_line_cpu(argv: list[str]) -> float | None:
+    """CPU time of one run until its first line of output (then it is interrupted)."""
+    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, cwd=REPO, env=ENV)
+    try:
+        if not proc.stdout.readline():
+            raise SystemExit(f"{' '.join(argv)}: no output")
+        return cpu_so_far(proc.pid)
+    finally:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(timeout=15)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+        proc.stdout.close()
 
 
 def run_once(argv: list[str], first_line: bool, stderr: int | None = subprocess.DEVNULL) -> float:
     """Wall time of one run: until it exits, or until its first line of output (then it is interrupted)."""
     t0 = time.perf_counter()
     if not first_line:
-        subprocess.run(argv, stdout=subprocess.DEVNULL, stderr=stderr, cwd=REPO, check=False, timeout=120)
+        proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=stderr, cwd=REPO, env=ENV)
+        # A blocking wait reaps the child when it ends (wait(timeout=...) polls in steps of up to 50 ms).
+        watchdog = threading.Timer(120, proc.kill)
+        watchdog.start()
+        try:
+            proc.wait()
+        finally:
+            watchdog.cancel()
         return time.perf_counter() - t0
-    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=stderr, cwd=REPO)
+    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=stderr, cwd=REPO, env=ENV)
     try:
         line = proc.stdout.readline()
         took = time.perf_counter() - t0
@@ -123,7 +175,18 @@ def run_once(argv: list[str], first_line: bool, stderr: int | None = subprocess.
 
 
 def least(argv: list[str], runs: int, first_line: bool = False) -> float:
+    run_once(argv, first_line)  # untimed: writes the bytecode (and warms the page cache)
     return min(run_once(argv, first_line) for _ in range(runs))
+
+
+def set_bytecode(cache: Path | None) -> None:
+    """Let the children write and use their bytecode under ``cache``, or (None) compile every module each run."""
+    global ENV
+    ENV = {k: v for k, v in os.environ.items() if k not in ("PYTHONDONTWRITEBYTECODE", "PYTHONPYCACHEPREFIX")}
+    if cache is None:
+        ENV["PYTHONDONTWRITEBYTECODE"] = "1"
+    else:
+        ENV["PYTHONPYCACHEPREFIX"] = str(cache)
 
 
 def imported(case: Case) -> list[str]:
@@ -213,8 +276,11 @@ def main() -> None:
     ap.add_argument("--explain", metavar="CASE", help="print who imported each unexpected module of CASE")
     ap.add_argument("--capture", type=Path, default=CAPTURE, help="the Dynamixel capture whose first 2 000 "
                     "bytes the monitor reads")
+    ap.add_argument("--no-bytecode", action="store_true", help="compile every module from its source in every "
+                    "run (no __pycache__), as in an environment that sets PYTHONDONTWRITEBYTECODE")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory(prefix="hilbench-startup-") as tmp:
+        set_bytecode(None if args.no_bytecode else Path(tmp) / "pycache")
         small = Path(tmp) / "dynamixel_small.bin"
         small.write_bytes(args.capture.read_bytes()[:CAPTURE_BYTES])
         todo = cases(small)
@@ -235,10 +301,15 @@ def main() -> None:
             argv = [PY, "-m", "hilbench.cli", *case.args]
             took = least(argv, args.runs, case.first_line)
             # (a bench runs until stopped: its CPU time to the first line is not the process's)
-            cpu = None if case.first_line else min(cpu_once(argv) for _ in range(args.runs))
+            if case.first_line:
+                cpus = [first_line_cpu(argv) for _ in range(args.runs)]
+                cpu = None if None in cpus else min(cpus)
+            else:
+                cpu = min(cpu_once(argv) for _ in range(args.runs))
             modules = imported(case)
             benchlib.emit(f"startup_{case.name}", took, "s", reference, took / reference, ratio_digits=1,
                           cpu=round(cpu, 3) if cpu is not None else None, reference_cpu=round(reference_cpu, 3),
+                          bytecode=not args.no_bytecode,
                           modules=len(modules), hilbench=sum(m.startswith("hilbench") for m in modules),
                           heavy=sorted({h for m in modules if (h := heavy(m))}),
                           unexpected=sorted(unexpected(case, modules)))

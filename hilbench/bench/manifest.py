@@ -35,9 +35,7 @@ import contextlib
 import errno
 import json
 import os
-import secrets
 import stat
-import tempfile
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -217,6 +215,8 @@ class ManifestClaim:
 
 def new_token() -> str:
     """A token naming one bench's manifests (the writer recognises its own by it)."""
+    import secrets  # (here: the manifest source plug-in is loaded by every monitor, secrets imports hashlib)
+
     return secrets.token_hex(8)
 
 
@@ -259,6 +259,8 @@ def write_manifest(path: str | os.PathLike[str], data: dict[str, Any], *, token:
     ``token`` names the writing bench (:func:`new_token`; a new one if None): its own manifest is
     replaced, a stale one taken over, anything else refused (see :func:`check_path`).
     """
+    import tempfile  # (here: every monitor loads this module's source plug-in, not the writer)
+
     path = Path(path)
     token = token or new_token()
     doc = {MARKER: FORMAT, **data, "token": token}

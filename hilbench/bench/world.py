@@ -220,11 +220,10 @@ def build_world(profile, t: float, clock: Any = None) -> World:
     """The world of a checked profile at bench time ``t``: its geometry (``[world]``, or the older
     ``[scene]``) and bodies, on the bench's ``clock`` (a :class:`~hilbench.transports.clock.WallClock`,
     the wall clock if None; a virtual clock's loop steps the world)."""
-    from hilbench.fakes.scene import Scene
     from hilbench.fakes.world import Body, Shape, World
 
     spec: WorldSpec = profile.world or WorldSpec()
-    scene = spec.scene or profile.tables.get("scene") or Scene()
+    scene = spec.scene or profile.tables.get("scene")  # (None: the world's empty one, made when asked for)
     bodies = [Body(b.name, Shape(b.shape, b.size, b.radius), b.x, b.y, b.theta, reflectivity=b.reflectivity)
               for b in spec.bodies]
     if clock is None:

@@ -17,8 +17,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
-import numpy as np
+from hilbench.lazy_module import LazyModule
+
+if TYPE_CHECKING:
+    import numpy as np
+else:  # (numpy comes with the first array: a bench without walls or bodies starts without it)
+    np = LazyModule("numpy", globals(), "np")
 
 
 @dataclass(frozen=True)

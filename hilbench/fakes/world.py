@@ -37,12 +37,16 @@ import math
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
-
-import numpy as np
+from typing import TYPE_CHECKING, Any
 
 from hilbench.fakes.scene import Scene, hit_circles
+from hilbench.lazy_module import LazyModule
 from hilbench.transports.clock import WALL
+
+if TYPE_CHECKING:
+    import numpy as np
+else:  # (numpy comes with the first array: a bench without walls or bodies starts without it)
+    np = LazyModule("numpy", globals(), "np")
 
 #: Default world step (s): 200 Hz, so every body's pose is known at least every 5 ms.
 STEP = 0.005
@@ -204,7 +208,7 @@ class World:
                  t0: float | None = None, step: float = STEP, clock: Callable[[], float] = WALL.now,
                  wall: Callable[[float], float] = WALL.wall,
                  timer: Callable[[float, Callable[[], None]], None] | None = None) -> None:
-        self.scene = scene if scene is not None else Scene()
+        self._scene = scene  # (None: an empty one, made when first asked for; its arrays need numpy)
         self.bodies: dict[str, Body] = {}
         self.clock = clock
         self.wall = wall
@@ -222,6 +226,17 @@ class World:
         self._stop = threading.Event()
         for b in bodies:
             self.add_body(b)
+
+    @property
+    def scene(self) -> Scene:
+        """The static geometry and the movers (an empty scene if the world was given none)."""
+        if self._scene is None:
+            self._scene = Scene()
+        return self._scene
+
+    @scene.setter
+    def scene(self, scene: Scene) -> None:
+        self._scene = scene
 
     # ------------------------------------------------------------------ bodies
 
@@ -272,7 +287,8 @@ class World:
             dt = t - self.t
             if dt <= 0:
                 return
-            mover_segs, _, mover_circ, _ = self._movers(t)
+            if self.bodies:  # (a world without bodies moves nothing: no arrays, no numpy)
+                mover_segs, _, mover_circ, _ = self._movers(t)
             for name, b in self.bodies.items():
                 m = readings.get(name)
                 if m is None or b.driver is None:

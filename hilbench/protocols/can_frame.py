@@ -35,9 +35,12 @@ from __future__ import annotations
 
 import struct
 from functools import lru_cache
-from typing import NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
-from construct import Bytes, Int8ul, Int32ul, Padding, Struct
+if TYPE_CHECKING:
+    from construct import Struct
+
+    SocketCanFrame: Struct
 
 CAN_EFF_FLAG = 0x80000000
 CAN_RTR_FLAG = 0x40000000
@@ -157,14 +160,23 @@ def error_class_names(error_class: int) -> list[str]:
 
 # --------------------------------------------------------------------------- SocketCAN layout
 
-#: ``struct can_frame`` (the reference layout; :func:`pack`/:func:`unpack` are its fast paths).
-SocketCanFrame = Struct(
-    "can_id" / Int32ul,
-    "len" / Int8ul,
-    Padding(2),
-    "len8_dlc" / Int8ul,
-    "data" / Bytes(8),
-)
+
+def __getattr__(name: str) -> Any:
+    """``SocketCanFrame``: ``struct can_frame``, the reference layout (:func:`pack`/:func:`unpack` are its fast
+    paths), made with construct's import when first asked for (nothing but tests needs it)."""
+    if name != "SocketCanFrame":
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    from construct import Bytes, Int8ul, Int32ul, Padding, Struct
+
+    value = globals()[name] = Struct(
+        "can_id" / Int32ul,
+        "len" / Int8ul,
+        Padding(2),
+        "len8_dlc" / Int8ul,
+        "data" / Bytes(8),
+    )
+    return value
+
 
 _FRAME = struct.Struct("<IB2xB8s")
 

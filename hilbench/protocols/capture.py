@@ -39,21 +39,8 @@ from __future__ import annotations
 
 import struct
 from enum import IntEnum, IntFlag
-from typing import NamedTuple
-
-from construct import (
-    Bytes,
-    Const,
-    Float64l,
-    Int8ul,
-    Int16ul,
-    Int32ul,
-    Int64sl,
-    PascalString,
-    Prefixed,
-    Struct,
-    this,
-)
+from functools import cache
+from typing import Any, NamedTuple
 
 MAGIC = b"\x89HBC\r\n\x1a\n"
 VERSION = 1
@@ -75,43 +62,90 @@ class Flags(IntFlag):
     SYNTHETIC = 2  # times were computed from byte counts at `baud`
 
 
-HeaderBody = Struct(
-    "flags" / Int16ul,
-    "baud" / Int32ul,
-    "t0_wall" / Float64l,
-    "t0_monotonic" / Float64l,
-    "protocol" / PascalString(Int8ul, "utf8"),
-    "description" / PascalString(Int8ul, "utf8"),
-)
+#: The construct layouts' names: module attributes, made when first used (:func:`_layouts`).
+_LAYOUT_NAMES = ("HeaderBody", "Header", "RecordHeader", "Record", "GapPayload", "AddressPayload")
 
-#: The file header: magic, version, then a length-prefixed body (future fields go at its end).
-Header = Struct(
-    "magic" / Const(MAGIC),
-    "version" / Int16ul,
-    "body" / Prefixed(Int16ul, HeaderBody),
-)
 
-RecordHeader = Struct(
-    "kind" / Int8ul,
-    "source" / Int8ul,
-    "length" / Int16ul,
-    "t_ns" / Int64sl,
-)
+@cache
+def _layouts() -> dict[str, Any]:
+    """The construct layouts (``_LAYOUT_NAMES``), made with construct's import when first used: the reader and
+    writer run on the fast paths per record, and a tap server builds its header when a client connects, so a
+    bench or monitor starts without construct."""
+    from construct import (
+        Bytes,
+        Const,
+        Float64l,
+        Int8ul,
+        Int16ul,
+        Int32ul,
+        Int64sl,
+        PascalString,
+        Prefixed,
+        Struct,
+        this,
+    )
 
-Record = Struct(
-    "kind" / Int8ul,
-    "source" / Int8ul,
-    "length" / Int16ul,
-    "t_ns" / Int64sl,
-    "payload" / Bytes(this.length),
-)
+    HeaderBody = Struct(
+        "flags" / Int16ul,
+        "baud" / Int32ul,
+        "t0_wall" / Float64l,
+        "t0_monotonic" / Float64l,
+        "protocol" / PascalString(Int8ul, "utf8"),
+        "description" / PascalString(Int8ul, "utf8"),
+    )
+
+    #: The file header: magic, version, then a length-prefixed body (future fields go at its end).
+    Header = Struct(
+        "magic" / Const(MAGIC),
+        "version" / Int16ul,
+        "body" / Prefixed(Int16ul, HeaderBody),
+    )
+
+    RecordHeader = Struct(
+        "kind" / Int8ul,
+        "source" / Int8ul,
+        "length" / Int16ul,
+        "t_ns" / Int64sl,
+    )
+
+    Record = Struct(
+        "kind" / Int8ul,
+        "source" / Int8ul,
+        "length" / Int16ul,
+        "t_ns" / Int64sl,
+        "payload" / Bytes(this.length),
+    )
+
+    #: The payload of a GAP record: how many bytes of the source were lost.
+    GapPayload = Struct("lost" / Int32ul)
+
+    #: The payload of an ADDRESS record (a datagram's addresses; ports little-endian like every integer here).
+    AddressPayload = Struct(
+        "family" / Int8ul,
+        "src" / Bytes(lambda ctx: 4 if ctx.family == 4 else 16),
+        "src_port" / Int16ul,
+        "dst" / Bytes(lambda ctx: 4 if ctx.family == 4 else 16),
+        "dst_port" / Int16ul,
+    )
+
+    return {name: value for name, value in locals().items() if name in _LAYOUT_NAMES}
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAYOUT_NAMES:
+        value = globals()[name] = _layouts()[name]
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 #: Bytes of a record before its payload.
-RECORD_HEADER_SIZE = RecordHeader.sizeof()
+RECORD_HEADER_SIZE = 12  # (the construct layout's RecordHeader.sizeof(): a test keeps them equal)
 #: Bytes of the header up to and including body_size (the body follows).
 HEADER_PREFIX_SIZE = len(MAGIC) + 4
 
 _RECORD = struct.Struct("<BBHq")
+_HEADER_SIZES = struct.Struct("<HH")  # version, body_size
+_HEADER_BODY = struct.Struct("<HIdd")  # flags, baud, t0_wall, t0_monotonic (then protocol and description)
 
 
 class CaptureInfo(NamedTuple):
@@ -143,20 +177,22 @@ def build_header(
     protocol: str | None = "",
     description: str = "",
 ) -> bytes:
-    """The file header (construct layout); ``protocol`` None or "" means unknown."""
-    return Header.build(
-        {
-            "version": VERSION,
-            "body": {
-                "flags": int(flags),
-                "baud": baud or 0,
-                "t0_wall": t0_wall,
-                "t0_monotonic": t0_monotonic,
-                "protocol": (protocol or "")[:255],
-                "description": description.encode()[:255].decode(errors="ignore"),
-            },
-        }
-    )
+    """The file header (the ``Header`` layout, packed with ``struct``: a test proves both agree);
+    ``protocol`` None or "" means unknown."""
+    fields = {
+        "flags": int(flags),
+        "baud": baud or 0,
+        "t0_wall": t0_wall,
+        "t0_monotonic": t0_monotonic,
+        "protocol": (protocol or "")[:255],
+        "description": description.encode()[:255].decode(errors="ignore"),
+    }
+    name, text = fields["protocol"].encode(), fields["description"].encode()
+    if len(name) > 255:  # (no str8 holds it: the layout raises its own error)
+        return _layouts()["Header"].build({"version": VERSION, "body": fields})
+    body = (_HEADER_BODY.pack(fields["flags"], fields["baud"], t0_wall, t0_monotonic) + bytes((len(name),)) + name
+            + bytes((len(text),)) + text)
+    return MAGIC + _HEADER_SIZES.pack(VERSION, len(body)) + body
 
 
 def parse_header(data: bytes) -> CaptureInfo:
@@ -166,7 +202,7 @@ def parse_header(data: bytes) -> CaptureInfo:
     version = data[8] | data[9] << 8
     if version > VERSION:
         raise ValueError(f"capture format version {version} is newer than this hilbench reads ({VERSION})")
-    c = Header.parse(data)
+    c = _layouts()["Header"].parse(data)
     b = c.body
     return CaptureInfo(c.version, b.flags, b.baud or None, b.t0_wall, b.t0_monotonic, b.protocol, b.description)
 
@@ -186,28 +222,14 @@ def unpack_record_header(buf: bytes, offset: int = 0) -> tuple[int, int, int, in
     return _RECORD.unpack_from(buf, offset)
 
 
-#: The payload of a GAP record: how many bytes of the source were lost.
-GapPayload = Struct("lost" / Int32ul)
-
-
 def gap_record(source: int, t_ns: int, lost: int) -> bytes:
     """A GAP record: ``lost`` bytes of ``source`` (capped at 2^32 - 1) never reached the reader."""
-    return pack_record(RecordKind.GAP, source, t_ns, GapPayload.build({"lost": min(lost, 0xFFFFFFFF)}))
+    return pack_record(RecordKind.GAP, source, t_ns, _layouts()["GapPayload"].build({"lost": min(lost, 0xFFFFFFFF)}))
 
 
 def gap_lost(payload: bytes) -> int | None:
     """The byte count of a GAP record's payload, or None if it is too short."""
-    return GapPayload.parse(payload).lost if len(payload) >= GapPayload.sizeof() else None
-
-
-#: The payload of an ADDRESS record (a datagram's addresses; ports little-endian like every integer here).
-AddressPayload = Struct(
-    "family" / Int8ul,
-    "src" / Bytes(lambda ctx: 4 if ctx.family == 4 else 16),
-    "src_port" / Int16ul,
-    "dst" / Bytes(lambda ctx: 4 if ctx.family == 4 else 16),
-    "dst_port" / Int16ul,
-)
+    return _layouts()["GapPayload"].parse(payload).lost if len(payload) >= 4 else None
 
 
 def _ip_bytes(host: str) -> tuple[int, bytes]:
@@ -230,7 +252,8 @@ def build_address(addr: tuple[str, int, str, int]) -> bytes:
         src = ipaddress.IPv6Address(b"\x00" * 10 + b"\xff\xff" + src).packed if fam_s == 4 else src
         dst = ipaddress.IPv6Address(b"\x00" * 10 + b"\xff\xff" + dst).packed if fam_d == 4 else dst
         fam_s = 6
-    return AddressPayload.build({"family": fam_s, "src": src, "src_port": addr[1], "dst": dst, "dst_port": addr[3]})
+    return _layouts()["AddressPayload"].build({"family": fam_s, "src": src, "src_port": addr[1], "dst": dst,
+                                               "dst_port": addr[3]})
 
 
 def parse_address(payload: bytes) -> tuple[str, int, str, int] | None:
@@ -239,7 +262,7 @@ def parse_address(payload: bytes) -> tuple[str, int, str, int] | None:
 
     if not payload or payload[0] not in (4, 6) or len(payload) < (13 if payload[0] == 4 else 37):
         return None
-    a = AddressPayload.parse(payload)
+    a = _layouts()["AddressPayload"].parse(payload)
     return str(ipaddress.ip_address(a.src)), a.src_port, str(ipaddress.ip_address(a.dst)), a.dst_port
 
 

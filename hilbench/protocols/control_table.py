@@ -16,6 +16,13 @@ from __future__ import annotations
 import re
 import struct
 from dataclasses import dataclass, field
+from functools import lru_cache
+
+
+@lru_cache(maxsize=4096)
+def _key(name: str) -> str:
+    # (every model of a family repeats most names: each is worked out once)
+    return re.sub(r"[^a-z0-9]+", "_", name.lower()).strip("_")
 
 
 @dataclass(frozen=True)
@@ -48,7 +55,7 @@ class Field:
     @property
     def key(self) -> str:
         """snake_case name, e.g. ``present_position``."""
-        return re.sub(r"[^a-z0-9]+", "_", self.name.lower()).strip("_")
+        return _key(self.name)
 
     @property
     def writable(self) -> bool:

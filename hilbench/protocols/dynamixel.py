@@ -24,31 +24,14 @@ from collections.abc import Iterator, Sequence
 from enum import IntEnum
 from functools import cache
 from struct import Struct as Struct_
-from typing import TYPE_CHECKING, NamedTuple
-
-from construct import (
-    Adapter,
-    Bytes,
-    Checksum,
-    Const,
-    Container,
-    GreedyBytes,
-    GreedyRange,
-    Int8ul,
-    Int16ul,
-    OneOf,
-    RawCopy,
-    Rebuild,
-    Struct,
-    Terminated,
-    this,
-)
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 from hilbench.protocols.checksums import crc16_buypass, raw_crc_routine
 from hilbench.protocols.problem import Problem
 
 if TYPE_CHECKING:
     import numpy as np
+    from construct import Container, Struct
 
 HEADER = b"\xff\xff\xfd\x00"
 #: The pattern that stuffing escapes, and its escaped form.
@@ -201,16 +184,6 @@ def _is_fast_reply(packet_id: int, body: bytes) -> bool:
     return packet_id == BROADCAST_ID and body[:1] == b"\x55"
 
 
-class _Stuffing(Adapter):
-    """Adapter between the transmitted (stuffed) body and the logical one."""
-
-    def _decode(self, obj, context, path):
-        return obj if _is_fast_reply(context.id, obj) else unstuff(obj)
-
-    def _encode(self, obj, context, path):
-        return obj if _is_fast_reply(context.id, obj) else stuff(obj)
-
-
 def _wire_body_length(ctx) -> int:
     body = ctx.body
     return len(body if _is_fast_reply(ctx.id, body) else stuff(body))
@@ -218,65 +191,112 @@ def _wire_body_length(ctx) -> int:
 
 # --------------------------------------------------------------------------- layouts
 
-#: A whole Protocol 2.0 packet. ``body`` is INSTRUCTION + PARAMETERS, unstuffed.
-Packet = Struct(
-    "frame"
-    / RawCopy(
-        Struct(
-            "header" / Const(HEADER),
-            "id" / Int8ul,
-            "length" / Rebuild(Int16ul, lambda ctx: _wire_body_length(ctx) + 2),
-            "body" / _Stuffing(Bytes(this.length - 2)),
-        )
-    ),
-    "crc" / Checksum(Int16ul, crc16_buypass, this.frame.data),
-)
+#: The construct layouts' names: module attributes, made when first used (:func:`_layouts`).
+_LAYOUT_NAMES = ("Packet", "NoParams", "ReadParams", "WriteParams", "FactoryResetParams", "ClearParams",
+                 "BackupParams", "SyncReadParams", "SyncWriteParams", "BulkReadEntry", "BulkReadParams",
+                 "BulkWriteEntry", "BulkWriteParams", "StatusParams", "PingReply", "FastReplySlice", "PARAMS")
 
-#: Parameter layouts per instruction, all unstuffed. ``Terminated`` makes a parse
-#: fail when entries do not tile the parameters exactly (spec §2.5).
-NoParams = Struct(Terminated)
-ReadParams = Struct("address" / Int16ul, "length" / Int16ul, Terminated)
-WriteParams = Struct("address" / Int16ul, "data" / GreedyBytes)
-FactoryResetParams = Struct("mode" / OneOf(Int8ul, [0xFF, 0x01, 0x02]), Terminated)
-ClearParams = Struct("mode" / OneOf(Int8ul, [0x01, 0x02]), "key" / Bytes(4), Terminated)
-BackupParams = Struct("mode" / OneOf(Int8ul, [0x01, 0x02]), "key" / Const(BACKUP_KEY), Terminated)
-SyncReadParams = Struct("address" / Int16ul, "length" / Int16ul, "ids" / GreedyRange(Int8ul), Terminated)
-SyncWriteParams = Struct(
-    "address" / Int16ul,
-    "length" / Int16ul,
-    "entries" / GreedyRange(Struct("id" / Int8ul, "data" / Bytes(this._.length))),
-    Terminated,
-)
-BulkReadEntry = Struct("id" / Int8ul, "address" / Int16ul, "length" / Int16ul)
-BulkReadParams = Struct("entries" / GreedyRange(BulkReadEntry), Terminated)
-BulkWriteEntry = Struct("id" / Int8ul, "address" / Int16ul, "length" / Int16ul, "data" / Bytes(this.length))
-BulkWriteParams = Struct("entries" / GreedyRange(BulkWriteEntry), Terminated)
-#: Status: ERR then data. A Ping reply's data is PingReply.
-StatusParams = Struct("error" / Int8ul, "data" / GreedyBytes)
-PingReply = Struct("model_number" / Int16ul, "firmware" / Int8ul, Terminated)
-#: One slice of the combined Fast Sync/Bulk Read reply. Its CRC runs over every
-#: byte from the packet's first FF through this slice's data, which construct
-#: cannot express as a local checksum, so build_fast_reply computes it.
-FastReplySlice = Struct("error" / Int8ul, "id" / Int8ul, "data" / Bytes(this._.length), "crc" / Int16ul)
 
-PARAMS: dict[int, Struct] = {
-    Instruction.PING: NoParams,
-    Instruction.READ: ReadParams,
-    Instruction.WRITE: WriteParams,
-    Instruction.REG_WRITE: WriteParams,
-    Instruction.ACTION: NoParams,
-    Instruction.FACTORY_RESET: FactoryResetParams,
-    Instruction.REBOOT: NoParams,
-    Instruction.CLEAR: ClearParams,
-    Instruction.BACKUP: BackupParams,
-    Instruction.SYNC_READ: SyncReadParams,
-    Instruction.SYNC_WRITE: SyncWriteParams,
-    Instruction.FAST_SYNC_READ: SyncReadParams,
-    Instruction.BULK_READ: BulkReadParams,
-    Instruction.BULK_WRITE: BulkWriteParams,
-    Instruction.FAST_BULK_READ: BulkReadParams,
-    Instruction.STATUS: StatusParams,
-}
+@cache
+def _layouts() -> dict[str, Any]:
+    """The construct layouts, the reference definition of every packet (``_LAYOUT_NAMES``), made with
+    construct's import when first used: benches and monitors run on the fast paths below and start without
+    construct (tens of ms)."""
+    from construct import (
+        Adapter,
+        Bytes,
+        Checksum,
+        Const,
+        GreedyBytes,
+        GreedyRange,
+        Int8ul,
+        Int16ul,
+        OneOf,
+        RawCopy,
+        Rebuild,
+        Struct,
+        Terminated,
+        this,
+    )
+
+    class _Stuffing(Adapter):
+        """Adapter between the transmitted (stuffed) body and the logical one."""
+
+        def _decode(self, obj, context, path):
+            return obj if _is_fast_reply(context.id, obj) else unstuff(obj)
+
+        def _encode(self, obj, context, path):
+            return obj if _is_fast_reply(context.id, obj) else stuff(obj)
+
+    #: A whole Protocol 2.0 packet. ``body`` is INSTRUCTION + PARAMETERS, unstuffed.
+    Packet = Struct(
+        "frame"
+        / RawCopy(
+            Struct(
+                "header" / Const(HEADER),
+                "id" / Int8ul,
+                "length" / Rebuild(Int16ul, lambda ctx: _wire_body_length(ctx) + 2),
+                "body" / _Stuffing(Bytes(this.length - 2)),
+            )
+        ),
+        "crc" / Checksum(Int16ul, crc16_buypass, this.frame.data),
+    )
+
+    #: Parameter layouts per instruction, all unstuffed. ``Terminated`` makes a parse
+    #: fail when entries do not tile the parameters exactly (spec §2.5).
+    NoParams = Struct(Terminated)
+    ReadParams = Struct("address" / Int16ul, "length" / Int16ul, Terminated)
+    WriteParams = Struct("address" / Int16ul, "data" / GreedyBytes)
+    FactoryResetParams = Struct("mode" / OneOf(Int8ul, [0xFF, 0x01, 0x02]), Terminated)
+    ClearParams = Struct("mode" / OneOf(Int8ul, [0x01, 0x02]), "key" / Bytes(4), Terminated)
+    BackupParams = Struct("mode" / OneOf(Int8ul, [0x01, 0x02]), "key" / Const(BACKUP_KEY), Terminated)
+    SyncReadParams = Struct("address" / Int16ul, "length" / Int16ul, "ids" / GreedyRange(Int8ul), Terminated)
+    SyncWriteParams = Struct(
+        "address" / Int16ul,
+        "length" / Int16ul,
+        "entries" / GreedyRange(Struct("id" / Int8ul, "data" / Bytes(this._.length))),
+        Terminated,
+    )
+    BulkReadEntry = Struct("id" / Int8ul, "address" / Int16ul, "length" / Int16ul)
+    BulkReadParams = Struct("entries" / GreedyRange(BulkReadEntry), Terminated)
+    BulkWriteEntry = Struct("id" / Int8ul, "address" / Int16ul, "length" / Int16ul, "data" / Bytes(this.length))
+    BulkWriteParams = Struct("entries" / GreedyRange(BulkWriteEntry), Terminated)
+    #: Status: ERR then data. A Ping reply's data is PingReply.
+    StatusParams = Struct("error" / Int8ul, "data" / GreedyBytes)
+    PingReply = Struct("model_number" / Int16ul, "firmware" / Int8ul, Terminated)
+    #: One slice of the combined Fast Sync/Bulk Read reply. Its CRC runs over every
+    #: byte from the packet's first FF through this slice's data, which construct
+    #: cannot express as a local checksum, so build_fast_reply computes it.
+    FastReplySlice = Struct("error" / Int8ul, "id" / Int8ul, "data" / Bytes(this._.length), "crc" / Int16ul)
+
+    PARAMS: dict[int, Struct] = {
+        Instruction.PING: NoParams,
+        Instruction.READ: ReadParams,
+        Instruction.WRITE: WriteParams,
+        Instruction.REG_WRITE: WriteParams,
+        Instruction.ACTION: NoParams,
+        Instruction.FACTORY_RESET: FactoryResetParams,
+        Instruction.REBOOT: NoParams,
+        Instruction.CLEAR: ClearParams,
+        Instruction.BACKUP: BackupParams,
+        Instruction.SYNC_READ: SyncReadParams,
+        Instruction.SYNC_WRITE: SyncWriteParams,
+        Instruction.FAST_SYNC_READ: SyncReadParams,
+        Instruction.BULK_READ: BulkReadParams,
+        Instruction.BULK_WRITE: BulkWriteParams,
+        Instruction.FAST_BULK_READ: BulkReadParams,
+        Instruction.STATUS: StatusParams,
+    }
+
+    return {name: value for name, value in locals().items() if name in _LAYOUT_NAMES}
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAYOUT_NAMES:
+        value = globals()[name] = _layouts()[name]
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 #: Instructions that are valid only when broadcast (ID FE).
 BROADCAST_ONLY = frozenset(
@@ -317,7 +337,7 @@ class InstructionPacket(NamedTuple):
 
     def fields(self) -> Container:
         """Parameters decoded with the construct layout of this instruction."""
-        return PARAMS[self.instruction].parse(self.params)
+        return _layouts()["PARAMS"][self.instruction].parse(self.params)
 
 
 class StatusPacket(NamedTuple):
@@ -367,13 +387,14 @@ def build(packet_id: int, instruction: int, **fields) -> bytes:
     ``fields`` are the parameter fields of the instruction, e.g.
     ``build(1, Instruction.READ, address=132, length=4)``.
     """
-    params = PARAMS[instruction].build(fields)
-    return Packet.build({"frame": {"value": {"id": packet_id, "body": bytes([instruction]) + params}}})
+    layouts = _layouts()
+    params = layouts["PARAMS"][instruction].build(fields)
+    return layouts["Packet"].build({"frame": {"value": {"id": packet_id, "body": bytes([instruction]) + params}}})
 
 
 def parse(raw: bytes) -> InstructionPacket | StatusPacket:
     """Parse one whole packet with the construct layouts (reference path); raises on bad input."""
-    c = Packet.parse(raw)
+    c = _layouts()["Packet"].parse(raw)
     frame = c.frame.value
     body = frame.body
     if body[0] == STATUS:

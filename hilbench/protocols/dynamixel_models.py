@@ -11,6 +11,7 @@ knows about packets or does I/O.
 from __future__ import annotations
 
 from dataclasses import replace
+from functools import cache
 
 from hilbench.protocols.control_table import Field, Model, model_named
 from hilbench.protocols.dynamixel_classic_models import CLASSIC_MODELS
@@ -174,6 +175,14 @@ def _x_mx_fields(
     ]
     if x_series:
         fs.append(Field(147, 1, "Backup Ready", "R", 0))
+    return (*fs, *_indirect_fields())
+
+
+@cache
+def _indirect_fields() -> tuple[Field, ...]:
+    """The 56 Indirect Address/Data pairs every X/MX(2.0) table ends with (one set of frozen fields for all
+    models: building them per model was most of this module's import time)."""
+    fs = []
     for i in range(28):
         fs.append(Field(168 + 2 * i, 2, f"Indirect Address {i + 1}", "RW", 224 + i, 64, 661))
         fs.append(Field(224 + i, 1, f"Indirect Data {i + 1}", "RW", 0))

@@ -20,26 +20,14 @@ servo that did not answer. Feetech's servos use the same framing
 from __future__ import annotations
 
 from enum import IntEnum
-from typing import NamedTuple
-
-from construct import (
-    Bytes,
-    Checksum,
-    Const,
-    Container,
-    GreedyBytes,
-    GreedyRange,
-    Int8ul,
-    RawCopy,
-    Rebuild,
-    Struct,
-    Terminated,
-    len_,
-    this,
-)
+from functools import cache
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 from hilbench.protocols.checksums import dynamixel1_checksum
 from hilbench.protocols.problem import Problem
+
+if TYPE_CHECKING:
+    from construct import Container, Struct
 
 HEADER = b"\xff\xff"
 BROADCAST_ID = 0xFE
@@ -82,49 +70,82 @@ ERROR_BITS: dict[int, str] = {
     0x40: "instruction",
 }
 
-Packet = Struct(
-    "frame"
-    / RawCopy(
-        Struct(
-            "header" / Const(HEADER),
-            "id" / Int8ul,
-            "length" / Rebuild(Int8ul, len_(this.params) + 2),
-            "code" / Int8ul,
-            "params" / Bytes(this.length - 2),
-        )
-    ),
-    # The checksum covers ID..last parameter, i.e. the frame without its 2-byte header.
-    "checksum" / Checksum(Int8ul, lambda data: dynamixel1_checksum(data[2:]), this.frame.data),
-)
+#: The construct layouts' names: module attributes, made when first used (:func:`_layouts`).
+_LAYOUT_NAMES = ("Packet", "ReadParams", "WriteParams", "SyncWriteParams", "BulkReadParams", "SyncReadParams",
+                 "NoParams", "PARAMS")
 
-ReadParams = Struct("address" / Int8ul, "length" / Int8ul, Terminated)
-WriteParams = Struct("address" / Int8ul, "data" / GreedyBytes)
-SyncWriteParams = Struct(
-    "address" / Int8ul,
-    "length" / Int8ul,
-    "entries" / GreedyRange(Struct("id" / Int8ul, "data" / Bytes(this._.length))),
-    Terminated,
-)
-BulkReadParams = Struct(
-    "zero" / Const(b"\x00"),
-    "entries" / GreedyRange(Struct("length" / Int8ul, "id" / Int8ul, "address" / Int8ul)),
-    Terminated,
-)
-SyncReadParams = Struct("address" / Int8ul, "length" / Int8ul, "ids" / GreedyRange(Int8ul))
-NoParams = Struct(Terminated)
 
-PARAMS: dict[int, Struct] = {
-    Instruction1.PING: NoParams,
-    Instruction1.READ: ReadParams,
-    Instruction1.WRITE: WriteParams,
-    Instruction1.REG_WRITE: WriteParams,
-    Instruction1.ACTION: NoParams,
-    Instruction1.RESET: NoParams,
-    Instruction1.REBOOT: NoParams,
-    Instruction1.SYNC_WRITE: SyncWriteParams,
-    Instruction1.SYNC_READ: SyncReadParams,
-    Instruction1.BULK_READ: BulkReadParams,
-}
+@cache
+def _layouts() -> dict[str, Any]:
+    """The construct layouts (``_LAYOUT_NAMES``), made with construct's import when first used: the decoder and
+    :func:`frame` do without them, so a bench or monitor starts without construct."""
+    from construct import (
+        Bytes,
+        Checksum,
+        Const,
+        GreedyBytes,
+        GreedyRange,
+        Int8ul,
+        RawCopy,
+        Rebuild,
+        Struct,
+        Terminated,
+        len_,
+        this,
+    )
+
+    Packet = Struct(
+        "frame"
+        / RawCopy(
+            Struct(
+                "header" / Const(HEADER),
+                "id" / Int8ul,
+                "length" / Rebuild(Int8ul, len_(this.params) + 2),
+                "code" / Int8ul,
+                "params" / Bytes(this.length - 2),
+            )
+        ),
+        # The checksum covers ID..last parameter, i.e. the frame without its 2-byte header.
+        "checksum" / Checksum(Int8ul, lambda data: dynamixel1_checksum(data[2:]), this.frame.data),
+    )
+
+    ReadParams = Struct("address" / Int8ul, "length" / Int8ul, Terminated)
+    WriteParams = Struct("address" / Int8ul, "data" / GreedyBytes)
+    SyncWriteParams = Struct(
+        "address" / Int8ul,
+        "length" / Int8ul,
+        "entries" / GreedyRange(Struct("id" / Int8ul, "data" / Bytes(this._.length))),
+        Terminated,
+    )
+    BulkReadParams = Struct(
+        "zero" / Const(b"\x00"),
+        "entries" / GreedyRange(Struct("length" / Int8ul, "id" / Int8ul, "address" / Int8ul)),
+        Terminated,
+    )
+    SyncReadParams = Struct("address" / Int8ul, "length" / Int8ul, "ids" / GreedyRange(Int8ul))
+    NoParams = Struct(Terminated)
+
+    PARAMS: dict[int, Struct] = {
+        Instruction1.PING: NoParams,
+        Instruction1.READ: ReadParams,
+        Instruction1.WRITE: WriteParams,
+        Instruction1.REG_WRITE: WriteParams,
+        Instruction1.ACTION: NoParams,
+        Instruction1.RESET: NoParams,
+        Instruction1.REBOOT: NoParams,
+        Instruction1.SYNC_WRITE: SyncWriteParams,
+        Instruction1.SYNC_READ: SyncReadParams,
+        Instruction1.BULK_READ: BulkReadParams,
+    }
+
+    return {name: value for name, value in locals().items() if name in _LAYOUT_NAMES}
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAYOUT_NAMES:
+        value = globals()[name] = _layouts()[name]
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 class Packet1(NamedTuple):
@@ -138,12 +159,12 @@ class Packet1(NamedTuple):
 
     def fields(self) -> Container:
         """Decode ``params`` as the parameters of instruction ``code``."""
-        return PARAMS[self.code].parse(self.params)
+        return _layouts()["PARAMS"][self.code].parse(self.params)
 
 
 def build(packet_id: int, code: int, params: bytes = b"") -> bytes:
     """Build a packet (instruction or status: ``code`` is the instruction or ERR)."""
-    return Packet.build({"frame": {"value": {"id": packet_id, "code": code, "params": params}}})
+    return _layouts()["Packet"].build({"frame": {"value": {"id": packet_id, "code": code, "params": params}}})
 
 
 def frame(packet_id: int, code: int, params: bytes = b"") -> bytes:
@@ -154,12 +175,12 @@ def frame(packet_id: int, code: int, params: bytes = b"") -> bytes:
 
 def build_instruction(packet_id: int, instruction: int, **fields) -> bytes:
     """Build an instruction from its named parameter fields."""
-    return build(packet_id, instruction, PARAMS[instruction].build(fields))
+    return build(packet_id, instruction, _layouts()["PARAMS"][instruction].build(fields))
 
 
 def parse(raw: bytes) -> Packet1:
     """Parse one whole packet; raises on a bad checksum or layout."""
-    f = Packet.parse(raw).frame.value
+    f = _layouts()["Packet"].parse(raw).frame.value
     return Packet1(f.id, f.code, bytes(f.params), bytes(raw))
 
 

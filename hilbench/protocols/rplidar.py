@@ -11,7 +11,8 @@ Wire layout (spec sheet laser_scanners.md §1), little-endian::
 The construct structures are the one definition of each layout: the emulated
 A1 builds with them, the decoders parse with them. Scan nodes are also
 encoded in bulk with numpy (:func:`encode_nodes`, a revolution at a time); a
-test proves it agrees with :data:`ScanNode` on every vector.
+test proves it agrees with ``ScanNode`` on every vector. The construct layouts are made when first
+used (``_layouts()``): the monitor runs the decoders on every raw capture's first bytes.
 
 Two incremental decoders never raise: :class:`RequestDecoder` frames what a
 host sends (as the device does: by bit 7 of CMD, XOR checked) and
@@ -25,21 +26,8 @@ from __future__ import annotations
 import struct
 from dataclasses import dataclass
 from enum import IntEnum
+from functools import cache
 from typing import TYPE_CHECKING, Any, NamedTuple
-
-from construct import (
-    Array,
-    BitsInteger,
-    BitStruct,
-    Byte,
-    Bytes,
-    Const,
-    Flag,
-    GreedyBytes,
-    Int16ul,
-    Int32ul,
-    Struct,
-)
 
 from hilbench.protocols.problem import Problem
 
@@ -108,49 +96,105 @@ HEALTH_STATUS = {0: "good", 1: "warning", 2: "error"}
 
 # ----------------------------------------------------------------------------- construct layouts
 
-#: A request without payload (CMD bit 7 clear).
-ShortRequest = Struct("sync" / Const(bytes([SYNC])), "cmd" / Byte)
-#: A request with payload; ``chk`` is the XOR of every byte before it (see :func:`request`).
-PayloadRequest = Struct(
-    "sync" / Const(bytes([SYNC])),
-    "cmd" / Byte,
-    "size" / Byte,
-    "payload" / Bytes(lambda ctx: ctx.size),
-    "chk" / Byte,
-)
-#: The 7-byte response descriptor.
-Descriptor = Struct(
-    "sync" / Const(bytes([SYNC, SYNC2])),
-    "len_mode" / Int32ul,
-    "type" / Byte,
-)
-DeviceInfo = Struct(
-    "model" / Byte,
-    "firmware_minor" / Byte,
-    "firmware_major" / Byte,
-    "hardware" / Byte,
-    "serial" / Bytes(16),
-)
-DeviceHealth = Struct("status" / Byte, "error_code" / Int16ul)
-SampleRate = Struct("standard_us" / Int16ul, "express_us" / Int16ul)
-ExpressRequest = Struct("working_mode" / Byte, "working_flags" / Int16ul, "param" / Int16ul)
-MotorPwm = Struct("pwm" / Int16ul)
-LidarConfAnswer = Struct("type" / Int32ul, "value" / GreedyBytes)
-DesiredRotFreq = Struct("rpm" / Int16ul, "pwm_ref" / Int16ul)
-#: A standard scan node (type 81): bits as they lie in the 5 bytes.
-ScanNode = Struct(
-    "b0" / BitStruct("quality" / BitsInteger(6), "not_start" / Flag, "start" / Flag),
-    "angle" / Int16ul,  # angle_q6 << 1 | check bit
-    "distance_q2" / Int16ul,
-)
-Cabin = Struct("d1" / Int16ul, "d2" / Int16ul, "dtheta" / Byte)
-#: A legacy express capsule (type 82): sync nibbles carry the checksum nibbles.
-Capsule = Struct(
-    "s1" / Byte,
-    "s2" / Byte,
-    "start" / Int16ul,  # start_angle_q6 | S << 15
-    "cabins" / Array(16, Cabin),
-)
+if TYPE_CHECKING:  # (made by _layouts() when first used)
+    from construct import Struct
+
+    ShortRequest: Struct
+    PayloadRequest: Struct
+    Descriptor: Struct
+    DeviceInfo: Struct
+    DeviceHealth: Struct
+    SampleRate: Struct
+    ExpressRequest: Struct
+    MotorPwm: Struct
+    LidarConfAnswer: Struct
+    DesiredRotFreq: Struct
+    ScanNode: Struct
+    Capsule: Struct
+
+
+#: The construct layouts' names: module attributes, made when first used (:func:`_layouts`).
+_LAYOUT_NAMES = ("ShortRequest", "PayloadRequest", "Descriptor", "DeviceInfo", "DeviceHealth", "SampleRate",
+                 "ExpressRequest", "MotorPwm", "LidarConfAnswer", "DesiredRotFreq", "ScanNode", "Cabin", "Capsule")
+
+
+@cache
+def _layouts() -> dict[str, Any]:
+    """The construct layouts (``_LAYOUT_NAMES``), made with construct's import when first used: the decoders
+    run without them until a frame needs one (the monitor asks every instrument about a capture's first
+    bytes, and must not import construct for that)."""
+    from construct import (
+        Array,
+        BitsInteger,
+        BitStruct,
+        Byte,
+        Bytes,
+        Const,
+        Flag,
+        GreedyBytes,
+        Int16ul,
+        Int32ul,
+        Struct,
+    )
+
+    #: A request without payload (CMD bit 7 clear).
+    ShortRequest = Struct("sync" / Const(bytes([SYNC])), "cmd" / Byte)
+    #: A request with payload; ``chk`` is the XOR of every byte before it (see :func:`request`).
+    PayloadRequest = Struct(
+        "sync" / Const(bytes([SYNC])),
+        "cmd" / Byte,
+        "size" / Byte,
+        "payload" / Bytes(lambda ctx: ctx.size),
+        "chk" / Byte,
+    )
+    #: The 7-byte response descriptor.
+    Descriptor = Struct(
+        "sync" / Const(bytes([SYNC, SYNC2])),
+        "len_mode" / Int32ul,
+        "type" / Byte,
+    )
+    DeviceInfo = Struct(
+        "model" / Byte,
+        "firmware_minor" / Byte,
+        "firmware_major" / Byte,
+        "hardware" / Byte,
+        "serial" / Bytes(16),
+    )
+    DeviceHealth = Struct("status" / Byte, "error_code" / Int16ul)
+    SampleRate = Struct("standard_us" / Int16ul, "express_us" / Int16ul)
+    ExpressRequest = Struct("working_mode" / Byte, "working_flags" / Int16ul, "param" / Int16ul)
+    MotorPwm = Struct("pwm" / Int16ul)
+    LidarConfAnswer = Struct("type" / Int32ul, "value" / GreedyBytes)
+    DesiredRotFreq = Struct("rpm" / Int16ul, "pwm_ref" / Int16ul)
+    #: A standard scan node (type 81): bits as they lie in the 5 bytes.
+    ScanNode = Struct(
+        "b0" / BitStruct("quality" / BitsInteger(6), "not_start" / Flag, "start" / Flag),
+        "angle" / Int16ul,  # angle_q6 << 1 | check bit
+        "distance_q2" / Int16ul,
+    )
+    Cabin = Struct("d1" / Int16ul, "d2" / Int16ul, "dtheta" / Byte)
+    #: A legacy express capsule (type 82): sync nibbles carry the checksum nibbles.
+    Capsule = Struct(
+        "s1" / Byte,
+        "s2" / Byte,
+        "start" / Int16ul,  # start_angle_q6 | S << 15
+        "cabins" / Array(16, Cabin),
+    )
+
+    return {name: value for name, value in locals().items() if name in _LAYOUT_NAMES}
+
+
+def layouts() -> None:
+    """Make the construct layouts now (an emulator that builds its replies with them calls this when it is
+    made, so that no client's first request waits for construct's import)."""
+    _layouts()
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAYOUT_NAMES:
+        value = globals()[name] = _layouts()[name]
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 # ----------------------------------------------------------------------------- building
@@ -175,39 +219,39 @@ def request(cmd: int, payload: bytes = b"") -> bytes:
     if not has_payload(cmd):
         if payload:
             raise ValueError(f"command 0x{cmd:02X} carries no payload")
-        return ShortRequest.build({"cmd": cmd})
+        return _layouts()["ShortRequest"].build({"cmd": cmd})
     head = bytes([SYNC, cmd, len(payload)]) + payload
-    return PayloadRequest.build({"cmd": cmd, "size": len(payload), "payload": payload, "chk": xor(head)})
+    return _layouts()["PayloadRequest"].build({"cmd": cmd, "size": len(payload), "payload": payload, "chk": xor(head)})
 
 
 def descriptor(length: int, mode: int, ans_type: int) -> bytes:
     """A response descriptor: ``A5 5A LEN_MODE TYPE``."""
-    return Descriptor.build({"len_mode": (length & 0x3FFFFFFF) | (mode << 30), "type": ans_type})
+    return _layouts()["Descriptor"].build({"len_mode": (length & 0x3FFFFFFF) | (mode << 30), "type": ans_type})
 
 
 def info_payload(model: int, firmware: tuple[int, int], hardware: int, serial: bytes) -> bytes:
     """GET_INFO's 20 bytes; ``firmware`` is (major, minor)."""
-    return DeviceInfo.build({"model": model, "firmware_major": firmware[0], "firmware_minor": firmware[1],
-                             "hardware": hardware, "serial": serial})
+    return _layouts()["DeviceInfo"].build({"model": model, "firmware_major": firmware[0],
+                                           "firmware_minor": firmware[1], "hardware": hardware, "serial": serial})
 
 
 def health_payload(status: int, error_code: int) -> bytes:
-    return DeviceHealth.build({"status": status, "error_code": error_code})
+    return _layouts()["DeviceHealth"].build({"status": status, "error_code": error_code})
 
 
 def samplerate_payload(standard_us: int, express_us: int) -> bytes:
-    return SampleRate.build({"standard_us": standard_us, "express_us": express_us})
+    return _layouts()["SampleRate"].build({"standard_us": standard_us, "express_us": express_us})
 
 
 def conf_answer(conf_type: int, value: bytes) -> bytes:
     """A GET_LIDAR_CONF answer: the u32 type echoed, then the value."""
-    return LidarConfAnswer.build({"type": conf_type, "value": value})
+    return _layouts()["LidarConfAnswer"].build({"type": conf_type, "value": value})
 
 
 def node(quality: int, angle_q6: int, distance_q2: int, start: bool) -> bytes:
     """One standard scan node (the reference for :func:`encode_nodes`)."""
-    return ScanNode.build({"b0": {"quality": quality & 0x3F, "not_start": not start, "start": start},
-                           "angle": ((angle_q6 & 0x7FFF) << 1) | 1, "distance_q2": distance_q2 & 0xFFFF})
+    return _layouts()["ScanNode"].build({"b0": {"quality": quality & 0x3F, "not_start": not start, "start": start},
+                                         "angle": ((angle_q6 & 0x7FFF) << 1) | 1, "distance_q2": distance_q2 & 0xFFFF})
 
 
 def encode_nodes(quality: np.ndarray, angle_q6: np.ndarray, distance_q2: np.ndarray,
@@ -240,8 +284,8 @@ def capsule(start_angle_q6: int, distances_mm: list[int] | np.ndarray, new_scan:
         t1, t2 = dt[2 * k], dt[2 * k + 1]
         cabins.append({"d1": (d[2 * k] << 2) | (t1 >> 4), "d2": (d[2 * k + 1] << 2) | (t2 >> 4),
                        "dtheta": (t1 & 0xF) | ((t2 & 0xF) << 4)})
-    body = Capsule.build({"s1": 0xA0, "s2": 0x50, "start": (start_angle_q6 & 0x7FFF) | (int(new_scan) << 15),
-                          "cabins": cabins})
+    body = _layouts()["Capsule"].build({"s1": 0xA0, "s2": 0x50,
+                                        "start": (start_angle_q6 & 0x7FFF) | (int(new_scan) << 15), "cabins": cabins})
     chk = xor(body[2:])
     return bytes([0xA0 | (chk & 0xF), 0x50 | (chk >> 4)]) + body[2:]
 
@@ -318,7 +362,7 @@ def parse_capsule(raw: bytes) -> CapsuleItem | None:
         return None
     if xor(raw[2:]) != ((raw[0] & 0xF) | ((raw[1] & 0xF) << 4)):
         return None
-    c = Capsule.parse(raw)
+    c = _layouts()["Capsule"].parse(raw)
     dist, dth = [], []
     for cab in c.cabins:
         dist += [cab.d1 >> 2, cab.d2 >> 2]
@@ -339,17 +383,17 @@ def parse_payload(ans_type: int, payload: bytes) -> dict[str, Any] | None:
     """Fields of a single-response payload of a known type (None otherwise)."""
     try:
         if ans_type == AnsType.DEVINFO and len(payload) == 20:
-            i = DeviceInfo.parse(payload)
+            i = _layouts()["DeviceInfo"].parse(payload)
             return {"model": i.model, "firmware": (i.firmware_major, i.firmware_minor), "hardware": i.hardware,
                     "serial": i.serial.hex().upper()}
         if ans_type == AnsType.DEVHEALTH and len(payload) == 3:
-            h = DeviceHealth.parse(payload)
+            h = _layouts()["DeviceHealth"].parse(payload)
             return {"status": h.status, "error_code": h.error_code}
         if ans_type == AnsType.SAMPLERATE and len(payload) == 4:
-            s = SampleRate.parse(payload)
+            s = _layouts()["SampleRate"].parse(payload)
             return {"standard_us": s.standard_us, "express_us": s.express_us}
         if ans_type == AnsType.GET_LIDAR_CONF and len(payload) >= 4:
-            c = LidarConfAnswer.parse(payload)
+            c = _layouts()["LidarConfAnswer"].parse(payload)
             return {"type": c.type, "value": bytes(c.value)}
     except Exception:  # noqa: BLE001 (a decoder reports, never raises)
         return None
@@ -596,6 +640,6 @@ __all__ = [
     "DeviceInfo", "ExpressRequest", "LidarConfAnswer", "MotorPwm", "Node", "PayloadRequest", "Problem",
     "Request", "RequestDecoder", "Response", "ResponseDecoder", "SampleRate", "ScanAssembler", "ScanNode",
     "ShortRequest", "capsule", "capsule_samples", "conf_answer", "descriptor", "encode_nodes", "has_payload",
-    "health_payload", "info_payload", "node", "parse_capsule", "parse_node", "parse_payload", "request",
+    "health_payload", "info_payload", "layouts", "node", "parse_capsule", "parse_node", "parse_payload", "request",
     "samplerate_payload", "xor",
 ]

@@ -8,7 +8,7 @@ Wire layout (spec sheet laser_scanners.md §3)::
     data     6-bit characters (chr(v + 0x30)), 2, 3 or 4 per value; lines of at most 64 payload characters
 
 Request parameters are fixed-width decimal ASCII; their construct layouts
-(:data:`ScanParams`, :data:`ContinuousParams`) build and parse them. Replies
+(``ScanParams``, ``ContinuousParams``, made when first used) build and parse them. Replies
 are built by :func:`reply` and parsed by :func:`parse_reply`;
 :class:`ReplyDecoder` cuts a host's byte stream into replies (each ends with
 an empty line) and :class:`RequestDecoder` a device's input into request
@@ -17,9 +17,8 @@ lines. Neither raises: bad sums and stray bytes become :class:`~hilbench.protoco
 
 from __future__ import annotations
 
-from typing import Any, NamedTuple
-
-from construct import Adapter, Bytes, Struct
+from functools import cache
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 from hilbench.protocols.checksums import scip_sum
 from hilbench.protocols.problem import Problem
@@ -41,34 +40,69 @@ STATUS_TEXT = {
 }
 
 
-class _Decimal(Adapter):
-    """Fixed-width decimal ASCII digits <-> int."""
+if TYPE_CHECKING:  # (made by _layouts() when first used)
+    from construct import Struct
 
-    def __init__(self, width: int) -> None:
-        super().__init__(Bytes(width))
-        self.width = width
-
-    def _decode(self, obj, context, path):
-        text = bytes(obj).decode("ascii")
-        if not text.isdigit():
-            raise ValueError(f"expected {self.width} digits, got {text!r}")
-        return int(text)
-
-    def _encode(self, obj, context, path):
-        text = f"{int(obj):0{self.width}d}"
-        if len(text) != self.width:
-            raise ValueError(f"{obj} does not fit {self.width} digits")
-        return text.encode("ascii")
+    ScanParams: Struct
+    ContinuousParams: Struct
+    PARAMS: dict[str, Struct]
 
 
-#: GD/GS/GE parameters: start step, end step, cluster count.
-ScanParams = Struct("start" / _Decimal(4), "end" / _Decimal(4), "cluster" / _Decimal(2))
-#: MD/MS/ME parameters: as GD, then skip count (1 digit) and scan count (2 digits, 00 = endless).
-ContinuousParams = Struct("start" / _Decimal(4), "end" / _Decimal(4), "cluster" / _Decimal(2),
-                          "skip" / _Decimal(1), "scans" / _Decimal(2))
-#: Commands whose parameters hilbench parses, by code.
-PARAMS = {"GD": ScanParams, "GS": ScanParams, "GE": ScanParams,
-          "MD": ContinuousParams, "MS": ContinuousParams, "ME": ContinuousParams}
+#: The construct layouts' names: module attributes, made when first used (:func:`_layouts`).
+_LAYOUT_NAMES = ("ScanParams", "ContinuousParams", "PARAMS")
+
+
+@cache
+def _layouts() -> dict[str, Any]:
+    """The construct layouts (``_LAYOUT_NAMES``), made with construct's import when first used: the decoders
+    run without them until a frame needs one (the monitor asks every instrument about a capture's first
+    bytes, and must not import construct for that)."""
+    from construct import Adapter, Bytes, Struct
+
+    class _Decimal(Adapter):
+        """Fixed-width decimal ASCII digits <-> int."""
+
+        def __init__(self, width: int) -> None:
+            super().__init__(Bytes(width))
+            self.width = width
+
+        def _decode(self, obj, context, path):
+            text = bytes(obj).decode("ascii")
+            if not text.isdigit():
+                raise ValueError(f"expected {self.width} digits, got {text!r}")
+            return int(text)
+
+        def _encode(self, obj, context, path):
+            text = f"{int(obj):0{self.width}d}"
+            if len(text) != self.width:
+                raise ValueError(f"{obj} does not fit {self.width} digits")
+            return text.encode("ascii")
+
+    #: GD/GS/GE parameters: start step, end step, cluster count.
+    ScanParams = Struct("start" / _Decimal(4), "end" / _Decimal(4), "cluster" / _Decimal(2))
+    #: MD/MS/ME parameters: as GD, then skip count (1 digit) and scan count (2 digits, 00 = endless).
+    ContinuousParams = Struct("start" / _Decimal(4), "end" / _Decimal(4), "cluster" / _Decimal(2),
+                              "skip" / _Decimal(1), "scans" / _Decimal(2))
+    #: Commands whose parameters hilbench parses, by code.
+    PARAMS = {"GD": ScanParams, "GS": ScanParams, "GE": ScanParams,
+              "MD": ContinuousParams, "MS": ContinuousParams, "ME": ContinuousParams}
+
+    return {name: value for name, value in locals().items() if name in _LAYOUT_NAMES}
+
+
+def layouts() -> None:
+    """Make the construct layouts now (an emulator that builds its replies with them calls this when it is
+    made, so that no client's first request waits for construct's import)."""
+    _layouts()
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAYOUT_NAMES:
+        value = globals()[name] = _layouts()[name]
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
 #: Characters per value by command.
 ENCODING = {"GD": 3, "GE": 3, "MD": 3, "ME": 3, "GS": 2, "MS": 2}
 WITH_INTENSITY = ("GE", "ME")
@@ -144,7 +178,7 @@ def timestamp_line(ms: int) -> bytes:
 
 def request(cmd: str, params: dict[str, int] | str = "", string: str = "") -> bytes:
     """A request line; ``params`` as a dict is built with the command's construct layout."""
-    p = PARAMS[cmd].build(params).decode("ascii") if isinstance(params, dict) else params
+    p = _layouts()["PARAMS"][cmd].build(params).decode("ascii") if isinstance(params, dict) else params
     return f"{cmd}{p}{';' + string if string else ''}\n".encode("ascii")
 
 
@@ -160,7 +194,7 @@ class Request(NamedTuple):
     line: bytes  # without the terminator: what the echo repeats
 
     def fields(self) -> dict[str, int] | None:
-        layout = PARAMS.get(self.cmd)
+        layout = _layouts()["PARAMS"].get(self.cmd)
         if layout is None:
             return None
         try:
@@ -343,6 +377,6 @@ class ReplyDecoder:
 __all__ = [
     "ENCODING", "INFO_COMMANDS", "LF", "LINE_PAYLOAD", "MAX_LINE", "PARAMS", "STATUS_TEXT", "TIMESTAMP_WRAP", "WITH_INTENSITY",
     "ContinuousParams", "Reply", "ReplyDecoder", "Request", "RequestDecoder", "ScanParams",
-    "check_line", "data_lines", "decode", "decode_values", "encode", "encode_values", "info_line",
+    "check_line", "data_lines", "decode", "decode_values", "encode", "encode_values", "info_line", "layouts",
     "parse_reply", "parse_request", "reply", "request", "status_line", "sum_char", "timestamp_line",
 ]

@@ -20,20 +20,8 @@ CRCs are counted and resynchronised on the next STX.
 from __future__ import annotations
 
 from enum import IntEnum
-from typing import Any, NamedTuple
-
-from construct import (
-    BitsInteger,
-    BitStruct,
-    Byte,
-    Bytes,
-    Checksum,
-    Const,
-    Int16ul,
-    RawCopy,
-    Struct,
-    this,
-)
+from functools import cache
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 from hilbench.protocols.checksums import sick_crc16
 from hilbench.protocols.problem import Problem
@@ -93,28 +81,76 @@ REPLY_POWER_ON = 0x90
 REPLY_RESET = 0x91
 REPLY_INVALID = 0x92
 
-#: The telegram frame (CRC over STX .. the last byte before it).
-Telegram = Struct(
-    "body" / RawCopy(Struct(
-        "stx" / Const(bytes([STX])),
-        "address" / Byte,
-        "length" / Int16ul,
-        "cmd" / Byte,
-        "data" / Bytes(this.length - 1),
-    )),
-    "crc" / Checksum(Int16ul, sick_crc16, this.body.data),
-)
-#: The COUNT word of a B0 scan (little-endian u16; BitStruct reads it as its big-endian bits).
-CountWord = BitStruct(
-    "units" / BitsInteger(2),
-    "partial" / BitsInteger(1),
-    "index" / BitsInteger(2),
-    "reserved" / BitsInteger(1),
-    "count" / BitsInteger(10),
-)
-#: Reply to 3B (set variant): accepted flag, effective angle and resolution.
-VariantReply = Struct("accepted" / Byte, "angle" / Int16ul, "resolution" / Int16ul)
-VariantRequest = Struct("angle" / Int16ul, "resolution" / Int16ul)
+if TYPE_CHECKING:  # (made by _layouts() when first used)
+    from construct import Struct
+
+    Telegram: Struct
+    CountWord: Struct
+    VariantReply: Struct
+    VariantRequest: Struct
+
+
+#: The construct layouts' names: module attributes, made when first used (:func:`_layouts`).
+_LAYOUT_NAMES = ("Telegram", "CountWord", "VariantReply", "VariantRequest")
+
+
+@cache
+def _layouts() -> dict[str, Any]:
+    """The construct layouts (``_LAYOUT_NAMES``), made with construct's import when first used: the decoders
+    run without them until a frame needs one (the monitor asks every instrument about a capture's first
+    bytes, and must not import construct for that)."""
+    from construct import (
+        BitsInteger,
+        BitStruct,
+        Byte,
+        Bytes,
+        Checksum,
+        Const,
+        Int16ul,
+        RawCopy,
+        Struct,
+        this,
+    )
+
+    #: The telegram frame (CRC over STX .. the last byte before it).
+    Telegram = Struct(
+        "body" / RawCopy(Struct(
+            "stx" / Const(bytes([STX])),
+            "address" / Byte,
+            "length" / Int16ul,
+            "cmd" / Byte,
+            "data" / Bytes(this.length - 1),
+        )),
+        "crc" / Checksum(Int16ul, sick_crc16, this.body.data),
+    )
+    #: The COUNT word of a B0 scan (little-endian u16; BitStruct reads it as its big-endian bits).
+    CountWord = BitStruct(
+        "units" / BitsInteger(2),
+        "partial" / BitsInteger(1),
+        "index" / BitsInteger(2),
+        "reserved" / BitsInteger(1),
+        "count" / BitsInteger(10),
+    )
+    #: Reply to 3B (set variant): accepted flag, effective angle and resolution.
+    VariantReply = Struct("accepted" / Byte, "angle" / Int16ul, "resolution" / Int16ul)
+    VariantRequest = Struct("angle" / Int16ul, "resolution" / Int16ul)
+
+    return {name: value for name, value in locals().items() if name in _LAYOUT_NAMES}
+
+
+def layouts() -> None:
+    """Make the construct layouts now (an emulator that builds its replies with them calls this when it is
+    made, so that no client's first request waits for construct's import)."""
+    _layouts()
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAYOUT_NAMES:
+        value = globals()[name] = _layouts()[name]
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
 #: The 32-byte configuration block (74/77); hilbench reads the units byte (index 11: 0 cm, 1 mm).
 CONFIG_SIZE = 32
 CONFIG_UNITS = 11
@@ -122,13 +158,13 @@ CONFIG_UNITS = 11
 
 def count_word(n: int, units_mm: bool, index: int = 0, partial: bool = False) -> int:
     """The COUNT word of a B0 scan."""
-    raw = CountWord.build({"units": 1 if units_mm else 0, "partial": int(partial), "index": index, "reserved": 0,
-                           "count": n})
+    raw = _layouts()["CountWord"].build({"units": 1 if units_mm else 0, "partial": int(partial), "index": index,
+                                         "reserved": 0, "count": n})
     return int.from_bytes(raw, "big")
 
 
 def parse_count_word(word: int) -> dict[str, int]:
-    c = CountWord.parse(word.to_bytes(2, "big"))
+    c = _layouts()["CountWord"].parse(word.to_bytes(2, "big"))
     return {"count": c.count, "index": c.index, "partial": c.partial, "units": c.units}
 
 
@@ -138,8 +174,8 @@ def parse_count_word(word: int) -> dict[str, int]:
 def telegram(cmd: int, data: bytes = b"", *, address: int = 0, status: int | None = None) -> bytes:
     """A telegram: a request (``status`` None) or a reply (the status byte last in DATA)."""
     body = bytes(data) + (bytes([status]) if status is not None else b"")
-    return Telegram.build({"body": {"value": {"address": address, "length": len(body) + 1, "cmd": cmd,
-                                              "data": body}}})
+    return _layouts()["Telegram"].build({"body": {"value": {"address": address, "length": len(body) + 1, "cmd": cmd,
+                                                            "data": body}}})
 
 
 def request(cmd: int, data: bytes = b"", address: int = 0) -> bytes:
@@ -158,7 +194,7 @@ def mode_request(mode: int, password: bytes = PASSWORD) -> bytes:
 
 
 def variant_request(angle: int, resolution: int) -> bytes:
-    return request(Cmd.VARIANT, VariantRequest.build({"angle": angle, "resolution": resolution}))
+    return request(Cmd.VARIANT, _layouts()["VariantRequest"].build({"angle": angle, "resolution": resolution}))
 
 
 def scan_data(values: list[int], units_mm: bool, index: int = 0, partial: bool = False) -> bytes:
@@ -202,12 +238,12 @@ class Frame(NamedTuple):
         if self.is_reply and self.cmd == 0xA0 and d:
             return {"accepted": d[0] == 0}
         if self.is_reply and self.cmd == 0xBB and len(d) >= 5:
-            v = VariantReply.parse(d[:5])
+            v = _layouts()["VariantReply"].parse(d[:5])
             return {"accepted": bool(v.accepted), "angle": v.angle, "resolution": v.resolution}
         if not self.is_reply and self.cmd == Cmd.MODE and d:
             return {"mode": d[0]}
         if not self.is_reply and self.cmd == Cmd.VARIANT and len(d) >= 4:
-            v = VariantRequest.parse(d[:4])
+            v = _layouts()["VariantRequest"].parse(d[:4])
             return {"angle": v.angle, "resolution": v.resolution}
         return {}
 
@@ -301,6 +337,6 @@ __all__ = [
     "ACK", "BAUD_MODES", "CONFIG_SIZE", "CONFIG_UNITS", "LINK_BAUDS", "MAX_LEN", "MIRROR_PERIOD", "NAK", "PASSWORD",
     "POWER_UP_BAUD", "REPLY_INVALID", "REPLY_POWER_ON", "REPLY_RESET", "REVOLUTIONS", "STATUS_OK", "STX", "UNITS",
     "VARIANTS", "Cmd", "CountWord", "Decoder", "Frame", "Handshake", "Mode", "Telegram",
-    "VariantReply", "VariantRequest", "count_word", "mode_request", "parse_count_word", "parse_scan", "reply",
-    "request", "scan_data", "telegram", "variant_request",
+    "VariantReply", "VariantRequest", "count_word", "layouts", "mode_request", "parse_count_word", "parse_scan",
+    "reply", "request", "scan_data", "telegram", "variant_request",
 ]

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import contextlib
 import os
-import secrets
 import stat
 from collections.abc import Iterator
 from pathlib import Path
@@ -53,6 +52,8 @@ def replaced_path(path: str | os.PathLike[str]) -> Path | None:
 
 def temp_name(target: Path) -> Path:
     """A fresh hidden name next to ``target`` (``.NAME.1a2b3c4d.tmp``)."""
+    import secrets  # (here: secrets imports hashlib, and a command that writes nothing need not)
+
     return target.with_name(f".{target.name[:_NAME_KEPT]}.{secrets.token_hex(4)}.tmp")
 
 

@@ -62,3 +62,25 @@ def test_gap_record_is_one_layout():
     assert cap.gap_lost(rec.payload) == 70_000 == cap.GapPayload.parse(rec.payload).lost
     assert cap.gap_lost(cap.gap_record(0, 0, 2**40)[cap.RECORD_HEADER_SIZE:]) == 0xFFFFFFFF  # capped
     assert cap.gap_lost(b"\x01") is None  # too short: not a count
+
+
+def test_the_fast_paths_sizes_are_the_layouts():
+    assert cap.RECORD_HEADER_SIZE == cap.RecordHeader.sizeof() == cap._RECORD.size
+    assert cap.GapPayload.sizeof() == 4  # (gap_lost's length check)
+
+
+@pytest.mark.parametrize("fields", [
+    {},
+    {"flags": cap.Flags.SYNTHETIC, "baud": 1_000_000, "t0_wall": 1.7e9, "t0_monotonic": 12.5, "protocol": "dynamixel",
+     "description": "bench arm, endpoint arm"},
+    {"protocol": None, "baud": 0xFFFFFFFF, "t0_wall": -0.0, "description": "é" * 200},  # cut inside a character
+    {"protocol": "p" * 300, "description": "d" * 300},  # (cut to 255 characters each)
+])
+def test_the_header_s_fast_path_is_the_layout(fields):
+    body = {"flags": int(fields.get("flags", cap.Flags.MEASURED)), "baud": fields.get("baud") or 0,
+            "t0_wall": fields.get("t0_wall", 0.0), "t0_monotonic": fields.get("t0_monotonic", 0.0),
+            "protocol": (fields.get("protocol") or "")[:255],
+            "description": fields.get("description", "").encode()[:255].decode(errors="ignore")}
+    fast = cap.build_header(**fields)
+    assert fast == cap.Header.build({"version": cap.VERSION, "body": body})
+    assert cap.parse_header(fast).description == body["description"]

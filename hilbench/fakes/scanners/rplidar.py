@@ -99,6 +99,7 @@ class RplidarA1(Scanner):
         self.config = config or RplidarConfig()
         self.faults = self.config.faults
         self.frng = np.random.default_rng(self.faults.seed + 1)
+        rp.layouts()  # (made now, not on a client's first request: replies are built with them)
         self.decoder = rp.RequestDecoder()
         self.tx: UartTx | None = None
         self.state = "idle"  # idle, scanning, express, protection

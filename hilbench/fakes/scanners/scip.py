@@ -108,6 +108,7 @@ class ScipScanner(Scanner):
         self.config = config or ScipConfig()
         self.faults = self.config.faults
         self.decoder = scip.RequestDecoder()
+        scip.layouts()  # (made now, not on a client's first request: it parses GD/MD parameters with them)
         self.tx: UartTx | None = None
         self.laser = False
         self.timesync = False

@@ -74,6 +74,7 @@ class SickLms200(Scanner):
         self.config = config or LmsConfig()
         self.faults = self.config.faults
         self.frng = np.random.default_rng(self.faults.seed + 7)
+        lms.layouts()  # (made now, not on a client's first request: replies are built with them)
         self.baud = lms.POWER_UP_BAUD
         self.mode = lms.Mode.POLLED
         self.installation = False

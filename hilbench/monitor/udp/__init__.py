@@ -29,13 +29,13 @@ class UdpInstrument(Instrument):
     views_path = "hilbench.dashboard.udp_views:VIEW_SET"
 
     def sniff(self, data: bytes) -> float:
-        from hilbench.protocols import xrce_dds
-
         if data[:4] == b"RTPS":
             return 0.9
-        if xrce_dds.looks_like_xrce(data) and (b"XRCE" in data[:16] or data[0] in (0x80, 0x81, 0x00, 0x01)):
-            return 0.6
-        return 0.0
+        if not (b"XRCE" in data[:16] or data[:1] in (b"\x80", b"\x81", b"\x00", b"\x01")):
+            return 0.0  # (told before the codec's import: other bytes never look like XRCE here)
+        from hilbench.protocols import xrce_dds
+
+        return 0.6 if xrce_dds.looks_like_xrce(data) else 0.0
 
     def add_arguments(self, parser: argparse.ArgumentParser) -> None:
         g = parser.add_argument_group("UDP (micro-ROS, RTPS)")

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import contextlib
 import os
-import socket
 import threading
 import time
 from collections.abc import Iterator
@@ -12,9 +11,7 @@ from urllib.parse import urlparse
 
 from hilbench.transports.capture_parser import READ_SIZE, CaptureParser
 from hilbench.transports.chunk import Chunk, sound_quality
-from hilbench.transports.readiness import Readiness
 from hilbench.transports.sources.base import Source, SourceError, SourceOpener, SourceUnavailable
-from hilbench.transports.tap_server import REFUSAL_PREFIX as TAP_REFUSAL
 
 
 class StreamSource(Source):
@@ -68,6 +65,8 @@ class StreamSource(Source):
     def chunks(self, idle: float | None = None) -> Iterator[Chunk | None]:
         early, self._early = self._early, []
         yield from early
+        from hilbench.transports.readiness import Readiness  # (a source plug-in loads light: see sources)
+
         readiness = Readiness([self._fd])
         while not self._stop.is_set():
             try:
@@ -99,6 +98,10 @@ class TcpSource(StreamSource):
     """A bench's tap server (``tcp://127.0.0.1:PORT``): a live capture stream over TCP."""
 
     def __init__(self, host: str, port: int, *, name: str | None = None, timeout: float = 5.0) -> None:
+        import socket
+
+        from hilbench.transports.tap_server import REFUSAL_PREFIX as TAP_REFUSAL
+
         name = name or f"tcp://{host}:{port}"
         try:
             self._sock = socket.create_connection((host, port), timeout=timeout)
@@ -134,6 +137,8 @@ class TcpSource(StreamSource):
         return self._sock.recv(READ_SIZE)
 
     def close(self) -> None:
+        import socket
+
         self._stop.set()
         with contextlib.suppress(OSError):
             self._sock.shutdown(socket.SHUT_RDWR)

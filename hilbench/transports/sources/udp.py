@@ -4,14 +4,12 @@ from __future__ import annotations
 
 import contextlib
 import selectors
-import socket
 import threading
 import time
 from collections.abc import Iterator
 from urllib.parse import parse_qs, urlparse
 
 from hilbench.transports.chunk import Chunk
-from hilbench.transports.medium_loop import WakePipe
 from hilbench.transports.sources.base import Source, SourceError, SourceOpener, SourceUnavailable
 
 
@@ -28,6 +26,10 @@ class UdpSource(Source):
 
     def __init__(self, host: str = "127.0.0.1", port: int = 0, *, peer: tuple[str, int] | None = None,
                  announce_s: float = 0.5) -> None:
+        import socket
+
+        from hilbench.transports.medium_loop import WakePipe  # (a source plug-in loads light: see sources)
+
         self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         # Room for bursts while the consumer is busy: the kernel drops what does not fit.
         self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4 << 20)
