@@ -3,7 +3,8 @@
 
 Each case runs ``python -m hilbench.cli ARGS`` in a fresh process, ``--runs`` times; its figure is the
 least wall time (``startup_<case>``, s), until the process exits or, for ``emulate_arm``, until its first
-line of output (the bench is running). The reference is ``python -c pass`` timed the same way in the same
+line of output (the bench is running), and for ``plugins_first_row`` until its first plug-in's row (the
+listing shows as the plug-ins load; ``plugins`` is the whole listing). The reference is ``python -c pass`` timed the same way in the same
 run, so the ratio survives a loaded machine. Cases: ``help`` (``hilbench --help``), ``monitor_dynamixel``
 (``monitor CAPTURE --summary`` on the first 2 000 bytes of ``tests/data/dynamixel/wolfgang_trace.bin``),
 ``profiles``, ``plugins``, the ``--help`` of ``emulate``, ``record``, the trace profiler's verb, ``lidar``,
@@ -75,8 +76,14 @@ class Case:
     args: tuple[str, ...]
     #: Globs of the heavy packages and watched hilbench modules the case needs (the rest are unexpected).
     needs: tuple[str, ...] = ()
-    #: Timed until the first line of output (a command that runs until stopped), not until it exits.
-    first_line: bool = False
+    #: Timed until this many lines of output (a command that runs until stopped, or a listing that shows
+    #: while it loads), not until it exits (0).
+    lines: int = 0
+
+
+#: What listing the plug-ins needs: the plug-ins themselves (light objects), not what they use when they run.
+PLUGINS = ("rich", "construct", "hilbench.bench*", "hilbench.families*", "hilbench.servers*", "hilbench.monitor*",
+           "hilbench.profiler", "hilbench.profiler.instrument", "hilbench.profiler.stm32_rover")
 
 
 def cases(capture: Path) -> list[Case]:
@@ -90,9 +97,8 @@ def cases(capture: Path) -> list[Case]:
         Case("monitor_dynamixel", ("monitor", str(capture), "--summary"), dynamixel_monitor),
         Case("profiles", ("profiles",), ("rich", "construct", "hilbench.bench*", "hilbench.families*")),
         # the plug-ins themselves (light objects), not what they use when they run
-        Case("plugins", ("plugins",), ("rich", "construct", "hilbench.bench*", "hilbench.families*",
-                                       "hilbench.servers*", "hilbench.monitor*", "hilbench.profiler",
-                                       "hilbench.profiler.instrument", "hilbench.profiler.stm32_rover")),
+        Case("plugins", ("plugins",), PLUGINS),
+        Case("plugins_first_row", ("plugins",), PLUGINS, lines=2),  # (the listing shows as plug-ins load)
         *(Case(f"{verb}_help", (verb, "--help")) for verb in ("emulate", "record", "trace", "lidar", "can",
                                                              "dxl", "demo")),
         Case("emulate_arm", ("emulate", "arm"),
@@ -101,7 +107,7 @@ def cases(capture: Path) -> list[Case]:
               "hilbench.fakes.control_table_servo", "hilbench.fakes.table_servo", "hilbench.fakes.servo_bus",
               "hilbench.fakes.protocol1_bus", "hilbench.fakes.motion",
               "hilbench.fakes.world", "hilbench.fakes.scene"),  # every bench has a world
-             first_line=True),
+             lines=1),
     ]
 
 
@@ -127,11 +133,11 @@ def cpu_so_far(pid: int) -> float | None:
     return total / 1e9
 
 
-def first_line_cpu(argv: list[str]) -> float | None:
-    """CPU time of one run until its first line of output (then it is interrupted)."""
+def first_lines_cpu(argv: list[str], lines: int) -> float | None:
+    """CPU time of one run until ``lines`` lines of output (then it is interrupted)."""
     proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, cwd=REPO, env=ENV)
     try:
-        if not proc.stdout.readline():
+        if not all(proc.stdout.readline() for _ in range(lines)):
             raise SystemExit(f"{' '.join(argv)}: no output")
         return cpu_so_far(proc.pid)
     finally:
@@ -144,10 +150,11 @@ def first_line_cpu(argv: list[str]) -> float | None:
         proc.stdout.close()
 
 
-def run_once(argv: list[str], first_line: bool, stderr: int | None = subprocess.DEVNULL) -> float:
-    """Wall time of one run: until it exits, or until its first line of output (then it is interrupted)."""
+def run_once(argv: list[str], lines: int, stderr: int | None = subprocess.DEVNULL) -> float:
+    """Wall time of one run: until it exits (``lines`` 0), or until that many lines of output (then it is
+    interrupted)."""
     t0 = time.perf_counter()
-    if not first_line:
+    if not lines:
         proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=stderr, cwd=REPO, env=ENV)
         # A blocking wait reaps the child when it ends (wait(timeout=...) polls in steps of up to 50 ms).
         watchdog = threading.Timer(120, proc.kill)
@@ -159,9 +166,9 @@ def run_once(argv: list[str], first_line: bool, stderr: int | None = subprocess.
         return time.perf_counter() - t0
     proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=stderr, cwd=REPO, env=ENV)
     try:
-        line = proc.stdout.readline()
+        got = all(proc.stdout.readline() for _ in range(lines))
         took = time.perf_counter() - t0
-        if not line:
+        if not got:
             raise SystemExit(f"{' '.join(argv)}: no output")
     finally:
         proc.send_signal(signal.SIGINT)
@@ -174,9 +181,9 @@ def run_once(argv: list[str], first_line: bool, stderr: int | None = subprocess.
     return took
 
 
-def least(argv: list[str], runs: int, first_line: bool = False) -> float:
-    run_once(argv, first_line)  # untimed: writes the bytecode (and warms the page cache)
-    return min(run_once(argv, first_line) for _ in range(runs))
+def least(argv: list[str], runs: int, lines: int = 0) -> float:
+    run_once(argv, lines)  # untimed: writes the bytecode (and warms the page cache)
+    return min(run_once(argv, lines) for _ in range(runs))
 
 
 def set_bytecode(cache: Path | None) -> None:
@@ -192,7 +199,7 @@ def set_bytecode(cache: Path | None) -> None:
 def imported(case: Case) -> list[str]:
     """The modules the case imports, in order (``python -X importtime``)."""
     with tempfile.TemporaryFile() as err:
-        run_once([PY, "-X", "importtime", "-m", "hilbench.cli", *case.args], case.first_line, stderr=err.fileno())
+        run_once([PY, "-X", "importtime", "-m", "hilbench.cli", *case.args], case.lines, stderr=err.fileno())
         err.seek(0)
         text = err.read().decode(errors="replace")
     return re.findall(r"^import time:\s+\d+ \|\s+\d+ \|\s*(\S+)", text, re.M)
@@ -257,7 +264,7 @@ def explain(case: Case) -> None:
     """Print who imported each unexpected group of ``case`` (its first module looked up)."""
     with tempfile.TemporaryDirectory(prefix="hilbench-startup-") as tmp:
         out = Path(tmp) / "who.json"
-        run_once([PY, "-c", WHO, str(out), *case.args], case.first_line)
+        run_once([PY, "-c", WHO, str(out), *case.args], case.lines)
         who = json.loads(out.read_text()) if out.exists() else {}
     modules = imported(case)
     order = {m: i for i, m in enumerate(who)}
@@ -299,10 +306,10 @@ def main() -> None:
         reference_cpu = min(cpu_once([PY, "-c", "pass"]) for _ in range(args.runs))
         for case in todo:
             argv = [PY, "-m", "hilbench.cli", *case.args]
-            took = least(argv, args.runs, case.first_line)
+            took = least(argv, args.runs, case.lines)
             # (a bench runs until stopped: its CPU time to the first line is not the process's)
-            if case.first_line:
-                cpus = [first_line_cpu(argv) for _ in range(args.runs)]
+            if case.lines:
+                cpus = [first_lines_cpu(argv, case.lines) for _ in range(args.runs)]
                 cpu = None if None in cpus else min(cpus)
             else:
                 cpu = min(cpu_once(argv) for _ in range(args.runs))

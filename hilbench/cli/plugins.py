@@ -7,6 +7,7 @@ import json
 import re
 
 from hilbench import registry
+from hilbench.errors import UsageError
 
 ORDER = 90
 VERBS = {  # each verb register() adds and its line in `hilbench --help` (see hilbench.cli)
@@ -33,23 +34,27 @@ def _describe(kind: registry.Kind, name: str, obj) -> str:
     return re.sub(r":\w+:`~?([^`]+)`|``([^`]+)``", lambda m: m[1] or m[2], doc[0]) if doc else ""
 
 
+def _rows(kind: registry.Kind):
+    """``{"name", "package", "what"}`` of each plug-in of ``kind`` as it is loaded, then its failures."""
+    for name in kind.names():
+        try:
+            obj = kind.get(name)  # (one entry point at a time: the listing shows while the rest load)
+        except UsageError:
+            continue  # (listed with the failures)
+        yield {"name": name, "package": kind.origin(name), "what": _describe(kind, name, obj)}
+    for name, why in kind.failures().items():
+        yield {"name": name, "package": why.split(":")[0], "what": f"FAILED: {why}"}
+
+
 def cmd_plugins(args: argparse.Namespace) -> int:
-    rows = {}
-    for kind in registry.KINDS:
-        rows[kind.name] = [{"name": name, "package": kind.origin(name), "what": _describe(kind, name, obj)}
-                           for name, obj in kind.items()]
-        failed = kind.failures()
-        if failed:
-            rows[kind.name] += [{"name": n, "package": why.split(":")[0], "what": f"FAILED: {why}"}
-                                for n, why in failed.items()]
     if args.json:
-        print(json.dumps(rows, indent=2))
+        print(json.dumps({kind.name: list(_rows(kind)) for kind in registry.KINDS}, indent=2))
         return 0
-    for kind, entries in rows.items():
-        print(f"{kind}  [entry points: {getattr(registry, kind).group}]")
-        width = max([14, *(len(e["name"]) for e in entries)])  # (fuzz targets' names run longer)
-        for e in entries:
-            print(f"  {e['name']:<{width}} {e['package']:<18} {e['what']}")
+    for kind in registry.KINDS:
+        print(f"{kind.name}  [entry points: {kind.group}]", flush=True)
+        width = max([14, *(len(n) for n in kind.names())])  # (fuzz targets' names run longer)
+        for e in _rows(kind):
+            print(f"  {e['name']:<{width}} {e['package']:<18} {e['what']}", flush=True)
     return 0
 
 
