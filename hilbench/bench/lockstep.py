@@ -129,6 +129,7 @@ class Verdict:
     flight: list[str] = field(default_factory=list)  # ptys with bytes written and not taken, or delivered
     # and not visible on the client's side yet
     held: bool = False  # a client's request is in the bench's hands outside the loop (a line request)
+    again: bool = False  # a thread or process ended during the look: look again at once
 
 
 @dataclass
@@ -209,6 +210,7 @@ class Lockstep:
         self._stall_at: tuple[int, float] | None = None  # (vnow ns, real) when the stall began
         self.wakes = self.rechecks = self.asleep_elsewhere = self.settle_timeouts = 0
         self.participants_seen = 0
+        self.frees = 0  # slots freed (exits seen)
         self._woke_at = -1  # the instant of the last wake_due
         self.last_stall: dict[str, Any] | None = None
         self.warnings: list[str] = []
@@ -373,6 +375,7 @@ class Lockstep:
     def _free(self, i: int) -> None:
         self.u32[(vp.slot_offset(i) + vp.S_STATE) // 4] = vp.FREE
         self._slots.pop(i, None)
+        self.frees += 1
         self.atomics.add64(self.base + vp.H_ACTIVITY, 1)  # an exit is a hand-over (a joiner re-checks)
 
     def _dead(self, pid: int) -> bool:
@@ -407,11 +410,12 @@ class Lockstep:
     def look(self, real: float | None = None) -> Verdict:
         """D: may time move now? Frees the slots of exited threads and dead processes on the way."""
         real = time.monotonic() if real is None else real
+        frees = self.frees
         self._reap()
         states = self.u32[_STATE_WORD:_STATE_WORD + _SLOT_WORDS * self.nslots:_SLOT_WORDS].tolist()
-        activity = self._h(vp.H_ACTIVITY)
         v = Verdict(quiet=True)
         nxt = vp.NO_DEADLINE
+        foreign: list[int] = []
         for i, st in enumerate(states):
             if st == vp.FREE:
                 continue
@@ -438,16 +442,26 @@ class Lockstep:
                 continue
             if st == vp.WAITING or st == vp.POLLING:
                 self._waited.add(pid)
-                if self._s32(i, vp.S_FLAGS) & vp.SF_FOREIGN and self._s64(i, vp.S_ACT_SEEN) < activity:
-                    v.recheck.append(i)
-                    v.quiet = False
-                    continue
+                if self._s32(i, vp.S_FLAGS) & vp.SF_FOREIGN:
+                    foreign.append(i)
                 nxt = min(nxt, self._s64(i, vp.S_DEADLINE))
                 continue
             if st == vp.RUNNING and self._asleep_elsewhere(i, info, real):
                 continue  # waiting in a call the shim does not wrap: no deadline
             v.quiet = False
             v.blockers.append(i)
+        # Hand-overs since a waiter began to wait, judged after every slot: freeing an exited slot above is one
+        # (a parent in waitpid must look again), and its slot may come before the child's.
+        activity = self._h(vp.H_ACTIVITY)
+        for i in foreign:
+            if self._s64(i, vp.S_ACT_SEEN) < activity:
+                v.recheck.append(i)
+                v.quiet = False
+        if self.frees != frees:
+            # A thread or process ended during this look: what it ends (a parent's read of its pipe, a joiner's
+            # wait) may have been judged before, from a state that is stale now. Look again.
+            v.quiet = False
+            v.again = True
         # (after every slot: a process's start-up is over once any of its threads waited)
         v.counted = any(self._slots[i].pid in self._waited or real - self._slots[i].since > self.startup_grace
                         for i in v.blockers)
