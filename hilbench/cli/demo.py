@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from hilbench.cli.common import add_set_option
+from hilbench.cli.common import CliError, add_set_option
 from hilbench.errors import DeviceError
 from hilbench.rules import SECONDS
 
@@ -47,12 +47,15 @@ def cmd_demo(args: argparse.Namespace) -> int:
     from hilbench.bench.profile import load_profile
     from hilbench.clients.dynamixel_demo import run_demo
 
+    if args.virtual_time and args.unpaced:
+        raise CliError("virtual time is paced: --unpaced and --virtual-time do not go together")
     result = run_demo(load_profile(args.profile, args.overrides), args.seconds, paced=not args.unpaced,
-                      view=args.view)
+                      view=args.view, virtual_time=args.virtual_time)
     print()
     for line in demo_report(result):
         print(line)
-    print(f"demo: {result.cycles} control cycles in {result.seconds:.1f} s ({result.rate:.0f}/s), "
+    unit = "virtual s" if args.virtual_time else "s"
+    print(f"demo: {result.cycles} control cycles in {result.seconds:.1f} {unit} ({result.rate:.0f}/s), "
           f"{result.failed_reads} failed reads")
     if not result.cycles:
         raise DemoError("the control loop completed no cycle (give it more time: --seconds)")
@@ -92,6 +95,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_set_option(dm)
     dm.add_argument("--seconds", type=SECONDS, default=10.0, help="how long to run (0: until Ctrl-C; default 10)")
     dm.add_argument("--unpaced", action="store_true", help="deliver bytes at once instead of at wire speed")
+    dm.add_argument("--virtual-time", action="store_true",
+                    help="run the bench on a virtual clock and the control loop in lockstep with it, in a "
+                         "process of its own: --seconds are virtual, and two runs print the same figures")
     dm.add_argument("--view", choices=choices, default=choices[0] if choices else None,
                     help="dashboard view to start with (keys: 1-4)")
     dm.set_defaults(func=cmd_demo)
