@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 
 from hilbench.cli.common import CliError, add_set_option
 from hilbench.errors import DeviceError
@@ -57,6 +58,9 @@ def cmd_demo(args: argparse.Namespace) -> int:
     unit = "virtual s" if args.virtual_time else "s"
     print(f"demo: {result.cycles} control cycles in {result.seconds:.1f} {unit} ({result.rate:.0f}/s), "
           f"{result.failed_reads} failed reads")
+    if result.stalls:
+        print(f"hilbench: note: the control loop stalled the lockstep {result.stalls} time(s) (time then followed "
+              "the wall clock): these figures may differ from run to run", file=sys.stderr)
     if not result.cycles:
         raise DemoError("the control loop completed no cycle (give it more time: --seconds)")
     return 0

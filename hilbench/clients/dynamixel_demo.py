@@ -120,6 +120,9 @@ class DemoResult:
     #: Whether its servos report their condition in every status's error byte (Protocol 1.0, Feetech), not in
     #: a Hardware Error Status register.
     status_errors: bool = False
+    #: Virtual time only: how often a thread of the control loop ran a lockstep stall's length without waiting
+    #: (then time followed the wall clock, and the figures may differ from run to run).
+    stalls: int = 0
 
     @property
     def rate(self) -> float:
@@ -460,6 +463,7 @@ def _run_virtual(prof: Profile, seconds: float, console: Console, view: str) -> 
             if key in got:
                 setattr(result, key, got[key])
         result.summary = monitor.summary()
+        result.stalls = bench.services["clock"].stats()["stalls"]
     return result
 
 
