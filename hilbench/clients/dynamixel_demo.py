@@ -22,9 +22,9 @@ every status on Protocol 1.0 and Feetech).
 A profile without a servo bus is refused before anything starts
 (:func:`check_profile`).
 
-With ``virtual_time`` (``hilbench demo --virtual-time``) the bench runs on a
-virtual clock and the control loop runs as a child process in lockstep with
-it, as ``hilbench run`` would start it (``python -m
+With ``hilbench demo --virtual-time`` (:func:`hilbench.cli.demo.run_virtual_demo`)
+the bench runs on a virtual clock and the control loop runs as a child process
+in lockstep with it, as ``hilbench run`` would start it (``python -m
 hilbench.clients.dynamixel_demo --client FILE``: the bus it drives, written by
 the bench's process; it prints its counts as JSON). The faults are the
 bench's timers at virtual instants, the monitor and the dashboard stay in the
@@ -38,9 +38,7 @@ import json
 import math
 import pickle
 import signal
-import subprocess
 import sys
-import tempfile
 import threading
 import time
 from dataclasses import dataclass, field
@@ -120,6 +118,8 @@ class DemoResult:
     #: Whether its servos report their condition in every status's error byte (Protocol 1.0, Feetech), not in
     #: a Hardware Error Status register.
     status_errors: bool = False
+    #: When the control loop started (after its Pings and set-up), on its clock (monotonic seconds).
+    started: float = 0.0
     #: Virtual time only: how often a thread of the control loop ran a lockstep stall's length without waiting
     #: (then time followed the wall clock, and the figures may differ from run to run).
     stalls: int = 0
@@ -305,7 +305,7 @@ class Controller:
             for lay, ids in self.groups:
                 connection.sync_write(lay.torque, dict.fromkeys(ids, 1))
                 self._count("sync_write")
-            start = time.monotonic()
+            start = res.started = time.monotonic()
             # a client process (no bench) leaves the faults to the bench's timers
             vanished = errored = bench is None
             while not self.stop.is_set():
@@ -352,18 +352,12 @@ def run_demo(
     console: Console | None = None,
     paced: bool = True,
     view: str = "devices",
-    virtual_time: bool = False,
 ) -> DemoResult:
-    """Run the demo for ``seconds`` (0 = until Ctrl-C or ``q``); returns what happened.
-
-    ``virtual_time``: on a virtual-time bench, ``seconds`` virtual seconds, the control loop a child process in
-    lockstep with the bench (see the module's docstring).
-    """
+    """Run the demo for ``seconds`` (0 = until Ctrl-C or ``q``); returns what happened. (In virtual time:
+    :func:`hilbench.cli.demo.run_virtual_demo`.)"""
     console = console or Console()
     prof = load_profile(profile)
     check_profile(prof)
-    if virtual_time:
-        return _run_virtual(prof, seconds, console, view)
     with Bench(prof, paced=paced) as bench:
         ctl = Controller(bench, seconds)
         ep = ctl.ep
@@ -383,14 +377,14 @@ def run_demo(
             pass
         finally:
             ctl.join()
-            _drain(monitor, ep.medium)
+            drain(monitor, ep.medium)
             monitor.stop()
         result = ctl.result
         result.summary = monitor.summary()
     return result
 
 
-def _drain(monitor: Monitor, medium: Any, timeout: float = 1.0) -> None:
+def drain(monitor: Monitor, medium: Any, timeout: float = 1.0) -> None:
     """Let the monitor see the last transmissions before it stops."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
@@ -399,72 +393,6 @@ def _drain(monitor: Monitor, medium: Any, timeout: float = 1.0) -> None:
         if seen >= medium.stats.bytes:
             break
         time.sleep(0.01)
-
-
-#: How long a control loop told to stop (Ctrl-C, ``q``) has to finish its cycle and say what it did.
-CLIENT_GRACE = 10.0
-
-
-def _run_virtual(prof: Profile, seconds: float, console: Console, view: str) -> DemoResult:
-    """The demo on a virtual-time bench: the bench's timers stage the faults at virtual instants from its
-    start, the control loop runs under the bench's clock in a child process (:func:`client_main`)."""
-    from hilbench.bench.port_state_server import serve_port_state
-    from hilbench.run.environment import read_bench, run_environment
-
-    with Bench(prof, virtual_time=True) as bench, tempfile.TemporaryDirectory(prefix="hilbench-demo-") as tmp:
-        serve_port_state(bench)  # (the SDK's open sets DTR and RTS; its drains ask the line)
-        bus = ServoBus.of(bench)
-        scenario = Scenario.for_run(bus.ids, seconds)
-        # the clock holds until the client's threads take part: its start-up takes no virtual time
-        schedule_faults(bench, bus, scenario, bench.now())
-        ep = bench.endpoint(bus.name)
-        source = MediumSource(ep.medium, name=f"demo {prof.name} on {ep.path}")
-        monitor = Monitor(source, silence=0.5).start()
-        spec = Path(tmp) / "bus.pickle"
-        spec.write_bytes(pickle.dumps(bus))
-        env, _notes = run_environment([read_bench(bench.manifest())], "c")
-        proc = subprocess.Popen([sys.executable, "-m", __name__, "--client", str(spec), "--seconds", repr(seconds)],
-                                stdout=subprocess.PIPE, env=env, text=True)
-        out: list[str] = []
-        reader = threading.Thread(target=lambda: out.append(proc.stdout.read() if proc.stdout else ""),
-                                  name="demo-client-out", daemon=True)
-        reader.start()
-
-        def status() -> str:
-            t = bench.now() - bench.started_at if bench.started_at is not None else 0.0
-            return f"SDK: {'done' if proc.poll() is not None else 'running'}, virtual {t:.1f} s"
-
-        dash = Dashboard(monitor.tracker, lock=monitor.lock, source=source.name, view=view, status=status)
-        try:
-            dash.run(console=console, stop=lambda: proc.poll() is not None, screen_mode=False)
-        except KeyboardInterrupt:
-            pass
-        finally:
-            if proc.poll() is None:  # q, or Ctrl-C in a terminal (which the child got too): finish the cycle
-                proc.send_signal(signal.SIGINT)
-            try:
-                proc.wait(timeout=CLIENT_GRACE)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
-            reader.join(timeout=5)
-            _drain(monitor, ep.medium)
-            monitor.stop()
-        result = DemoResult(scenario=scenario)
-        text = "".join(out).strip().splitlines()
-        try:
-            got = json.loads(text[-1]) if text else None
-        except ValueError:
-            got = None
-        if proc.returncode != 0 or not isinstance(got, dict):
-            raise DemoClientError(f"the demo's control loop (pid {proc.pid}) ended with status {proc.returncode} "
-                                  "and no figures (its error is above)")
-        for key in ("cycles", "seconds", "failed_reads", "pings", "sdk_packets", "protocol", "status_errors"):
-            if key in got:
-                setattr(result, key, got[key])
-        result.summary = monitor.summary()
-        result.stalls = bench.services["clock"].stats()["stalls"]
-    return result
 
 
 def client_main(argv: list[str] | None = None) -> int:
@@ -484,7 +412,7 @@ def client_main(argv: list[str] | None = None) -> int:
     res = ctl.result
     print(json.dumps({"cycles": res.cycles, "seconds": res.seconds, "failed_reads": res.failed_reads,
                       "pings": res.pings, "sdk_packets": res.sdk_packets, "protocol": res.protocol,
-                      "status_errors": res.status_errors}), flush=True)
+                      "status_errors": res.status_errors, "started": res.started}), flush=True)
     return 0
 
 
