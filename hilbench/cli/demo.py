@@ -69,9 +69,10 @@ def cmd_demo(args: argparse.Namespace) -> int:
         print(f"demo: the control loop started {result.started:.6f} virtual s after the bench")
     print(f"demo: {result.cycles} control cycles in {result.seconds:.1f} {unit} ({result.rate:.0f}/s), "
           f"{result.failed_reads} failed reads")
-    if result.stalls:
-        print(f"hilbench: note: the control loop stalled the lockstep {result.stalls} time(s) (time then followed "
-              "the wall clock): these figures may differ from run to run", file=sys.stderr)
+    if any(result.lockstep.values()):  # (see DemoResult.lockstep)
+        counts = ", ".join(f"{k} {v}" for k, v in result.lockstep.items() if v)
+        print(f"hilbench: note: the lockstep counted {counts}: these figures may differ from run to run",
+              file=sys.stderr)
     if not result.cycles:
         raise DemoError("the control loop completed no cycle (give it more time: --seconds)")
     return 0
@@ -167,7 +168,8 @@ def run_virtual_demo(prof: Profile, seconds: float, console: Console | None = No
                 setattr(result, key, got[key])
         result.started -= bench.started_at or 0.0  # (from the bench's start, where the scenario counts from)
         result.summary = monitor.summary()
-        result.stalls = bench.services["clock"].stats()["stalls"]
+        stats = bench.services["clock"].stats()
+        result.lockstep = {k: stats[k] for k in ("stalls", "settle_timeouts")}
     return result
 
 

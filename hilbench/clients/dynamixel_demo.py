@@ -120,9 +120,10 @@ class DemoResult:
     status_errors: bool = False
     #: When the control loop started (after its Pings and set-up), on its clock (monotonic seconds).
     started: float = 0.0
-    #: Virtual time only: how often a thread of the control loop ran a lockstep stall's length without waiting
-    #: (then time followed the wall clock, and the figures may differ from run to run).
-    stalls: int = 0
+    #: Virtual time only: the lockstep's counters of what makes runs differ (``stalls``: a thread of the control
+    #: loop ran a stall's length without waiting, then time followed the wall clock; ``settle_timeouts``:
+    #: delivered bytes the lockstep gave up waiting for).
+    lockstep: dict[str, int] = field(default_factory=dict)
 
     @property
     def rate(self) -> float:
