@@ -315,7 +315,7 @@ static void release(struct vc_slot *s, uint32_t state)
     nudge();
 }
 
-/* A claimed slot given back unused (a fork, thread, spawn or exec that failed): no pid is left in it for the
+/* A claimed slot given back unused (a fork, thread or spawn that failed): no pid is left in it for the
  * loop to judge the next claimer's slot by (it frees a slot whose pid is dead). */
 static void unclaim(struct vc_slot *s)
 {
@@ -1557,10 +1557,13 @@ static struct vc_slot *exec_slot(char var[32], uint32_t *old_state)
 static void exec_failed(struct vc_slot *s, uint32_t old_state)
 {
     int saved = errno;
-    if (s && old_state == ST_FREE)
-        unclaim(s);
-    else if (s)
+    if (s && old_state == ST_FREE) {  /* (a claim of its own: given back as it was taken, pid and tid first) */
+        __atomic_store_n(&s->pid, 0, __ATOMIC_SEQ_CST);
+        __atomic_store_n(&s->tid, 0, __ATOMIC_SEQ_CST);
+        __atomic_store_n(&s->state, ST_FREE, __ATOMIC_SEQ_CST);
+    } else if (s) {
         __atomic_store_n(&s->state, ST_RUNNING, __ATOMIC_SEQ_CST);
+    }
     errno = saved;
 }
 
