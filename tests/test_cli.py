@@ -172,6 +172,62 @@ def test_demo_drives_each_servo_bus_with_its_own_protocol(profile, protocol, err
     assert cycles > 20 and 0 < failed < cycles / 2
 
 
+@pytest.mark.parametrize("seconds", [
+    "0.5",  # the normal set: a short run (each run costs about 3 s of wall time a virtual second on 2 busy cores)
+    pytest.param("2", marks=pytest.mark.slow),  # issue 26's test: 2 virtual seconds
+])
+def test_demo_in_virtual_time_prints_the_same_figures_in_two_runs(seconds):
+    """Issue 26: `demo --virtual-time` runs the SDK's loop in a child process in lockstep with the bench and
+    stages the faults as the bench's timers, so two runs print the same cycles, failed reads and monitor lines
+    (only the dashboard's pty name and its wall-clock packet rate may differ)."""
+    from hilbench.run.build import ShimBuildError, shim_library
+
+    try:
+        shim_library()
+    except ShimBuildError as exc:
+        pytest.skip(f"the preload library cannot be built: {exc}")
+    env = {k: v for k, v in os.environ.items() if k not in ("HILBENCH_CLOCK", "PYTHONHASHSEED")}
+    # both at once: each run is the other's busy neighbour on the machine, which virtual time does not see
+    procs = [subprocess.Popen([sys.executable, "-m", "hilbench.cli", "demo", "--virtual-time", "--seconds", seconds],
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env) for _ in range(2)]
+    results = []
+    try:
+        for proc in procs:
+            out, err = proc.communicate(timeout=120)
+            results.append((proc.returncode, out, err))
+    finally:
+        for proc in procs:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+    figures = []
+    for returncode, out, err in results:
+        assert returncode == 0, err
+        assert "may differ from run to run" not in err  # (a lockstep stall would make the runs differ: say why)
+        assert "hilbench monitor  demo wolfgang on /d" in out and f"[SDK: done, virtual {float(seconds):.1f} s]" in out
+        figures.append([line for line in out.splitlines() if line.startswith(("monitor: ", "demo: "))])
+    assert figures[0] == figures[1]
+    monitor = [line for line in figures[0] if line.startswith("monitor: ")]
+    started, summary = [line for line in figures[0] if line.startswith("demo: ")]
+    # (the control loop's Pings and set-up take the same virtual time in every run)
+    assert started.startswith("demo: the control loop started 0.0") and started.endswith(" virtual s after the bench")
+    assert monitor[0].startswith("monitor: ID 7 dropped out 1 time(s), missed ") and "came back" in monitor[0]
+    assert monitor[1:] == ["monitor: ID 12 alert on, hardware error: overheating", "monitor: never answered: ID 101"]
+    assert summary.startswith("demo: ") and f" control cycles in {float(seconds):.1f} virtual s " in summary
+    cycles, failed = int(summary.split()[1]), int(summary.split(", ")[-1].split()[0])
+    missed = int(monitor[0].split("missed ")[1].split()[0])
+    # every failed Sync Read is one of ID 7's replies missed while it was gone (the bench's timer), and no other
+    assert cycles > 60 * float(seconds) and failed == missed > 0
+
+
+def test_demo_refuses_virtual_time_unpaced_in_one_line(capsys):
+    from hilbench.cli import main
+
+    assert main(["demo", "--virtual-time", "--unpaced", "--seconds", "1"]) == 2
+    assert capsys.readouterr().err.splitlines() == [
+        "hilbench: error: virtual time is paced: --unpaced and --virtual-time do not go together"]
+
+
 @pytest.mark.parametrize("profile", ["mecarover", "scanners"])
 def test_demo_refuses_a_profile_without_a_servo_bus_in_one_line(profile, capsys):
     from hilbench.cli import main

@@ -130,6 +130,7 @@ class Verdict:
     flight: list[str] = field(default_factory=list)  # ptys with bytes written and not taken, or delivered
     # and not visible on the client's side yet
     held: bool = False  # a client's request is in the bench's hands outside the loop (a line request)
+    again: bool = False  # a thread or process ended during the look: look again at once
 
 
 @dataclass
@@ -137,7 +138,8 @@ class _Slot:
     pid: int
     tid: int
     since: float  # real time first seen
-    asleep: tuple[int, float] | None = None  # (progress, real time) when /proc last showed it asleep
+    asleep: tuple[tuple[int, int], float] | None = None  # ((progress, ns on a CPU), real time) when /proc last
+    # showed it asleep
 
 
 @dataclass
@@ -214,6 +216,8 @@ class Lockstep:
         self._stall_at: tuple[int, float] | None = None  # (vnow ns, real) when the stall began
         self.wakes = self.rechecks = self.asleep_elsewhere = self.settle_timeouts = 0
         self.participants_seen = 0
+        self.frees = 0  # slots freed (exits seen)
+        self._schedstat = True  # whether /proc has the threads' time on a CPU (schedstat)
         self._woke_at = -1  # the instant of the last wake_due
         self.last_stall: dict[str, Any] | None = None
         self.warnings: deque[str] = deque(maxlen=64)  #: the latest warnings (also on stderr)
@@ -377,8 +381,18 @@ class Lockstep:
             self.rechecks += self._wake(i)
 
     def _free(self, i: int) -> None:
+        """Free slot ``i`` (its thread or process is gone: nobody else writes it now). Its pid and tid go first:
+        a client that claims the slot once it is FREE has a moment before it stores its own, and a look then must
+        not judge the new claim by the old owner's (dead) pid."""
+        self.u32[(vp.slot_offset(i) + vp.S_PID) // 4] = 0
+        self.u32[(vp.slot_offset(i) + vp.S_TID) // 4] = 0
         self.u32[(vp.slot_offset(i) + vp.S_STATE) // 4] = vp.FREE
         self._slots.pop(i, None)
+        self.frees += 1
+        # A thread seen asleep in a call the shim does not wrap must be seen asleep anew: a parent waiting for
+        # this child in sigsuspend (bash) is woken by its SIGCHLD only after the child's pidfd said it ended.
+        for other in self._slots.values():
+            other.asleep = None
         self.atomics.add64(self.base + vp.H_ACTIVITY, 1)  # an exit is a hand-over (a joiner re-checks)
 
     def _dead(self, pid: int) -> bool:
@@ -414,11 +428,13 @@ class Lockstep:
     def look(self, real: float | None = None) -> Verdict:
         """D: may time move now? Frees the slots of exited threads and dead processes on the way."""
         real = time.monotonic() if real is None else real
+        frees = self.frees
         self._reap()
         states = self.u32[_STATE_WORD:_STATE_WORD + _SLOT_WORDS * self.nslots:_SLOT_WORDS].tolist()
-        activity = self._h(vp.H_ACTIVITY)
         v = Verdict(quiet=True)
         nxt = vp.NO_DEADLINE
+        foreign: list[int] = []
+        asleep: list[tuple[int, int]] = []  # (slot, progress) of threads asleep in calls the shim does not wrap
         for i, st in enumerate(states):
             if st == vp.FREE:
                 continue
@@ -445,16 +461,29 @@ class Lockstep:
                 continue
             if st == vp.WAITING or st == vp.POLLING:
                 self._waited.add(pid)
-                if self._s32(i, vp.S_FLAGS) & vp.SF_FOREIGN and self._s64(i, vp.S_ACT_SEEN) < activity:
-                    v.recheck.append(i)
-                    v.quiet = False
-                    continue
+                if self._s32(i, vp.S_FLAGS) & vp.SF_FOREIGN:
+                    foreign.append(i)
                 nxt = min(nxt, self._s64(i, vp.S_DEADLINE))
                 continue
             if st == vp.RUNNING and self._asleep_elsewhere(i, info, real):
+                asleep.append((i, self._s64(i, vp.S_PROGRESS)))
                 continue  # waiting in a call the shim does not wrap: no deadline
             v.quiet = False
             v.blockers.append(i)
+        # Hand-overs since a waiter began to wait, judged after every slot: freeing an exited slot above is one
+        # (a parent in waitpid must look again), and its slot may come before the child's.
+        activity = self._h(vp.H_ACTIVITY)
+        for i in foreign:
+            if self._s64(i, vp.S_ACT_SEEN) < activity:
+                v.recheck.append(i)
+                v.quiet = False
+        if self.frees != frees or v.quiet and self._moved(states, asleep):
+            # A thread or process ended during this look: what it ends (a parent's read of its pipe, a joiner's
+            # wait) may have been judged before, from a state that is stale now. Or a slot changed while the
+            # pass looked at the others (a fork claimed one; a thread /proc showed asleep made a call since):
+            # the pass is no snapshot of one instant. Look again.
+            v.quiet = False
+            v.again = True
         # (after every slot: a process's start-up is over once any of its threads waited)
         v.counted = any(self._slots[i].pid in self._waited or real - self._slots[i].since > self.startup_grace
                         for i in v.blockers)
@@ -484,32 +513,50 @@ class Lockstep:
             self._counted_since = real
         return v
 
+    def _moved(self, states: list[int], asleep: list[tuple[int, int]]) -> bool:
+        """Whether a slot changed state since ``states`` was read, or a thread judged asleep made progress."""
+        now = self.u32[_STATE_WORD:_STATE_WORD + _SLOT_WORDS * self.nslots:_SLOT_WORDS].tolist()
+        return now != states or any(self._s64(i, vp.S_PROGRESS) != progress for i, progress in asleep)
+
     def _asleep_elsewhere(self, i: int, info: _Slot, real: float) -> bool:
         """A RUNNING thread that /proc shows asleep twice, :data:`BLOCKED_CONFIRM` apart, with no wrapped
-        call in between (PLAN26 §4.3): it waits in a call the shim does not see (a mutex, a blocking read)."""
+        call in between (PLAN26 §4.3): it waits in a call the shim does not see (a mutex, a blocking read).
+
+        Between two looks the thread must not have run at all: its time on a CPU (``schedstat``) is compared
+        too, not only its count of wrapped calls. A thread woken from one such sleep (bash's ``sigsuspend``
+        by its child's SIGCHLD, reaping it with a WNOHANG waitpid the shim does not count) that computed and
+        fell asleep again somewhere else between two looks would otherwise still count as the sleeper it was."""
         confirmed = info.asleep is not None and info.asleep[1] < 0  # (seen asleep before, time moved since)
         if not info.tid or (not confirmed and (self._blocked_since is None
                                                or real - self._blocked_since < BLOCKED_CHECK)):
             info.asleep = None
             return False
+        task = f"/proc/{info.pid}/task/{info.tid}"
+        ran = 0
         try:
-            with open(f"/proc/{info.pid}/task/{info.tid}/stat", "rb") as f:
+            if self._schedstat:
+                try:
+                    with open(f"{task}/schedstat", "rb") as f:
+                        ran = int(f.read().split()[0])  # ns on a CPU (read first: a run after it shows in the state)
+                except FileNotFoundError:
+                    self._schedstat = os.path.exists(task)  # (a kernel without CONFIG_SCHED_INFO: progress only)
+            with open(f"{task}/stat", "rb") as f:
                 stat = f.read()
             state = stat[stat.rindex(b")") + 2:stat.rindex(b")") + 3]
-        except (OSError, ValueError):
+        except (OSError, ValueError, IndexError):
             return False
-        progress = self._s64(i, vp.S_PROGRESS)
+        key = (self._s64(i, vp.S_PROGRESS), ran)
         if state != b"S":
             info.asleep = None
             return False
-        if info.asleep is None or info.asleep[0] != progress:
-            info.asleep = (progress, real)
+        if info.asleep is None or info.asleep[0] != key:
+            info.asleep = (key, real)
             return False
         if confirmed:
             return True
         if real - info.asleep[1] < BLOCKED_CONFIRM:
             return False
-        info.asleep = (progress, -1.0)  # confirmed: later looks need one /proc read while it stays asleep
+        info.asleep = (key, -1.0)  # confirmed: later looks need one /proc read while it stays asleep
         self.asleep_elsewhere += 1
         return True
 

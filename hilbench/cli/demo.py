@@ -3,10 +3,17 @@
 from __future__ import annotations
 
 import argparse
+import sys
+from typing import TYPE_CHECKING
 
-from hilbench.cli.common import add_set_option
+from hilbench.cli.common import CliError, add_set_option
 from hilbench.errors import DeviceError
 from hilbench.rules import SECONDS
+
+if TYPE_CHECKING:
+    from hilbench.bench.profile import Profile
+    from hilbench.clients.dynamixel_demo import DemoResult
+    from hilbench.console import Console
 
 
 class DemoError(DeviceError):
@@ -47,16 +54,123 @@ def cmd_demo(args: argparse.Namespace) -> int:
     from hilbench.bench.profile import load_profile
     from hilbench.clients.dynamixel_demo import run_demo
 
-    result = run_demo(load_profile(args.profile, args.overrides), args.seconds, paced=not args.unpaced,
-                      view=args.view)
+    if args.virtual_time and args.unpaced:
+        raise CliError("virtual time is paced: --unpaced and --virtual-time do not go together")
+    prof = load_profile(args.profile, args.overrides)
+    if args.virtual_time:
+        result = run_virtual_demo(prof, args.seconds, view=args.view)
+    else:
+        result = run_demo(prof, args.seconds, paced=not args.unpaced, view=args.view)
     print()
     for line in demo_report(result):
         print(line)
-    print(f"demo: {result.cycles} control cycles in {result.seconds:.1f} s ({result.rate:.0f}/s), "
+    unit = "virtual s" if args.virtual_time else "s"
+    if args.virtual_time:
+        print(f"demo: the control loop started {result.started:.6f} virtual s after the bench")
+    print(f"demo: {result.cycles} control cycles in {result.seconds:.1f} {unit} ({result.rate:.0f}/s), "
           f"{result.failed_reads} failed reads")
+    if any(result.lockstep.values()):  # (see DemoResult.lockstep)
+        counts = ", ".join(f"{k} {v}" for k, v in result.lockstep.items() if v)
+        print(f"hilbench: note: the lockstep counted {counts}: these figures may differ from run to run",
+              file=sys.stderr)
     if not result.cycles:
         raise DemoError("the control loop completed no cycle (give it more time: --seconds)")
     return 0
+
+
+#: How long a control loop told to stop (Ctrl-C, ``q``) has to finish its cycle and say what it did.
+CLIENT_GRACE = 10.0
+
+
+def run_virtual_demo(prof: Profile, seconds: float, console: Console | None = None,
+                     view: str = "devices") -> DemoResult:
+    """The demo on a virtual-time bench: the bench's timers stage the faults at virtual instants from its
+    start, the control loop runs under the bench's clock in a child process
+    (:func:`hilbench.clients.dynamixel_demo.client_main`)."""
+    import json
+    import pickle
+    import signal
+    import subprocess
+    import tempfile
+    import threading
+    from pathlib import Path
+
+    from hilbench.bench import Bench
+    from hilbench.bench.port_state_server import serve_port_state
+    from hilbench.clients.dynamixel_demo import (
+        DemoClientError,
+        DemoResult,
+        Scenario,
+        ServoBus,
+        check_profile,
+        drain,
+        schedule_faults,
+    )
+    from hilbench.console import Console
+    from hilbench.dashboard import Dashboard
+    from hilbench.monitor import Monitor
+    from hilbench.run.environment import read_bench, run_environment
+    from hilbench.transports.sources import MediumSource
+
+    console = console or Console()
+    check_profile(prof)
+
+    with Bench(prof, virtual_time=True) as bench, tempfile.TemporaryDirectory(prefix="hilbench-demo-") as tmp:
+        serve_port_state(bench)  # (the SDK's open sets DTR and RTS; its drains ask the line)
+        bus = ServoBus.of(bench)
+        scenario = Scenario.for_run(bus.ids, seconds)
+        # the clock holds until the client's threads take part: its start-up takes no virtual time
+        schedule_faults(bench, bus, scenario, bench.now())
+        ep = bench.endpoint(bus.name)
+        source = MediumSource(ep.medium, name=f"demo {prof.name} on {ep.path}")
+        monitor = Monitor(source, silence=0.5).start()
+        spec = Path(tmp) / "bus.pickle"
+        spec.write_bytes(pickle.dumps(bus))
+        env, _notes = run_environment([read_bench(bench.manifest())], "c")
+        proc = subprocess.Popen([sys.executable, "-m", "hilbench.clients.dynamixel_demo", "--client", str(spec), "--seconds", repr(seconds)],
+                                stdout=subprocess.PIPE, env=env, text=True)
+        out: list[str] = []
+        reader = threading.Thread(target=lambda: out.append(proc.stdout.read() if proc.stdout else ""),
+                                  name="demo-client-out", daemon=True)
+        reader.start()
+
+        def status() -> str:
+            t = bench.now() - bench.started_at if bench.started_at is not None else 0.0
+            return f"SDK: {'done' if proc.poll() is not None else 'running'}, virtual {t:.1f} s"
+
+        dash = Dashboard(monitor.tracker, lock=monitor.lock, source=source.name, view=view, status=status)
+        try:
+            dash.run(console=console, stop=lambda: proc.poll() is not None, screen_mode=False)
+        except KeyboardInterrupt:
+            pass
+        finally:
+            if proc.poll() is None:  # q, or Ctrl-C in a terminal (which the child got too): finish the cycle
+                proc.send_signal(signal.SIGINT)
+            try:
+                proc.wait(timeout=CLIENT_GRACE)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+            reader.join(timeout=5)
+            drain(monitor, ep.medium)
+            monitor.stop()
+        result = DemoResult(scenario=scenario)
+        text = "".join(out).strip().splitlines()
+        try:
+            got = json.loads(text[-1]) if text else None
+        except ValueError:
+            got = None
+        if proc.returncode != 0 or not isinstance(got, dict):
+            raise DemoClientError(f"the demo's control loop (pid {proc.pid}) ended with status {proc.returncode} "
+                                  "and no figures (its error is above)")
+        for key in ("cycles", "seconds", "failed_reads", "pings", "sdk_packets", "protocol", "status_errors", "started"):
+            if key in got:
+                setattr(result, key, got[key])
+        result.started -= bench.started_at or 0.0  # (from the bench's start, where the scenario counts from)
+        result.summary = monitor.summary()
+        stats = bench.services["clock"].stats()
+        result.lockstep = {k: stats[k] for k in ("stalls", "settle_timeouts")}
+    return result
 
 
 ORDER = 70
@@ -92,6 +206,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_set_option(dm)
     dm.add_argument("--seconds", type=SECONDS, default=10.0, help="how long to run (0: until Ctrl-C; default 10)")
     dm.add_argument("--unpaced", action="store_true", help="deliver bytes at once instead of at wire speed")
+    dm.add_argument("--virtual-time", action="store_true",
+                    help="run the bench on a virtual clock and the control loop in lockstep with it, in a "
+                         "process of its own: --seconds are virtual, and two runs print the same figures")
     dm.add_argument("--view", choices=choices, default=choices[0] if choices else None,
                     help="dashboard view to start with (keys: 1-4)")
     dm.set_defaults(func=cmd_demo)

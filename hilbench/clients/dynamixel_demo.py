@@ -21,22 +21,38 @@ every status on Protocol 1.0 and Feetech).
 
 A profile without a servo bus is refused before anything starts
 (:func:`check_profile`).
+
+With ``hilbench demo --virtual-time`` (:func:`hilbench.cli.demo.run_virtual_demo`)
+the bench runs on a virtual clock and the control loop runs as a child process
+in lockstep with it, as ``hilbench run`` would start it (``python -m
+hilbench.clients.dynamixel_demo --client FILE``: the bus it drives, written by
+the bench's process; it prints its counts as JSON). The faults are the
+bench's timers at virtual instants, the monitor and the dashboard stay in the
+bench's process, and two runs print the same figures.
 """
 
 from __future__ import annotations
 
+import argparse
+import json
 import math
+import pickle
+import signal
+import sys
 import threading
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
 
 from hilbench.bench import Bench
 from hilbench.bench.profile import DEFAULT_PROFILE, Profile, load_profile
 from hilbench.clients.servo_connections import Layout, ServoConnection, layout, servo_clients
 from hilbench.console import Console
 from hilbench.dashboard import Dashboard
-from hilbench.errors import UsageError
+from hilbench.errors import DeviceError, UsageError
 from hilbench.monitor import Monitor
+from hilbench.protocols.control_table import Model
 from hilbench.transports.sources import MediumSource
 
 #: Hardware Error Status bit of an overheating Protocol 2.0 servo.
@@ -47,6 +63,10 @@ SLOW_EVERY = 25
 
 class DemoUsageError(UsageError):
     """A profile the demo cannot drive (exit status 2, one line)."""
+
+
+class DemoClientError(DeviceError):
+    """The control loop's process of ``demo --virtual-time`` failed (exit status 1, one line)."""
 
 
 def check_profile(prof: Profile) -> None:
@@ -98,6 +118,12 @@ class DemoResult:
     #: Whether its servos report their condition in every status's error byte (Protocol 1.0, Feetech), not in
     #: a Hardware Error Status register.
     status_errors: bool = False
+    #: When the control loop started (after its Pings and set-up), on its clock (monotonic seconds).
+    started: float = 0.0
+    #: Virtual time only: the lockstep's counters of what makes runs differ (``stalls``: a thread of the control
+    #: loop ran a stall's length without waiting, then time followed the wall clock; ``settle_timeouts``:
+    #: delivered bytes the lockstep gave up waiting for).
+    lockstep: dict[str, int] = field(default_factory=dict)
 
     @property
     def rate(self) -> float:
@@ -123,6 +149,67 @@ def servo_endpoint(bench: Bench):
     raise DemoUsageError(f"profile {bench.profile.name!r} has no servo bus")
 
 
+@dataclass
+class ServoBus:
+    """The servo bus the control loop drives, as a program on the host sees it: no bench, only the port to
+    open and what is on the bus (what a child process of ``demo --virtual-time`` gets from the bench's)."""
+
+    #: The bench's endpoint.
+    name: str
+    protocol: str
+    #: The endpoint's options (e.g. the Dynamixel ``protocol_version``).
+    options: dict[str, Any]
+    #: The pty the program opens.
+    path: str
+    baud: int
+    #: (ID, model) of the servos, by ID.
+    servos: list[tuple[int, Model]]
+    #: (ID, model) of the bus's devices that are not servos (the Wolfgang foot sensor), by ID.
+    others: list[tuple[int, Model]]
+
+    @classmethod
+    def of(cls, bench: Bench) -> ServoBus:
+        """The bench's first servo bus (:func:`servo_endpoint`)."""
+        ep = servo_endpoint(bench)
+        devices = sorted(ep.bus.servos, key=lambda s: s.id)
+        return cls(ep.name, ep.spec.protocol, dict(ep.spec.options), ep.path, ep.spec.baud,
+                   [(s.id, s.model) for s in devices if s.is_servo],
+                   [(s.id, s.model) for s in devices if not s.is_servo])
+
+    @property
+    def ids(self) -> list[int]:
+        return [i for i, _ in self.servos]
+
+    def layouts(self) -> dict[int, Layout]:
+        """The register layout of each servo that has one."""
+        return {i: lay for i, model in self.servos if (lay := layout(model)) is not None}
+
+
+def stage_vanish(bench: Bench, bus: ServoBus, scenario: Scenario, now: float) -> None:
+    """The staged drop-out: the scenario's servo falls silent for ``vanish_for`` seconds from ``now``."""
+    bench.device(scenario.vanish_id, bus.name).vanish(now, scenario.vanish_for)
+
+
+def stage_overheat(bench: Bench, bus: ServoBus, dev_id: int, now: float) -> None:
+    """The staged fault: Hardware Error Status where the table has it, else a servo hotter than its limit
+    (which Protocol 1.0 and Feetech servos report in every status's error byte)."""
+    servo = bench.device(dev_id, bus.name)
+    lay = bus.layouts().get(dev_id)
+    if lay is None or lay.hardware_error is not None or lay.temperature_limit is None:
+        servo.raise_hardware_error(OVERHEATING, now)
+        return
+    servo.ambient_temperature = servo.get(lay.temperature_limit.key) + OVERHEAT_MARGIN
+
+
+def schedule_faults(bench: Bench, bus: ServoBus, scenario: Scenario, t0: float) -> None:
+    """The scenario as timers of a virtual-time bench's loop, at ``t0`` plus its offsets (virtual seconds)."""
+    loop = bench.loop
+    if loop is None:
+        raise ValueError("schedule_faults needs a virtual-time bench (its loop runs the timers)")
+    loop.call_at(t0 + scenario.vanish_at, lambda: stage_vanish(bench, bus, scenario, bench.now()))
+    loop.call_at(t0 + scenario.error_at, lambda: stage_overheat(bench, bus, scenario.error_id, bench.now()))
+
+
 class Controller:
     """The robot's control software: the bus's own SDK in a loop, in its own thread.
 
@@ -132,28 +219,30 @@ class Controller:
     Error Status where the table has it, and the Wolfgang foot sensor's 16 bytes.
     """
 
-    def __init__(self, bench: Bench, seconds: float, period: float = 2.0) -> None:
+    def __init__(self, bench: Bench | None, seconds: float, period: float = 2.0, *,
+                 bus: ServoBus | None = None) -> None:
+        """``bench``: the controller stages the scenario's faults on it (None: a client process, which drives
+        ``bus`` and leaves the faults to the bench's timers)."""
+        if bus is None:
+            if bench is None:
+                raise ValueError("a Controller needs a bench or a bus")
+            bus = ServoBus.of(bench)
         self.bench = bench
-        self.ep = servo_endpoint(bench)
+        self.bus = bus
+        self.ep = bench.endpoint(bus.name) if bench is not None else None
         self.seconds = seconds
         self.period = period
-        servos = sorted((s for s in self.ep.bus.servos if s.is_servo), key=lambda s: s.id)
-        self.ids = [s.id for s in servos]
-        others = sorted((s for s in self.ep.bus.servos if not s.is_servo), key=lambda s: s.id)
-        self.others = [s.id for s in others]
-        client = servo_clients()[self.ep.spec.protocol]
+        self.ids = bus.ids
+        self.others = [i for i, _ in bus.others]
+        client = servo_clients()[bus.protocol]
         # devices the robot reads now and then that are not servos (the Wolfgang foot sensor, which never answers)
-        self.sensor_reads = client.sensor_reads((s.id, s.model) for s in others)
-        self.layouts: dict[int, Layout] = {}
+        self.sensor_reads = client.sensor_reads(bus.others)
+        self.layouts: dict[int, Layout] = bus.layouts()
         groups: dict[Layout, list[int]] = {}
-        for s in servos:
-            lay = layout(s.model)
-            if lay is not None:
-                self.layouts[s.id] = lay
-                groups.setdefault(lay, []).append(s.id)
+        for i, lay in self.layouts.items():
+            groups.setdefault(lay, []).append(i)
         self.groups = list(groups.items())
-        self.connection = client.connection(self.ep.spec.options, self.ep.path, self.ep.spec.baud,
-                                            [s.model for s in servos])
+        self.connection = client.connection(bus.options, bus.path, bus.baud, [m for _, m in bus.servos])
         self.result = DemoResult(scenario=Scenario.for_run(self.ids, seconds), protocol=self.connection.protocol,
                                  status_errors=self.connection.status_errors)
         self.stop = threading.Event()
@@ -183,14 +272,8 @@ class Controller:
             self.done.set()
 
     def _overheat(self, dev_id: int, now: float) -> None:
-        """The staged fault: Hardware Error Status where the table has it, else a servo hotter than its limit
-        (which Protocol 1.0 and Feetech servos report in every status's error byte)."""
-        servo = self.bench.device(dev_id, self.ep.name)
-        lay = self.layouts.get(dev_id)
-        if lay is None or lay.hardware_error is not None or lay.temperature_limit is None:
-            servo.raise_hardware_error(OVERHEATING, now)
-            return
-        servo.ambient_temperature = servo.get(lay.temperature_limit.key) + OVERHEAT_MARGIN
+        assert self.bench is not None
+        stage_overheat(self.bench, self.bus, dev_id, now)
 
     def _read(self, address: int, size: int, ids: list[int], what: str) -> dict[int, bytes]:
         got, failed = self.connection.group_read(address, size, ids)
@@ -212,7 +295,7 @@ class Controller:
         return out
 
     def _loop(self) -> None:
-        res, sc, ep = self.result, self.result.scenario, self.ep
+        res, sc, bench = self.result, self.result.scenario, self.bench
         kind = "sync_read" if self.connection.group_reads else "read"
         with self.connection as connection:
             for dev_id in self.ids + self.others:  # start-up: who is there (the foot sensor 101 is not)
@@ -223,18 +306,18 @@ class Controller:
             for lay, ids in self.groups:
                 connection.sync_write(lay.torque, dict.fromkeys(ids, 1))
                 self._count("sync_write")
-            start = time.monotonic()
-            vanished = errored = False
+            start = res.started = time.monotonic()
+            # a client process (no bench) leaves the faults to the bench's timers
+            vanished = errored = bench is None
             while not self.stop.is_set():
                 elapsed = time.monotonic() - start
                 if self.seconds and elapsed >= self.seconds:
                     break
-                now = self.bench.now()
                 if not vanished and elapsed >= sc.vanish_at:
-                    self.bench.device(sc.vanish_id, ep.name).vanish(now, sc.vanish_for)
+                    stage_vanish(bench, self.bus, sc, bench.now())
                     vanished = True
                 if not errored and elapsed >= sc.error_at:
-                    self._overheat(sc.error_id, now)
+                    self._overheat(sc.error_id, bench.now())
                     errored = True
                 for k, (lay, ids) in enumerate(self.groups):
                     self._read(lay.present.address, lay.present.size, ids, kind)
@@ -271,7 +354,8 @@ def run_demo(
     paced: bool = True,
     view: str = "devices",
 ) -> DemoResult:
-    """Run the demo for ``seconds`` (0 = until Ctrl-C or ``q``); returns what happened."""
+    """Run the demo for ``seconds`` (0 = until Ctrl-C or ``q``); returns what happened. (In virtual time:
+    :func:`hilbench.cli.demo.run_virtual_demo`.)"""
     console = console or Console()
     prof = load_profile(profile)
     check_profile(prof)
@@ -294,15 +378,44 @@ def run_demo(
             pass
         finally:
             ctl.join()
-            # let the monitor see the last transmissions before it stops
-            deadline = time.monotonic() + 1.0
-            while time.monotonic() < deadline:
-                with monitor.lock:
-                    seen = monitor.tracker.bytes
-                if seen >= ep.medium.stats.bytes:
-                    break
-                time.sleep(0.01)
+            drain(monitor, ep.medium)
             monitor.stop()
         result = ctl.result
         result.summary = monitor.summary()
     return result
+
+
+def drain(monitor: Monitor, medium: Any, timeout: float = 1.0) -> None:
+    """Let the monitor see the last transmissions before it stops."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        with monitor.lock:
+            seen = monitor.tracker.bytes if monitor.tracker is not None else 0
+        if seen >= medium.stats.bytes:
+            break
+        time.sleep(0.01)
+
+
+def client_main(argv: list[str] | None = None) -> int:
+    """The control loop of ``demo --virtual-time`` as a process of its own (under the bench's clock): drives the
+    bus of ``--client FILE`` for ``--seconds`` and prints its counts as one JSON line. SIGINT ends the loop
+    after its cycle, and the counts are printed all the same."""
+    ap = argparse.ArgumentParser(prog=f"python -m {__name__}", description=client_main.__doc__)
+    ap.add_argument("--client", required=True, metavar="FILE", help="the bus to drive (written by the demo)")
+    ap.add_argument("--seconds", type=float, default=10.0, help="how long (0: until SIGINT)")
+    args = ap.parse_args(argv)
+    bus = pickle.loads(Path(args.client).read_bytes())  # (a file the demo's own process just wrote)
+    ctl = Controller(None, args.seconds, bus=bus)
+    signal.signal(signal.SIGINT, lambda *_: ctl.stop.set())
+    ctl._run()
+    if ctl.error is not None:
+        raise ctl.error
+    res = ctl.result
+    print(json.dumps({"cycles": res.cycles, "seconds": res.seconds, "failed_reads": res.failed_reads,
+                      "pings": res.pings, "sdk_packets": res.sdk_packets, "protocol": res.protocol,
+                      "status_errors": res.status_errors, "started": res.started}), flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(client_main())

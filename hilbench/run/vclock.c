@@ -282,6 +282,10 @@ static void bump_activity(void)
 static struct vc_slot *claim(uint32_t state, uint32_t pid, uint32_t tid)
 {
     uint32_t i;
+    /* A thread that starts another (fork, spawn, a thread) made progress: a /proc look that saw it asleep
+     * before (in a call the shim does not wrap) no longer stands for the sleep it may be in now. */
+    if (t_me)
+        t_me->progress++;
     for (i = 0; i < nslots; i++) {
         uint32_t f = ST_FREE;
         if (__atomic_load_n(&SL[i].state, __ATOMIC_RELAXED) != ST_FREE)
@@ -309,6 +313,31 @@ static void release(struct vc_slot *s, uint32_t state)
     __atomic_store_n(&s->state, state, __ATOMIC_SEQ_CST);
     bump_activity();  /* an exit is a hand-over: a thread waiting for it is re-checked */
     nudge();
+}
+
+/* A claimed slot given back unused (a fork, thread or spawn that failed): no pid is left in it for the
+ * loop to judge the next claimer's slot by (it frees a slot whose pid is dead). */
+static void unclaim(struct vc_slot *s)
+{
+    __atomic_store_n(&s->pid, 0, __ATOMIC_SEQ_CST);
+    __atomic_store_n(&s->tid, 0, __ATOMIC_SEQ_CST);
+    release(s, ST_FREE);
+}
+
+/* A slot claimed for a child that is not running yet carries a token in place of a tid (the claimer's tid,
+ * high bit set; tids stay below 2^22): the claimer sets the child's pid only while the token is still there.
+ * A plain compare-and-swap on pid == 0 could land on a later claim of the same slot when the child had already
+ * run, ended and been freed (the claimer preempted meanwhile), giving that claim a dead pid. */
+static uint32_t child_token(void) { return 0x80000000u | (uint32_t)gettid_(); }
+
+static void set_child_pid(struct vc_slot *s, uint32_t token, pid_t child)
+{
+    uint32_t want[2] = {0, token}, set[2] = {(uint32_t)child, token};
+    uint64_t expected, desired;
+    memcpy(&expected, want, sizeof expected);
+    memcpy(&desired, set, sizeof desired);
+    __atomic_compare_exchange_n((uint64_t *)(void *)&s->pid, &expected, desired, 0, __ATOMIC_SEQ_CST,
+                                __ATOMIC_SEQ_CST);
 }
 
 static void close_wake_fd(void)
@@ -1468,7 +1497,7 @@ int pthread_create(pthread_t *restrict th, const pthread_attr_t *restrict attr, 
     productive();
     rc = REAL(pthread_create)(th, attr, thread_main, t);
     if (rc != 0) {
-        release(t->slot, ST_FREE);
+        unclaim(t->slot);
         free(t);
     }
     return rc;
@@ -1477,10 +1506,12 @@ int pthread_create(pthread_t *restrict th, const pthread_attr_t *restrict attr, 
 pid_t fork(void)
 {
     struct vc_slot *child;
+    uint32_t token;
     pid_t pid;
     if (!vc_on)
         return REAL(fork)();
-    child = claim(ST_STARTING, 0, 0);  /* the child's slot, before the child runs */
+    token = child_token();
+    child = claim(ST_STARTING, 0, token);  /* the child's slot, before the child runs */
     pid = REAL(fork)();
     if (pid == 0) {
         vc_pid = getpid();
@@ -1495,10 +1526,9 @@ pid_t fork(void)
         }
     } else if (child) {
         if (pid < 0) {
-            release(child, ST_FREE);
+            unclaim(child);
         } else {
-            uint32_t zero = 0;
-            __atomic_compare_exchange_n(&child->pid, &zero, (uint32_t)pid, 0, __ATOMIC_SEQ_CST, __ATOMIC_SEQ_CST);
+            set_child_pid(child, token, pid);
         }
     }
     return pid;
@@ -1527,8 +1557,13 @@ static struct vc_slot *exec_slot(char var[32], uint32_t *old_state)
 static void exec_failed(struct vc_slot *s, uint32_t old_state)
 {
     int saved = errno;
-    if (s)
-        __atomic_store_n(&s->state, old_state == ST_FREE ? ST_FREE : ST_RUNNING, __ATOMIC_SEQ_CST);
+    if (s && old_state == ST_FREE) {  /* (a claim of its own: given back as it was taken, pid and tid first) */
+        __atomic_store_n(&s->pid, 0, __ATOMIC_SEQ_CST);
+        __atomic_store_n(&s->tid, 0, __ATOMIC_SEQ_CST);
+        __atomic_store_n(&s->state, ST_FREE, __ATOMIC_SEQ_CST);
+    } else if (s) {
+        __atomic_store_n(&s->state, ST_RUNNING, __ATOMIC_SEQ_CST);
+    }
     errno = saved;
 }
 
@@ -1651,7 +1686,8 @@ static int spawn_common(int p, pid_t *pid, const char *path, const posix_spawn_f
 {
     __typeof__(posix_spawn) *real = p ? REAL(posix_spawnp) : REAL(posix_spawn);
     char var[32];
-    struct vc_slot *s = vc_on ? claim(ST_STARTING, 0, 0) : NULL;
+    uint32_t token = vc_on ? child_token() : 0;
+    struct vc_slot *s = vc_on ? claim(ST_STARTING, 0, token) : NULL;
     pid_t child = 0;
     int rc;
     if (!s)
@@ -1662,10 +1698,9 @@ static int spawn_common(int p, pid_t *pid, const char *path, const posix_spawn_f
         rc = real(&child, path, fa, attr, argv, with_slot(envp, var, env));
     }
     if (rc != 0) {
-        release(s, ST_FREE);
+        unclaim(s);
     } else {
-        uint32_t zero = 0;
-        __atomic_compare_exchange_n(&s->pid, &zero, (uint32_t)child, 0, __ATOMIC_SEQ_CST, __ATOMIC_SEQ_CST);
+        set_child_pid(s, token, child);
         if (pid)
             *pid = child;
     }

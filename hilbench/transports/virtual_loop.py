@@ -389,6 +389,8 @@ class VirtualLoop:
             if v.recheck:
                 ls.wake(v.recheck)
                 continue
+            if v.again:
+                continue
             if v.quiet and self._held():
                 self._commit(now)  # every client waits: what they wrote at now goes on the line, one burst a port
                 return None

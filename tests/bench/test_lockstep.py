@@ -103,9 +103,12 @@ def test_exited_threads_and_dead_processes_give_their_slots_back(lockstep):
     put(ls, 0, vp.EXITED)
     put(ls, 1, vp.RUNNING, pid=gone.pid, tid=gone.pid)  # killed while it ran
     activity = ls.u64[vp.H_ACTIVITY // 8]
-    assert ls.look().quiet
+    v = ls.look()
+    assert not v.quiet and v.again  # (a look that freed a slot is made again before time moves)
     assert state(ls, 0) == state(ls, 1) == vp.FREE
     assert ls.u64[vp.H_ACTIVITY // 8] == activity + 2  # exits are hand-overs: joiners re-check
+    assert struct.unpack_from("II", ls.map, vp.slot_offset(1) + vp.S_PID) == (0, 0)  # (no dead pid left in it)
+    assert ls.look().quiet
 
 
 def test_time_waits_for_an_ending_process_to_have_ended(lockstep):
@@ -120,10 +123,42 @@ def test_time_waits_for_an_ending_process_to_have_ended(lockstep):
         assert not v.quiet and state(ls, 0) == vp.EXITED and state(ls, 1) == vp.FREE
         ending.stdin.close()
         ending.wait(timeout=30)  # (reaped here; a zombie counts as ended too)
-        assert ls.look().quiet and state(ls, 0) == vp.FREE
+        v = ls.look()
+        assert not v.quiet and v.again and state(ls, 0) == vp.FREE
+        assert ls.look().quiet
     finally:
         ending.kill()
         ending.wait()
+
+
+def test_a_parent_judged_before_its_childs_end_in_the_same_look_is_woken_to_look_again(lockstep):
+    """A look goes over the slots in order: a parent waiting for its child (waitpid: a hand-over wait), in a
+    slot before the child's, was judged before the child's slot was freed in the same look. Its end is a
+    hand-over the parent must see: the parent is re-checked and time does not move (before, it moved to the
+    bench's next event: shell start-ups took a different amount of virtual time each run)."""
+    ls = lockstep()
+    activity = ls.u64[vp.H_ACTIVITY // 8]
+    put(ls, 0, vp.WAITING, flags=vp.SF_FOREIGN, act_seen=activity)  # the parent, in waitpid
+    put(ls, 1, vp.EXITED, tid=threading.get_native_id() + 1)  # its child's (here: a thread's) end
+    v = ls.look()
+    assert not v.quiet and v.recheck == [0] and state(ls, 1) == vp.FREE
+
+
+def test_a_look_is_made_again_when_a_slot_changed_during_it(lockstep, monkeypatch):
+    """A slot claimed (a fork) while the look went over the others: the verdict is no snapshot of one instant."""
+    ls = lockstep()
+    put(ls, 0, vp.WAITING, V0 + S)
+    judge = ls._asleep_elsewhere
+
+    def claim_meanwhile(*args):
+        put(ls, 2, vp.STARTING, pid=0, tid=0)
+        return judge(*args)
+
+    put(ls, 1, vp.RUNNING)
+    monkeypatch.setattr(ls, "_asleep_elsewhere", lambda *args: claim_meanwhile(*args) or True)
+    v = ls.look()
+    assert not v.quiet and v.again
+    assert not ls.look().quiet  # (the claim is a blocker now)
 
 
 def test_a_waiter_on_a_hand_over_is_woken_to_look_again(lockstep):
@@ -334,6 +369,43 @@ def test_a_thread_asleep_in_an_unwrapped_call_counts_as_waiting(lockstep):
         put(ls, 0, vp.RUNNING, tid=threading.get_native_id())  # this thread runs
         assert not ls.look(real=next(real)).quiet
     finally:
+        done.set()
+        t.join()
+
+
+def test_a_thread_asleep_elsewhere_must_not_have_run_between_looks(lockstep):
+    """A thread confirmed asleep in an unwrapped call that wakes, computes and falls asleep elsewhere between
+    two looks, with no wrapped call (bash: woken from sigsuspend by SIGCHLD, a WNOHANG waitpid), is judged
+    anew: its time on a CPU changed. And every such judgement is dropped when a slot is freed (a parent may
+    be woken by its child's end only after the child's pidfd said it ended)."""
+    ls = lockstep()
+    first, second, done = threading.Event(), threading.Event(), threading.Event()
+    tid: list[int] = []
+
+    def sleeper() -> None:
+        tid.append(threading.get_native_id())
+        first.wait()
+        sum(range(200_000))  # runs (no wrapped call: its progress count stays)
+        second.set()
+        done.wait()  # asleep elsewhere
+
+    t = threading.Thread(target=sleeper)
+    t.start()
+    try:
+        wait_until(lambda: tid, timeout=5)
+        put(ls, 0, vp.RUNNING, tid=tid[0])
+        real = iter(10.0 + k * 1e-4 for k in range(10**6))
+        wait_until(lambda: ls.look(real=next(real)).quiet, timeout=5)
+        first.set()
+        second.wait(5)
+        assert not ls.look(real=next(real)).quiet  # it ran since: seen asleep once (if at all), not confirmed
+        wait_until(lambda: ls.look(real=next(real)).quiet, timeout=5)  # asleep twice again: confirmed
+        put(ls, 1, vp.EXITED, tid=tid[0] + 1)
+        assert not ls.look(real=next(real)).quiet  # (a freed slot: looked at again)
+        assert not ls.look(real=next(real)).quiet  # confirmation dropped: seen asleep once so far
+        wait_until(lambda: ls.look(real=next(real)).quiet, timeout=5)
+    finally:
+        first.set()
         done.set()
         t.join()
 

@@ -453,3 +453,47 @@ def test_a_killed_child_takes_no_virtual_time_to_die(tmp_path):
         stats = bench.services["clock"].stats()
     assert json.loads(proc.stdout) == [[0, -9]] * 5
     assert stats["stalls"] == 0 and bench.clock.now() == 1001.25
+
+
+# A start-up like pyenv's shims (a chain of bash scripts, each asking the next for a line through `$(...)`): no
+# step waits on the bench, so none may move its clock. The child script runs from its `#!/usr/bin/env bash` line.
+SHIM_CHAIN_CHILD = """\
+#!/usr/bin/env bash
+for i in 1 2 3; do
+  x=$(/bin/true)
+  y=$(echo a | tr a b)
+  z=$(w=$(/bin/true); echo "$w")
+done
+echo done
+"""
+SHIM_CHAIN = """\
+set -e
+for i in $(seq 20); do
+  out=$("$1")
+done
+exec "$2" -c 'import time; print(time.monotonic_ns())'
+"""
+
+
+def test_shell_scripts_and_subshells_take_no_virtual_time(tmp_path):
+    """A program that never waits on the bench (here bash scripts forking subshells, `$(...)` pipes, a pipeline
+    and a final exec) does not move virtual time, on a bench whose devices have timers due (mecarover-can's
+    every 5 ms). The lockstep looks at every slot in one pass: a child's exit seen in the pass (its slot freed)
+    used to leave its parent, judged earlier in the same pass as waiting in waitpid or asleep reading the pipe,
+    counted as waiting: time moved to the bench's next event, by a run-dependent 0 to 100 virtual ms here."""
+    script = tmp_path / "step.sh"
+    script.write_text(SHIM_CHAIN_CHILD)
+    script.chmod(0o755)
+    chain = tmp_path / "chain.sh"
+    chain.write_text(SHIM_CHAIN)
+    env = {k: v for k, v in os.environ.items() if k not in ("HILBENCH_CLOCK", "PYTHONHASHSEED")}
+    with Bench("mecarover-can", virtual_time=True) as bench:
+        manifest = tmp_path / "bench.json"
+        bench.write_manifest(manifest)
+        proc = subprocess.run([*HILBENCH, "run", "--manifest", str(manifest), "--", "bash", str(chain), str(script),
+                               sys.executable], capture_output=True, text=True, timeout=120, env=env)
+        stats = bench.services["clock"].stats()
+        now = bench.clock.now()
+    assert proc.returncode == 0, proc.stderr
+    assert int(proc.stdout) == 1000 * S and now == 1000.0
+    assert stats["stalls"] == 0 and stats["threads_seen"] > 300  # (it did fork: 400 processes took part here)
