@@ -234,17 +234,19 @@ def test_a_busy_port_is_reported_in_the_servers_words(served, capsys):
     from hilbench.transports.sources.serial import SerialSource
 
     _, ep, url, _ = served
-    with serial.serial_for_url(url, baudrate=1_000_000, timeout=1) as first:
+    # (pyserial's Telnet negotiation timeout: 3 s before each refusal is read, 0.5 s here)
+    client_url = url + "?timeout=0.5"
+    with serial.serial_for_url(client_url, baudrate=1_000_000, timeout=1) as first:
         holder = f"127.0.0.1:{first._socket.getsockname()[1]}"
         said = f"hilbench: port busy: arm:rfc2217 ({url}) is in use by {holder} since "
         refusal = "^the server refused: " + re.escape(said) + r"\d\d:\d\d:\d\d; one client at a time$"
         with pytest.raises(serial.SerialException, match=refusal):
-            open_url(url, baudrate=1_000_000, timeout=1)
+            open_url(client_url, baudrate=1_000_000, timeout=1)
         with pytest.raises(SourceError, match="the server refused: hilbench: port busy"):
-            SerialSource(url, 1_000_000)
-        assert main(["dxl", "ping", url, "1", "--baud", "1000000"]) == 1
+            SerialSource(client_url, 1_000_000)
+        assert main(["dxl", "ping", client_url, "1", "--baud", "1000000"]) == 1
         (line,) = capsys.readouterr().err.splitlines()
-        assert line.startswith(f"hilbench: error: cannot open {url}: the server refused: {said}")
+        assert line.startswith(f"hilbench: error: cannot open {client_url}: the server refused: {said}")
         assert _ping(first).id == 1  # the holder keeps the port
     assert ep.services["rfc2217"].refused == 3
 
