@@ -126,7 +126,10 @@ def _watch(monitor, args: argparse.Namespace, label: str, status: Callable[[], s
     try:
         if quiet:
             while not monitor.ended.is_set() and not done():
-                monitor.ended.wait(0.05)
+                # Not ended.wait(0.05): Ctrl-C (or the SIGINT that stops a tap) raised inside Event.wait can
+                # land while its condition's lock is released, and CPython 3.11 then turns the
+                # KeyboardInterrupt into "RuntimeError: release unlocked lock" with a traceback (seen on CI).
+                time.sleep(0.05)
         else:
             from hilbench.dashboard import Dashboard
 
