@@ -42,6 +42,8 @@ from enum import IntEnum, IntFlag
 from functools import cache
 from typing import Any, NamedTuple
 
+from hilbench.protocols.lazy_layouts import lazy_layouts
+
 MAGIC = b"\x89HBC\r\n\x1a\n"
 VERSION = 1
 #: Largest payload of one record.
@@ -131,11 +133,7 @@ def _layouts() -> dict[str, Any]:
     return {name: value for name, value in locals().items() if name in _LAYOUT_NAMES}
 
 
-def __getattr__(name: str) -> Any:
-    if name in _LAYOUT_NAMES:
-        value = globals()[name] = _layouts()[name]
-        return value
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+__getattr__ = lazy_layouts(globals(), _LAYOUT_NAMES, _layouts)
 
 
 #: Bytes of a record before its payload.

@@ -27,6 +27,7 @@ from struct import Struct as Struct_
 from typing import TYPE_CHECKING, Any, NamedTuple
 
 from hilbench.protocols.checksums import crc16_buypass, raw_crc_routine
+from hilbench.protocols.lazy_layouts import lazy_layouts
 from hilbench.protocols.problem import Problem
 
 if TYPE_CHECKING:
@@ -291,11 +292,7 @@ def _layouts() -> dict[str, Any]:
     return {name: value for name, value in locals().items() if name in _LAYOUT_NAMES}
 
 
-def __getattr__(name: str) -> Any:
-    if name in _LAYOUT_NAMES:
-        value = globals()[name] = _layouts()[name]
-        return value
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+__getattr__ = lazy_layouts(globals(), _LAYOUT_NAMES, _layouts)
 
 
 #: Instructions that are valid only when broadcast (ID FE).

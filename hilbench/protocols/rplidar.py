@@ -29,6 +29,7 @@ from enum import IntEnum
 from functools import cache
 from typing import TYPE_CHECKING, Any, NamedTuple
 
+from hilbench.protocols.lazy_layouts import lazy_layouts
 from hilbench.protocols.problem import Problem
 
 if TYPE_CHECKING:
@@ -190,11 +191,7 @@ def layouts() -> None:
     _layouts()
 
 
-def __getattr__(name: str) -> Any:
-    if name in _LAYOUT_NAMES:
-        value = globals()[name] = _layouts()[name]
-        return value
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+__getattr__ = lazy_layouts(globals(), _LAYOUT_NAMES, _layouts)
 
 
 # ----------------------------------------------------------------------------- building

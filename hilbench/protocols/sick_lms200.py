@@ -24,6 +24,7 @@ from functools import cache
 from typing import TYPE_CHECKING, Any, NamedTuple
 
 from hilbench.protocols.checksums import sick_crc16
+from hilbench.protocols.lazy_layouts import lazy_layouts
 from hilbench.protocols.problem import Problem
 
 STX = 0x02
@@ -144,11 +145,7 @@ def layouts() -> None:
     _layouts()
 
 
-def __getattr__(name: str) -> Any:
-    if name in _LAYOUT_NAMES:
-        value = globals()[name] = _layouts()[name]
-        return value
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+__getattr__ = lazy_layouts(globals(), _LAYOUT_NAMES, _layouts)
 
 
 #: The 32-byte configuration block (74/77); hilbench reads the units byte (index 11: 0 cm, 1 mm).
