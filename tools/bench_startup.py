@@ -49,6 +49,7 @@ import sys
 import tempfile
 import threading
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -133,13 +134,14 @@ def cpu_so_far(pid: int) -> float | None:
     return total / 1e9
 
 
-def first_lines_cpu(argv: list[str], lines: int) -> float | None:
-    """CPU time of one run until ``lines`` lines of output (then it is interrupted)."""
-    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, cwd=REPO, env=ENV)
+@contextlib.contextmanager
+def until_lines(argv: list[str], lines: int, stderr: int | None = subprocess.DEVNULL) -> Iterator[subprocess.Popen]:
+    """``argv`` started; the block runs once it printed ``lines`` lines, then the process is interrupted."""
+    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=stderr, cwd=REPO, env=ENV)
     try:
         if not all(proc.stdout.readline() for _ in range(lines)):
             raise SystemExit(f"{' '.join(argv)}: no output")
-        return cpu_so_far(proc.pid)
+        yield proc
     finally:
         proc.send_signal(signal.SIGINT)
         try:
@@ -148,6 +150,12 @@ def first_lines_cpu(argv: list[str], lines: int) -> float | None:
             proc.kill()
             proc.wait()
         proc.stdout.close()
+
+
+def first_lines_cpu(argv: list[str], lines: int) -> float | None:
+    """CPU time of one run until ``lines`` lines of output (then it is interrupted)."""
+    with until_lines(argv, lines) as proc:
+        return cpu_so_far(proc.pid)
 
 
 def run_once(argv: list[str], lines: int, stderr: int | None = subprocess.DEVNULL) -> float:
@@ -164,21 +172,8 @@ def run_once(argv: list[str], lines: int, stderr: int | None = subprocess.DEVNUL
         finally:
             watchdog.cancel()
         return time.perf_counter() - t0
-    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=stderr, cwd=REPO, env=ENV)
-    try:
-        got = all(proc.stdout.readline() for _ in range(lines))
-        took = time.perf_counter() - t0
-        if not got:
-            raise SystemExit(f"{' '.join(argv)}: no output")
-    finally:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(timeout=15)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
-        proc.stdout.close()
-    return took
+    with until_lines(argv, lines, stderr):
+        return time.perf_counter() - t0
 
 
 def least(argv: list[str], runs: int, lines: int = 0) -> float:
