@@ -47,7 +47,7 @@ $(LGVENV)/.installed: pyproject.toml
 demo: $(VENV)/.installed
 	$(VENV)/bin/hilbench demo
 
-# The README's test command: lint, then every test but the slow real-client set (about five minutes).
+# The README's test command: lint, then every test but the slow real-client set (six to seven minutes).
 test: $(VENV)/.installed $(SDK3)/.installed
 	$(PY) -m ruff check hilbench tests tools
 	$(PY) -m pytest -q -m "not slow"
