@@ -6,6 +6,11 @@ PY := $(VENV)/bin/python
 
 LGVENV ?= .venv-labgrid
 
+# Python may cache bytecode (in the git-ignored __pycache__/) even where the environment says not to: the
+# tests start hundreds of `hilbench` processes, and compiling the package from source in each one, and every
+# test module at collection, cost about a quarter of a minute per run.
+unexport PYTHONDONTWRITEBYTECODE
+
 .PHONY: demo test test-slow test-labgrid lint bench install install-robots docs
 
 $(VENV)/.installed: pyproject.toml

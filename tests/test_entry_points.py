@@ -88,6 +88,7 @@ def test_a_package_installed_changed_or_removed_is_seen_by_the_next_run(tmp_path
     assert len(cache_files(cache)) == 1  # one sys.path throughout: the fingerprint caught each change
 
 
+@pytest.mark.slow  # a real pip install (about 6 s); the test above covers the fingerprint's logic in the normal set
 def test_pip_install_and_uninstall_are_seen_by_the_next_command(tmp_path):
     """A real ``pip install`` of the example family into a throwaway virtual environment (on top of this one's
     packages), then ``pip uninstall``: ``hilbench --help`` lists its verb after the one and not after the other."""

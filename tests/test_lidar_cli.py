@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+import signal
 import subprocess
 import sys
 
@@ -88,10 +89,11 @@ def test_monitor_taps_a_scanner_while_lidar_reads_it(emulator):
     control = ControlClient(manifest["control"])
     before = control.taps()["urg"]["clients"]
     mon = subprocess.Popen([sys.executable, "-m", "hilbench.cli", "monitor", f"{path}#urg", "--json",
-                            "--seconds", "6"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            "--seconds", "30"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     wait_until(lambda: control.taps()["urg"]["clients"] > before, timeout=20)  # the monitor listens
     reader = hb("lidar", f"{path}#urg", "--scans", "10", "--summary")
     assert reader.returncode == 0, reader.stderr
+    mon.send_signal(signal.SIGINT)  # Ctrl-C ends a monitor with its report, as a user would stop it
     out, err = mon.communicate(timeout=30)
     assert mon.returncode == 0, err
     rep = json.loads(out)

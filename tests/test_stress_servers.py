@@ -1,5 +1,7 @@
 """tools/stress_servers.py stays working: a quick run against the control channel (every attack, a real bench in
-another process) prints its figures, with no traceback and the well-behaved clients served."""
+another process) prints its figures, with no traceback and the well-behaved clients served. The script's own smoke
+test, in the slow set: the servers' limits themselves are tested in the normal set (tests/bench/test_server_limits.py
+and the servers' own tests)."""
 
 from __future__ import annotations
 
@@ -7,7 +9,11 @@ import json
 import subprocess
 import sys
 
+import pytest
+
 from tests.conftest import REPO
+
+pytestmark = pytest.mark.slow
 
 ATTACKS = ("churn", "slow", "exhaust", "unread", "flood")
 
