@@ -238,7 +238,7 @@ class Stm32RoverFamily(DeviceFamily):
                     from hilbench.errors import UsageError
 
                     # (its replies would come at whatever virtual instant the loop reads them: not deterministic)
-                    raise UsageError(f"{dev.where}.agent: a virtual-time bench needs its micro-ROS agent on the "
+                    raise UsageError(f"{bench.profile.path}: {dev.where}.agent: a virtual-time bench needs its micro-ROS agent on the "
                                      f"bench's clock: name an xrce-dds endpoint of the profile, not {dev.agent!r}")
                 net = (lambda name=dev.agent: bench.endpoints[name].medium) if virtual else None
                 board.attach_client(MicroRosClient(_agent_address(bench, dev.agent), net=net, **dev.micro_ros))
