@@ -81,16 +81,18 @@ class MicroRosClient:
         c.subscribe("rt/cmd_vel", TWIST.dds_name, self._on_cmd_vel, reliable=True)
         for name, t in (("odometry", POSE2D), ("encoder_data", DRIVE), ("wheel_vel", DRIVE)):
             c.subscribe(f"rt/{name}", t.dds_name, lambda data, le, _n=name: self._on_own(_n), reliable=False)
-        c.start()
         self._stop.clear()
         if clock.virtual and board.port is not None:
-            # In virtual time the bench's loop runs the client's timers (and the XRCE session takes turns with
-            # it as a participant of the loop).
+            # In virtual time the bench's loop runs the client's timers, and the XRCE session takes turns with
+            # it as a participant of the loop (timers first: queued before the session can queue anything, so
+            # their places in the loop's sequence are the same in every run).
             self._epoch += 1
             preset = board.config.preset
             self._vt_timer(self._epoch, 1.0 / preset.wheel_hz, lambda dt: self._publish_wheel(dt))
             self._vt_timer(self._epoch, 1.0 / preset.pose_hz, lambda dt: self._publish_pose())
+            c.start()
             return
+        c.start()
         self._thread = threading.Thread(target=self._run, name=f"uros-{board.name}", daemon=True)
         self._thread.start()
 
