@@ -2,7 +2,7 @@
 participant of the bench's loop, so the session, its publications and a teleop's cmd_vel happen at exact
 virtual instants, the same in every run, in a fraction of the wall time.
 
-Real parts: the profile ``mecarover-micro-ros`` (hilbench's agent on a UDP endpoint, the board on a pty),
+Real parts: the bundled profile ``mecarover-micro-ros`` (hilbench's agent on a UDP endpoint, the board on a pty),
 the board's own XRCE client, a second client (the teleop) on the same net, a tap of the agent's net.
 """
 
@@ -14,7 +14,7 @@ from typing import Any
 import pytest
 
 from hilbench.bench import Bench
-from hilbench.bench.profile import load_profile, parse_profile
+from hilbench.bench.profile import load_profile
 from hilbench.errors import UsageError
 from hilbench.fakes.xrce_client import CREATION_TIMEOUT_S, XrceClient
 from hilbench.protocols import cdr
@@ -29,15 +29,9 @@ SECONDS = 4.0
 
 
 def rover_profile(zero: bool = False, agent: str = "agent"):
-    prof = load_profile("mecarover-micro-ros")
-    raw = {"schema": 1, "endpoints": {"agent": {"type": "udp", "protocol": "xrce-dds", "port": 0},
-                                      "rover": {"type": "pty", "protocol": "vel2d", "baud": 2_000_000}},
-           "devices": [{"model": "micro-ros-agent", "name": "agent", "endpoint": "agent"},
-                       {"model": "stm32f767-rover", "name": "rover", "endpoint": "rover", "preset": prof.devices[1].preset,
-                        "output": "v2", "agent": agent, "body": "rover",
-                        "micro_ros": {"client_key": 0x60C93570, "zero_after_session": zero}}],
-           "world": {"bodies": [{"name": "rover", "shape": "box", "size": [0.5, 0.4]}]}}
-    return parse_profile(raw, "rover.toml")
+    """The bundled ``mecarover-micro-ros``, with Xu's fault on (``zero``) or another ``agent``."""
+    return load_profile("mecarover-micro-ros", {"devices.rover.micro_ros.zero_after_session": zero,
+                                                "devices.rover.agent": agent})
 
 
 def run(seconds: float, zero: bool = False, teleop: bool = True) -> dict[str, Any]:
