@@ -26,8 +26,13 @@ Every bench runs in its own ``hilbench emulate PROFILE --virtual-time`` process 
   ``--trace-seconds`` virtual seconds: virtual seconds per wall second, start-up taken off, and the bytes
   read against what the wire can carry in that time.
 
+- ``vt_micro_ros_speed``: ``mecarover-micro-ros`` (the rover board's micro-ROS session with the bench's agent,
+  encoder_data at 50 Hz, odometry and wheel_vel at 33.3 Hz, each routed back to the board) and a client
+  under ``hilbench run`` sleeping ``--micro-ros-seconds`` virtual seconds, twice on fresh benches: virtual
+  seconds per wall second, start-up taken off, and the board's samples (the same in both runs).
+
 Usage: tools/bench_virtual_time.py [--seconds S] [--runs N] [--load N] [--flood-mib M] [--trace-seconds S]
-                                  [--only idle|busy|spread|flood|trace]
+                                  [--micro-ros-seconds S] [--only idle|busy|spread|flood|trace|micro-ros]
 """
 
 from __future__ import annotations
@@ -164,6 +169,26 @@ def bench_trace(seconds: float) -> None:
          loadavg=avg)
 
 
+def bench_micro_ros(seconds: int) -> None:
+    from hilbench.clients.stm32_rover import BoardClient
+
+    avg = loadavg()
+    runs = []
+    for _ in range(2):
+        with emulator("mecarover-micro-ros", "--virtual-time") as m:
+            _, startup = run_client(m, SLEEPER, "0")
+            _, wall = run_client(m, SLEEPER, str(seconds))
+            link = BoardClient(m["control"]).micro_ros()
+            stats = clock_stats(m)
+        runs.append((seconds / max(wall - startup, 1e-6), wall, startup, link["counters"], stats["stalls"]))
+    speed = statistics.median(r[0] for r in runs)
+    emit("vt_micro_ros_speed", speed, "virtual s per wall s", 1.0, speed, digits=2, virtual_s=seconds,
+         runs_speed=[round(r[0], 2) for r in runs], wall_s=[round(r[1], 3) for r in runs],
+         startup_s=[round(r[2], 3) for r in runs], samples_out=[r[3]["samples_out"] for r in runs],
+         samples_in=[r[3]["samples_in"] for r in runs], datagrams=[r[3]["datagrams_out"] for r in runs],
+         stalls=[r[4] for r in runs], loadavg=avg)
+
+
 def rss_mb(pid: int) -> float:
     with open(f"/proc/{pid}/status") as f:
         return next(int(line.split()[1]) for line in f if line.startswith("VmRSS:")) / 1024
@@ -249,7 +274,9 @@ def main() -> None:
     ap.add_argument("--flood-mib", type=int, default=16, metavar="M", help="MiB the flood client writes")
     ap.add_argument("--trace-seconds", type=float, default=5.0, metavar="S",
                     help="virtual seconds the trace reader reads")
-    ap.add_argument("--only", choices=("idle", "busy", "spread", "flood", "trace"))
+    ap.add_argument("--micro-ros-seconds", type=int, default=20, metavar="S",
+                    help="virtual seconds of the micro-ROS bench")
+    ap.add_argument("--only", choices=("idle", "busy", "spread", "flood", "trace", "micro-ros"))
     args = ap.parse_args()
     if args.only in (None, "idle"):
         bench_idle()
@@ -261,6 +288,8 @@ def main() -> None:
         bench_flood(args.flood_mib)
     if args.only in (None, "trace"):
         bench_trace(args.trace_seconds)
+    if args.only in (None, "micro-ros"):
+        bench_micro_ros(args.micro_ros_seconds)
 
 
 if __name__ == "__main__":

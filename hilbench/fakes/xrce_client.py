@@ -11,6 +11,14 @@ messages, a HEARTBEAT every 100 ms while any are, NACKed ones resent, every
 agent message and HEARTBEAT answered with an ACKNACK. DATA arrives at the
 subscription's callback with its raw CDR.
 
+On the wall clock the session runs on its own thread with a UDP socket. With ``net=`` (the bench's own
+:class:`~hilbench.transports.datagram_medium.DatagramMedium`, on a virtual clock) the same session code
+runs as a bench participant (:class:`~hilbench.transports.participant.Participant`): its thread holds a
+baton while it runs, gets it back in events of the bench's loop (a datagram for it, a deadline), and its
+datagrams go to and come from the net in process, so everything it does happens at deterministic virtual
+instants. (A thread with a baton rather than a state machine: the blocking session code stays the one
+implementation of both modes, and only its waits, its clock and its socket differ.)
+
 Fault knob (Xu's cache-coherency bug, §1.9.4): :meth:`XrceClient.zero_next`
 makes the next datagrams leave zero-filled after their first byte (``0x80``),
 as the board's DMA sent stale RAM; ``zero_after_session`` does it to the first
@@ -26,14 +34,16 @@ import random
 import selectors
 import socket
 import threading
-import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
 from hilbench.protocols import xrce_dds as x
 from hilbench.protocols.xrce_streams import ReliableInput
+from hilbench.transports.clock import WALL
 from hilbench.transports.medium_loop import WakePipe
+from hilbench.transports.participant import Participant
 
 log = logging.getLogger(__name__)
 K = x.ObjectKind
@@ -45,6 +55,8 @@ HEARTBEAT_S = 0.1
 MAX_FRAGMENT_DEPTH = 4
 #: micro-ROS's entity creation timeout.
 CREATION_TIMEOUT_S = 1.0
+#: Datagrams an in-process client keeps unread (a socket's receive buffer; more are dropped, as UDP does).
+INBOX = 256
 
 
 @dataclass
@@ -76,13 +88,125 @@ class _RelOut:
     waiting: list[bytes] = field(default_factory=list)  # submessages waiting for room (bounded)
 
 
+class _SocketLink:
+    """The wall clock's transport: a UDP socket, connected to the agent, waited on with poll."""
+
+    def __init__(self, client: XrceClient) -> None:
+        self.client = client
+        host = client.agent[0]
+        try:
+            local = "127.0.0.1" if ipaddress.ip_address(host).is_loopback else ""
+        except ValueError:
+            local = ""
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind((local, 0))  # one source port for the whole session (the agent keys it)
+        # Connected, as the client library's UDP transport is: only the agent's datagrams are heard.
+        with contextlib.suppress(OSError):
+            self.sock.connect(client.agent)
+        self.sock.setblocking(False)
+        self.sel = selectors.DefaultSelector()  # (poll, as the library: any descriptor number)
+        self.sel.register(self.sock, selectors.EVENT_READ)
+        self.sel.register(client._waker.fd, selectors.EVENT_READ)
+        self.thread: threading.Thread | None = None
+
+    def start(self, target: Callable[[], None]) -> None:
+        self.thread = threading.Thread(target=target, name=f"xrce-{self.client.name}", daemon=True)
+        self.thread.start()
+
+    def send(self, msg: bytes) -> None:
+        self.sock.sendto(msg, self.client.agent)
+
+    def recv(self, timeout: float) -> bytes | None:
+        try:
+            ready = [key.fileobj for key, _ in self.sel.select(max(0.0, timeout))]
+        except (OSError, ValueError, KeyError):
+            return None
+        if self.sock in ready:
+            try:
+                data, _ = self.sock.recvfrom(65536)
+            except OSError:
+                return None
+            return data
+        return None
+
+    def sleep(self, seconds: float) -> None:
+        self.client._stop.wait(seconds)
+
+    def stop(self) -> None:
+        self.client._waker.wake()
+        if self.thread is not None:
+            self.thread.join(timeout=5)
+            self.thread = None
+
+    def close(self) -> None:
+        self.sel.close()
+        self.sock.close()
+
+    @property
+    def address(self) -> tuple[str, int]:
+        return self.sock.getsockname()[:2]
+
+
+class _NetLink:
+    """Virtual time: the bench's own datagram net, in process, the session's thread a bench participant."""
+
+    def __init__(self, client: XrceClient, net: Any) -> None:
+        self.client = client
+        self.net = net
+        # A real socket only reserves the client's address (no program outside can take it); nothing is
+        # read from it or sent through it.
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", 0))
+        self.address: tuple[str, int] = self.sock.getsockname()[:2]
+        self.inbox: deque[bytes] = deque()
+        self.participant = Participant(net.call_at, net.clock, f"xrce-{client.name}")
+        net.vt_connect(self.address, self._arrived)
+
+    def _arrived(self, data: bytes, src: tuple[str, int]) -> None:
+        # (the loop's thread: the net sent it to this client's address)
+        if tuple(src) != tuple(self.client.agent) or len(self.inbox) >= INBOX:
+            return  # connected: only the agent's datagrams are heard; a full buffer drops, as UDP does
+        self.inbox.append(data)
+        self.participant.notify()
+
+    def start(self, target: Callable[[], None]) -> None:
+        self.participant.start(target)
+
+    def send(self, msg: bytes) -> None:
+        if self.client._stop.is_set():
+            return  # (a stopped participant runs on its own to its end: it sends nothing more)
+        if not self.net.vt_inject(msg, self.address, self.client.agent):
+            raise OSError(f"no socket of net {self.net.name!r} at {self.client.agent}")
+
+    def recv(self, timeout: float) -> bytes | None:
+        if not self.inbox:
+            self.participant.wait(timeout, news=True)
+        return self.inbox.popleft() if self.inbox else None
+
+    def sleep(self, seconds: float) -> None:
+        self.participant.wait(seconds, news=False)
+
+    def stop(self) -> None:
+        self.participant.stop()
+        self.participant.join(timeout=5)
+
+    def close(self) -> None:
+        self.net.vt_disconnect(self.address)
+        self.sock.close()
+
+
 class XrceClient:
-    """One client session to an agent at ``agent`` (``(host, port)``); runs its own thread."""
+    """One client session to an agent at ``agent`` (``(host, port)``); runs its own thread. With ``net``
+    (the bench's datagram net, on a virtual clock, holding a socket at ``agent``) the thread is a bench
+    participant and its datagrams stay in process (see the module docstring)."""
 
     def __init__(self, agent: tuple[str, int], *, client_key: int | None = None, domain_id: int = 0,
                  mtu: int = x.DEFAULT_MTU, name: str = "xrce-client", zero_after_session: bool = False,
-                 on_event: Callable[[str, str], None] | None = None) -> None:
-        self.agent = agent
+                 on_event: Callable[[str, str], None] | None = None, net: Any = None) -> None:
+        self.agent = (agent[0], agent[1])
+        self.net = net
+        #: The session's clock: the net's (virtual) with ``net``, else the wall clock.
+        self.clock = net.clock if net is not None else WALL
         self.key = (client_key or random.randint(1, 0xFFFFFFFF)).to_bytes(4, "big")
         self.domain_id = domain_id
         self.mtu = mtu
@@ -99,8 +223,7 @@ class XrceClient:
         self.time_offset_ns: int | None = None
         self._zero = 0
         self._lock = threading.RLock()
-        self._sock: socket.socket | None = None
-        self._thread: threading.Thread | None = None
+        self._link: _SocketLink | _NetLink | None = None
         self._stop = threading.Event()
         self._waker = WakePipe()  # ends the thread's wait when it stops
         self._reset_session()
@@ -132,25 +255,11 @@ class XrceClient:
     # ------------------------------------------------------------------ running
 
     def start(self) -> None:
-        if self._thread is not None:
+        if self._link is not None:
             return
-        host = self.agent[0]
-        try:
-            local = "127.0.0.1" if ipaddress.ip_address(host).is_loopback else ""
-        except ValueError:
-            local = ""
-        self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self._sock.bind((local, 0))  # one source port for the whole session (the agent keys it)
-        # Connected, as the client library's UDP transport is: only the agent's datagrams are heard.
-        with contextlib.suppress(OSError):
-            self._sock.connect(self.agent)
-        self._sock.setblocking(False)
-        self._sel = selectors.DefaultSelector()  # (poll, as the library: any descriptor number)
-        self._sel.register(self._sock, selectors.EVENT_READ)
-        self._sel.register(self._waker.fd, selectors.EVENT_READ)
+        self._link = _NetLink(self, self.net) if self.net is not None else _SocketLink(self)
         self._stop.clear()
-        self._thread = threading.Thread(target=self._run, name=f"xrce-{self.name}", daemon=True)
-        self._thread.start()
+        self._link.start(self._run)
 
     def stop(self, delete: bool = True) -> None:
         """End the session (DELETE of the client, X19, when it is established) and the thread."""
@@ -159,14 +268,11 @@ class XrceClient:
                 self._send_raw(x.build_message(self.session_id, 0, 0, [(S.DELETE, x.FLAG_E,
                                                                          x.delete(b"\x00\x02", x.OBJECT_CLIENT))]))
         self._stop.set()
-        self._waker.wake()
-        if self._thread is not None:
-            self._thread.join(timeout=5)
-            self._thread = None
-        if self._sock is not None:
-            self._sel.close()
-            self._sock.close()
-            self._sock = None
+        link = self._link
+        if link is not None:
+            link.stop()
+            link.close()
+            self._link = None
         self.state = "stopped"
 
     def close(self) -> None:
@@ -174,8 +280,16 @@ class XrceClient:
         self._waker.close()
 
     @property
+    def _thread(self) -> threading.Thread | None:
+        """The session's thread (None when stopped)."""
+        link = self._link
+        if link is None:
+            return None
+        return link.thread if isinstance(link, _SocketLink) else link.participant._thread
+
+    @property
     def local_address(self) -> tuple[str, int] | None:
-        return self._sock.getsockname()[:2] if self._sock is not None else None
+        return self._link.address if self._link is not None else None
 
     def zero_next(self, n: int = 1) -> None:
         """The next ``n`` datagrams leave zeroed after their first byte (the DMA/cache fault)."""
@@ -187,7 +301,8 @@ class XrceClient:
     # ------------------------------------------------------------------ output
 
     def _send_raw(self, msg: bytes) -> None:
-        if self._sock is None:
+        link = self._link
+        if link is None:
             return
         if self._zero > 0 or (self.zero_after_session and self.state in ("creating", "running") and not self._zeroed_after):
             if self._zero > 0:
@@ -198,7 +313,7 @@ class XrceClient:
             # What the Ethernet DMA read from RAM while the message sat in the D-cache: zeros after byte 0.
             msg = bytes([0x80]) + b"\x00" * (max(24, len(msg)) - 1)
         try:
-            self._sock.sendto(msg, self.agent)
+            link.send(msg)
             self.counters["datagrams_out"] += 1
         except OSError:
             pass
@@ -247,31 +362,29 @@ class XrceClient:
                 if self._session():
                     self._serve()
                 if not self._stop.is_set():
-                    self._stop.wait(1.0)  # the firmware's retry after a failed start
+                    self._sleep(1.0)  # the firmware's retry after a failed start
         except Exception:  # noqa: BLE001 (a client thread must not die silently)
             log.exception("%s: client failed", self.name)
 
     def _recv(self, timeout: float) -> bytes | None:
-        sock = self._sock
-        if sock is None:
+        link = self._link
+        if link is None:
             return None
-        try:
-            ready = [key.fileobj for key, _ in self._sel.select(max(0.0, timeout))]
-        except (OSError, ValueError, KeyError):
-            return None
-        if sock in ready:
-            try:
-                data, _ = sock.recvfrom(65536)
-            except OSError:
-                return None
+        data = link.recv(timeout)
+        if data is not None:
             self.counters["datagrams_in"] += 1
-            return data
-        return None
+        return data
+
+    def _sleep(self, seconds: float) -> None:
+        """The firmware's pauses (ends early when the client stops)."""
+        link = self._link
+        if link is not None:
+            link.sleep(seconds)
 
     def _wait_for(self, pred: Callable[[bytes], Any], timeout: float) -> Any:
-        deadline = time.monotonic() + timeout
+        deadline = self.clock.now() + timeout
         while not self._stop.is_set():
-            left = deadline - time.monotonic()
+            left = deadline - self.clock.now()
             if left <= 0:
                 return None
             data = self._recv(min(left, HEARTBEAT_S))
@@ -294,7 +407,7 @@ class XrceClient:
             if self._wait_for(self._is_pong, 0.05):
                 break
             self._event("INFO", "agent not responding yet, retrying...")
-            self._stop.wait(0.5)
+            self._sleep(0.5)
         if self._stop.is_set():
             return False
         self._event("INFO", "agent responded. continuing initialization...")
@@ -325,7 +438,7 @@ class XrceClient:
         with self._lock:
             self.state = "running"
         # 4. Time sync (rmw_uros_sync_session(1000)).
-        self._send_none(S.TIMESTAMP, x.timestamp(*_now()))
+        self._send_none(S.TIMESTAMP, x.timestamp(*divmod(self._wall_ns(), 1_000_000_000)))
         self._wait_for(self._is_timestamp_reply, 1.0)
         return True
 
@@ -361,8 +474,8 @@ class XrceClient:
                     reqs.append(self._create(oid, kind, {"representation": _binary(f"{name}_binary", {
                         "topic_id": topics[(ep.topic, ep.type_name)], "optional_qos": True,
                         "qos": _qos(ep.reliable, writer=writer)}), f"{group_name}_id": g}))
-        deadline = time.monotonic() + CREATION_TIMEOUT_S * max(1, len(reqs) // 4)
-        while time.monotonic() < deadline and not self._stop.is_set():
+        deadline = self.clock.now() + CREATION_TIMEOUT_S * max(1, len(reqs) // 4)
+        while self.clock.now() < deadline and not self._stop.is_set():
             if all(self._pending_status.get(r) is not None for r in reqs):
                 break
             data = self._recv(HEARTBEAT_S)
@@ -412,7 +525,7 @@ class XrceClient:
         return False
 
     def _is_timestamp_reply(self, data: bytes) -> bool:
-        t3 = time.time_ns()
+        t3 = self._wall_ns()
         msg = x.parse_message(data)
         for sub in msg.submessages:
             if sub.id == S.TIMESTAMP_REPLY and sub.fields is not None:
@@ -498,8 +611,13 @@ class XrceClient:
                     self._rel_in.heartbeat(hb.first_unacked, hb.last_unacked)
                     self._deliver_reliable()
 
+    def _wall_ns(self) -> int:
+        """Unix time now in ns, on the session's clock (the agent's TIMESTAMP_REPLY uses the same mapping)."""
+        clock = self.clock
+        return int(clock.wall(clock.now()) * 1e9)
+
     def _housekeeping(self) -> None:
-        now = time.monotonic()
+        now = self.clock.now()
         if now - getattr(self, "_hb_t", 0.0) < HEARTBEAT_S:
             return
         self._hb_t = now
@@ -533,11 +651,6 @@ def _qos(reliable: bool, writer: bool) -> dict[str, Any]:
         return {"base": base, "optional_ownership_strength": False, "ownership_strength": None}
     return {"base": base, "optional_timebasedfilter_msec": False, "timebasedfilter_msec": None,
             "optional_contentbased_filter": False, "contentbased_filter": None}
-
-
-def _now() -> tuple[int, int]:
-    ns = time.time_ns()
-    return ns // 1_000_000_000, ns % 1_000_000_000
 
 
 __all__ = ["CREATION_TIMEOUT_S", "HEARTBEAT_S", "HISTORY", "Publication", "Subscription", "XrceClient"]

@@ -233,7 +233,15 @@ class Stm32RoverFamily(DeviceFamily):
             if dev.agent is not None:
                 from hilbench.fakes.stm32_board.micro_ros import MicroRosClient
 
-                board.attach_client(MicroRosClient(_agent_address(bench, dev.agent), **dev.micro_ros))
+                virtual = bench.clock.virtual
+                if virtual and ":" in dev.agent:
+                    from hilbench.errors import UsageError
+
+                    # (its replies would come at whatever virtual instant the loop reads them: not deterministic)
+                    raise UsageError(f"{bench.profile.path}: {dev.where}.agent: a virtual-time bench needs its micro-ROS agent on the "
+                                     f"bench's clock: name an xrce-dds endpoint of the profile, not {dev.agent!r}")
+                net = (lambda name=dev.agent: bench.endpoints[name].medium) if virtual else None
+                board.attach_client(MicroRosClient(_agent_address(bench, dev.agent), net=net, **dev.micro_ros))
             endpoint.add_device(dev.name, board)
             if dev.body is not None:  # the firmware's motion model moves its body, whichever door the setpoint took
                 refuse_second_driver(bench.world.world, dev.body, dev.name)

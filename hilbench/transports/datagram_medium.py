@@ -71,6 +71,8 @@ class DatagramMedium(LoopMedium):
         self._own_addresses: set[Address] = set()
         self._tap_kinds: dict[int, bool] = {}  # id(tap) -> takes addresses
         self._opened: list[UdpPort] = []
+        # In-process peers of a virtual bench (:meth:`vt_connect`): address -> deliver(data, src)
+        self._peers: dict[Address, Callable[[bytes, Address], None]] = {}
 
     # ------------------------------------------------------------------ wiring
 
@@ -131,7 +133,10 @@ class DatagramMedium(LoopMedium):
 
     def _send_now(self, source: str, data: bytes, dst: Address, via: UdpPort) -> None:
         stats = self.stats
-        if not via.send_to(data, dst):
+        peer = self._peers.get(dst) if self._peers else None
+        if peer is not None:
+            peer(data, via.address)  # an in-process participant: it hears it now (virtual time)
+        elif not via.send_to(data, dst):
             stats.send_errors += 1
             return
         stats.datagrams_out += 1
@@ -165,27 +170,30 @@ class DatagramMedium(LoopMedium):
 
     def _receive(self, sock: UdpPort, listen_only: bool) -> None:
         owner = self._owner.get(id(sock))
-        dst = sock.address
         for _ in range(READ_BATCH):
             got = sock.recv_from()
             if got is None:
                 return
-            data, src = got
-            t = self._now()
-            self.stats.datagrams_in += 1
-            self.stats.bytes_in += len(data)
-            if tuple(src) not in self._own_addresses:  # from inside the net: tapped when it was sent
-                self._tap(t, f"udp:{src[0]}:{src[1]}", data, (src[0], src[1], dst[0], dst[1]))
-            if listen_only:
+            self._heard(sock, owner, listen_only, *got)
+
+    def _heard(self, sock: UdpPort, owner: str | None, listen_only: bool, data: bytes, src: Address) -> None:
+        """One datagram from ``src`` arrived on ``sock``: tap it, hand it to the devices that hear that socket."""
+        dst = sock.address
+        t = self._now()
+        self.stats.datagrams_in += 1
+        self.stats.bytes_in += len(data)
+        if tuple(src) not in self._own_addresses:  # from inside the net: tapped when it was sent
+            self._tap(t, f"udp:{src[0]}:{src[1]}", data, (src[0], src[1], dst[0], dst[1]))
+        if listen_only:
+            return
+        for device in self._devices:
+            if owner is not None and device.name != owner:
                 continue
-            for device in self._devices:
-                if owner is not None and device.name != owner:
-                    continue
-                try:
-                    device.on_datagram(data, src, dst, t)
-                except Exception:  # one faulty device must not stop the net
-                    self.stats.callback_errors += 1
-                    log.exception("device %s failed on a %d-byte datagram", device.name, len(data))
+            try:
+                device.on_datagram(data, src, dst, t)
+            except Exception:  # one faulty device must not stop the net
+                self.stats.callback_errors += 1
+                log.exception("device %s failed on a %d-byte datagram", device.name, len(data))
 
     # ------------------------------------------------------------------ thread (timers: LoopMedium)
 
@@ -223,6 +231,28 @@ class DatagramMedium(LoopMedium):
                 self._receive(port, listen_only)
                 got = True
         return got
+
+    def vt_connect(self, address: Address, deliver: Callable[[bytes, Address], None]) -> None:
+        """An in-process peer at ``address`` (a bench participant, such as the rover board's XRCE client):
+        what the net sends there is handed to ``deliver(data, src)`` in the loop's thread at the instant it
+        is sent (tapped as sent), not written to a socket, so its time does not depend on the kernel."""
+        self._peers[(address[0], address[1])] = deliver
+
+    def vt_disconnect(self, address: Address) -> None:
+        self._peers.pop((address[0], address[1]), None)
+
+    def vt_inject(self, data: bytes, src: Address, dst: Address) -> bool:
+        """A datagram from the in-process peer at ``src`` to the net's socket at ``dst``: it arrives at the
+        clock's ``now``, as an event in the loop's sequence (any thread). False if no socket of the net is
+        at ``dst``."""
+        dst = (dst[0], dst[1])
+        for sock, listen_only in list(self._hosts):
+            if tuple(sock.address) == dst:
+                owner = self._owner.get(id(sock))
+                args = (sock, owner, listen_only, bytes(data), (src[0], src[1]))
+                self.call_at(None, lambda a=args: self._heard(*a))
+                return True
+        return False
 
     def close(self) -> None:
         """Stop the net, release its wake-up pipe, close the sockets it opened for devices."""

@@ -37,7 +37,6 @@ ALLOWED = {
     "bench/control.py": "the control channel's connection timeouts and command waits",
     "bench/capture_replay.py": "--verify replays a capture through the bench's ptys and sockets as a client "
                                "does, in real time",
-    "fakes/xrce_client.py": "a client session with real waits (a bench participant thread: not yet virtual)",
     "families/scip2_targets.py": "a fuzz target's harness, not a bench",
 }
 CLOCK_NAMES = {"monotonic", "monotonic_ns", "time", "time_ns"}

@@ -44,9 +44,12 @@ class MicroRosClient:
     """The board's XRCE client and its timers; a board client (:meth:`Board.attach_client`)."""
 
     def __init__(self, agent: Any, *, client_key: int | None = None, domain_id: int = 0,
-                 zero_after_session: bool = False, node: str = "micro_ros_node") -> None:
+                 zero_after_session: bool = False, node: str = "micro_ros_node", net: Any = None) -> None:
         #: ``(host, port)``, or a callable giving it when the board starts (an agent of the same bench).
         self.agent = agent
+        #: On a virtual clock: the datagram net of the bench's agent endpoint (or a callable giving it when
+        #: the board starts); the session then runs as a participant of the bench's loop, in process.
+        self.net = net
         self.client_key = client_key
         self.domain_id = domain_id
         self.zero_after_session = zero_after_session
@@ -65,26 +68,31 @@ class MicroRosClient:
     def start(self, board: Any) -> None:
         self.board = board
         agent = self.agent() if callable(self.agent) else self.agent
+        clock = board.clock
+        net = self.net() if callable(self.net) else self.net
+        if clock.virtual and net is None:
+            raise RuntimeError(f"{board.name}: a micro-ROS client in virtual time needs its agent's net (net=)")
         c = XrceClient(tuple(agent), client_key=self.client_key, domain_id=self.domain_id,
                        zero_after_session=self.zero_after_session, name=f"{board.name}-uros",
-                       on_event=self._log)
+                       on_event=self._log, net=net if clock.virtual else None)
         self.client = c
         self._pub = {name: c.publish_on(f"rt/{name}", t.dds_name) for name, t in
                      (("encoder_data", DRIVE), ("odometry", POSE2D), ("wheel_vel", DRIVE))}
         c.subscribe("rt/cmd_vel", TWIST.dds_name, self._on_cmd_vel, reliable=True)
         for name, t in (("odometry", POSE2D), ("encoder_data", DRIVE), ("wheel_vel", DRIVE)):
             c.subscribe(f"rt/{name}", t.dds_name, lambda data, le, _n=name: self._on_own(_n), reliable=False)
-        c.start()
         self._stop.clear()
-        clock = board.clock
         if clock.virtual and board.port is not None:
-            # In virtual time the bench's loop runs the client's timers (the XRCE session itself still runs on
-            # its client's thread, on the wall clock).
+            # In virtual time the bench's loop runs the client's timers, and the XRCE session takes turns with
+            # it as a participant of the loop (timers first: queued before the session can queue anything, so
+            # their places in the loop's sequence are the same in every run).
             self._epoch += 1
             preset = board.config.preset
             self._vt_timer(self._epoch, 1.0 / preset.wheel_hz, lambda dt: self._publish_wheel(dt))
             self._vt_timer(self._epoch, 1.0 / preset.pose_hz, lambda dt: self._publish_pose())
+            c.start()
             return
+        c.start()
         self._thread = threading.Thread(target=self._run, name=f"uros-{board.name}", daemon=True)
         self._thread.start()
 
