@@ -19,7 +19,6 @@ from hilbench.errors import UsageError
 from hilbench.fakes.xrce_client import CREATION_TIMEOUT_S, XrceClient
 from hilbench.protocols import cdr
 from hilbench.protocols import xrce_dds as x
-from tests.run.test_virtual_time import VIRTUAL_NOT_WALL
 
 TWIST = cdr.ros_type("geometry_msgs/Twist")
 POSE2D = cdr.ros_type("geometry_msgs/Pose2D")
@@ -133,8 +132,9 @@ def test_board_session_publications_and_cmd_vel_on_the_virtual_clock() -> None:
     assert a["odo"][round((1.0 - 0.25) * preset.pose_hz) - 1]["x"] == 0.0
     assert a["pose"][0] > 0.3
     assert min(to_board) == 1.0
-    # Far less wall time than virtual time.
-    assert a["wall"] < VIRTUAL_NOT_WALL * SECONDS, f"{SECONDS} virtual s took {a['wall']:.2f} s of wall time"
+    # No wall-time bound: the board's 1 ms firmware steps keep this bench busy, so how much faster than real
+    # time it runs (3 - 4x, vt_micro_ros_speed in tools/bench_virtual_time.py) depends on the machine's load
+    # (0.85 wall s per virtual s at load 5). The exact instants above are what a wall-clock session breaks.
 
 
 def test_two_runs_carry_the_same_datagrams_at_the_same_instants() -> None:
