@@ -32,8 +32,13 @@
      of Goal Position), paced at 1 Mbaud (the STS's fastest) and 500 kbaud.
    Skipped with a note when pypot or scservo_sdk is not installed.
 
-Usage: tools/bench_dynamixel.py [--capture PATH] [--seconds S] [--load N]
-                                [--only decoder|unpaced|paced|protocol1|feetech]
+With ``--under-run`` the official SDK's cycles run in a child process started with ``hilbench run
+--manifest M --`` against the bench (the preload shim on the SDK's pty, as a user's client would have it;
+``HILBENCH_SERVE`` and the other variables of the environment reach it), figures named ``..._run``.
+``--baud`` measures the paced SDK cycle at one rate only.
+
+Usage: tools/bench_dynamixel.py [--capture PATH] [--seconds S] [--load N] [--runs N] [--baud B]
+                                [--under-run] [--only decoder|unpaced|paced|protocol1|feetech]
 """
 
 from __future__ import annotations
@@ -90,8 +95,9 @@ def bench_decoder(capture: Path, repeats: int = 9) -> None:
              cpu_ratio=round(len(data) / statistics.median(cpu) / LINE_RATE_4M5, 3), packets=dec.packets)
 
 
-#: What the machine is doing besides the benchmark: {"load": N neighbours started, "loadavg": 1-min load}.
-CONDITION: dict = {"load": 0}
+#: What the machine is doing besides the benchmark: {"load": N neighbours started, "loadavg": 1-min load};
+#: "under_run": the SDK's cycles run in a child under ``hilbench run`` (``--under-run``).
+CONDITION: dict = {"load": 0, "under_run": False}
 
 
 @contextlib.contextmanager
@@ -149,12 +155,12 @@ class CustomBaudPortHandler(sdk.PortHandler):
         return baudrate
 
 
-def line_lateness(tmp: tempfile.TemporaryDirectory) -> tuple[int, float, float]:
+def line_lateness(manifest: Path) -> tuple[int, float, float]:
     """(deliveries, seconds late in all, the latest single delivery) of the bench's serial line since it
     started, against its own wire model: what the emulator added to a paced cycle (the control channel's
     ``media``). The first two are differenced over the measured cycles; the latest is since the start,
     warm-up included."""
-    stats = next(iter(ControlClient.from_manifest(Path(tmp.name) / "manifest.json").media().values()))["stats"]
+    stats = next(iter(ControlClient.from_manifest(manifest).media().values()))["stats"]
     return stats.get("late_count", 0), stats.get("late_total", 0.0), stats.get("late_max", 0.0)
 
 
@@ -173,9 +179,9 @@ def process_cpu_s(pid: int) -> float:
 
 
 def run_cycles(path: str, seconds: float, emulator_pid: int, baud: int = BAUD,
-               tmp: tempfile.TemporaryDirectory | None = None) -> tuple[int, float, float, float]:
+               manifest: Path | None = None) -> tuple[int, float, float, float]:
     """(cycles, seconds, emulator CPU seconds, this process's CPU seconds) of the measured cycles, after a
-    warm-up; with the bench's ``tmp``, the line's lateness over them goes to CONDITION."""
+    warm-up; with the bench's ``manifest``, the line's lateness over them goes to CONDITION."""
     port = CustomBaudPortHandler(path) if baud == 4_500_000 else sdk.PortHandler(path)
     port.openPort()
     if not port.setBaudRate(baud):
@@ -193,7 +199,7 @@ def run_cycles(path: str, seconds: float, emulator_pid: int, baud: int = BAUD,
     while time.perf_counter() < warm_end:
         cycle()
     n = failed[0] = 0
-    late0 = line_lateness(tmp) if tmp is not None else None
+    late0 = line_lateness(manifest) if manifest is not None else None
     cpu0, own0 = process_cpu_s(emulator_pid), time.process_time()
     t0 = time.perf_counter()
     end = t0 + seconds
@@ -203,14 +209,44 @@ def run_cycles(path: str, seconds: float, emulator_pid: int, baud: int = BAUD,
     dt = time.perf_counter() - t0
     cpu, own = process_cpu_s(emulator_pid) - cpu0, time.process_time() - own0
     if late0 is not None:
-        CONDITION["lateness"] = lateness_figures(late0, line_lateness(tmp))
+        CONDITION["lateness"] = lateness_figures(late0, line_lateness(manifest))
     port.closePort()
     CONDITION["failed_reads"] = failed[0]
     return n, dt, cpu, own
 
 
 def suffix() -> str:
-    return f"_load{CONDITION['load']}" if CONDITION["load"] else ""
+    return (f"_load{CONDITION['load']}" if CONDITION["load"] else "") + ("_run" if CONDITION["under_run"] else "")
+
+
+def run_cycles_under_run(path: str, seconds: float, emulator_pid: int, baud: int,
+                         manifest: Path | None) -> tuple[int, float, float, float]:
+    """:func:`run_cycles` in a child process under ``hilbench run --manifest`` (``--client-cycle``)."""
+    bench_manifest = manifest or MANIFESTS[emulator_pid]
+    cmd = [sys.executable, "-m", "hilbench.cli", "run", "--manifest", str(bench_manifest), "--",
+           sys.executable, str(Path(__file__).resolve()), "--client-cycle", path, str(baud), str(seconds),
+           str(emulator_pid), str(manifest) if manifest is not None else "-"]
+    out = subprocess.run(cmd, capture_output=True, text=True, cwd=REPO, timeout=seconds * 3 + 60)
+    if out.returncode != 0:
+        raise SystemExit(f"the client under hilbench run failed ({out.returncode}): {out.stderr.strip()}")
+    result = json.loads(out.stdout.strip().splitlines()[-1])
+    CONDITION["failed_reads"] = result["failed_reads"]
+    if result.get("lateness"):
+        CONDITION["lateness"] = result["lateness"]
+    return result["n"], result["dt"], result["cpu"], result["own"]
+
+
+#: The manifest of each running emulator, by pid (the unpaced cycle measures no lateness but needs one).
+MANIFESTS: dict[int, Path] = {}
+
+
+def client_cycle(argv: list[str]) -> None:
+    """The child of :func:`run_cycles_under_run`: the cycles in this process, one JSON line of results."""
+    path, baud, seconds, pid, manifest = argv
+    n, dt, cpu, own = run_cycles(path, float(seconds), int(pid), int(baud),
+                                 None if manifest == "-" else Path(manifest))
+    print(json.dumps({"n": n, "dt": dt, "cpu": cpu, "own": own, "failed_reads": CONDITION["failed_reads"],
+                      "lateness": CONDITION.get("lateness")}), flush=True)
 
 
 def bench_cycle(paced: bool, seconds: float, baud: int = BAUD, runs: int = 1) -> None:
@@ -222,8 +258,11 @@ def bench_cycle(paced: bool, seconds: float, baud: int = BAUD, runs: int = 1) ->
     for _ in range(max(1, runs) if paced else 1):
         avg = loadavg()
         proc, path, tmp = start_emulator(paced, "wolfgang" if baud == BAUD else wolfgang_at(baud))
+        manifest = Path(tmp.name) / "manifest.json"
+        MANIFESTS[proc.pid] = manifest
+        runner = run_cycles_under_run if CONDITION["under_run"] else run_cycles
         try:
-            n, dt, emulator_cpu, own_cpu = run_cycles(path, seconds, proc.pid, baud, tmp if paced else None)
+            n, dt, emulator_cpu, own_cpu = runner(path, seconds, proc.pid, baud, manifest if paced else None)
         finally:
             proc.terminate()
             proc.wait(timeout=5)
@@ -338,14 +377,14 @@ def bench_bus(kind: str, seconds: float, paced_bauds: tuple[int, ...]) -> None:
             warm_end = time.perf_counter() + min(0.5, seconds / 4)
             while time.perf_counter() < warm_end:
                 cycle()
-            late0 = line_lateness(tmp) if paced else None
+            late0 = line_lateness(Path(tmp.name) / "manifest.json") if paced else None
             n, failed, cpu0, t0 = 0, 0, process_cpu_s(proc.pid), time.perf_counter()
             while time.perf_counter() < t0 + seconds:
                 failed += not cycle()  # a reply timeout (the client's own) on a loaded machine
                 n += 1
             dt = time.perf_counter() - t0
             cpu = process_cpu_s(proc.pid) - cpu0
-            lateness = lateness_figures(late0, line_lateness(tmp)) if paced else {}
+            lateness = lateness_figures(late0, line_lateness(Path(tmp.name) / "manifest.json")) if paced else {}
             close()
         finally:
             proc.terminate()
@@ -374,7 +413,16 @@ def main() -> None:
                     help="measure every cycle figure again with N CPU-bound neighbour processes (0: only as is)")
     ap.add_argument("--runs", type=int, default=1, metavar="N",
                     help="measure each paced SDK cycle N times and report the median run (runs_ratio: all)")
+    ap.add_argument("--baud", type=int, choices=(BAUD, 4_500_000),
+                    help="measure the paced SDK cycle at this rate only (default: both)")
+    ap.add_argument("--under-run", action="store_true",
+                    help="run the SDK's cycles in a child under `hilbench run --manifest` (figures ..._run)")
+    ap.add_argument("--client-cycle", nargs=5, help=argparse.SUPPRESS)
     args = ap.parse_args()
+    if args.client_cycle:
+        client_cycle(args.client_cycle)
+        return
+    CONDITION["under_run"] = args.under_run
     if args.only in (None, "decoder"):
         bench_decoder(args.capture)
     if args.only in (None, "rough"):
@@ -384,8 +432,9 @@ def main() -> None:
             if args.only in (None, "unpaced"):
                 bench_cycle(False, args.seconds)
             if args.only in (None, "paced"):
-                bench_cycle(True, args.seconds, runs=args.runs)
-                bench_cycle(True, args.seconds, 4_500_000, runs=args.runs)
+                for baud in (BAUD, 4_500_000):
+                    if args.baud in (None, baud):
+                        bench_cycle(True, args.seconds, baud, runs=args.runs)
             if args.only in (None, "protocol1"):
                 bench_bus("protocol1", args.seconds, (1_000_000, 3_000_000))
             if args.only in (None, "feetech"):
