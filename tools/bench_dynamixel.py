@@ -233,6 +233,8 @@ def run_cycles_under_run(path: str, seconds: float, emulator_pid: int, baud: int
     CONDITION["failed_reads"] = result["failed_reads"]
     if result.get("lateness"):
         CONDITION["lateness"] = result["lateness"]
+    if result.get("served"):
+        CONDITION["served"] = result["served"]
     return result["n"], result["dt"], result["cpu"], result["own"]
 
 
@@ -246,7 +248,23 @@ def client_cycle(argv: list[str]) -> None:
     n, dt, cpu, own = run_cycles(path, float(seconds), int(pid), int(baud),
                                  None if manifest == "-" else Path(manifest))
     print(json.dumps({"n": n, "dt": dt, "cpu": cpu, "own": own, "failed_reads": CONDITION["failed_reads"],
-                      "lateness": CONDITION.get("lateness")}), flush=True)
+                      "lateness": CONDITION.get("lateness"), "served": serve_mode(path, manifest)}), flush=True)
+
+
+def serve_mode(path: str, manifest: str) -> str | None:
+    """The serving path's mode of the pty (HILBENCH_SERVE=1; hilbench/bench/serve_ring.py), else None."""
+    from hilbench.bench import serve_ring
+
+    if os.environ.get("HILBENCH_SERVE") != "1" or manifest == "-":
+        return None
+    ring = Path(read_manifest(Path(manifest))["port_state"]["socket"]).parent / serve_ring.FILE_NAME
+    words = memoryview(ring.read_bytes()).cast("Q")
+    rdev = os.stat(path).st_rdev
+    for i in range(words[2]):
+        base = (serve_ring.HEADER_SIZE + serve_ring.RECORD_SIZE * i) // 8
+        if words[base] == rdev:
+            return ("kernel", "served", "fallback")[words[base + 1]]
+    return None
 
 
 def bench_cycle(paced: bool, seconds: float, baud: int = BAUD, runs: int = 1) -> None:
@@ -267,7 +285,7 @@ def bench_cycle(paced: bool, seconds: float, baud: int = BAUD, runs: int = 1) ->
             proc.terminate()
             proc.wait(timeout=5)
             tmp.cleanup()
-        cond = {"load": CONDITION["load"], "loadavg": avg, "sdk_cpu_us": round(own_cpu / n * 1e6, 1),
+        cond = {"load": CONDITION["load"], "loadavg": avg, **({"served": CONDITION.pop("served")} if "served" in CONDITION else {}), "sdk_cpu_us": round(own_cpu / n * 1e6, 1),
                 "emulator_cpu_us": round(emulator_cpu / n * 1e6, 1), "failed_reads": CONDITION["failed_reads"]}
         measured.append((dt / n, n, dt, emulator_cpu, cond, CONDITION.pop("lateness", {})))
     measured.sort(key=lambda run: run[0])

@@ -859,6 +859,14 @@ static int timed_fd_wait(struct vc_slot *s, probe_fn probe, void *ctx, struct po
     return fd_wait(s, probe, ctx, watch, n, deadline, mask);
 }
 
+/* shim.c: the serving path (HILBENCH_SERVE=1); each sets *handled = 0 for a descriptor it does not serve. */
+__attribute__((visibility("hidden"))) int hb_serve_on(void);
+__attribute__((visibility("hidden"))) int hb_serve_poll(struct pollfd *fds, nfds_t n, int64_t timeout_ns,
+                                                        const sigset_t *mask, int *handled);
+__attribute__((visibility("hidden"))) int hb_serve_select(int nfds, fd_set *r, fd_set *w, fd_set *e,
+                                                          int64_t timeout_ns, const sigset_t *mask, int *handled);
+__attribute__((visibility("hidden"))) ssize_t hb_serve_read(int fd, void *buf, size_t n, int *handled);
+
 /* poll, ppoll */
 struct poll_ctx { struct pollfd *fds; nfds_t n; };
 static int poll_probe(void *c)
@@ -888,6 +896,11 @@ static int poll_common(struct vc_slot *s, struct pollfd *fds, nfds_t n, int64_t 
 int poll(struct pollfd *fds, nfds_t n, int timeout)
 {
     struct vc_slot *s = cur();
+    if (!s && hb_serve_on()) {  /* served ptys (wall clock only, for now) */
+        int handled, rc = hb_serve_poll(fds, n, timeout < 0 ? -1 : (int64_t)timeout * 1000000, NULL, &handled);
+        if (handled)
+            return rc;
+    }
     if (!s)
         return REAL(poll)(fds, n, timeout);
     return poll_common(s, fds, n, timeout < 0 ? -1 : (int64_t)timeout * 1000000, NULL);
@@ -902,6 +915,11 @@ int __poll_chk(struct pollfd *fds, nfds_t n, int timeout, size_t fdslen)
 int ppoll(struct pollfd *fds, nfds_t n, const struct timespec *ts, const sigset_t *mask)
 {
     struct vc_slot *s = ts && bad_ts(ts) ? NULL : cur();
+    if (!s && hb_serve_on() && !(ts && bad_ts(ts))) {
+        int handled, rc = hb_serve_poll(fds, n, ts ? ts_ns(ts) : -1, mask, &handled);
+        if (handled)
+            return rc;
+    }
     if (!s)
         return REAL(ppoll)(fds, n, ts, mask);
     return poll_common(s, fds, n, ts ? ts_ns(ts) : -1, mask);
@@ -966,6 +984,13 @@ int select(int n, fd_set *r, fd_set *w, fd_set *e, struct timeval *tv)
     uint64_t deadline = NO_DEADLINE;
     int64_t timeout_ns;
     int rc;
+    if (!s && hb_serve_on() && !(tv && (tv->tv_usec < 0 || tv->tv_usec >= 1000000 || tv->tv_sec < 0))) {
+        int handled;
+        rc = hb_serve_select(n, r, w, e, tv ? ((int64_t)tv->tv_sec * 1000000 + tv->tv_usec) * 1000 : -1, NULL,
+                             &handled);
+        if (handled)
+            return rc;  /* (the time left is not written back: served selects are a prototype) */
+    }
     if (!s)
         return REAL(select)(n, r, w, e, tv);
     timeout_ns = tv ? ((int64_t)tv->tv_sec * 1000000 + tv->tv_usec) * 1000 : -1;
@@ -1878,6 +1903,12 @@ ssize_t read(int fd, void *buf, size_t n)
     struct vc_slot *s;
     ssize_t got, size = (ssize_t)n;
     int port, saved;
+    if (!vc_on && hb_serve_on()) {
+        int handled;
+        got = hb_serve_read(fd, buf, n, &handled);
+        if (handled)
+            return got;
+    }
     if (!vc_on || !(s = cur()))
         return REAL(read)(fd, buf, n);
     port = port_of(fd);
@@ -1913,6 +1944,12 @@ ssize_t readv(int fd, const struct iovec *iov, int iovcnt)
     ssize_t got;
     size_t total = 0;
     int port, i;
+    if (!vc_on && hb_serve_on() && iovcnt == 1) {  /* served: one buffer (more: the kernel path's bytes only) */
+        int handled;
+        got = hb_serve_read(fd, iov[0].iov_base, iov[0].iov_len, &handled);
+        if (handled)
+            return got;
+    }
     if (!vc_on || !(s = cur()))
         return REAL(readv)(fd, iov, iovcnt);
     port = port_of(fd);
