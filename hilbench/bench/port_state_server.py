@@ -63,7 +63,7 @@ from typing import Any
 
 from hilbench.bench.delivery_ledger import FILE_NAME as LEDGER_FILE
 from hilbench.bench.delivery_ledger import DeliveryLedger
-from hilbench.bench.serve_ring import ServeRings, openers_run_the_shim
+from hilbench.bench.serve_ring import SERVED, ServeRings, openers_run_the_shim
 from hilbench.errors import RequestRefused
 from hilbench.transports.client_limit import Eviction
 from hilbench.transports.listener import Listener
@@ -149,10 +149,6 @@ class PortStateServer:
                       lambda _rdev=rdev: self.ledger.writers_idle(_rdev),
                       lambda _rdev=rdev: self.ledger.draining(_rdev))
         self.rings = ServeRings(self.directory, list(self._ports))
-        for rdev, p in self._ports.items():
-            if isinstance(p.port, PtyPort):
-                p.port.serve = lambda data, _rdev=rdev: self.rings.append(_rdev, data)
-                p.port.serve_discard = lambda _rdev=rdev: self.rings.discard(_rdev)
         self._conns: dict[socket.socket, _Conn] = {}
         self._tls = threading.local()  # the connection a request thread serves
         self._conns_lock = threading.Lock()
@@ -209,8 +205,8 @@ class PortStateServer:
             return self._after_taking(port, lambda: self._flushed(port), taken=True)
         if verb == "drain":
             return self._after_taking(port, lambda: self._quiet(port), taken=True, delivered=True)
-        if verb == "serve":  # the serving path (an experiment): SERVED (1) or not (0, 2)
-            return self.rings.claim(port.port.rdev, openers_run_the_shim(port.port.rdev, self.rings.path, os.getpid()))
+        if verb in ("serve", "unserve"):  # the serving path (an experiment): SERVED (1) or not (0, 2)
+            return self._serving_path(port, verb == "serve")
         if verb == "framing":
             framing = getattr(port.port, "framing", None)
             return -1 if framing is None else framing
@@ -218,6 +214,19 @@ class PortStateServer:
             framing = _int_arg(args) if args else None
             return self._after_taking(port, lambda: self._sync(port, framing))
         raise RequestRefused(f"unknown request {verb!r}")
+
+    def _serving_path(self, port: _ServedPort, wanted: bool) -> int:
+        """A client asks for the serving path (or gives it up, for good): the mode of the port's ring. The
+        pty's writes go to the ring only while it is served (no cost on the kernel path otherwise)."""
+        rdev = port.port.rdev
+        mode = self.rings.claim(rdev, wanted and openers_run_the_shim(rdev, self.rings.path, os.getpid()))
+        if isinstance(port.port, PtyPort):
+            if mode == SERVED:
+                port.port.serve_discard = lambda: self.rings.discard(rdev)
+                port.port.serve = lambda data: self.rings.append(rdev, data)
+            else:
+                port.port.serve = port.port.serve_discard = None
+        return mode
 
     @staticmethod
     def _quiet(port: _ServedPort) -> None:

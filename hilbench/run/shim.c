@@ -109,6 +109,7 @@ struct bench_port {
     struct serve_rec *ring;   /* its serving ring (HILBENCH_SERVE=1 and the bench has one), else NULL */
     int ring_index;           /* the record's index: the FIFO's name */
     int claimed;              /* this process asked the bench to serve it (once) */
+    int refused;              /* this process uses it where the ring cannot answer (epoll, stdio): never ask */
     int fifo;                 /* the wake FIFO's read end, opened on first wait (0: not yet, -1: failed) */
 };
 static int serving;  /* HILBENCH_SERVE=1 */
@@ -166,6 +167,7 @@ __attribute__((visibility("hidden"))) void hb_vclock_wrote(int fd, ssize_t n);
 __attribute__((visibility("hidden"))) void hb_vclock_flushing(int fd, int queue);
 __attribute__((visibility("hidden"))) int hb_vclock_empty(int fd);
 static void hb_serve_flush(int fd, int queue);
+__attribute__((visibility("hidden"))) void hb_serve_refuse(int fd);
 __attribute__((visibility("hidden"))) int hb_serve_inq(int fd, int *value);
 
 /* struct termios2 of <asm/termbits.h>, which cannot be included beside <termios.h>. */
@@ -483,7 +485,7 @@ static void init(void)
     for (i = 0; i < nsockets; i++)
         map_ledger(i);
     spec = getenv("HILBENCH_SERVE");
-    serving = spec && strcmp(spec, "1") == 0;
+    serving = spec && strcmp(spec, "1") == 0 && !getenv("HILBENCH_CLOCK");  /* wall clock only, for now */
     for (i = 0; serving && i < nsockets; i++)
         map_serve(i);
     if (nports) {
@@ -545,8 +547,10 @@ static void opened_stream(FILE *f)
 {
     int saved = errno, fd = f ? fileno(f) : -1, i;
     forget(fd);
-    if (fd >= 0 && nports && (i = lookup(fd)) >= 0)
+    if (fd >= 0 && nports && (i = lookup(fd)) >= 0) {
         __atomic_store_n(&ports[i].unseen, 1, __ATOMIC_SEQ_CST);
+        hb_serve_refuse(fd);  /* stdio reads with glibc's internal read(): the ring cannot answer them */
+    }
     errno = saved;
 }
 
@@ -1169,7 +1173,7 @@ static struct bench_port *served_port(int fd)
     uint64_t mode;
     if (!serving || !(p = bench_port(fd)) || !p->ring)
         return NULL;
-    if (!__atomic_load_n(&p->claimed, __ATOMIC_ACQUIRE)) {
+    if (!__atomic_load_n(&p->claimed, __ATOMIC_ACQUIRE) && !__atomic_load_n(&p->refused, __ATOMIC_ACQUIRE)) {
         int zero = 0;
         long value;
         if (__atomic_compare_exchange_n(&p->claimed, &zero, 1, 0, __ATOMIC_SEQ_CST, __ATOMIC_SEQ_CST))
@@ -1482,3 +1486,17 @@ __attribute__((visibility("hidden"))) ssize_t hb_serve_read(int fd, void *buf, s
 }
 
 __attribute__((visibility("hidden"))) int hb_serve_on(void) { return serving; }
+
+/* fd goes where the ring cannot answer (an epoll set, a stdio stream): the bench stops serving the port,
+ * for good (the kernel path from then on), and this process never asks for it. */
+__attribute__((visibility("hidden"))) void hb_serve_refuse(int fd)
+{
+    struct bench_port *p;
+    long value;
+    int saved = errno;
+    if (!serving || !(p = bench_port(fd)) || !p->ring)
+        return;
+    if (__atomic_exchange_n(&p->refused, 1, __ATOMIC_SEQ_CST) == 0)
+        ask(p, "unserve", &value, TIMEOUT_S);
+    errno = saved;
+}

@@ -769,9 +769,20 @@ static uint64_t ports_of(const struct pollfd *fds, nfds_t n, int *foreign)
     return mask;
 }
 
+/* shim.c: the serving path (HILBENCH_SERVE=1); each sets *handled = 0 for a descriptor it does not serve. */
+__attribute__((visibility("hidden"))) int hb_serve_on(void);
+__attribute__((visibility("hidden"))) int hb_serve_poll(struct pollfd *fds, nfds_t n, int64_t timeout_ns,
+                                                        const sigset_t *mask, int *handled);
+__attribute__((visibility("hidden"))) int hb_serve_select(int nfds, fd_set *r, fd_set *w, fd_set *e,
+                                                          int64_t timeout_ns, const sigset_t *mask, int *handled);
+__attribute__((visibility("hidden"))) ssize_t hb_serve_read(int fd, void *buf, size_t n, int *handled);
+__attribute__((visibility("hidden"))) void hb_serve_refuse(int fd);
+
 int epoll_ctl(int ep, int op, int fd, struct epoll_event *ev)
 {
     int rc = REAL(epoll_ctl)(ep, op, fd, ev);
+    if (rc == 0 && (op == EPOLL_CTL_ADD || op == EPOLL_CTL_MOD) && hb_serve_on())
+        hb_serve_refuse(fd);  /* epoll is not served: that pty goes back to the kernel path */
     if (rc == 0 && vc_on && nports && (op == EPOLL_CTL_ADD || op == EPOLL_CTL_MOD) && ep >= 0 && ep < VC_FD_CACHE) {
         int p = port_of(fd);
         if (!ep_ports) {  /* first use: 512 KiB of address space, touched only where used */
@@ -858,14 +869,6 @@ static int timed_fd_wait(struct vc_slot *s, probe_fn probe, void *ctx, struct po
         *deadline_out = deadline;
     return fd_wait(s, probe, ctx, watch, n, deadline, mask);
 }
-
-/* shim.c: the serving path (HILBENCH_SERVE=1); each sets *handled = 0 for a descriptor it does not serve. */
-__attribute__((visibility("hidden"))) int hb_serve_on(void);
-__attribute__((visibility("hidden"))) int hb_serve_poll(struct pollfd *fds, nfds_t n, int64_t timeout_ns,
-                                                        const sigset_t *mask, int *handled);
-__attribute__((visibility("hidden"))) int hb_serve_select(int nfds, fd_set *r, fd_set *w, fd_set *e,
-                                                          int64_t timeout_ns, const sigset_t *mask, int *handled);
-__attribute__((visibility("hidden"))) ssize_t hb_serve_read(int fd, void *buf, size_t n, int *handled);
 
 /* poll, ppoll */
 struct poll_ctx { struct pollfd *fds; nfds_t n; };
@@ -1010,6 +1013,12 @@ int pselect(int n, fd_set *r, fd_set *w, fd_set *e, const struct timespec *ts, c
 {
     struct vc_slot *s = ts && bad_ts(ts) ? NULL : cur();
     int rc;
+    if (!s && hb_serve_on() && !(ts && bad_ts(ts))) {
+        int handled;
+        rc = hb_serve_select(n, r, w, e, ts ? ts_ns(ts) : -1, mask, &handled);
+        if (handled)
+            return rc;
+    }
     if (!s)
         return REAL(pselect)(n, r, w, e, ts, mask);
     rc = select_common(s, n, r, w, e, ts ? ts_ns(ts) : -1, mask, NULL);
@@ -1944,9 +1953,27 @@ ssize_t readv(int fd, const struct iovec *iov, int iovcnt)
     ssize_t got;
     size_t total = 0;
     int port, i;
-    if (!vc_on && hb_serve_on() && iovcnt == 1) {  /* served: one buffer (more: the kernel path's bytes only) */
+    if (!vc_on && hb_serve_on() && iovcnt > 0) {  /* served: into one buffer, then scattered */
         int handled;
-        got = hb_serve_read(fd, iov[0].iov_base, iov[0].iov_len, &handled);
+        unsigned char *tmp;
+        size_t want = 0, off = 0;
+        for (i = 0; i < iovcnt; i++)
+            want += iov[i].iov_len;
+        if (want > (1 << 20))
+            want = 1 << 20;  /* more than the ring and a pty's queue hold */
+        if (iovcnt == 1)
+            tmp = iov[0].iov_base;
+        else if (!(tmp = malloc(want ? want : 1)))
+            return REAL(readv)(fd, iov, iovcnt);
+        got = hb_serve_read(fd, tmp, want, &handled);
+        if (handled && got > 0 && iovcnt > 1)
+            for (i = 0; i < iovcnt && off < (size_t)got; i++) {
+                size_t k = (size_t)got - off < iov[i].iov_len ? (size_t)got - off : iov[i].iov_len;
+                memcpy(iov[i].iov_base, tmp + off, k);
+                off += k;
+            }
+        if (iovcnt > 1)
+            free(tmp);
         if (handled)
             return got;
     }

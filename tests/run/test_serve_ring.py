@@ -113,9 +113,8 @@ def test_fionread_vmin_and_vtime_on_the_ring(hilbench_bench, hilbench_run):
                             env={**os.environ, "HILBENCH_SERVE": "1"})
     try:
         assert proc.stdout.readline().strip() == "ready", proc.stderr.read()
-        # the client's first FIONREAD claims the port; serve it directly (what the devices' replies do)
-        assert rings.claim(port.rdev, serve_ring.openers_run_the_shim(port.rdev, rings.path, os.getpid())) \
-            == serve_ring.SERVED
+        # the client's first FIONREAD will claim the port; the test claims it first, then sends as the devices do
+        assert bench.services["port_state"].handle(f"{port.rdev} serve") == f"ok {serve_ring.SERVED}"
         assert port.write(bytes(range(10))) == 10
         assert rings.read(port.rdev)["head"] == 10  # in the ring, not the pty
         proc.stdin.write("go\n")
@@ -129,3 +128,39 @@ def test_fionread_vmin_and_vtime_on_the_ring(hilbench_bench, hilbench_run):
     assert out["vmin4"] == bytes(range(10)).hex() and out["inq_after"] == 0
     assert out["vmin0_empty"] == ""
     assert out["vtime"] == "" and 0.19 <= out["vtime_s"] < 1.0  # VTIME=2: 0.2 s without a byte
+
+
+EPOLL_CLIENT = r"""
+import fcntl, os, select, struct, sys, termios, tty
+fd = os.open(sys.argv[1], os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+tty.setraw(fd)
+fcntl.ioctl(fd, termios.FIONREAD, b"\0\0\0\0")  # claims the port: served
+print("claimed", flush=True); sys.stdin.readline()
+ep = select.epoll(); ep.register(fd, select.EPOLLIN)  # epoll is not served: back to the kernel path
+print("registered", flush=True); sys.stdin.readline()
+print(ep.poll(10)[0][0] == fd and os.read(fd, 10).hex(), flush=True)
+"""
+
+
+def test_an_epoll_set_sends_the_port_back_to_the_kernel_path(hilbench_bench, hilbench_run):
+    bench = hilbench_bench("arm")
+    rings = bench.services["port_state"].rings
+    port = bench.endpoint().port
+    proc = subprocess.Popen(hilbench_run.command(bench, shim="c") + [sys.executable, "-c", EPOLL_CLIENT, port.path],
+                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "HILBENCH_SERVE": "1"})
+    try:
+        assert proc.stdout.readline().strip() == "claimed", proc.stderr.read()
+        assert rings.read(port.rdev)["mode"] == serve_ring.SERVED
+        proc.stdin.write("\n")
+        proc.stdin.flush()
+        assert proc.stdout.readline().strip() == "registered"
+        assert rings.read(port.rdev)["mode"] == serve_ring.FALLBACK
+        assert port.write(b"\x01\x02\x03") == 3 and rings.read(port.rdev)["head"] == 0  # to the pty
+        proc.stdin.write("\n")
+        proc.stdin.flush()
+        assert proc.stdout.readline().strip() == "010203"
+        assert proc.wait(timeout=30) == 0
+    finally:
+        proc.kill()
+        proc.wait()
