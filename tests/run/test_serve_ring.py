@@ -14,6 +14,7 @@ import sys
 import pytest
 
 from hilbench.bench import serve_ring
+from hilbench.pytest_plugin import wait_until
 
 pytestmark = pytest.mark.skipif(shutil.which("cc") is None, reason="no C compiler (cc)")
 
@@ -161,6 +162,52 @@ def test_an_epoll_set_sends_the_port_back_to_the_kernel_path(hilbench_bench, hil
         proc.stdin.flush()
         assert proc.stdout.readline().strip() == "010203"
         assert proc.wait(timeout=30) == 0
+    finally:
+        proc.kill()
+        proc.wait()
+
+
+STREAM_CLIENT = r"""
+import hashlib, os, select, sys, tty
+fd = os.open(sys.argv[1], os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+tty.setraw(fd)
+select.select([fd], [], [], 0)  # claims the port
+print("claimed", flush=True)
+want, got = int(sys.argv[2]), bytearray()
+while len(got) < want:  # pyserial's way: select, then a non-blocking read
+    r, _, _ = select.select([fd], [], [], 5.0)
+    if not r:
+        break
+    got += os.read(fd, 4096)
+print(len(got), hashlib.sha256(got).hexdigest(), flush=True)
+"""
+
+
+def test_a_stream_in_uneven_chunks_arrives_whole_and_in_order(hilbench_bench, hilbench_run):
+    import hashlib
+    import random
+
+    bench = hilbench_bench("arm")
+    rings = bench.services["port_state"].rings
+    port = bench.endpoint().port
+    data = random.Random(26).randbytes(1 << 20)  # 16 times the ring: it wraps, the client keeps up
+    proc = subprocess.Popen(hilbench_run.command(bench, shim="c") +
+                            [sys.executable, "-c", STREAM_CLIENT, port.path, str(len(data))],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "HILBENCH_SERVE": "1"})
+    try:
+        assert proc.stdout.readline().strip() == "claimed", proc.stderr.read()
+        chunks = random.Random(1)
+        sent = 0
+        while sent < len(data):
+            n = min(chunks.randint(1, 700), len(data) - sent)
+            wait_until(lambda n=n: (lambda r: r["head"] - r["tail"] + n <= serve_ring.RING)(rings.read(port.rdev)),
+                       interval=0.0005)
+            assert port.write(data[sent:sent + n]) == n
+            sent += n
+        assert proc.stdout.readline().split() == [str(len(data)), hashlib.sha256(data).hexdigest()]
+        assert proc.wait(timeout=30) == 0
+        assert rings.read(port.rdev)["dropped"] == 0
     finally:
         proc.kill()
         proc.wait()
