@@ -63,9 +63,11 @@ from typing import Any
 
 from hilbench.bench.delivery_ledger import FILE_NAME as LEDGER_FILE
 from hilbench.bench.delivery_ledger import DeliveryLedger
+from hilbench.bench.serve_ring import SERVED, ServeRings, openers_run_the_shim
 from hilbench.errors import RequestRefused
 from hilbench.transports.client_limit import Eviction
 from hilbench.transports.listener import Listener
+from hilbench.transports.pty import PtyPort
 from hilbench.transports.readiness import readable
 
 #: How long a request may wait for the medium's thread before the client is told to give up.
@@ -146,6 +148,7 @@ class PortStateServer:
                 watch(p.port, lambda ns, _rdev=rdev: self.ledger.delivered(_rdev, ns),
                       lambda _rdev=rdev: self.ledger.writers_idle(_rdev),
                       lambda _rdev=rdev: self.ledger.draining(_rdev))
+        self.rings = ServeRings(self.directory, list(self._ports))
         self._conns: dict[socket.socket, _Conn] = {}
         self._tls = threading.local()  # the connection a request thread serves
         self._conns_lock = threading.Lock()
@@ -202,6 +205,8 @@ class PortStateServer:
             return self._after_taking(port, lambda: self._flushed(port), taken=True)
         if verb == "drain":
             return self._after_taking(port, lambda: self._quiet(port), taken=True, delivered=True)
+        if verb in ("serve", "unserve"):  # the serving path (an experiment): SERVED (1) or not (0, 2)
+            return self._serving_path(port, verb == "serve")
         if verb == "framing":
             framing = getattr(port.port, "framing", None)
             return -1 if framing is None else framing
@@ -209,6 +214,19 @@ class PortStateServer:
             framing = _int_arg(args) if args else None
             return self._after_taking(port, lambda: self._sync(port, framing))
         raise RequestRefused(f"unknown request {verb!r}")
+
+    def _serving_path(self, port: _ServedPort, wanted: bool) -> int:
+        """A client asks for the serving path (or gives it up, for good): the mode of the port's ring. The
+        pty's writes go to the ring only while it is served (no cost on the kernel path otherwise)."""
+        rdev = port.port.rdev
+        mode = self.rings.claim(rdev, wanted and openers_run_the_shim(rdev, self.rings.path, os.getpid()))
+        if isinstance(port.port, PtyPort):
+            if mode == SERVED:
+                port.port.serve_discard = lambda: self.rings.discard(rdev)
+                port.port.serve = lambda data: self.rings.append(rdev, data)
+            else:
+                port.port.serve = port.port.serve_discard = None
+        return mode
 
     @staticmethod
     def _quiet(port: _ServedPort) -> None:
@@ -414,6 +432,10 @@ class PortStateServer:
             if watch is not None:
                 watch(p.port, None)
         self.ledger.close()
+        for p in self._ports.values():
+            if isinstance(p.port, PtyPort):
+                p.port.serve = p.port.serve_discard = None
+        self.rings.close()
         for fd in (self._wake_r, self._wake_w):
             with contextlib.suppress(OSError):
                 os.close(fd)

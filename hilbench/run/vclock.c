@@ -801,9 +801,20 @@ static uint64_t ports_of(const struct pollfd *fds, nfds_t n, int *foreign)
     return mask;
 }
 
+/* shim.c: the serving path (HILBENCH_SERVE=1); each sets *handled = 0 for a descriptor it does not serve. */
+__attribute__((visibility("hidden"))) int hb_serve_on(void);
+__attribute__((visibility("hidden"))) int hb_serve_poll(struct pollfd *fds, nfds_t n, int64_t timeout_ns,
+                                                        const sigset_t *mask, int *handled);
+__attribute__((visibility("hidden"))) int hb_serve_select(int nfds, fd_set *r, fd_set *w, fd_set *e,
+                                                          int64_t timeout_ns, const sigset_t *mask, int *handled);
+__attribute__((visibility("hidden"))) ssize_t hb_serve_read(int fd, void *buf, size_t n, int *handled);
+__attribute__((visibility("hidden"))) void hb_serve_refuse(int fd);
+
 int epoll_ctl(int ep, int op, int fd, struct epoll_event *ev)
 {
     int rc = REAL(epoll_ctl)(ep, op, fd, ev);
+    if (rc == 0 && (op == EPOLL_CTL_ADD || op == EPOLL_CTL_MOD) && hb_serve_on())
+        hb_serve_refuse(fd);  /* epoll is not served: that pty goes back to the kernel path */
     if (rc == 0 && vc_on && nports && (op == EPOLL_CTL_ADD || op == EPOLL_CTL_MOD) && ep >= 0 && ep < VC_FD_CACHE) {
         int p = port_of(fd);
         if (!ep_ports) {  /* first use: 512 KiB of address space, touched only where used */
@@ -920,6 +931,11 @@ static int poll_common(struct vc_slot *s, struct pollfd *fds, nfds_t n, int64_t 
 int poll(struct pollfd *fds, nfds_t n, int timeout)
 {
     struct vc_slot *s = cur();
+    if (!s && hb_serve_on()) {  /* served ptys (wall clock only, for now) */
+        int handled, rc = hb_serve_poll(fds, n, timeout < 0 ? -1 : (int64_t)timeout * 1000000, NULL, &handled);
+        if (handled)
+            return rc;
+    }
     if (!s)
         return REAL(poll)(fds, n, timeout);
     return poll_common(s, fds, n, timeout < 0 ? -1 : (int64_t)timeout * 1000000, NULL);
@@ -934,6 +950,11 @@ int __poll_chk(struct pollfd *fds, nfds_t n, int timeout, size_t fdslen)
 int ppoll(struct pollfd *fds, nfds_t n, const struct timespec *ts, const sigset_t *mask)
 {
     struct vc_slot *s = ts && bad_ts(ts) ? NULL : cur();
+    if (!s && hb_serve_on() && !(ts && bad_ts(ts))) {
+        int handled, rc = hb_serve_poll(fds, n, ts ? ts_ns(ts) : -1, mask, &handled);
+        if (handled)
+            return rc;
+    }
     if (!s)
         return REAL(ppoll)(fds, n, ts, mask);
     return poll_common(s, fds, n, ts ? ts_ns(ts) : -1, mask);
@@ -998,6 +1019,13 @@ int select(int n, fd_set *r, fd_set *w, fd_set *e, struct timeval *tv)
     uint64_t deadline = NO_DEADLINE;
     int64_t timeout_ns;
     int rc;
+    if (!s && hb_serve_on() && !(tv && (tv->tv_usec < 0 || tv->tv_usec >= 1000000 || tv->tv_sec < 0))) {
+        int handled;
+        rc = hb_serve_select(n, r, w, e, tv ? ((int64_t)tv->tv_sec * 1000000 + tv->tv_usec) * 1000 : -1, NULL,
+                             &handled);
+        if (handled)
+            return rc;  /* (the time left is not written back: served selects are a prototype) */
+    }
     if (!s)
         return REAL(select)(n, r, w, e, tv);
     timeout_ns = tv ? ((int64_t)tv->tv_sec * 1000000 + tv->tv_usec) * 1000 : -1;
@@ -1017,6 +1045,12 @@ int pselect(int n, fd_set *r, fd_set *w, fd_set *e, const struct timespec *ts, c
 {
     struct vc_slot *s = ts && bad_ts(ts) ? NULL : cur();
     int rc;
+    if (!s && hb_serve_on() && !(ts && bad_ts(ts))) {
+        int handled;
+        rc = hb_serve_select(n, r, w, e, ts ? ts_ns(ts) : -1, mask, &handled);
+        if (handled)
+            return rc;
+    }
     if (!s)
         return REAL(pselect)(n, r, w, e, ts, mask);
     rc = select_common(s, n, r, w, e, ts ? ts_ns(ts) : -1, mask, NULL);
@@ -1916,6 +1950,12 @@ ssize_t read(int fd, void *buf, size_t n)
     struct vc_slot *s;
     ssize_t got, size = (ssize_t)n;
     int port, saved;
+    if (!vc_on && hb_serve_on()) {
+        int handled;
+        got = hb_serve_read(fd, buf, n, &handled);
+        if (handled)
+            return got;
+    }
     if (!vc_on || !(s = cur()))
         return REAL(read)(fd, buf, n);
     port = port_of(fd);
@@ -1951,6 +1991,30 @@ ssize_t readv(int fd, const struct iovec *iov, int iovcnt)
     ssize_t got;
     size_t total = 0;
     int port, i;
+    if (!vc_on && hb_serve_on() && iovcnt > 0) {  /* served: into one buffer, then scattered */
+        int handled;
+        unsigned char *tmp;
+        size_t want = 0, off = 0;
+        for (i = 0; i < iovcnt; i++)
+            want += iov[i].iov_len;
+        if (want > (1 << 20))
+            want = 1 << 20;  /* more than the ring and a pty's queue hold */
+        if (iovcnt == 1)
+            tmp = iov[0].iov_base;
+        else if (!(tmp = malloc(want ? want : 1)))
+            return REAL(readv)(fd, iov, iovcnt);
+        got = hb_serve_read(fd, tmp, want, &handled);
+        if (handled && got > 0 && iovcnt > 1)
+            for (i = 0; i < iovcnt && off < (size_t)got; i++) {
+                size_t k = (size_t)got - off < iov[i].iov_len ? (size_t)got - off : iov[i].iov_len;
+                memcpy(iov[i].iov_base, tmp + off, k);
+                off += k;
+            }
+        if (iovcnt > 1)
+            free(tmp);
+        if (handled)
+            return got;
+    }
     if (!vc_on || !(s = cur()))
         return REAL(readv)(fd, iov, iovcnt);
     port = port_of(fd);
