@@ -283,7 +283,7 @@ class Lockstep:
             end = None
             while True:
                 try:
-                    inq = struct.unpack("i", fcntl.ioctl(port.slave_fd, termios.FIONREAD, b"\0" * 4))[0]
+                    inq = _client_inq(port)
                 except OSError:
                     break
                 # (a tty's input queue holds TTY_INQ_MAX bytes at most: the rest waits in the kernel until read)
@@ -310,7 +310,7 @@ class Lockstep:
             p.unseen = None
             return True
         try:
-            inq = struct.unpack("i", fcntl.ioctl(p.port.slave_fd, termios.FIONREAD, b"\0" * 4))[0]
+            inq = _client_inq(p.port)
         except OSError:
             return True
         if inq >= min(unread, TTY_INQ_MAX):
@@ -685,6 +685,14 @@ class Lockstep:
         with contextlib.suppress(BufferError):
             self.map.close()
         shutil.rmtree(self.dir, ignore_errors=True)
+
+
+def _client_inq(port: Any) -> int:
+    """The bytes a client of the pty ``port`` can read now: its input queue (FIONREAD on the slave the bench
+    holds) and, while the port is served (``hilbench run``'s serving path), its ring."""
+    inq = struct.unpack("i", fcntl.ioctl(port.slave_fd, termios.FIONREAD, b"\0" * 4))[0]
+    pending = getattr(port, "serve_pending", None)
+    return inq + pending() if pending is not None else inq
 
 
 def _comm(pid: int, tid: int) -> str:

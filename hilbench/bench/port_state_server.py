@@ -223,9 +223,10 @@ class PortStateServer:
         if isinstance(port.port, PtyPort):
             if mode == SERVED:
                 port.port.serve_discard = lambda: self.rings.discard(rdev)
+                port.port.serve_pending = lambda: self.rings.pending(rdev)
                 port.port.serve = lambda data: self.rings.append(rdev, data)
             else:
-                port.port.serve = port.port.serve_discard = None
+                port.port.serve = port.port.serve_discard = port.port.serve_pending = None
         return mode
 
     @staticmethod
@@ -434,7 +435,7 @@ class PortStateServer:
         self.ledger.close()
         for p in self._ports.values():
             if isinstance(p.port, PtyPort):
-                p.port.serve = p.port.serve_discard = None
+                p.port.serve = p.port.serve_discard = p.port.serve_pending = None
         self.rings.close()
         for fd in (self._wake_r, self._wake_w):
             with contextlib.suppress(OSError):

@@ -33,9 +33,12 @@ each append while someone waits. Readers of this layout: ``hilbench/run/shim.c``
 from __future__ import annotations
 
 import contextlib
+import ctypes
+import ctypes.util
 import mmap
 import os
 import threading
+from collections.abc import Callable
 
 MAGIC = b"HBSERVE1"
 VERSION = 1
@@ -47,6 +50,17 @@ RECORD_SIZE = RECORD_HEADER + RING
 RDEV, MODE, HEAD, TAIL, WAITERS, DROPPED = 0, 1, 2, 3, 4, 5
 KERNEL, SERVED, FALLBACK = 0, 1, 2
 FILE_NAME = "port_state.serve"
+
+
+def _fetch_add() -> Callable[[int, int, int], int] | None:
+    """gcc's ``__atomic_fetch_add_8`` (libatomic), or None without it."""
+    try:
+        f = getattr(ctypes.CDLL(ctypes.util.find_library("atomic") or "libatomic.so.1"), "__atomic_fetch_add_8")
+    except (OSError, AttributeError):
+        return None
+    f.argtypes = [ctypes.c_void_p, ctypes.c_uint64, ctypes.c_int]
+    f.restype = ctypes.c_uint64
+    return f
 
 
 class ServeRings:
@@ -64,6 +78,13 @@ class ServeRings:
         finally:
             os.close(fd)
         self._words: memoryview | None = memoryview(self._map).cast("Q")
+        # The head moves with a locked add, a full barrier: the load of ``waiters`` after it cannot be done
+        # before the new head is visible to clients (x86 lets a plain store wait in the store buffer while a
+        # later load goes ahead; a client that counted itself a waiter and then saw the old head would then
+        # sleep with nobody to wake it). Without libatomic: a plain store.
+        self._add = _fetch_add()
+        self._buf: ctypes.Array | None = (ctypes.c_char * size).from_buffer(self._map) if self._add else None
+        self._base = ctypes.addressof(self._buf) if self._buf is not None else 0
         self._fifos: dict[int, int] = {}
         for rdev, i in self._index.items():
             self._words[self._word(i, RDEV)] = rdev
@@ -112,13 +133,26 @@ class ServeRings:
             self._map[base + start:base + start + first] = data[:first]
             if n > first:
                 self._map[base:base + n - first] = data[first:n]
-            words[self._word(i, HEAD)] = head + n  # one aligned store, after the bytes (x86-64: ordered)
+            if self._add is not None:
+                self._add(self._base + self._word(i, HEAD) * 8, n, 5)  # (SEQ_CST: after the bytes, before waiters)
+            else:
+                words[self._word(i, HEAD)] = head + n  # one aligned store, after the bytes (x86-64: ordered)
             if n < len(data):
                 words[self._word(i, DROPPED)] += len(data) - n
             if words[self._word(i, WAITERS)]:
                 with contextlib.suppress(BlockingIOError):
                     os.write(self._fifos[i], b"x")
             return n
+
+    def pending(self, rdev: int) -> int:
+        """The bytes in the ring of ``rdev`` that no client has read yet (the lockstep's settle: they are on the
+        client's side as soon as appended)."""
+        i = self._index.get(rdev)
+        words = self._words
+        if i is None or words is None:
+            return 0
+        base = self._word(i, 0)
+        return words[base + HEAD] - words[base + TAIL]
 
     def discard(self, rdev: int) -> None:
         """Drop the unread bytes (an input flush of the pty)."""
@@ -140,6 +174,7 @@ class ServeRings:
             if self._words is not None:
                 self._words.release()
                 self._words = None
+            self._buf = None  # (its export of the map ends before the map closes)
             if self._map is not None:
                 self._map.close()
                 self._map = None

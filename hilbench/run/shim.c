@@ -485,7 +485,7 @@ static void init(void)
     for (i = 0; i < nsockets; i++)
         map_ledger(i);
     spec = getenv("HILBENCH_SERVE");
-    serving = spec && strcmp(spec, "1") == 0 && !getenv("HILBENCH_CLOCK");  /* wall clock only, for now */
+    serving = spec && strcmp(spec, "1") == 0;
     for (i = 0; serving && i < nsockets; i++)
         map_serve(i);
     if (nports) {
@@ -1003,8 +1003,11 @@ int ioctl(int fd, unsigned long request, ...)
     case TCGETS: case SHIM_TCGETS2:
         break;
     case FIONREAD:  /* an empty answer again and again is polling: virtual time may block it a quantum */
-        if (serving && arg && hb_serve_inq(fd, (int *)arg))
+        if (serving && arg && hb_serve_inq(fd, (int *)arg)) {
+            if (*(int *)arg == 0 && hb_vclock_empty(fd))
+                hb_serve_inq(fd, (int *)arg);
             return 0;
+        }
         rc = real_ioctl(fd, request, arg);
         if (rc == 0 && arg && *(int *)arg == 0 && hb_vclock_empty(fd))
             rc = real_ioctl(fd, request, arg);
@@ -1485,7 +1488,22 @@ __attribute__((visibility("hidden"))) ssize_t hb_serve_read(int fd, void *buf, s
     }
 }
 
-__attribute__((visibility("hidden"))) int hb_serve_on(void) { return serving; }
+__attribute__((visibility("hidden"))) int hb_serve_on(void) { return serving && started(); }
+
+/* For the virtual-time wrappers (vclock.c), which wait in virtual time themselves: the bytes a read of a
+ * served pty finds now (its own queue and the ring), -1 when fd is not served. */
+__attribute__((visibility("hidden"))) int hb_serve_avail(int fd)
+{
+    struct bench_port *p = serving ? served_port(fd) : NULL;
+    return p ? kernel_inq(fd) + (int)ring_avail(p) : -1;
+}
+
+/* ... and up to n of them, without waiting (0: none); -1 when fd is not served. */
+__attribute__((visibility("hidden"))) ssize_t hb_serve_take(int fd, void *buf, size_t n)
+{
+    struct bench_port *p = serving ? served_port(fd) : NULL;
+    return p ? serve_take(p, fd, buf, n) : -1;
+}
 
 /* fd goes where the ring cannot answer (an epoll set, a stdio stream): the bench stops serving the port,
  * for good (the kernel path from then on), and this process never asks for it. */

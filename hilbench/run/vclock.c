@@ -809,6 +809,8 @@ __attribute__((visibility("hidden"))) int hb_serve_select(int nfds, fd_set *r, f
                                                           int64_t timeout_ns, const sigset_t *mask, int *handled);
 __attribute__((visibility("hidden"))) ssize_t hb_serve_read(int fd, void *buf, size_t n, int *handled);
 __attribute__((visibility("hidden"))) void hb_serve_refuse(int fd);
+__attribute__((visibility("hidden"))) int hb_serve_avail(int fd);
+__attribute__((visibility("hidden"))) ssize_t hb_serve_take(int fd, void *buf, size_t n);
 
 int epoll_ctl(int ep, int op, int fd, struct epoll_event *ev)
 {
@@ -907,6 +909,11 @@ struct poll_ctx { struct pollfd *fds; nfds_t n; };
 static int poll_probe(void *c)
 {
     struct poll_ctx *p = c;
+    if (hb_serve_on()) {  /* a served pty is readable when its ring holds bytes */
+        int handled, rc = hb_serve_poll(p->fds, p->n, 0, NULL, &handled);
+        if (handled)
+            return rc;
+    }
     return REAL(poll)(p->fds, p->n, 0);
 }
 
@@ -975,6 +982,11 @@ static int select_probe(void *c)
     if (p->r) *p->r = p->r0;
     if (p->w) *p->w = p->w0;
     if (p->e) *p->e = p->e0;
+    if (hb_serve_on()) {
+        int handled, rc = hb_serve_select(p->n, p->r, p->w, p->e, 0, NULL, &handled);
+        if (handled)
+            return rc;
+    }
     return REAL(select)(p->n, p->r, p->w, p->e, &zero);
 }
 
@@ -1848,10 +1860,52 @@ int timerfd_settime(int fd, int flags, const struct itimerspec *nv, struct itime
 
 /* ------------------------------------------------------------------ reads of bench ptys */
 
+static int nonblocking(int fd) { return (int)syscall(SYS_fcntl, fd, F_GETFL) & O_NONBLOCK; }
+
 static int inq(int fd)
 {
     int n = 0;
+    if (hb_serve_on() && (n = hb_serve_avail(fd)) >= 0)
+        return n;  /* a served pty: its own queue and the ring */
     return syscall(SYS_ioctl, fd, FIONREAD, &n) == 0 ? n : -1;
+}
+
+/* The real read, or on a served pty a take from its queue and ring (EAGAIN when empty and O_NONBLOCK, as
+ * the pty; a blocking read gets here only once pty_wait found what it waits for, or VMIN = VTIME = 0). */
+static ssize_t port_read(int fd, void *buf, size_t n, int served)
+{
+    ssize_t got;
+    if (!served)
+        return REAL(read)(fd, buf, n);
+    got = hb_serve_take(fd, buf, n);
+    if (got == 0 && n > 0 && nonblocking(fd)) {
+        errno = EAGAIN;
+        return -1;
+    }
+    return got;
+}
+
+/* readv of a served pty: port_read into one buffer, then scattered. */
+static ssize_t port_readv(int fd, const struct iovec *iov, int iovcnt, size_t total)
+{
+    unsigned char *tmp;
+    ssize_t got;
+    size_t off = 0;
+    int i;
+    if (total > (1 << 20))
+        total = 1 << 20;  /* more than the ring and a pty's queue hold */
+    if (iovcnt == 1)
+        return port_read(fd, iov[0].iov_base, total, 1);
+    if (!(tmp = malloc(total ? total : 1)))
+        return REAL(readv)(fd, iov, iovcnt);
+    got = port_read(fd, tmp, total, 1);
+    for (i = 0; got > 0 && i < iovcnt && off < (size_t)got; i++) {
+        size_t k = (size_t)got - off < iov[i].iov_len ? (size_t)got - off : iov[i].iov_len;
+        memcpy(iov[i].iov_base, tmp + off, k);
+        off += k;
+    }
+    free(tmp);
+    return got;
 }
 
 /* Before a blocking read of a bench pty returns, the bytes it would wait for are there: VMIN and
@@ -1943,13 +1997,11 @@ static int read_empty(struct vc_slot *s, int fd)
     return 1;
 }
 
-static int nonblocking(int fd) { return (int)syscall(SYS_fcntl, fd, F_GETFL) & O_NONBLOCK; }
-
 ssize_t read(int fd, void *buf, size_t n)
 {
     struct vc_slot *s;
     ssize_t got, size = (ssize_t)n;
-    int port, saved;
+    int port, saved, served;
     if (!vc_on && hb_serve_on()) {
         int handled;
         got = hb_serve_read(fd, buf, n, &handled);
@@ -1959,17 +2011,18 @@ ssize_t read(int fd, void *buf, size_t n)
     if (!vc_on || !(s = cur()))
         return REAL(read)(fd, buf, n);
     port = port_of(fd);
+    served = port >= 0 && hb_serve_on() && hb_serve_avail(fd) >= 0;
     if (port >= 0 && !nonblocking(fd)) {
         size = pty_wait(s, fd, port, n);
         if (size <= 0)
             return size;
     }
-    got = REAL(read)(fd, buf, (size_t)size);
+    got = port_read(fd, buf, (size_t)size, served);
     saved = errno;
     count_read(port, got);
     if ((got < 0 && (saved == EAGAIN || saved == EWOULDBLOCK)) || (got == 0 && port >= 0 && n > 0)) {
         if (read_empty(s, fd)) {
-            got = REAL(read)(fd, buf, n);
+            got = port_read(fd, buf, n, served);
             saved = errno;
             count_read(port, got);
         }
@@ -1990,7 +2043,7 @@ ssize_t readv(int fd, const struct iovec *iov, int iovcnt)
     struct vc_slot *s;
     ssize_t got;
     size_t total = 0;
-    int port, i;
+    int port, i, served;
     if (!vc_on && hb_serve_on() && iovcnt > 0) {  /* served: into one buffer, then scattered */
         int handled;
         unsigned char *tmp;
@@ -2018,6 +2071,7 @@ ssize_t readv(int fd, const struct iovec *iov, int iovcnt)
     if (!vc_on || !(s = cur()))
         return REAL(readv)(fd, iov, iovcnt);
     port = port_of(fd);
+    served = port >= 0 && iovcnt > 0 && hb_serve_on() && hb_serve_avail(fd) >= 0;
     for (i = 0; i < iovcnt; i++)
         total += iov[i].iov_len;
     if (port >= 0 && !nonblocking(fd)) {
@@ -2025,12 +2079,13 @@ ssize_t readv(int fd, const struct iovec *iov, int iovcnt)
         if (size <= 0)
             return size;
         if ((size_t)size < total) {  /* fewer than VMIN: read only what is there */
-            got = REAL(read)(fd, iov[0].iov_base, (size_t)size < iov[0].iov_len ? (size_t)size : iov[0].iov_len);
+            got = served ? port_readv(fd, iov, iovcnt, (size_t)size)
+                         : REAL(read)(fd, iov[0].iov_base, (size_t)size < iov[0].iov_len ? (size_t)size : iov[0].iov_len);
             count_read(port, got);
             return got;
         }
     }
-    got = REAL(readv)(fd, iov, iovcnt);
+    got = served ? port_readv(fd, iov, iovcnt, total) : REAL(readv)(fd, iov, iovcnt);
     count_read(port, got);
     return got;
 }

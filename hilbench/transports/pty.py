@@ -258,6 +258,8 @@ class PtyPort(HostPort):
     serve: Callable[[bytes], int | None] | None = None
     #: Its input flush (the ring's unread bytes are dropped with the pty's).
     serve_discard: Callable[[], None] | None = None
+    #: The ring's bytes no client has read yet (on the client's side as soon as written).
+    serve_pending: Callable[[], int] | None = None
 
     def write(self, data: bytes) -> int:
         """Send bytes to the client; what does not fit is dropped and counted."""
