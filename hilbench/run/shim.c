@@ -484,8 +484,9 @@ static void init(void)
     }
     for (i = 0; i < nsockets; i++)
         map_ledger(i);
+    /* The serving path: on with a virtual clock unless HILBENCH_SERVE=0, on the wall clock only with 1. */
     spec = getenv("HILBENCH_SERVE");
-    serving = spec && strcmp(spec, "1") == 0;
+    serving = spec && *spec ? strcmp(spec, "1") == 0 : getenv("HILBENCH_CLOCK") != NULL;
     for (i = 0; serving && i < nsockets; i++)
         map_serve(i);
     if (nports) {

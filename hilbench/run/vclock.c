@@ -449,6 +449,13 @@ static void productive(void)
 /* One more call that found nothing; 1 when the thread counts as polling now. */
 static int unproductive(struct vc_slot *s)
 {
+    if (__atomic_load_n(&s->state, __ATOMIC_RELAXED) == ST_POLLING) {
+        /* Its clock reads at this instant made it a poller already (the official SDK reads the clock after
+         * each empty poll): its next empty poll waits at once, instead of K more calls spinning beside the
+         * bench on the machine's CPUs before time can move. */
+        s->unproductive = 0;
+        return 1;
+    }
     if (++s->unproductive < __atomic_load_n(&H->poll_k, __ATOMIC_RELAXED))
         return 0;
     s->unproductive = 0;
