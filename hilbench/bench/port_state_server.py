@@ -218,15 +218,30 @@ class PortStateServer:
     def _serving_path(self, port: _ServedPort, wanted: bool) -> int:
         """A client asks for the serving path (or gives it up, for good): the mode of the port's ring. The
         pty's writes go to the ring only while it is served (no cost on the kernel path otherwise)."""
-        rdev = port.port.rdev
-        mode = self.rings.claim(rdev, wanted and openers_run_the_shim(rdev, self.rings.path, os.getpid()))
-        if isinstance(port.port, PtyPort):
+        rdev, pty = port.port.rdev, port.port
+        conn = getattr(self._tls, "conn", None)
+        pid = None
+        if conn is not None:
+            with contextlib.suppress(OSError):
+                pid = struct.unpack("3i", conn.sock.getsockopt(socket.SOL_SOCKET, socket.SO_PEERCRED, 12))[0]
+        mode = self.rings.claim(rdev, wanted and openers_run_the_shim(rdev, self.rings.path, os.getpid()), pid)
+        if isinstance(pty, PtyPort):
             if mode == SERVED:
-                port.port.serve_discard = lambda: self.rings.discard(rdev)
-                port.port.serve_pending = lambda: self.rings.pending(rdev)
-                port.port.serve = lambda data: self.rings.append(rdev, data)
+                def serve(data: bytes) -> int | None:
+                    left = self.rings.orphaned(rdev)
+                    if left is None:
+                        return self.rings.append(rdev, data)
+                    # every client that asked is gone: the pty again (what they left unread first; counted)
+                    pty.serve = pty.serve_discard = pty.serve_pending = None
+                    with contextlib.suppress(OSError):
+                        os.write(pty.master_fd, left)
+                    return None
+
+                pty.serve_discard = lambda: self.rings.discard(rdev)
+                pty.serve_pending = lambda: self.rings.pending(rdev)
+                pty.serve = serve
             else:
-                port.port.serve = port.port.serve_discard = port.port.serve_pending = None
+                pty.serve = pty.serve_discard = pty.serve_pending = None
         return mode
 
     @staticmethod

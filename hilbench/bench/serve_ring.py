@@ -38,6 +38,7 @@ import ctypes.util
 import mmap
 import os
 import threading
+import time
 from collections.abc import Callable
 
 MAGIC = b"HBSERVE1"
@@ -50,6 +51,8 @@ RECORD_SIZE = RECORD_HEADER + RING
 RDEV, MODE, HEAD, TAIL, WAITERS, DROPPED = 0, 1, 2, 3, 4, 5
 KERNEL, SERVED, FALLBACK = 0, 1, 2
 FILE_NAME = "port_state.serve"
+#: Wall seconds between two looks at whether a served port's clients are still alive.
+ORPHAN_LOOK = 0.05
 
 
 def _fetch_add() -> Callable[[int, int, int], int] | None:
@@ -86,6 +89,8 @@ class ServeRings:
         self._buf: ctypes.Array | None = (ctypes.c_char * size).from_buffer(self._map) if self._add else None
         self._base = ctypes.addressof(self._buf) if self._buf is not None else 0
         self._fifos: dict[int, int] = {}
+        self._claimers: dict[int, set[int]] = {}  # port index -> pids that asked for its serving
+        self._looked: dict[int, float] = {}  # port index -> wall time of the last look at them
         for rdev, i in self._index.items():
             self._words[self._word(i, RDEV)] = rdev
             fifo = os.path.join(directory, f"serve.{i}")
@@ -103,9 +108,9 @@ class ServeRings:
         i = self._index.get(rdev)
         return KERNEL if i is None or self._words is None else self._words[self._word(i, MODE)]
 
-    def claim(self, rdev: int, openers_ok: bool) -> int:
-        """A client asks to be served: SERVED if every opener runs the shim (``openers_ok``), else FALLBACK
-        for good. Returns the mode."""
+    def claim(self, rdev: int, openers_ok: bool, pid: int | None = None) -> int:
+        """A client (process ``pid``) asks to be served: SERVED if every opener runs the shim (``openers_ok``),
+        else FALLBACK for good. Returns the mode."""
         with self._lock:
             i = self._index.get(rdev)
             if i is None or self._words is None:
@@ -113,7 +118,48 @@ class ServeRings:
             w = self._word(i, MODE)
             if self._words[w] != FALLBACK:
                 self._words[w] = SERVED if openers_ok else FALLBACK
+            if self._words[w] == SERVED:  # (no pid: a claim in the bench's own process, which outlives the ring)
+                self._claimers.setdefault(i, set()).add(pid or os.getpid())
             return self._words[w]
+
+    def orphaned(self, rdev: int) -> bytes | None:
+        """While ``rdev`` is served, look (every :data:`ORPHAN_LOOK` s at most, at an append) whether any
+        process that asked for its serving is still alive. If none is, the port goes back to the
+        kernel path (KERNEL: a later client may ask again) and the ring's unread bytes are returned, to be
+        written to the pty: a program without the shim that opens the port afterwards (a plain pyserial
+        client, ``cat``) reads them and what follows from the pty. Else None."""
+        i = self._index.get(rdev)
+        words = self._words
+        if i is None or words is None or self._map is None:
+            return None
+        base = self._word(i, 0)
+        if words[base + MODE] != SERVED:
+            return None
+        now = time.monotonic()  # wall-clock: a service timer, not the bench's time
+        if now - self._looked.get(i, 0.0) < ORPHAN_LOOK:
+            return None
+        self._looked[i] = now
+        claimers = self._claimers.get(i, set())
+        for pid in list(claimers):
+            try:
+                os.kill(pid, 0)
+            except ProcessLookupError:
+                claimers.discard(pid)
+            except OSError:
+                pass  # alive, not ours to signal
+        if claimers:
+            return None
+        with self._lock:
+            if words[base + MODE] != SERVED:
+                return None
+            words[base + MODE] = KERNEL
+            head, tail = words[base + HEAD], words[base + TAIL]
+            start, n = tail % RING, head - tail
+            data = HEADER_SIZE + RECORD_SIZE * i + RECORD_HEADER
+            first = min(n, RING - start)
+            left = bytes(self._map[data + start:data + start + first]) + bytes(self._map[data:data + n - first])
+            words[base + TAIL] = head
+            return left
 
     def append(self, rdev: int, data: bytes) -> int | None:
         """Put ``data`` in the ring of a served pty: the bytes taken (what does not fit is dropped and

@@ -1,4 +1,4 @@
-"""The serving path (an experiment, HILBENCH_SERVE=1 under ``hilbench run``): the bench hands a pty's
+"""The serving path (``hilbench run``: HILBENCH_SERVE=1 on the wall clock, the default under a virtual clock): the bench hands a pty's
 device->host bytes to shim clients through a ring in shared memory (hilbench/bench/serve_ring.py); the
 shim's read/select/poll/FIONREAD answer from it. The official SDK gets the same bytes as on the kernel
 path; a non-shim opener keeps the port on the kernel path; VMIN/VTIME and FIONREAD keep their meaning."""
@@ -71,7 +71,7 @@ def test_sdk_ping_and_sync_read_through_a_served_port_are_the_kernel_paths(hilbe
     rings = bench.services["port_state"].rings
     path, rdev = bench.endpoint().path, bench.endpoint().port.rdev
     cmd = [sys.executable, "-c", SDK_CLIENT, path]
-    kernel = run_json(hilbench_run.command(bench, shim="c") + cmd, dict(os.environ))
+    kernel = run_json(hilbench_run.command(bench, shim="c") + cmd, {**os.environ, "HILBENCH_SERVE": "0"})
     assert rings.read(rdev)["mode"] == serve_ring.KERNEL  # not asked for: never served
     served = run_json(hilbench_run.command(bench, shim="c") + cmd, {**os.environ, "HILBENCH_SERVE": "1"})
     state = rings.read(rdev)
@@ -79,6 +79,21 @@ def test_sdk_ping_and_sync_read_through_a_served_port_are_the_kernel_paths(hilbe
     assert state["head"] > 20 * 4 * 15 and state["head"] == state["tail"]  # every reply went through the ring
     assert served == kernel
     assert [p[1] for p in served["pings"]] == [0, 0, 0, 0, 0, -3001]  # 9 is absent: the SDK's own timeout
+
+
+def test_a_port_whose_served_clients_are_gone_goes_back_to_the_pty(hilbench_bench, hilbench_run):
+    """A client is served, then ends; a program without the shim opens the pty afterwards (it never asks, so no
+    /proc scan sees it): the bench notices that no process that asked for the ring is alive and writes to the
+    pty again. Before, every reply went on into a ring nobody read and the SDK's every ping timed out."""
+    bench = hilbench_bench("arm")
+    rings = bench.services["port_state"].rings
+    path, rdev = bench.endpoint().path, bench.endpoint().port.rdev
+    served = run_json(hilbench_run.command(bench, shim="c") + [sys.executable, "-c", SDK_CLIENT, path],
+                      {**os.environ, "HILBENCH_SERVE": "1"})
+    assert rings.read(rdev)["mode"] == serve_ring.SERVED
+    plain = run_json([sys.executable, "-c", SDK_CLIENT, path], dict(os.environ))  # (no shim: the pty itself)
+    assert plain == served
+    assert rings.read(rdev)["mode"] == serve_ring.KERNEL  # (a later shim client may ask again)
 
 
 def test_a_non_shim_opener_keeps_the_port_on_the_kernel_path(hilbench_bench, hilbench_run):
