@@ -1,21 +1,24 @@
 """Serving rings: the bench hands a pty's device->host bytes to ``hilbench run`` clients in shared memory.
 
-An experiment of issue 26 (PLAN26 §8, "the serving path"), opt-in on the
-client's side (``HILBENCH_SERVE=1`` in the environment of ``hilbench run``):
-the bench's medium writes what a served pty's client should read into a ring
-in a shared file instead of the pty master, and the preload shim's ``read``,
-``readv``, ``select``, ``poll``, ``ppoll`` and ``FIONREAD`` on that pty answer
-from the ring. That is one hand-over (bench thread -> polling client) instead
-of two (bench -> the tty layer's worker -> client). Bytes the client writes
-still go through the kernel.
+Issue 26's serving path (PLAN26 §8): on under a virtual clock unless
+``HILBENCH_SERVE=0``, on the wall clock only with ``HILBENCH_SERVE=1`` (the
+environment of ``hilbench run``; the preload shim decides). The bench's medium
+writes what a served pty's client should read into a ring in a shared file
+instead of the pty master, and the preload shim's ``read``, ``readv``,
+``select``, ``poll``, ``ppoll`` and ``FIONREAD`` on that pty answer from the
+ring. That is one hand-over (bench thread -> polling client) instead of two
+(bench -> the tty layer's worker -> client). Bytes the client writes still go
+through the kernel.
 
 A port is served only after a client asked for it (``RDEV serve`` on the
 port-state socket) and only while every other process that has the pty open
 has this file mapped (so it runs the shim): anything else (a ``cat``, a
 pyserial client without the shim) makes the port fall back to the kernel path
-for good. Until it is served, and after it fell back, every byte goes to the
-pty. In served mode the shim reads the pty first while it holds bytes written
-before the switch (the kernel queue is older than the ring).
+for good. Once every process that asked has ended (:meth:`ServeRings.orphaned`),
+the port goes back to the kernel path, its unread bytes to the pty first.
+Until it is served, and after it fell back, every byte goes to the pty. In
+served mode the shim reads the pty first while it holds bytes written before
+the switch (the kernel queue is older than the ring).
 
 A file ``port_state.serve`` beside the port-state socket (same 0700
 directory), native byte order, 8-byte words::
