@@ -35,10 +35,12 @@
 With ``--under-run`` the official SDK's cycles run in a child process started with ``hilbench run
 --manifest M --`` against the bench (the preload shim on the SDK's pty, as a user's client would have it;
 ``HILBENCH_SERVE`` and the other variables of the environment reach it), figures named ``..._run``.
-``--baud`` measures the paced SDK cycle at one rate only.
+``--baud`` measures the paced SDK cycle at one rate only. ``--serve-ab`` measures the paced SDK cycle under
+``hilbench run`` on the kernel path and on the serving path (``HILBENCH_SERVE=1``, hilbench/bench/serve_ring.py)
+in alternating runs, with each round's ratio of the two.
 
 Usage: tools/bench_dynamixel.py [--capture PATH] [--seconds S] [--load N] [--runs N] [--baud B]
-                                [--under-run] [--only decoder|unpaced|paced|protocol1|feetech]
+                                [--under-run | --serve-ab] [--only decoder|unpaced|paced|protocol1|feetech]
 """
 
 from __future__ import annotations
@@ -231,6 +233,8 @@ def run_cycles_under_run(path: str, seconds: float, emulator_pid: int, baud: int
     CONDITION["failed_reads"] = result["failed_reads"]
     if result.get("lateness"):
         CONDITION["lateness"] = result["lateness"]
+    if result.get("served"):
+        CONDITION["served"] = result["served"]
     return result["n"], result["dt"], result["cpu"], result["own"]
 
 
@@ -244,7 +248,76 @@ def client_cycle(argv: list[str]) -> None:
     n, dt, cpu, own = run_cycles(path, float(seconds), int(pid), int(baud),
                                  None if manifest == "-" else Path(manifest))
     print(json.dumps({"n": n, "dt": dt, "cpu": cpu, "own": own, "failed_reads": CONDITION["failed_reads"],
-                      "lateness": CONDITION.get("lateness")}), flush=True)
+                      "lateness": CONDITION.get("lateness"), "served": serve_mode(path, manifest)}), flush=True)
+
+
+def serve_mode(path: str, manifest: str) -> str | None:
+    """The serving path's mode of the pty (HILBENCH_SERVE=1; hilbench/bench/serve_ring.py), else None."""
+    from hilbench.bench import serve_ring
+
+    if os.environ.get("HILBENCH_SERVE") != "1" or manifest == "-":
+        return None
+    ring = Path(read_manifest(Path(manifest))["port_state"]["socket"]).parent / serve_ring.FILE_NAME
+    words = memoryview(ring.read_bytes()).cast("Q")
+    rdev = os.stat(path).st_rdev
+    for i in range(words[2]):
+        base = (serve_ring.HEADER_SIZE + serve_ring.RECORD_SIZE * i) // 8
+        if words[base] == rdev:
+            return ("kernel", "served", "fallback")[words[base + 1]]
+    return None
+
+
+def one_cycle_run(paced: bool, seconds: float, baud: int, serve: str | None = None) -> tuple:
+    """One measurement of the SDK's cycles against a fresh emulator: (seconds per cycle, cycles, seconds,
+    emulator CPU seconds, conditions, lateness). ``serve``: HILBENCH_SERVE for the client under run."""
+    avg = loadavg()
+    proc, path, tmp = start_emulator(paced, "wolfgang" if baud == BAUD else wolfgang_at(baud))
+    manifest = Path(tmp.name) / "manifest.json"
+    MANIFESTS[proc.pid] = manifest
+    runner = run_cycles_under_run if CONDITION["under_run"] else run_cycles
+    saved = os.environ.get("HILBENCH_SERVE")
+    if serve is not None:
+        os.environ["HILBENCH_SERVE"] = serve
+    try:
+        n, dt, emulator_cpu, own_cpu = runner(path, seconds, proc.pid, baud, manifest if paced else None)
+    finally:
+        if serve is not None:
+            if saved is None:
+                os.environ.pop("HILBENCH_SERVE", None)
+            else:
+                os.environ["HILBENCH_SERVE"] = saved
+        proc.terminate()
+        proc.wait(timeout=5)
+        tmp.cleanup()
+    cond = {"load": CONDITION["load"], "loadavg": avg,
+            **({"served": CONDITION.pop("served")} if "served" in CONDITION else {}),
+            "sdk_cpu_us": round(own_cpu / n * 1e6, 1), "emulator_cpu_us": round(emulator_cpu / n * 1e6, 1),
+            "failed_reads": CONDITION["failed_reads"]}
+    return dt / n, n, dt, emulator_cpu, cond, CONDITION.pop("lateness", {})
+
+
+def bench_serve_ab(seconds: float, baud: int, runs: int) -> None:
+    """The paced SDK cycle under ``hilbench run`` on the kernel path and on the serving path
+    (HILBENCH_SERVE=0/1), one run of each per round in alternating order (a shared machine's load moves
+    between rounds): the median of each, and each round's served/kernel ratio (``paired``)."""
+    wire_cycle = CYCLE_BYTES * 10 / baud
+    kernel, served, paired = [], [], []
+    for i in range(max(1, runs)):
+        order = ("0", "1") if i % 2 == 0 else ("1", "0")
+        got = {mode: one_cycle_run(True, seconds, baud, mode) for mode in order}
+        kernel.append(got["0"])
+        served.append(got["1"])
+        paired.append(round(got["1"][0] / got["0"][0], 3))
+    label = f"{baud / 1e6:g}M".replace(".5M", "M5")
+    for name, measured in (("", kernel), ("_served", served)):
+        measured.sort(key=lambda run: run[0])
+        per_cycle, n, _, _, cond, lateness = measured[len(measured) // 2]
+        emit(f"dxl_sdk_cycle_paced_{label}{suffix()}{name}", per_cycle * 1e3, "ms/cycle", wire_cycle * 1e3,
+             per_cycle / wire_cycle, target="ratio within 0.9..1.1", cycles=n, scheduling=CONDITION.get("scheduling"),
+             **cond, **lateness,
+             runs_ratio=[round(run[0] / wire_cycle, 3) for run in measured],
+             runs_loadavg=[run[4]["loadavg"] for run in measured],
+             **({"paired_served_over_kernel": paired} if name else {}))
 
 
 def bench_cycle(paced: bool, seconds: float, baud: int = BAUD, runs: int = 1) -> None:
@@ -252,22 +325,7 @@ def bench_cycle(paced: bool, seconds: float, baud: int = BAUD, runs: int = 1) ->
     measures it that many times (a fresh emulator each) and reports the median run, with every run's
     ratio (``runs_ratio``): on a VM one run's figure moves by a few per cent from one run to the next."""
     wire_cycle = CYCLE_BYTES * 10 / baud  # seconds per cycle on the wire, Return Delay Time 0
-    measured = []
-    for _ in range(max(1, runs) if paced else 1):
-        avg = loadavg()
-        proc, path, tmp = start_emulator(paced, "wolfgang" if baud == BAUD else wolfgang_at(baud))
-        manifest = Path(tmp.name) / "manifest.json"
-        MANIFESTS[proc.pid] = manifest
-        runner = run_cycles_under_run if CONDITION["under_run"] else run_cycles
-        try:
-            n, dt, emulator_cpu, own_cpu = runner(path, seconds, proc.pid, baud, manifest if paced else None)
-        finally:
-            proc.terminate()
-            proc.wait(timeout=5)
-            tmp.cleanup()
-        cond = {"load": CONDITION["load"], "loadavg": avg, "sdk_cpu_us": round(own_cpu / n * 1e6, 1),
-                "emulator_cpu_us": round(emulator_cpu / n * 1e6, 1), "failed_reads": CONDITION["failed_reads"]}
-        measured.append((dt / n, n, dt, emulator_cpu, cond, CONDITION.pop("lateness", {})))
+    measured = [one_cycle_run(paced, seconds, baud) for _ in range(max(1, runs) if paced else 1)]
     measured.sort(key=lambda run: run[0])
     per_cycle, n, dt, emulator_cpu, cond, lateness = measured[len(measured) // 2]  # the median run
     if paced:
@@ -415,12 +473,22 @@ def main() -> None:
                     help="measure the paced SDK cycle at this rate only (default: both)")
     ap.add_argument("--under-run", action="store_true",
                     help="run the SDK's cycles in a child under `hilbench run --manifest` (figures ..._run)")
+    ap.add_argument("--serve-ab", action="store_true",
+                    help="paced SDK cycle only, under hilbench run: the kernel path and the serving path "
+                         "(HILBENCH_SERVE=0/1) in alternating runs (figures ..._run and ..._run_served)")
     ap.add_argument("--client-cycle", nargs=5, help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.client_cycle:
         client_cycle(args.client_cycle)
         return
-    CONDITION["under_run"] = args.under_run
+    CONDITION["under_run"] = args.under_run or args.serve_ab
+    if args.serve_ab:
+        for load in (0, args.load) if args.load else (0,):
+            with neighbours(load):
+                for baud in (BAUD, 4_500_000):
+                    if args.baud in (None, baud):
+                        bench_serve_ab(args.seconds, baud, args.runs)
+        return
     if args.only in (None, "decoder"):
         bench_decoder(args.capture)
     if args.only in (None, "rough"):

@@ -63,9 +63,11 @@ from typing import Any
 
 from hilbench.bench.delivery_ledger import FILE_NAME as LEDGER_FILE
 from hilbench.bench.delivery_ledger import DeliveryLedger
+from hilbench.bench.serve_ring import SERVED, ServeRings, openers_run_the_shim
 from hilbench.errors import RequestRefused
 from hilbench.transports.client_limit import Eviction
 from hilbench.transports.listener import Listener
+from hilbench.transports.pty import PtyPort
 from hilbench.transports.readiness import readable
 
 #: How long a request may wait for the medium's thread before the client is told to give up.
@@ -146,6 +148,7 @@ class PortStateServer:
                 watch(p.port, lambda ns, _rdev=rdev: self.ledger.delivered(_rdev, ns),
                       lambda _rdev=rdev: self.ledger.writers_idle(_rdev),
                       lambda _rdev=rdev: self.ledger.draining(_rdev))
+        self.rings = ServeRings(self.directory, list(self._ports))
         self._conns: dict[socket.socket, _Conn] = {}
         self._tls = threading.local()  # the connection a request thread serves
         self._conns_lock = threading.Lock()
@@ -202,6 +205,8 @@ class PortStateServer:
             return self._after_taking(port, lambda: self._flushed(port), taken=True)
         if verb == "drain":
             return self._after_taking(port, lambda: self._quiet(port), taken=True, delivered=True)
+        if verb in ("serve", "unserve"):  # the serving path (an experiment): SERVED (1) or not (0, 2)
+            return self._serving_path(port, verb == "serve")
         if verb == "framing":
             framing = getattr(port.port, "framing", None)
             return -1 if framing is None else framing
@@ -209,6 +214,35 @@ class PortStateServer:
             framing = _int_arg(args) if args else None
             return self._after_taking(port, lambda: self._sync(port, framing))
         raise RequestRefused(f"unknown request {verb!r}")
+
+    def _serving_path(self, port: _ServedPort, wanted: bool) -> int:
+        """A client asks for the serving path (or gives it up, for good): the mode of the port's ring. The
+        pty's writes go to the ring only while it is served (no cost on the kernel path otherwise)."""
+        rdev, pty = port.port.rdev, port.port
+        conn = getattr(self._tls, "conn", None)
+        pid = None
+        if conn is not None:
+            with contextlib.suppress(OSError):
+                pid = struct.unpack("3i", conn.sock.getsockopt(socket.SOL_SOCKET, socket.SO_PEERCRED, 12))[0]
+        mode = self.rings.claim(rdev, wanted and openers_run_the_shim(rdev, self.rings.path, os.getpid()), pid)
+        if isinstance(pty, PtyPort):
+            if mode == SERVED:
+                def serve(data: bytes) -> int | None:
+                    left = self.rings.orphaned(rdev)
+                    if left is None:
+                        return self.rings.append(rdev, data)
+                    # every client that asked is gone: the pty again (what they left unread first; counted)
+                    pty.serve = pty.serve_discard = pty.serve_pending = None
+                    with contextlib.suppress(OSError):
+                        os.write(pty.master_fd, left)
+                    return None
+
+                pty.serve_discard = lambda: self.rings.discard(rdev)
+                pty.serve_pending = lambda: self.rings.pending(rdev)
+                pty.serve = serve
+            else:
+                pty.serve = pty.serve_discard = pty.serve_pending = None
+        return mode
 
     @staticmethod
     def _quiet(port: _ServedPort) -> None:
@@ -414,6 +448,10 @@ class PortStateServer:
             if watch is not None:
                 watch(p.port, None)
         self.ledger.close()
+        for p in self._ports.values():
+            if isinstance(p.port, PtyPort):
+                p.port.serve = p.port.serve_discard = p.port.serve_pending = None
+        self.rings.close()
         for fd in (self._wake_r, self._wake_w):
             with contextlib.suppress(OSError):
                 os.close(fd)

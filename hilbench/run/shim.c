@@ -38,12 +38,14 @@
 #include <fcntl.h>
 #include <pthread.h>
 #include <stdarg.h>
+#include <poll.h>
 #include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <sys/ioctl.h>
 #include <sys/mman.h>
+#include <sys/select.h>
 #include <sys/sendfile.h>
 #include <sys/socket.h>
 #include <sys/stat.h>
@@ -80,13 +82,37 @@ struct bench_socket {
     char path[sizeof(((struct sockaddr_un *)0)->sun_path)];
 };
 
+/* The serving rings (hilbench/bench/serve_ring.py), an experiment used with HILBENCH_SERVE=1: a header,
+ * then per pty a record and its ring of device->host bytes. */
+#define SERVE_MAGIC "HBSERVE1"
+#define SERVE_VERSION 1
+#define SERVE_HEADER 64
+#define SERVE_RING 65536
+enum { SERVE_KERNEL, SERVE_SERVED, SERVE_FALLBACK };
+struct serve_rec {
+    uint64_t rdev;
+    uint64_t mode;     /* the bench: kernel, served (bytes go to the ring), fallback (to the pty, for good) */
+    uint64_t head;     /* the bench: bytes appended since the start */
+    uint64_t tail;     /* clients (compare-and-swap): bytes taken */
+    uint64_t waiters;  /* clients blocked on the FIFO serve.<index> (the bench writes a byte to it then) */
+    uint64_t dropped;
+    uint64_t reserved[2];
+    unsigned char data[SERVE_RING];
+};
+
 struct bench_port {
     dev_t rdev;
     int sock;                 /* index into sockets[] */
     struct ledger_slot *slot;  /* NULL: the bench has no ledger; every drain asks */
     int wrote;                /* this process wrote since its last drain or output flush */
     int unseen;               /* this process may write to it where we cannot see (stdio): always ask */
+    struct serve_rec *ring;   /* its serving ring (HILBENCH_SERVE=1 and the bench has one), else NULL */
+    int ring_index;           /* the record's index: the FIFO's name */
+    int claimed;              /* this process asked the bench to serve it (once) */
+    int refused;              /* this process uses it where the ring cannot answer (epoll, stdio): never ask */
+    int fifo;                 /* the wake FIFO's read end, opened on first wait (0: not yet, -1: failed) */
 };
+static int serving;  /* HILBENCH_SERVE=1 */
 
 static struct bench_port ports[MAX_PORTS];
 static int nports;
@@ -140,6 +166,9 @@ __attribute__((visibility("hidden"))) void hb_vclock_forget(int fd);
 __attribute__((visibility("hidden"))) void hb_vclock_wrote(int fd, ssize_t n);
 __attribute__((visibility("hidden"))) void hb_vclock_flushing(int fd, int queue);
 __attribute__((visibility("hidden"))) int hb_vclock_empty(int fd);
+static void hb_serve_flush(int fd, int queue);
+__attribute__((visibility("hidden"))) void hb_serve_refuse(int fd);
+__attribute__((visibility("hidden"))) int hb_serve_inq(int fd, int *value);
 
 /* struct termios2 of <asm/termbits.h>, which cannot be included beside <termios.h>. */
 struct shim_termios2 {
@@ -351,6 +380,46 @@ static void map_ledger(int sock)
     }
 }
 
+static void map_serve(int sock)
+{
+    char path[sizeof sockets[0].path + 16];
+    const char *slash = strrchr(sockets[sock].path, '/');
+    struct stat st;
+    unsigned char *page;
+    uint64_t nrec, i;
+    int fd, j;
+
+    if (!slash || !real_open)
+        return;
+    snprintf(path, sizeof path, "%.*s/port_state.serve", (int)(slash - sockets[sock].path), sockets[sock].path);
+    fd = real_open(path, O_RDWR | O_CLOEXEC);
+    if (fd < 0)
+        return;
+    if (fstat(fd, &st) != 0 || st.st_size < SERVE_HEADER) {
+        close_fd(fd);
+        return;
+    }
+    page = mmap(NULL, (size_t)st.st_size, PROT_READ | PROT_WRITE, MAP_SHARED, fd, 0);
+    close_fd(fd);
+    if (page == MAP_FAILED)
+        return;
+    nrec = ((uint64_t *)page)[2];
+    if (memcmp(page, SERVE_MAGIC, 8) != 0 || ((uint64_t *)page)[1] != SERVE_VERSION ||
+        ((uint64_t *)page)[3] != sizeof(struct serve_rec) || nrec > 4096 ||
+        SERVE_HEADER + nrec * sizeof(struct serve_rec) > (uint64_t)st.st_size) {
+        munmap(page, (size_t)st.st_size);
+        return;
+    }
+    for (i = 0; i < nrec; i++) {
+        struct serve_rec *rec = (struct serve_rec *)(page + SERVE_HEADER) + i;
+        for (j = 0; j < nports; j++)
+            if (ports[j].sock == sock && (uint64_t)ports[j].rdev == rec->rdev) {
+                ports[j].ring = rec;
+                ports[j].ring_index = (int)i;
+            }
+    }
+}
+
 static int lookup(int fd)
 {
     struct stat st;
@@ -415,6 +484,11 @@ static void init(void)
     }
     for (i = 0; i < nsockets; i++)
         map_ledger(i);
+    /* The serving path: on with a virtual clock unless HILBENCH_SERVE=0, on the wall clock only with 1. */
+    spec = getenv("HILBENCH_SERVE");
+    serving = spec && *spec ? strcmp(spec, "1") == 0 : getenv("HILBENCH_CLOCK") != NULL;
+    for (i = 0; serving && i < nsockets; i++)
+        map_serve(i);
     if (nports) {
         pthread_atfork(before_fork, after_fork_parent, after_fork_child);
         for (fd = 0; fd <= 2; fd++)
@@ -474,8 +548,10 @@ static void opened_stream(FILE *f)
 {
     int saved = errno, fd = f ? fileno(f) : -1, i;
     forget(fd);
-    if (fd >= 0 && nports && (i = lookup(fd)) >= 0)
+    if (fd >= 0 && nports && (i = lookup(fd)) >= 0) {
         __atomic_store_n(&ports[i].unseen, 1, __ATOMIC_SEQ_CST);
+        hb_serve_refuse(fd);  /* stdio reads with glibc's internal read(): the ring cannot answer them */
+    }
     errno = saved;
 }
 
@@ -920,6 +996,7 @@ int ioctl(int fd, unsigned long request, ...)
     switch (request) {
     case TCFLSH:
         hb_vclock_flushing(fd, (int)(intptr_t)arg);  /* virtual time counts what an input flush drops */
+        hb_serve_flush(fd, (int)(intptr_t)arg);
         break;
     case TIOCMGET: case TIOCMSET: case TIOCMBIS: case TIOCMBIC:
     case TIOCSBRK: case TIOCCBRK: case TCSBRK: case TCSBRKP:
@@ -927,6 +1004,11 @@ int ioctl(int fd, unsigned long request, ...)
     case TCGETS: case SHIM_TCGETS2:
         break;
     case FIONREAD:  /* an empty answer again and again is polling: virtual time may block it a quantum */
+        if (serving && arg && hb_serve_inq(fd, (int *)arg)) {
+            if (*(int *)arg == 0 && hb_vclock_empty(fd))
+                hb_serve_inq(fd, (int *)arg);
+            return 0;
+        }
         rc = real_ioctl(fd, request, arg);
         if (rc == 0 && arg && *(int *)arg == 0 && hb_vclock_empty(fd))
             rc = real_ioctl(fd, request, arg);
@@ -999,6 +1081,7 @@ int tcflush(int fd, int queue)
 {
     struct bench_port *p = bench_port(fd);
     hb_vclock_flushing(fd, queue);
+    hb_serve_flush(fd, queue);
     if (p) {
         int rc = flush_port(p, fd, queue);
         if (rc != -2)
@@ -1081,4 +1164,358 @@ int tcgetattr(int fd, struct termios *t)
     if (rc == 0 && p && t)
         correct_framing(p, &t->c_cflag);
     return rc;
+}
+
+/* ------------------------------------------------------------------ the serving path (HILBENCH_SERVE=1) */
+
+/* The bench port behind fd if the bench serves its reads from a ring (or holds ring bytes after a
+ * fallback), else NULL. The first use asks the bench to serve it (it checks that every opener runs the
+ * shim). */
+static struct bench_port *served_port(int fd)
+{
+    struct bench_port *p;
+    uint64_t mode;
+    if (!serving || !(p = bench_port(fd)) || !p->ring)
+        return NULL;
+    if (!__atomic_load_n(&p->claimed, __ATOMIC_ACQUIRE) && !__atomic_load_n(&p->refused, __ATOMIC_ACQUIRE)) {
+        int zero = 0;
+        long value;
+        if (__atomic_compare_exchange_n(&p->claimed, &zero, 1, 0, __ATOMIC_SEQ_CST, __ATOMIC_SEQ_CST))
+            ask(p, "serve", &value, TIMEOUT_S);  /* the answer is in the record's mode */
+    }
+    mode = __atomic_load_n(&p->ring->mode, __ATOMIC_ACQUIRE);
+    if (mode == SERVE_SERVED)
+        return p;
+    if (mode == SERVE_FALLBACK && __atomic_load_n(&p->ring->head, __ATOMIC_ACQUIRE) !=
+                                      __atomic_load_n(&p->ring->tail, __ATOMIC_ACQUIRE))
+        return p;  /* bytes served before the fallback come first */
+    return NULL;
+}
+
+static size_t ring_avail(const struct bench_port *p)
+{
+    uint64_t tail = __atomic_load_n(&p->ring->tail, __ATOMIC_ACQUIRE);
+    return (size_t)(__atomic_load_n(&p->ring->head, __ATOMIC_ACQUIRE) - tail);
+}
+
+/* Takes up to n bytes from the ring (several readers: the copy counts only if the tail did not move). */
+static size_t ring_take(struct bench_port *p, unsigned char *buf, size_t n)
+{
+    for (;;) {
+        uint64_t tail = __atomic_load_n(&p->ring->tail, __ATOMIC_ACQUIRE);
+        uint64_t head = __atomic_load_n(&p->ring->head, __ATOMIC_ACQUIRE);
+        size_t k = (size_t)(head - tail), start = (size_t)(tail % SERVE_RING), first;
+        if (k > n)
+            k = n;
+        if (k == 0)
+            return 0;
+        first = k < SERVE_RING - start ? k : SERVE_RING - start;
+        memcpy(buf, p->ring->data + start, first);
+        memcpy(buf + first, p->ring->data, k - first);
+        if (__atomic_compare_exchange_n(&p->ring->tail, &tail, tail + k, 0, __ATOMIC_SEQ_CST, __ATOMIC_RELAXED))
+            return k;
+    }
+}
+
+static int kernel_inq(int fd)
+{
+    int n = 0;
+    return syscall(SYS_ioctl, fd, FIONREAD, &n) == 0 ? n : 0;
+}
+
+/* The wake FIFO's read end (opened once per process and port), or -1. */
+static int serve_fifo(struct bench_port *p)
+{
+    int fd = __atomic_load_n(&p->fifo, __ATOMIC_ACQUIRE);
+    if (fd == 0) {
+        char path[sizeof sockets[0].path + 16];
+        const char *slash = strrchr(sockets[p->sock].path, '/');
+        int zero = 0;
+        snprintf(path, sizeof path, "%.*s/serve.%d", slash ? (int)(slash - sockets[p->sock].path) : 0,
+                 sockets[p->sock].path, p->ring_index);
+        fd = real_open ? real_open(path, O_RDONLY | O_NONBLOCK | O_CLOEXEC) : -1;
+        if (fd == 0) {  /* 0 means "not yet" here: keep another number */
+            int other = (int)syscall(SYS_fcntl, fd, F_DUPFD_CLOEXEC, 3);
+            close_fd(fd);
+            fd = other;
+        }
+        if (!__atomic_compare_exchange_n(&p->fifo, &zero, fd < 0 ? -1 : fd, 0, __ATOMIC_SEQ_CST, __ATOMIC_SEQ_CST)) {
+            if (fd >= 0)
+                close_fd(fd);
+            fd = zero;
+        }
+    }
+    return fd;
+}
+
+static void drain_fifo(int fd)
+{
+    char junk[64];
+    while (fd >= 0 && syscall(SYS_read, fd, junk, sizeof junk) > 0)
+        ;
+}
+
+static int64_t mono_ns(void) { return (int64_t)now_ns(); }
+
+/* poll(2) semantics over served descriptors: the kernel's answer for every descriptor (a served pty's
+ * own queue, hang-ups), POLLIN where a served pty's ring holds bytes. Blocks on the descriptors and the
+ * served ports' wake FIFOs. *handled = 0: no served descriptor (the caller does the real call). */
+__attribute__((visibility("hidden"))) int hb_serve_poll(struct pollfd *fds, nfds_t n, int64_t timeout_ns,
+                                                        const sigset_t *mask, int *handled)
+{
+    struct bench_port *served[16];
+    int which[16], ns = 0, rc, saved;
+    nfds_t i;
+    int64_t deadline;
+    *handled = 0;
+    if (!serving || n > 4096)
+        return 0;
+    for (i = 0; i < n && ns < 16; i++) {
+        struct bench_port *p = (fds[i].events & POLLIN) ? served_port(fds[i].fd) : NULL;
+        if (p) {
+            served[ns] = p;
+            which[ns++] = (int)i;
+        }
+    }
+    if (ns == 0)
+        return 0;
+    *handled = 1;
+    deadline = timeout_ns < 0 ? INT64_MAX : mono_ns() + timeout_ns;
+    for (;;) {
+        struct timespec zero = {0, 0}, left;
+        struct pollfd watch[n + 16 > 4112 ? 1 : n + 16];
+        int64_t now;
+        int k, ready = 0;
+        rc = (int)syscall(SYS_ppoll, fds, n, &zero, mask, 8);
+        if (rc < 0)
+            return rc;
+        for (k = 0; k < ns; k++)
+            if (ring_avail(served[k])) {
+                if (!fds[which[k]].revents)
+                    rc++;
+                fds[which[k]].revents |= POLLIN;
+                ready = 1;
+            }
+        now = mono_ns();
+        if (rc > 0 || ready || now >= deadline)
+            return rc;
+        /* block: the descriptors themselves and the FIFOs, counted as waiting, then look again */
+        memcpy(watch, fds, n * sizeof *fds);
+        for (k = 0; k < ns; k++) {
+            watch[n + (nfds_t)k].fd = serve_fifo(served[k]);
+            watch[n + (nfds_t)k].events = POLLIN;
+            __atomic_add_fetch(&served[k]->ring->waiters, 1, __ATOMIC_SEQ_CST);
+        }
+        for (k = 0; k < ns && !ready; k++)
+            ready = ring_avail(served[k]) != 0;
+        if (!ready) {
+            int64_t d = deadline - now;
+            left.tv_sec = d / 1000000000;
+            left.tv_nsec = d % 1000000000;
+            rc = (int)syscall(SYS_ppoll, watch, n + (nfds_t)ns, deadline == INT64_MAX ? NULL : &left, mask, 8);
+        }
+        saved = errno;
+        for (k = 0; k < ns; k++) {
+            __atomic_sub_fetch(&served[k]->ring->waiters, 1, __ATOMIC_SEQ_CST);
+            drain_fifo(watch[n + (nfds_t)k].fd);
+        }
+        if (!ready && rc < 0) {
+            errno = saved;
+            return rc;
+        }
+    }
+}
+
+/* select(2) on top of hb_serve_poll; *handled = 0 when no served descriptor is in the read set. */
+__attribute__((visibility("hidden"))) int hb_serve_select(int nfds, fd_set *r, fd_set *w, fd_set *e,
+                                                          int64_t timeout_ns, const sigset_t *mask, int *handled)
+{
+    struct pollfd fds[FD_SETSIZE];
+    nfds_t k = 0, i;
+    int fd, rc, any = 0;
+    *handled = 0;
+    if (!serving || !r || nfds <= 0 || nfds > FD_SETSIZE)
+        return 0;
+    for (fd = 0; fd < nfds && !any; fd++)
+        any = FD_ISSET(fd, r) && served_port(fd);
+    if (!any)
+        return 0;
+    for (fd = 0; fd < nfds; fd++) {
+        short ev = (short)((FD_ISSET(fd, r) ? POLLIN : 0) | (w && FD_ISSET(fd, w) ? POLLOUT : 0) |
+                           (e && FD_ISSET(fd, e) ? POLLPRI : 0));
+        if (ev) {
+            fds[k].fd = fd;
+            fds[k].events = ev;
+            fds[k++].revents = 0;
+        }
+    }
+    rc = hb_serve_poll(fds, k, timeout_ns, mask, handled);
+    if (rc < 0)
+        return rc;
+    FD_ZERO(r);
+    if (w)
+        FD_ZERO(w);
+    if (e)
+        FD_ZERO(e);
+    rc = 0;
+    for (i = 0; i < k; i++) {
+        short got = fds[i].revents;
+        if ((fds[i].events & POLLIN) && (got & (POLLIN | POLLHUP | POLLERR))) {
+            FD_SET(fds[i].fd, r);
+            rc++;
+        }
+        if (w && (fds[i].events & POLLOUT) && (got & (POLLOUT | POLLERR))) {
+            FD_SET(fds[i].fd, w);
+            rc++;
+        }
+        if (e && (fds[i].events & POLLPRI) && (got & POLLPRI)) {
+            FD_SET(fds[i].fd, e);
+            rc++;
+        }
+    }
+    return rc;
+}
+
+/* FIONREAD on a served pty: its own queue plus the ring. 1 if handled. */
+__attribute__((visibility("hidden"))) int hb_serve_inq(int fd, int *value)
+{
+    struct bench_port *p = served_port(fd);
+    if (!p)
+        return 0;
+    *value = kernel_inq(fd) + (int)ring_avail(p);
+    return 1;
+}
+
+/* An input flush of a served pty drops the ring's unread bytes too. */
+static void hb_serve_flush(int fd, int queue)
+{
+    struct bench_port *p;
+    if ((queue != TCIFLUSH && queue != TCIOFLUSH) || !(p = served_port(fd)))
+        return;
+    for (;;) {
+        uint64_t tail = __atomic_load_n(&p->ring->tail, __ATOMIC_ACQUIRE);
+        uint64_t head = __atomic_load_n(&p->ring->head, __ATOMIC_ACQUIRE);
+        if (__atomic_compare_exchange_n(&p->ring->tail, &tail, head, 0, __ATOMIC_SEQ_CST, __ATOMIC_RELAXED))
+            return;
+    }
+}
+
+/* Up to n bytes of what is there, older first: the pty's own queue (written before the port was served)
+ * then the ring; after a fallback the ring's (older) bytes first. */
+static ssize_t serve_take(struct bench_port *p, int fd, unsigned char *buf, size_t n)
+{
+    size_t got = 0;
+    int inq = kernel_inq(fd);
+    int ring_first = __atomic_load_n(&p->ring->mode, __ATOMIC_ACQUIRE) != SERVE_SERVED;
+    if (ring_first)
+        got = ring_take(p, buf, n);
+    if (got < n && inq > 0) {
+        ssize_t r = syscall(SYS_read, fd, buf + got, (size_t)inq < n - got ? (size_t)inq : n - got);
+        if (r > 0)
+            got += (size_t)r;
+    }
+    if (!ring_first && got < n)
+        got += ring_take(p, buf + got, n - got);
+    return (ssize_t)got;
+}
+
+/* read(2) of a served pty, raw mode: O_NONBLOCK (EAGAIN when empty), VMIN/VTIME (VMIN counted against
+ * both queues, VTIME an inter-byte timer, or the whole wait with VMIN 0). *handled = 0: not served. */
+__attribute__((visibility("hidden"))) ssize_t hb_serve_read(int fd, void *buf, size_t n, int *handled)
+{
+    struct bench_port *p;
+    struct termios t;
+    size_t want, last = 0;
+    int64_t vtime, deadline = INT64_MAX;
+    *handled = 0;
+    if (!serving || !(p = served_port(fd)))
+        return 0;
+    *handled = 1;
+    if (n == 0)
+        return 0;
+    if ((int)syscall(SYS_fcntl, fd, F_GETFL) & O_NONBLOCK) {
+        ssize_t got = serve_take(p, fd, buf, n);
+        if (got == 0) {
+            errno = EAGAIN;
+            return -1;
+        }
+        return got;
+    }
+    if (syscall(SYS_ioctl, fd, TCGETS, &t) != 0)
+        return serve_take(p, fd, buf, n);
+    vtime = (int64_t)t.c_cc[VTIME] * 100000000;
+    want = t.c_cc[VMIN] ? (t.c_cc[VMIN] < n ? t.c_cc[VMIN] : n) : 1;
+    if (t.c_cc[VMIN] == 0 && vtime == 0)
+        return serve_take(p, fd, buf, n);
+    if (t.c_cc[VMIN] == 0)
+        deadline = mono_ns() + vtime;
+    for (;;) {
+        int inq = kernel_inq(fd);
+        uint64_t head = __atomic_load_n(&p->ring->head, __ATOMIC_ACQUIRE);
+        size_t avail = (size_t)inq + ring_avail(p);
+        struct pollfd watch[2];
+        struct timespec left;
+        int64_t now = mono_ns();
+        int k = 0, rc = 0;
+        if (avail >= want)
+            return serve_take(p, fd, buf, n);
+        if (t.c_cc[VMIN] && vtime && avail > last) {  /* the inter-byte timer starts again at each byte */
+            last = avail;
+            deadline = now + vtime;
+        }
+        if (now >= deadline)
+            return serve_take(p, fd, buf, n);  /* VTIME ran out: what is there (0: none) */
+        if (inq == 0) {  /* the pty itself: a hang-up, or a fallback's bytes */
+            watch[k].fd = fd;
+            watch[k].events = POLLIN;
+            watch[k++].revents = 0;
+        }
+        watch[k].fd = serve_fifo(p);
+        watch[k].events = POLLIN;
+        watch[k++].revents = 0;
+        __atomic_add_fetch(&p->ring->waiters, 1, __ATOMIC_SEQ_CST);
+        if (__atomic_load_n(&p->ring->head, __ATOMIC_SEQ_CST) == head) {  /* else: news since we looked */
+            int64_t d = deadline - now;
+            left.tv_sec = d / 1000000000;
+            left.tv_nsec = d % 1000000000;
+            rc = (int)syscall(SYS_ppoll, watch, (nfds_t)k, deadline == INT64_MAX ? NULL : &left, NULL, 8);
+        }
+        __atomic_sub_fetch(&p->ring->waiters, 1, __ATOMIC_SEQ_CST);
+        drain_fifo(watch[k - 1].fd);
+        if (rc < 0 && errno == EINTR)
+            return -1;
+        if (inq == 0 && rc > 0 && (watch[0].revents & (POLLHUP | POLLERR)) && !kernel_inq(fd) && !ring_avail(p))
+            return serve_take(p, fd, buf, n);  /* nothing will come */
+    }
+}
+
+__attribute__((visibility("hidden"))) int hb_serve_on(void) { return serving && started(); }
+
+/* For the virtual-time wrappers (vclock.c), which wait in virtual time themselves: the bytes a read of a
+ * served pty finds now (its own queue and the ring), -1 when fd is not served. */
+__attribute__((visibility("hidden"))) int hb_serve_avail(int fd)
+{
+    struct bench_port *p = serving ? served_port(fd) : NULL;
+    return p ? kernel_inq(fd) + (int)ring_avail(p) : -1;
+}
+
+/* ... and up to n of them, without waiting (0: none); -1 when fd is not served. */
+__attribute__((visibility("hidden"))) ssize_t hb_serve_take(int fd, void *buf, size_t n)
+{
+    struct bench_port *p = serving ? served_port(fd) : NULL;
+    return p ? serve_take(p, fd, buf, n) : -1;
+}
+
+/* fd goes where the ring cannot answer (an epoll set, a stdio stream): the bench stops serving the port,
+ * for good (the kernel path from then on), and this process never asks for it. */
+__attribute__((visibility("hidden"))) void hb_serve_refuse(int fd)
+{
+    struct bench_port *p;
+    long value;
+    int saved = errno;
+    if (!serving || !(p = bench_port(fd)) || !p->ring)
+        return;
+    if (__atomic_exchange_n(&p->refused, 1, __ATOMIC_SEQ_CST) == 0)
+        ask(p, "unserve", &value, TIMEOUT_S);
+    errno = saved;
 }

@@ -449,6 +449,13 @@ static void productive(void)
 /* One more call that found nothing; 1 when the thread counts as polling now. */
 static int unproductive(struct vc_slot *s)
 {
+    if (__atomic_load_n(&s->state, __ATOMIC_RELAXED) == ST_POLLING) {
+        /* Its clock reads at this instant made it a poller already (the official SDK reads the clock after
+         * each empty poll): its next empty poll waits at once, instead of K more calls spinning beside the
+         * bench on the machine's CPUs before time can move. */
+        s->unproductive = 0;
+        return 1;
+    }
     if (++s->unproductive < __atomic_load_n(&H->poll_k, __ATOMIC_RELAXED))
         return 0;
     s->unproductive = 0;
@@ -801,9 +808,22 @@ static uint64_t ports_of(const struct pollfd *fds, nfds_t n, int *foreign)
     return mask;
 }
 
+/* shim.c: the serving path (HILBENCH_SERVE=1); each sets *handled = 0 for a descriptor it does not serve. */
+__attribute__((visibility("hidden"))) int hb_serve_on(void);
+__attribute__((visibility("hidden"))) int hb_serve_poll(struct pollfd *fds, nfds_t n, int64_t timeout_ns,
+                                                        const sigset_t *mask, int *handled);
+__attribute__((visibility("hidden"))) int hb_serve_select(int nfds, fd_set *r, fd_set *w, fd_set *e,
+                                                          int64_t timeout_ns, const sigset_t *mask, int *handled);
+__attribute__((visibility("hidden"))) ssize_t hb_serve_read(int fd, void *buf, size_t n, int *handled);
+__attribute__((visibility("hidden"))) void hb_serve_refuse(int fd);
+__attribute__((visibility("hidden"))) int hb_serve_avail(int fd);
+__attribute__((visibility("hidden"))) ssize_t hb_serve_take(int fd, void *buf, size_t n);
+
 int epoll_ctl(int ep, int op, int fd, struct epoll_event *ev)
 {
     int rc = REAL(epoll_ctl)(ep, op, fd, ev);
+    if (rc == 0 && (op == EPOLL_CTL_ADD || op == EPOLL_CTL_MOD) && hb_serve_on())
+        hb_serve_refuse(fd);  /* epoll is not served: that pty goes back to the kernel path */
     if (rc == 0 && vc_on && nports && (op == EPOLL_CTL_ADD || op == EPOLL_CTL_MOD) && ep >= 0 && ep < VC_FD_CACHE) {
         int p = port_of(fd);
         if (!ep_ports) {  /* first use: 512 KiB of address space, touched only where used */
@@ -896,6 +916,11 @@ struct poll_ctx { struct pollfd *fds; nfds_t n; };
 static int poll_probe(void *c)
 {
     struct poll_ctx *p = c;
+    if (hb_serve_on()) {  /* a served pty is readable when its ring holds bytes */
+        int handled, rc = hb_serve_poll(p->fds, p->n, 0, NULL, &handled);
+        if (handled)
+            return rc;
+    }
     return REAL(poll)(p->fds, p->n, 0);
 }
 
@@ -920,6 +945,11 @@ static int poll_common(struct vc_slot *s, struct pollfd *fds, nfds_t n, int64_t 
 int poll(struct pollfd *fds, nfds_t n, int timeout)
 {
     struct vc_slot *s = cur();
+    if (!s && hb_serve_on()) {  /* served ptys (wall clock only, for now) */
+        int handled, rc = hb_serve_poll(fds, n, timeout < 0 ? -1 : (int64_t)timeout * 1000000, NULL, &handled);
+        if (handled)
+            return rc;
+    }
     if (!s)
         return REAL(poll)(fds, n, timeout);
     return poll_common(s, fds, n, timeout < 0 ? -1 : (int64_t)timeout * 1000000, NULL);
@@ -934,6 +964,11 @@ int __poll_chk(struct pollfd *fds, nfds_t n, int timeout, size_t fdslen)
 int ppoll(struct pollfd *fds, nfds_t n, const struct timespec *ts, const sigset_t *mask)
 {
     struct vc_slot *s = ts && bad_ts(ts) ? NULL : cur();
+    if (!s && hb_serve_on() && !(ts && bad_ts(ts))) {
+        int handled, rc = hb_serve_poll(fds, n, ts ? ts_ns(ts) : -1, mask, &handled);
+        if (handled)
+            return rc;
+    }
     if (!s)
         return REAL(ppoll)(fds, n, ts, mask);
     return poll_common(s, fds, n, ts ? ts_ns(ts) : -1, mask);
@@ -954,6 +989,11 @@ static int select_probe(void *c)
     if (p->r) *p->r = p->r0;
     if (p->w) *p->w = p->w0;
     if (p->e) *p->e = p->e0;
+    if (hb_serve_on()) {
+        int handled, rc = hb_serve_select(p->n, p->r, p->w, p->e, 0, NULL, &handled);
+        if (handled)
+            return rc;
+    }
     return REAL(select)(p->n, p->r, p->w, p->e, &zero);
 }
 
@@ -998,6 +1038,13 @@ int select(int n, fd_set *r, fd_set *w, fd_set *e, struct timeval *tv)
     uint64_t deadline = NO_DEADLINE;
     int64_t timeout_ns;
     int rc;
+    if (!s && hb_serve_on() && !(tv && (tv->tv_usec < 0 || tv->tv_usec >= 1000000 || tv->tv_sec < 0))) {
+        int handled;
+        rc = hb_serve_select(n, r, w, e, tv ? ((int64_t)tv->tv_sec * 1000000 + tv->tv_usec) * 1000 : -1, NULL,
+                             &handled);
+        if (handled)
+            return rc;  /* (the time left is not written back: served selects are a prototype) */
+    }
     if (!s)
         return REAL(select)(n, r, w, e, tv);
     timeout_ns = tv ? ((int64_t)tv->tv_sec * 1000000 + tv->tv_usec) * 1000 : -1;
@@ -1017,6 +1064,12 @@ int pselect(int n, fd_set *r, fd_set *w, fd_set *e, const struct timespec *ts, c
 {
     struct vc_slot *s = ts && bad_ts(ts) ? NULL : cur();
     int rc;
+    if (!s && hb_serve_on() && !(ts && bad_ts(ts))) {
+        int handled;
+        rc = hb_serve_select(n, r, w, e, ts ? ts_ns(ts) : -1, mask, &handled);
+        if (handled)
+            return rc;
+    }
     if (!s)
         return REAL(pselect)(n, r, w, e, ts, mask);
     rc = select_common(s, n, r, w, e, ts ? ts_ns(ts) : -1, mask, NULL);
@@ -1814,10 +1867,52 @@ int timerfd_settime(int fd, int flags, const struct itimerspec *nv, struct itime
 
 /* ------------------------------------------------------------------ reads of bench ptys */
 
+static int nonblocking(int fd) { return (int)syscall(SYS_fcntl, fd, F_GETFL) & O_NONBLOCK; }
+
 static int inq(int fd)
 {
     int n = 0;
+    if (hb_serve_on() && (n = hb_serve_avail(fd)) >= 0)
+        return n;  /* a served pty: its own queue and the ring */
     return syscall(SYS_ioctl, fd, FIONREAD, &n) == 0 ? n : -1;
+}
+
+/* The real read, or on a served pty a take from its queue and ring (EAGAIN when empty and O_NONBLOCK, as
+ * the pty; a blocking read gets here only once pty_wait found what it waits for, or VMIN = VTIME = 0). */
+static ssize_t port_read(int fd, void *buf, size_t n, int served)
+{
+    ssize_t got;
+    if (!served)
+        return REAL(read)(fd, buf, n);
+    got = hb_serve_take(fd, buf, n);
+    if (got == 0 && n > 0 && nonblocking(fd)) {
+        errno = EAGAIN;
+        return -1;
+    }
+    return got;
+}
+
+/* readv of a served pty: port_read into one buffer, then scattered. */
+static ssize_t port_readv(int fd, const struct iovec *iov, int iovcnt, size_t total)
+{
+    unsigned char *tmp;
+    ssize_t got;
+    size_t off = 0;
+    int i;
+    if (total > (1 << 20))
+        total = 1 << 20;  /* more than the ring and a pty's queue hold */
+    if (iovcnt == 1)
+        return port_read(fd, iov[0].iov_base, total, 1);
+    if (!(tmp = malloc(total ? total : 1)))
+        return REAL(readv)(fd, iov, iovcnt);
+    got = port_read(fd, tmp, total, 1);
+    for (i = 0; got > 0 && i < iovcnt && off < (size_t)got; i++) {
+        size_t k = (size_t)got - off < iov[i].iov_len ? (size_t)got - off : iov[i].iov_len;
+        memcpy(iov[i].iov_base, tmp + off, k);
+        off += k;
+    }
+    free(tmp);
+    return got;
 }
 
 /* Before a blocking read of a bench pty returns, the bytes it would wait for are there: VMIN and
@@ -1909,27 +2004,32 @@ static int read_empty(struct vc_slot *s, int fd)
     return 1;
 }
 
-static int nonblocking(int fd) { return (int)syscall(SYS_fcntl, fd, F_GETFL) & O_NONBLOCK; }
-
 ssize_t read(int fd, void *buf, size_t n)
 {
     struct vc_slot *s;
     ssize_t got, size = (ssize_t)n;
-    int port, saved;
+    int port, saved, served;
+    if (!vc_on && hb_serve_on()) {
+        int handled;
+        got = hb_serve_read(fd, buf, n, &handled);
+        if (handled)
+            return got;
+    }
     if (!vc_on || !(s = cur()))
         return REAL(read)(fd, buf, n);
     port = port_of(fd);
+    served = port >= 0 && hb_serve_on() && hb_serve_avail(fd) >= 0;
     if (port >= 0 && !nonblocking(fd)) {
         size = pty_wait(s, fd, port, n);
         if (size <= 0)
             return size;
     }
-    got = REAL(read)(fd, buf, (size_t)size);
+    got = port_read(fd, buf, (size_t)size, served);
     saved = errno;
     count_read(port, got);
     if ((got < 0 && (saved == EAGAIN || saved == EWOULDBLOCK)) || (got == 0 && port >= 0 && n > 0)) {
         if (read_empty(s, fd)) {
-            got = REAL(read)(fd, buf, n);
+            got = port_read(fd, buf, n, served);
             saved = errno;
             count_read(port, got);
         }
@@ -1950,10 +2050,35 @@ ssize_t readv(int fd, const struct iovec *iov, int iovcnt)
     struct vc_slot *s;
     ssize_t got;
     size_t total = 0;
-    int port, i;
+    int port, i, served;
+    if (!vc_on && hb_serve_on() && iovcnt > 0) {  /* served: into one buffer, then scattered */
+        int handled;
+        unsigned char *tmp;
+        size_t want = 0, off = 0;
+        for (i = 0; i < iovcnt; i++)
+            want += iov[i].iov_len;
+        if (want > (1 << 20))
+            want = 1 << 20;  /* more than the ring and a pty's queue hold */
+        if (iovcnt == 1)
+            tmp = iov[0].iov_base;
+        else if (!(tmp = malloc(want ? want : 1)))
+            return REAL(readv)(fd, iov, iovcnt);
+        got = hb_serve_read(fd, tmp, want, &handled);
+        if (handled && got > 0 && iovcnt > 1)
+            for (i = 0; i < iovcnt && off < (size_t)got; i++) {
+                size_t k = (size_t)got - off < iov[i].iov_len ? (size_t)got - off : iov[i].iov_len;
+                memcpy(iov[i].iov_base, tmp + off, k);
+                off += k;
+            }
+        if (iovcnt > 1)
+            free(tmp);
+        if (handled)
+            return got;
+    }
     if (!vc_on || !(s = cur()))
         return REAL(readv)(fd, iov, iovcnt);
     port = port_of(fd);
+    served = port >= 0 && iovcnt > 0 && hb_serve_on() && hb_serve_avail(fd) >= 0;
     for (i = 0; i < iovcnt; i++)
         total += iov[i].iov_len;
     if (port >= 0 && !nonblocking(fd)) {
@@ -1961,12 +2086,13 @@ ssize_t readv(int fd, const struct iovec *iov, int iovcnt)
         if (size <= 0)
             return size;
         if ((size_t)size < total) {  /* fewer than VMIN: read only what is there */
-            got = REAL(read)(fd, iov[0].iov_base, (size_t)size < iov[0].iov_len ? (size_t)size : iov[0].iov_len);
+            got = served ? port_readv(fd, iov, iovcnt, (size_t)size)
+                         : REAL(read)(fd, iov[0].iov_base, (size_t)size < iov[0].iov_len ? (size_t)size : iov[0].iov_len);
             count_read(port, got);
             return got;
         }
     }
-    got = REAL(readv)(fd, iov, iovcnt);
+    got = served ? port_readv(fd, iov, iovcnt, total) : REAL(readv)(fd, iov, iovcnt);
     count_read(port, got);
     return got;
 }

@@ -11,6 +11,7 @@ import stat
 import struct
 import termios
 import tty
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -252,8 +253,20 @@ class PtyPort(HostPort):
         self.bytes_in += len(data)
         return data
 
+    #: ``hilbench run``'s serving path (:mod:`hilbench.bench.serve_ring`): takes the bytes for a served
+    #: client (returns how many it took) or returns None (write them to the pty).
+    serve: Callable[[bytes], int | None] | None = None
+    #: Its input flush (the ring's unread bytes are dropped with the pty's).
+    serve_discard: Callable[[], None] | None = None
+    #: The ring's bytes no client has read yet (on the client's side as soon as written).
+    serve_pending: Callable[[], int] | None = None
+
     def write(self, data: bytes) -> int:
         """Send bytes to the client; what does not fit is dropped and counted."""
+        if self.serve is not None and (taken := self.serve(data)) is not None:
+            self.bytes_out += taken
+            self.dropped += len(data) - taken
+            return taken
         view = memoryview(data)
         sent = 0
         while sent < len(view):
@@ -268,6 +281,8 @@ class PtyPort(HostPort):
     def discard_client_input(self) -> None:
         """Throw away bytes written to the client that it has not read."""
         termios.tcflush(self.slave_fd, termios.TCIFLUSH)
+        if self.serve_discard is not None:
+            self.serve_discard()
 
     def close(self) -> None:
         """Remove the link and close both descriptors."""

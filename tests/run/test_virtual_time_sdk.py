@@ -22,7 +22,8 @@ from pathlib import Path
 
 import pytest
 
-from hilbench.bench import Bench
+from hilbench.bench import Bench, serve_ring
+from hilbench.bench import clock_page as vp
 from hilbench.bench.port_state_server import serve_port_state
 from hilbench.protocols import capture
 from hilbench.pytest_plugin import wait_until
@@ -63,18 +64,28 @@ def model_cycle(bench: Bench) -> float:
     return CYCLE_BYTES * 10 / ep.spec.baud + response
 
 
-def sdk_run(tmp_path: Path, seconds: float, *, busy: bool = False) -> tuple[dict, dict, float]:
-    """One SDK run on a fresh virtual-time wolfgang bench: (the client's figures, the clock's stats, model)."""
+def sdk_run(tmp_path: Path, seconds: float, *, busy: bool = False, serve: str | None = None,
+            ring: dict | None = None) -> tuple[dict, dict, float]:
+    """One SDK run on a fresh virtual-time wolfgang bench: (the client's figures, the clock's stats, model).
+    ``serve``: HILBENCH_SERVE for the client (None: as in this environment); ``ring``: gets the pty's serving
+    ring record and the clock page's read and discarded counters of the pty after the run."""
     with Bench("wolfgang", virtual_time=True) as bench:
         serve_port_state(bench)  # (the SDK's open sets DTR and RTS, and its drains ask the line)
         manifest = tmp_path / f"bench{len(list(tmp_path.glob('bench*.json')))}.json"
         bench.write_manifest(manifest)
         env = {k: v for k, v in os.environ.items() if k not in ("HILBENCH_CLOCK", "PYTHONHASHSEED")}
+        if serve is not None:
+            env["HILBENCH_SERVE"] = serve
         with neighbour(busy):
             proc = subprocess.run([*HILBENCH, "run", "--manifest", str(manifest), "--", sys.executable, str(SDK_CLIENT),
                                    bench.endpoint("dxl").port.client_path, str(seconds)],
                                   capture_output=True, text=True, timeout=300, env=env)
         assert proc.returncode == 0, proc.stderr
+        if ring is not None:
+            port, clock = bench.endpoint("dxl").port, bench.services["clock"]
+            ring.update(bench.services["port_state"].rings.read(port.rdev))
+            ring["delivered"] = port.bytes_out - clock.ptys[0].base_out
+            ring["read"], ring["discarded"] = clock._port(0, vp.P_READ), clock._port(0, vp.P_DISCARDED)
         return json.loads(proc.stdout), bench.services["clock"].stats(), model_cycle(bench)
 
 
@@ -99,6 +110,25 @@ def test_the_sdk_cycle_follows_the_wire_model_in_virtual_time(tmp_path):
     again, stats, _ = sdk_run(tmp_path, seconds)
     check_run(again, stats, model, seconds)
     assert again["done"] == first["done"]
+
+
+def test_served_and_kernel_paths_make_the_same_cycles(tmp_path):
+    """The serving path (on by default under a virtual clock): the SDK's replies come through the bench's ring,
+    not the tty layer, every one of them (the ring's head is its tail, the clock page counted each byte read),
+    and the run is the kernel path's to the nanosecond (HILBENCH_SERVE=0)."""
+    seconds = 0.1
+    ring: dict = {}
+    served, stats, model = sdk_run(tmp_path, seconds, serve="", ring=ring)
+    check_run(served, stats, model, seconds)
+    assert ring["mode"] == serve_ring.SERVED and ring["head"] == ring["tail"] > 20 * 15 * 40, ring
+    assert ring["read"] + ring["discarded"] == ring["delivered"] and ring["dropped"] == 0, ring
+    assert stats["settle_timeouts"] == 0
+    plain: dict = {}
+    kernel, stats, _ = sdk_run(tmp_path, seconds, serve="0", ring=plain)
+    check_run(kernel, stats, model, seconds)
+    assert plain["mode"] == serve_ring.KERNEL and plain["head"] == 0
+    assert plain["read"] + plain["discarded"] == plain["delivered"] == ring["delivered"]
+    assert kernel["done"] == served["done"]
 
 
 @pytest.mark.slow
