@@ -870,12 +870,13 @@ static int is_door(int proto, const struct sockaddr *sa, socklen_t len)
     return 0;
 }
 
+/* The record of (proto, addr, port); a socket bound to any address (0) matches on its port. */
 static int chan_find(uint32_t proto, uint32_t addr, uint32_t port)
 {
     uint32_t c;
     for (c = 0; c < nchans; c++)
         if (__atomic_load_n(&CHN[c].state, __ATOMIC_ACQUIRE) == CH_OPEN && CHN[c].proto == proto &&
-            CHN[c].addr == addr && CHN[c].port == port)
+            (CHN[c].addr == addr || !addr) && CHN[c].port == port)
             return (int)c;
     return -1;
 }
@@ -913,8 +914,10 @@ static int chan_of(int fd)
     return c;
 }
 
-/* fd has just connected or sent to a door: its channel record (claimed now if it has none), or -1. */
-static int chan_claim(int fd, int proto, int connected)
+/* fd has just connected or sent to door `to`: its channel record (claimed now if it has none), or -1. The
+ * record holds the address the bench sees the socket's traffic come from: a socket bound to any address
+ * sends to a loopback door from the door's address (127.0.0.1 for one bound to any, too). */
+static int chan_claim(int fd, int proto, int connected, const struct sockaddr *to)
 {
     struct sockaddr_in in;
     socklen_t len = sizeof in;
@@ -925,6 +928,9 @@ static int chan_claim(int fd, int proto, int connected)
         return -1;
     }
     errno = saved;
+    if (!in.sin_addr.s_addr)
+        in.sin_addr.s_addr = ((const struct sockaddr_in *)to)->sin_addr.s_addr ?
+                             ((const struct sockaddr_in *)to)->sin_addr.s_addr : htonl(INADDR_LOOPBACK);
     found = chan_find((uint32_t)proto, in.sin_addr.s_addr, ntohs(in.sin_port));
     if (found >= 0) {
         if (connected)
@@ -2048,7 +2054,7 @@ static int chan_sent(int fd, const struct sockaddr *to, socklen_t len, ssize_t r
     if (to) {
         if (c >= 0 ? !is_door((int)CHN[c].proto, to, len) : !((proto = sock_proto(fd)) == IPPROTO_UDP &&
                                                                 is_door(proto, to, len) &&
-                                                                (c = chan_claim(fd, proto, 0)) >= 0))
+                                                                (c = chan_claim(fd, proto, 0, to)) >= 0))
             return 0;
     }
     if (c < 0)
@@ -2138,7 +2144,7 @@ int connect(int fd, const struct sockaddr *to, socklen_t len)
     int rc = REAL(connect)(fd, to, len), saved = errno, proto;
     if (vc_on && CHN && (rc == 0 || errno == EINPROGRESS) && (proto = sock_proto(fd)) != 0 &&
         is_door(proto, to, len))
-        chan_claim(fd, proto, proto == IPPROTO_UDP);
+        chan_claim(fd, proto, proto == IPPROTO_UDP, to);
     errno = saved;
     return rc;
 }

@@ -122,8 +122,9 @@ class UdpPort(HostPort):
     def client_baud(self) -> int | None:
         return None  # datagrams have no line rate
 
-    def read(self) -> bytes:
-        """One datagram's payload (b'' if none is waiting, or for an empty registration datagram)."""
+    def read(self, size: int = 65536) -> bytes:
+        """One datagram's payload (b'' if none is waiting, or for an empty registration datagram). ``size``, a
+        pty's read size (a serial line's), does not cut a datagram: it is read whole."""
         try:
             data, addr = self.sock.recvfrom(65536)
         except (BlockingIOError, InterruptedError):
