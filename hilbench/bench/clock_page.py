@@ -89,7 +89,8 @@ C_PID = 4            # u32: the process that claimed it (freed when it closes th
 C_PROTO = 8          # u32: 6 TCP, 17 UDP
 C_ADDR = 12          # u32: the client socket's IPv4 address (network order)
 C_PORT = 16          # u32: the client socket's port (host order)
-C_FLAGS = 20         # u32: CF_CONNECTED (a UDP socket connected to a door: all it receives is the bench's)
+C_FLAGS = 20         # u32: CF_CONNECTED (a UDP socket connected to a door: all it receives is the bench's);
+                     # bits 8-15: 1 + the index of the door it first sent to or connected to
 C_SENT = 24          # u64: client: sent to the bench
 C_RECEIVED = 32      # u64: client: received from the bench
 C_BENCH_SENT = 40    # u64: bench: sent to the client

@@ -232,6 +232,9 @@ class Lockstep:
         self.warnings: deque[str] = deque(maxlen=64)  #: the latest warnings (also on stderr)
         self._flight_warned: set[str] = set()  # ptys a stall on bytes in flight was reported for
         self._ndoors = 0  # doors published on the page
+        self._chan_states: list[int] = []  # the records' states at the last look, the open ones, and
+        self._open: list[int] = []         # the book's changes count their totals were stored at
+        self._book_seen = -1
         self._chan_keys: dict[int, tuple[tuple[int, int, int], tuple[int, str, int]]] = {}
         if self.book is not None:
             self._channels()  # (the doors, before any client looks)
@@ -311,8 +314,7 @@ class Lockstep:
                     break
                 os.sched_yield()
                 unread = delivered - self._port(i, vp.P_READ) - self._port(i, vp.P_DISCARDED)
-        if self.book is not None:
-            mask = self._channels()
+        if self.book is not None and (mask := self._channels()):
             fresh += [b for b in range(63) if mask >> b & 1]  # (the channels' bits, after the ptys')
         return fresh
 
@@ -610,13 +612,19 @@ class Lockstep:
             return 0
         rec0 = vp.chan_offset(self.chan_off, 0)
         words = vp.CHAN_SIZE // 4
-        states = self.u32[rec0 // 4:rec0 // 4 + words * self.nchans:words]
-        if not any(states):
+        states = self.u32[rec0 // 4:rec0 // 4 + words * self.nchans:words].tolist()
+        if states != self._chan_states:  # (a record claimed or freed: which are open, and their totals again)
+            self._chan_states = states
+            self._open = [c for c, st in enumerate(states) if st == vp.CH_OPEN]
+            self._book_seen = -1
+        if not self._open:
+            return 0
+        sync = book.changes != self._book_seen  # (the bench's totals moved: store them)
+        self._book_seen = book.changes
+        if not sync and flight is None:
             return 0
         u32, u64, mask, nports = self.u32, self.u64, 0, len(self.ptys)
-        for c, st in enumerate(states.tolist()):
-            if st != vp.CH_OPEN:
-                continue
+        for c in self._open:
             off = rec0 + vp.CHAN_SIZE * c
             w, q = off // 4, off // 8
             ident = (u32[w + vp.C_PROTO // 4], u32[w + vp.C_ADDR // 4], u32[w + vp.C_PORT // 4])
@@ -628,8 +636,8 @@ class Lockstep:
             if pid and self._dead(pid):
                 u32[w + vp.C_STATE // 4] = vp.CH_FREE
                 continue
-            totals = book.totals.get(known[1])
             taken = u64[q + vp.C_BENCH_TAKEN // 8]
+            totals = book.totals.get(known[1]) if sync else None
             if totals is not None:
                 sent, taken = totals
                 if u64[q + vp.C_BENCH_SENT // 8] != sent:
@@ -639,9 +647,17 @@ class Lockstep:
                     mask |= 1 << vp.chan_bit(nports, c)
                 if u64[q + vp.C_BENCH_TAKEN // 8] != taken:
                     u64[q + vp.C_BENCH_TAKEN // 8] = taken
-            if flight is not None and u64[q + vp.C_SENT // 8] > taken:
+            if flight is not None and u64[q + vp.C_SENT // 8] > taken and not self._door_refuses(
+                    u32[w + vp.C_FLAGS // 4] >> 8 & 0xFF):
                 flight.append(f"{'tcp' if ident[0] == vp.TCP else 'udp'} {known[1][1]}:{ident[2]}")
         return mask
+
+    def _door_refuses(self, door: int) -> bool:
+        """Whether the host port behind door ``door`` (1 + its index; 0: unknown) is left unread on purpose (a
+        serial line holding its writer back): its clients' datagrams wait for the wire, not in flight."""
+        ports = self.book.door_ports
+        return bool(door) and door <= len(ports) and ports[door - 1] is not None and self._refuses is not None \
+            and self._refuses(ports[door - 1])
 
     def _wake_mask(self, mask: int) -> None:
         """Wake the threads waiting on a port or channel in ``mask`` (bits of the slots' ``ports``)."""

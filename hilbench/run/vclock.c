@@ -855,7 +855,7 @@ static int sock_proto(int fd)
     return type == SOCK_STREAM ? IPPROTO_TCP : type == SOCK_DGRAM ? IPPROTO_UDP : 0;
 }
 
-/* Whether `sa` is one of the bench's doors for `proto`. */
+/* Whether `sa` is one of the bench's doors for `proto`: 1 + its index, or 0. */
 static int is_door(int proto, const struct sockaddr *sa, socklen_t len)
 {
     const struct sockaddr_in *in = (const struct sockaddr_in *)sa;
@@ -866,7 +866,7 @@ static int is_door(int proto, const struct sockaddr *sa, socklen_t len)
     for (i = 0; i < n && i < VC_MAX_DOORS; i++)
         if (DR[i].proto == (uint32_t)proto && DR[i].port == ntohs(in->sin_port) &&
             (DR[i].addr == 0 || DR[i].addr == in->sin_addr.s_addr))
-            return 1;
+            return (int)i + 1;
     return 0;
 }
 
@@ -948,7 +948,7 @@ static int chan_claim(int fd, int proto, int connected, const struct sockaddr *t
         r->proto = (uint32_t)proto;
         r->addr = in.sin_addr.s_addr;
         r->port = ntohs(in.sin_port);
-        r->flags = connected ? CF_CONNECTED : 0;
+        r->flags = (connected ? CF_CONNECTED : 0) | (uint32_t)is_door(proto, to, sizeof in) << 8;
         r->sent = r->received = r->given_up = 0;
         r->bench_sent = r->bench_taken = 0;
         __atomic_store_n(&r->state, CH_OPEN, __ATOMIC_SEQ_CST);

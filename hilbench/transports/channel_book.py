@@ -16,6 +16,7 @@ from __future__ import annotations
 import contextlib
 import socket
 import sys
+from typing import Any
 
 TCP, UDP = 6, 17
 #: Client addresses kept at most (the oldest go first: a client that connects and leaves for ever).
@@ -28,14 +29,21 @@ class ChannelBook:
     def __init__(self) -> None:
         self.totals: dict[tuple[int, str, int], list[int]] = {}
         self.doors: list[tuple[int, str, int]] = []
+        self.door_ports: list[Any] = []  # the host port behind each door (a serial line may hold it back)
         self.changes = 0  #: bumped on every count (the lockstep looks at the totals only when it moved)
 
-    def door(self, proto: int, address: tuple[str, int]) -> None:
-        """Count the traffic of the socket bound at ``address`` (a listener's, for TCP)."""
+    def door(self, proto: int, address: tuple[str, int], port: Any = None) -> None:
+        """Count the traffic of the socket bound at ``address`` (a listener's, for TCP); ``port``: the host port
+        it belongs to (a line that leaves it unread on purpose does not leave its clients' bytes in flight)."""
         entry = (proto, address[0], int(address[1]))
         if entry not in self.doors:
             self.doors.append(entry)
+            self.door_ports.append(port)
             self.changes += 1
+
+    def forget(self, proto: int, addr: tuple[str, int]) -> None:
+        """A client's connection ended: its address may come back for another one."""
+        self.totals.pop((proto, addr[0], int(addr[1])), None)
 
     def _entry(self, proto: int, addr: tuple[str, int]) -> list[int]:
         key = (proto, addr[0], int(addr[1]))

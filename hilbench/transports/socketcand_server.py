@@ -576,6 +576,8 @@ class SocketcandServer(CanDoor):
     def _drop(self, client: _Client, close: bool = True) -> None:
         """Disconnect a client: its jobs, subscriptions and queue go with it (the socket is closed unless
         ``close`` is False: the caller says goodbye first)."""
+        if self.book is not None and client.peer is not None:
+            self.book.forget(TCP, client.peer)
         if client in self.clients:
             self.clients.remove(client)
             self.queued -= len(client.out) + client.held_bytes

@@ -101,7 +101,7 @@ class UdpPort(HostPort):
     def vt_channels(self, book: Any) -> None:
         """Virtual time: count datagrams in and out per address in ``book`` (the lockstep's channels)."""
         self.book = book
-        book.door(UDP, self.address)
+        book.door(UDP, self.address, self)
 
     @property
     def address(self) -> tuple[str, int]:
