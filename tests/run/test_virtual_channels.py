@@ -137,3 +137,32 @@ def test_a_udp_client_blocking_on_a_bench_door_gets_datagrams_at_the_same_instan
         assert len(out["got"]) > 400  # (a datagram about every millisecond)
         runs.append(out)
     assert runs[0] == runs[1] == runs[2]
+
+
+RCVTIMEO = """
+    import json, socket, struct, sys, time
+    s = socket.create_connection((sys.argv[1], int(sys.argv[2])))
+    hi = s.recv(64)  # (blocking: the server's greeting)
+    s.setsockopt(socket.SOL_SOCKET, socket.SO_RCVTIMEO, struct.pack("ll", 0, 200_000))
+    t0 = time.monotonic_ns()
+    try:
+        s.recv(64)  # nothing comes before "< open >": SO_RCVTIMEO ends it
+        err = None
+    except BlockingIOError:
+        err = "EAGAIN"
+    print(json.dumps({"hi": hi.decode(), "waited": time.monotonic_ns() - t0, "err": err}))
+"""
+
+
+def test_a_blocking_recv_on_a_channel_times_out_at_its_virtual_so_rcvtimeo(tmp_path):
+    """A blocking ``recv`` on a socketcand connection with ``SO_RCVTIMEO`` 0.2 s and nothing to come: it waits
+    in virtual time and fails with EAGAIN after exactly 0.2 virtual seconds (the kernel's timeout would be
+    0.2 s of wall time, and the bench's clock would not have moved). (The kernel keeps the timeout in jiffies
+    and the shim uses what it reports: 0.25 s comes back as 0.252 s at HZ=250; 0.2 s is whole at 100, 250,
+    300 and 1000.)"""
+    with Bench("mecarover-can", virtual_time=True) as bench:
+        s = bench.manifest()["endpoints"][0]["socketcand"]
+        out = json.loads(run_client(bench, tmp_path, RCVTIMEO, s["host"], str(s["port"])))
+        stats = bench.services["clock"].stats()
+    assert out == {"hi": "< hi >", "waited": 200_000_000, "err": "EAGAIN"}
+    assert stats["stalls"] == 0
