@@ -2152,6 +2152,7 @@ int connect(int fd, const struct sockaddr *to, socklen_t len)
 /* ------------------------------------------------------------------ receiving on channels */
 
 static int nonblocking(int fd);
+static int read_empty(struct vc_slot *s, int fd);
 
 /* Before a blocking receive on channel c: wait (virtual, SO_RCVTIMEO's timeout too) until something is there.
  * 0: go on with the real call (it will not block), -1 with errno (EAGAIN at the timeout, EINTR). */
@@ -2219,6 +2220,10 @@ ssize_t recvfrom(int fd, void *buf, size_t n, int flags, struct sockaddr *from, 
     }
     rc = REAL(recvfrom)(fd, buf, n, flags, from, len);
     saved = errno;
+    if (rc < 0 && (saved == EAGAIN || saved == EWOULDBLOCK) && read_empty(s, fd)) {  /* (polling: K in a row) */
+        rc = REAL(recvfrom)(fd, buf, n, flags, from, len);
+        saved = errno;
+    }
     chan_received(c, rc, flags, from, *len);
     errno = saved;
     return rc;
@@ -2263,6 +2268,10 @@ ssize_t recvmsg(int fd, struct msghdr *msg, int flags)
     }
     rc = REAL(recvmsg)(fd, msg, flags);
     saved = errno;
+    if (rc < 0 && (saved == EAGAIN || saved == EWOULDBLOCK) && read_empty(s, fd)) {  /* (polling: K in a row) */
+        rc = REAL(recvmsg)(fd, msg, flags);
+        saved = errno;
+    }
     chan_received(c, rc, flags, msg->msg_name, msg->msg_namelen);
     if (!named) {
         msg->msg_name = NULL;

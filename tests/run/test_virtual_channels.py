@@ -213,3 +213,29 @@ def test_an_asyncio_udp_client_in_epoll_gets_each_datagram_at_its_instant(tmp_pa
         assert got[0][0] != got[1][0]  # (each received at its own instant, not in a batch)
         runs.append(got)
     assert runs[0] == runs[1] == runs[2]
+
+
+SPINNER = """
+    import json, socket, sys, time
+    s = socket.create_connection((sys.argv[1], int(sys.argv[2])))
+    s.recv(64)  # (the greeting)
+    s.setblocking(False)
+    t0 = time.monotonic_ns()
+    for _ in range(20_000):  # a non-blocking recv in a loop, and nothing else: polling
+        try:
+            s.recv(64)
+        except BlockingIOError:
+            pass
+    print(json.dumps({"v": time.monotonic_ns() - t0}))
+"""
+
+
+def test_a_client_spinning_on_a_non_blocking_recv_of_a_channel_polls(tmp_path):
+    """Non-blocking ``recv`` calls that find nothing on a channel count as polling, as empty reads of a pty do:
+    every 32nd (the poll K) waits one quantum (100 us) of virtual time, so the clock moves and the spinner
+    holds it for no stall (4def11e: ``recv`` was not looked at, and 20 000 of them took no virtual time)."""
+    with Bench("mecarover-can", virtual_time=True) as bench:
+        s = bench.manifest()["endpoints"][0]["socketcand"]
+        out = json.loads(run_client(bench, tmp_path, SPINNER, s["host"], str(s["port"])))
+        stats = bench.services["clock"].stats()
+    assert out["v"] == 20_000 // 32 * 100_000 and stats["stalls"] == 0
