@@ -260,7 +260,7 @@ class Bench:
         self.loop.lockstep = self.services["clock"] = Lockstep(
             ptys, vnow_ns=round(clock.now() * 1e9), origin_ns=round(clock.origin * 1e9),
             epoch_ns=round(clock.epoch * 1e9), stall=self.lockstep_stall, holding=self._holding,
-            refuses=self._refuses)
+            refuses=self._refuses, channels=clock.channels)
         for medium in self.loop.media:
             if hasattr(medium, "vt_defer_input"):  # (serial lines: clients' writes are sent when they all wait)
                 medium.vt_defer_input()

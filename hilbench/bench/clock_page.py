@@ -48,6 +48,11 @@ H_STALLS = 80            # u64: lockstep stalls so far
 H_ORIGIN = 88            # u64: vnow at the start (virtual realtime = epoch + vnow - origin)
 H_STALLED_NS = 96        # u64: virtual ns that passed in stalls
 H_UNVIRTUALISED = 104    # u64: calls of timers the shim does not virtualise (alarm, setitimer, timerfd, ...)
+# Socket channels (PLAN26 §4.8, phase 2): the bench's socket doors and one record per client socket talking to one.
+H_NCHANS = 112           # u32: channel records (0: the page has none)
+H_NDOORS = 116           # u32: door entries in use (the bench adds them; clients read them at connect/sendto)
+H_CHAN_OFF = 120         # u64: byte offset of the door table (DOOR_SIZE * MAX_DOORS), the channel records after it
+H_CHAN_TIMEOUTS = 128    # u64: clients gave up waiting for bytes the bench sent on a channel to show (CHAN_LIMIT)
 
 # Slot fields (one 64-byte slot per client thread): byte offsets within a slot.
 S_STATE = 0          # u32: one of the states below
@@ -70,6 +75,35 @@ P_READ = 24          # clients: bytes read from the slave
 P_DISCARDED = 32     # clients: bytes dropped by TCIFLUSH
 P_WRITTEN = 40       # clients: bytes written to the slave
 P_TAKEN = 48         # bench: bytes read from the master
+
+# Doors (the bench's TCP listeners and UDP sockets whose traffic it counts): 16 bytes each.
+D_PROTO = 0          # u32: 6 TCP, 17 UDP (0: unused)
+D_ADDR = 4           # u32: IPv4 address as in sin_addr (network order; 0.0.0.0: any of this machine's)
+D_PORT = 8           # u32: port (host order)
+
+# Channel records (one per client socket connected or sending to a door): byte offsets within a record. Counts
+# are bytes on TCP, datagrams on UDP. The client's fields are the shim's (atomic adds), the bench's the loop's
+# (stores of the bench's totals for the client's address).
+C_STATE = 0          # u32: CH_FREE, CH_CLAIMING, CH_OPEN
+C_PID = 4            # u32: the process that claimed it (freed when it closes the socket or ends)
+C_PROTO = 8          # u32: 6 TCP, 17 UDP
+C_ADDR = 12          # u32: the client socket's IPv4 address (network order)
+C_PORT = 16          # u32: the client socket's port (host order)
+C_FLAGS = 20         # u32: CF_CONNECTED (a UDP socket connected to a door: all it receives is the bench's);
+                     # bits 8-15: 1 + the index of the door it first sent to or connected to
+C_SENT = 24          # u64: client: sent to the bench
+C_RECEIVED = 32      # u64: client: received from the bench
+C_BENCH_SENT = 40    # u64: bench: sent to the client
+C_BENCH_TAKEN = 48   # u64: bench: taken from the client
+C_GIVEN_UP = 56      # u64: client: the bench_sent it gave up waiting for (it did not show within CHAN_LIMIT)
+
+DOOR_SIZE = 16
+MAX_DOORS = 32
+CHAN_SIZE = 64
+DEFAULT_CHANS = 64   # at most 64: a slot's wait and an epoll set name channels in 64-bit masks
+CH_FREE, CH_CLAIMING, CH_OPEN = range(3)
+CF_CONNECTED = 1
+TCP, UDP = 6, 17
 
 # Slot states.
 FREE, STARTING, RUNNING, RUNNABLE, WAITING, POLLING, REQUEST, WOKEN, EXITED = range(9)
@@ -105,13 +139,35 @@ def port_offset(nslots: int, i: int) -> int:
     return HEADER_SIZE + SLOT_SIZE * nslots + PORT_SIZE * i
 
 
+def chan_bit(nports: int, c: int) -> int:
+    """The bit of channel record ``c`` in a slot's ``ports`` mask (after the ptys'; the last ones share bit 62)."""
+    return min(nports + c, 62)
+
+
+def channels_size(nchans: int) -> int:
+    """Bytes of the door table and ``nchans`` channel records (none without channels)."""
+    return DOOR_SIZE * MAX_DOORS + CHAN_SIZE * nchans if nchans else 0
+
+
+def door_offset(chan_off: int, i: int) -> int:
+    """Byte offset of door ``i``, the table starting at ``chan_off`` (the header's ``H_CHAN_OFF``)."""
+    return chan_off + DOOR_SIZE * i
+
+
+def chan_offset(chan_off: int, c: int) -> int:
+    """Byte offset of channel record ``c`` (after the door table at ``chan_off``)."""
+    return chan_off + DOOR_SIZE * MAX_DOORS + CHAN_SIZE * c
+
+
 def layout() -> dict[str, int]:
     """The numbers both sides must agree on, by name, as ``hb_vclock_layout()`` in the C library prints them."""
-    names = [n for n in globals() if n[:2] in ("H_", "S_", "P_", "SF") or n in (
-        "VERSION", "HEADER_SIZE", "SLOT_SIZE", "PORT_SIZE", "FLAG_STALL", "FLAG_HOLD")]
+    names = [n for n in globals() if n[:2] in ("H_", "S_", "P_", "SF", "D_", "C_", "CH", "CF") or n in (
+        "VERSION", "HEADER_SIZE", "SLOT_SIZE", "PORT_SIZE", "FLAG_STALL", "FLAG_HOLD", "DOOR_SIZE", "MAX_DOORS",
+        "CHAN_SIZE", "TCP", "UDP")]
     out = {n: globals()[n] for n in names if isinstance(globals()[n], int)}
     out.update(zip(STATE_NAMES, range(len(STATE_NAMES)), strict=True))
     return out
 
 
-__all__ = [n for n in list(globals()) if n.isupper()] + ["layout", "page_size", "port_offset", "slot_offset"]
+__all__ = [n for n in list(globals()) if n.isupper()] + ["chan_bit", "chan_offset", "channels_size", "door_offset",
+                                                          "layout", "page_size", "port_offset", "slot_offset"]

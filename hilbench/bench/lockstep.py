@@ -36,6 +36,7 @@ import mmap
 import os
 import platform
 import shutil
+import socket
 import struct
 import sys
 import tempfile
@@ -49,6 +50,7 @@ from typing import Any
 
 from hilbench.bench import clock_page as vp
 from hilbench.errors import BenchError
+from hilbench.transports.channel_book import packed_ipv4
 from hilbench.transports.readiness import readable
 
 #: Wall seconds a running thread may hold the clock before a lockstep stall starts (None: never).
@@ -172,7 +174,8 @@ class Lockstep:
                  origin_ns: int = vp.ORIGIN_NS, epoch_ns: int | None = None, stall: float | None = STALL,
                  nslots: int = vp.DEFAULT_SLOTS, poll_k: int = POLL_K, quantum_ns: int = 100_000,
                  startup_grace: float = STARTUP_GRACE, holding: Callable[[], bool] | None = None,
-                 refuses: Callable[[Any], bool] | None = None) -> None:
+                 refuses: Callable[[Any], bool] | None = None, channels: Any = None,
+                 nchans: int = vp.DEFAULT_CHANS) -> None:
         self.atomics = _Atomics()
         self._holding = holding
         self._refuses = refuses
@@ -183,7 +186,10 @@ class Lockstep:
         self.dir = Path(tempfile.mkdtemp(prefix="hilbench-clock-"))  # (0700)
         self.page = self.dir / vp.PAGE_FILE
         self.notify_path = self.dir / vp.NOTIFY_FILE
-        size = vp.page_size(nslots, len(self.ptys))
+        self.book = channels  #: the bench's ChannelBook (socket doors' counts per client address), or None
+        self.nchans = nchans if channels is not None else 0
+        self.chan_off = vp.page_size(nslots, len(self.ptys))
+        size = self.chan_off + vp.channels_size(self.nchans)
         self.page.write_bytes(bytes(size))
         os.mkfifo(self.notify_path, 0o600)
         for i in range(nslots):
@@ -205,6 +211,9 @@ class Lockstep:
         struct.pack_into("I", m, vp.H_POLL_K, poll_k)
         struct.pack_into("Q", m, vp.H_POLL_QUANTUM, quantum_ns)
         struct.pack_into("Q", m, vp.H_ORIGIN, origin_ns)
+        if self.nchans:
+            struct.pack_into("I", m, vp.H_NCHANS, self.nchans)
+            struct.pack_into("Q", m, vp.H_CHAN_OFF, self.chan_off)
         for i, p in enumerate(self.ptys):
             struct.pack_into("Q", m, vp.port_offset(nslots, i) + vp.P_RDEV, p.port.rdev)
         m[0:8] = vp.MAGIC  # last: a client that maps the page early sees no magic until it is whole
@@ -227,6 +236,13 @@ class Lockstep:
         self.last_stall: dict[str, Any] | None = None
         self.warnings: deque[str] = deque(maxlen=64)  #: the latest warnings (also on stderr)
         self._flight_warned: set[str] = set()  # ptys a stall on bytes in flight was reported for
+        self._ndoors = 0  # doors published on the page
+        self._chan_states: list[int] = []  # the records' states at the last look, the open ones, and
+        self._open: list[int] = []         # the book's changes count their totals were stored at
+        self._book_seen = -1
+        self._chan_keys: dict[int, tuple[tuple[int, int, int], tuple[int, str, int]]] = {}
+        if self.book is not None:
+            self._channels()  # (the doors, before any client looks)
 
     # ------------------------------------------------------------------ page access
 
@@ -303,6 +319,8 @@ class Lockstep:
                     break
                 os.sched_yield()
                 unread = delivered - self._port(i, vp.P_READ) - self._port(i, vp.P_DISCARDED)
+        if self.book is not None and (mask := self._channels()):
+            fresh += [b for b in range(63) if mask >> b & 1]  # (the channels' bits, after the ptys')
         return fresh
 
     def _visible(self, i: int, p: _Pty, real: float) -> bool:
@@ -492,6 +510,17 @@ class Lockstep:
         # (after every slot: a process's start-up is over once any of its threads waited)
         v.counted = any(self._slots[i].pid in self._waited or real - self._slots[i].since > self.startup_grace
                         for i in v.blockers)
+        if self.book is not None:
+            flight: list[str] = []
+            bits = self._channels(flight)
+            if bits:  # the bench sent on a channel since the last look (a reply read in D): its waiters look again
+                self._wake_mask(bits)
+                v.quiet = False
+                v.again = True
+            if flight:  # bytes (datagrams) a client sent the bench has not taken yet
+                v.quiet = False
+                v.counted = True
+                v.flight += flight
         for i, p in enumerate(self.ptys):
             if self._port(i, vp.P_WRITTEN) > p.port.bytes_in - p.base_in and not (
                     self._refuses is not None and self._refuses(p.port)):
@@ -569,6 +598,93 @@ class Lockstep:
         """Whether any client thread holds a slot (the bench then waits for its clients)."""
         states = self.u32[_STATE_WORD:_STATE_WORD + _SLOT_WORDS * self.nslots:_SLOT_WORDS]
         return any(states.tolist())
+
+    # ------------------------------------------------------------------ socket channels (PLAN26 §4.8, phase 2)
+
+    def _channels(self, flight: list[str] | None = None) -> int:
+        """Publish the bench's socket doors, and store the bench's totals (:attr:`book`) beside each client
+        socket's channel record. Returns the ``ports`` bits of the channels the bench sent to since the last
+        call; ``flight`` gets the channels a client sent on and the bench has not taken all of yet. Records of
+        processes that ended are freed."""
+        book = self.book
+        if len(book.doors) != self._ndoors:
+            for i, (proto, host, port) in enumerate(book.doors[:vp.MAX_DOORS]):
+                struct.pack_into("III", self.map, vp.door_offset(self.chan_off, i), proto, packed_ipv4(host), port)
+            self._ndoors = min(len(book.doors), vp.MAX_DOORS)
+            self.atomics.add64(self.base + vp.H_NCHANS, 0)  # (a full barrier: the table before its count)
+            struct.pack_into("I", self.map, vp.H_NDOORS, self._ndoors)
+        if not self._ndoors:
+            return 0
+        rec0 = vp.chan_offset(self.chan_off, 0)
+        words = vp.CHAN_SIZE // 4
+        states = self.u32[rec0 // 4:rec0 // 4 + words * self.nchans:words].tolist()
+        if states != self._chan_states:  # (a record claimed or freed: which are open, and their totals again)
+            self._chan_states = states
+            self._open = [c for c, st in enumerate(states) if st == vp.CH_OPEN]
+            self._book_seen = -1
+        if not self._open:
+            return 0
+        sync = book.changes != self._book_seen  # (the bench's totals moved: store them)
+        self._book_seen = book.changes
+        if not sync and flight is None:
+            return 0
+        u32, u64, mask, nports = self.u32, self.u64, 0, len(self.ptys)
+        for c in self._open:
+            off = rec0 + vp.CHAN_SIZE * c
+            w, q = off // 4, off // 8
+            ident = (u32[w + vp.C_PROTO // 4], u32[w + vp.C_ADDR // 4], u32[w + vp.C_PORT // 4])
+            known = self._chan_keys.get(c)
+            if known is None or known[0] != ident:
+                host = socket.inet_ntoa(ident[1].to_bytes(4, sys.byteorder))
+                known = self._chan_keys[c] = (ident, (ident[0], host, ident[2]))
+            pid = u32[w + vp.C_PID // 4]
+            if pid and self._dead(pid):
+                u32[w + vp.C_STATE // 4] = vp.CH_FREE
+                continue
+            taken = u64[q + vp.C_BENCH_TAKEN // 8]
+            totals = book.totals.get(known[1]) if sync else None
+            if totals is not None:
+                sent, taken = totals
+                if u64[q + vp.C_BENCH_SENT // 8] != sent:
+                    # (an atomic add: a full barrier before the waiters' states are read)
+                    self.atomics.add64(self.base + off + vp.C_BENCH_SENT,
+                                       (sent - u64[q + vp.C_BENCH_SENT // 8]) % 2**64)
+                    mask |= 1 << vp.chan_bit(nports, c)
+                if u64[q + vp.C_BENCH_TAKEN // 8] != taken:
+                    u64[q + vp.C_BENCH_TAKEN // 8] = taken
+            if flight is not None and u64[q + vp.C_SENT // 8] > taken and not self._door_refuses(
+                    u32[w + vp.C_FLAGS // 4] >> 8 & 0xFF):
+                flight.append(f"{'tcp' if ident[0] == vp.TCP else 'udp'} {known[1][1]}:{ident[2]}")
+        return mask
+
+    def _door_refuses(self, door: int) -> bool:
+        """Whether the host port behind door ``door`` (1 + its index; 0: unknown) is left unread on purpose (a
+        serial line holding its writer back): its clients' datagrams wait for the wire, not in flight."""
+        ports = self.book.door_ports
+        return bool(door) and door <= len(ports) and ports[door - 1] is not None and self._refuses is not None \
+            and self._refuses(ports[door - 1])
+
+    def _wake_mask(self, mask: int) -> None:
+        """Wake the threads waiting on a port or channel in ``mask`` (bits of the slots' ``ports``)."""
+        states = self.u32[_STATE_WORD:_STATE_WORD + _SLOT_WORDS * self.nslots:_SLOT_WORDS].tolist()
+        for i, st in enumerate(states):
+            if st == vp.WAITING and self._s64(i, vp.S_PORTS) & mask:
+                self._wake(i)
+
+    def channels(self) -> list[dict[str, Any]]:
+        """The open channel records: the client's address and the four counts (for reports and tests)."""
+        out = []
+        for c in range(self.nchans):
+            off = vp.chan_offset(self.chan_off, c)
+            st, pid, proto, addr, port, flags = struct.unpack_from("6I", self.map, off)
+            if st != vp.CH_OPEN:
+                continue
+            sent, received, bench_sent, bench_taken, given_up = struct.unpack_from("5Q", self.map, off + vp.C_SENT)
+            out.append({"proto": "tcp" if proto == vp.TCP else "udp",
+                        "address": f"{socket.inet_ntoa(addr.to_bytes(4, sys.byteorder))}:{port}", "pid": pid,
+                        "sent": sent, "received": received, "bench_sent": bench_sent, "bench_taken": bench_taken,
+                        "given_up": given_up})
+        return out
 
     # ------------------------------------------------------------------ waiting for news (D)
 
@@ -668,7 +784,7 @@ class Lockstep:
                 "last_stall": self.last_stall, "threads": sum(1 for s in states if s not in (vp.FREE, vp.EXITED)),
                 "threads_seen": self.participants_seen, "wakes": self.wakes, "rechecks": self.rechecks,
                 "asleep_elsewhere": self.asleep_elsewhere, "settle_timeouts": self.settle_timeouts,
-                "unvirtualised": self._h(vp.H_UNVIRTUALISED)}
+                "unvirtualised": self._h(vp.H_UNVIRTUALISED), "channel_timeouts": self._h(vp.H_CHAN_TIMEOUTS)}
 
     def describe(self) -> dict[str, Any]:
         """The manifest's ``clock`` entry (what ``hilbench run`` reads)."""

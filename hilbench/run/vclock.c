@@ -59,6 +59,7 @@
 #include <sys/mman.h>
 #include <sys/resource.h>
 #include <sys/select.h>
+#include <netinet/in.h>
 #include <sys/socket.h>
 #include <sys/stat.h>
 #include <sys/syscall.h>
@@ -92,6 +93,8 @@ struct vc_header {
     uint64_t vnow, epoch, round, activity;
     uint32_t armed, flags, poll_k, reserved1;
     uint64_t poll_quantum, stalls, origin, stalled_ns, unvirtualised;
+    uint32_t nchans, ndoors;      /* socket channels (PLAN26 §4.8 phase 2): see "socket channels" below */
+    uint64_t chan_off, chan_timeouts;
 };
 
 struct vc_slot {
@@ -105,17 +108,35 @@ struct vc_port {
     uint64_t rdev, kind, delivered, read, discarded, written, taken, reserved;
 };
 
+/* The bench's socket doors (TCP listeners, UDP sockets whose traffic it counts) and one record per client
+ * socket connected or sending to one; counts are bytes (TCP) or datagrams (UDP). */
+struct vc_door { uint32_t proto, addr, port, reserved; };
+struct vc_chan {
+    uint32_t state, pid, proto, addr, port, flags;
+    uint64_t sent, received;            /* the client's (atomic adds) */
+    uint64_t bench_sent, bench_taken;   /* the bench's totals for this address (the loop stores them) */
+    uint64_t given_up;                  /* a bench_sent the client gave up waiting for (CHAN_LIMIT) */
+};
+enum { CH_FREE, CH_CLAIMING, CH_OPEN };
+enum { CF_CONNECTED = 1 };
+#define VC_DOOR_SIZE 16
+#define VC_MAX_DOORS 32
+#define VC_MAX_CHANS 64
+_Static_assert(sizeof(struct vc_door) == VC_DOOR_SIZE, "door size");
+_Static_assert(sizeof(struct vc_chan) == 64, "channel size");
+
 _Static_assert(sizeof(struct vc_slot) == 64, "slot size");
 _Static_assert(sizeof(struct vc_port) == 64, "port size");
 _Static_assert(sizeof(struct vc_header) <= VC_HEADER, "header size");
 _Static_assert(offsetof(struct vc_header, vnow) == 24 && offsetof(struct vc_header, armed) == 56 &&
-               offsetof(struct vc_header, poll_quantum) == 72 && offsetof(struct vc_header, unvirtualised) == 104,
-               "header layout");
+               offsetof(struct vc_header, poll_quantum) == 72 && offsetof(struct vc_header, unvirtualised) == 104 &&
+               offsetof(struct vc_header, chan_timeouts) == 128, "header layout");
 
 /* The layout as NAME=VALUE lines, for the test that compares it with vclock_page.py. */
 const char *hb_vclock_layout(void)
 {
-    static char buf[2048];
+    static char buf[4096];
+    size_t k;
     snprintf(buf, sizeof buf,
              "VERSION=%d\nHEADER_SIZE=%d\nSLOT_SIZE=%zu\nPORT_SIZE=%zu\n"
              "H_MAGIC=%zu\nH_VERSION=%zu\nH_NSLOTS=%zu\nH_NPORTS=%zu\nH_VNOW=%zu\nH_EPOCH=%zu\nH_ROUND=%zu\nH_ACTIVITY=%zu\n"
@@ -144,6 +165,23 @@ const char *hb_vclock_layout(void)
              offsetof(struct vc_port, taken),
              ST_FREE, ST_STARTING, ST_RUNNING, ST_RUNNABLE, ST_WAITING, ST_POLLING, ST_REQUEST, ST_WOKEN, ST_EXITED,
              SF_FDWAIT, SF_FOREIGN, SF_INTERP, SF_TIMER, SF_ENDING, FLAG_STALL, FLAG_HOLD);
+    k = strlen(buf);
+    snprintf(buf + k, sizeof buf - k,
+             "H_NCHANS=%zu\nH_NDOORS=%zu\nH_CHAN_OFF=%zu\nH_CHAN_TIMEOUTS=%zu\n"
+             "D_PROTO=%zu\nD_ADDR=%zu\nD_PORT=%zu\nDOOR_SIZE=%d\nMAX_DOORS=%d\nCHAN_SIZE=%zu\n"
+             "C_STATE=%zu\nC_PID=%zu\nC_PROTO=%zu\nC_ADDR=%zu\nC_PORT=%zu\nC_FLAGS=%zu\nC_SENT=%zu\nC_RECEIVED=%zu\n"
+             "C_BENCH_SENT=%zu\nC_BENCH_TAKEN=%zu\nC_GIVEN_UP=%zu\nCH_FREE=%d\nCH_CLAIMING=%d\nCH_OPEN=%d\n"
+             "CF_CONNECTED=%d\nTCP=%d\nUDP=%d\n",
+             offsetof(struct vc_header, nchans), offsetof(struct vc_header, ndoors),
+             offsetof(struct vc_header, chan_off), offsetof(struct vc_header, chan_timeouts),
+             offsetof(struct vc_door, proto), offsetof(struct vc_door, addr), offsetof(struct vc_door, port),
+             VC_DOOR_SIZE, VC_MAX_DOORS, sizeof(struct vc_chan),
+             offsetof(struct vc_chan, state), offsetof(struct vc_chan, pid), offsetof(struct vc_chan, proto),
+             offsetof(struct vc_chan, addr), offsetof(struct vc_chan, port), offsetof(struct vc_chan, flags),
+             offsetof(struct vc_chan, sent), offsetof(struct vc_chan, received),
+             offsetof(struct vc_chan, bench_sent), offsetof(struct vc_chan, bench_taken),
+             offsetof(struct vc_chan, given_up), CH_FREE, CH_CLAIMING, CH_OPEN, CF_CONNECTED, IPPROTO_TCP,
+             IPPROTO_UDP);
     return buf;
 }
 
@@ -167,6 +205,9 @@ uint64_t hb_vclock_add64(uint64_t *p, uint64_t n) { return __atomic_add_fetch(p,
 static struct vc_header *H;
 static struct vc_slot *SL;
 static struct vc_port *PT;
+static struct vc_door *DR;    /* NULL: the page has no socket channels */
+static struct vc_chan *CHN;
+static uint32_t nchans;
 static uint32_t nslots, nports;
 static int vc_on;             /* a page is mapped: the wrappers are live */
 static pid_t vc_pid;          /* the process the thread-locals below belong to (a vfork child is not it) */
@@ -190,6 +231,7 @@ R(pthread_cond_broadcast); R(pthread_create); R(pthread_join); R(fork);
 R(execve); R(execvpe); R(fexecve); R(posix_spawn); R(posix_spawnp);
 R(waitpid); R(wait4); R(waitid); R(send); R(sendto); R(sendmsg); R(read); R(readv); R(epoll_ctl);
 R(alarm); R(setitimer); R(timer_settime); R(timerfd_settime); R(kill);
+R(connect); R(recv); R(recvfrom); R(recvmsg); R(recvmmsg); R(sendmmsg);
 static int (*r_epoll_pwait2)(int, struct epoll_event *, int, const struct timespec *, const sigset_t *);
 static int resolved;
 
@@ -204,6 +246,7 @@ static void resolve(void)
     D(execve); D(execvpe); D(fexecve); D(posix_spawn); D(posix_spawnp);
     D(waitpid); D(wait4); D(waitid); D(send); D(sendto); D(sendmsg); D(read); D(readv); D(epoll_ctl);
     D(alarm); D(setitimer); D(timer_settime); D(timerfd_settime); D(kill);
+    D(connect); D(recv); D(recvfrom); D(recvmsg); D(recvmmsg); D(sendmmsg);
 #undef D
     __atomic_store_n(&resolved, 1, __ATOMIC_RELEASE);
 }
@@ -541,6 +584,12 @@ __attribute__((constructor)) static void vclock_init(void)
     }
     SL = (struct vc_slot *)((char *)page + VC_HEADER);
     PT = (struct vc_port *)(SL + nslots);
+    if (H->nchans && H->nchans <= VC_MAX_CHANS && H->chan_off >= VC_HEADER + 64ull * (nslots + nports) &&
+        H->chan_off + (uint64_t)VC_DOOR_SIZE * VC_MAX_DOORS + 64ull * H->nchans <= (uint64_t)st.st_size) {
+        nchans = H->nchans;
+        DR = (struct vc_door *)((char *)page + H->chan_off);
+        CHN = (struct vc_chan *)(DR + VC_MAX_DOORS);
+    }
     {
         char notify[PATH_MAX];
         snprintf(notify, sizeof notify, "%s/clock.notify", clock_dir);
@@ -750,12 +799,15 @@ static unsigned char vc_fd_port[VC_FD_CACHE];
  * epoll descriptor is closed: a port removed from a set at most costs the slot a spurious wake. */
 static uint64_t *ep_ports;
 
+static void chan_forget(int fd);
+
 __attribute__((visibility("hidden"))) void hb_vclock_forget(int fd)
 {
     if (fd >= 0 && fd < VC_FD_CACHE) {
         __atomic_store_n(&vc_fd_port[fd], 0, __ATOMIC_RELAXED);
         if (ep_ports)
             __atomic_store_n(&ep_ports[fd], 0, __ATOMIC_RELAXED);
+        chan_forget(fd);
     }
 }
 
@@ -783,9 +835,226 @@ static int port_of(int fd)
 
 #define EP_FOREIGN (1ull << 63)
 
+/* ------------------------------------------------------------------ socket channels (PLAN26 §4.8, phase 2)
+ *
+ * A client socket connected or sending to one of the bench's doors (its socketcand listeners, its UDP
+ * endpoints: the page's door table) is a *channel*: it claims a record on the page with its own address,
+ * counts what it sends and receives there, and the bench's loop stores beside it what the bench sent to and
+ * took from that address. So the loop knows when bytes to the bench are in flight (it does not move time
+ * then), and wakes a thread waiting on the channel when the bench sent to it, at the instant of the send (the
+ * channel's bit in the slot's `ports`, after the ptys'). A thread about to report "nothing there" on a channel
+ * the bench sent to first waits, RUNNABLE (the clock holds), until the bytes show: loopback delivery can
+ * finish after the bench's send returned (softirq deferral under load). */
+
+#define CHAN_LIMIT_NS (100 * 1000000LL)  /* real time a thread waits at most for a channel's bytes to show */
+static unsigned char vc_fd_chan[VC_FD_CACHE];  /* fd -> 0: not looked up, 1: no channel, 2 + c */
+static int chan_fd[VC_MAX_CHANS];              /* channel -> an fd of this process on it (for its queue) */
+static uint64_t *ep_chans;                     /* epoll fd -> the channels in its set (with ep_ports) */
+
+static uint32_t chan_bit(uint32_t c) { return nports + c < 62 ? nports + c : 62; }
+
+static int sock_proto(int fd)
+{
+    int type = 0;
+    socklen_t len = sizeof type;
+    if (getsockopt(fd, SOL_SOCKET, SO_TYPE, &type, &len) != 0)
+        return 0;
+    return type == SOCK_STREAM ? IPPROTO_TCP : type == SOCK_DGRAM ? IPPROTO_UDP : 0;
+}
+
+/* Whether `sa` is one of the bench's doors for `proto`: 1 + its index, or 0. */
+static int is_door(int proto, const struct sockaddr *sa, socklen_t len)
+{
+    const struct sockaddr_in *in = (const struct sockaddr_in *)sa;
+    uint32_t i, n;
+    if (!DR || !sa || len < (socklen_t)sizeof *in || in->sin_family != AF_INET)
+        return 0;
+    n = __atomic_load_n(&H->ndoors, __ATOMIC_ACQUIRE);
+    for (i = 0; i < n && i < VC_MAX_DOORS; i++)
+        if (DR[i].proto == (uint32_t)proto && DR[i].port == ntohs(in->sin_port) &&
+            (DR[i].addr == 0 || DR[i].addr == in->sin_addr.s_addr))
+            return (int)i + 1;
+    return 0;
+}
+
+/* The record of (proto, addr, port); a socket bound to any address (0) matches on its port. */
+static int chan_find(uint32_t proto, uint32_t addr, uint32_t port)
+{
+    uint32_t c;
+    for (c = 0; c < nchans; c++)
+        if (__atomic_load_n(&CHN[c].state, __ATOMIC_ACQUIRE) == CH_OPEN && CHN[c].proto == proto &&
+            (CHN[c].addr == addr || !addr) && CHN[c].port == port)
+            return (int)c;
+    return -1;
+}
+
+static void chan_cache(int fd, int c)
+{
+    if (fd >= 0 && fd < VC_FD_CACHE)
+        __atomic_store_n(&vc_fd_chan[fd], (unsigned char)(c < 0 ? 1 : c + 2), __ATOMIC_RELAXED);
+    if (c >= 0)
+        chan_fd[c] = fd;
+}
+
+/* The channel record of socket fd (found by its own address), or -1. */
+static int chan_of(int fd)
+{
+    struct sockaddr_in in;
+    socklen_t len = sizeof in;
+    unsigned char known;
+    int c = -1, saved, proto;
+    if (!CHN || fd < 0 || !__atomic_load_n(&H->ndoors, __ATOMIC_RELAXED))
+        return -1;
+    if (fd < VC_FD_CACHE && (known = __atomic_load_n(&vc_fd_chan[fd], __ATOMIC_RELAXED)) != 0) {
+        if (known >= 2)
+            chan_fd[known - 2] = fd;
+        return known - 2;
+    }
+    saved = errno;
+    if (getsockname(fd, (struct sockaddr *)&in, &len) == 0 && in.sin_family == AF_INET &&
+        (proto = sock_proto(fd)) != 0)
+        c = chan_find((uint32_t)proto, in.sin_addr.s_addr, ntohs(in.sin_port));
+    errno = saved;
+    /* (a socket that is no channel yet may become one: connect and sendto look it up again) */
+    if (c >= 0 || fd >= VC_FD_CACHE || len == sizeof in)
+        chan_cache(fd, c);
+    return c;
+}
+
+/* fd has just connected or sent to door `to`: its channel record (claimed now if it has none), or -1. The
+ * record holds the address the bench sees the socket's traffic come from: a socket bound to any address
+ * sends to a loopback door from the door's address (127.0.0.1 for one bound to any, too). */
+static int chan_claim(int fd, int proto, int connected, const struct sockaddr *to)
+{
+    struct sockaddr_in in;
+    socklen_t len = sizeof in;
+    uint32_t c;
+    int saved = errno, found;
+    if (getsockname(fd, (struct sockaddr *)&in, &len) != 0 || in.sin_family != AF_INET || !in.sin_port) {
+        errno = saved;
+        return -1;
+    }
+    errno = saved;
+    if (!in.sin_addr.s_addr)
+        in.sin_addr.s_addr = ((const struct sockaddr_in *)to)->sin_addr.s_addr ?
+                             ((const struct sockaddr_in *)to)->sin_addr.s_addr : htonl(INADDR_LOOPBACK);
+    found = chan_find((uint32_t)proto, in.sin_addr.s_addr, ntohs(in.sin_port));
+    if (found >= 0) {
+        if (connected)
+            __atomic_or_fetch(&CHN[found].flags, CF_CONNECTED, __ATOMIC_SEQ_CST);
+        chan_cache(fd, found);
+        return found;
+    }
+    for (c = 0; c < nchans; c++) {
+        uint32_t f = CH_FREE;
+        struct vc_chan *r = &CHN[c];
+        if (__atomic_load_n(&r->state, __ATOMIC_RELAXED) != CH_FREE ||
+            !__atomic_compare_exchange_n(&r->state, &f, CH_CLAIMING, 0, __ATOMIC_SEQ_CST, __ATOMIC_SEQ_CST))
+            continue;
+        r->pid = (uint32_t)syscall(SYS_getpid);
+        r->proto = (uint32_t)proto;
+        r->addr = in.sin_addr.s_addr;
+        r->port = ntohs(in.sin_port);
+        r->flags = (connected ? CF_CONNECTED : 0) | (uint32_t)is_door(proto, to, sizeof in) << 8;
+        r->sent = r->received = r->given_up = 0;
+        r->bench_sent = r->bench_taken = 0;
+        __atomic_store_n(&r->state, CH_OPEN, __ATOMIC_SEQ_CST);
+        chan_cache(fd, (int)c);
+        nudge();
+        return (int)c;
+    }
+    return -1;  /* no record left: the socket works as before, without the channel's guarantees */
+}
+
+/* fd is closed or replaced: its record goes when its owner closes it (a forked child's close does not). */
+static void chan_forget(int fd)
+{
+    unsigned char known = __atomic_exchange_n(&vc_fd_chan[fd], 0, __ATOMIC_RELAXED);
+    if (ep_chans)
+        __atomic_store_n(&ep_chans[fd], 0, __ATOMIC_RELAXED);
+    if (known >= 2 && CHN) {
+        struct vc_chan *r = &CHN[known - 2];
+        if (r->pid == (uint32_t)syscall(SYS_getpid) && chan_fd[known - 2] == fd) {
+            uint32_t open = CH_OPEN;
+            chan_fd[known - 2] = -1;
+            if (__atomic_compare_exchange_n(&r->state, &open, CH_CLAIMING, 0, __ATOMIC_SEQ_CST, __ATOMIC_SEQ_CST)) {
+                r->pid = 0;
+                __atomic_store_n(&r->state, CH_FREE, __ATOMIC_SEQ_CST);
+                bump_activity();
+                nudge();
+            }
+        }
+    }
+}
+
+static void chan_count(uint64_t *field, uint64_t n)
+{
+    if (n)
+        __atomic_add_fetch(field, n, __ATOMIC_SEQ_CST);
+}
+
+/* Whether a channel in `chans` has bytes (datagrams) the bench sent that have not shown in its queue yet. */
+static int chan_pending(uint64_t chans)
+{
+    uint32_t c;
+    for (c = 0; chans && c < nchans; c++, chans >>= 1) {
+        struct vc_chan *r = &CHN[c];
+        uint64_t bs, got;
+        int fd, n = 0;
+        if (!(chans & 1) || __atomic_load_n(&r->state, __ATOMIC_SEQ_CST) != CH_OPEN)
+            continue;
+        bs = __atomic_load_n(&r->bench_sent, __ATOMIC_SEQ_CST);
+        got = __atomic_load_n(&r->received, __ATOMIC_SEQ_CST);
+        if (bs <= got || bs <= __atomic_load_n(&r->given_up, __ATOMIC_RELAXED) || (fd = chan_fd[c]) < 0)
+            continue;
+        if (r->proto == IPPROTO_TCP) {
+            if (syscall(SYS_ioctl, fd, FIONREAD, &n) != 0 || got + (uint64_t)n >= bs)
+                continue;
+        } else {
+            struct pollfd p = {fd, POLLIN, 0};
+            if (REAL(poll)(&p, 1, 0) != 0)  /* something is queued (or the socket is gone): it shows */
+                continue;
+        }
+        return 1;
+    }
+    return 0;
+}
+
+static void chan_give_up(uint64_t chans)
+{
+    uint32_t c;
+    for (c = 0; chans && c < nchans; c++, chans >>= 1)
+        if (chans & 1)
+            __atomic_store_n(&CHN[c].given_up, __atomic_load_n(&CHN[c].bench_sent, __ATOMIC_SEQ_CST),
+                             __ATOMIC_SEQ_CST);
+    __atomic_add_fetch(&H->chan_timeouts, 1, __ATOMIC_RELAXED);
+}
+
+/* Wait (real time, the slot RUNNABLE: the clock holds) until what the bench sent on `chans` shows, at most
+ * CHAN_LIMIT_NS; `watch` (n entries) is what the caller waits on, polled in 1 ms slices meanwhile. */
+static void chan_settle(struct vc_slot *s, const struct pollfd *watch, nfds_t n, uint64_t chans)
+{
+    int64_t t0 = real_mono();
+    struct pollfd stack[8];
+    nfds_t k = n < 8 ? n : 8;
+    uint32_t before = __atomic_load_n(&s->state, __ATOMIC_SEQ_CST);
+    while (chan_pending(chans)) {
+        struct timespec slice = ns_ts(SLICE_NS);
+        if (real_mono() - t0 > CHAN_LIMIT_NS) {
+            chan_give_up(chans);
+            break;
+        }
+        __atomic_store_n(&s->state, ST_RUNNABLE, __ATOMIC_SEQ_CST);
+        memcpy(stack, watch, k * sizeof *stack);
+        REAL(ppoll)(stack, k, &slice, NULL);
+    }
+    __atomic_store_n(&s->state, before == ST_WAITING || before == ST_WOKEN ? ST_RUNNING : before, __ATOMIC_SEQ_CST);
+}
+
 /* Which of `fds` are bench ports (a bitmask), and whether any is not (then the wait is foreign); an
- * epoll descriptor stands for its set. */
-static uint64_t ports_of(const struct pollfd *fds, nfds_t n, int *foreign)
+ * epoll descriptor stands for its set. Channels waited on for input add their bits, and their records
+ * to *chans (a wait for output on them is foreign: the loop does not wake it). */
+static uint64_t ports_of(const struct pollfd *fds, nfds_t n, int *foreign, uint64_t *chans)
 {
     uint64_t mask = 0;
     nfds_t i;
@@ -797,9 +1066,20 @@ static uint64_t ports_of(const struct pollfd *fds, nfds_t n, int *foreign)
         if (ep_ports && fd < VC_FD_CACHE && (ep = __atomic_load_n(&ep_ports[fd], __ATOMIC_RELAXED)) != 0) {
             mask |= ep & ~EP_FOREIGN;
             *foreign |= (ep & EP_FOREIGN) != 0;
+            if (ep_chans)
+                *chans |= __atomic_load_n(&ep_chans[fd], __ATOMIC_RELAXED);
             continue;
         }
         p = port_of(fd);
+        if (p < 0 && (p = chan_of(fd)) >= 0) {
+            if (fds[i].events & POLLIN) {
+                mask |= 1ull << chan_bit((uint32_t)p);
+                *chans |= 1ull << p;
+            }
+            if (fds[i].events & ~(POLLIN | POLLPRI | POLLRDNORM))
+                *foreign = 1;
+            continue;
+        }
         if (p < 0 || p >= 63)
             *foreign = 1;
         else
@@ -824,6 +1104,34 @@ int epoll_ctl(int ep, int op, int fd, struct epoll_event *ev)
     int rc = REAL(epoll_ctl)(ep, op, fd, ev);
     if (rc == 0 && (op == EPOLL_CTL_ADD || op == EPOLL_CTL_MOD) && hb_serve_on())
         hb_serve_refuse(fd);  /* epoll is not served: that pty goes back to the kernel path */
+    int c;
+    if (rc == 0 && vc_on && (op == EPOLL_CTL_ADD || op == EPOLL_CTL_MOD) && ep >= 0 && ep < VC_FD_CACHE && ev &&
+        port_of(fd) < 0 && (c = chan_of(fd)) >= 0) {
+        /* a channel in an epoll set: its bit in ep_ports, its record in ep_chans */
+        uint64_t bits = ev->events & ~(uint32_t)(EPOLLIN | EPOLLPRI | EPOLLRDNORM | EPOLLET | EPOLLONESHOT |
+                                                 EPOLLEXCLUSIVE | EPOLLWAKEUP) ? EP_FOREIGN : 0;
+        if (!ep_ports || !ep_chans) {
+            uint64_t *t = mmap(NULL, 2 * VC_FD_CACHE * sizeof *t, PROT_READ | PROT_WRITE, MAP_PRIVATE | MAP_ANONYMOUS,
+                               -1, 0);
+            uint64_t *expected = NULL;
+            if (t == MAP_FAILED)
+                return rc;
+            if (!__atomic_compare_exchange_n(&ep_chans, &expected, t + VC_FD_CACHE, 0, __ATOMIC_SEQ_CST,
+                                             __ATOMIC_SEQ_CST)) {
+                munmap(t, 2 * VC_FD_CACHE * sizeof *t);
+                t = NULL;
+            }
+            expected = NULL;
+            if (t)  /* (if ep_ports was set meanwhile, the first half of t stays unused) */
+                (void)__atomic_compare_exchange_n(&ep_ports, &expected, t, 0, __ATOMIC_SEQ_CST, __ATOMIC_SEQ_CST);
+        }
+        if (ev->events & (EPOLLIN | EPOLLRDNORM)) {
+            bits |= 1ull << chan_bit((uint32_t)c);
+            __atomic_or_fetch(&ep_chans[ep], 1ull << c, __ATOMIC_RELAXED);
+        }
+        __atomic_or_fetch(&ep_ports[ep], bits, __ATOMIC_RELAXED);
+        return rc;
+    }
     if (rc == 0 && vc_on && nports && (op == EPOLL_CTL_ADD || op == EPOLL_CTL_MOD) && ep >= 0 && ep < VC_FD_CACHE) {
         int p = port_of(fd);
         if (!ep_ports) {  /* first use: 512 KiB of address space, touched only where used */
@@ -851,7 +1159,7 @@ static int fd_wait(struct vc_slot *s, probe_fn probe, void *ctx, struct pollfd *
                    const sigset_t *mask)
 {
     int foreign = 0;
-    uint64_t ports = ports_of(watch, n, &foreign);
+    uint64_t chans = 0, ports = ports_of(watch, n, &foreign, &chans);
     uint32_t flags = SF_FDWAIT | (foreign ? SF_FOREIGN : 0);
     int wfd = wake_fd(s);
     for (;;) {
@@ -859,12 +1167,18 @@ static int fd_wait(struct vc_slot *s, probe_fn probe, void *ctx, struct pollfd *
         int rc = probe(ctx);
         if (rc != 0)
             goto done_rc;
+        if (chans && chan_pending(chans)) {  /* the bench sent: nothing is "not there" until it shows */
+            chan_settle(s, watch, n, chans);
+            continue;
+        }
         if (vnow() >= deadline)
             goto done_rc;
         begin_wait(s, deadline, flags, ports, act, ST_WAITING);
         rc = probe(ctx);
         if (rc != 0 || vnow() >= deadline)
             goto done_rc;
+        if (chans && chan_pending(chans))  /* (a send the loop published as this thread began to wait) */
+            continue;
         if (wfd >= 0) {
             watch[n].fd = wfd;
             watch[n].events = POLLIN;
@@ -895,7 +1209,13 @@ static int timed_fd_wait(struct vc_slot *s, probe_fn probe, void *ctx, struct po
     int rc;
     uint64_t deadline;
     if (timeout_ns == 0) {
+        uint64_t chans = 0;
+        int foreign = 0;
         rc = probe(ctx);
+        if (rc == 0 && CHN && H->ndoors && (ports_of(watch, n, &foreign, &chans), chans) && chan_pending(chans)) {
+            chan_settle(s, watch, n, chans);  /* a look at a channel sees what the bench sent before it */
+            rc = probe(ctx);
+        }
         if (rc != 0) {
             s->unproductive = 0;
             return rc;
@@ -1776,25 +2096,53 @@ int posix_spawnp(pid_t *pid, const char *file, const posix_spawn_file_actions_t 
 
 /* shim.c's write wrappers call this after every write: a write is productive, and a write to
  * something else than a bench pty may hand over to another client thread (activity). */
+/* A send on fd to `to` (NULL: its peer) returned rc: counted on its channel (bytes on TCP, one datagram on
+ * UDP), the channel claimed on a first send to a door. 1 if fd is a channel. */
+static int chan_sent(int fd, const struct sockaddr *to, socklen_t len, ssize_t rc)
+{
+    int c, proto;
+    if (!CHN || rc < 0 || !__atomic_load_n(&H->ndoors, __ATOMIC_RELAXED))
+        return 0;
+    c = chan_of(fd);
+    if (to) {
+        if (c >= 0 ? !is_door((int)CHN[c].proto, to, len) : !((proto = sock_proto(fd)) == IPPROTO_UDP &&
+                                                                is_door(proto, to, len) &&
+                                                                (c = chan_claim(fd, proto, 0, to)) >= 0))
+            return 0;
+    }
+    if (c < 0)
+        return 0;
+    chan_count(&CHN[c].sent, CHN[c].proto == IPPROTO_TCP ? (uint64_t)rc : 1);
+    return 1;
+}
+
 __attribute__((visibility("hidden"))) void hb_vclock_wrote(int fd, ssize_t n)
 {
     int p;
-    if (!vc_on || n <= 0)
+    if (!vc_on || n < 0)
         return;
+    if (n == 0) {  /* (an empty datagram is one) */
+        chan_sent(fd, NULL, 0, 0);
+        return;
+    }
     productive();
     p = port_of(fd);
     if (p >= 0)
         __atomic_add_fetch(&PT[p].written, (uint64_t)n, __ATOMIC_SEQ_CST);
-    else
+    else if (!chan_sent(fd, NULL, 0, n))
         bump_activity();
 }
 
 ssize_t send(int fd, const void *buf, size_t n, int flags)
 {
     ssize_t rc = REAL(send)(fd, buf, n, flags);
-    if (vc_on && rc > 0) {
-        productive();
-        bump_activity();
+    if (vc_on && rc >= 0) {
+        int saved = errno;
+        if (rc > 0)
+            productive();
+        if (!chan_sent(fd, NULL, 0, rc) && rc > 0)
+            bump_activity();
+        errno = saved;
     }
     return rc;
 }
@@ -1802,9 +2150,13 @@ ssize_t send(int fd, const void *buf, size_t n, int flags)
 ssize_t sendto(int fd, const void *buf, size_t n, int flags, const struct sockaddr *to, socklen_t len)
 {
     ssize_t rc = REAL(sendto)(fd, buf, n, flags, to, len);
-    if (vc_on && rc > 0) {
-        productive();
-        bump_activity();
+    if (vc_on && rc >= 0) {
+        int saved = errno;
+        if (rc > 0)
+            productive();
+        if (!chan_sent(fd, to, len, rc) && rc > 0)
+            bump_activity();
+        errno = saved;
     }
     return rc;
 }
@@ -1812,10 +2164,190 @@ ssize_t sendto(int fd, const void *buf, size_t n, int flags, const struct sockad
 ssize_t sendmsg(int fd, const struct msghdr *msg, int flags)
 {
     ssize_t rc = REAL(sendmsg)(fd, msg, flags);
-    if (vc_on && rc > 0) {
-        productive();
-        bump_activity();
+    if (vc_on && rc >= 0) {
+        int saved = errno;
+        if (rc > 0)
+            productive();
+        if (!chan_sent(fd, msg->msg_name, msg->msg_name ? msg->msg_namelen : 0, rc) && rc > 0)
+            bump_activity();
+        errno = saved;
     }
+    return rc;
+}
+
+int sendmmsg(int fd, struct mmsghdr *v, unsigned int n, int flags)
+{
+    int rc = REAL(sendmmsg)(fd, v, n, flags), i, any = 0;
+    if (vc_on && rc > 0) {
+        int saved = errno;
+        productive();
+        for (i = 0; i < rc; i++)
+            any |= chan_sent(fd, v[i].msg_hdr.msg_name, v[i].msg_hdr.msg_name ? v[i].msg_hdr.msg_namelen : 0,
+                             (ssize_t)v[i].msg_len);
+        if (!any)
+            bump_activity();
+        errno = saved;
+    }
+    return rc;
+}
+
+/* connect to a door: the socket is a channel from now on (also while a non-blocking connect is under way). */
+int connect(int fd, const struct sockaddr *to, socklen_t len)
+{
+    int rc = REAL(connect)(fd, to, len), saved = errno, proto;
+    if (vc_on && CHN && (rc == 0 || errno == EINPROGRESS) && (proto = sock_proto(fd)) != 0 &&
+        is_door(proto, to, len))
+        chan_claim(fd, proto, proto == IPPROTO_UDP, to);
+    errno = saved;
+    return rc;
+}
+
+/* ------------------------------------------------------------------ receiving on channels */
+
+static int nonblocking(int fd);
+static int read_empty(struct vc_slot *s, int fd);
+
+/* Before a blocking receive on channel c: wait (virtual, SO_RCVTIMEO's timeout too) until something is there.
+ * 0: go on with the real call (it will not block), -1 with errno (EAGAIN at the timeout, EINTR). */
+static int chan_recv_wait(struct vc_slot *s, int fd, int flags)
+{
+    struct pollfd watch[2] = {{fd, POLLIN, 0}, {-1, 0, 0}};
+    struct poll_ctx ctx = {watch, 1};
+    struct timeval tv = {0, 0};
+    socklen_t len = sizeof tv;
+    int64_t timeout = -1;
+    int rc;
+    if (flags & MSG_DONTWAIT || nonblocking(fd))
+        return 0;
+    if (getsockopt(fd, SOL_SOCKET, SO_RCVTIMEO, &tv, &len) == 0 && (tv.tv_sec || tv.tv_usec))
+        timeout = ((int64_t)tv.tv_sec * 1000000 + tv.tv_usec) * 1000;
+    rc = timed_fd_wait(s, poll_probe, &ctx, watch, 1, timeout, NULL, NULL);
+    if (rc == 0) {
+        errno = EAGAIN;
+        return -1;
+    }
+    return rc < 0 ? -1 : 0;
+}
+
+/* What a receive on channel c returned, from `from` (NULL: unknown), counted unless it only peeked. */
+static void chan_received(int c, ssize_t rc, int flags, const struct sockaddr *from, socklen_t len)
+{
+    struct vc_chan *r = &CHN[c];
+    if (rc < 0 || flags & MSG_PEEK)
+        return;
+    if (r->proto == IPPROTO_TCP) {
+        if (rc > 0) {
+            productive();
+            chan_count(&r->received, (uint64_t)rc);
+        }
+        return;
+    }
+    productive();
+    if (__atomic_load_n(&r->flags, __ATOMIC_RELAXED) & CF_CONNECTED || (from && is_door(IPPROTO_UDP, from, len)))
+        chan_count(&r->received, 1);
+}
+
+/* The channel behind fd and this thread's slot, or -1 (then the caller passes straight through). */
+static int chan_call(int fd, struct vc_slot **s)
+{
+    int c;
+    if (!vc_on || !CHN || !__atomic_load_n(&H->ndoors, __ATOMIC_RELAXED) || (c = chan_of(fd)) < 0 || !(*s = cur()))
+        return -1;
+    return c;
+}
+
+ssize_t recvfrom(int fd, void *buf, size_t n, int flags, struct sockaddr *from, socklen_t *len)
+{
+    struct vc_slot *s;
+    struct sockaddr_in own;
+    socklen_t own_len = sizeof own;
+    ssize_t rc;
+    int c = chan_call(fd, &s), saved;
+    if (c < 0)
+        return REAL(recvfrom)(fd, buf, n, flags, from, len);
+    if (chan_recv_wait(s, fd, flags) < 0)
+        return -1;
+    if (!from || !len) {  /* (the sender tells whether a datagram is the bench's) */
+        from = (struct sockaddr *)&own;
+        len = &own_len;
+    }
+    rc = REAL(recvfrom)(fd, buf, n, flags, from, len);
+    saved = errno;
+    if (rc < 0 && (saved == EAGAIN || saved == EWOULDBLOCK) && read_empty(s, fd)) {  /* (polling: K in a row) */
+        rc = REAL(recvfrom)(fd, buf, n, flags, from, len);
+        saved = errno;
+    }
+    chan_received(c, rc, flags, from, *len);
+    errno = saved;
+    return rc;
+}
+
+ssize_t recv(int fd, void *buf, size_t n, int flags)
+{
+    struct vc_slot *s;
+    if (chan_call(fd, &s) < 0)
+        return REAL(recv)(fd, buf, n, flags);
+    return recvfrom(fd, buf, n, flags, NULL, NULL);
+}
+
+ssize_t __recv_chk(int fd, void *buf, size_t n, size_t buflen, int flags)
+{
+    if (n > buflen)
+        abort();
+    return recv(fd, buf, n, flags);
+}
+
+ssize_t __recvfrom_chk(int fd, void *buf, size_t n, size_t buflen, int flags, struct sockaddr *from, socklen_t *len)
+{
+    if (n > buflen)
+        abort();
+    return recvfrom(fd, buf, n, flags, from, len);
+}
+
+ssize_t recvmsg(int fd, struct msghdr *msg, int flags)
+{
+    struct vc_slot *s;
+    struct sockaddr_in own;
+    ssize_t rc;
+    int c = chan_call(fd, &s), saved, named;
+    if (c < 0)
+        return REAL(recvmsg)(fd, msg, flags);
+    if (chan_recv_wait(s, fd, flags) < 0)
+        return -1;
+    named = msg->msg_name != NULL;
+    if (!named) {
+        msg->msg_name = &own;
+        msg->msg_namelen = sizeof own;
+    }
+    rc = REAL(recvmsg)(fd, msg, flags);
+    saved = errno;
+    if (rc < 0 && (saved == EAGAIN || saved == EWOULDBLOCK) && read_empty(s, fd)) {  /* (polling: K in a row) */
+        rc = REAL(recvmsg)(fd, msg, flags);
+        saved = errno;
+    }
+    chan_received(c, rc, flags, msg->msg_name, msg->msg_namelen);
+    if (!named) {
+        msg->msg_name = NULL;
+        msg->msg_namelen = 0;
+    }
+    errno = saved;
+    return rc;
+}
+
+int recvmmsg(int fd, struct mmsghdr *v, unsigned int n, int flags, struct timespec *timeout)
+{
+    struct vc_slot *s;
+    int c = chan_call(fd, &s), rc, i, saved;
+    if (c < 0)
+        return REAL(recvmmsg)(fd, v, n, flags, timeout);
+    if (!(flags & MSG_WAITFORONE) && chan_recv_wait(s, fd, flags) < 0)
+        return -1;
+    rc = REAL(recvmmsg)(fd, v, n, flags, timeout);
+    saved = errno;
+    for (i = 0; i < rc; i++)
+        chan_received(c, (ssize_t)v[i].msg_len, flags, v[i].msg_hdr.msg_name,
+                      v[i].msg_hdr.msg_name ? v[i].msg_hdr.msg_namelen : 0);
+    errno = saved;
     return rc;
 }
 
@@ -2018,6 +2550,8 @@ ssize_t read(int fd, void *buf, size_t n)
     if (!vc_on || !(s = cur()))
         return REAL(read)(fd, buf, n);
     port = port_of(fd);
+    if (port < 0 && CHN && chan_of(fd) >= 0)
+        return recvfrom(fd, buf, n, 0, NULL, NULL);  /* (a read of a socket is a recv without flags) */
     served = port >= 0 && hb_serve_on() && hb_serve_avail(fd) >= 0;
     if (port >= 0 && !nonblocking(fd)) {
         size = pty_wait(s, fd, port, n);
@@ -2094,6 +2628,11 @@ ssize_t readv(int fd, const struct iovec *iov, int iovcnt)
     }
     got = served ? port_readv(fd, iov, iovcnt, total) : REAL(readv)(fd, iov, iovcnt);
     count_read(port, got);
+    if (port < 0 && CHN && got >= 0 && (i = chan_of(fd)) >= 0) {
+        int saved = errno;
+        chan_received(i, got, 0, NULL, 0);
+        errno = saved;
+    }
     return got;
 }
 

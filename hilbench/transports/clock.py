@@ -53,6 +53,8 @@ class WallClock:
 
     #: Whether time is virtual (advanced only by a :class:`~hilbench.transports.virtual_loop.VirtualLoop`).
     virtual = False
+    #: A virtual clock's :class:`~hilbench.transports.channel_book.ChannelBook` (None: the wall clock counts none).
+    channels: Any = None
     now = staticmethod(time.monotonic)
     now_ns = staticmethod(time.monotonic_ns)
 
@@ -100,6 +102,10 @@ class VirtualClock(WallClock):
         self.wall_offset = self.epoch - origin
         self._vnow = origin
         self.loop: Any = None  # the VirtualLoop that advances it (set by the loop)
+        from hilbench.transports.channel_book import ChannelBook
+
+        #: What the bench's socket doors sent to and took from each client address (the lockstep's channels).
+        self.channels = ChannelBook()
 
     def now(self) -> float:  # type: ignore[override]
         """Virtual seconds (the loop's current instant)."""

@@ -60,6 +60,9 @@ class Medium:
         """Attach a host port; ``listen_only`` ignores what it sends. Its port events reach the devices."""
         with self._lock:
             self._hosts.append((port, listen_only))
+        book = self.clock.channels
+        if book is not None and hasattr(port, "vt_channels"):  # (virtual time: a socket door counts its traffic)
+            port.vt_channels(book)
         lines = getattr(port, "port_state", None)
         if lines is not None:
             lines.set_listener(lambda event, _name=port.name: self.port_event(_name, event))

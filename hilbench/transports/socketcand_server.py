@@ -73,6 +73,7 @@ from hilbench.protocols import can_frame as cf
 from hilbench.protocols import socketcand as sc
 from hilbench.protocols.can_frame import CanFrame
 from hilbench.transports.can_door import CanDoor
+from hilbench.transports.channel_book import TCP
 from hilbench.transports.client_limit import Eviction, ReadWatch
 from hilbench.transports.heap import Ebb
 from hilbench.transports.listener import BACKLOG, Listener, refuse
@@ -153,6 +154,7 @@ class _Client:
     dropped: int = 0
     closing: bool = False
     last_command: float = 0.0
+    peer: tuple[str, int] | None = None  # its address (a virtual bench counts its bytes per address)
 
 
 class SocketcandServer(CanDoor):
@@ -187,6 +189,7 @@ class SocketcandServer(CanDoor):
         self._backlog = False  # some client has bytes waiting: retry sending soon
         self._beacon_sock: socket.socket | None = None
         self._beacon_next = 0.0
+        self.book: Any = None  # a virtual bench's ChannelBook
         if beacon:
             self._beacon_sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
 
@@ -194,6 +197,10 @@ class SocketcandServer(CanDoor):
         """Learn the bus clock's mapping to Unix time (frames carry Unix time stamps) and its bitrate."""
         self.wall_offset = medium.wall_offset
         self.bitrate = getattr(medium, "bitrate", self.bitrate)
+        book = getattr(medium.clock, "channels", None)
+        if book is not None:  # virtual time: bytes in and out per client address (the lockstep's channels)
+            self.book = book
+            book.door(TCP, self.address)
 
     @property
     def address(self) -> tuple[str, int]:
@@ -233,7 +240,8 @@ class SocketcandServer(CanDoor):
         for sock, addr in self.listener.accept(len(self.clients), self._evict):
             self.connections += 1
             now = time.monotonic()  # wall-clock: service timer
-            client = _Client(sock, f"socketcand {addr[0]}:{addr[1]}", now, ReadWatch(now), last_command=now)
+            client = _Client(sock, f"socketcand {addr[0]}:{addr[1]}", now, ReadWatch(now), last_command=now,
+                             peer=(addr[0], addr[1]))
             self.clients.append(client)
             self._reply(client, sc.HI)
 
@@ -277,6 +285,8 @@ class SocketcandServer(CanDoor):
             if not data:
                 self._drop(client)
                 continue
+            if self.book is not None and client.peer is not None:
+                self.book.took(TCP, client.peer, len(data))
             for message in client.splitter.feed(data):
                 self._command(client, message, now, out)
                 if client.closing:
@@ -361,6 +371,8 @@ class SocketcandServer(CanDoor):
                 self._drop(client)
                 return
             del out[:sent]  # (a bytearray shrinks its buffer once it is less than half full)
+            if self.book is not None and client.peer is not None:
+                self.book.sent(TCP, client.peer, sent)
             self.queued -= sent
             client.watch.sent += sent
             if client.full_since is not None:
@@ -564,6 +576,8 @@ class SocketcandServer(CanDoor):
     def _drop(self, client: _Client, close: bool = True) -> None:
         """Disconnect a client: its jobs, subscriptions and queue go with it (the socket is closed unless
         ``close`` is False: the caller says goodbye first)."""
+        if self.book is not None and client.peer is not None:
+            self.book.forget(TCP, client.peer)
         if client in self.clients:
             self.clients.remove(client)
             self.queued -= len(client.out) + client.held_bytes

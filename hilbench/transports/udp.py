@@ -22,6 +22,7 @@ from collections import OrderedDict
 from typing import Any
 
 from hilbench.errors import OptionError
+from hilbench.transports.channel_book import UDP
 from hilbench.transports.host_port import HostPort, bind_address, port_number
 from hilbench.transports.listener import bind as bind_socket
 
@@ -95,6 +96,12 @@ class UdpPort(HostPort):
         self.bytes_out = 0
         self.datagrams_in = 0
         self.dropped = 0  #: bytes a full socket buffer refused
+        self.book: Any = None  # a virtual bench's ChannelBook: datagrams per client address
+
+    def vt_channels(self, book: Any) -> None:
+        """Virtual time: count datagrams in and out per address in ``book`` (the lockstep's channels)."""
+        self.book = book
+        book.door(UDP, self.address, self)
 
     @property
     def address(self) -> tuple[str, int]:
@@ -115,14 +122,17 @@ class UdpPort(HostPort):
     def client_baud(self) -> int | None:
         return None  # datagrams have no line rate
 
-    def read(self) -> bytes:
-        """One datagram's payload (b'' if none is waiting, or for an empty registration datagram)."""
+    def read(self, size: int = 65536) -> bytes:
+        """One datagram's payload (b'' if none is waiting, or for an empty registration datagram). ``size``, a
+        pty's read size (a serial line's), does not cut a datagram: it is read whole."""
         try:
             data, addr = self.sock.recvfrom(65536)
         except (BlockingIOError, InterruptedError):
             return b""
         except OSError:  # e.g. ICMP port unreachable reported on a later call
             return b""
+        if self.book is not None:
+            self.book.took(UDP, addr, 1)
         self.peers.pop(addr, None)
         self.peers[addr] = None
         while len(self.peers) > MAX_PEERS:
@@ -141,6 +151,8 @@ class UdpPort(HostPort):
             return None
         self.datagrams_in += 1
         self.bytes_in += len(data)
+        if self.book is not None:
+            self.book.took(UDP, addr, 1)
         return data, addr[:2]
 
     def send_to(self, data: bytes, addr: tuple[str, int]) -> bool:
@@ -152,6 +164,8 @@ class UdpPort(HostPort):
             self.dropped += len(data)
             return False
         self.bytes_out += len(data)
+        if self.book is not None:
+            self.book.sent(UDP, addr, 1)
         return True
 
     def targets(self) -> list[tuple[str, int]]:
@@ -169,6 +183,8 @@ class UdpPort(HostPort):
                 try:
                     self.sock.sendto(chunk, addr)
                     sent += len(chunk)
+                    if self.book is not None:
+                        self.book.sent(UDP, addr, 1)
                 except (BlockingIOError, InterruptedError):
                     self.dropped += len(chunk)
                 except OSError:

@@ -20,6 +20,7 @@ import pytest
 from hilbench.bench import clock_page as vp
 from hilbench.bench.lockstep import Lockstep
 from hilbench.pytest_plugin import wait_until
+from hilbench.transports.channel_book import ChannelBook, packed_ipv4
 from hilbench.transports.clock import VirtualClock
 from hilbench.transports.virtual_loop import VirtualLoop
 
@@ -471,3 +472,67 @@ def test_what_clients_write_at_an_instant_is_one_transmission_sent_when_they_all
     sent = [(t, data) for t, source, data in seen if source == "dxl"]
     wire = len(pings[0] + pings[1]) * 10 / ep.spec.baud
     assert sent == [(pytest.approx(1000.0 + wire, abs=1e-9), pings[0] + pings[1])]
+
+
+def claim_channel(ls: Lockstep, c: int, proto: int, host: str, port: int, *, sent: int = 0,
+                  received: int = 0) -> int:
+    """Write channel record ``c`` as a client's shim does after its socket connected or sent to a door (state
+    last); returns its byte offset."""
+    off = vp.chan_offset(ls.chan_off, c)
+    struct.pack_into("5I", ls.map, off + vp.C_PID, os.getpid(), proto, packed_ipv4(host), port, 0)
+    struct.pack_into("QQ", ls.map, off + vp.C_SENT, sent, received)
+    struct.pack_into("I", ls.map, off + vp.C_STATE, vp.CH_OPEN)
+    return off
+
+
+def test_socket_channels_hold_time_while_bytes_fly_and_wake_their_waiters(lockstep):
+    """PLAN26 §4.8, phase 2: the bench's doors are on the page; bytes a client sent on a channel and the bench
+    has not taken keep time still; a thread waiting on a channel is woken when the bench sent to it (in the
+    look after a send in D, or in settle after the bench phase), and the bench's totals sit beside the client's
+    counts (bytes on TCP, datagrams on UDP)."""
+    book = ChannelBook()
+    book.door(vp.TCP, ("127.0.0.1", 29536))
+    ls = lockstep(channels=book)
+    assert struct.unpack_from("I", ls.map, vp.H_NCHANS)[0] == vp.DEFAULT_CHANS
+    assert struct.unpack_from("IQ", ls.map, vp.H_NDOORS)[0] == 1 and ls.chan_off == vp.page_size(8, 0)
+    assert struct.unpack_from("3I", ls.map, vp.door_offset(ls.chan_off, 0)) == (vp.TCP, packed_ipv4("127.0.0.1"),
+                                                                                  29536)
+    book.door(vp.UDP, ("0.0.0.0", 8888))  # (a door added later, e.g. a device's socket, is published too)
+    assert ls.look().quiet
+    assert struct.unpack_from("I", ls.map, vp.H_NDOORS)[0] == 2
+    off = claim_channel(ls, 3, vp.TCP, "127.0.0.1", 40000, sent=12)
+    bit = 1 << vp.chan_bit(0, 3)
+    put(ls, 0, vp.WAITING, V0 + S, ports=bit, flags=vp.SF_FDWAIT)  # (select on the socket, 1 s timeout)
+    v = ls.look()
+    assert not v.quiet and v.flight == ["tcp 127.0.0.1:40000"]  # 12 bytes sent, none taken
+    book.took(vp.TCP, ("127.0.0.1", 40000), 12)
+    book.sent(vp.TCP, ("127.0.0.1", 40000), 7)  # the reply, sent as the loop read the command (D)
+    v = ls.look()
+    assert not v.quiet and v.again and state(ls, 0) == vp.WOKEN
+    assert struct.unpack_from("QQ", ls.map, off + vp.C_BENCH_SENT) == (7, 12)
+    put(ls, 0, vp.WAITING, V0 + S, ports=bit, flags=vp.SF_FDWAIT)
+    v = ls.look()
+    assert v.quiet and v.next_ns == V0 + S and not v.flight  # nothing new: time may move to the deadline
+    # a send in the bench phase (A): B's settle publishes it and C wakes the waiter at that instant
+    book.sent(vp.TCP, ("127.0.0.1", 40000), 20)
+    assert ls.wake_due(ls.settle()) == 1 and state(ls, 0) == vp.WOKEN
+    assert struct.unpack_from("Q", ls.map, off + vp.C_BENCH_SENT)[0] == 27
+    assert ls.channels() == [{"proto": "tcp", "address": "127.0.0.1:40000", "pid": os.getpid(), "sent": 12,
+                              "received": 0, "bench_sent": 27, "bench_taken": 12, "given_up": 0}]
+    # a waiter on another port or channel is not woken by it
+    put(ls, 1, vp.WAITING, ports=1 << vp.chan_bit(0, 4), flags=vp.SF_FDWAIT)
+    book.sent(vp.TCP, ("127.0.0.1", 40000), 1)
+    ls.wake_due(ls.settle())
+    assert state(ls, 1) == vp.WAITING
+    # the record of a process that ended is freed
+    gone = subprocess.Popen(["true"])
+    gone.wait()
+    struct.pack_into("I", ls.map, off + vp.C_PID, gone.pid)
+    ls.look()
+    assert struct.unpack_from("I", ls.map, off + vp.C_STATE)[0] == vp.CH_FREE and ls.channels() == []
+
+
+def test_a_bench_without_a_channel_book_has_no_channel_region(lockstep):
+    ls = lockstep()
+    assert len(ls.map) == vp.page_size(8, 0) and struct.unpack_from("I", ls.map, vp.H_NCHANS)[0] == 0
+    assert ls.channels() == []
