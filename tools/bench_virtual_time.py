@@ -9,7 +9,7 @@ Every bench runs in its own ``hilbench emulate PROFILE --virtual-time`` process 
   is measured apart with a client that sleeps 0 s and taken off.
 - ``vt_busy_speed``: the official SDK's 20-servo Sync Read + Sync Write cycle on ``wolfgang`` (the loop of
   tools/benchlib.sdk_cycle) for ``--seconds`` virtual seconds: virtual seconds per wall second, start-up
-  taken off the same way.
+  taken off the same way; ``vt_busy_speed_one_cpu`` the same with the bench and the client on one CPU.
 - ``vt_sdk_cycle_spread`` and ``wall_sdk_cycle_spread``: ``--runs`` runs of that cycle beside ``--load``
   CPU-bound neighbour processes, in virtual time and on the wall clock (``emulate wolfgang --paced``, the
   SDK in this process as tools/bench_dynamixel.py drives it) side by side: the spread of the cycle time,
@@ -217,12 +217,24 @@ def cycle_time(done: list[int]) -> float:
 
 
 def bench_busy(seconds: float) -> None:
-    avg = loadavg()
-    out, wall, startup, stats = sdk_virtual(seconds)
-    speed = seconds / max(wall - startup, 1e-6)
-    emit("vt_busy_speed", speed, "virtual s per wall s", 1.0, speed, virtual_s=seconds, wall_s=round(wall, 3),
-         startup_s=round(startup, 3), cycles=out["cycles"], failed_reads=out["failed"],
-         cycle_ratio=round(cycle_time(out["done"]) / MODEL, 6), stalls=stats["stalls"], loadavg=avg)
+    """vt_busy_speed, then vt_busy_speed_one_cpu: the same with the bench and its client on one CPU (as
+    ``taskset -c N`` runs them). The lockstep runs one of them at a time, so one CPU loses no parallelism and
+    spares every hand-over a wake-up on another CPU."""
+    allowed = os.sched_getaffinity(0)
+    for name, cpus in (("vt_busy_speed", allowed), ("vt_busy_speed_one_cpu", {max(allowed)})):
+        if name.endswith("one_cpu") and len(allowed) < 2:
+            continue
+        avg = loadavg()
+        os.sched_setaffinity(0, cpus)  # (the processes started below inherit it)
+        try:
+            out, wall, startup, stats = sdk_virtual(seconds)
+        finally:
+            os.sched_setaffinity(0, allowed)
+        speed = seconds / max(wall - startup, 1e-6)
+        emit(name, speed, "virtual s per wall s", 1.0, speed, virtual_s=seconds, wall_s=round(wall, 3),
+             startup_s=round(startup, 3), cycles=out["cycles"], failed_reads=out["failed"],
+             cycle_ratio=round(cycle_time(out["done"]) / MODEL, 6), stalls=stats["stalls"], loadavg=avg,
+             cpus=sorted(cpus), serving=os.environ.get("HILBENCH_SERVE") != "0")
 
 
 def sdk_wall(seconds: float) -> tuple[float, int, int]:
