@@ -221,7 +221,7 @@ def test_a_second_client_is_refused_with_a_reason_and_the_first_keeps_working(se
                 text += chunk
         assert b"port busy" in text and b"in use by 127.0.0.1:" in text
         with pytest.raises((serial.SerialException, OSError)):  # pyserial sees the hang-up (EPIPE / reset)
-            serial.serial_for_url(url, baudrate=1_000_000, timeout=1)
+            serial.serial_for_url(url + "?timeout=0.5", baudrate=1_000_000, timeout=1)  # (not its 3 s negotiation)
         assert _ping(first).id == 1
     assert ep.services["rfc2217"].refused == 2
 
