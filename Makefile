@@ -52,7 +52,7 @@ $(LGVENV)/.installed: pyproject.toml
 demo: $(VENV)/.installed
 	$(VENV)/bin/hilbench demo
 
-# The README's test command: lint, then every test but the slow real-client set (six to seven minutes).
+# The README's test command: lint, then every test but the slow real-client set (five to six minutes).
 test: $(VENV)/.installed $(SDK3)/.installed
 	$(PY) -m ruff check hilbench tests tools
 	$(PY) -m pytest -q -m "not slow"
