@@ -342,82 +342,74 @@ out:
 
 /* ------------------------------------------------------------------ which descriptors are bench ptys */
 
-static void map_ledger(int sock)
+/* The records of a table the bench keeps beside its port-state socket (``name``: port_state.ledger or
+ * port_state.serve), mapped shared, once its header checks out (magic, version, record size, a count
+ * that fits the file); NULL otherwise. *count: its records. */
+static unsigned char *map_table(int sock, const char *name, const char *magic, uint64_t version, size_t header,
+                                size_t record, uint64_t *count)
 {
     char path[sizeof sockets[0].path + 16];
     const char *slash = strrchr(sockets[sock].path, '/');
     struct stat st;
     unsigned char *page;
-    uint64_t nslots, i;
-    int fd, j;
+    uint64_t n;
+    int fd;
 
     if (!slash || !real_open)
-        return;
-    snprintf(path, sizeof path, "%.*s/port_state.ledger", (int)(slash - sockets[sock].path), sockets[sock].path);
+        return NULL;
+    snprintf(path, sizeof path, "%.*s/%s", (int)(slash - sockets[sock].path), sockets[sock].path, name);
     fd = real_open(path, O_RDWR | O_CLOEXEC);
     if (fd < 0)
-        return;
-    if (fstat(fd, &st) != 0 || st.st_size < LEDGER_HEADER) {
+        return NULL;
+    if (fstat(fd, &st) != 0 || st.st_size < (off_t)header) {
         close_fd(fd);
-        return;
+        return NULL;
     }
     page = mmap(NULL, (size_t)st.st_size, PROT_READ | PROT_WRITE, MAP_SHARED, fd, 0);
     close_fd(fd);
     if (page == MAP_FAILED)
-        return;
-    nslots = ((uint64_t *)page)[2];
-    if (memcmp(page, LEDGER_MAGIC, 8) != 0 || ((uint64_t *)page)[1] != LEDGER_VERSION ||
-        ((uint64_t *)page)[3] != sizeof(struct ledger_slot) || nslots > 4096 ||
-        LEDGER_HEADER + nslots * sizeof(struct ledger_slot) > (uint64_t)st.st_size) {
+        return NULL;
+    n = ((uint64_t *)page)[2];
+    if (memcmp(page, magic, 8) != 0 || ((uint64_t *)page)[1] != version || ((uint64_t *)page)[3] != record ||
+        n > 4096 || header + n * record > (uint64_t)st.st_size) {
         munmap(page, (size_t)st.st_size);
+        return NULL;
+    }
+    *count = n;
+    return page + header;
+}
+
+static void map_ledger(int sock)
+{
+    uint64_t nslots, i;
+    struct ledger_slot *slots = (struct ledger_slot *)map_table(sock, "port_state.ledger", LEDGER_MAGIC,
+                                                                LEDGER_VERSION, LEDGER_HEADER,
+                                                                sizeof(struct ledger_slot), &nslots);
+    int j;
+
+    if (!slots)
         return;
-    }
-    for (i = 0; i < nslots; i++) {
-        struct ledger_slot *slot = (struct ledger_slot *)(page + LEDGER_HEADER) + i;
+    for (i = 0; i < nslots; i++)
         for (j = 0; j < nports; j++)
-            if (ports[j].sock == sock && (uint64_t)ports[j].rdev == slot->rdev)
-                ports[j].slot = slot;
-    }
+            if (ports[j].sock == sock && (uint64_t)ports[j].rdev == slots[i].rdev)
+                ports[j].slot = &slots[i];
 }
 
 static void map_serve(int sock)
 {
-    char path[sizeof sockets[0].path + 16];
-    const char *slash = strrchr(sockets[sock].path, '/');
-    struct stat st;
-    unsigned char *page;
     uint64_t nrec, i;
-    int fd, j;
+    struct serve_rec *recs = (struct serve_rec *)map_table(sock, "port_state.serve", SERVE_MAGIC, SERVE_VERSION,
+                                                           SERVE_HEADER, sizeof(struct serve_rec), &nrec);
+    int j;
 
-    if (!slash || !real_open)
+    if (!recs)
         return;
-    snprintf(path, sizeof path, "%.*s/port_state.serve", (int)(slash - sockets[sock].path), sockets[sock].path);
-    fd = real_open(path, O_RDWR | O_CLOEXEC);
-    if (fd < 0)
-        return;
-    if (fstat(fd, &st) != 0 || st.st_size < SERVE_HEADER) {
-        close_fd(fd);
-        return;
-    }
-    page = mmap(NULL, (size_t)st.st_size, PROT_READ | PROT_WRITE, MAP_SHARED, fd, 0);
-    close_fd(fd);
-    if (page == MAP_FAILED)
-        return;
-    nrec = ((uint64_t *)page)[2];
-    if (memcmp(page, SERVE_MAGIC, 8) != 0 || ((uint64_t *)page)[1] != SERVE_VERSION ||
-        ((uint64_t *)page)[3] != sizeof(struct serve_rec) || nrec > 4096 ||
-        SERVE_HEADER + nrec * sizeof(struct serve_rec) > (uint64_t)st.st_size) {
-        munmap(page, (size_t)st.st_size);
-        return;
-    }
-    for (i = 0; i < nrec; i++) {
-        struct serve_rec *rec = (struct serve_rec *)(page + SERVE_HEADER) + i;
+    for (i = 0; i < nrec; i++)
         for (j = 0; j < nports; j++)
-            if (ports[j].sock == sock && (uint64_t)ports[j].rdev == rec->rdev) {
-                ports[j].ring = rec;
+            if (ports[j].sock == sock && (uint64_t)ports[j].rdev == recs[i].rdev) {
+                ports[j].ring = &recs[i];
                 ports[j].ring_index = (int)i;
             }
-    }
 }
 
 static int lookup(int fd)
