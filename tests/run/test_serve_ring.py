@@ -60,6 +60,13 @@ print(json.dumps(out), flush=True)
 """
 
 
+def served_client(bench, hilbench_run, code: str, *args: str) -> subprocess.Popen:
+    """``code`` in Python under ``hilbench run`` (the C library) with HILBENCH_SERVE=1, its stdio piped (text)."""
+    return subprocess.Popen(hilbench_run.command(bench, shim="c") + [sys.executable, "-c", code, *args],
+                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "HILBENCH_SERVE": "1"})
+
+
 def run_json(cmd: list[str], env: dict) -> dict:
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=120, env=env)
     assert proc.returncode == 0, proc.stderr
@@ -124,9 +131,7 @@ def test_fionread_vmin_and_vtime_on_the_ring(hilbench_bench, hilbench_run):
     bench = hilbench_bench("arm")
     rings = bench.services["port_state"].rings
     port = bench.endpoint().port
-    proc = subprocess.Popen(hilbench_run.command(bench, shim="c") + [sys.executable, "-c", RAW_CLIENT, port.path],
-                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env={**os.environ, "HILBENCH_SERVE": "1"})
+    proc = served_client(bench, hilbench_run, RAW_CLIENT, port.path)
     try:
         assert proc.stdout.readline().strip() == "ready", proc.stderr.read()
         # the client's first FIONREAD will claim the port; the test claims it first, then sends as the devices do
@@ -162,9 +167,7 @@ def test_an_epoll_set_sends_the_port_back_to_the_kernel_path(hilbench_bench, hil
     bench = hilbench_bench("arm")
     rings = bench.services["port_state"].rings
     port = bench.endpoint().port
-    proc = subprocess.Popen(hilbench_run.command(bench, shim="c") + [sys.executable, "-c", EPOLL_CLIENT, port.path],
-                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env={**os.environ, "HILBENCH_SERVE": "1"})
+    proc = served_client(bench, hilbench_run, EPOLL_CLIENT, port.path)
     try:
         assert proc.stdout.readline().strip() == "claimed", proc.stderr.read()
         assert rings.read(port.rdev)["mode"] == serve_ring.SERVED
@@ -206,10 +209,7 @@ def test_a_stream_in_uneven_chunks_arrives_whole_and_in_order(hilbench_bench, hi
     rings = bench.services["port_state"].rings
     port = bench.endpoint().port
     data = random.Random(26).randbytes(1 << 20)  # 16 times the ring: it wraps, the client keeps up
-    proc = subprocess.Popen(hilbench_run.command(bench, shim="c") +
-                            [sys.executable, "-c", STREAM_CLIENT, port.path, str(len(data))],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env={**os.environ, "HILBENCH_SERVE": "1"})
+    proc = served_client(bench, hilbench_run, STREAM_CLIENT, port.path, str(len(data)))
     try:
         assert proc.stdout.readline().strip() == "claimed", proc.stderr.read()
         chunks = random.Random(1)
