@@ -11,49 +11,27 @@ client processes with the preload shim; the third run of each has a CPU-bound ne
 
 from __future__ import annotations
 
-import contextlib
 import json
-import os
-import subprocess
-import sys
-import textwrap
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
 from hilbench.bench import Bench
 from hilbench.bench.control import ControlClient
+from tests.run.test_virtual_time import client
+from tests.run.test_virtual_time_sdk import neighbour
 
 pytestmark = pytest.mark.usefixtures("library")  # (tests/run/conftest.py: skipped without the shim)
 
-HILBENCH = [sys.executable, "-m", "hilbench.cli"]
 EPOCH = 1_700_000_000
 
 
-@contextlib.contextmanager
-def neighbour(on: bool) -> Iterator[None]:
-    """A CPU-bound process beside the run (outside the lockstep: it shares the machine, not the clock)."""
-    proc = subprocess.Popen([sys.executable, "-c", "while True: pass"]) if on else None
-    try:
-        yield
-    finally:
-        if proc is not None:
-            proc.kill()
-            proc.wait()
-
-
 def run_client(bench: Bench, tmp_path: Path, code: str, *args: str) -> str:
-    """Run ``code`` under ``hilbench run`` against ``bench`` (a manifest of its own); its stdout."""
-    manifest = tmp_path / f"bench-{len(list(tmp_path.glob('bench-*.json')))}.json"
-    bench.write_manifest(manifest)
-    script = tmp_path / "client.py"
-    script.write_text(textwrap.dedent(code))
-    env = {k: v for k, v in os.environ.items() if k not in ("HILBENCH_CLOCK", "PYTHONHASHSEED")}
-    proc = subprocess.run([*HILBENCH, "run", "--manifest", str(manifest), "--", sys.executable, str(script), *args],
-                          capture_output=True, text=True, timeout=120, env=env)
-    assert proc.returncode == 0, proc.stderr
-    return proc.stdout
+    """Run ``code`` under ``hilbench run`` against ``bench``; its stdout. Each call gets a directory of its own
+    (:func:`client` keeps one manifest per directory, and a test here runs several benches)."""
+    run_dir = tmp_path / f"bench-{len(list(tmp_path.glob('bench-*')))}"
+    run_dir.mkdir()
+    return client(bench, run_dir, code, *args, timeout=120)[0].stdout
 
 
 CAN_RECEIVER = """
