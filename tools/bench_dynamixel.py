@@ -258,13 +258,8 @@ def serve_mode(path: str, manifest: str) -> str | None:
     if os.environ.get("HILBENCH_SERVE") != "1" or manifest == "-":
         return None
     ring = Path(read_manifest(Path(manifest))["port_state"]["socket"]).parent / serve_ring.FILE_NAME
-    words = memoryview(ring.read_bytes()).cast("Q")
-    rdev = os.stat(path).st_rdev
-    for i in range(words[2]):
-        base = (serve_ring.HEADER_SIZE + serve_ring.RECORD_SIZE * i) // 8
-        if words[base] == rdev:
-            return ("kernel", "served", "fallback")[words[base + 1]]
-    return None
+    mode = serve_ring.mode_in(str(ring), os.stat(path).st_rdev)
+    return None if mode is None else ("kernel", "served", "fallback")[mode]
 
 
 def one_cycle_run(paced: bool, seconds: float, baud: int, serve: str | None = None) -> tuple:

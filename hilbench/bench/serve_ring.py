@@ -237,6 +237,17 @@ class ServeRings:
             os.unlink(self.path)
 
 
+def mode_in(path: str, rdev: int) -> int | None:
+    """The mode (KERNEL, SERVED or FALLBACK) of pty ``rdev`` in the rings file ``path``, read from another
+    process (tools, diagnostics); None when the file has no record of it."""
+    with open(path, "rb") as f:
+        words = memoryview(f.read()).cast("Q")
+    for i in range(words[2]):
+        if words[ServeRings._word(i, RDEV)] == rdev:
+            return words[ServeRings._word(i, MODE)]
+    return None
+
+
 def openers_run_the_shim(rdev: int, ring_path: str, exclude: int) -> bool:
     """Every process but ``exclude`` (the bench) with a descriptor on the pty ``rdev`` has ``ring_path``
     mapped, i.e. loaded the shim and found this bench's rings (a ``fuser``-style scan of ``/proc``)."""

@@ -138,6 +138,8 @@ def test_fionread_vmin_and_vtime_on_the_ring(hilbench_bench, hilbench_run):
         assert bench.services["port_state"].handle(f"{port.rdev} serve") == f"ok {serve_ring.SERVED}"
         assert port.write(bytes(range(10))) == 10
         assert rings.read(port.rdev)["head"] == 10  # in the ring, not the pty
+        assert serve_ring.mode_in(rings.path, port.rdev) == serve_ring.SERVED  # as another process reads it
+        assert serve_ring.mode_in(rings.path, port.rdev + 1) is None
         proc.stdin.write("go\n")
         proc.stdin.flush()
         out = json.loads(proc.stdout.readline())
