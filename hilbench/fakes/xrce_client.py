@@ -162,6 +162,10 @@ class _NetLink:
         self.participant = Participant(net.call_at, net.clock, f"xrce-{client.name}")
         net.vt_connect(self.address, self._arrived)
 
+    @property
+    def thread(self) -> threading.Thread | None:
+        return self.participant.thread
+
     def _arrived(self, data: bytes, src: tuple[str, int]) -> None:
         # (the loop's thread: the net sent it to this client's address)
         if tuple(src) != tuple(self.client.agent) or len(self.inbox) >= INBOX:
@@ -282,10 +286,7 @@ class XrceClient:
     @property
     def _thread(self) -> threading.Thread | None:
         """The session's thread (None when stopped)."""
-        link = self._link
-        if link is None:
-            return None
-        return link.thread if isinstance(link, _SocketLink) else link.participant._thread
+        return self._link.thread if self._link is not None else None
 
     @property
     def local_address(self) -> tuple[str, int] | None:

@@ -42,7 +42,8 @@ class Participant:
         self._news = False  # the current wait ends on news (notify), not only at its deadline
         self._queued = -1  # the wait whose news turn is already queued
         self._stopped = False
-        self._thread: threading.Thread | None = None
+        #: The participant's thread (None before start and after join).
+        self.thread: threading.Thread | None = None
         #: Turns taken (for tests and status).
         self.turns = 0
 
@@ -53,8 +54,8 @@ class Participant:
         self._token += 1
         token = self._token
         self._news = False
-        self._thread = threading.Thread(target=self._main, args=(target,), name=self.name, daemon=True)
-        self._thread.start()
+        self.thread = threading.Thread(target=self._main, args=(target,), name=self.name, daemon=True)
+        self.thread.start()
         self._schedule(self.clock.now(), lambda: self._turn(token))
 
     def _main(self, target: Callable[[], None]) -> None:
@@ -120,9 +121,9 @@ class Participant:
             self._cv.notify_all()
 
     def join(self, timeout: float | None = None) -> None:
-        if self._thread is not None and self._thread is not threading.current_thread():
-            self._thread.join(timeout)
-        self._thread = None
+        if self.thread is not None and self.thread is not threading.current_thread():
+            self.thread.join(timeout)
+        self.thread = None
 
 
 __all__ = ["Participant"]

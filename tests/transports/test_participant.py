@@ -55,4 +55,4 @@ def test_a_participant_waits_in_virtual_time_and_never_runs_beside_the_loop() ->
         p.stop()
         p.join(5)
         loop.close()
-    assert p._thread is None
+    assert p.thread is None
