@@ -36,7 +36,6 @@ import mmap
 import os
 import platform
 import shutil
-import socket
 import struct
 import sys
 import tempfile
@@ -50,7 +49,7 @@ from typing import Any
 
 from hilbench.bench import clock_page as vp
 from hilbench.errors import BenchError
-from hilbench.transports.channel_book import packed_ipv4
+from hilbench.transports.channel_book import packed_ipv4, unpacked_ipv4
 from hilbench.transports.readiness import readable
 
 #: Wall seconds a running thread may hold the clock before a lockstep stall starts (None: never).
@@ -635,7 +634,7 @@ class Lockstep:
             ident = (u32[w + vp.C_PROTO // 4], u32[w + vp.C_ADDR // 4], u32[w + vp.C_PORT // 4])
             known = self._chan_keys.get(c)
             if known is None or known[0] != ident:
-                host = socket.inet_ntoa(ident[1].to_bytes(4, sys.byteorder))
+                host = unpacked_ipv4(ident[1])
                 known = self._chan_keys[c] = (ident, (ident[0], host, ident[2]))
             pid = u32[w + vp.C_PID // 4]
             if pid and self._dead(pid):
@@ -681,7 +680,7 @@ class Lockstep:
                 continue
             sent, received, bench_sent, bench_taken, given_up = struct.unpack_from("5Q", self.map, off + vp.C_SENT)
             out.append({"proto": "tcp" if proto == vp.TCP else "udp",
-                        "address": f"{socket.inet_ntoa(addr.to_bytes(4, sys.byteorder))}:{port}", "pid": pid,
+                        "address": f"{unpacked_ipv4(addr)}:{port}", "pid": pid,
                         "sent": sent, "received": received, "bench_sent": bench_sent, "bench_taken": bench_taken,
                         "given_up": given_up})
         return out

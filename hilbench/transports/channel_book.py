@@ -77,4 +77,9 @@ def packed_ipv4(host: str) -> int:
         return 0
 
 
-__all__ = ["MAX_ADDRESSES", "TCP", "UDP", "ChannelBook", "packed_ipv4"]
+def unpacked_ipv4(value: int) -> str:
+    """The dotted address of an IPv4 address as the clock page stores it (the inverse of :func:`packed_ipv4`)."""
+    return socket.inet_ntoa(value.to_bytes(4, sys.byteorder))
+
+
+__all__ = ["MAX_ADDRESSES", "TCP", "UDP", "ChannelBook", "packed_ipv4", "unpacked_ipv4"]
