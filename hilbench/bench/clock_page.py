@@ -16,6 +16,8 @@ the library's own ``hb_vclock_layout()``).
 
 from __future__ import annotations
 
+from hilbench.transports import channel_book
+
 MAGIC = b"HBCLOCK1"
 VERSION = 1
 
@@ -103,7 +105,7 @@ CHAN_SIZE = 64
 DEFAULT_CHANS = 64   # at most 64: a slot's wait and an epoll set name channels in 64-bit masks
 CH_FREE, CH_CLAIMING, CH_OPEN = range(3)
 CF_CONNECTED = 1
-TCP, UDP = 6, 17
+TCP, UDP = channel_book.TCP, channel_book.UDP  # (a door's and a record's protocol)
 
 # Slot states.
 FREE, STARTING, RUNNING, RUNNABLE, WAITING, POLLING, REQUEST, WOKEN, EXITED = range(9)

@@ -205,7 +205,7 @@ class PortStateServer:
             return self._after_taking(port, lambda: self._flushed(port), taken=True)
         if verb == "drain":
             return self._after_taking(port, lambda: self._quiet(port), taken=True, delivered=True)
-        if verb in ("serve", "unserve"):  # the serving path (an experiment): SERVED (1) or not (0, 2)
+        if verb in ("serve", "unserve"):  # the serving path: SERVED (1) or not (0, 2)
             return self._serving_path(port, verb == "serve")
         if verb == "framing":
             framing = getattr(port.port, "framing", None)

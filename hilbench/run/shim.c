@@ -82,8 +82,8 @@ struct bench_socket {
     char path[sizeof(((struct sockaddr_un *)0)->sun_path)];
 };
 
-/* The serving rings (hilbench/bench/serve_ring.py), an experiment used with HILBENCH_SERVE=1: a header,
- * then per pty a record and its ring of device->host bytes. */
+/* The serving rings (hilbench/bench/serve_ring.py; on with a virtual clock, on the wall clock with
+ * HILBENCH_SERVE=1): a header, then per pty a record and its ring of device->host bytes. */
 #define SERVE_MAGIC "HBSERVE1"
 #define SERVE_VERSION 1
 #define SERVE_HEADER 64
