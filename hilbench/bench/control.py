@@ -20,7 +20,8 @@ virtual or not, its time, and with virtual time the lockstep counters: stalls, `
 ``last_stall``, client threads), ``manifest`` (the bench's
 manifest, for programs that reach the bench only through this channel, e.g. over labgrid),
 ``world`` (the truth: every body's pose and velocity, each device's body and pose, as ``hilbench world
---json`` prints it) and ``world_place`` (put a body somewhere: ``body``, ``x``, ``y``, ``theta``);
+--json`` prints it), ``world_place`` (put a body somewhere: ``body``, ``x``, ``y``, ``theta``) and
+``world_slip`` (the share of a driven body's wheel motion lost on the floor from now on: ``body``, ``slip``);
 every other command belongs to a device's family
 (:attr:`~hilbench.bench.family.DeviceFamily.control_commands`), e.g. the rover
 board's ``status``, ``button``, ``reset``, ``fault``, ``log`` and
@@ -97,7 +98,8 @@ SEND_BUFFER = 64 << 10
 BACKLOG = 1024
 
 #: What every bench answers, whatever its devices.
-BENCH_COMMANDS = ("control", "devices", "manifest", "media", "servers", "taps", "world", "world_place")
+BENCH_COMMANDS = ("control", "devices", "manifest", "media", "servers", "taps", "world", "world_place",
+                  "world_slip")
 
 _JSON_STRING = re.compile(rb'"(?:[^"\\]|\\.)*"')
 _NESTING = bytes.maketrans(b"[{]}", b"\x01\x01\x02\x02")
@@ -680,7 +682,7 @@ class ControlServer:
         if cmd == "taps":
             return {"taps": {ep.name: {"url": ep.tap.url, **ep.tap.status()}
                              for ep in self.bench.endpoints.values() if ep.tap is not None}}
-        if cmd in ("world", "world_place"):
+        if cmd in ("world", "world_place", "world_slip"):
             from hilbench.bench import world
 
             return world.control(self.bench, cmd, req)
@@ -814,6 +816,10 @@ class ControlClient:
     def place(self, body: str, x: float, y: float, theta: float = 0.0) -> dict[str, Any]:
         """Put a body of the bench's world at (x, y, theta) (m, m, rad)."""
         return self.call("world_place", body=body, x=x, y=y, theta=theta)
+
+    def slip(self, body: str, slip: float) -> dict[str, Any]:
+        """Let a driven body lose ``slip`` (0..0.9) of its wheels' motion from now on (its odometry drifts)."""
+        return self.call("world_slip", body=body, slip=slip)
 
     def taps(self) -> dict[str, dict[str, Any]]:
         """Each endpoint's traffic tap: ``{"rover": {"url": "tcp://...", "clients": 1}}``."""

@@ -285,6 +285,16 @@ class BenchWorld:
         """Move a body nothing drives at a body-frame velocity (m/s, rad/s) from the next step on."""
         self.world.set_velocity(name, vx, vy, omega)
 
+    def set_slip(self, name: str, slip: float) -> None:
+        """Let driven body ``name`` lose ``slip`` (0..0.9) of its wheels' motion from the next step on (the
+        profile's ``odometry.slip``, changed while the bench runs): its odometry drifts from the truth while
+        slip is on, and stops drifting when it is 0 again."""
+        if not 0.0 <= slip <= 0.9:
+            raise ValueError(f"slip: expected a number 0.0..0.9, got {slip!r}")
+        b = self.world.body(name)
+        with self.world.lock:
+            b.slip = float(slip)
+
     def record(self, path: str) -> Recorder:
         """Record every body's pose at every world step and every scan's first and last ray time into ``path``
         (JSON lines: :func:`hilbench.fakes.world.read_record` reads it back) until ``close()`` or the bench
@@ -354,7 +364,8 @@ def _mount(spec, device) -> dict[str, float]:
 
 def control(bench, cmd: str, req: dict[str, Any]) -> dict[str, Any]:
     """The bench's ``world`` commands: ``world`` (the snapshot; ``geometry``, ``scans``: true adds them;
-    ``since``: T adds the steps and scans after bench time T), ``world_place`` (body, x, y, theta)."""
+    ``since``: T adds the steps and scans after bench time T), ``world_place`` (body, x, y, theta),
+    ``world_slip`` (body, slip: :meth:`BenchWorld.set_slip`)."""
     world = bench.world
     if cmd == "world":
         since = req.get("since")
@@ -376,6 +387,15 @@ def control(bench, cmd: str, req: dict[str, Any]) -> dict[str, Any]:
             vals.append(float(v))
         world.place(name, *vals)
         return {"body": name, "pose": dict(zip(("x", "y", "theta"), vals, strict=True))}
+    if cmd == "world_slip":
+        name = req.get("body")
+        if name not in world.world.bodies:
+            raise UsageError(f"body: expected one of {', '.join(world.bodies) or 'none'}, got {name!r:.40}")
+        v = req.get("slip")
+        if isinstance(v, bool) or not isinstance(v, int | float) or not 0.0 <= v <= 0.9:
+            raise UsageError(f"slip: expected a number 0.0..0.9, got {v!r:.40}")
+        world.set_slip(name, float(v))
+        return {"body": name, "slip": float(v)}
     raise UsageError(f"unknown command {cmd!r}")
 
 

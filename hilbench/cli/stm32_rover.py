@@ -202,6 +202,10 @@ def cmd_board(args: argparse.Namespace) -> int:
                   f"({tr.get('rx_overrun_bytes', 0)} bytes dropped)")
             print(f"  stamps recorded {tr['stamps_recorded']}, sent {tr['stamps_sent']}, dropped "
                   f"{tr['stamps_dropped']}, records lost {tr['records_lost']}")
+            rb = st["robot"]
+            (ox, oy, oth), (mx, my, mth) = rb["pose"], rb["measured"]
+            print(f"  odometry x {ox:.1f} mm, y {oy:.1f} mm, theta {oth:.4f} rad (the firmware's); wheels "
+                  f"measured x {mx:.1f} mm, y {my:.1f} mm, theta {mth:.4f} rad (every encoder delta)")
             for line in st["log"][-5:]:
                 print(f"  {line}")
     return 0

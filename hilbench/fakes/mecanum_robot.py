@@ -19,8 +19,13 @@ with numpy:
   PIDs pass setpoints through, so the wheels turn at the setpoint (open loop).
 - Odometry reads the encoder mailbox once per pose cycle, which holds the
   delta of one wheel period only (hal_fetch overwrites it at the wheel rate):
-  the firmware integrates wheel_period / pose_period of the true motion, and
-  this model reproduces that.
+  the FreeRTOS firmware integrates wheel_period / pose_period of the true
+  motion, and this model reproduces that. The micro-ROS build runs its
+  odometry callback per encoder message (spec §2.2), so it integrates every
+  delta (``every_delta=True``), as the CAN firmware does (equal periods).
+- What the wheels measure (:attr:`Robot.measured`: every encoder delta
+  integrated) is the true motion of the wheels: the world body moves by it
+  (less slip), so without slip, noise or a collision it is the truth.
 - Encoders may be noisy (``encoder_noise``: standard deviation in counts of
   each wheel's delta per pose cycle while it turns): odometry and the
   encoder counts then drift from what the wheels did.
@@ -92,11 +97,14 @@ class Robot:
     """Pose cycles at ``pose_period_us`` starting at ``first_cycle_us``; see the module docstring."""
 
     def __init__(self, pose_period_us: float, wheel_period_us: float, first_cycle_us: float = 0.0, *,
-                 encoder_noise: float = 0.0, seed: int = 0) -> None:
+                 encoder_noise: float = 0.0, seed: int = 0, every_delta: bool = False) -> None:
         self.pose_period = pose_period_us
         self.encoder_noise = encoder_noise
         self.rng = np.random.default_rng(seed)
         self.wheel_period = wheel_period_us
+        #: How much wheel motion the odometry integrates per pose cycle (us): one wheel period's delta (the
+        #: FreeRTOS mailbox) or, with ``every_delta`` (odometry per encoder message), the whole pose period.
+        self.odometry_span = pose_period_us if every_delta else wheel_period_us
         self.next_cycle = first_cycle_us
         self.cycles = 0
         self.queue: deque[tuple[float, tuple[float, float, float]]] = deque()
@@ -108,6 +116,9 @@ class Robot:
         self.wheel_angle = [0.0, 0.0, 0.0, 0.0]
         #: What the wheels did up to ``next_cycle`` (m, m, rad in the start frame): the true motion.
         self.motion = (0.0, 0.0, 0.0)
+        #: What the encoders measured up to ``next_cycle`` (m, m, rad in the start frame): every delta
+        #: integrated; equal to :attr:`motion` without encoder noise.
+        self.measured = (0.0, 0.0, 0.0)
 
     def push_setpoint(self, t_us: float, vx: float, vy: float, wz: float) -> bool:
         """recv_vel's ``xQueueSend(vel_sp_queue, timeout 0)``: False when the queue was full."""
@@ -126,11 +137,19 @@ class Robot:
     def motion_at(self, t_us: float) -> tuple[float, float, float]:
         """What the wheels did from the start to ``t_us`` (m, m, rad in the start frame), after
         :meth:`advance` to ``t_us``: the motion up to the next cycle, less the part of this cycle still to come."""
+        return self._back_to(self.motion, t_us)
+
+    def measured_at(self, t_us: float) -> tuple[float, float, float]:
+        """What the encoders measured from the start to ``t_us`` (m, m, rad in the start frame), after
+        :meth:`advance` to ``t_us``: with slip and encoder noise off, the truth of a body that met nothing."""
+        return self._back_to(self.measured, t_us)
+
+    def _back_to(self, at_next_cycle: tuple[float, float, float], t_us: float) -> tuple[float, float, float]:
         ahead = (self.next_cycle - t_us) * 1e-6
         if ahead <= 0:
-            return self.motion
+            return at_next_cycle
         vx, vy, w = self.body_velocity()
-        return compose(self.motion, twist_motion(-vx, -vy, -w, ahead))
+        return compose(at_next_cycle, twist_motion(-vx, -vy, -w, ahead))
 
     @property
     def wheels(self) -> tuple[float, float, float, float]:
@@ -174,15 +193,18 @@ class Robot:
         wheels = self.wheels
         if any(wheels):
             vx, vy, w = self.body_velocity()
-            self.motion = compose(self.motion, twist_motion(vx, vy, w, self.pose_period * 1e-6 * n))
+            step = twist_motion(vx, vy, w, self.pose_period * 1e-6 * n)
+            self.motion = compose(self.motion, step)
+            if not self.encoder_noise:
+                self.measured = compose(self.measured, step)
         if self.encoder_noise and any(wheels):
             for _ in range(n):  # each reading its own noise
                 self._odometry_noisy(wheels)
             return
         turned = self.pose_period * 1e-6 * n  # the wheels turn for the whole pose period(s)
         self.wheel_angle = [a + w * turned for a, w in zip(self.wheel_angle, wheels, strict=True)]
-        # One wheel period's encoder delta per pose cycle (the mailbox semantics of the firmware).
-        dt = self.wheel_period * 1e-6
+        # One wheel period's encoder delta per pose cycle (the mailbox semantics of the firmware), or all of them.
+        dt = self.odometry_span * 1e-6
         dx, dy, dth = forward_kinematics(*(w * dt for w in wheels))
         if dx == 0 and dy == 0 and dth == 0:
             return
@@ -200,7 +222,9 @@ class Robot:
         turned = self.pose_period * 1e-6
         measured = [w * turned + (e if w else 0.0) for w, e in zip(wheels, noise, strict=True)]
         self.wheel_angle = [a + m for a, m in zip(self.wheel_angle, measured, strict=True)]
-        frac = self.wheel_period / self.pose_period
+        mx, my, mth = forward_kinematics(*(m / turned for m in measured))  # (mm/s, rad/s over the cycle)
+        self.measured = compose(self.measured, twist_motion(mx / 1000.0, my / 1000.0, mth, turned))
+        frac = self.odometry_span / self.pose_period
         self._integrate(*forward_kinematics(*(m * frac for m in measured)))
 
     def _integrate(self, dx: float, dy: float, dth: float) -> None:

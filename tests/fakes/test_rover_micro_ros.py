@@ -58,6 +58,14 @@ def test_board_session_entities_and_cmd_vel(bench) -> None:
         wait_until(lambda: b.family("stm32-rover").board().robot_state().setpoint == (200.0, 0.0, 0.0), 2)
         wait_until(lambda: odo and odo[-1]["x"] > 1.0, 10)  # the board moves and says so
         assert wait_until(lambda: b.world.body("rover").pose[0] > 0.005, 5)  # and the Twist moved its body
+        teleop.write(pub, TWIST.encode({"linear": {"x": 0.0, "y": 0.0, "z": 0.0}}))
+        assert wait_until(lambda: b.world.body("rover").velocity == (0.0, 0.0, 0.0), 5)
+        n = len(odo)
+        assert wait_until(lambda: len(odo) > n + 2, 5)
+        # The micro-ROS build's odometry runs per encoder message (spec §2.2): it loses no wheel delta, so the
+        # odometry it publishes is the truth (mm on the topic, m in the world).
+        assert odo[-1]["x"] / 1000.0 == pytest.approx(b.world.body("rover").pose[0], abs=0.001)
+        assert odo[-1]["x"] > 5.0  # (the mailbox would have lost a third: 2 mm and more)
     finally:
         teleop.close()
     st = link.status()

@@ -219,3 +219,20 @@ def test_encoder_noise_makes_odometry_drift_and_none_keeps_it_exact():
     assert noisy.wheel_angle != exact.wheel_angle
     assert noisy.x == pytest.approx(exact.x, rel=0.02)
     assert exact.body_velocity() == pytest.approx((0.3, 0.0, 0.0))
+    assert exact.measured == exact.motion  # what the encoders measured is what the wheels did
+    assert noisy.measured != pytest.approx(noisy.motion, abs=1e-4)  # unless they count noise
+
+
+def test_odometry_per_encoder_message_loses_no_delta_and_the_mailbox_does():
+    """The FreeRTOS build's odometry reads one wheel period's delta per pose cycle (spec §2.4: 20 of 33.3 ms);
+    the micro-ROS build's runs per encoder message (§2.2) and integrates them all, as the wheels measure."""
+    def drive(every_delta: bool) -> Robot:
+        r = Robot(33_333, 20_000, every_delta=every_delta)
+        r.push_setpoint(0, 300.0, 0.0, 0.0)
+        r.advance(3e6)
+        return r
+
+    mailbox, every = drive(False), drive(True)
+    assert every.x == pytest.approx(every.measured[0] * 1000.0, rel=1e-4)
+    assert mailbox.x == pytest.approx(0.6 * mailbox.measured[0] * 1000.0, rel=1e-4)
+    assert mailbox.measured == every.measured == mailbox.motion

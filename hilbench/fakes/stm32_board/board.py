@@ -41,6 +41,11 @@ STEP_S = 0.001
 FAULT_KEYS = ("drop_rate", "corrupt_rate", "drop_next", "corrupt_next")
 
 
+def _mm(pose: tuple[float, float, float]) -> tuple[float, float, float]:
+    """A pose in metres (the world's unit) in the firmware's units: mm, mm, rad."""
+    return pose[0] * 1000.0, pose[1] * 1000.0, pose[2]
+
+
 class Board:
     """One emulated rover board. ``name`` is its device name on a line; see the module docstring."""
 
@@ -226,7 +231,9 @@ class Board:
                 "truth": asdict(fw.truth),
                 "ctx_switches": fw.kernel.ctx_switches,
                 "robot": {"setpoint": st.setpoint, "command": st.command, "wheels": st.wheels, "duty": st.duty,
-                          "pose": st.pose, "pose_cycles": st.pose_cycles},
+                          "pose": st.pose, "pose_cycles": st.pose_cycles,
+                          "wheel_angles": list(fw.robot.wheel_angle),
+                          "measured": _mm(fw.robot.measured_at(fw.now))},
                 "faults": {k: getattr(fw.faults, k) for k in FAULT_KEYS},
                 "log": [f"{x.clock} [{x.level}]: {x.message}" for x in list(fw.log)[-20:]],
                 "lag_us": self.lag_us,

@@ -176,8 +176,9 @@ class Firmware:
         self.fn_durations = {f.name: Durations(f.timing, seed * 1000 + 991 + j) for j, f in enumerate(p.functions)}
         wheel_us = 1e6 * self._period_ticks("wheel") / p.tick_hz
         pose_us = 1e6 * self._period_ticks("pose") / p.tick_hz
+        # (the micro-ROS build's odometry runs per encoder message, spec §2.2: it loses no delta)
         self.robot = Robot(pose_us, wheel_us, first_cycle_us=pose_us, encoder_noise=config.encoder_noise,
-                           seed=config.seed + boot_count)
+                           seed=config.seed + boot_count, every_delta=p.rtos == "micro-ros")
         k.start()
         if config.boot_banner:
             self.log_line("INFO", f"[main] hilbench emulated {p.rtos} board, boot {boot_count}, "
