@@ -282,3 +282,66 @@ def vel2d_frame(x: float, y: float, z: float) -> bytes:
     from hilbench.protocols import vel2d
 
     return vel2d.build(x, y, z)
+
+
+R3_BLOCK = """
+[[world.bodies]]
+name = "r3"
+shape = "box"
+size = [0.5, 0.4]
+pose = { x = 0.0, y = -1.2, theta = 1.5707963267948966 }   # facing north, south of the line r1-r2
+
+[endpoints.r3]
+type = "pty"
+protocol = "vel2d"
+baud = 115_200
+
+[[devices]]
+model = "stm32f767-rover"
+name = "r3"
+endpoint = "r3"
+body = "r3"
+preset = "freertos-50-30"
+output = "v3"
+seed = 3
+
+[endpoints.r3-lms]
+type = "pty"
+protocol = "sick-lms200"
+baud = 9600
+
+[[devices]]
+model = "lms200"
+name = "r3-lms"
+endpoint = "r3-lms"
+body = "r3"
+pose = { x = 0.15, y = 0.0, heading = 0.0 }
+variant = [180, 100]
+seed = 3
+"""
+
+
+def test_a_third_robot_is_one_more_block_in_the_arena_profile(hilbench_bench, tmp_path):
+    """arena.toml plus one block (body, board on its pty, LMS 200 on its pty): r3 is seen by r1's scanner where
+    it stands, its own scanner sees the arena (not itself), and Vel2d frames from another process drive it."""
+    from hilbench.bench.profile import bundled_profiles
+
+    path = tmp_path / "arena3.toml"
+    path.write_text(bundled_profiles()["arena"].read_text() + R3_BLOCK)
+    bench = hilbench_bench(str(path))
+    assert bench.world.bodies == ["r1", "r2", "r3"]
+    assert {d["name"]: d["body"] for d in bench.manifest()["devices"]} == \
+        {"r1": "r1", "r1-lms": "r1", "r2": "r2", "r2-lms": "r2", "r3": "r3", "r3-lms": "r3"}
+    # r1's LMS at (-1.35, 0) looking east: its 55-degree beam (35 degrees right of ahead) meets r3's front
+    # face y = -0.95 (r3 spans x -0.2..0.2, y -1.45..-0.95) at x = -1.35 + 0.95 / tan(35 deg) = 0.007.
+    assert bench.devices["r1-lms"].truth_range(55.0) == pytest.approx(0.95 / math.sin(math.radians(35)), abs=1e-6)
+    # r3's LMS at (0, -1.05) looking north: straight ahead the bench's south face y = 1.8.
+    assert bench.devices["r3-lms"].truth_range(90.0) == pytest.approx(1.8 + 1.05, abs=1e-6)
+    drive(bench.endpoint("r3").path, 0.3, 0.0, 0.0, 1.0)
+    still(bench, "r3")
+    x, y, theta = bench.world.body("r3").pose
+    assert y > -1.2 + 0.2 and abs(x) < 1e-6 and theta == pytest.approx(math.pi / 2)  # north, as it faces
+    # Now the beam meets r3's west face x = -0.2 (1.15 m east of the scanner), where r3 spans it in y.
+    y_hit = -1.15 * math.tan(math.radians(35))
+    assert y - 0.25 < y_hit < y + 0.25
+    assert bench.devices["r1-lms"].truth_range(55.0) == pytest.approx(1.15 / math.cos(math.radians(35)), abs=1e-6)
