@@ -68,6 +68,10 @@ def cmd_emulate(args: argparse.Namespace) -> int:
                                + [f"endpoint {ep.name}: {', '.join(ep.bus_kind.control_commands)}"
                                   for ep in bench.endpoints.values() if ep.bus_kind.control_commands])
             print(f"  control: {bench.control.address_text}  ({takers or ', '.join(BENCH_COMMANDS)})")
+            if bench.world.bodies:
+                where = manifest or f"--control {bench.control.address_text}"
+                print(f"  world: bodies {', '.join(bench.world.bodies)}  (hilbench world {where}: live view, "
+                      f"--json, --png, --record)")
         if lines is not None and manifest:
             print(f"  modem lines: hilbench run --manifest {manifest} -- COMMAND")
         if bench.loop is not None:

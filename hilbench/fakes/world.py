@@ -153,7 +153,9 @@ class Body:
         return Pose2(self.x, self.y, self.theta)
 
     def describe(self) -> dict[str, Any]:
-        return {"x": self.x, "y": self.y, "theta": self.theta, "vx": self.vx, "vy": self.vy, "omega": self.omega,
+        # (+ 0.0: a body facing west has vx = -0.0 at rest, which reads as motion in JSON)
+        return {"x": self.x, "y": self.y, "theta": self.theta, "vx": self.vx + 0.0, "vy": self.vy + 0.0,
+                "omega": self.omega + 0.0,
                 "shape": self.shape.describe(), "blocked": self.blocked, "collisions": self.collisions}
 
     # ------------------------------------------------------------------ geometry
