@@ -151,3 +151,24 @@ def test_a_scanner_mount_pose_may_give_theta_in_radians(tmp_path):
     path = write(tmp_path, world=BODY + lidar + "pose = { heading = 90, theta = 1.0 }\n")
     with pytest.raises(ProfileError, match=r"devices\[1\].pose: expected heading \(degrees\) or theta"):
         load_profile(path)
+
+
+def test_any_device_sits_on_a_body_at_its_mount_pose(tmp_path):
+    """``body`` and ``pose`` are core device keys: a servo (a family with no pose of its own) rides the rover at
+    its mount pose; the manifest says where it is mounted and the world where it is now."""
+    path = tmp_path / "arm.toml"
+    path.write_text('schema = 1\n[endpoints.arm]\ntype = "pty"\nprotocol = "dynamixel"\n'
+                    '[[devices]]\nmodel = "XL430-W250"\nid = 1\nendpoint = "arm"\nbody = "rover"\n'
+                    'pose = { x = 0.2, y = 0.1, heading = 90 }\n'
+                    '[[world.bodies]]\nname = "rover"\nshape = "circle"\nradius = 0.3\n')
+    with Bench(load_profile(path)) as bench:
+        entry = bench.manifest()["devices"][0]
+        assert entry["body"] == "rover" and entry["pose"] == pytest.approx({"x": 0.2, "y": 0.1, "theta": math.pi / 2})
+        bench.world.place("rover", 1.0, 0.0, math.pi / 2)
+        now = bench.world.devices()["arm.1"]
+        assert now["mount"] == entry["pose"]
+        assert (now["pose"]["x"], now["pose"]["y"], now["pose"]["theta"]) == pytest.approx((0.9, 0.2, math.pi))
+    path.write_text(path.read_text().replace("pose = { x = 0.2, y = 0.1, heading = 90 }\n",
+                                             "pose = { x = 0.2, z = 0.1 }\n"))
+    with pytest.raises(ProfileError, match=r"devices\[0\].pose.z: unknown key"):
+        load_profile(path)

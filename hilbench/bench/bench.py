@@ -452,6 +452,8 @@ class Bench:
             entry = family.describe_device(spec, self.devices.get(spec.name), ep, self.profile)
             if spec.body is not None:
                 entry["body"] = spec.body
+            if spec.mount is not None:
+                entry["pose"] = dict(zip(("x", "y", "theta"), spec.mount, strict=True))
             devs.append({**entry, "family": spec.family})
         out: dict[str, Any] = {
             "name": self.profile.name,

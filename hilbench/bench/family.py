@@ -78,6 +78,9 @@ class DeviceSpec:
     #: The world body it sits on (``body = "rover"``, a core key checked by the profile loader); None: fixed in
     #: the world (or not in it at all).
     body: str | None = field(default=None, kw_only=True)
+    #: Its mount pose on ``body`` (or its pose in the world) as (x m, y m, theta rad), from the core ``pose`` key
+    #: of a family whose devices have no ``pose`` of their own (the scanners keep theirs); None: not given.
+    mount: tuple[float, float, float] | None = field(default=None, kw_only=True)
 
 
 class DeviceFamily:

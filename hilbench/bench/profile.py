@@ -418,18 +418,24 @@ def _devices(c: Checker, where: str, dev: dict[str, Any], profile: Profile) -> l
         what = f"model {model!r}" if model is not None else f"a {family.device_word}"
         c.fail(f"{where}.endpoint", f"{what} (family {family.name}) needs an endpoint with protocol = {protos}; "
                                     f"{ep_name!r} has protocol = \"{spec.protocol}\"")
-    c.unknown(dev, where, (*family.device_keys, *CORE_DEVICE_KEYS))
-    body = None
+    # (``pose`` is a core key too where the family has none: any device may sit on a body at a mount pose)
+    core = CORE_DEVICE_KEYS if "pose" in family.device_keys else (*CORE_DEVICE_KEYS, "pose")
+    c.unknown(dev, where, (*family.device_keys, *core))
+    body = mount = None
     if "body" in dev:
         from hilbench.bench.world import check_body
 
         body = check_body(c, dev["body"], f"{where}.body", profile.world)
-    specs = family.check_devices(c, where, {k: v for k, v in dev.items() if k not in CORE_DEVICE_KEYS}, spec,
-                                 profile)
+    if "pose" in core and "pose" in dev:
+        from hilbench.bench.world import check_pose
+
+        mount = check_pose(c, dev["pose"], f"{where}.pose")
+    specs = family.check_devices(c, where, {k: v for k, v in dev.items() if k not in core}, spec, profile)
     for s in specs:
         s.family = family.name
         s.where = where
         s.body = body
+        s.mount = mount
     return specs
 
 

@@ -357,8 +357,10 @@ class BenchWorld:
 
 def _mount(spec, device) -> dict[str, float]:
     pose = getattr(device, "pose", None)
-    if pose is not None and hasattr(pose, "heading"):
+    if pose is not None and hasattr(pose, "heading"):  # a scanner's own pose
         return {"x": pose.x, "y": pose.y, "theta": math.radians(pose.heading)}
+    if spec.mount is not None:  # any other device's core ``pose``
+        return dict(zip(("x", "y", "theta"), spec.mount, strict=True))
     return {"x": 0.0, "y": 0.0, "theta": 0.0}
 
 
