@@ -301,7 +301,7 @@ class BenchWorld:
         stops."""
         from hilbench.fakes.world import Recorder
 
-        rec = Recorder(path, self.world, {"bench": self.bench.profile.name})
+        rec = Recorder(path, self.world, {"bench": self.bench.profile.name, "devices": self.devices()})
         self.world.listeners.append(rec)
         return rec
 
