@@ -172,3 +172,25 @@ def test_any_device_sits_on_a_body_at_its_mount_pose(tmp_path):
                                              "pose = { x = 0.2, z = 0.1 }\n"))
     with pytest.raises(ProfileError, match=r"devices\[0\].pose.z: unknown key"):
         load_profile(path)
+
+
+@pytest.mark.hilbench_profile("arena")
+def test_the_pytest_fixture_hands_over_the_world(bench, hilbench_world, tmp_path):
+    """``hilbench_world`` is the ``bench`` fixture's world: the truth, placing bodies, the recorder."""
+    from hilbench.fakes.world import read_record
+    from hilbench.pytest_plugin import wait_until
+
+    assert hilbench_world is bench.world and hilbench_world.bodies == ["r1", "r2"]
+    rec = hilbench_world.record(str(tmp_path / "truth.jsonl"))
+    hilbench_world.place("r2", 0.0, 1.0, -math.pi / 2)
+    assert hilbench_world.body("r2").pose == pytest.approx((0.0, 1.0, -math.pi / 2))
+    assert bench.devices["r1-lms"].truth_range(90.0) == pytest.approx(4.0 + 1.35)  # r2 is out of r1's way...
+    # ...and r2, at (0, 0.85) looking south, sees r1's east face x = -1.25 on its 35-degree beam (55 degrees
+    # right of ahead: south-west), at y = 0.85 - 1.25 tan(35 deg) = -0.025.
+    assert bench.devices["r2-lms"].truth_range(35.0) == pytest.approx(1.25 / math.cos(math.radians(35)))
+    steps = hilbench_world.world.steps
+    assert wait_until(lambda: hilbench_world.world.steps > steps + 20, 5)
+    hilbench_world.stop_recording(rec)
+    got = read_record(str(tmp_path / "truth.jsonl"))
+    assert got["header"]["devices"]["r2-lms"]["body"] == "r2" and len(got["poses"]) > 20
+    assert got["poses"][-1][1]["r2"] == pytest.approx((0.0, 1.0, -math.pi / 2), abs=1e-6)
