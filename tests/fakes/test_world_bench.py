@@ -2,8 +2,10 @@
 
 - ``mecarover``: Vel2d frames (from another process, as the ROS bridge sends them) drive the rover toward the wall; its RPLIDAR, read with
   rplidar-roboticia, sees the wall come closer by what the truth says the rover moved;
-- ``mecarover-can``: the same through RPDO1 setpoints over socketcand (``hilbench can drive``, python-can);
-  odometry equals the truth without slip and drifts from it with slip (the scanner follows the truth);
+- ``mecarover-can``: the same through RPDO1 setpoints over socketcand (python-can in another process);
+  odometry (TPDO2, read with python-can in another process) equals the truth without slip, drifts from it
+  while slip is on and stops drifting when it is off again;
+- a third robot is one more block in ``arena``;
 - a rover that meets the wall stops while its wheels and odometry run on;
 - ``arena``: r2's LMS 200 sees r1's footprint where the truth puts it, and follows it when r1 drives; the
   truth is read and recorded with ``hilbench world`` (JSON, record) from another process.
@@ -105,17 +107,27 @@ def test_mecarover_vel2d_frames_move_the_rover_and_its_rplidar_sees_the_wall_com
         lidar.close()
 
 
+def socketcand(bench) -> list[str]:
+    """The bench's socketcand server as the client scripts take it: HOST PORT CHANNEL NODE_ID."""
+    sc = next(e for e in bench.manifest()["endpoints"] if e["name"] == "can")["socketcand"]
+    return [sc["host"], str(sc["port"]), sc["channel"], "2"]
+
+
+def can_drive(bench, vx: float, seconds: float) -> None:
+    """RPDO1 setpoints from another process (python-can over socketcand), then stop setpoints."""
+    out = subprocess.run([sys.executable, str(CLIENTS / "can_drive.py"), *socketcand(bench), str(vx), "0", "0",
+                          str(seconds)], check=True, capture_output=True, text=True, timeout=60)
+    assert int(out.stdout.split()[-1]) >= 25
+
+
 def test_mecarover_can_rpdo1_over_socketcand_drives_the_body_and_its_rplidar_sees_it(hilbench_bench, hilbench_run):
     pytest.importorskip("rplidar")
     bench = hilbench_bench("mecarover-can")
-    manifest = hilbench_run.manifest(bench)
     lidar = Lines(str(CLIENTS / "rplidar_ahead.py"), bench.endpoint("lidar").path, "30",
                   env=hilbench_run.env(bench, "python"))
     try:
         before = ahead(lidar.wait_after(time.monotonic(), 3))
-        out = subprocess.run([*HB, "can", "drive", manifest, "--vx", "0.4", "--seconds", "1.5"], check=True,
-                             capture_output=True, text=True, timeout=30)
-        assert json.loads(out.stdout)["setpoints_sent"] >= 25
+        can_drive(bench, 0.4, 1.5)
         t_stop = still(bench, "rover")
         after = ahead(lidar.wait_after(t_stop, 3))
         moved = bench.world.body("rover").pose[0]
@@ -126,7 +138,7 @@ def test_mecarover_can_rpdo1_over_socketcand_drives_the_body_and_its_rplidar_see
         lidar.close()
 
 
-def test_odometry_drifts_from_the_truth_with_slip_on_and_stops_drifting_with_it_off(hilbench_bench, hilbench_run):
+def test_odometry_drifts_from_the_truth_with_slip_on_and_stops_drifting_with_it_off(hilbench_bench):
     """mecarover-can, odometry as a client gets it (TPDO2, python-can over socketcand, another process): slip
     on (the profile's ``odometry.slip``), the gap between odometry and truth grows as the rover drives; slip
     off (the control channel's ``world_slip``), it drives as far again and the gap stays where it was."""
@@ -134,14 +146,11 @@ def test_odometry_drifts_from_the_truth_with_slip_on_and_stops_drifting_with_it_
 
     bench = hilbench_bench("mecarover-can", set={"devices.rover.odometry.slip": 0.3})
     control = ControlClient(bench.serve_control().address_text)
-    manifest = hilbench_run.manifest(bench)
-    sc = next(e for e in bench.manifest()["endpoints"] if e["name"] == "can")["socketcand"]
-    odo = Lines(str(CLIENTS / "can_odometry.py"), sc["host"], str(sc["port"]), sc["channel"], "2", "40")
+    odo = Lines(str(CLIENTS / "can_odometry.py"), *socketcand(bench), "40")
 
     def leg() -> tuple[float, float]:
         """Drive 1.5 s at 0.4 m/s; then (odometry x from TPDO2, true x)."""
-        subprocess.run([*HB, "can", "drive", manifest, "--vx", "0.4", "--seconds", "1.5"], check=True,
-                       capture_output=True, text=True, timeout=30)
+        can_drive(bench, 0.4, 1.5)
         t_stop = still(bench, "rover")
         return odo.wait_after(t_stop + 0.1, 2)[-1]["x"], bench.world.body("rover").pose[0]
 
