@@ -210,7 +210,7 @@ def test_each_family_checks_only_its_own_device_keys(families):
     assert message.startswith("shared.toml: devices[0].inputs: unknown key (expected one of: model, name,")
     assert "inputs" not in message.split("expected one of:")[1]  # the rover's keys, not the I/O node's
     with pytest.raises(ProfileError, match=r"devices\[1\].heartbeat_ms: unknown key \(expected one of: model, name, "
-                                           r"endpoint, node_id, inputs, body\)"):
+                                           r"endpoint, node_id, inputs, body, pose\)"):
         parse_profile(can_profile(ROVER, {**IO, "heartbeat_ms": 5}), "shared.toml")
     with pytest.raises(ProfileError, match=r"devices\[1\].inputs: expected an integer 0..255, got 300"):
         parse_profile(can_profile(ROVER, {**IO, "inputs": 300}), "shared.toml")
