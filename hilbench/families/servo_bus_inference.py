@@ -231,7 +231,9 @@ class ItemDecoder:
     """A dialect's decoder: chunks in, items out (the session answers what it owes, for buses whose requests
     and replies share one layout)."""
 
-    def feed(self, chunk: Chunk, owes: Callable[[int, int], bool]) -> list[Item]:
+    def feed(self, chunk: Chunk, owes: Callable[[int, int], bool]) -> Iterable[Item]:
+        """The chunk's items; a decoder that calls ``owes`` yields them lazily, so that each is classified after
+        the session took in the ones before it."""
         raise NotImplementedError
 
     def flush(self) -> list[Item]:

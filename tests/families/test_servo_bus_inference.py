@@ -421,3 +421,35 @@ def test_protocol1_usb2ax_sync_read(tmp_path):
     assert tomllib.loads(text)["endpoints"]["host"]["protocol_version"] == 1
     report = _verify(check_profile_text(text), draft)
     assert (report.replies, report.matched) == (6, 6), report.lines()
+
+
+@pytest.mark.parametrize(("protocol", "model", "number_at", "number", "position_at"),
+                         [("dynamixel1", "AX-12A", 0, 12, 36), ("feetech", "STS3215", 3, 777, 56)])
+def test_raw_dumps_of_protocol1_and_feetech(tmp_path, capsys, protocol, model, number_at, number, position_at):
+    """A raw dump (no protocol, no direction, read in chunks of many packets) of a bus whose requests and replies
+    share one layout: each packet is told apart by what the packets before it asked, so every ID's reads are
+    requests with their replies (the second ID's position read was taken for a reply when a chunk's packets were
+    all classified before the first was taken in)."""
+    from hilbench.protocols import dynamixel_protocol1 as p1
+
+    def read(i, address, data):
+        return [p1.build_instruction(i, p1.Instruction1.READ, address=address, length=len(data)),
+                p1.frame(i, 0, data)]
+
+    packets = []
+    for i in (1, 2, 3):
+        packets += [p1.build_instruction(i, p1.Instruction1.PING), p1.frame(i, 0, b"")]
+        packets += read(i, number_at, number.to_bytes(2, "little"))
+        packets += read(i, position_at, (500 + i).to_bytes(2, "little"))
+    path = tmp_path / "bus.bin"
+    path.write_bytes(b"".join(packets))
+    out = tmp_path / "bus.toml"
+    assert main(["profiles", "from-capture", str(path), "--baud", "1000000", "-o", str(out), "--json", "--verify",
+                 "--speed", "0"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["protocol"] == protocol and doc["unread"] == [], doc["unread"]
+    assert f"{'Feetech STS/SCS' if protocol == 'feetech' else 'Dynamixel Protocol 1.0'} traffic: 9 requests, " \
+           "9 replies" in doc["seen"]
+    devs = devices_by_id(out.read_text())
+    assert {i: (d["model"], d["position"]) for i, d in devs.items()} == {i: (model, 500 + i) for i in (1, 2, 3)}
+    assert (doc["verify"]["replies"], doc["verify"]["matched"]) == (9, 9), doc["verify"]
