@@ -103,6 +103,28 @@ def test_round_trip_verify(rover_log, tmp_path, capsys):
     assert report["replies"] >= len(UPLOADS) + 4
 
 
+@pytest.mark.parametrize("suffix", [".asc", ".blf", ".trc", ".csv", ".log.gz", ".asc.gz"])
+def test_every_log_format_hilbench_records_gives_the_same_node(rover_log, tmp_path, suffix):
+    """The recording in each python-can format ``hilbench record`` writes (its CAN recorder, python-can's own
+    writers) reads back as the same node: heartbeat, TPDOs and the SDO values the host read."""
+    from hilbench.transports.can_log import CanLogRecorder
+    from hilbench.transports.sources import open_source
+
+    path, read = rover_log
+    other = tmp_path / f"rover{suffix}"
+    rec = CanLogRecorder(str(other))
+    with open_source(str(path)) as source:
+        for chunk in source:
+            rec.chunk(chunk)
+    rec.close()
+    _, facts, text = infer_file(other, baud=500_000)
+    assert facts.protocol == "can"
+    (node,) = tomllib.loads(text)["devices"]
+    assert (node["node_id"], node["heartbeat_ms"], len(node["tpdos"])) == (2, 1000, 4), suffix
+    objects = {(o["index"], o["subindex"]): bytes.fromhex(o["data"]) for o in node["objects"]}
+    assert all(objects[key] == value for key, value in read.items()), suffix
+
+
 def test_keep_silent_makes_a_silent_node(rover_log):
     path, _ = rover_log
     _, _, text = infer_file(path, baud=500_000, keep_silent=True)

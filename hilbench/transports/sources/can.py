@@ -13,7 +13,8 @@ source string                                   what it opens
 ``socketcan://vcan0``                           a kernel CAN interface (where the kernel has AF_CAN)
 ``virtual://CHANNEL``                           a python-can virtual channel in this process
 ``run.asc``, ``run.blf``, ``run.trc``,          python-can's log readers (a ``.log`` that is not candump
-``run.log`` (candump ``-L``)                    text is read as any other file)
+``run.csv``, ``run.log``                        text is read as any other file); the text formats also
+(candump ``-L``)                                gzipped (``run.log.gz``, as ``hilbench record`` writes them)
 ==============================================  ======================================================
 
 A candump log is read line by line (:class:`CandumpLogSource`): a damaged
@@ -46,8 +47,10 @@ from hilbench.transports.sources.base import (
     SourceUnavailable,
 )
 
-#: python-can log formats read by suffix.
-LOG_SUFFIXES = (".asc", ".blf", ".trc", ".log")
+#: python-can log formats read by suffix (``.csv``: python-can's own CSV log).
+LOG_SUFFIXES = (".asc", ".blf", ".trc", ".log", ".csv", ".gz")
+#: The formats read gzipped (``run.log.gz``): python-can's text formats.
+GZIP_SUFFIXES = (".asc", ".trc", ".log", ".csv")
 _CANDUMP = re.compile(r"^\(\d+(\.\d+)?\)\s+\S+\s+[0-9A-Fa-f]{1,8}#")
 
 
@@ -173,8 +176,26 @@ class CanBusSource(PushSource):
         super().close()
 
 
+def _log_suffix(path: str) -> str:
+    """A log's format suffix: ``.log`` for ``run.log`` and ``run.log.gz``."""
+    suffixes = [s.lower() for s in Path(path).suffixes]
+    if suffixes[-1:] == [".gz"]:
+        suffixes = suffixes[:-1]
+    return suffixes[-1] if suffixes else ""
+
+
+def _open_text(path: str) -> Any:
+    """A log's bytes, unpacked if its name ends in ``.gz``."""
+    if path.lower().endswith(".gz"):
+        import gzip
+
+        return gzip.open(path, "rb")
+    return open(path, "rb")
+
+
 class CanLogSource(ReplaySource):
-    """A python-can log file (ASC, BLF, TRC, candump ``.log``), replayed fast or at recorded speed."""
+    """A python-can log file (ASC, BLF, TRC, CSV, candump ``.log``; text formats also gzipped), replayed
+    fast or at recorded speed."""
 
     protocol = "can"
     timestamps = "measured"
@@ -292,7 +313,7 @@ class CandumpLogSource(CanLogSource):
     def chunks(self, idle: float | None = None) -> Iterator[Chunk | None]:
         stop = self._stop
         try:
-            with open(self.name, "rb") as fh:
+            with _open_text(self.name) as fh:
                 number = 0
                 while not stop.is_set():
                     line = fh.readline(MAX_CANDUMP_LINE + 1)
@@ -322,7 +343,7 @@ class CandumpLogSource(CanLogSource):
                     if self.speed is not None and (yield from self._pace(t, idle)):
                         return
                     yield Chunk(t, source, cf.pack(frame))
-        except OSError as exc:
+        except (OSError, EOFError) as exc:  # (EOFError: a gzipped log cut short)
             raise SourceError(f"{self.name}: {exc}") from None
 
     def close(self) -> None:
@@ -331,11 +352,11 @@ class CandumpLogSource(CanLogSource):
 
 def _is_candump(path: str) -> bool:
     try:
-        with open(path, encoding="ascii", errors="replace") as fh:
+        with _open_text(path) as fh:
             for line in fh:
                 if line.strip():
-                    return bool(_CANDUMP.match(line.strip()))
-    except OSError:
+                    return bool(_CANDUMP.match(line.decode("ascii", "replace").strip()))
+    except (OSError, EOFError):
         return False
     return False
 
@@ -346,11 +367,17 @@ def open_can_bus(spec: str, target: str, fragment: str, *, baud: int | None = No
 
 def open_can_log(spec: str, target: str, fragment: str, *, baud: int | None = None, speed: float | None = None,
                  **options: object) -> Source:
-    if Path(target).suffix.lower() == ".log" and not _is_candump(target):
+    suffix = _log_suffix(target)
+    if target.lower().endswith(".gz") and suffix not in GZIP_SUFFIXES:
+        raise SourceError(f"{target}: a gzipped file that is no python-can text log (read: "
+                          f"{', '.join(s + '.gz' for s in GZIP_SUFFIXES)})")
+    if suffix == ".log" and not _is_candump(target):
+        if target.lower().endswith(".gz"):
+            raise SourceError(f"{target}: no candump -L log (its first line is no frame)")
         from hilbench.transports.sources.file import open_file
 
         return open_file(spec, target, fragment, baud=baud, speed=speed)
-    if Path(target).suffix.lower() == ".log":
+    if suffix == ".log":
         return CandumpLogSource(target, baud=baud, speed=speed)
     return CanLogSource(target, baud=baud, speed=speed)
 
@@ -358,7 +385,8 @@ def open_can_log(spec: str, target: str, fragment: str, *, baud: int | None = No
 CAN_BUS = SourceOpener("can-bus", open_can_bus, schemes=("socketcand", "slcan", "socketcan", "virtual"),
                        usage="socketcand://127.0.0.1:PORT/can0, slcan:///dev/ttyACM0, socketcan://vcan0",
                        what="a live CAN bus through python-can (add ?bitrate=N for the bus load)")
-CAN_LOG = SourceOpener("can-log", open_can_log, suffixes=LOG_SUFFIXES, usage="run.asc, run.blf, run.trc, run.log",
-                       what="a python-can log file (Vector ASC/BLF, PEAK TRC, candump -L)")
+CAN_LOG = SourceOpener("can-log", open_can_log, suffixes=LOG_SUFFIXES,
+                       usage="run.asc, run.blf, run.trc, run.csv, run.log (text formats also .gz)",
+                       what="a python-can log file (Vector ASC/BLF, PEAK TRC, python-can CSV, candump -L)")
 
 __all__ = ["CAN_BUS", "CAN_LOG", "CanBusSource", "CanLogSource", "CandumpLogSource", "open_bus"]
