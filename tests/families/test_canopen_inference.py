@@ -125,6 +125,43 @@ def test_every_log_format_hilbench_records_gives_the_same_node(rover_log, tmp_pa
     assert all(objects[key] == value for key, value in read.items()), suffix
 
 
+def test_the_canopen_package_reads_the_generated_bench_under_hilbench_emulate(rover_log, tmp_path, capsys,
+                                                                             hilbench_emulator, monkeypatch):
+    """The generated profile, unchanged, under ``hilbench emulate`` (another process), read by the host's own
+    client over the bench's socketcand server: the SDO uploads return what the recorded node returned, and once
+    started the node sends its TPDOs at the captured periods."""
+    import can
+
+    # (the socketcand bus is shut after its notifier thread stopped reading it, not under it)
+    monkeypatch.setattr(canopen.Network, "NOTIFIER_SHUTDOWN_TIMEOUT", 2.0)
+    path, read = rover_log
+    out = tmp_path / "rover.toml"
+    assert main(["profiles", "from-capture", str(path), "--baud", "500000", "-o", str(out)]) == 0
+    capsys.readouterr()
+    manifest = hilbench_emulator(str(out))
+    s = manifest["endpoints"][0]["socketcand"]
+    net = canopen.Network(can.Bus(interface="socketcand", host=s["host"], port=s["port"], channel=s["channel"]))
+    net.connect()
+    try:
+        node = canopen.RemoteNode(2, canopen.ObjectDictionary())
+        net.add_node(node)
+        node.sdo.RESPONSE_TIMEOUT = 1.0
+        # as a host does: the node answers once it has booted (its boot-up or a heartbeat says so; an upload sent
+        # while it boots goes unanswered, as on the recorded bus)
+        node.nmt.wait_for_heartbeat(timeout=3.0)
+        assert {key: node.sdo.upload(*key) for key in read} == read
+        times: dict[int, list[float]] = {0x182: [], 0x482: []}
+        for cob, got in times.items():
+            net.subscribe(cob, lambda _cob, _data, ts, got=got: got.append(ts))
+        node.nmt.send_command(co.NMT_START)
+        wait_until(lambda: len(times[0x482]) >= 6 and len(times[0x182]) >= 20, timeout=5)
+    finally:
+        net.disconnect()
+    for cob, period in ((0x182, 0.020), (0x482, 0.100)):
+        gaps = sorted(b - a for a, b in zip(times[cob], times[cob][1:], strict=False))
+        assert abs(gaps[len(gaps) // 2] - period) <= period / 4, (hex(cob), gaps)
+
+
 def test_keep_silent_makes_a_silent_node(rover_log):
     path, _ = rover_log
     _, _, text = infer_file(path, baud=500_000, keep_silent=True)
