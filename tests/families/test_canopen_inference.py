@@ -243,3 +243,23 @@ def test_verify_waits_for_nodes_the_capture_found_running(tmp_path):
         report = draft.replay.run(bench, speed=1.0)
     assert (report.replies, report.matched_content) == (3, 2), report.lines()  # 2 uploads + the heartbeat stream
     assert report.matched == 3, report.lines()
+
+
+def test_boot_up_nmt_states_and_emcy_are_told(tmp_path):
+    """A node that boots, reports an EMCY, is started by the host and beats every 500 ms: the header names the
+    boot-up, the NMT states its heartbeats carried and the EMCY (which the bench does not send)."""
+    path = tmp_path / "emcy.log"
+    frames = [(0.0, 0x702, "00"), (0.05, 0x082, "10 23 01 00 00 00 00 00"), (0.5, 0x702, "7f"),
+              (0.7, 0x000, "01 02")]
+    frames += [(1.0 + 0.5 * k, 0x702, "05") for k in range(4)]
+    frames += [(0.71 + 0.1 * k, 0x182, "01 02") for k in range(25)]
+    _candump(path, sorted(frames))
+    draft, _, text = infer_file(path, baud=500_000)
+    seen = "\n".join(draft.seen)
+    assert "node 2: heartbeat every 500.0 ms, boot-up at 0.000 s; PDO 0x182 every 100.0 ms" in seen
+    assert "EMCY 0x2310 (continuous over current), error register 0x01, at 0.050 s" in seen
+    assert "# node 2: 1 boot-up(s), 5 heartbeats (OPERATIONAL 4x, PRE-OPERATIONAL 1x)" in text
+    assert "#   EMCY seen (not sent by the bench): 0x2310 (continuous over current)" in text
+    (node,) = tomllib.loads(text)["devices"]
+    assert (node["heartbeat_ms"], node["autostart"]) == (500, False)  # the host's NMT start makes it OPERATIONAL
+    assert "NMT start to node 2 at 0.700 s" in draft.pattern
