@@ -263,3 +263,8 @@ def test_boot_up_nmt_states_and_emcy_are_told(tmp_path):
     (node,) = tomllib.loads(text)["devices"]
     assert (node["heartbeat_ms"], node["autostart"]) == (500, False)  # the host's NMT start makes it OPERATIONAL
     assert "NMT start to node 2 at 0.700 s" in draft.pattern
+    # a --baud no CAN bus runs at: reported, and the profile still loads (as a servo bus's impossible rate is)
+    draft, _, text = infer_file(path, baud=12)
+    assert draft.contradictions == ["the capture's 12 bit/s is no CAN bitrate (an emulated bus runs at "
+                                    "10000..1000000): 500000 used"]
+    assert tomllib.loads(text)["endpoints"]["can"]["bitrate"] == 500_000
