@@ -221,6 +221,9 @@ def infer(source: Source, protocol: str, *, baud: int | None = None, options: In
             raise
         broken = f"the capture could not be read past record {facts.chunks}: {exc}"
     facts.findings = list(source.quality().get("findings", []))
+    if not facts.chunks:  # (a log of headers only, or every line damaged): no profile to make
+        why = f" ({'; '.join(facts.findings)})" if facts.findings else ""
+        raise UsageError(f"{source.name}: the capture holds no traffic{why}")
     if broken:
         facts.findings.append(broken)
     draft = session.finish()

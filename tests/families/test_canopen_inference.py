@@ -107,16 +107,8 @@ def test_round_trip_verify(rover_log, tmp_path, capsys):
 def test_every_log_format_hilbench_records_gives_the_same_node(rover_log, tmp_path, suffix):
     """The recording in each python-can format ``hilbench record`` writes (its CAN recorder, python-can's own
     writers) reads back as the same node: heartbeat, TPDOs and the SDO values the host read."""
-    from hilbench.transports.can_log import CanLogRecorder
-    from hilbench.transports.sources import open_source
-
-    path, read = rover_log
-    other = tmp_path / f"rover{suffix}"
-    rec = CanLogRecorder(str(other))
-    with open_source(str(path)) as source:
-        for chunk in source:
-            rec.chunk(chunk)
-    rec.close()
+    _, read = rover_log
+    other = _converted(rover_log, tmp_path, suffix)
     _, facts, text = infer_file(other, baud=500_000)
     assert facts.protocol == "can"
     (node,) = tomllib.loads(text)["devices"]
@@ -268,3 +260,58 @@ def test_boot_up_nmt_states_and_emcy_are_told(tmp_path):
     assert draft.contradictions == ["the capture's 12 bit/s is no CAN bitrate (an emulated bus runs at "
                                     "10000..1000000): 500000 used"]
     assert tomllib.loads(text)["endpoints"]["can"]["bitrate"] == 500_000
+
+
+def _converted(rover_log, tmp_path, suffix: str):
+    """The rover recording in another python-can format (hilbench's CAN recorder, python-can's writers)."""
+    from hilbench.transports.can_log import CanLogRecorder
+    from hilbench.transports.sources import open_source
+
+    path, _ = rover_log
+    other = tmp_path / f"rover{suffix}"
+    rec = CanLogRecorder(str(other))
+    with open_source(str(path)) as source:
+        for chunk in source:
+            rec.chunk(chunk)
+    rec.close()
+    return other
+
+
+@pytest.mark.parametrize(("suffix", "said"), [
+    (".asc", "capture: truncated: the last line has no end (the recording was cut off)"),
+    (".csv", "capture: truncated: the last line has no end (the recording was cut off)"),
+    (".trc", "capture: truncated: the last line has no end (the recording was cut off)"),
+    (".blf", "capture: truncated: the file is "),
+])
+def test_cut_and_empty_python_can_logs(rover_log, tmp_path, capsys, suffix, said):
+    """A python-can log cut in the middle (a recorder killed, a copy that stopped) gives the node it shows and says
+    the file is cut; an empty one is refused in one line (it gave an empty profile, or python-can's words about
+    a struct for a BLF)."""
+    full = _converted(rover_log, tmp_path, suffix)
+    data = full.read_bytes()
+    cut = tmp_path / f"cut{suffix}"
+    end = len(data) // 2 if suffix == ".blf" else data.index(b"\n", len(data) // 2) - 2  # (text: in a line)
+    cut.write_bytes(data[:end])
+    draft, _, text = infer_file(cut, baud=500_000)
+    assert any(line.startswith(said) for line in draft.unread), draft.unread
+    assert tomllib.loads(text)["devices"][0]["node_id"] == 2
+    empty = tmp_path / f"empty{suffix}"
+    empty.write_bytes(b"")
+    assert main(["profiles", "from-capture", str(empty)]) == 2
+    assert capsys.readouterr().err == f"hilbench: error: {empty}: the capture is empty\n"
+
+
+def test_a_damaged_trc_line_is_counted_not_printed(rover_log, tmp_path, capsys):
+    """python-can's TRC reader skips a line it cannot parse with a warning on stderr: it is counted in the header
+    instead, and the frames after it are read."""
+    full = _converted(rover_log, tmp_path, ".trc")
+    lines = full.read_text().splitlines(keepends=True)
+    k = next(i for i, line in enumerate(lines) if not line.startswith(";")) + 5
+    lines[k] = "   42) garbage\n"
+    damaged = tmp_path / "damaged.trc"
+    damaged.write_text("".join(lines))
+    draft, _, text = infer_file(damaged, baud=500_000)
+    assert any(line.startswith("capture: 1 record(s) python-can's reader could not parse, skipped (the first: "
+                               "TRCReader: Failed to parse message") for line in draft.unread), draft.unread
+    assert len(tomllib.loads(text)["devices"][0]["tpdos"]) == 4
+    assert capsys.readouterr().err == ""

@@ -28,9 +28,12 @@ Live buses stamp frames with Unix time (what socketcand and python-can give);
 
 from __future__ import annotations
 
+import logging
 import re
+import struct
 import threading
 import time
+import zlib
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -209,16 +212,57 @@ class CanLogSource(ReplaySource):
         self.name = path
         self.baud = baud
         self.wall_offset = 0.0
+        if Path(path).stat().st_size == 0:
+            raise SourceError(f"{path}: the capture is empty")
+        #: Lines python-can's reader skipped with a warning (its own words for the first).
+        self.skipped = 0
+        self.first_skipped = ""
         try:
             self.reader = can.LogReader(path)
         except Exception as exc:
             raise SourceError(f"{path}: python-can cannot read it: {exc}") from None
         self._start_replay(speed)
 
+    def _skip(self, record: logging.LogRecord) -> bool:
+        """A logging filter on the reader's logger: a line it skips is counted here, not printed on stderr."""
+        if record.levelno < logging.WARNING:
+            return True
+        self.skipped += 1
+        if not self.first_skipped:
+            self.first_skipped = record.getMessage()[:120]
+        return False
+
+    def quality(self) -> dict[str, Any]:
+        """What the file shows of damage: lines the reader skipped, a text log whose last line has no end, a
+        BLF file shorter than its header says."""
+        findings = []
+        if self.skipped:
+            findings.append(f"{self.skipped} record(s) python-can's reader could not parse, skipped (the first: "
+                            f"{self.first_skipped})")
+        path = Path(self.name)
+        try:
+            size = path.stat().st_size
+            if _log_suffix(self.name) == ".blf":
+                said = getattr(self.reader, "file_size", 0)
+                if said > size:
+                    findings.append(f"truncated: the file is {size} bytes, its header says {said}: what the "
+                                    "recorder wrote after the cut is lost")
+            elif not self.name.lower().endswith(".gz") and size:
+                with open(path, "rb") as fh:
+                    fh.seek(size - 1)
+                    if fh.read(1) != b"\n":
+                        findings.append("truncated: the last line has no end (the recording was cut off)")
+        except OSError:
+            pass
+        return {**sound_quality(), "corruptions": self.skipped, "truncated_bytes": int(any(
+            f.startswith("truncated") for f in findings)), "findings": findings}
+
     def chunks(self, idle: float | None = None) -> Iterator[Chunk | None]:
         from hilbench.transports.can_messages import to_frame
 
         stop = self._stop
+        log = logging.getLogger(type(self.reader).__module__)  # (python-can's readers log what they skip)
+        log.addFilter(self._skip)
         try:
             for msg in self.reader:
                 if stop.is_set():
@@ -231,8 +275,11 @@ class CanLogSource(ReplaySource):
                     return
                 channel = msg.channel if msg.channel is not None else "can"
                 yield Chunk(t, f"{channel}" if msg.is_rx else f"{channel} tx", cf.pack(frame))
-        except (ValueError, OSError, EOFError, IndexError, KeyError) as exc:  # a corrupt or truncated log
+        except (ValueError, OSError, EOFError, IndexError, KeyError, struct.error, zlib.error) as exc:
+            # a corrupt or truncated log
             raise SourceError(f"{self.name}: {type(exc).__name__}: {exc}") from None
+        finally:
+            log.removeFilter(self._skip)
 
     def close(self) -> None:
         super().close()
