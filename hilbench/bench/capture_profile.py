@@ -180,6 +180,12 @@ def inferrer_for(protocol: str) -> Inferrer:
     raise UsageError(f"no profile inferrer reads {protocol} traffic (known: {', '.join(known) or 'none'})")
 
 
+def protocol_source(source: Source, protocol: str | None) -> str:
+    """Where :func:`traffic_of` will take ``source``'s protocol from (call it before): ``"--protocol"``, ``"the
+    capture"`` or ``"its first bytes"`` (for :func:`infer`'s ``protocol_from``)."""
+    return "--protocol" if protocol else "the capture" if source.protocol else "its first bytes"
+
+
 def traffic_of(source: Source, protocol: str | None = None) -> tuple[str, Source]:
     """The protocol of ``source``'s traffic (``protocol`` if given, checked against what the capture says; else
     the capture's, else told from its first bytes as the monitor does) and the source to read (the bytes read to
@@ -197,9 +203,16 @@ def traffic_of(source: Source, protocol: str | None = None) -> tuple[str, Source
     return inst.protocol, source
 
 
+#: Protocols whose packets look alike on the wire: which of them a capture that names none carries is a guess.
+LOOKALIKES = {"dynamixel1": "feetech", "feetech": "dynamixel1"}
+
+
 def infer(source: Source, protocol: str, *, baud: int | None = None, options: InferOptions | None = None,
-          baud_from: str = "") -> tuple[ProfileDraft, SourceFacts]:
-    """Read ``source`` (its traffic is ``protocol``) to its end and return the inferred draft and the facts."""
+          baud_from: str = "", protocol_from: str = "") -> tuple[ProfileDraft, SourceFacts]:
+    """Read ``source`` (its traffic is ``protocol``) to its end and return the inferred draft and the facts.
+
+    ``protocol_from``: where ``protocol`` comes from (``"--protocol"``, ``"the capture"``); ``"its first bytes"``
+    (:func:`traffic_of` told it) makes it a guess the header names."""
     facts = SourceFacts(name=source.name, protocol=protocol, baud=baud or source.baud,
                         baud_from=baud_from or ("the capture" if source.baud else ""),
                         timestamps=source.timestamps)
@@ -227,6 +240,11 @@ def infer(source: Source, protocol: str, *, baud: int | None = None, options: In
     if broken:
         facts.findings.append(broken)
     draft = session.finish()
+    if protocol_from == "its first bytes":
+        other = LOOKALIKES.get(protocol)
+        draft.guessed.insert(0, f"protocol {protocol}: told from the capture's first bytes (it names none)"
+                             + (f"; {other} packets look the same, the addresses the host used decided"
+                                if other else "") + f"; give --protocol {other or 'P'} if that is wrong")
     if facts.lost:
         draft.unread.append(f"{facts.lost} bytes were lost before the recorder (loss records in the capture)")
     draft.unread.extend(f"capture: {line}" for line in facts.findings)
@@ -394,5 +412,5 @@ def id_ranges(ids: Iterable[int]) -> str:
 
 
 __all__ = ["Commented", "Entry", "Hex", "InferOptions", "InferenceSession", "Inferrer", "ProfileDraft", "SourceFacts", "Table",
-           "check_profile_text", "describe_source", "id_ranges", "infer", "inferrer_for", "render", "toml_value",
-           "traffic_of"]
+           "check_profile_text", "describe_source", "id_ranges", "infer", "inferrer_for", "protocol_source", "render",
+           "toml_value", "traffic_of"]

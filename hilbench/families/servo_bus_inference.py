@@ -950,9 +950,10 @@ class _Drafter:
         else:
             regs = self._registers(dev)
             table = d.custom_board(dev.id, ch.number, ch.firmware, regs) or Table()
-            if not table.entries:
+            if not table.entries:  # (kept as a comment naming the ID: the user can give its model by hand)
+                table.set("id", dev.id)
                 table.disabled = True
-                notes.append("the family has no generic control-table device: left out")
+                notes.append("the family has no generic control-table device: left out (give its model by hand)")
         if silent:
             table.set("faults", {"vanished": True}, "it never answered in the capture")
         head = [self._summary_line(dev, ch)]

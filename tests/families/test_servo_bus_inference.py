@@ -453,3 +453,26 @@ def test_raw_dumps_of_protocol1_and_feetech(tmp_path, capsys, protocol, model, n
     devs = devices_by_id(out.read_text())
     assert {i: (d["model"], d["position"]) for i, d in devs.items()} == {i: (model, 500 + i) for i in (1, 2, 3)}
     assert (doc["verify"]["replies"], doc["verify"]["matched"]) == (9, 9), doc["verify"]
+    other = "feetech" if protocol == "dynamixel1" else "dynamixel1"
+    assert doc["guessed"][0] == f"protocol {protocol}: told from the capture's first bytes (it names none); " \
+                                f"{other} packets look the same, the addresses the host used decided; give " \
+                                f"--protocol {other} if that is wrong"
+
+
+def test_feetech_traffic_read_as_protocol1_leaves_its_ids_as_comments(tmp_path, capsys):
+    """``--protocol dynamixel1`` on a Feetech bus whose host only reads 56/2: no Protocol 1.0 table fits and
+    Protocol 1.0 has no generic board, so the IDs are a comment to complete by hand (it was a traceback:
+    ``ids = [None, 2, 3]`` had no TOML)."""
+    from hilbench.protocols import dynamixel_protocol1 as p1
+
+    packets = []
+    for i in (1, 2, 3):
+        packets += [p1.build_instruction(i, p1.Instruction1.READ, address=56, length=2),
+                    p1.frame(i, 0, (2000 + i).to_bytes(2, "little"))]
+    path = tmp_path / "bus.bin"
+    path.write_bytes(b"".join(packets))
+    assert main(["profiles", "from-capture", str(path), "--baud", "1000000", "--protocol", "dynamixel1"]) == 0
+    out = capsys.readouterr().out
+    assert "#   the family has no generic control-table device: left out (give its model by hand)\n# [[devices]]\n" \
+           "# ids = [1, 2, 3]" in out
+    assert "told from" not in out  # the user named the protocol
