@@ -164,6 +164,40 @@ def test_round_trip_wolfgang_with_the_official_sdk(hilbench_bench, tmp_path, pat
     assert report.ratio == 1.0 and report.replies > 400, report.lines()
 
 
+def test_return_delay_time_measured_on_a_paced_bench_driven_by_the_official_sdk(hilbench_bench, tmp_path,
+                                                                                 patient_sdk):
+    """A paced bench whose servos answer after a Return Delay Time of 100 (200 us), recorded while the SDK pings
+    and polls them without ever reading address 9: the generated profile has it back from the reply latency."""
+    import dynamixel_sdk as sdk
+
+    profile = tmp_path / "rdt.toml"
+    profile.write_text('schema = 1\ndescription = "three servos"\n[endpoints.dxl]\ntype = "pty"\n'
+                       'protocol = "dynamixel"\nbaud = 1_000_000\npaced = true\n[[devices]]\n'
+                       'model = "XM430-W350"\nids = [1, 2, 3]\ninit = { return_delay_time = 100 }\n')
+    bench = hilbench_bench(str(profile), port_state=False)
+    ep = bench.endpoint()
+    with recording(ep, tmp_path / "rdt.hbcap") as path:
+        port = sdk.PortHandler(ep.path)
+        assert port.openPort() and port.setBaudRate(1_000_000)
+        ph = sdk.PacketHandler(2.0)
+        try:
+            for i in (1, 2, 3):
+                assert ph.ping(port, i)[1] == sdk.COMM_SUCCESS
+            reader = sdk.GroupSyncRead(port, ph, 132, 4)
+            for i in (1, 2, 3):
+                reader.addParam(i)
+            for _ in range(20):
+                assert reader.txRxPacket() == sdk.COMM_SUCCESS
+        finally:
+            port.closePort()
+    draft, facts, text = infer_file(path)
+    assert facts.timestamps == "measured"
+    devs = devices_by_id(text)
+    assert all(devs[i]["init"] == {"return_delay_time": 100} for i in (1, 2, 3)), text
+    assert "ID 1: return_delay_time = 100: replies came 200 us" in "\n".join(draft.guessed)
+    assert tomllib.loads(text)["endpoints"]["dxl"]["paced"] is True
+
+
 def test_round_trip_poppy_ergo_jr_xl320(hilbench_bench, tmp_path, patient_sdk):
     """XL-320s (their own Protocol 2.0 table): the angle limits the host read come back as init values."""
     import dynamixel_sdk as sdk
