@@ -494,8 +494,8 @@ def test_raw_dumps_of_protocol1_and_feetech(tmp_path, capsys, protocol, model, n
     assert (doc["verify"]["replies"], doc["verify"]["matched"]) == (9, 9), doc["verify"]
     other = "feetech" if protocol == "dynamixel1" else "dynamixel1"
     assert doc["guessed"][0] == f"protocol {protocol}: told from the capture's first bytes (it names none); " \
-                                f"{other} packets look the same, the addresses the host used decided; give " \
-                                f"--protocol {other} if that is wrong"
+                                f"they fit {other} too, its host's addresses decided; give --protocol {other} if " \
+                                "that is wrong"
 
 
 def test_feetech_traffic_read_as_protocol1_leaves_its_ids_as_comments(tmp_path, capsys):
