@@ -180,10 +180,23 @@ def inferrer_for(protocol: str) -> Inferrer:
     raise UsageError(f"no profile inferrer reads {protocol} traffic (known: {', '.join(known) or 'none'})")
 
 
-def traffic_of(source: Source, protocol: str | None = None) -> tuple[str, Source]:
+def inferrer_known(protocol: str) -> bool:
+    """Whether some registered inferrer reads ``protocol``."""
+    return any(protocol in inf.protocols for inf in registry.inferrers.values())
+
+
+def protocol_source(source: Source, protocol: str | None) -> str:
+    """Where :func:`traffic_of` will take ``source``'s protocol from (call it before): ``"--protocol"``, ``"the
+    capture"`` or ``"its first bytes"`` (for :func:`infer`'s ``protocol_from``)."""
+    return "--protocol" if protocol else "the capture" if source.protocol else "its first bytes"
+
+
+def traffic_of(source: Source, protocol: str | None = None, *,
+               rivals: list[str] | None = None) -> tuple[str, Source]:
     """The protocol of ``source``'s traffic (``protocol`` if given, checked against what the capture says; else
     the capture's, else told from its first bytes as the monitor does) and the source to read (the bytes read to
-    tell it come again). Raises :class:`~hilbench.errors.UsageError` in one line."""
+    tell it come again). Raises :class:`~hilbench.errors.UsageError` in one line. ``rivals`` receives the other
+    protocols the first bytes could be (when they were told from them)."""
     from hilbench.monitor.detect import choose, detect
 
     if protocol:
@@ -191,15 +204,19 @@ def traffic_of(source: Source, protocol: str | None = None) -> tuple[str, Source
         if source.protocol and choose(source.protocol, name=source.name) is not inst:
             raise UsageError(f"{source.name} carries {source.protocol}, not {protocol}")
         return inst.protocol, source
-    inst, source = detect(source, timeout=None)
+    inst, source = detect(source, timeout=None, rivals=rivals)
     if inst is None:
         raise UsageError(f"{source.name}: the capture is empty")
     return inst.protocol, source
 
 
 def infer(source: Source, protocol: str, *, baud: int | None = None, options: InferOptions | None = None,
-          baud_from: str = "") -> tuple[ProfileDraft, SourceFacts]:
-    """Read ``source`` (its traffic is ``protocol``) to its end and return the inferred draft and the facts."""
+          baud_from: str = "", protocol_from: str = "", rivals: list[str] | None = None,
+          ) -> tuple[ProfileDraft, SourceFacts]:
+    """Read ``source`` (its traffic is ``protocol``) to its end and return the inferred draft and the facts.
+
+    ``protocol_from``: where ``protocol`` comes from (``"--protocol"``, ``"the capture"``); ``"its first bytes"``
+    (:func:`traffic_of` told it) makes it a guess the header names, with the ``rivals`` those bytes fit too."""
     facts = SourceFacts(name=source.name, protocol=protocol, baud=baud or source.baud,
                         baud_from=baud_from or ("the capture" if source.baud else ""),
                         timestamps=source.timestamps)
@@ -221,9 +238,17 @@ def infer(source: Source, protocol: str, *, baud: int | None = None, options: In
             raise
         broken = f"the capture could not be read past record {facts.chunks}: {exc}"
     facts.findings = list(source.quality().get("findings", []))
+    if not facts.chunks:  # (a log of headers only, or every line damaged): no profile to make
+        why = f" ({'; '.join(facts.findings)})" if facts.findings else ""
+        raise UsageError(f"{source.name}: the capture holds no traffic{why}")
     if broken:
         facts.findings.append(broken)
     draft = session.finish()
+    if protocol_from == "its first bytes":
+        others = [r for r in rivals or [] if r != protocol and inferrer_known(r)]
+        draft.guessed.insert(0, f"protocol {protocol}: told from the capture's first bytes (it names none)"
+                             + (f"; they fit {' and '.join(others)} too, its host's addresses decided" if others
+                                else "") + f"; give --protocol {others[0] if others else 'P'} if that is wrong")
     if facts.lost:
         draft.unread.append(f"{facts.lost} bytes were lost before the recorder (loss records in the capture)")
     draft.unread.extend(f"capture: {line}" for line in facts.findings)
@@ -391,5 +416,5 @@ def id_ranges(ids: Iterable[int]) -> str:
 
 
 __all__ = ["Commented", "Entry", "Hex", "InferOptions", "InferenceSession", "Inferrer", "ProfileDraft", "SourceFacts", "Table",
-           "check_profile_text", "describe_source", "id_ranges", "infer", "inferrer_for", "render", "toml_value",
-           "traffic_of"]
+           "check_profile_text", "describe_source", "id_ranges", "infer", "inferrer_for", "inferrer_known", "protocol_source", "render",
+           "toml_value", "traffic_of"]

@@ -28,8 +28,13 @@ from hilbench.transports.readiness import readable
 
 #: Mismatches kept for the report (the first ones).
 MAX_SHOWN = 10
-#: How long a reply the capture shows may take beyond its wire time (a bench thread waking up, a loaded machine).
+#: How long a reply the capture shows may take beyond its wire time once the bench has left requests unanswered
+#: (a profile that does not answer as the capture did must not make the replay crawl).
 REPLY_TIMEOUT = 0.05
+#: The same while the bench has been answering: a bench thread waking up late on a loaded machine (the first
+#: request after start-up, a helper process taking both cores) is no missing reply. A reply that comes ends
+#: the wait at once, so this only costs time where replies are really missing.
+PATIENT_TIMEOUT = 1.0
 #: How long to listen after a request the capture shows no reply to (the bench might answer it anyway).
 QUIET = 0.0005
 
@@ -119,6 +124,21 @@ class VerifyReport:
                 "mismatches": self.mismatches, "notes": self.notes}
 
 
+class Patience:
+    """How long to wait for the replies the capture shows: :data:`PATIENT_TIMEOUT` while the bench answers,
+    :data:`REPLY_TIMEOUT` after an exchange where some of them did not come (until all of one exchange's come)."""
+
+    def __init__(self) -> None:
+        self.answering = True
+
+    def timeout(self) -> float:
+        return PATIENT_TIMEOUT if self.answering else REPLY_TIMEOUT
+
+    def saw(self, wanted: int, got: int) -> None:
+        if wanted:
+            self.answering = got >= wanted
+
+
 class Replay(Protocol):
     """What an inferrer hands ``--verify``."""
 
@@ -181,6 +201,7 @@ class SerialReplay:
         port = serial.Serial(ep.path, baudrate=ep.spec.baud or 9600, timeout=0)
         split = self.splitter()
         fd = port.fileno()
+        patience = Patience()
         started = time.monotonic()
         try:
             port.reset_input_buffer()
@@ -194,12 +215,13 @@ class SerialReplay:
                 report.requests += 1
                 now = time.monotonic()
                 if ex.expected:
-                    deadline = now + REPLY_TIMEOUT + ex.wire
+                    deadline = now + patience.timeout() + ex.wire
                 else:  # listen until the next request is due, briefly
                     nxt = self.exchanges[k + 1].t if k + 1 < len(self.exchanges) else ex.t
                     due = started + (nxt - t0) / speed if speed is not None else now
                     deadline = min(max(due, now + QUIET), now + QUIET + ex.wire)
                 got = _collect(fd, split, len(ex.expected), deadline)
+                patience.saw(len(ex.expected), len(got))
                 compare(report, ex, got, self.name)
         finally:
             port.close()
@@ -299,6 +321,7 @@ class FrameReplay:
             end = time.monotonic() + READY_TIMEOUT
             while not self.ready(bench) and time.monotonic() < end:
                 time.sleep(0.002)
+        patience = Patience()
         started = time.monotonic()
         try:
             t0 = self.t0 if self.t0 is not None else self.exchanges[0].t if self.exchanges else 0.0
@@ -313,7 +336,7 @@ class FrameReplay:
                 bus.send(to_message(cf.unpack(ex.request)))
                 report.requests += 1
                 got: list[tuple[Any, bytes]] = []
-                deadline = time.monotonic() + REPLY_TIMEOUT + ex.wire
+                deadline = time.monotonic() + patience.timeout() + ex.wire
                 while len(got) < len(ex.expected):
                     left = deadline - time.monotonic()
                     if left <= 0:
@@ -324,6 +347,7 @@ class FrameReplay:
                         break
                     if can_id in wanted:
                         got.append((can_id, data))
+                patience.saw(len(ex.expected), len(got))
                 compare(report, ex, got, lambda dev: f"0x{dev:03X}")
             longest = max((s.period for s in self.streams), default=0.0)
             end = time.monotonic() + max(self.settle, 3 * longest) if self.streams else time.monotonic()

@@ -39,7 +39,14 @@ def _open(args: argparse.Namespace):
 
 
 def cmd_from_capture(args: argparse.Namespace) -> int:
-    from hilbench.bench.capture_profile import InferOptions, check_profile_text, infer, render, traffic_of
+    from hilbench.bench.capture_profile import (
+        InferOptions,
+        check_profile_text,
+        infer,
+        protocol_source,
+        render,
+        traffic_of,
+    )
     from hilbench.cli.outputs import check_outputs, source_files, write_output
 
     out = args.output
@@ -52,8 +59,10 @@ def cmd_from_capture(args: argparse.Namespace) -> int:
     with _open(args) as source:
         if source.live:
             raise CliError(f"{args.capture}: give a capture file (record a live bus with hilbench record first)")
-        protocol, source = traffic_of(source, args.protocol)
+        told, rivals = protocol_source(source, args.protocol), []
+        protocol, source = traffic_of(source, args.protocol, rivals=rivals)
         draft, facts = infer(source, protocol, baud=args.baud, baud_from="--baud" if args.baud else "",
+                             protocol_from=told, rivals=rivals,
                              options=InferOptions(keep_silent=args.keep_silent))
     command = "hilbench profiles from-capture " + " ".join(shlex.quote(a) for a in _argv(args))
     text = render(draft, facts, command=command)

@@ -43,6 +43,8 @@ from hilbench.transports.chunk import Chunk
 MAX_EXCHANGES = 100_000
 #: Frame times kept per identifier (for periods).
 MAX_TIMES = 10_000
+#: The bitrates an emulated CAN bus takes (:class:`hilbench.bench.can_bus.CanBus`).
+MIN_BITRATE, MAX_BITRATE = 10_000, 1_000_000
 #: Identifiers tracked (bounded memory on garbage).
 MAX_IDS = 2048
 DEFAULT_BITRATE = 500_000
@@ -464,7 +466,11 @@ class _Drafter:
         t = Table()
         t.set("type", "can")
         t.set("protocol", "can")
-        if facts.baud:
+        if facts.baud and not MIN_BITRATE <= facts.baud <= MAX_BITRATE:  # as the servo buses treat a rate they lack
+            t.set("bitrate", DEFAULT_BITRATE, "not the capture's rate (see the header)")
+            self.draft.contradictions.append(f"the capture's {facts.baud} bit/s is no CAN bitrate (an emulated bus "
+                                             f"runs at {MIN_BITRATE}..{MAX_BITRATE}): {DEFAULT_BITRATE} used")
+        elif facts.baud:
             t.set("bitrate", facts.baud, "from --baud" if facts.baud_from == "--baud" else "from the capture")
         else:
             t.set("bitrate", DEFAULT_BITRATE, "NOT IN THE CAPTURE: give --baud (a common rate)")

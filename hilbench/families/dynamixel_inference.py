@@ -15,7 +15,7 @@ touched.
 from __future__ import annotations
 
 import struct
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import Any
 
 from hilbench.bench.capture_profile import Table
@@ -209,9 +209,11 @@ class _Protocol1Decoder(ItemDecoder):
         self.request = request
         self.t = 0.0
 
-    def feed(self, chunk: Chunk, owes: Callable[[int, int], bool]) -> list:
+    def feed(self, chunk: Chunk, owes: Callable[[int, int], bool]) -> Iterator:
         self.t = chunk.t
-        return [self._item(i, chunk.t, chunk.source, owes) for i in self.dec.feed(chunk.data, chunk.t)]
+        # one by one: whether a packet is a reply depends on what the packets before it in the chunk asked
+        # (a raw dump is read in large chunks holding many request/reply pairs)
+        return (self._item(i, chunk.t, chunk.source, owes) for i in self.dec.feed(chunk.data, chunk.t))
 
     def flush(self) -> list:
         return [self._item(i, self.t, "", lambda i, n: False) for i in self.dec.flush(self.t)]

@@ -12,6 +12,7 @@ SCS), Response Status Level 0 answering reads and pings only.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from typing import Any
 
 from hilbench.families.feetech import FEETECH_BAUDS
@@ -81,9 +82,11 @@ class _Decoder(ItemDecoder):
         self.dec = ft.Decoder1()
         self.t = 0.0
 
-    def feed(self, chunk: Chunk, owes) -> list:
+    def feed(self, chunk: Chunk, owes) -> Iterator:
         self.t = chunk.t
-        return [self._item(i, chunk.t, chunk.source, owes) for i in self.dec.feed(chunk.data, chunk.t)]
+        # one by one: whether a packet is a reply depends on what the packets before it in the chunk asked
+        # (a raw dump is read in large chunks holding many request/reply pairs)
+        return (self._item(i, chunk.t, chunk.source, owes) for i in self.dec.feed(chunk.data, chunk.t))
 
     def flush(self) -> list:
         return [self._item(i, self.t, "", lambda i, n: False) for i in self.dec.flush(self.t)]

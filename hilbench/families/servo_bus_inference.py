@@ -54,6 +54,10 @@ MAX_LATENCIES = 2048
 MAX_RANGES = 512
 #: A request signature kept for the pattern (bounded).
 MAX_SIGNATURES = 4096
+#: Requests whose order is kept to tell the host's cycle (bounded).
+MAX_SEQUENCE = 200_000
+#: Steps of a cycle shown (a longer one is cut with its length).
+CYCLE_STEPS = 6
 
 #: Field keys that name a role in the tables that have no ``roles`` (the X/MX(2.0) tables).
 _ROLE_KEYS = {
@@ -231,7 +235,9 @@ class ItemDecoder:
     """A dialect's decoder: chunks in, items out (the session answers what it owes, for buses whose requests
     and replies share one layout)."""
 
-    def feed(self, chunk: Chunk, owes: Callable[[int, int], bool]) -> list[Item]:
+    def feed(self, chunk: Chunk, owes: Callable[[int, int], bool]) -> Iterable[Item]:
+        """The chunk's items; a decoder that calls ``owes`` yields them lazily, so that each is classified after
+        the session took in the ones before it."""
         raise NotImplementedError
 
     def flush(self) -> list[Item]:
@@ -333,6 +339,7 @@ class _Pattern:
     first: float | None = None
     last: float | None = None
     answered: int = 0
+    index: int = 0
 
 
 # ------------------------------------------------------------------------------------------- the session
@@ -351,6 +358,8 @@ class ServoBusSession:
         self.exchanges: list[_Pending] = []
         self.dropped_exchanges = 0
         self.patterns: dict[tuple, _Pattern] = {}
+        #: The requests' signatures in capture order (indices into ``patterns``' order), for the cycle.
+        self.sequence: list[int] = []
         self.requests = 0
         self.replies = 0
         self.unsolicited = 0
@@ -449,7 +458,9 @@ class ServoBusSession:
         if pat is None:
             if len(self.patterns) >= MAX_SIGNATURES:
                 return
-            pat = self.patterns[key] = _Pattern(req.name, address, length, multi=multi)
+            pat = self.patterns[key] = _Pattern(req.name, address, length, multi=multi, index=len(self.patterns))
+        if len(self.sequence) < MAX_SEQUENCE:
+            self.sequence.append(pat.index)
         pat.ids.update(ids)
         pat.count += 1
         if pat.first is None:
@@ -948,9 +959,10 @@ class _Drafter:
         else:
             regs = self._registers(dev)
             table = d.custom_board(dev.id, ch.number, ch.firmware, regs) or Table()
-            if not table.entries:
+            if not table.entries:  # (kept as a comment naming the ID: the user can give its model by hand)
+                table.set("id", dev.id)
                 table.disabled = True
-                notes.append("the family has no generic control-table device: left out")
+                notes.append("the family has no generic control-table device: left out (give its model by hand)")
         if silent:
             table.set("faults", {"vanished": True}, "it never answered in the capture")
         head = [self._summary_line(dev, ch)]
@@ -1038,10 +1050,40 @@ class _Drafter:
         if s.gaps:
             draft.unread.append(f"{s.gaps} gap(s) in the capture: requests around them lost their replies")
 
+    def _cycle_lines(self, pats: list[_Pattern]) -> None:
+        """The host's cycle: the request it sends most often (10 times or more) starts one; the sequences of
+        requests from one start to the next, the commonest first, with their shares."""
+        s = self.s
+        if not pats or pats[0].count < 10:
+            return
+        head = pats[0]
+        by_index = {p.index: p for p in pats}
+        starts = [k for k, i in enumerate(s.sequence) if i == head.index]
+        shapes: collections.Counter[tuple[int, ...]] = collections.Counter(
+            tuple(s.sequence[a:b]) for a, b in zip(starts, starts[1:], strict=False))
+        if not shapes:
+            return
+
+        def label(p: _Pattern) -> str:
+            return p.name + (f" {p.address}/{p.length}" if p.address is not None else "")
+
+        total = sum(shapes.values())
+        span = s.facts.span
+        lasted = (head.last - head.first) if head.last is not None and head.first is not None else 0.0
+        rate = f", {(head.count - 1) / lasted:.1f}/s" if span and lasted > 0.2 * span else ""
+        self.draft.pattern.append(f"the cycle: {head.count} starting with {label(head)}{rate}; "
+                                  f"{len(shapes)} shape(s), the commonest:")
+        for shape, n in shapes.most_common(3):
+            steps = " -> ".join(label(by_index[i]) for i in shape[:CYCLE_STEPS])
+            if len(shape) > CYCLE_STEPS:
+                steps += f" -> ... ({len(shape)} requests)"
+            self.draft.pattern.append(f"  {steps}: {n} of {total} ({100 * n / total:.0f} %)")
+
     def _pattern_lines(self) -> None:
         s = self.s
         span = self.s.facts.span
         pats = sorted(s.patterns.values(), key=lambda p: -p.count)
+        self._cycle_lines(pats)
         for pat in pats[:14]:
             what = pat.name
             if pat.address is not None:

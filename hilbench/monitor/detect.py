@@ -45,10 +45,12 @@ def choose(protocol: str | None, *, verb: str | None = "monitor", name: str = "t
     return candidates[0] if len(candidates) == 1 else None
 
 
-def detect(source: Source, *, verb: str = "monitor", timeout: float | None = None) -> tuple[Instrument | None, Source]:
+def detect(source: Source, *, verb: str = "monitor", timeout: float | None = None,
+           rivals: list[str] | None = None) -> tuple[Instrument | None, Source]:
     """Tell the instrument of ``source`` from its first bytes; returns it (None if the source ended
     empty) and a source that yields those bytes again first. Waits for traffic up to ``timeout`` s
-    (None: as long as it takes; closing the source ends the wait)."""
+    (None: as long as it takes; closing the source ends the wait). ``rivals``, if given, receives the
+    protocols of the verb's other instruments that found the bytes plausible too (best first)."""
     inst = choose(source.protocol, verb=verb, name=source.name)
     if inst is not None:
         return inst, source
@@ -64,6 +66,8 @@ def detect(source: Source, *, verb: str = "monitor", timeout: float | None = Non
                          f"(if it carries one of {known}, say which: --protocol P)")
     if best.verb != verb:
         raise _refuse(source.name, best, verb)
+    if rivals is not None:
+        rivals.extend(i.protocol for s, _, i in scored[1:] if s > 0 and i.verb == verb)
     peeked._protocol = best.protocol
     return best, peeked
 

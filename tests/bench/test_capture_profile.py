@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import tomllib
 
 import pytest
@@ -157,3 +158,28 @@ def test_verify_fails_below_the_minimum_ratio(tmp_path, capsys):
     assert "write of ID 1 at 0.000480 s: ID 1 sent ff ff fd 00 01 04 00 55 00 a1 0c, the capture ff ff fd 00 01 04 " \
            "00 55 04 ba 8c" in out
     assert "50.0 % of the replies match, less than 90 %" in err
+
+
+def test_verify_does_not_crawl_where_the_bench_does_not_answer(tmp_path):
+    """The replay waits long for a reply while the bench answers (a late one on a loaded machine is no missing
+    reply) but briefly once it has left one unanswered: a bench whose servo is gone is done in seconds, not in
+    a second per request."""
+    from hilbench.bench import Bench
+    from hilbench.bench.capture_profile import InferOptions, infer, traffic_of
+    from hilbench.transports.sources import open_source
+
+    path = tmp_path / "bus.bin"
+    packets = dxl.instruction_packet(1, dxl.Instruction.PING) + dxl.status_packet(1, 0, bytes([0xFC, 3, 52]))
+    for k in range(20):
+        packets += dxl.instruction_packet(1, dxl.Instruction.READ, bytes([132, 0, 4, 0]))
+        packets += dxl.status_packet(1, 0, (2048 + k).to_bytes(4, "little"))
+    path.write_bytes(packets)
+    with open_source(str(path), baud=1_000_000) as source:
+        traffic, source = traffic_of(source, None)
+        draft, facts = infer(source, traffic, baud=1_000_000, baud_from="--baud", options=InferOptions())
+    text = re.sub(r"(?m)^(id +=) 1$", r"\1 1\nfaults = { vanished = true }", render(draft, facts), count=1)
+    assert "vanished" in text
+    with Bench(check_profile_text(text)).start() as bench:
+        report = draft.replay.run(bench, speed=None)
+    assert (report.replies, report.missing) == (21, 21), report.lines()
+    assert report.seconds < 1.0 + 20 * 0.05 + 2.0, report.lines()  # one patient wait, then 50 ms each

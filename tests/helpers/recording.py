@@ -14,6 +14,7 @@ from hilbench.bench.capture_profile import (
     SourceFacts,
     check_profile_text,
     infer,
+    protocol_source,
     render,
     traffic_of,
 )
@@ -52,8 +53,10 @@ def infer_file(path: Path | str, *, baud: int | None = None, protocol: str | Non
                keep_silent: bool = False) -> tuple[ProfileDraft, SourceFacts, str]:
     """The draft, facts and TOML text ``profiles from-capture`` makes of a capture file (checked to load)."""
     with open_source(str(path), baud=baud) as source:
-        traffic, source = traffic_of(source, protocol)
-        draft, facts = infer(source, traffic, baud=baud, baud_from="--baud" if baud else "",
+        told, rivals = protocol_source(source, protocol), []
+        traffic, source = traffic_of(source, protocol, rivals=rivals)
+        draft, facts = infer(source, traffic, baud=baud, baud_from="--baud" if baud else "", protocol_from=told,
+                             rivals=rivals,
                              options=InferOptions(keep_silent=keep_silent))
     text = render(draft, facts, command="test")
     check_profile_text(text)

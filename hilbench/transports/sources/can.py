@@ -13,7 +13,8 @@ source string                                   what it opens
 ``socketcan://vcan0``                           a kernel CAN interface (where the kernel has AF_CAN)
 ``virtual://CHANNEL``                           a python-can virtual channel in this process
 ``run.asc``, ``run.blf``, ``run.trc``,          python-can's log readers (a ``.log`` that is not candump
-``run.log`` (candump ``-L``)                    text is read as any other file)
+``run.csv``, ``run.log``                        text is read as any other file); the text formats also
+(candump ``-L``)                                gzipped (``run.log.gz``, as ``hilbench record`` writes them)
 ==============================================  ======================================================
 
 A candump log is read line by line (:class:`CandumpLogSource`): a damaged
@@ -27,9 +28,12 @@ Live buses stamp frames with Unix time (what socketcand and python-can give);
 
 from __future__ import annotations
 
+import logging
 import re
+import struct
 import threading
 import time
+import zlib
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -46,8 +50,10 @@ from hilbench.transports.sources.base import (
     SourceUnavailable,
 )
 
-#: python-can log formats read by suffix.
-LOG_SUFFIXES = (".asc", ".blf", ".trc", ".log")
+#: python-can log formats read by suffix (``.csv``: python-can's own CSV log).
+LOG_SUFFIXES = (".asc", ".blf", ".trc", ".log", ".csv", ".gz")
+#: The formats read gzipped (``run.log.gz``): python-can's text formats.
+GZIP_SUFFIXES = (".asc", ".trc", ".log", ".csv")
 _CANDUMP = re.compile(r"^\(\d+(\.\d+)?\)\s+\S+\s+[0-9A-Fa-f]{1,8}#")
 
 
@@ -173,8 +179,26 @@ class CanBusSource(PushSource):
         super().close()
 
 
+def _log_suffix(path: str) -> str:
+    """A log's format suffix: ``.log`` for ``run.log`` and ``run.log.gz``."""
+    suffixes = [s.lower() for s in Path(path).suffixes]
+    if suffixes[-1:] == [".gz"]:
+        suffixes = suffixes[:-1]
+    return suffixes[-1] if suffixes else ""
+
+
+def _open_text(path: str) -> Any:
+    """A log's bytes, unpacked if its name ends in ``.gz``."""
+    if path.lower().endswith(".gz"):
+        import gzip
+
+        return gzip.open(path, "rb")
+    return open(path, "rb")
+
+
 class CanLogSource(ReplaySource):
-    """A python-can log file (ASC, BLF, TRC, candump ``.log``), replayed fast or at recorded speed."""
+    """A python-can log file (ASC, BLF, TRC, CSV, candump ``.log``; text formats also gzipped), replayed
+    fast or at recorded speed."""
 
     protocol = "can"
     timestamps = "measured"
@@ -188,16 +212,57 @@ class CanLogSource(ReplaySource):
         self.name = path
         self.baud = baud
         self.wall_offset = 0.0
+        if Path(path).stat().st_size == 0:
+            raise SourceError(f"{path}: the capture is empty")
+        #: Lines python-can's reader skipped with a warning (its own words for the first).
+        self.skipped = 0
+        self.first_skipped = ""
         try:
             self.reader = can.LogReader(path)
         except Exception as exc:
             raise SourceError(f"{path}: python-can cannot read it: {exc}") from None
         self._start_replay(speed)
 
+    def _skip(self, record: logging.LogRecord) -> bool:
+        """A logging filter on the reader's logger: a line it skips is counted here, not printed on stderr."""
+        if record.levelno < logging.WARNING:
+            return True
+        self.skipped += 1
+        if not self.first_skipped:
+            self.first_skipped = record.getMessage()[:120]
+        return False
+
+    def quality(self) -> dict[str, Any]:
+        """What the file shows of damage: lines the reader skipped, a text log whose last line has no end, a
+        BLF file shorter than its header says."""
+        findings = []
+        if self.skipped:
+            findings.append(f"{self.skipped} record(s) python-can's reader could not parse, skipped (the first: "
+                            f"{self.first_skipped})")
+        path = Path(self.name)
+        try:
+            size = path.stat().st_size
+            if _log_suffix(self.name) == ".blf":
+                said = getattr(self.reader, "file_size", 0)
+                if said > size:
+                    findings.append(f"truncated: the file is {size} bytes, its header says {said}: what the "
+                                    "recorder wrote after the cut is lost")
+            elif not self.name.lower().endswith(".gz") and size:
+                with open(path, "rb") as fh:
+                    fh.seek(size - 1)
+                    if fh.read(1) != b"\n":
+                        findings.append("truncated: the last line has no end (the recording was cut off)")
+        except OSError:
+            pass
+        return {**sound_quality(), "corruptions": self.skipped, "truncated_bytes": int(any(
+            f.startswith("truncated") for f in findings)), "findings": findings}
+
     def chunks(self, idle: float | None = None) -> Iterator[Chunk | None]:
         from hilbench.transports.can_messages import to_frame
 
         stop = self._stop
+        log = logging.getLogger(type(self.reader).__module__)  # (python-can's readers log what they skip)
+        log.addFilter(self._skip)
         try:
             for msg in self.reader:
                 if stop.is_set():
@@ -210,8 +275,11 @@ class CanLogSource(ReplaySource):
                     return
                 channel = msg.channel if msg.channel is not None else "can"
                 yield Chunk(t, f"{channel}" if msg.is_rx else f"{channel} tx", cf.pack(frame))
-        except (ValueError, OSError, EOFError, IndexError, KeyError) as exc:  # a corrupt or truncated log
+        except (ValueError, OSError, EOFError, IndexError, KeyError, struct.error, zlib.error) as exc:
+            # a corrupt or truncated log
             raise SourceError(f"{self.name}: {type(exc).__name__}: {exc}") from None
+        finally:
+            log.removeFilter(self._skip)
 
     def close(self) -> None:
         super().close()
@@ -292,7 +360,7 @@ class CandumpLogSource(CanLogSource):
     def chunks(self, idle: float | None = None) -> Iterator[Chunk | None]:
         stop = self._stop
         try:
-            with open(self.name, "rb") as fh:
+            with _open_text(self.name) as fh:
                 number = 0
                 while not stop.is_set():
                     line = fh.readline(MAX_CANDUMP_LINE + 1)
@@ -322,7 +390,7 @@ class CandumpLogSource(CanLogSource):
                     if self.speed is not None and (yield from self._pace(t, idle)):
                         return
                     yield Chunk(t, source, cf.pack(frame))
-        except OSError as exc:
+        except (OSError, EOFError) as exc:  # (EOFError: a gzipped log cut short)
             raise SourceError(f"{self.name}: {exc}") from None
 
     def close(self) -> None:
@@ -331,11 +399,11 @@ class CandumpLogSource(CanLogSource):
 
 def _is_candump(path: str) -> bool:
     try:
-        with open(path, encoding="ascii", errors="replace") as fh:
+        with _open_text(path) as fh:
             for line in fh:
                 if line.strip():
-                    return bool(_CANDUMP.match(line.strip()))
-    except OSError:
+                    return bool(_CANDUMP.match(line.decode("ascii", "replace").strip()))
+    except (OSError, EOFError):
         return False
     return False
 
@@ -346,11 +414,17 @@ def open_can_bus(spec: str, target: str, fragment: str, *, baud: int | None = No
 
 def open_can_log(spec: str, target: str, fragment: str, *, baud: int | None = None, speed: float | None = None,
                  **options: object) -> Source:
-    if Path(target).suffix.lower() == ".log" and not _is_candump(target):
+    suffix = _log_suffix(target)
+    if target.lower().endswith(".gz") and suffix not in GZIP_SUFFIXES:
+        raise SourceError(f"{target}: a gzipped file that is no python-can text log (read: "
+                          f"{', '.join(s + '.gz' for s in GZIP_SUFFIXES)})")
+    if suffix == ".log" and not _is_candump(target):
+        if target.lower().endswith(".gz"):
+            raise SourceError(f"{target}: no candump -L log (its first line is no frame)")
         from hilbench.transports.sources.file import open_file
 
         return open_file(spec, target, fragment, baud=baud, speed=speed)
-    if Path(target).suffix.lower() == ".log":
+    if suffix == ".log":
         return CandumpLogSource(target, baud=baud, speed=speed)
     return CanLogSource(target, baud=baud, speed=speed)
 
@@ -358,7 +432,8 @@ def open_can_log(spec: str, target: str, fragment: str, *, baud: int | None = No
 CAN_BUS = SourceOpener("can-bus", open_can_bus, schemes=("socketcand", "slcan", "socketcan", "virtual"),
                        usage="socketcand://127.0.0.1:PORT/can0, slcan:///dev/ttyACM0, socketcan://vcan0",
                        what="a live CAN bus through python-can (add ?bitrate=N for the bus load)")
-CAN_LOG = SourceOpener("can-log", open_can_log, suffixes=LOG_SUFFIXES, usage="run.asc, run.blf, run.trc, run.log",
-                       what="a python-can log file (Vector ASC/BLF, PEAK TRC, candump -L)")
+CAN_LOG = SourceOpener("can-log", open_can_log, suffixes=LOG_SUFFIXES,
+                       usage="run.asc, run.blf, run.trc, run.csv, run.log (text formats also .gz)",
+                       what="a python-can log file (Vector ASC/BLF, PEAK TRC, python-can CSV, candump -L)")
 
 __all__ = ["CAN_BUS", "CAN_LOG", "CanBusSource", "CanLogSource", "CandumpLogSource", "open_bus"]
