@@ -255,3 +255,58 @@ def test_a_recording_killed_with_sigkill_keeps_what_it_recorded(hb, tmp_path):
     refused(hb("record", WOLFGANG_TRACE, out), "live.partial.hbcap holds", "--force")
     refused(hb("record", partial, out, "--force"), f"records into {partial}, the input")
     assert sorted(os.listdir(tmp_path)) == ["live.partial.hbcap"]
+
+
+# --------------------------------------------------------------------------- hilbench world's files
+
+
+def test_world_png_and_record_follow_the_output_rules(hb, hilbench_bench, tmp_path):
+    """``world --png`` and ``--record``: never the manifest read, a recording never replaces a file without
+    --force and is renamed into place when it ends, a picture replaces its file in one step."""
+    from hilbench.fakes.world import read_record
+
+    bench = hilbench_bench("arena")
+    control = bench.serve_control().address_text
+    manifest = tmp_path / "bench.json"
+    bench.write_manifest(manifest)
+    (tmp_path / "link.json").symlink_to(manifest.name)
+    before = snapshot(manifest)
+    refused(hb("world", manifest, "--png", manifest), f"--png {manifest} is the input")
+    refused(hb("world", tmp_path / "link.json", "--record", manifest), "--record", "is the input")
+    refused(hb("world", manifest, "--png", tmp_path / "w.jpeg"), "the world is drawn as .png (or .svg, .pdf)")
+    old = tmp_path / "truth.jsonl"
+    old.write_text("a record of yesterday's run\n")
+    refused(hb("world", "--control", control, "--record", old, "--duration", "0.5"), "exists (28 bytes)",
+            "--force")
+    assert old.read_text() == "a record of yesterday's run\n" and snapshot(manifest) == before
+    assert sorted(os.listdir(tmp_path)) == ["bench.json", "link.json", "truth.jsonl"]
+    code, _, err = hb("world", "--control", control, "--record", old, "--duration", "0.6", "--force")
+    assert code == 0, err
+    rec = read_record(str(old))
+    assert rec["header"]["bodies"].keys() == {"r1", "r2"} and rec["poses"]
+    png = tmp_path / "w.png"
+    png.write_bytes(b"an old picture")
+    code, _, err = hb("world", "--control", control, "--png", png)
+    assert code == 0 and png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n", err
+    assert sorted(os.listdir(tmp_path)) == ["bench.json", "link.json", "truth.jsonl", "w.png"]
+
+
+def test_world_record_stopped_by_sigterm_is_renamed_into_place(hilbench_bench, tmp_path):
+    bench = hilbench_bench("arena")
+    control = bench.serve_control().address_text
+    out = tmp_path / "truth.jsonl"
+    partial = tmp_path / "truth.partial.jsonl"
+    proc = subprocess.Popen([*HB, "world", "--control", control, "--record", str(out)], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        # streamed (and flushed) while it runs: a kill -9 would leave this much
+        wait_until(lambda: partial.exists() and partial.stat().st_size > 1000, timeout=30)
+        assert not out.exists()
+    finally:
+        proc.terminate()
+        _, err = proc.communicate(timeout=20)
+    assert proc.returncode == 0, err
+    assert os.listdir(tmp_path) == ["truth.jsonl"]
+    from hilbench.fakes.world import read_record
+
+    assert len(read_record(str(out))["poses"]) > 10

@@ -19,7 +19,6 @@ import json
 import math
 import sys
 import time
-from pathlib import Path
 from typing import Any
 
 from hilbench import registry
@@ -257,15 +256,10 @@ def save_png(path: str, scan, address: ScannerAddress) -> None:
         plt.close(fig)
 
 
-#: What ``--png`` writes, by the file's suffix (none: PNG).
-PICTURE_FORMATS = ("png", "svg", "pdf")
-
-
 def _picture_format(path: str) -> str:
-    suffix = Path(path).suffix.lstrip(".").lower()
-    if suffix and suffix not in PICTURE_FORMATS:
-        raise CliError(f"--png {path}: the scan is drawn as .png (or .svg, .pdf)")
-    return suffix or "png"
+    from hilbench.cli.outputs import picture_format
+
+    return picture_format("--png", path, "the scan")
 
 
 def cmd_lidar(args: argparse.Namespace) -> int:
