@@ -65,8 +65,10 @@ NOT_A_RANGE = {
     ("monitor", "view"): "a view name",
     ("tap", "view"): "a view name",
 }
-#: profile's times with units (``1.5ms``, ``100Hz``): finite and not negative (profile.time_us).
-TIME_PARSERS = {trace_cli.time_us, trace_cli.window_arg, trace_cli.name_value, trace_cli.hist_kinds}
+#: trace's times with units (``1.5ms``, ``100Hz``): finite and not negative (trace.time_us), above 0 where 0
+#: has no meaning (a period, deadline, budget, denominator, live window).
+TIME_PARSERS = {trace_cli.time_us, trace_cli.positive_time_us, trace_cli.window_arg, trace_cli.name_value,
+                trace_cli.name_period, trace_cli.name_positive, trace_cli.denominator_arg, trace_cli.hist_kinds}
 
 
 def test_every_numeric_option_is_a_rule_and_its_help_shows_the_range(monkeypatch):
@@ -83,8 +85,6 @@ def test_every_numeric_option_is_a_rule_and_its_help_shows_the_range(monkeypatch
             if hasattr(kind, "expected"):
                 seen += 1
                 assert f"[{kind.expected}]" in text, f"{' '.join(where)}: --help does not show its range"
-            elif getattr(kind, "__name__", "") == "<lambda>" and path == ("trace",):
-                continue  # --period NAME=T (name_value with rates)
             else:
                 assert where in NOT_A_RANGE or kind in TIME_PARSERS, f"{' '.join(where)}: {kind!r} is no Rule"
     assert seen > 60
@@ -108,6 +108,19 @@ def test_every_numeric_option_is_a_rule_and_its_help_shows_the_range(monkeypatch
     (["monitor", "x", "--device", "-1"], "argument --device: expected a device ID: an integer 0..255, got -1"),
     (["send-vel", "x", "nan", "0", "0"], "argument x: expected a number -1000..1000, got nan"),
     (["board", "--after", "-1", "wait-report"], "argument --after: expected an integer 0.."),
+    (["trace", "x", "--period", "wheel_ctrl=0"], "argument --period: expected a time above 0, got '0'"),
+    (["trace", "x", "--period", "wheel_ctrl=0Hz"], "argument --period: frequency must be positive, got '0Hz'"),
+    (["trace", "x", "--deadline", "wheel_ctrl=0ms"], "argument --deadline: expected a time above 0, got '0ms'"),
+    (["trace", "x", "--budget", "wheel_ctrl=nan"], "argument --budget: expected a time such as 250"),
+    (["trace", "x", "--denominator", "-5"], "argument --denominator: expected span, profiled or a time above 0"),
+    (["trace", "x", "--denominator", "0"], "argument --denominator: expected span, profiled or a time above 0"),
+    (["trace", "x", "--live-window", "0"], "argument --live-window: expected a time above 0, got '0'"),
+    (["trace", "x", "--live-gantt", "0s"], "argument --live-gantt: expected a time above 0, got '0s'"),
+    (["trace", "x", "--duration", "inf"], "argument --duration: expected a number 0..1000000000, got inf"),
+    (["world", "m.json", "--duration", "nan"], "argument --duration: expected a number 0..1000000000, got nan"),
+    (["demo", "--seconds", "inf"], "argument --seconds: expected a number 0..1000000000, got inf"),
+    (["lidar", "/dev/null", "--scans", "nan"], "argument --scans: expected an integer 1..2147483648, got 'nan'"),
+    (["teleop", "x", "--speed", "nan"], "argument --speed: expected a number"),
 ])
 def test_an_out_of_range_value_is_one_line_naming_option_value_and_range(argv, line, capsys):
     with pytest.raises(SystemExit) as exit_:
