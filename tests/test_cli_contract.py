@@ -310,10 +310,111 @@ def test_every_verb_follows_the_exit_code_rule(world, in_process):
     assert not wrong, "\n".join(wrong)
 
 
+def subcommand_cases(w: dict) -> dict[tuple[str, str], dict[str, list[str] | NA]]:
+    """The same cases for every sub-command (``can dump``, ``dxl read``, ``profiles from-capture``...): a verb's
+    row above tries one of them; each meets the rule on its own path."""
+    m, r, s, d = w["missing"], w["refused"], w["silent"], w["dir"]
+    refused_m, silent_m = str(d / "refused.json"), str(d / "silent.json")  # manifests of a bench at r, at s
+    for path, port in ((refused_m, r), (silent_m, s)):
+        with open(path, "w") as f:
+            json.dump({"hilbench_manifest": 1, "endpoints": [], "control": f"127.0.0.1:{port}"}, f)
+    can_r, can_s = f"socketcand://127.0.0.1:{r}/can0", f"socketcand://127.0.0.1:{s}/can0"
+    rfc_r = f"rfc2217://127.0.0.1:{r}"
+    gone = str(d / "gone.hbcap")
+    no_taken = NA("listens nowhere")
+
+    def control(cmd: list[str], bad: list[str] | NA) -> dict[str, list[str] | NA]:
+        return {"missing": ["can", cmd[0], "--manifest", m, *cmd[1:]],
+                "refused": ["can", cmd[0], "--manifest", refused_m, *cmd[1:]], "taken": no_taken,
+                "timeout": ["can", cmd[0], "--manifest", silent_m, *cmd[1:]], "bad": bad}
+
+    def can_bus(cmd: list[str], bad: list[str]) -> dict[str, list[str] | NA]:
+        return {"missing": ["can", cmd[0], m, *cmd[1:]], "refused": ["can", cmd[0], can_r, *cmd[1:]],
+                "taken": no_taken, "timeout": ["can", cmd[0], can_s, *cmd[1:]], "bad": bad}
+
+    def dxl(cmd: str, *rest: str) -> dict[str, list[str] | NA]:
+        return {"missing": ["dxl", cmd, "/dev/no-such-port", *rest], "refused": ["dxl", cmd, rfc_r, *rest],
+                "taken": no_taken, "timeout": ["dxl", cmd, w["pty"], *rest, "--baud", "1000000"],
+                "bad": ["dxl", cmd, w["pty"], *rest, "--baud", "12345"]}
+
+    def export(cmd: str) -> dict[str, list[str] | NA]:
+        return {"missing": NA("reads a profile: a profile that is not there is unknown (2, below)"),
+                "refused": NA("connects nowhere"), "taken": no_taken, "timeout": NA("connects nowhere"),
+                "bad": ["can", cmd, str(d / "gone.toml")]}
+
+    def labgrid(cmd: str) -> dict[str, list[str] | NA]:
+        return {"missing": ["labgrid", cmd, m], "refused": NA("reads a manifest only"), "taken": no_taken,
+                "timeout": NA("reads a manifest only"), "bad": ["labgrid", cmd, w["bad"]]}
+
+    return {
+        ("can", "dump"): can_bus(["dump"], ["can", "dump", can_r, "--dbc", str(d / "gone.dbc")]),
+        ("can", "send"): can_bus(["send", "123#00"], ["can", "send", m, "800#00"]),
+        ("can", "nmt"): can_bus(["nmt", "start"], ["can", "nmt", m, "start", "--node", "200"]),
+        ("can", "sdo"): can_bus(["sdo", "read", "1018", "--node", "2"],
+                                ["can", "sdo", m, "read", "10000", "--node", "2"]),
+        ("can", "drive"): can_bus(["drive", "--vx", "0.1"], ["can", "drive", m, "--seconds", "-1"]),
+        ("can", "bus"): control(["bus"], NA("KEY=VALUE: the bench checks its knobs")),
+        ("can", "status"): control(["status"], ["can", "status", "--manifest", m, "--no-such-option"]),
+        ("can", "fault"): control(["fault", "error_rate=0"], NA("KEY=VALUE: the bench checks its knobs")),
+        ("can", "emcy"): control(["emcy", "0x1000"], ["can", "emcy", "--manifest", m, "0x1zz"]),
+        ("can", "reset"): control(["reset"], ["can", "reset", "--manifest", m, "--no-such-option"]),
+        ("can", "state"): control(["state", "stopped"], ["can", "state", "--manifest", m, "bogus"]),
+        ("can", "dbc"): export("dbc"),
+        ("can", "eds"): export("eds"),
+        ("dxl", "scan"): dxl("scan"),
+        ("dxl", "ping"): dxl("ping", "1"),
+        ("dxl", "read"): dxl("read", "1", "present_position"),
+        ("dxl", "write"): dxl("write", "1", "goal_position", "5"),
+        ("labgrid", "env"): labgrid("env"),
+        ("labgrid", "exporter-config"): labgrid("exporter-config"),
+        ("profiles", "from-capture"): {"missing": ["profiles", "from-capture", gone],
+                                       "refused": NA("reads a capture file"), "taken": no_taken,
+                                       "timeout": NA("reads a capture file"),
+                                       "bad": ["profiles", "from-capture", w["bad"]]},
+    }
+
+
+#: Sub-commands whose timeout waits for the control channel (10 s): walked by the slow set.
+SLOW_SUBCOMMAND_TIMEOUTS = {("can", c) for c in ("bus", "status", "fault", "emcy", "reset", "state")}
+
+
+def test_every_sub_command_follows_the_exit_code_rule(world, in_process):
+    table = subcommand_cases(world)
+    assert set(table) == {path for path, _ in parsers() if len(path) == 2}, "a sub-command without cases"
+    assert all(set(row) == set(EXIT) for row in table.values())
+    wrong = []
+    for path, row in sorted(table.items()):
+        for case, argv in row.items():
+            if isinstance(argv, NA) or (case == "timeout" and path in SLOW_SUBCOMMAND_TIMEOUTS):
+                continue
+            wrong += _complaints(" ".join(path), case, argv, *in_process(argv))
+    assert not wrong, "\n".join(wrong)
+
+
+def test_a_stale_manifest_is_a_bench_not_running(world, in_process):
+    """A manifest a killed bench left (its pid gone) is a missing manifest: status 1, one line, in every verb
+    that reads one."""
+    stale = world["dir"] / "stale.json"
+    stale.write_text(json.dumps({"hilbench_manifest": 1, "endpoints": [], "pid": 2**22 + 1, "control": "127.0.0.1:9"}))
+    wrong = []
+    for argv in (["monitor", str(stale), "--summary"], ["record", str(stale), str(world["dir"] / "x.hbcap")],
+                 ["board", "--manifest", str(stale), "status"], ["world", str(stale), "--json"],
+                 ["can", "status", "--manifest", str(stale)], ["can", "send", str(stale), "123#00"],
+                 ["lidar", str(stale)], ["trace", str(stale)], ["labgrid", "env", str(stale)],
+                 ["run", "--manifest", str(stale), "--", "true"]):
+        code, err = in_process(argv)
+        wrong += _complaints(argv[0], "missing", argv, code, err)
+        if "stale manifest" not in err:
+            wrong.append(f"{' '.join(argv)}: {err.strip()}")
+    assert not wrong, "\n".join(wrong)
+
+
 @pytest.mark.slow  # real waits of 4 to 10 s, side by side
 def test_every_verb_that_waits_times_out_with_status_1_in_one_line(world):
     runs = [(verb, argv) for verb, row in sorted(cases(world).items())
             if not isinstance(argv := row["timeout"], NA)]
+    runs += [(" ".join(path), row["timeout"]) for path, row in sorted(subcommand_cases(world).items())
+             if path in SLOW_SUBCOMMAND_TIMEOUTS]
 
     def run(argv: list[str]) -> subprocess.CompletedProcess:
         return subprocess.run([*HB, *argv], capture_output=True, text=True, timeout=60, stdin=subprocess.DEVNULL)
