@@ -439,6 +439,15 @@ def test_a_taken_port_names_the_endpoint_the_address_and_the_key(world, in_proce
         and "change endpoints.ust.port in the profile, or --set ust.port=0 (any free port)" in err), err
 
 
+
+@pytest.mark.parametrize(("bind", "reason"), [("10.9.9.9", "Cannot assign requested address"),
+                                              ("no-such-host.invalid", "Name or service not known")])
+def test_a_bind_address_this_machine_lacks_names_it_and_the_option(bind, reason, in_process):
+    code, err = in_process(["emulate", "arm", "--bind", bind])
+    assert code == 1 and err.count("\n") == 1 and err.endswith(
+        f"endpoint 'arm': cannot listen on traffic tap (TCP port) {bind}:0: {reason}; {bind} is the bench's bind "
+        "address (--bind): give one of this machine's addresses\n"), err
+
 # --------------------------------------------------------------------------- one JSON document
 
 BOTH = """\
