@@ -561,3 +561,21 @@ def test_set_moves_a_bench_and_is_checked_as_the_profile(hilbench_emulator, hilb
                                                                          "command starts: give bench:PROFILE")):
         code, err = in_process(argv)
         assert code == 2 and err.count("\n") == 1 and needle in err, err
+
+
+@pytest.mark.hilbench_profile("mecarover-udp", set={"rover.port": 0, "rover.baud": 230_400})
+def test_the_profile_marker_takes_set_as_emulate_does(bench):
+    assert bench.endpoint("rover").spec.baud == 230_400
+    assert bench.manifest()["set"] == {"rover.port": 0, "rover.baud": 230_400}
+
+
+def test_set_in_the_pytest_fixtures_is_checked_as_the_profile(hilbench_bench, hilbench_emulator):
+    from hilbench.bench.checks import ProfileError
+
+    with pytest.raises(ProfileError, match=r"arm\.toml: endpoints\.arm\.baud: expected a Dynamixel baud rate .* got "
+                                           r"12345 \(set: arm\.baud=12345\)$"):
+        hilbench_bench("arm", set={"arm.baud": 12345})
+    with pytest.raises(ProfileError, match="override 'nope.x': no endpoint or table 'nope'"):
+        hilbench_bench("arm", set={"nope.x": 1})
+    with pytest.raises(RuntimeError, match=r"exited with 2: .*\(set: arm\.baud=12345\)$"):
+        hilbench_emulator("arm", set={"arm.baud": 12345})
