@@ -310,3 +310,22 @@ def test_world_record_stopped_by_sigterm_is_renamed_into_place(hilbench_bench, t
     from hilbench.fakes.world import read_record
 
     assert len(read_record(str(out))["poses"]) > 10
+
+
+@pytest.mark.parametrize("writer", ["trace --json-out", "trace --export", "profiles from-capture -o"])
+def test_a_full_disk_leaves_every_writer_s_old_file_whole(writer, capture, tmp_path):
+    """The neighbours of ``can dbc -o``: every other writer goes through the same atomic write."""
+    trace = tmp_path / "trace.txt"
+    trace.write_text("IDLE 0 out\nwheel_ctrl 0 in\nwheel_ctrl 10 out\nIDLE 10 in\n" * 20)
+    old = tmp_path / "old.out"
+    old.write_text("the user's own\n")
+    argv = {"trace --json-out": ["trace", str(trace), "--json-out", str(old)],
+            "trace --export": ["trace", str(trace), "--export", str(old)],
+            "profiles from-capture -o": ["profiles", "from-capture", str(capture), "-o", str(old), "--force"]}[writer]
+    proc = subprocess.run([*HB, *argv], capture_output=True, text=True, timeout=60, preexec_fn=_limited(400),
+                          env={**os.environ, "PYTHONDONTWRITEBYTECODE": "1"})
+    assert proc.returncode == 1, proc.stderr
+    assert proc.stderr.endswith(f"hilbench: error: {old}: cannot write: File too large (the old {old} is "
+                                "unchanged)\n"), proc.stderr
+    assert old.read_text() == "the user's own\n"
+    assert sorted(os.listdir(tmp_path)) == ["old.out", "rec.hbcap", "trace.txt"]
