@@ -308,6 +308,8 @@ def test_every_verb_follows_the_exit_code_rule(world, in_process):
                 continue
             wrong += _complaints(verb, case, argv, *in_process(argv))
     assert not wrong, "\n".join(wrong)
+    # a refused or failed recording creates nothing (no out.hbcap, no out.partial.hbcap)
+    assert not [p.name for p in world["dir"].iterdir() if p.name.startswith("out")]
 
 
 def subcommand_cases(w: dict) -> dict[tuple[str, str], dict[str, list[str] | NA]]:
