@@ -119,8 +119,19 @@ def test_every_verb_with_an_input_and_an_output_refuses_the_same_file(hb, captur
     refused(hb("lidar", f"{manifest}#lms", "--png", manifest), "--png", "is the input")
     refused(hb("monitor", f"bench:{profile}", "--record", profile, "--summary"), "is the input")
     refused(hb("tap", "/dev/null", "--record", "/dev/null", "--summary"), "--record /dev/null is the input")
+    # the files an instrument's options read: a DBC, an EDS (even with --force, which replaces recordings only)
+    dbc, eds = tmp_path / "board.dbc", tmp_path / "board.eds"
+    dbc.write_text('VERSION "the lab\'s own"\n')
+    eds.write_text("[FileInfo]\n")
+    files |= {p: snapshot(p) for p in (dbc, eds)}
+    refused(hb("monitor", capture, "--dbc", dbc, "--record", dbc, "--summary", "--force"),
+            f"--record {dbc} is the input")
+    refused(hb("monitor", capture, "--eds", f"{eds}:2", "--record", eds, "--summary", "--force"),
+            f"--record {eds} is the input")
+    refused(hb("tap", "/dev/null", "--dbc", dbc, "--record", dbc, "--summary", "--force"), "is the input")
     assert {p: snapshot(p) for p in files} == files
-    assert sorted(os.listdir(tmp_path)) == ["bench.json", "rec.hbcap", "rover.toml", "trace.txt"]
+    assert sorted(os.listdir(tmp_path)) == ["bench.json", "board.dbc", "board.eds", "rec.hbcap", "rover.toml",
+                                            "trace.txt"]
 
 
 def test_an_output_in_a_missing_directory_is_refused_before_anything_runs(hb, capture, tmp_path):
