@@ -340,3 +340,23 @@ def test_a_full_disk_leaves_every_writer_s_old_file_whole(writer, capture, tmp_p
                                 "unchanged)\n"), proc.stderr
     assert old.read_text() == "the user's own\n"
     assert sorted(os.listdir(tmp_path)) == ["old.out", "rec.hbcap", "trace.txt"]
+
+
+def test_monitor_record_killed_with_sigkill_keeps_what_it_recorded(tmp_path):
+    """monitor --record flushes as record does (the same Recording): a kill -9 leaves the data readable."""
+    out = tmp_path / "live.hbcap"
+    partial = tmp_path / "live.partial.hbcap"
+    proc = subprocess.Popen([*HB, "monitor", "-", "--protocol", "dynamixel", "--record", str(out), "--summary"],
+                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    try:
+        head = WOLFGANG_TRACE.read_bytes()[:4000]
+        proc.stdin.write(head)
+        proc.stdin.flush()
+        wait_until(lambda: partial.exists() and partial.stat().st_size > len(head), timeout=20)
+        assert proc.poll() is None  # flushed while running, not at exit
+    finally:
+        proc.kill()
+        proc.communicate(timeout=20)
+    assert sorted(os.listdir(tmp_path)) == ["live.partial.hbcap"]
+    with CaptureReader(partial) as reader:
+        assert b"".join(c.data for c in reader) == head
