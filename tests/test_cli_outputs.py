@@ -360,3 +360,22 @@ def test_monitor_record_killed_with_sigkill_keeps_what_it_recorded(tmp_path):
     assert sorted(os.listdir(tmp_path)) == ["live.partial.hbcap"]
     with CaptureReader(partial) as reader:
         assert b"".join(c.data for c in reader) == head
+
+
+def test_the_world_record_of_the_python_api_is_a_recording_too(tmp_path):
+    """``bench.world.record(path)``: streamed into its .partial file (flushed while it runs), the old file whole
+    until the record ends, renamed into place by stop_recording or when the bench stops."""
+    from hilbench.bench import Bench
+    from hilbench.fakes.world import read_record
+
+    first, second = tmp_path / "a.jsonl", tmp_path / "b.jsonl"
+    second.write_text("yesterday's truth\n")
+    with Bench("arena") as bench:
+        rec_a = bench.world.record(str(first))
+        bench.world.record(str(second))
+        wait_until(lambda: (tmp_path / "b.partial.jsonl").stat().st_size > 1000, timeout=20)
+        assert second.read_text() == "yesterday's truth\n" and not first.exists()
+        bench.world.stop_recording(rec_a)
+        assert read_record(str(first))["poses"]
+    assert sorted(os.listdir(tmp_path)) == ["a.jsonl", "b.jsonl"]
+    assert read_record(str(second))["header"]["bench"] == "arena"

@@ -340,6 +340,7 @@ class Bench:
         self.services.clear()
         if self._world is not None:
             self._world.world.stop()
+            self._world.close()  # (its records end complete at their names)
         for ep in self.endpoints.values():
             for family in ep.families():
                 registry.families.get(family).stop(ep, ep.devices_of(family))
