@@ -379,3 +379,11 @@ def test_the_world_record_of_the_python_api_is_a_recording_too(tmp_path):
         assert read_record(str(first))["poses"]
     assert sorted(os.listdir(tmp_path)) == ["a.jsonl", "b.jsonl"]
     assert read_record(str(second))["header"]["bench"] == "arena"
+
+
+def test_a_picture_of_a_format_not_drawn_is_refused_before_anything_runs(hb, tmp_path):
+    missing = tmp_path / "gone.json"  # (checked first: the refusal comes before the source is looked for)
+    refused(hb("trace", missing, "--gantt", tmp_path / "g.pdf"), "--gantt", "the Gantt chart is drawn as .png or .svg")
+    refused(hb("world", missing, "--png", tmp_path / "w.jpeg"), "--png", "the world is drawn as .png (or .svg, .pdf)")
+    refused(hb("lidar", missing, "--png", tmp_path / "l.txt"), "--png", "the scan is drawn as .png (or .svg, .pdf)")
+    assert os.listdir(tmp_path) == []

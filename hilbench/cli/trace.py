@@ -222,7 +222,7 @@ def _check_outputs(args: argparse.Namespace) -> None:
     from hilbench.cli.outputs import check_outputs, source_files
 
     if args.gantt and not args.gantt.lower().endswith((".png", ".svg")):
-        raise CliError(f"{args.gantt}: the Gantt chart is written as .png or .svg")
+        raise CliError(f"--gantt {args.gantt}: the Gantt chart is drawn as .png or .svg")
     check_outputs([("--json-out", args.json_out), ("--export", args.export), ("--gantt", args.gantt)],
                   inputs=[*source_files(args.source), *source_files(args.compare)])
 

@@ -104,8 +104,8 @@ def test_errors_are_one_line(args, message, code, tmp_path):
 
 def test_gantt_suffix_error(trace64, tmp_path):
     proc = run(str(trace64), "--gantt", str(tmp_path / "g.jpg"), check_rc=2)
-    assert proc.stderr.decode().strip() == f"hilbench: error: {tmp_path / 'g.jpg'}: the Gantt chart is written " \
-                                           "as .png or .svg"
+    assert proc.stderr.decode().strip() == f"hilbench: error: --gantt {tmp_path / 'g.jpg'}: the Gantt chart is " \
+                                           "drawn as .png or .svg"
 
 
 def test_live_view_on_a_file_ends_with_the_full_report(trace64):
