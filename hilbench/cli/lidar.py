@@ -17,6 +17,7 @@ import argparse
 import contextlib
 import json
 import math
+import os
 import sys
 import time
 from typing import Any
@@ -164,6 +165,10 @@ def resolve(source: str, overrides: list[str] | None = None) -> ScannerAddress:
         return ScannerAddress(location, ep.get("protocol"), scene=scene, pose=dev.get("pose"),
                       set_dtr=_control_dtr(manifest.get("control"), dev.get("name")), label=f"{path}#{ep['name']}",
                       world_pose=world_pose)
+    if os.path.isfile(source):  # a capture or any other file: lidar drives a scanner, it does not replay one
+        raise CliError(f"{source}: a file, not a scanner's port: lidar drives a live scanner (a serial port, "
+                       "tcp://HOST:PORT, a manifest's FILE.json#ENDPOINT); `hilbench monitor` reads a recording "
+                       "of one")
     return ScannerAddress(source, None)
 
 
