@@ -243,3 +243,16 @@ def test_random_bytes_are_no_can_frames_nor_a_scanner_for_the_other_verbs(tmp_pa
     assert proc.returncode == 2 and proc.stderr.splitlines() == [
         f"hilbench: error: {noise}: a file, not a scanner's port: lidar drives a live scanner (a serial port, "
         "tcp://HOST:PORT, a manifest's FILE.json#ENDPOINT); `hilbench monitor` reads a recording of one"]
+
+
+@pytest.mark.parametrize("argv", [["dxl", "ping", "{f}", "1"], ["dxl", "scan", "{f}", "--baud", "57600"],
+                                  ["send-vel", "{f}", "0", "0", "0"], ["tap", "{f}", "--seconds", "1"]])
+def test_a_file_given_as_a_serial_port_is_a_usage_error(tmp_path, argv):
+    """A capture where a port belongs: one line saying so, exit 2 (pyserial said 'Inappropriate ioctl for
+    device', exit 1), and the file is not touched."""
+    f = tmp_path / "bus.bin"
+    f.write_bytes(b"\xff\xff\xfd\x00" * 8)
+    proc = hb(*(a.format(f=f) for a in argv))
+    assert proc.returncode == 2 and proc.stderr.splitlines() == [
+        f"hilbench: error: {f}: a file, not a serial port (a recording of a bus is read by `hilbench monitor`)"]
+    assert f.read_bytes() == b"\xff\xff\xfd\x00" * 8
