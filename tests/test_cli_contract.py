@@ -520,7 +520,7 @@ def test_every_json_option_prints_one_json_document(tmp_path, hilbench_emulator)
     }
     with_json = {path for path, parser in parsers() if any("--json" in a.option_strings for a in parser._actions)}
     assert with_json == set(commands), "a verb with --json and no case here"
-    commands[("tap", "udp")] = ["tap", "udp", "0", "127.0.0.1:9", "--json", "--seconds", "0.5"]
+    commands[("tap", "udp")] = ["tap", "udp", "0", "127.0.0.1:9", "--summary", "--json", "--seconds", "0.5"]
 
     def run(keys: list[tuple[str, ...]]) -> list[tuple[tuple[str, ...], subprocess.CompletedProcess]]:
         return [(k, subprocess.run([*HB, *commands[k]], capture_output=True, text=True, timeout=60)) for k in keys]
