@@ -715,7 +715,7 @@ class Recorder:
         from hilbench.transports.recording_file import FLUSH_EVERY, RecordingFile
 
         self._json = json
-        self._time = time.monotonic
+        self._time = time.monotonic  # wall-clock: how often the file is flushed (a kill loses at most that)
         self._flush_every = FLUSH_EVERY
         self.path = str(path)
         self._file = RecordingFile(self.path, force=True)  # (the caller's path: replaced when the record ends)
