@@ -12,7 +12,7 @@ The rule every verb follows (a test walks every registered verb through it):
 class                        exit   meaning
 ===========================  =====  ==============================================
 (none)                       0      done; also a verb that runs until stopped
-                                    (emulate, monitor, record, tap, a live profile
+                                    (emulate, monitor, record, tap, a live trace
                                     or lidar) stopped by Ctrl-C or SIGTERM
 :class:`UsageError`          2      the command as written cannot work, whatever
                                     the machine's state: an unknown option, a
@@ -36,7 +36,9 @@ class                        exit   meaning
                                     refused
 (OSError)                    1      anything else the system refused (permissions,
                                     a full disk)
-(``--strict``)               3      monitor, profile: the input is damaged
+(``--strict``)               3      monitor, trace: the input is damaged;
+                                    ``profiles from-capture --verify``: fewer
+                                    replies matched than ``--min-ratio``
 (Ctrl-C)                     130    interrupted before the verb's work was done
 ===========================  =====  ==============================================
 

@@ -65,8 +65,10 @@ NOT_A_RANGE = {
     ("monitor", "view"): "a view name",
     ("tap", "view"): "a view name",
 }
-#: profile's times with units (``1.5ms``, ``100Hz``): finite and not negative (profile.time_us).
-TIME_PARSERS = {trace_cli.time_us, trace_cli.window_arg, trace_cli.name_value, trace_cli.hist_kinds}
+#: trace's times with units (``1.5ms``, ``100Hz``): finite and not negative (trace.time_us), above 0 where 0
+#: has no meaning (a period, deadline, budget, denominator, live window).
+TIME_PARSERS = {trace_cli.time_us, trace_cli.positive_time_us, trace_cli.window_arg, trace_cli.name_value,
+                trace_cli.name_period, trace_cli.name_positive, trace_cli.denominator_arg, trace_cli.hist_kinds}
 
 
 def test_every_numeric_option_is_a_rule_and_its_help_shows_the_range(monkeypatch):
@@ -83,8 +85,6 @@ def test_every_numeric_option_is_a_rule_and_its_help_shows_the_range(monkeypatch
             if hasattr(kind, "expected"):
                 seen += 1
                 assert f"[{kind.expected}]" in text, f"{' '.join(where)}: --help does not show its range"
-            elif getattr(kind, "__name__", "") == "<lambda>" and path == ("trace",):
-                continue  # --period NAME=T (name_value with rates)
             else:
                 assert where in NOT_A_RANGE or kind in TIME_PARSERS, f"{' '.join(where)}: {kind!r} is no Rule"
     assert seen > 60
@@ -108,6 +108,19 @@ def test_every_numeric_option_is_a_rule_and_its_help_shows_the_range(monkeypatch
     (["monitor", "x", "--device", "-1"], "argument --device: expected a device ID: an integer 0..255, got -1"),
     (["send-vel", "x", "nan", "0", "0"], "argument x: expected a number -1000..1000, got nan"),
     (["board", "--after", "-1", "wait-report"], "argument --after: expected an integer 0.."),
+    (["trace", "x", "--period", "wheel_ctrl=0"], "argument --period: expected a time above 0, got '0'"),
+    (["trace", "x", "--period", "wheel_ctrl=0Hz"], "argument --period: frequency must be positive, got '0Hz'"),
+    (["trace", "x", "--deadline", "wheel_ctrl=0ms"], "argument --deadline: expected a time above 0, got '0ms'"),
+    (["trace", "x", "--budget", "wheel_ctrl=nan"], "argument --budget: expected a time such as 250"),
+    (["trace", "x", "--denominator", "-5"], "argument --denominator: expected span, profiled or a time above 0"),
+    (["trace", "x", "--denominator", "0"], "argument --denominator: expected span, profiled or a time above 0"),
+    (["trace", "x", "--live-window", "0"], "argument --live-window: expected a time above 0, got '0'"),
+    (["trace", "x", "--live-gantt", "0s"], "argument --live-gantt: expected a time above 0, got '0s'"),
+    (["trace", "x", "--duration", "inf"], "argument --duration: expected a number 0..1000000000, got inf"),
+    (["world", "m.json", "--duration", "nan"], "argument --duration: expected a number 0..1000000000, got nan"),
+    (["demo", "--seconds", "inf"], "argument --seconds: expected a number 0..1000000000, got inf"),
+    (["lidar", "/dev/null", "--scans", "nan"], "argument --scans: expected an integer 1..2147483648, got 'nan'"),
+    (["teleop", "x", "--speed", "nan"], "argument --speed: expected a number"),
 ])
 def test_an_out_of_range_value_is_one_line_naming_option_value_and_range(argv, line, capsys):
     with pytest.raises(SystemExit) as exit_:
@@ -295,12 +308,115 @@ def test_every_verb_follows_the_exit_code_rule(world, in_process):
                 continue
             wrong += _complaints(verb, case, argv, *in_process(argv))
     assert not wrong, "\n".join(wrong)
+    # a refused or failed recording creates nothing (no out.hbcap, no out.partial.hbcap)
+    assert not [p.name for p in world["dir"].iterdir() if p.name.startswith("out")]
+
+
+def subcommand_cases(w: dict) -> dict[tuple[str, str], dict[str, list[str] | NA]]:
+    """The same cases for every sub-command (``can dump``, ``dxl read``, ``profiles from-capture``...): a verb's
+    row above tries one of them; each meets the rule on its own path."""
+    m, r, s, d = w["missing"], w["refused"], w["silent"], w["dir"]
+    refused_m, silent_m = str(d / "refused.json"), str(d / "silent.json")  # manifests of a bench at r, at s
+    for path, port in ((refused_m, r), (silent_m, s)):
+        with open(path, "w") as f:
+            json.dump({"hilbench_manifest": 1, "endpoints": [], "control": f"127.0.0.1:{port}"}, f)
+    can_r, can_s = f"socketcand://127.0.0.1:{r}/can0", f"socketcand://127.0.0.1:{s}/can0"
+    rfc_r = f"rfc2217://127.0.0.1:{r}"
+    gone = str(d / "gone.hbcap")
+    no_taken = NA("listens nowhere")
+
+    def control(cmd: list[str], bad: list[str] | NA) -> dict[str, list[str] | NA]:
+        return {"missing": ["can", cmd[0], "--manifest", m, *cmd[1:]],
+                "refused": ["can", cmd[0], "--manifest", refused_m, *cmd[1:]], "taken": no_taken,
+                "timeout": ["can", cmd[0], "--manifest", silent_m, *cmd[1:]], "bad": bad}
+
+    def can_bus(cmd: list[str], bad: list[str]) -> dict[str, list[str] | NA]:
+        return {"missing": ["can", cmd[0], m, *cmd[1:]], "refused": ["can", cmd[0], can_r, *cmd[1:]],
+                "taken": no_taken, "timeout": ["can", cmd[0], can_s, *cmd[1:]], "bad": bad}
+
+    def dxl(cmd: str, *rest: str) -> dict[str, list[str] | NA]:
+        return {"missing": ["dxl", cmd, "/dev/no-such-port", *rest], "refused": ["dxl", cmd, rfc_r, *rest],
+                "taken": no_taken, "timeout": ["dxl", cmd, w["pty"], *rest, "--baud", "1000000"],
+                "bad": ["dxl", cmd, w["pty"], *rest, "--baud", "12345"]}
+
+    def export(cmd: str) -> dict[str, list[str] | NA]:
+        return {"missing": NA("reads a profile: a profile that is not there is unknown (2, below)"),
+                "refused": NA("connects nowhere"), "taken": no_taken, "timeout": NA("connects nowhere"),
+                "bad": ["can", cmd, str(d / "gone.toml")]}
+
+    def labgrid(cmd: str) -> dict[str, list[str] | NA]:
+        return {"missing": ["labgrid", cmd, m], "refused": NA("reads a manifest only"), "taken": no_taken,
+                "timeout": NA("reads a manifest only"), "bad": ["labgrid", cmd, w["bad"]]}
+
+    return {
+        ("can", "dump"): can_bus(["dump"], ["can", "dump", can_r, "--dbc", str(d / "gone.dbc")]),
+        ("can", "send"): can_bus(["send", "123#00"], ["can", "send", m, "800#00"]),
+        ("can", "nmt"): can_bus(["nmt", "start"], ["can", "nmt", m, "start", "--node", "200"]),
+        ("can", "sdo"): can_bus(["sdo", "read", "1018", "--node", "2"],
+                                ["can", "sdo", m, "read", "10000", "--node", "2"]),
+        ("can", "drive"): can_bus(["drive", "--vx", "0.1"], ["can", "drive", m, "--seconds", "-1"]),
+        ("can", "bus"): control(["bus"], NA("KEY=VALUE: the bench checks its knobs")),
+        ("can", "status"): control(["status"], ["can", "status", "--manifest", m, "--no-such-option"]),
+        ("can", "fault"): control(["fault", "error_rate=0"], NA("KEY=VALUE: the bench checks its knobs")),
+        ("can", "emcy"): control(["emcy", "0x1000"], ["can", "emcy", "--manifest", m, "0x1zz"]),
+        ("can", "reset"): control(["reset"], ["can", "reset", "--manifest", m, "--no-such-option"]),
+        ("can", "state"): control(["state", "stopped"], ["can", "state", "--manifest", m, "bogus"]),
+        ("can", "dbc"): export("dbc"),
+        ("can", "eds"): export("eds"),
+        ("dxl", "scan"): dxl("scan"),
+        ("dxl", "ping"): dxl("ping", "1"),
+        ("dxl", "read"): dxl("read", "1", "present_position"),
+        ("dxl", "write"): dxl("write", "1", "goal_position", "5"),
+        ("labgrid", "env"): labgrid("env"),
+        ("labgrid", "exporter-config"): labgrid("exporter-config"),
+        ("profiles", "from-capture"): {"missing": ["profiles", "from-capture", gone],
+                                       "refused": NA("reads a capture file"), "taken": no_taken,
+                                       "timeout": NA("reads a capture file"),
+                                       "bad": ["profiles", "from-capture", w["bad"]]},
+    }
+
+
+#: Sub-commands whose timeout waits for the control channel (10 s): walked by the slow set.
+SLOW_SUBCOMMAND_TIMEOUTS = {("can", c) for c in ("bus", "status", "fault", "emcy", "reset", "state")}
+
+
+def test_every_sub_command_follows_the_exit_code_rule(world, in_process):
+    table = subcommand_cases(world)
+    assert set(table) == {path for path, _ in parsers() if len(path) == 2}, "a sub-command without cases"
+    assert all(set(row) == set(EXIT) for row in table.values())
+    wrong = []
+    for path, row in sorted(table.items()):
+        for case, argv in row.items():
+            if isinstance(argv, NA) or (case == "timeout" and path in SLOW_SUBCOMMAND_TIMEOUTS):
+                continue
+            wrong += _complaints(" ".join(path), case, argv, *in_process(argv))
+    assert not wrong, "\n".join(wrong)
+
+
+def test_a_stale_manifest_is_a_bench_not_running(world, in_process):
+    """A manifest a killed bench left (its pid gone) is a missing manifest: status 1, one line, in every verb
+    that reads one."""
+    stale = world["dir"] / "stale.json"
+    stale.write_text(json.dumps({"hilbench_manifest": 1, "endpoints": [], "pid": 2**22 + 1, "control": "127.0.0.1:9"}))
+    wrong = []
+    for argv in (["monitor", str(stale), "--summary"], ["record", str(stale), str(world["dir"] / "x.hbcap")],
+                 ["board", "--manifest", str(stale), "status"], ["world", str(stale), "--json"],
+                 ["can", "status", "--manifest", str(stale)], ["can", "send", str(stale), "123#00"],
+                 ["lidar", str(stale)], ["trace", str(stale)], ["labgrid", "env", str(stale)],
+                 ["run", "--manifest", str(stale), "--", "true"]):
+        code, err = in_process(argv)
+        wrong += _complaints(argv[0], "missing", argv, code, err)
+        if "stale manifest" not in err:
+            wrong.append(f"{' '.join(argv)}: {err.strip()}")
+    assert not wrong, "\n".join(wrong)
 
 
 @pytest.mark.slow  # real waits of 4 to 10 s, side by side
 def test_every_verb_that_waits_times_out_with_status_1_in_one_line(world):
     runs = [(verb, argv) for verb, row in sorted(cases(world).items())
             if not isinstance(argv := row["timeout"], NA)]
+    runs += [(" ".join(path), row["timeout"]) for path, row in sorted(subcommand_cases(world).items())
+             if path in SLOW_SUBCOMMAND_TIMEOUTS]
 
     def run(argv: list[str]) -> subprocess.CompletedProcess:
         return subprocess.run([*HB, *argv], capture_output=True, text=True, timeout=60, stdin=subprocess.DEVNULL)
@@ -324,6 +440,15 @@ def test_a_taken_port_names_the_endpoint_the_address_and_the_key(world, in_proce
         f"endpoint 'ust': cannot listen on TCP port 127.0.0.1:{world['tcp']}: Address already in use" in err
         and "change endpoints.ust.port in the profile, or --set ust.port=0 (any free port)" in err), err
 
+
+
+@pytest.mark.parametrize(("bind", "reason"), [("10.9.9.9", "Cannot assign requested address"),
+                                              ("no-such-host.invalid", "Name or service not known")])
+def test_a_bind_address_this_machine_lacks_names_it_and_the_option(bind, reason, in_process):
+    code, err = in_process(["emulate", "arm", "--bind", bind])
+    assert code == 1 and err.count("\n") == 1 and err.endswith(
+        f"endpoint 'arm': cannot listen on traffic tap (TCP port) {bind}:0: {reason}; {bind} is the bench's bind "
+        "address (--bind): give one of this machine's addresses\n"), err
 
 # --------------------------------------------------------------------------- one JSON document
 
@@ -395,7 +520,7 @@ def test_every_json_option_prints_one_json_document(tmp_path, hilbench_emulator)
     }
     with_json = {path for path, parser in parsers() if any("--json" in a.option_strings for a in parser._actions)}
     assert with_json == set(commands), "a verb with --json and no case here"
-    commands[("tap", "udp")] = ["tap", "udp", "0", "127.0.0.1:9", "--json", "--seconds", "0.5"]
+    commands[("tap", "udp")] = ["tap", "udp", "0", "127.0.0.1:9", "--summary", "--json", "--seconds", "0.5"]
 
     def run(keys: list[tuple[str, ...]]) -> list[tuple[tuple[str, ...], subprocess.CompletedProcess]]:
         return [(k, subprocess.run([*HB, *commands[k]], capture_output=True, text=True, timeout=60)) for k in keys]
@@ -438,3 +563,21 @@ def test_set_moves_a_bench_and_is_checked_as_the_profile(hilbench_emulator, hilb
                                                                          "command starts: give bench:PROFILE")):
         code, err = in_process(argv)
         assert code == 2 and err.count("\n") == 1 and needle in err, err
+
+
+@pytest.mark.hilbench_profile("mecarover-udp", set={"rover.port": 0, "rover.baud": 230_400})
+def test_the_profile_marker_takes_set_as_emulate_does(bench):
+    assert bench.endpoint("rover").spec.baud == 230_400
+    assert bench.manifest()["set"] == {"rover.port": 0, "rover.baud": 230_400}
+
+
+def test_set_in_the_pytest_fixtures_is_checked_as_the_profile(hilbench_bench, hilbench_emulator):
+    from hilbench.bench.checks import ProfileError
+
+    with pytest.raises(ProfileError, match=r"arm\.toml: endpoints\.arm\.baud: expected a Dynamixel baud rate .* got "
+                                           r"12345 \(set: arm\.baud=12345\)$"):
+        hilbench_bench("arm", set={"arm.baud": 12345})
+    with pytest.raises(ProfileError, match="override 'nope.x': no endpoint or table 'nope'"):
+        hilbench_bench("arm", set={"nope.x": 1})
+    with pytest.raises(RuntimeError, match=r"exited with 2: .*\(set: arm\.baud=12345\)$"):
+        hilbench_emulator("arm", set={"arm.baud": 12345})

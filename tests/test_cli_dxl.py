@@ -95,3 +95,22 @@ def test_found_line():
     assert found_line(found, (57_600, 115_200, 1_000_000)) == "3 devices: 2 at 57600 baud, 1 at 1000000 baud"
     assert found_line(found[:1], (57_600,)) == "1 device: 1 at 57600 baud"
     assert found_line([], (57_600, 9_600)) == "no device answered at 57600, 9600 baud"
+
+
+def test_a_scan_nobody_answers_is_status_1_in_either_form(capsys):
+    """No device answered: one error line and status 1, as text and as --json (whose stdout stays one document,
+    an empty list)."""
+    import pty
+    import tty
+
+    master, slave = pty.openpty()
+    tty.setraw(slave)
+    try:
+        path = os.ttyname(slave)
+        code, out, err = dxl(capsys, "scan", path, "--baud", "1000000")
+        assert (code, out, err) == (1, "", "hilbench: error: no device answered at 1000000 baud\n")
+        code, out, err = dxl(capsys, "scan", path, "--baud", "1000000", "--json")
+        assert (code, json.loads(out), err) == (1, [], "hilbench: error: no device answered at 1000000 baud\n")
+    finally:
+        os.close(master)
+        os.close(slave)

@@ -119,8 +119,19 @@ def test_every_verb_with_an_input_and_an_output_refuses_the_same_file(hb, captur
     refused(hb("lidar", f"{manifest}#lms", "--png", manifest), "--png", "is the input")
     refused(hb("monitor", f"bench:{profile}", "--record", profile, "--summary"), "is the input")
     refused(hb("tap", "/dev/null", "--record", "/dev/null", "--summary"), "--record /dev/null is the input")
+    # the files an instrument's options read: a DBC, an EDS (even with --force, which replaces recordings only)
+    dbc, eds = tmp_path / "board.dbc", tmp_path / "board.eds"
+    dbc.write_text('VERSION "the lab\'s own"\n')
+    eds.write_text("[FileInfo]\n")
+    files |= {p: snapshot(p) for p in (dbc, eds)}
+    refused(hb("monitor", capture, "--dbc", dbc, "--record", dbc, "--summary", "--force"),
+            f"--record {dbc} is the input")
+    refused(hb("monitor", capture, "--eds", f"{eds}:2", "--record", eds, "--summary", "--force"),
+            f"--record {eds} is the input")
+    refused(hb("tap", "/dev/null", "--dbc", dbc, "--record", dbc, "--summary", "--force"), "is the input")
     assert {p: snapshot(p) for p in files} == files
-    assert sorted(os.listdir(tmp_path)) == ["bench.json", "rec.hbcap", "rover.toml", "trace.txt"]
+    assert sorted(os.listdir(tmp_path)) == ["bench.json", "board.dbc", "board.eds", "rec.hbcap", "rover.toml",
+                                            "trace.txt"]
 
 
 def test_an_output_in_a_missing_directory_is_refused_before_anything_runs(hb, capture, tmp_path):
@@ -255,3 +266,124 @@ def test_a_recording_killed_with_sigkill_keeps_what_it_recorded(hb, tmp_path):
     refused(hb("record", WOLFGANG_TRACE, out), "live.partial.hbcap holds", "--force")
     refused(hb("record", partial, out, "--force"), f"records into {partial}, the input")
     assert sorted(os.listdir(tmp_path)) == ["live.partial.hbcap"]
+
+
+# --------------------------------------------------------------------------- hilbench world's files
+
+
+def test_world_png_and_record_follow_the_output_rules(hb, hilbench_bench, tmp_path):
+    """``world --png`` and ``--record``: never the manifest read, a recording never replaces a file without
+    --force and is renamed into place when it ends, a picture replaces its file in one step."""
+    from hilbench.fakes.world import read_record
+
+    bench = hilbench_bench("arena")
+    control = bench.serve_control().address_text
+    manifest = tmp_path / "bench.json"
+    bench.write_manifest(manifest)
+    (tmp_path / "link.json").symlink_to(manifest.name)
+    before = snapshot(manifest)
+    refused(hb("world", manifest, "--png", manifest), f"--png {manifest} is the input")
+    refused(hb("world", tmp_path / "link.json", "--record", manifest), "--record", "is the input")
+    refused(hb("world", manifest, "--png", tmp_path / "w.jpeg"), "the world is drawn as .png (or .svg, .pdf)")
+    old = tmp_path / "truth.jsonl"
+    old.write_text("a record of yesterday's run\n")
+    refused(hb("world", "--control", control, "--record", old, "--duration", "0.5"), "exists (28 bytes)",
+            "--force")
+    assert old.read_text() == "a record of yesterday's run\n" and snapshot(manifest) == before
+    assert sorted(os.listdir(tmp_path)) == ["bench.json", "link.json", "truth.jsonl"]
+    code, _, err = hb("world", "--control", control, "--record", old, "--duration", "0.6", "--force")
+    assert code == 0, err
+    rec = read_record(str(old))
+    assert rec["header"]["bodies"].keys() == {"r1", "r2"} and rec["poses"]
+    png = tmp_path / "w.png"
+    png.write_bytes(b"an old picture")
+    code, _, err = hb("world", "--control", control, "--png", png)
+    assert code == 0 and png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n", err
+    assert sorted(os.listdir(tmp_path)) == ["bench.json", "link.json", "truth.jsonl", "w.png"]
+
+
+def test_world_record_stopped_by_sigterm_is_renamed_into_place(hilbench_bench, tmp_path):
+    bench = hilbench_bench("arena")
+    control = bench.serve_control().address_text
+    out = tmp_path / "truth.jsonl"
+    partial = tmp_path / "truth.partial.jsonl"
+    proc = subprocess.Popen([*HB, "world", "--control", control, "--record", str(out)], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        # streamed (and flushed) while it runs: a kill -9 would leave this much
+        wait_until(lambda: partial.exists() and partial.stat().st_size > 1000, timeout=30)
+        assert not out.exists()
+    finally:
+        proc.terminate()
+        _, err = proc.communicate(timeout=20)
+    assert proc.returncode == 0, err
+    assert os.listdir(tmp_path) == ["truth.jsonl"]
+    from hilbench.fakes.world import read_record
+
+    assert len(read_record(str(out))["poses"]) > 10
+
+
+@pytest.mark.parametrize("writer", ["trace --json-out", "trace --export", "profiles from-capture -o"])
+def test_a_full_disk_leaves_every_writer_s_old_file_whole(writer, capture, tmp_path):
+    """The neighbours of ``can dbc -o``: every other writer goes through the same atomic write."""
+    trace = tmp_path / "trace.txt"
+    trace.write_text("IDLE 0 out\nwheel_ctrl 0 in\nwheel_ctrl 10 out\nIDLE 10 in\n" * 20)
+    old = tmp_path / "old.out"
+    old.write_text("the user's own\n")
+    argv = {"trace --json-out": ["trace", str(trace), "--json-out", str(old)],
+            "trace --export": ["trace", str(trace), "--export", str(old)],
+            "profiles from-capture -o": ["profiles", "from-capture", str(capture), "-o", str(old), "--force"]}[writer]
+    proc = subprocess.run([*HB, *argv], capture_output=True, text=True, timeout=60, preexec_fn=_limited(400),
+                          env={**os.environ, "PYTHONDONTWRITEBYTECODE": "1"})
+    assert proc.returncode == 1, proc.stderr
+    assert proc.stderr.endswith(f"hilbench: error: {old}: cannot write: File too large (the old {old} is "
+                                "unchanged)\n"), proc.stderr
+    assert old.read_text() == "the user's own\n"
+    assert sorted(os.listdir(tmp_path)) == ["old.out", "rec.hbcap", "trace.txt"]
+
+
+def test_monitor_record_killed_with_sigkill_keeps_what_it_recorded(tmp_path):
+    """monitor --record flushes as record does (the same Recording): a kill -9 leaves the data readable."""
+    out = tmp_path / "live.hbcap"
+    partial = tmp_path / "live.partial.hbcap"
+    proc = subprocess.Popen([*HB, "monitor", "-", "--protocol", "dynamixel", "--record", str(out), "--summary"],
+                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    try:
+        head = WOLFGANG_TRACE.read_bytes()[:4000]
+        proc.stdin.write(head)
+        proc.stdin.flush()
+        wait_until(lambda: partial.exists() and partial.stat().st_size > len(head), timeout=20)
+        assert proc.poll() is None  # flushed while running, not at exit
+    finally:
+        proc.kill()
+        proc.communicate(timeout=20)
+    assert sorted(os.listdir(tmp_path)) == ["live.partial.hbcap"]
+    with CaptureReader(partial) as reader:
+        assert b"".join(c.data for c in reader) == head
+
+
+def test_the_world_record_of_the_python_api_is_a_recording_too(tmp_path):
+    """``bench.world.record(path)``: streamed into its .partial file (flushed while it runs), the old file whole
+    until the record ends, renamed into place by stop_recording or when the bench stops."""
+    from hilbench.bench import Bench
+    from hilbench.fakes.world import read_record
+
+    first, second = tmp_path / "a.jsonl", tmp_path / "b.jsonl"
+    second.write_text("yesterday's truth\n")
+    with Bench("arena") as bench:
+        rec_a = bench.world.record(str(first))
+        bench.world.record(str(second))
+        wait_until(lambda: (tmp_path / "b.partial.jsonl").stat().st_size > 1000, timeout=20)
+        assert second.read_text() == "yesterday's truth\n" and not first.exists()
+        bench.world.stop_recording(rec_a)
+        assert read_record(str(first))["poses"]
+    assert sorted(os.listdir(tmp_path)) == ["a.jsonl", "b.jsonl"]
+    assert read_record(str(second))["header"]["bench"] == "arena"
+
+
+def test_a_picture_of_a_format_not_drawn_is_refused_before_anything_runs(hb, tmp_path):
+    missing = tmp_path / "gone.json"  # (checked first: the refusal comes before the source is looked for)
+    refused(hb("trace", missing, "--gantt", tmp_path / "g.pdf"), "--gantt", "the Gantt chart is drawn as .png or .svg")
+    refused(hb("world", missing, "--png", tmp_path / "w.jpeg"), "--png", "the world is drawn as .png (or .svg, .pdf)")
+    refused(hb("lidar", missing, "--png", tmp_path / "l.txt"), "--png", "the scan is drawn as .png (or .svg, .pdf)")
+    assert os.listdir(tmp_path) == []

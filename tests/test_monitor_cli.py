@@ -217,3 +217,42 @@ def test_a_trace_is_still_told_from_its_bytes(tmp_path):
     proc = hb("monitor", str(path), "--summary")
     assert proc.returncode == 2
     assert "carries vel2d" in proc.stderr and "use `hilbench trace`" in proc.stderr
+
+
+def test_random_bytes_are_no_can_frames_nor_a_scanner_for_the_other_verbs(tmp_path):
+    """The neighbours of monitor's refusal: `can dump` decoded noise as frames (exit 0), `lidar` tried a file as
+    a serial port (exit 1, an ioctl error); raw SocketCAN frames still dump."""
+    import random
+    import struct
+
+    from tests.conftest import WOLFGANG_TRACE
+
+    noise = tmp_path / "noise.bin"
+    noise.write_bytes(random.Random(7).randbytes(4096))
+    for path, says in ((noise, "no CAN frames recognised in its first bytes"),
+                       (WOLFGANG_TRACE, "it carries dynamixel")):
+        proc = hb("can", "dump", str(path))
+        assert proc.returncode == 2 and proc.stdout == "", proc.stderr
+        assert proc.stderr.splitlines() == [f"hilbench: error: {path}: {says} (can dump reads candump and python-can "
+                                            "logs, hilbench captures of a CAN bus and raw SocketCAN frames)"]
+    raw = tmp_path / "raw.bin"
+    raw.write_bytes(b"".join(struct.pack("<IB3x8s", 0x702, 1, b"\x7f" + bytes(7)) for _ in range(3)))
+    proc = hb("can", "dump", str(raw))
+    assert proc.returncode == 0 and proc.stdout.splitlines() == ["(0.000000) can0 702#7F"] * 3, proc.stderr
+    proc = hb("lidar", str(noise))
+    assert proc.returncode == 2 and proc.stderr.splitlines() == [
+        f"hilbench: error: {noise}: a file, not a scanner's port: lidar drives a live scanner (a serial port, "
+        "tcp://HOST:PORT, a manifest's FILE.json#ENDPOINT); `hilbench monitor` reads a recording of one"]
+
+
+@pytest.mark.parametrize("argv", [["dxl", "ping", "{f}", "1"], ["dxl", "scan", "{f}", "--baud", "57600"],
+                                  ["send-vel", "{f}", "0", "0", "0"], ["tap", "{f}", "--seconds", "1"]])
+def test_a_file_given_as_a_serial_port_is_a_usage_error(tmp_path, argv):
+    """A capture where a port belongs: one line saying so, exit 2 (pyserial said 'Inappropriate ioctl for
+    device', exit 1), and the file is not touched."""
+    f = tmp_path / "bus.bin"
+    f.write_bytes(b"\xff\xff\xfd\x00" * 8)
+    proc = hb(*(a.format(f=f) for a in argv))
+    assert proc.returncode == 2 and proc.stderr.splitlines() == [
+        f"hilbench: error: {f}: a file, not a serial port (a recording of a bus is read by `hilbench monitor`)"]
+    assert f.read_bytes() == b"\xff\xff\xfd\x00" * 8

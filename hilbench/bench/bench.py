@@ -102,6 +102,12 @@ class Endpoint:
         return f"Endpoint({self.name!r}, {self.spec.protocol}, {self.path})"
 
 
+
+def _bind_reason(exc: OSError) -> str:
+    """Why a server's socket could not listen, without its own "cannot listen on" (a host name that does not
+    resolve has a negative errno: its text, not "Unknown error -2")."""
+    return exc.reason if isinstance(exc, BindError) else (exc.strerror or str(exc))
+
 class Bench:
     """The devices of a profile behind real host ports.
 
@@ -221,7 +227,7 @@ class Bench:
                                            description=f"bench {prof.name}, endpoint {spec.name}",
                                            clock=self.clock)
                     except OSError as exc:  # (on a free port: only the bind address can be wrong)
-                        reason = os.strerror(exc.errno) if exc.errno else str(exc)
+                        reason = _bind_reason(exc)
                         raise self._bind_error(BindError((self.bind, 0), reason, exc.errno, "traffic tap (TCP port)"),
                                                spec.name, None) from None
                     medium.add_tap(ep.tap.feed)
@@ -301,7 +307,7 @@ class Bench:
             example = "0 (any free port)" if key.endswith("port") else "VALUE"
             text += f"; change endpoints.{endpoint}.{key} in the profile, or --set {endpoint}.{key}={example}"
         elif not exc.port_taken:
-            text += f"; {host} is the bench's bind address (--bind): give one of this machine's"
+            text += f"; {host} is the bench's bind address (--bind): give one of this machine's addresses"
         exc.key = key
         return exc.with_message(text)
 
@@ -334,6 +340,7 @@ class Bench:
         self.services.clear()
         if self._world is not None:
             self._world.world.stop()
+            self._world.close()  # (its records end complete at their names)
         for ep in self.endpoints.values():
             for family in ep.families():
                 registry.families.get(family).stop(ep, ep.devices_of(family))
@@ -409,7 +416,7 @@ class Bench:
             try:
                 self.control = ControlServer(self, host or self.bind, port)
             except OSError as exc:
-                reason = os.strerror(exc.errno) if exc.errno else str(exc)
+                reason = _bind_reason(exc)
                 raise self._bind_error(BindError((host or self.bind, port), reason, exc.errno,
                                                  "control channel (TCP port)"), None, None) from None
         return self.control

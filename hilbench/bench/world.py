@@ -268,6 +268,7 @@ class BenchWorld:
     def __init__(self, bench, world: World) -> None:
         self.bench = bench
         self.world = world
+        self._recorders: list[Recorder] = []
 
     def body(self, name: str) -> BodyView:
         """A body by name (KeyError naming the bodies)."""
@@ -302,13 +303,22 @@ class BenchWorld:
         from hilbench.fakes.world import Recorder
 
         rec = Recorder(path, self.world, {"bench": self.bench.profile.name, "devices": self.devices()})
+        self._recorders.append(rec)
         self.world.listeners.append(rec)
         return rec
 
     def stop_recording(self, recorder: Recorder) -> None:
+        """End a record: the file is complete at its path from here on."""
         if recorder in self.world.listeners:
             self.world.listeners.remove(recorder)
+        if recorder in self._recorders:
+            self._recorders.remove(recorder)
         recorder.close()
+
+    def close(self) -> None:
+        """The bench stops: end every record still running."""
+        for recorder in list(self._recorders):
+            self.stop_recording(recorder)
 
     def devices(self) -> dict[str, dict[str, Any]]:
         """Each device's body (None: fixed in the world), its mount pose and where it is now."""

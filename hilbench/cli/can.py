@@ -118,6 +118,8 @@ def cmd_dump(args: argparse.Namespace) -> int:
     with open_cli_source(args.source, baud=None, speed=args.speed, overrides=args.overrides) as source:
         if source.protocol not in (None, "can"):
             raise CliError(f"{source.name} carries {source.protocol}, not CAN")
+        if source.protocol is None and not source.live:  # a raw file: CAN frames only if its bytes are some
+            source = _raw_can(source)
         offset = getattr(source, "wall_offset", None)
         if offset is None:
             offset = time.time() - time.monotonic() if source.live else 0.0
@@ -145,6 +147,24 @@ def cmd_dump(args: argparse.Namespace) -> int:
         except KeyboardInterrupt:
             pass
     return 0
+
+
+def _raw_can(source):
+    """``source`` (a file that names no protocol) if its first bytes are raw SocketCAN frames, as ``monitor``
+    tells them; else one line, exit 2 (random bytes decoded as frames would print nonsense)."""
+    from hilbench.errors import UsageError
+    from hilbench.monitor.detect import detect
+
+    try:
+        inst, source = detect(source)
+    except UsageError:
+        inst = None
+    else:
+        if inst is None or inst.protocol == "can":  # (an empty file: nothing to dump)
+            return source
+    what = f"it carries {inst.protocol}" if inst is not None else "no CAN frames recognised in its first bytes"
+    raise CliError(f"{source.name}: {what} (can dump reads candump and python-can logs, hilbench captures of a "
+                   "CAN bus and raw SocketCAN frames)")
 
 
 def _candump(frame, t: float, channel: str) -> str:

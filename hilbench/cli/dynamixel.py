@@ -81,6 +81,11 @@ def cmd_dxl_scan(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps([{"id": f.id, "model": f.model_number, "model_name": f.model_name,
                            "firmware": f.firmware, "baud": f.baud} for f in found]))
+    if not found:  # no device answered: status 1 (as a ping that gets no answer), whatever the output's form
+        from hilbench.errors import DeviceError
+
+        raise DeviceError(found_line(found, bauds))
+    if args.json:
         return 0
     from rich.table import Table
 
@@ -91,12 +96,9 @@ def cmd_dxl_scan(args: argparse.Namespace) -> int:
         table.add_column(col, justify="right")
     for f in found:
         table.add_row(str(f.id), f.model_name, str(f.model_number), str(f.firmware), str(f.baud))
-    if found:
-        Console().print(table)
-        print(found_line(found, bauds))
-        return 0
-    print(found_line(found, bauds), file=sys.stderr)
-    return 1
+    Console().print(table)
+    print(found_line(found, bauds))
+    return 0
 
 
 def cmd_dxl_ping(args: argparse.Namespace) -> int:

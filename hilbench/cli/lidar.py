@@ -17,9 +17,9 @@ import argparse
 import contextlib
 import json
 import math
+import os
 import sys
 import time
-from pathlib import Path
 from typing import Any
 
 from hilbench import registry
@@ -165,6 +165,10 @@ def resolve(source: str, overrides: list[str] | None = None) -> ScannerAddress:
         return ScannerAddress(location, ep.get("protocol"), scene=scene, pose=dev.get("pose"),
                       set_dtr=_control_dtr(manifest.get("control"), dev.get("name")), label=f"{path}#{ep['name']}",
                       world_pose=world_pose)
+    if os.path.isfile(source):  # a capture or any other file: lidar drives a scanner, it does not replay one
+        raise CliError(f"{source}: a file, not a scanner's port: lidar drives a live scanner (a serial port, "
+                       "tcp://HOST:PORT, a manifest's FILE.json#ENDPOINT); `hilbench monitor` reads a recording "
+                       "of one")
     return ScannerAddress(source, None)
 
 
@@ -257,15 +261,10 @@ def save_png(path: str, scan, address: ScannerAddress) -> None:
         plt.close(fig)
 
 
-#: What ``--png`` writes, by the file's suffix (none: PNG).
-PICTURE_FORMATS = ("png", "svg", "pdf")
-
-
 def _picture_format(path: str) -> str:
-    suffix = Path(path).suffix.lstrip(".").lower()
-    if suffix and suffix not in PICTURE_FORMATS:
-        raise CliError(f"--png {path}: the scan is drawn as .png (or .svg, .pdf)")
-    return suffix or "png"
+    from hilbench.cli.outputs import picture_format
+
+    return picture_format("--png", path, "the scan")
 
 
 def cmd_lidar(args: argparse.Namespace) -> int:

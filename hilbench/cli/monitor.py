@@ -99,10 +99,12 @@ def _writer(path: str | None, source, description: str | None = None, *, force: 
 
 
 def _check_record(args: argparse.Namespace, label: str, path: str | None, inputs: list[str]) -> None:
-    """Refuse a recording onto an input or an existing recording, before anything is opened."""
+    """Refuse a recording onto an input (the source's, or a file an instrument's options read: ``--dbc``) or
+    an existing recording, before anything is opened."""
     from hilbench.cli.outputs import check_outputs
 
-    check_outputs([(label, path)], inputs=inputs, recordings=(label,), force=args.force)
+    options = [f for inst in _monitor_instruments() for f in inst.input_files(args)]
+    check_outputs([(label, path)], inputs=[*inputs, *options], recordings=(label,), force=args.force)
 
 
 #: Exit status of ``--strict`` when the input is damaged (as ``hilbench trace --strict``).
@@ -176,8 +178,8 @@ def cmd_monitor(args: argparse.Namespace) -> int:
 
     terminate_on_sigterm()
     speed = args.speed if args.speed is not None else (1.0 if args.realtime else None)
-    options = _options(args)
     _check_record(args, "--record", args.record, source_files(args.source))
+    options = _options(args)
     with open_cli_source(args.source, baud=args.baud, speed=speed, overrides=args.overrides) as source:
         instrument = _instrument(args, source)
         if args.baud and source.baud != args.baud:
@@ -250,8 +252,8 @@ def cmd_tap_udp(args: argparse.Namespace) -> int:
     except ValueError as exc:
         raise CliError(f"tap udp: {exc}") from None
     terminate_on_sigterm()
-    options = _options(args)
     _check_record(args, "--record", args.record, [])
+    options = _options(args)
     try:
         relay = UdpRelay(listen, upstream)
     except OSError as exc:  # taken (or not an address of this machine): exit status 1
@@ -293,8 +295,8 @@ def cmd_tap(args: argparse.Namespace) -> int:
     from hilbench.transports.serial_tap import SerialTap
 
     terminate_on_sigterm()
-    options = _options(args)
     _check_record(args, "--record", args.record, [args.port])
+    options = _options(args)
     # The forwarding thread must get the interpreter as soon as its read returns, not when the
     # decoding thread's time slice ends (5 ms by default): a tap must not make the SDK time out.
     sys.setswitchinterval(1e-4)

@@ -145,10 +145,24 @@ def output_file(path: str, mode: str = "w") -> AbstractContextManager[IO[Any]]:
     return atomic_write(path, mode)
 
 
+#: What a ``--png`` picture may be written as, by the file's suffix (none: PNG).
+PICTURE_FORMATS = ("png", "svg", "pdf")
+
+
+def picture_format(label: str, path: str, what: str) -> str:
+    """The matplotlib format of picture ``path`` by its suffix (none: ``png``); another suffix is refused in
+    one line (exit status 2), before anything is drawn."""
+    suffix = os.path.splitext(path)[1].lstrip(".").lower()
+    if suffix and suffix not in PICTURE_FORMATS:
+        raise CliError(f"{label} {path}: {what} is drawn as .png (or .svg, .pdf)")
+    return suffix or "png"
+
+
 def start_recording(path: str, open_writer: Callable[[str], Any], *, force: bool = False) -> Recording:
     """A recording into ``path`` (see :mod:`hilbench.transports.recording_file`); ``open_writer(p)`` makes the
     format's writer on the path it is given."""
     return Recording(path, open_writer, force=force)
 
 
-__all__ = ["Output", "check_outputs", "output_file", "source_files", "start_recording", "write_output"]
+__all__ = ["PICTURE_FORMATS", "Output", "check_outputs", "output_file", "picture_format", "source_files",
+           "start_recording", "write_output"]

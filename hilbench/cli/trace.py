@@ -31,8 +31,9 @@ _UNITS_US = {"": 1.0, "us": 1.0, "µs": 1.0, "ms": 1e3, "s": 1e6}
 _TIME = re.compile(r"\s*([0-9]*\.?[0-9]+(?:e[+-]?\d+)?)\s*(us|µs|ms|s|hz|khz)?\s*", re.I)
 
 
-def time_us(text: str, *, allow_hz: bool = False) -> float:
-    """``"250"`` (µs), ``"1.5ms"``, ``"2s"``, and with ``allow_hz`` ``"1kHz"`` (a period of 1000 µs)."""
+def time_us(text: str, *, allow_hz: bool = False, positive: bool = False) -> float:
+    """``"250"`` (µs), ``"1.5ms"``, ``"2s"``, and with ``allow_hz`` ``"1kHz"`` (a period of 1000 µs); never
+    negative, and with ``positive`` above 0 (a period, deadline, budget or span of 0 has no meaning)."""
     m = _TIME.fullmatch(text)
     if m is None:
         rate = " or a rate such as 100Hz" if allow_hz else ""
@@ -47,7 +48,14 @@ def time_us(text: str, *, allow_hz: bool = False) -> float:
         if hz <= 0:
             raise argparse.ArgumentTypeError(f"frequency must be positive, got {text!r}")
         return 1e6 / hz
+    if positive and value == 0:
+        raise argparse.ArgumentTypeError(f"expected a time above 0, got {text!r}")
     return value * _UNITS_US[unit]
+
+
+def positive_time_us(text: str) -> float:
+    """A time above 0 (:func:`time_us`)."""
+    return time_us(text, positive=True)
 
 
 def window_arg(text: str) -> tuple[float, float]:
@@ -62,11 +70,32 @@ def window_arg(text: str) -> tuple[float, float]:
     return lo, hi
 
 
-def name_value(text: str, *, allow_hz: bool = False) -> tuple[str, float]:
+def name_value(text: str, *, allow_hz: bool = False, positive: bool = False) -> tuple[str, float]:
     name, sep, value = text.rpartition("=")
     if not sep or not name:
         raise argparse.ArgumentTypeError(f"expected NAME=VALUE (e.g. wheel_ctrl=1ms), got {text!r}")
-    return name, time_us(value, allow_hz=allow_hz)
+    return name, time_us(value, allow_hz=allow_hz, positive=positive)
+
+
+def name_period(text: str) -> tuple[str, float]:
+    """``NAME=T`` with T a time or a rate above 0 (``--period``)."""
+    return name_value(text, allow_hz=True, positive=True)
+
+
+def name_positive(text: str) -> tuple[str, float]:
+    """``NAME=T`` with T a time above 0 (``--deadline``, ``--budget``)."""
+    return name_value(text, positive=True)
+
+
+def denominator_arg(text: str) -> str | float:
+    """``--denominator``: ``span``, ``profiled`` or a time above 0 (µs)."""
+    if text in ("span", "profiled"):
+        return text
+    try:
+        return time_us(text, positive=True)
+    except argparse.ArgumentTypeError:
+        raise argparse.ArgumentTypeError(f"expected span, profiled or a time above 0 such as 10s, got {text!r}") \
+            from None
 
 
 HIST_KINDS = ("duration", "latency", "response", "period_error", "duration:linear", "latency:linear",
@@ -89,9 +118,7 @@ def _names(text: str) -> list[str]:
 def settings_from(args: argparse.Namespace):
     from hilbench.profiler.settings import ProfilerSettings
 
-    denominator: str | float = "span"
-    if args.denominator not in (None, "span"):
-        denominator = "profiled" if args.denominator == "profiled" else time_us(args.denominator)
+    denominator: str | float = "span" if args.denominator is None else args.denominator
     return ProfilerSettings(
         tasks=frozenset(_names(args.tasks)) if args.tasks is not None else None,
         periods=dict(args.period or []),
@@ -195,7 +222,7 @@ def _check_outputs(args: argparse.Namespace) -> None:
     from hilbench.cli.outputs import check_outputs, source_files
 
     if args.gantt and not args.gantt.lower().endswith((".png", ".svg")):
-        raise CliError(f"{args.gantt}: the Gantt chart is written as .png or .svg")
+        raise CliError(f"--gantt {args.gantt}: the Gantt chart is drawn as .png or .svg")
     check_outputs([("--json-out", args.json_out), ("--export", args.export), ("--gantt", args.gantt)],
                   inputs=[*source_files(args.source), *source_files(args.compare)])
 
@@ -353,16 +380,16 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "board's side, '*-board'; elsewhere everything)")
     p.add_argument("--tasks", metavar="A,B,...", help="the task (hook-stamp) names; default: from the run-time "
                                                      "report, plus IDLE and Tmr Svc, else inferred")
-    p.add_argument("--period", action="append", type=lambda s: name_value(s, allow_hz=True), metavar="NAME=T",
+    p.add_argument("--period", action="append", type=name_period, metavar="NAME=T",
                    help="nominal period of a task or function (µs, or 10ms, or 100Hz); repeatable")
-    p.add_argument("--deadline", action="append", type=name_value, metavar="NAME=D",
+    p.add_argument("--deadline", action="append", type=name_positive, metavar="NAME=D",
                    help="relative deadline for response times (default: the period)")
-    p.add_argument("--budget", action="append", type=name_value, metavar="NAME=B",
+    p.add_argument("--budget", action="append", type=name_positive, metavar="NAME=B",
                    help="execution budget for overruns (default: the period)")
     p.add_argument("--merge-gap", action="append", type=name_value, metavar="NAME=G",
                    help="slices closer than G form one job (default: half the period)")
     p.add_argument("--window", type=window_arg, metavar="A:B", help="analyse only stamps in [A, B] (µs or 1s:2s)")
-    p.add_argument("--denominator", metavar="span|profiled|T",
+    p.add_argument("--denominator", type=denominator_arg, metavar="span|profiled|T",
                    help="share denominator: stamps' span (default), the report's 'profiled for', or a time")
     p.add_argument("--reorder", type=time_us, default=500_000, metavar="T",
                    help="reorder window for late stamps (default 500ms)")
@@ -383,9 +410,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--compare", metavar="OTHER", help="compare with another run: a capture file or a --json "
                                                      "document (change in %% of OTHER, as the thesis reports it)")
     p.add_argument("--live", action="store_true", help="live view while the stream runs (refresh <= 10/s)")
-    p.add_argument("--live-window", type=time_us, default=1_000_000, metavar="T",
+    p.add_argument("--live-window", type=positive_time_us, default=1_000_000, metavar="T",
                    help="live view: statistics over the last T (default 1s)")
-    p.add_argument("--live-gantt", type=time_us, default=20_000, metavar="T",
+    p.add_argument("--live-gantt", type=positive_time_us, default=20_000, metavar="T",
                    help="live view: text Gantt of the last T (default 20ms)")
     p.add_argument("--duration", type=SECONDS, metavar="S", help="live sources: stop after S seconds")
     p.add_argument("--reports", type=POSITIVE_COUNT, metavar="N", help="stop after N run-time statistics reports")

@@ -5,11 +5,17 @@
   scanner's beams hit), with each body's pose and velocity below;
 - ``--json``: one document (``time``, ``unix_time``, ``bodies``, ``moving``,
   ``devices``) and exit;
-- ``--png FILE``: one picture (matplotlib: ``pip install hilbench[plot]``);
+- ``--png FILE``: one picture (matplotlib: ``pip install hilbench[plot]``),
+  replacing FILE in one step;
 - ``--record FILE``: every body's pose at every world step (200 Hz by
   default) and every scan's first and last ray time, as JSON lines (the
-  format of :class:`hilbench.fakes.world.Recorder`), until Ctrl-C or
-  ``--duration``.
+  format of :class:`hilbench.fakes.world.Recorder`), until Ctrl-C, SIGTERM or
+  ``--duration``; a recording as ``record`` makes one
+  (:func:`hilbench.cli.outputs.start_recording`): it never replaces an
+  existing file without ``--force``, streams into ``FILE``'s ``.partial`` file
+  flushed every half second, and is renamed into place when it ends.
+
+Neither may be the manifest read (:func:`hilbench.cli.outputs.check_outputs`).
 
 Everything comes through the bench's control channel (its ``world`` command).
 """
@@ -45,6 +51,12 @@ def _clean(reply: dict[str, Any]) -> dict[str, Any]:
 
 
 def cmd_world(args: argparse.Namespace) -> int:
+    from hilbench.cli.outputs import check_outputs, picture_format
+
+    check_outputs([("--png", args.png), ("--record", args.record)], inputs=[args.manifest],
+                  recordings=("--record",), force=args.force)
+    if args.png:
+        picture_format("--png", args.png, "the world")
     client = _client(args)
     if args.json:
         print(json.dumps(_clean(client.world())))
@@ -55,34 +67,58 @@ def cmd_world(args: argparse.Namespace) -> int:
         return 0
     duration = args.duration or None
     if args.record:
-        return _record(client, args.record, duration)
+        return _record(client, args.record, duration, force=args.force)
     return _live(client, duration)
 
 
 # ---------------------------------------------------------------------- record
 
 
-def _record(client, path: str, duration: float | None) -> int:
+class _Lines:
+    """The writer of a world record (JSON lines) for :class:`~hilbench.transports.recording_file.Recording`."""
+
+    def __init__(self, path: str) -> None:
+        self.fh = open(path, "w", encoding="utf-8")  # noqa: SIM115 (closed by close())
+        self.bytes = 0
+        self.records = 0
+
+    def chunk(self, obj: dict[str, Any]) -> None:
+        line = json.dumps(obj, separators=(",", ":")) + "\n"
+        self.fh.write(line)
+        self.bytes += len(line)
+        self.records += 1
+
+    def flush(self) -> None:
+        self.fh.flush()
+
+    def close(self) -> None:
+        self.fh.close()
+
+
+def _record(client, path: str, duration: float | None, *, force: bool = False) -> int:
+    from hilbench.cli.common import terminate_on_sigterm
+    from hilbench.cli.outputs import start_recording
+
     first = client.world()
     t = first["time"]
     end = None if duration is None else time.monotonic() + duration
     poses = scans = 0
-    with open(path, "w", encoding="utf-8") as fh:
-        fh.write(json.dumps({"type": "header", "time": t, "unix_time": first["unix_time"],
-                             "bodies": {n: b["shape"] for n, b in first["bodies"].items()},
-                             "devices": first["devices"]}) + "\n")
+    terminate_on_sigterm()  # SIGTERM ends the record as Ctrl-C does: renamed into place
+    with start_recording(path, _Lines, force=force) as rec:
+        rec.chunk({"type": "header", "time": t, "unix_time": first["unix_time"],
+                   "bodies": {n: b["shape"] for n, b in first["bodies"].items()}, "devices": first["devices"]})
         try:
             while end is None or time.monotonic() < end:
                 time.sleep(RECORD_PERIOD)
                 hist = client.world(since=t)["history"]
                 for row in hist["poses"]:
-                    fh.write(json.dumps({"type": "pose", **row}, separators=(",", ":")) + "\n")
+                    rec.chunk({"type": "pose", **row})
                     t = max(t, row["t"])
                     poses += 1
                 for s in hist["scans"]:
-                    fh.write(json.dumps({"type": "scan", **s}, separators=(",", ":")) + "\n")
+                    rec.chunk({"type": "scan", **s})
                     scans += 1
-                fh.flush()
+                rec.flush()
         except KeyboardInterrupt:
             pass
     print(f"recorded {poses} poses and {scans} scans into {path}")
@@ -136,8 +172,13 @@ def _png(doc: dict[str, Any], path: str) -> None:
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
     ax.set_title(f"world at t = {doc['time']:.3f} s")
-    fig.savefig(path, dpi=100, bbox_inches="tight")
-    plt.close(fig)
+    from hilbench.cli.outputs import output_file, picture_format
+
+    try:
+        with output_file(path, "wb") as f:  # a full disk or a kill leaves an old picture whole
+            fig.savefig(f, format=picture_format("--png", path, "the world"), dpi=100, bbox_inches="tight")
+    finally:
+        plt.close(fig)
 
 
 def _corners(x: float, y: float, theta: float, w: float, h: float) -> list[tuple[float, float]]:
@@ -254,6 +295,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     what.add_argument("--png", metavar="FILE", help="draw the world into a PNG file (needs matplotlib)")
     what.add_argument("--record", metavar="FILE", help="record every body's pose at every world step and every "
                                                        "scan's first and last ray time (JSON lines)")
+    w.add_argument("--force", action="store_true", help="--record: record even over an existing non-empty file "
+                                                        "(replaced when the recording ends)")
     w.add_argument("--duration", type=SECONDS, metavar="S", default=0.0,
                    help="live view / record: stop after S seconds (0: at Ctrl-C)")
     w.set_defaults(func=cmd_world)

@@ -19,7 +19,7 @@ from hilbench.errors import DeviceError, UsageError
 from hilbench.protocols.dynamixel import describe_error
 from hilbench.protocols.dynamixel_models import MODEL_NAMES, MODELS_BY_NUMBER, Field, Model
 from hilbench.protocols.dynamixel_protocol1 import ERROR_BITS as P1_ERROR_BITS
-from hilbench.transports.serial_url import open_url
+from hilbench.transports.serial_url import check_port, open_url
 
 #: Baud rates tried by ``scan`` by default: the Dynamixel baud codes the SDK can open.
 SCAN_BAUDS = (57_600, 115_200, 1_000_000, 2_000_000, 3_000_000, 4_000_000, 9_600)
@@ -116,6 +116,7 @@ def port_handler(path: str) -> sdk.PortHandler:
 @contextlib.contextmanager
 def open_port(path: str, baud: int) -> Iterator[sdk.PortHandler]:
     """Open ``path`` (a device or an ``rfc2217://`` URL) at ``baud`` with the SDK, closing it afterwards."""
+    check_port(path)
     port = port_handler(path)
     try:
         opened = port.openPort()

@@ -28,6 +28,9 @@ class FeetechConnection(ServoConnection):
         self._scs = scs
         # the SDK keeps the word order in a global: SCS servos store words big-endian (END 1), STS little
         scs.scservo_def.SCS_SETEND(1 if self.big_endian else 0)
+        from hilbench.transports.serial_url import check_port
+
+        check_port(self.path)
         self.port = scs.PortHandler(self.path)
         try:
             opened = self.port.openPort() and self.port.setBaudRate(self.baud)

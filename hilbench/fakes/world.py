@@ -704,14 +704,30 @@ def _segments_hit_box(segs: np.ndarray, x: float, y: float, theta: float, size: 
 
 class Recorder:
     """Writes the truth as JSON lines: a header, every body's pose at every world step (``"pose"``) and every
-    scan's first and last ray time (``"scan"``). Attach with :meth:`World.listeners` (``world.record(path)``)."""
+    scan's first and last ray time (``"scan"``). Attach with :meth:`World.listeners` (``world.record(path)``).
+
+    A recording as ``hilbench record`` makes one (:mod:`hilbench.transports.recording_file`): it streams into
+    ``path``'s ``.partial`` file, flushed at least every half second (a kill loses at most that), and
+    :meth:`close` renames it to ``path`` in one step; an old file there stays whole until then."""
 
     def __init__(self, path: str, world: World, header: dict[str, Any] | None = None) -> None:
         import json
+        import time
+
+        from hilbench.transports.recording_file import FLUSH_EVERY, RecordingFile
 
         self._json = json
+        self._time = time.monotonic  # wall-clock: how often the file is flushed (a kill loses at most that)
+        self._flush_every = FLUSH_EVERY
         self.path = str(path)
-        self.fh = open(self.path, "w", buffering=1 << 16, encoding="utf-8")  # noqa: SIM115 (closed in close())
+        self._file = RecordingFile(self.path, force=True)  # (the caller's path: replaced when the record ends)
+        self._file.claim()
+        try:
+            self.fh = open(self._file.write_path, "w", buffering=1 << 16, encoding="utf-8")  # noqa: SIM115 (closed in close())
+        except BaseException:
+            self._file.abandon(keep=False)
+            raise
+        self._flushed = self._time()
         self.lock = threading.Lock()
         self.poses = 0
         self.scan_count = 0
@@ -723,6 +739,9 @@ class Recorder:
         with self.lock:
             if self.fh is not None:
                 self.fh.write(self._json.dumps(obj, separators=(",", ":")) + "\n")
+                if self._time() - self._flushed >= self._flush_every:
+                    self.fh.flush()
+                    self._flushed = self._time()
 
     def on_step(self, world: World, t: float) -> None:
         self.poses += 1
@@ -735,10 +754,12 @@ class Recorder:
                     "t_last": rec.t_last})
 
     def close(self) -> None:
+        """End the record: flushed, and renamed to :attr:`path` in one step."""
         with self.lock:
             if self.fh is not None:
                 self.fh.close()
                 self.fh = None
+                self._file.finish()
 
 
 def read_record(path: str) -> dict[str, Any]:

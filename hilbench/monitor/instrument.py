@@ -79,6 +79,10 @@ class Instrument:
         """Tracker options from parsed arguments (raise :class:`~hilbench.errors.UsageError` on bad ones)."""
         return {}
 
+    def input_files(self, args: argparse.Namespace) -> list[str]:
+        """The files its own options read (a CAN bus's ``--dbc``, ``--eds``): no output may replace them."""
+        return []
+
     def make_tracker(self, *, baud: int | None, timestamps: bool, **options: Any) -> Tracker:
         """A new tracker for a source with this line rate and (real or no) times."""
         raise NotImplementedError

@@ -48,8 +48,10 @@ class Profiler:
         self.windows_started = 0
         self.windows_stopped = 0
         self.finished = False
-        #: Bytes of a line, word or report cut in two where the reading stopped (see :meth:`finish`).
+        #: Bytes of a line, word or report cut in two where the reading stopped (see :meth:`finish`), and of
+        #: the unreadable first line of a stream joined mid-line (see :meth:`feed_items`).
         self.cut_bytes = 0
+        self._joining = self.settings.joined_mid_stream  # the first line may be the tail of one
 
     @property
     def names(self) -> list[str]:
@@ -70,7 +72,7 @@ class Profiler:
         """
         if not self.finished:
             if cut:
-                self.cut_bytes = self.decoder.cut()
+                self.cut_bytes += self.decoder.cut()
             self.feed_items(self.decoder.flush())
             self.finished = True
 
@@ -80,6 +82,10 @@ class Profiler:
         Stamps reach the timeline in arrival order; runs of them separated only by items that do not
         touch the timeline (damaged lines and words, logs, name-table lines) are joined into one call
         (noise makes thousands of tiny runs per chunk).
+
+        A stream joined mid-line (``settings.joined_mid_stream``: a live port or a bench's tap) begins with
+        the tail of a line the board wrote before the reading started: an unreadable first line is that cut,
+        counted in :attr:`cut_bytes`, not damage (as the line :meth:`finish` cuts at the other end).
         """
         tl = self.timeline
         registry = self.decoder.registry
@@ -87,6 +93,10 @@ class Profiler:
         batches: list[StampBatch] = []
         for item in items:
             kind = type(item)
+            if self._joining:
+                self._joining = False
+                if kind is Problem and item.kind == UNREADABLE and self._joined_mid_line(item):
+                    continue
             if kind is Stamp:
                 if batches:
                     self._add_batches(batches)
@@ -131,6 +141,16 @@ class Profiler:
             self._add_stamps(stamps, registry)
         if batches:
             self._add_batches(batches)
+
+    def _joined_mid_line(self, problem: Problem) -> bool:
+        """Count the unreadable first line of a stream joined mid-line as cut; False if it is no such line."""
+        text = self.decoder.text
+        if text.parse_errors < 1 or text.lines < 1:
+            return False
+        text.parse_errors -= 1
+        text.lines -= 1
+        self.cut_bytes += len(problem.raw) + 1  # (and its LF)
+        return True
 
     def _add_batches(self, batches: list[StampBatch]) -> None:
         if len(batches) == 1:

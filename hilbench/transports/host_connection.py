@@ -27,7 +27,8 @@ class HostConnection:
 
     @classmethod
     def open(cls, port: str, baud: int = 115_200) -> HostConnection:
-        """Open ``port``: a serial device path or ``udp://HOST:PORT``; raises OSError or ValueError."""
+        """Open ``port``: a serial device path or ``udp://HOST:PORT``; raises OSError or ValueError
+        (:class:`~hilbench.transports.serial_url.NotAPort` for a file)."""
         if port.startswith("udp://"):
             host, udp_port = parse_address(port)
             sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -36,6 +37,9 @@ class HostConnection:
             return cls(port, sock=sock)
         import serial
 
+        from hilbench.transports.serial_url import check_port
+
+        check_port(port)  # (a file: NotAPort, a usage error)
         try:
             ser = serial.Serial(port, baud, timeout=0, write_timeout=5)
         except serial.SerialException as exc:

@@ -10,7 +10,11 @@ server sent instead (one line, printable characters only, bounded).
 
 from __future__ import annotations
 
+import os
+import stat
 from typing import Any
+
+from hilbench.errors import UsageError
 
 #: The most of a server's refusal that is quoted (it comes from the network).
 MAX_SAID = 300
@@ -27,12 +31,31 @@ def server_said(ser: Any) -> str:
     return text[:MAX_SAID].strip()
 
 
+class NotAPort(UsageError):
+    """A path given as a serial port that is a regular file or a directory: one line, exit status 2."""
+
+
+def check_port(path: str) -> None:
+    """Raise :class:`NotAPort` if ``path`` (not a URL) is a regular file or a directory: pyserial would fail on
+    it with "Inappropriate ioctl for device". Nothing is opened (opening a real port may toggle its DTR)."""
+    if "://" in path:
+        return
+    try:
+        mode = os.stat(path).st_mode
+    except (OSError, ValueError):
+        return  # not there: opening it says so (exit status 1)
+    if stat.S_ISREG(mode) or stat.S_ISDIR(mode):
+        kind = "a directory" if stat.S_ISDIR(mode) else "a file"
+        raise NotAPort(f"{path}: {kind}, not a serial port (a recording of a bus is read by `hilbench monitor`)")
+
+
 def open_url(url: str, **settings: Any):
     """``serial.serial_for_url(url, **settings)``, opened; a server's refusal raises
     ``serial.SerialException("the server refused: <its line>")``, any other failure a SerialException
     with pyserial's reason."""
     import serial  # pyserial
 
+    check_port(url)
     ser = serial.serial_for_url(url, do_not_open=True, **settings)
     try:
         ser.open()
@@ -46,4 +69,4 @@ def open_url(url: str, **settings: Any):
     return ser
 
 
-__all__ = ["MAX_SAID", "open_url", "server_said"]
+__all__ = ["MAX_SAID", "NotAPort", "check_port", "open_url", "server_said"]

@@ -104,8 +104,8 @@ def test_errors_are_one_line(args, message, code, tmp_path):
 
 def test_gantt_suffix_error(trace64, tmp_path):
     proc = run(str(trace64), "--gantt", str(tmp_path / "g.jpg"), check_rc=2)
-    assert proc.stderr.decode().strip() == f"hilbench: error: {tmp_path / 'g.jpg'}: the Gantt chart is written " \
-                                           "as .png or .svg"
+    assert proc.stderr.decode().strip() == f"hilbench: error: --gantt {tmp_path / 'g.jpg'}: the Gantt chart is " \
+                                           "drawn as .png or .svg"
 
 
 def test_live_view_on_a_file_ends_with_the_full_report(trace64):
@@ -181,6 +181,30 @@ def test_a_duration_that_cuts_a_line_is_no_damage(spec, tmp_path):
     q = json.loads(run(str(cut), "--json").stdout)["quality"]
     assert q["untrustworthy"] is True and q["parse_errors"] == 1 and q["cut_bytes"] == 0
 
+
+
+def test_a_live_stream_joined_mid_line_is_no_damage(spec, tmp_path):
+    """Joining a running stream (a bench's tap, a port the board already writes to) starts inside a line: its
+    unreadable tail is cut, not damage; the same bytes in a file are damage (nobody chose to start there)."""
+    data = spec.lines(spec.TRACE_64)[5:]  # "IDLE 0 out" joined after "IDLE ": "0 out" is no line
+    fifo = tmp_path / "trace"
+    os.mkfifo(fifo)
+    proc = subprocess.Popen([sys.executable, "-m", "hilbench.cli", "trace", str(fifo), "--duration", "1", "--json",
+                             "--strict"], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    fd = os.open(fifo, os.O_WRONLY)
+    try:
+        os.write(fd, data[:-3])  # and cut at the end by --duration, as the test above
+        out, err = proc.communicate(timeout=30)
+    finally:
+        os.close(fd)
+    assert proc.returncode == 0, err.decode()
+    q = json.loads(out)["quality"]
+    assert q["untrustworthy"] is False and q["parse_errors"] == 0 and q["unreadable_lines"] == []
+    assert q["cut_bytes"] == len(b"0 out\n") + len(b"tsink 3030 o") and q["stamps"] == 30
+    cut = tmp_path / "cut.txt"
+    cut.write_bytes(data)
+    q = json.loads(run(str(cut), "--json").stdout)["quality"]
+    assert q["untrustworthy"] is True and q["parse_errors"] == 1 and q["cut_bytes"] == 0
 
 def test_the_board_s_defaults_come_from_its_family_s_trace_instrument():
     """`hilbench trace` names no board: the serial rate, the board's side of a bench line and the exported

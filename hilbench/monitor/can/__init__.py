@@ -63,6 +63,11 @@ class CanInstrument(Instrument):
             decoders = [load_dbc(spec) for spec in args.dbc] + [load_eds(spec) for spec in args.eds]
         return {"decoders": decoders, "canopen": not args.no_canopen, "miss_factor": args.miss_factor}
 
+    def input_files(self, args: argparse.Namespace) -> list[str]:
+        # --dbc FILE (or a profile's name: no file) and --eds FILE:NODE
+        return [*(getattr(args, "dbc", None) or []),
+                *(e.rpartition(":")[0] or e for e in getattr(args, "eds", None) or [])]
+
     def make_tracker(self, *, baud: int | None, timestamps: bool, **options: Any) -> CanTracker:
         from hilbench.monitor.can.tracker import CanTracker
 
