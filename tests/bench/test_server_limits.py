@@ -173,3 +173,92 @@ def test_an_ayt_flood_from_a_client_that_reads_nothing_keeps_memory_bounded(tmp_
     finally:
         _, err = interrupt(proc)
     assert "Traceback" not in err, err
+
+
+#: The bench is started with descriptors 3 to this number taken, so every socket, pty and pipe it opens is
+#: numbered above select()'s FD_SETSIZE (1024), as after ~1 000 idle connections.
+_TAKEN_BELOW = 1100
+
+#: Runs the bench with descriptors 3 .. _TAKEN_BELOW - 1 open on /dev/null (inheritable, so they survive exec).
+_HIGH_FDS = ("import os, resource, sys\n"
+             "resource.setrlimit(resource.RLIMIT_NOFILE, (2048, max(2048, resource.getrlimit(resource.RLIMIT_NOFILE)[1])))\n"
+             "null = os.open(os.devnull, os.O_RDONLY)\n"
+             f"for fd in range(3, {_TAKEN_BELOW}):\n"
+             "    if fd != null:\n"
+             "        os.dup2(null, fd, inheritable=True)\n"
+             "os.execv(sys.executable, [sys.executable, '-m', 'hilbench.cli', *sys.argv[1:]])\n")
+
+
+def _tcp(url: str) -> tuple[str, int]:
+    """``tcp://HOST:PORT`` as an address."""
+    host, port = url.split("//")[1].rsplit(":", 1)
+    return host, int(port)
+
+
+def test_every_server_serves_descriptors_numbered_beyond_1023(tmp_path):
+    # ~1 035 idle socketcand connections once killed the CAN thread (select(): "filedescriptor out of range"), and
+    # 1 050 tap connections then an RFC 2217 connect the serial line's. No thread may wait with select(): here
+    # every descriptor the bench opens is numbered 1100 or more, and each server and line must still serve.
+    import can
+    import serial
+
+    from hilbench.protocols import rplidar
+
+    manifest_path = tmp_path / "bench.json"
+    proc = subprocess.Popen([sys.executable, "-c", _HIGH_FDS, "emulate", "mecarover-can", "--paced", "--serve",
+                             "rfc2217", "--manifest", str(manifest_path)], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    bus = None
+    try:
+        wait_until(lambda: manifest_path.exists() or proc.poll() is not None, timeout=30)
+        assert proc.poll() is None, proc.communicate()[1]
+        manifest = json.loads(manifest_path.read_text())
+        sockets = [int(fd) for fd in os.listdir(f"/proc/{proc.pid}/fd")
+                   if os.readlink(f"/proc/{proc.pid}/fd/{fd}").startswith("socket:")]
+        assert sockets and min(sockets) >= _TAKEN_BELOW  # (the test does what it says)
+        can_ep, lidar_ep = manifest["endpoints"]
+        # Idle clients on every TCP server, each one's descriptor in the bench beyond 1023 too.
+        idle = [socket.create_connection(_socketcand(manifest)) for _ in range(20)]
+        idle += [socket.create_connection(_tcp(ep["tap"])) for ep in (can_ep, lidar_ep) for _ in range(10)]
+        # The CAN thread delivers the board's heartbeat (0x702, once a second) to python-can ...
+        bus = can.Bus(interface="socketcand", host=_socketcand(manifest)[0], port=_socketcand(manifest)[1],
+                      channel="can0")
+        deadline = time.monotonic() + 5
+        while (msg := bus.recv(timeout=max(0.0, deadline - time.monotonic()))) is not None:
+            if msg.arbitration_id == 0x702:
+                break
+        assert msg is not None, "no heartbeat through socketcand"
+        # ... the tap streams it ...
+        with socket.create_connection(_tcp(can_ep["tap"]), timeout=5) as tap:
+            assert tap.recv(4096)
+        # ... the serial line answers over RFC 2217 ...
+        with serial.serial_for_url(lidar_ep["rfc2217"], baudrate=rplidar.BAUD, timeout=2) as port:
+            port.write(rplidar.request(0x52))  # GET_HEALTH
+            assert port.read(rplidar.DESCRIPTOR_SIZE + 3)[:2] == b"\xa5\x5a"
+        # ... and the control channel answers.
+        assert ControlClient(manifest["control"]).media()["can"]["host"]["socketcand"]["accepted"] >= 21
+        for s in idle:
+            s.close()
+    finally:
+        if bus is not None:
+            bus.shutdown()
+        _, err = interrupt(proc)
+    assert "Traceback" not in err and "Error" not in err, err
+
+
+def test_no_thread_of_the_package_waits_with_select():
+    # select() cannot watch a descriptor numbered 1024 or more (the test above shows what it cost); waits go
+    # through selectors' DefaultSelector (epoll) or hilbench.transports.readiness (poll/ppoll).
+    import ast
+
+    package = Path(__file__).resolve().parents[2] / "hilbench"
+    found = []
+    for path in package.rglob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            called = (isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name)
+                      and (node.value.id, node.attr) in {("select", "select"), ("selectors", "SelectSelector")})
+            imported = (isinstance(node, ast.ImportFrom) and node.module == "select"
+                        and any(a.name == "select" for a in node.names))
+            if called or imported:
+                found.append(f"{path.relative_to(package)}:{node.lineno}")
+    assert not found, found
