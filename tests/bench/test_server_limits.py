@@ -102,6 +102,11 @@ def test_hostile_socketcand_input_is_answered_and_leaves_no_traceback(tmp_path):
                            "< error interval out of range >", "< error identifier out of range >"]
         client.sendall(f"< controlmode >< statistics {huge} >".encode())
         assert [replies.read() for _ in range(2)] == [sc.OK, "< error statistics interval out of range >"]
+        # Counted, and shown where a user looks at the bus (`hilbench can bus`: the socketcand door's counters).
+        shown = subprocess.run([sys.executable, "-m", "hilbench.cli", "can", "bus", "--manifest",
+                                str(tmp_path / "bench.json"), "--compact"], capture_output=True, text=True, timeout=60)
+        door = json.loads(shown.stdout)["bus"]["doors"]["socketcand"]
+        assert door["out_of_range"] == 5 and door["clients"] == 1 and door["max_clients"] == 64, door
         # A cyclic job of 1 us, and the client leaves: the bus must go on greeting clients (it went deaf for a
         # minute at 100 % CPU) and end the job with its client.
         client.sendall(b"< bcmmode >< add 0 1 123 8 1 2 3 4 5 6 7 8 >")
