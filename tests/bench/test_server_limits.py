@@ -200,6 +200,26 @@ def _tcp(url: str) -> tuple[str, int]:
     return host, int(port)
 
 
+def _emulate_high(tmp_path: Path, *args: str) -> tuple[subprocess.Popen, dict]:
+    """``hilbench emulate ARGS`` with descriptors 3 .. 1099 taken before it starts; checks that every socket the
+    bench opened is numbered beyond them."""
+    manifest_path = tmp_path / "bench.json"
+    proc = subprocess.Popen([sys.executable, "-c", _HIGH_FDS, "emulate", *args, "--manifest", str(manifest_path)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    try:
+        wait_until(lambda: manifest_path.exists() or proc.poll() is not None, timeout=30)
+        assert proc.poll() is None, proc.communicate()[1]
+        sockets = [int(fd) for fd in os.listdir(f"/proc/{proc.pid}/fd")
+                   if os.readlink(f"/proc/{proc.pid}/fd/{fd}").startswith("socket:")]
+        assert sockets and min(sockets) >= _TAKEN_BELOW  # (the test does what it says)
+        return proc, json.loads(manifest_path.read_text())
+    except BaseException:
+        proc.kill()
+        proc.communicate()
+        raise
+
+
 def test_every_server_serves_descriptors_numbered_beyond_1023(tmp_path):
     # ~1 035 idle socketcand connections once killed the CAN thread (select(): "filedescriptor out of range"), and
     # 1 050 tap connections then an RFC 2217 connect the serial line's. No thread may wait with select(): here
@@ -209,23 +229,17 @@ def test_every_server_serves_descriptors_numbered_beyond_1023(tmp_path):
 
     from hilbench.protocols import rplidar
 
-    manifest_path = tmp_path / "bench.json"
-    proc = subprocess.Popen([sys.executable, "-c", _HIGH_FDS, "emulate", "mecarover-can", "--paced", "--serve",
-                             "rfc2217", "--manifest", str(manifest_path)], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    proc, manifest = _emulate_high(tmp_path, "mecarover-can", "--paced", "--serve", "rfc2217")
     bus = None
     try:
-        wait_until(lambda: manifest_path.exists() or proc.poll() is not None, timeout=30)
-        assert proc.poll() is None, proc.communicate()[1]
-        manifest = json.loads(manifest_path.read_text())
-        sockets = [int(fd) for fd in os.listdir(f"/proc/{proc.pid}/fd")
-                   if os.readlink(f"/proc/{proc.pid}/fd/{fd}").startswith("socket:")]
-        assert sockets and min(sockets) >= _TAKEN_BELOW  # (the test does what it says)
         can_ep, lidar_ep = manifest["endpoints"]
         # Idle clients on every TCP server, each one's descriptor in the bench beyond 1023 too.
         idle = [socket.create_connection(_socketcand(manifest)) for _ in range(20)]
         idle += [socket.create_connection(_tcp(ep["tap"])) for ep in (can_ep, lidar_ep) for _ in range(10)]
-        # The CAN thread delivers the board's heartbeat (0x702, once a second) to python-can ...
+        # The CAN thread greets a client (python-can waits for ever for its greeting: asked first, with a timeout),
+        # and delivers the board's heartbeat (0x702, once a second) to python-can ...
+        with socket.create_connection(_socketcand(manifest), timeout=5) as greeter:
+            assert _Messages(greeter).read(timeout=5) == sc.HI
         bus = can.Bus(interface="socketcand", host=_socketcand(manifest)[0], port=_socketcand(manifest)[1],
                       channel="can0")
         deadline = time.monotonic() + 5
@@ -249,6 +263,47 @@ def test_every_server_serves_descriptors_numbered_beyond_1023(tmp_path):
             bus.shutdown()
         _, err = interrupt(proc)
     assert "Traceback" not in err and "Error" not in err, err
+
+
+def test_the_scip_port_and_the_xrce_agent_serve_descriptors_numbered_beyond_1023(tmp_path):
+    # The same class on the TCP endpoint (a UST-10LX) and the UDP servers (the XRCE agent): each one's thread
+    # waits on descriptors numbered beyond 1023 and answers.
+    from hilbench.protocols import xrce_dds as x
+
+    (tmp_path / "scanners").mkdir()
+    (tmp_path / "agent").mkdir()
+    scanners, manifest = _emulate_high(tmp_path / "scanners", "scanners")
+    agent, agent_manifest = _emulate_high(tmp_path / "agent", "micro-ros-agent", "--set", "agent.port=0")
+    try:
+        ust = next(ep for ep in manifest["endpoints"] if ep["name"] == "ust")
+        idle = [socket.create_connection((ust["host"], ust["port"])) for _ in range(3)]  # turned away
+        for s in idle:
+            s.close()
+        wait_until(lambda: _try(_scip_version, (ust["host"], ust["port"])), timeout=10)
+        ep = agent_manifest["endpoints"][0]
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+            sock.bind(("127.0.0.1", 0))
+            sock.settimeout(5)
+            sock.sendto(x.build_message(0x80, 0, 0, [(x.SubmessageId.GET_INFO, x.FLAG_E, x.get_info())]),
+                        (ep["host"], ep["port"]))
+            assert x.parse_message(sock.recv(65536)).submessages[0].name == "INFO"
+    finally:
+        errors = [interrupt(proc)[1] for proc in (scanners, agent)]
+    for err in errors:
+        assert "Traceback" not in err and "Error" not in err, err
+
+
+def _scip_version(address: tuple[str, int]) -> None:
+    """A SCIP 2.0 client's first command over TCP: VV must be answered with status 00."""
+    with socket.create_connection(address, timeout=3) as sock:
+        sock.sendall(b"VV\n")
+        got = b""
+        while b"\n\n" not in got:
+            chunk = sock.recv(4096)
+            if not chunk:
+                raise ConnectionError("closed")
+            got += chunk
+    assert got.startswith(b"VV\n00"), got
 
 
 def test_no_thread_of_the_package_waits_with_select():
