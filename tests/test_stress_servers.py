@@ -36,13 +36,16 @@ def test_a_quick_run_against_the_control_channel(tmp_path):
     assert [r["attack"] for r in rows] == list(ATTACKS) and all(r["alive"] for r in rows)
 
 
-def test_it_reports_an_attack_that_fails_instead_of_failing(tmp_path):
-    """RTPS 'locators' (an SPDP naming port 70000) still breaks the node's announcements on this branch: the
-    script says so in its figures (and would say 0 once fixed) and exits 0."""
+def test_the_rtps_locator_attack_is_reported_with_the_nodes_announcements_going_on(tmp_path):
+    """RTPS 'locators' (SPDPs naming ports 70 000, 2^31 - 1 and 0; one such SPDP once stopped the node's
+    announcement timer with OverflowError): the script reports the attack in its figures, the node keeps
+    announcing to the well-behaved participant and no traceback reaches the bench's stderr. The script reports,
+    it does not judge: exit 0 either way, and a client not served says why."""
     proc = subprocess.run([sys.executable, str(REPO / "tools/stress_servers.py"), "--quick", "--servers", "rtps",
                            "--attacks", "locators"], capture_output=True, text=True, timeout=300, cwd=REPO)
     assert proc.returncode == 0, proc.stderr[-3000:]
     figures = {f["name"]: f for f in map(json.loads, proc.stdout.splitlines()) if "name" in f}
     served, tracebacks = figures["stress_rtps_locators_served"], figures["stress_rtps_locators_tracebacks"]
-    assert served["value"] in (0, 1) and served["client"] and tracebacks["value"] >= 0
-    assert served["value"] == 1 or served["detail"]  # not served: it says why
+    assert served["client"] and figures["stress_rtps_locators_inputs"]["value"] > 0
+    assert served["value"] == 1, served.get("detail")
+    assert tracebacks["value"] == 0, proc.stderr[-3000:]

@@ -99,7 +99,10 @@ class CanBus(BusKind):
                 raise ControlRequestError(str(exc)) from None
         if bus_off is not None:
             medium.force_bus_off(str(bus_off))
-        return {"bus": medium.status()}
+        # The doors' counters beside the bus's (the socketcand server's clients, refusals, drops and queue
+        # bounds), so `hilbench can bus` shows what a hostile or slow client cost without a second command.
+        doors = endpoint.port.status() if hasattr(endpoint.port, "status") else {}
+        return {"bus": {**medium.status(), **({"doors": doors} if doors else {})}}
 
 
 BUS_KIND = CanBus()
