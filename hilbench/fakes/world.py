@@ -754,7 +754,7 @@ class Recorder:
                     "t_last": rec.t_last})
 
     def close(self) -> None:
-        """End the record: flushed, and renamed to :attr:`path` in one step."""
+        """End the record: flushed, and renamed to ``path`` in one step."""
         with self.lock:
             if self.fh is not None:
                 self.fh.close()
