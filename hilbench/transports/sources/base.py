@@ -66,6 +66,12 @@ class Source:
         carry no capture format have nothing to report."""
         return sound_quality()
 
+    def bench_overflow(self) -> dict[str, Any] | None:
+        """The overflow counters of the bench endpoint this source watches, asked now (a bench's manifest, or
+        ``bench:PROFILE``, sets this: :mod:`hilbench.bench.overflow`); None for any other source, or a bench
+        that no longer answers."""
+        return None
+
     def close(self) -> None:
         """Stop the iteration (thread-safe) and release the source."""
 
