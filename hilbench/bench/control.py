@@ -857,6 +857,16 @@ class ControlClient:
         return self.call("taps")["taps"]
 
 
+def control_overflow(control: str, endpoint: str, timeout: float = 2.0) -> dict[str, Any] | None:
+    """An endpoint's overflow counters asked of its bench's control channel (``HOST:PORT``; the ``overflow``
+    command), or None: no channel, or the bench does not answer (closed, gone, too old to know the command)."""
+    try:
+        found = ControlClient(control, timeout).overflow(endpoint)["endpoints"].get(endpoint)
+    except (ControlError, KeyError, TypeError, AttributeError):
+        return None
+    return {"endpoint": endpoint, **found} if isinstance(found, dict) else None
+
+
 __all__ = ["BACKLOG", "BENCH_COMMANDS", "IDLE_TIMEOUT", "MAX_CLIENTS", "MAX_DEPTH", "MAX_LINE", "MAX_REPLY",
            "REQUEST_TIMEOUT", "ClientGone", "ControlClient", "ControlError", "ControlRequestError", "ControlServer",
-           "ControlUnreachable", "RequestTooLong", "client_waits", "next_request", "serving"]
+           "ControlUnreachable", "RequestTooLong", "client_waits", "control_overflow", "next_request", "serving"]

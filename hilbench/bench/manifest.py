@@ -352,31 +352,17 @@ def manifest_tap(path: str | os.PathLike[str], endpoint: str | None = None) -> t
     return ep["tap"], f"{path}#{ep.get('name')}"
 
 
-def control_overflow(control: Any, endpoint: str, timeout: float = 2.0) -> dict[str, Any] | None:
-    """An endpoint's overflow counters asked of its bench's control channel (``HOST:PORT``; the ``overflow``
-    command), or None: no channel, or the bench does not answer (closed, gone, too old to know the command)."""
-    from hilbench.bench.control import ControlClient
-    from hilbench.errors import HilbenchError
-
-    if not isinstance(control, str):
-        return None
-    try:
-        found = ControlClient(control, timeout).overflow(endpoint)["endpoints"].get(endpoint)
-    except (HilbenchError, KeyError, TypeError, AttributeError):
-        return None
-    return {"endpoint": endpoint, **found} if isinstance(found, dict) else None
-
-
 def open_manifest(spec: str, target: str, fragment: str, **_: object):
     """Source opener: the traffic tap of a running bench, found through its manifest; the source's
-    :meth:`~hilbench.transports.sources.Source.bench_overflow` asks the bench's control channel."""
+    ``bench_control`` is the bench's control channel and the endpoint (whose overflow ``monitor`` asks:
+    :func:`hilbench.bench.control.control_overflow`)."""
     from hilbench.transports.sources.stream import TcpSource
 
     data, ep = _tapped(target, fragment or None)
     url = urlparse(ep["tap"])
     source = TcpSource(url.hostname or "127.0.0.1", url.port or 0, name=f"{target}#{ep.get('name')}")
-    control, name = data.get("control"), str(ep.get("name"))
-    source.bench_overflow = lambda: control_overflow(control, name)  # type: ignore[method-assign]
+    if isinstance(data.get("control"), str):
+        source.bench_control = (data["control"], str(ep.get("name")))
     return source
 
 
@@ -391,5 +377,5 @@ SOURCE = SourceOpener("manifest", open_manifest, suffixes=(".json",), usage="/tm
                       sniff=sniff_manifest)
 
 __all__ = ["FORMAT", "MARKER", "SOURCE", "BenchNotRunning", "ManifestBusy", "ManifestClaim", "ManifestError",
-           "check_path", "control_overflow", "devices_on", "endpoint_of", "is_manifest", "manifest_tap", "new_token", "open_manifest", "pid_alive", "process_start",
+           "check_path", "devices_on", "endpoint_of", "is_manifest", "manifest_tap", "new_token", "open_manifest", "pid_alive", "process_start",
            "read_manifest", "remove_manifest", "sniff_manifest", "stale_pid", "write_manifest"]

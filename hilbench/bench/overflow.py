@@ -21,6 +21,7 @@ participants, a board's receive FIFO).
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Mapping
 from typing import Any
 
@@ -46,8 +47,6 @@ def pick(status: Mapping[str, Any]) -> dict[str, Any]:
 
 def endpoint_overflow(bench: Any, ep: Any) -> dict[str, Any]:
     """One endpoint's servers, line and devices with their limits and overflow counters (see the module)."""
-    from hilbench.bench.control import medium_status
-
     out: dict[str, Any] = {}
     if ep.tap is not None:
         out["tap"] = pick(ep.tap.status())
@@ -59,8 +58,9 @@ def endpoint_overflow(bench: Any, ep: Any) -> dict[str, Any]:
     for name, service in ep.services.items():
         if hasattr(service, "status"):
             out[name] = pick(service.status())
-    if ep.medium is not None:
-        medium = pick(medium_status(ep.medium)["stats"])
+    stats = getattr(ep.medium, "stats", None)  # (a plug-in's medium may keep none)
+    if dataclasses.is_dataclass(stats):
+        medium = pick({f.name: getattr(stats, f.name) for f in dataclasses.fields(stats)})
         if medium:
             out["medium"] = medium
     devices = {}

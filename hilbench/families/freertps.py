@@ -212,7 +212,7 @@ class FreeRtpsFamily(DeviceFamily):
 
     def overflow(self, node, endpoint) -> dict[str, Any]:
         """Its participant's limits and the remote participants, endpoints and locators it refused or expired."""
-        return participant_overflow(node.participant) if node.participant is not None else {}
+        return node.participant.overflow() if node.participant is not None else {}
 
     # ------------------------------------------------------------------ control channel
 
@@ -256,23 +256,8 @@ class FreeRtpsNodes(FamilyAccess):
 
 FreeRtpsFamily.access = FreeRtpsNodes
 #: The bus kind this module registers (entry point ``hilbench.bus_kinds``).
-#: An RTPS participant's counters of what its bounds turned away (:func:`participant_overflow`).
-PARTICIPANT_OVERFLOW = ("participants_refused", "participants_expired", "endpoints_refused", "locators_refused",
-                        "invalid_locators", "send_refused")
-
-
-def participant_overflow(participant) -> dict[str, Any]:
-    """An RTPS participant's limits and what it refused or expired (a node's, an XRCE agent's bridge's)."""
-    from hilbench.fakes.rtps_participant import limits
-
-    c = participant.counters
-    return {"limits": limits(participant.max_remotes), **{k: c[k] for k in PARTICIPANT_OVERFLOW},
-            "remote_participants": len(participant.remotes)}
-
-
 BUS_KIND = RtpsBusKind()
 #: The device family this module registers (entry point ``hilbench.families``).
 FAMILY = FreeRtpsFamily()
 
-__all__ = ["BUS_KIND", "DEFAULT_DOMAIN", "FAMILY", "FreeRtpsFamily", "FreeRtpsNodes", "NodeSpec", "RtpsBusKind", "check_peers",
-           "participant_overflow"]
+__all__ = ["BUS_KIND", "DEFAULT_DOMAIN", "FAMILY", "FreeRtpsFamily", "FreeRtpsNodes", "NodeSpec", "RtpsBusKind", "check_peers"]

@@ -202,9 +202,7 @@ class MicroRosAgentFamily(DeviceFamily):
         c = agent.counters
         out: dict[str, Any] = {"limits": agent.limits(), **{k: c[k] for k in AGENT_OVERFLOW}}
         if agent.bridge is not None and agent.bridge.participant is not None:
-            from hilbench.families.freertps import participant_overflow
-
-            out["bridge"] = participant_overflow(agent.bridge.participant)
+            out["bridge"] = agent.bridge.participant.overflow()
         return out
 
     # ------------------------------------------------------------------ control channel

@@ -17,8 +17,7 @@ from urllib.parse import urlparse
 import serial
 
 from hilbench.bench import control
-from hilbench.bench.control import ControlClient
-from hilbench.bench.manifest import control_overflow
+from hilbench.bench.control import ControlClient, control_overflow
 from hilbench.cli.monitor import _BenchStatus
 from hilbench.protocols import vel2d
 from hilbench.pytest_plugin import wait_until
