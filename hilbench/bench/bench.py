@@ -448,6 +448,8 @@ class Bench:
                 **medium_timing(ep.medium),  # scheduling, cpu_latency
                 "tap": ep.tap.url if ep.tap is not None else None,
             }
+            if ep.tap is not None:
+                entry["tap_limits"] = ep.tap.limits()
             entry.update(ep.bus_kind.describe_endpoint(ep))
             for service in ep.services.values():
                 entry.update(service.describe())
@@ -473,6 +475,7 @@ class Bench:
             out["set"] = dict(self.profile.overrides)
         if self.control is not None:
             out["control"] = self.control.address_text
+            out["control_limits"] = self.control.limits()
         for name, service in self.services.items():
             out[name] = service.describe()
         return out

@@ -15,7 +15,10 @@ under and its counters, e.g. how late a paced serial line handed transmissions
 over against its wire model; ``host``: the host port's own, e.g. a socketcand
 server's clients and what it refused or dropped),
 ``servers`` (each endpoint's network servers, e.g. RFC 2217, with their
-client and counters), ``control`` (this channel's limits and counters), ``clock`` (the bench's clock:
+client and counters), ``control`` (this channel's limits and counters), ``overflow`` (every bounded queue's
+limits and what it refused, evicted, dropped, stalled on or timed out: the channel's and, per endpoint, its
+tap's, its doors', its servers' and its devices' (:mod:`hilbench.bench.overflow`); ``endpoint``: only that
+one's; every ``status`` reply carries it too, under ``overflow``), ``clock`` (the bench's clock:
 virtual or not, its time, and with virtual time the lockstep counters: stalls, ``stalled_s``,
 ``last_stall``, client threads), ``manifest`` (the bench's
 manifest, for programs that reach the bench only through this channel, e.g. over labgrid),
@@ -98,7 +101,7 @@ SEND_BUFFER = 64 << 10
 BACKLOG = 1024
 
 #: What every bench answers, whatever its devices.
-BENCH_COMMANDS = ("control", "devices", "manifest", "media", "servers", "taps", "world", "world_place",
+BENCH_COMMANDS = ("control", "devices", "manifest", "media", "overflow", "servers", "taps", "world", "world_place",
                   "world_slip")
 
 _JSON_STRING = re.compile(rb'"(?:[^"\\]|\\.)*"')
@@ -260,6 +263,12 @@ class ControlServer:
         return {"address": self.address_text, "clients": len(self._conns),
                 "running": sum(c.busy for c in list(self._conns.values())), "max_clients": self.max_clients,
                 "request_timeout": self.request_timeout, "idle_timeout": self.idle_timeout, **self.stats}
+
+    def limits(self) -> dict[str, Any]:
+        """The channel's bounds (see the module docstring), for the manifest (``control_limits``)."""
+        return {"max_clients": self.max_clients, "max_line": MAX_LINE, "max_depth": MAX_DEPTH,
+                "request_timeout": self.request_timeout, "idle_timeout": self.idle_timeout, "backlog": BACKLOG,
+                "send_buffer": SEND_BUFFER}
 
     def close(self) -> None:
         """Stop serving: running commands are told their clients are gone, every connection is closed."""
@@ -677,6 +686,8 @@ class ControlServer:
                               for ep in self.bench.endpoints.values() if ep.medium is not None}}
         if cmd == "control":
             return {"control": self.status()}
+        if cmd == "overflow":
+            return {"overflow": self._overflow(req)}
         if cmd == "clock":
             return {"clock": clock_status(self.bench)}
         if cmd == "taps":
@@ -690,8 +701,23 @@ class ControlServer:
                 "endpoint" in req or not any(cmd in c for c in self._commands().values())):
             ep = self._endpoint(cmd, req)
             return ep.bus_kind.control(self.bench, ep, cmd, req)
+        if cmd == "status" and not any("status" in c for c in self._commands().values()):
+            return {"overflow": self._overflow({})}  # a bench whose devices have no status: the bench's own
         _name, device, family = self._device(cmd, req)
-        return family.control(self.bench, device, cmd, req)
+        answer = family.control(self.bench, device, cmd, req)
+        if cmd == "status":  # the device's, and the whole bench's overflow counters (its keys stay as they are)
+            answer = {**answer, "overflow": self._overflow({})}
+        return answer
+
+    def _overflow(self, req: dict[str, Any]) -> dict[str, Any]:
+        """Limits and overflow counters of the channel and each endpoint's servers (``endpoint``: only its)."""
+        from hilbench.bench.overflow import overflow
+
+        name = req.get("endpoint")
+        if name is not None and (not isinstance(name, str) or name not in self.bench.endpoints):
+            raise ControlRequestError(f"no endpoint named {name!r:.40} (endpoints: "
+                                      f"{', '.join(self.bench.endpoints) or 'none'})")
+        return overflow(self.bench, name)
 
 
 def clock_status(bench: Any) -> dict[str, Any]:
@@ -808,6 +834,11 @@ class ControlClient:
         """The channel's own limits and counters: ``{"clients": 1, "max_clients": 64, "refused": 0, ...}``."""
         return self.call("control")["control"]
 
+    def overflow(self, endpoint: str | None = None) -> dict[str, Any]:
+        """Every bounded queue's limits and what it turned away (:mod:`hilbench.bench.overflow`): ``{"control":
+        {...}, "endpoints": {"can": {"tap": {"bytes_dropped": 0, ...}, "socketcand": {...}}}}``."""
+        return self.call("overflow", endpoint=endpoint)["overflow"]
+
     def world(self, **args: Any) -> dict[str, Any]:
         """The bench's world now (``geometry=True``, ``scans=True``, ``since=T`` add more): see
         :func:`hilbench.bench.world.control`."""
@@ -826,6 +857,16 @@ class ControlClient:
         return self.call("taps")["taps"]
 
 
+def control_overflow(control: str, endpoint: str, timeout: float = 2.0) -> dict[str, Any] | None:
+    """An endpoint's overflow counters asked of its bench's control channel (``HOST:PORT``; the ``overflow``
+    command), or None: no channel, or the bench does not answer (closed, gone, too old to know the command)."""
+    try:
+        found = ControlClient(control, timeout).overflow(endpoint)["endpoints"].get(endpoint)
+    except (ControlError, KeyError, TypeError, AttributeError):
+        return None
+    return {"endpoint": endpoint, **found} if isinstance(found, dict) else None
+
+
 __all__ = ["BACKLOG", "BENCH_COMMANDS", "IDLE_TIMEOUT", "MAX_CLIENTS", "MAX_DEPTH", "MAX_LINE", "MAX_REPLY",
            "REQUEST_TIMEOUT", "ClientGone", "ControlClient", "ControlError", "ControlRequestError", "ControlServer",
-           "ControlUnreachable", "RequestTooLong", "client_waits", "next_request", "serving"]
+           "ControlUnreachable", "RequestTooLong", "client_waits", "control_overflow", "next_request", "serving"]

@@ -153,6 +153,12 @@ class DeviceFamily:
         return {"name": spec.name, "model": spec.model, "endpoint": spec.endpoint,
                 "protocol": profile.endpoints[spec.endpoint].protocol}
 
+    def overflow(self, device: Any, endpoint: Endpoint) -> dict[str, Any]:
+        """What a device's own bounded queues turned away, for the control channel's ``status`` and
+        ``overflow`` (:mod:`hilbench.bench.overflow`): ``{"limits": {...}, COUNTER: N, ...}``; ``{}`` (the
+        default) for a device that bounds nothing a client fills."""
+        return {}
+
     def artefact(self, kind: str, profile: Profile | str, device: str | None = None) -> str | None:
         """The text of artefact ``kind`` (one of :attr:`artefacts`) describing ``profile``'s devices of this
         family, or the one named ``device``; None if the profile has none (or the family makes no ``kind``).

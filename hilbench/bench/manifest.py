@@ -329,8 +329,8 @@ def remove_manifest(claim: ManifestClaim | None) -> bool:
 # --------------------------------------------------------------------------- the manifest source
 
 
-def manifest_tap(path: str | os.PathLike[str], endpoint: str | None = None) -> tuple[str, str]:
-    """``(tap URL, name)`` of an endpoint (default: the first with a tap) of a running bench."""
+def _tapped(path: str | os.PathLike[str], endpoint: str | None) -> tuple[dict[str, Any], dict[str, Any]]:
+    """``(manifest, endpoint entry)``: the endpoint named (default: the first with a tap) of a running bench."""
     try:
         data = read_manifest(path)
     except ManifestError as exc:
@@ -342,17 +342,28 @@ def manifest_tap(path: str | os.PathLike[str], endpoint: str | None = None) -> t
             raise SourceError(f"{path}: no endpoint named {endpoint!r}")
     for ep in eps:
         if isinstance(ep.get("tap"), str):
-            return ep["tap"], f"{path}#{ep.get('name')}"
+            return data, ep
     raise SourceError(f"{path}: the bench offers no tap (started with --no-tap?)")
 
 
+def manifest_tap(path: str | os.PathLike[str], endpoint: str | None = None) -> tuple[str, str]:
+    """``(tap URL, name)`` of an endpoint (default: the first with a tap) of a running bench."""
+    _data, ep = _tapped(path, endpoint)
+    return ep["tap"], f"{path}#{ep.get('name')}"
+
+
 def open_manifest(spec: str, target: str, fragment: str, **_: object):
-    """Source opener: the traffic tap of a running bench, found through its manifest."""
+    """Source opener: the traffic tap of a running bench, found through its manifest; the source's
+    ``bench_control`` is the bench's control channel and the endpoint (whose overflow ``monitor`` asks:
+    :func:`hilbench.bench.control.control_overflow`)."""
     from hilbench.transports.sources.stream import TcpSource
 
-    tap, name = manifest_tap(target, fragment or None)
-    url = urlparse(tap)
-    return TcpSource(url.hostname or "127.0.0.1", url.port or 0, name=name)
+    data, ep = _tapped(target, fragment or None)
+    url = urlparse(ep["tap"])
+    source = TcpSource(url.hostname or "127.0.0.1", url.port or 0, name=f"{target}#{ep.get('name')}")
+    if isinstance(data.get("control"), str):
+        source.bench_control = (data["control"], str(ep.get("name")))
+    return source
 
 
 def sniff_manifest(head: bytes) -> bool:

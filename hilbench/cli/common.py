@@ -7,7 +7,8 @@ import contextlib
 import functools
 import signal
 import sys
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
+from typing import Any
 
 from hilbench.errors import UsageError
 
@@ -94,6 +95,13 @@ def terminate_on_sigterm() -> None:
         signal.signal(signal.SIGTERM, handler)
 
 
+def _overflow_of(bench, ep) -> Callable[[], dict[str, Any]]:
+    """An in-process bench endpoint's overflow counters, read when asked (:mod:`hilbench.bench.overflow`)."""
+    from hilbench.bench.overflow import endpoint_overflow
+
+    return lambda: {"endpoint": ep.name, **endpoint_overflow(bench, ep)}
+
+
 @contextlib.contextmanager
 def open_cli_source(spec: str, *, baud: int | None, speed: float | None = None,
                     default_baud: int = 57_600, endpoint: str | None = None,
@@ -117,8 +125,14 @@ def open_cli_source(spec: str, *, baud: int | None, speed: float | None = None,
             ep = bench.endpoint(endpoint or next(iter(bench.endpoints)))
             source = MediumSource(ep.medium, name=f"bench {bench.profile.name}: {ep.path}",
                                   protocol=ep.spec.protocol)
+            source.bench_overflow = _overflow_of(bench, ep)  # type: ignore[method-assign]
         else:
             source = open_source(spec, baud=baud, speed=speed, default_baud=default_baud)
+            if source.bench_control is not None:  # a bench's tap (its manifest): ask its control channel
+                from hilbench.bench.control import control_overflow
+
+                address, name = source.bench_control
+                source.bench_overflow = lambda: control_overflow(address, name)  # type: ignore[method-assign]
     except CaptureError as exc:  # a file that is not a readable capture
         if bench is not None:
             bench.stop()

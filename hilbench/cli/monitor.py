@@ -111,9 +111,57 @@ def _check_record(args: argparse.Namespace, label: str, path: str | None, inputs
 STRICT_EXIT = 3
 
 
+def bench_line(entry: dict, most: int | None = None) -> str:
+    """A bench endpoint's overflow in a line: its non-zero counters (``most`` at most), or ``none``."""
+    from hilbench.bench.overflow import counted
+
+    counts = counted(entry)
+    shown = [f"{k} {v}" for k, v in counts.items() if v]
+    if not shown:
+        servers = ", ".join(k for k, v in entry.items() if isinstance(v, dict))
+        return f"bench {entry.get('endpoint')} overflow: none ({servers or 'nothing bounded'}: 0 refused, evicted, " \
+               "dropped, stalled or timed out)"
+    more = f" (+{len(shown) - most} more)" if most is not None and len(shown) > most else ""
+    return f"bench {entry.get('endpoint')} overflow: {', '.join(shown[:most])}{more}"
+
+
+class _BenchStatus:
+    """The watched bench endpoint's overflow for the dashboard's status: asked in the background (a bench over
+    the control channel may be slow to answer) at most every :attr:`PERIOD` s; shown only once non-zero."""
+
+    PERIOD = 2.0
+
+    def __init__(self, ask: Callable[[], dict | None]) -> None:
+        self.ask = ask
+        self.text = ""
+        self._next = 0.0
+        self._busy = threading.Lock()
+
+    def __call__(self) -> str:
+        now = time.monotonic()
+        if now >= self._next and self._busy.acquire(blocking=False):
+            self._next = now + self.PERIOD
+            threading.Thread(target=self._refresh, name="hilbench-bench-status", daemon=True).start()
+        return self.text
+
+    def _refresh(self) -> None:
+        from hilbench.bench.overflow import counted
+
+        try:
+            entry = self.ask()
+            self.text = bench_line(entry, most=3) if entry and any(counted(entry).values()) else ""
+        except Exception:  # noqa: BLE001 (the dashboard's status must never break the dashboard)
+            self.text = ""
+        finally:
+            self._busy.release()
+
+
 def _watch(monitor, args: argparse.Namespace, label: str, status: Callable[[], str],
-           stop: Callable[[], bool] | None = None) -> int:
-    """Show the dashboard (or, with --summary/--json, just wait), then print the summary; the exit status."""
+           stop: Callable[[], bool] | None = None, bench: Callable[[], dict | None] | None = None) -> int:
+    """Show the dashboard (or, with --summary/--json, just wait), then print the summary; the exit status.
+
+    ``bench`` (a bench endpoint's source: :meth:`~hilbench.transports.sources.Source.bench_overflow`) adds that
+    endpoint's overflow counters, asked when the summary is printed, as ``bench`` (a closed bench: nothing)."""
     from hilbench.console import Console
     from hilbench.transports.atomic_file import WriteError
 
@@ -148,6 +196,9 @@ def _watch(monitor, args: argparse.Namespace, label: str, status: Callable[[], s
         message = str(monitor.error)  # detection's errors name the source already
         raise CliError(message if message.startswith(label) else f"{label}: {message}")
     report = monitor.summary()
+    overflow = bench() if bench is not None else None
+    if overflow is not None:
+        report["bench"] = overflow
     findings = report["data_quality"]["findings"]
     if quiet:
         if args.json:
@@ -159,6 +210,8 @@ def _watch(monitor, args: argparse.Namespace, label: str, status: Callable[[], s
         if not args.json:
             for line in findings:
                 console.print(f"data quality: {line}", markup=False, highlight=False)
+            if overflow is not None:
+                console.print(bench_line(overflow), markup=False, highlight=False)
     elif findings:  # the dashboard is gone: say what was wrong with the input
         for line in findings:
             print(f"hilbench: data quality: {line}", file=sys.stderr)
@@ -188,14 +241,20 @@ def cmd_monitor(args: argparse.Namespace) -> int:
                       options=options)
         mon.start()
 
+        overflow = source.bench_overflow
+        bench = _BenchStatus(overflow) if not (args.summary or args.json) else None
+
         def status() -> str:
             if mon.ended.is_set():
-                return "ended - q quits" if sys.stdin.isatty() else "ended"
-            if source.live:
-                return "live"
-            return f"replay {speed:g}x" if speed else "replay"
+                word = "ended - q quits" if sys.stdin.isatty() else "ended"
+            elif source.live:
+                word = "live"
+            else:
+                word = f"replay {speed:g}x" if speed else "replay"
+            extra = bench() if bench is not None else ""
+            return f"{word}; {extra}" if extra else word
 
-        return _watch(mon, args, source.name, status)
+        return _watch(mon, args, source.name, status, bench=overflow)
 
 
 def cmd_record(args: argparse.Namespace) -> int:

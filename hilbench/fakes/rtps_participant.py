@@ -717,6 +717,18 @@ class RtpsParticipant:
                 "peers": [r.guid_text(p) for p in list(self.remotes)],
                 "remote_endpoints": len(self.remote_endpoints), "limits": limits(self.max_remotes)}
 
+    def overflow(self) -> dict[str, Any]:
+        """Its limits and the remote participants, endpoints and locators it refused or expired (the bench's
+        ``overflow``: :mod:`hilbench.bench.overflow`), with the remote participants it keeps now."""
+        c = self.counters
+        return {"limits": limits(self.max_remotes), **{k: c[k] for k in OVERFLOW_COUNTERS},
+                "remote_participants": len(self.remotes)}
+
+
+#: A participant's counters of what its bounds turned away (:meth:`RtpsParticipant.overflow`).
+OVERFLOW_COUNTERS = ("participants_refused", "participants_expired", "endpoints_refused", "locators_refused",
+                     "invalid_locators", "send_refused")
+
 
 def limits(max_remotes: int = MAX_REMOTES) -> dict[str, Any]:
     """A participant's bounds, as the manifest and ``status`` show them."""
@@ -730,5 +742,5 @@ def _sedp_reader(writer_id: bytes) -> bytes:
 
 
 __all__ = ["DEFAULT_LEASE_S", "LOCATOR_PORTS", "MAX_LEASE_S", "MAX_LOCATORS", "MAX_REMOTES", "MAX_REMOTE_ENDPOINTS",
-           "MAX_REMOTE_ENDPOINTS_EACH", "LocalReader", "LocalWriter", "Remote", "RemoteRtpsEndpoint", "RtpsParticipant",
+           "MAX_REMOTE_ENDPOINTS_EACH", "OVERFLOW_COUNTERS", "LocalReader", "LocalWriter", "Remote", "RemoteRtpsEndpoint", "RtpsParticipant",
            "limits", "loopback"]

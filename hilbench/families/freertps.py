@@ -210,6 +210,10 @@ class FreeRtpsFamily(DeviceFamily):
                 "ports": {"metatraffic_unicast": ports["metatraffic_unicast"], "user_unicast": ports["user_unicast"]},
                 "topics": topics, "limits": limits()}
 
+    def overflow(self, node, endpoint) -> dict[str, Any]:
+        """Its participant's limits and the remote participants, endpoints and locators it refused or expired."""
+        return node.participant.overflow() if node.participant is not None else {}
+
     # ------------------------------------------------------------------ control channel
 
     def control(self, bench, node, cmd: str, req: dict[str, Any]) -> dict[str, Any]:

@@ -50,6 +50,9 @@ AGENT_KEYS = ("model", "name", "endpoint", "zeroed", "refs", "bridge", "faults",
 REF_KEYS = ("topic", "type", "reliable", "depth")
 FAULT_RULES = {"drop_next": FAULT_COUNT, "corrupt_status_agent": FAULT_COUNT}
 BRIDGE_KEYS = ("domain_id", "participant_index", "peers")
+#: The agent's counters of what its bounds turned away (:meth:`MicroRosAgentFamily.overflow`).
+AGENT_OVERFLOW = ("sessions_refused", "sessions_evicted", "sessions_expired", "entities_refused", "too_big",
+                  "input_dropped", "output_dropped", "fragments_dropped", "fragment_nesting", "samples_dropped")
 
 
 @dataclass
@@ -192,6 +195,14 @@ class MicroRosAgentFamily(DeviceFamily):
             out.update(host=host, port=port)
         if device is not None:
             out["limits"] = device.limits()
+        return out
+
+    def overflow(self, agent, endpoint) -> dict[str, Any]:
+        """The agent's limits and what it refused, expired, evicted or dropped (and its RTPS bridge's)."""
+        c = agent.counters
+        out: dict[str, Any] = {"limits": agent.limits(), **{k: c[k] for k in AGENT_OVERFLOW}}
+        if agent.bridge is not None and agent.bridge.participant is not None:
+            out["bridge"] = agent.bridge.participant.overflow()
         return out
 
     # ------------------------------------------------------------------ control channel

@@ -320,6 +320,14 @@ class Stm32RoverFamily(DeviceFamily):
             return {"report": rep._asdict(), "status": board.status()}
         raise ControlRequestError(f"unknown command {cmd!r}")
 
+    def overflow(self, board, endpoint) -> dict[str, Any]:
+        """A UDP door's receive FIFO: its size and the host writes it dropped (a pty door has none)."""
+        fifo = _rx_fifo(endpoint.spec.type, board).get("rx_fifo")
+        if fifo is None:
+            return {}
+        return {"limits": {"rx_fifo_bytes": fifo["bytes"]}, "rx_overruns": fifo["overruns"],
+                "rx_overrun_bytes": fifo["overrun_bytes"]}
+
 
 def _rx_fifo(port_type: str, board) -> dict[str, Any]:
     """A UDP door's receive FIFO and what it dropped, for the manifest (a pty door has none)."""

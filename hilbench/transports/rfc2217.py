@@ -136,11 +136,18 @@ class Rfc2217Port(HostPort):
         return self.url
 
     def describe(self) -> dict[str, Any]:
-        """The endpoint's manifest fields: ``{"rfc2217": URL}`` (plus ``rfc2217_bind`` beyond loopback)."""
+        """The endpoint's manifest fields: ``{"rfc2217": URL, "rfc2217_limits": {...}}`` (plus ``rfc2217_bind``
+        beyond loopback)."""
         out: dict[str, Any] = {"rfc2217": self.url}
         if url_host(self.bind) != self.bind:
             out["rfc2217_bind"] = self.bind
+        out["rfc2217_limits"] = self.limits()
         return out
+
+    def limits(self) -> dict[str, Any]:
+        """Its bounds (see the module docstring), for the manifest (``rfc2217_limits``)."""
+        return {"max_clients": self.listener.max_clients, "max_held": MAX_HELD, "max_inbox": MAX_INBOX,
+                "max_backlog_s": MAX_BACKLOG, "baud": [MIN_BAUD, MAX_BAUD], "send_buffer": SEND_BUFFER}
 
     def status(self) -> dict[str, Any]:
         """Counters and the current client, for status reports."""

@@ -140,6 +140,12 @@ class TapServer:
                 "bytes_dropped": self.bytes_dropped, "stalled": self.stalled, "buffered_bytes": buffered,
                 "max_buffer": self.max_buffer}
 
+    def limits(self) -> dict[str, int | float]:
+        """Its bounds, for the manifest (``tap_limits``): clients, bytes buffered per client, seconds a client
+        may leave its stream unread before a newcomer may take its place, and stalled with a full buffer."""
+        return {"max_clients": self._listener.max_clients, "max_buffer": self.max_buffer,
+                "read_grace_s": READ_GRACE, "stall_timeout_s": STALL_TIMEOUT, "send_buffer": SEND_BUFFER}
+
     @staticmethod
     def _refusal(reason: str) -> bytes:
         return REFUSAL_PREFIX + reason.encode() + b"\n"

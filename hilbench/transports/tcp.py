@@ -63,6 +63,12 @@ class TcpPort(HostPort):
         host, port = self.address
         return {"path": self.url, "host": host, "port": port}
 
+    def counters(self) -> dict[str, int]:
+        """Traffic and losses: connections served, bytes in and out, the devices' bytes dropped (no client, or
+        its buffer full), newcomers closed at once (:attr:`refused`) and the one client it serves."""
+        return {"connections": self.connections, "bytes_in": self.bytes_in, "bytes_out": self.bytes_out,
+                "dropped": self.dropped, "refused": self.refused, "max_clients": 1}
+
     def fileno(self) -> int:
         return self.client.fileno() if self.client is not None else self.listener.fileno()
 

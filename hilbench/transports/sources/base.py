@@ -49,6 +49,9 @@ class Source:
     protocol: str | None = None
     timestamps = "measured"
     live = True
+    #: ``(HOST:PORT, endpoint)``: the control channel of the bench whose endpoint this source watches (a
+    #: manifest's tap sets it; ``hilbench monitor`` asks that channel for the endpoint's overflow).
+    bench_control: tuple[str, str] | None = None
 
     def chunks(self, idle: float | None = None) -> Iterator[Chunk | None]:
         raise NotImplementedError
@@ -65,6 +68,12 @@ class Source:
         times out of order; see :class:`~hilbench.transports.capture_parser.CaptureParser`). Sources that
         carry no capture format have nothing to report."""
         return sound_quality()
+
+    def bench_overflow(self) -> dict[str, Any] | None:
+        """The overflow counters of the bench endpoint this source watches, asked now (the CLI sets this for a
+        bench's manifest and ``bench:PROFILE``: :mod:`hilbench.bench.overflow`); None for any other source, or
+        a bench that no longer answers."""
+        return None
 
     def close(self) -> None:
         """Stop the iteration (thread-safe) and release the source."""
