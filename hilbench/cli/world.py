@@ -74,37 +74,17 @@ def cmd_world(args: argparse.Namespace) -> int:
 # ---------------------------------------------------------------------- record
 
 
-class _Lines:
-    """The writer of a world record (JSON lines) for :class:`~hilbench.transports.recording_file.Recording`."""
-
-    def __init__(self, path: str) -> None:
-        self.fh = open(path, "w", encoding="utf-8")  # noqa: SIM115 (closed by close())
-        self.bytes = 0
-        self.records = 0
-
-    def chunk(self, obj: dict[str, Any]) -> None:
-        line = json.dumps(obj, separators=(",", ":")) + "\n"
-        self.fh.write(line)
-        self.bytes += len(line)
-        self.records += 1
-
-    def flush(self) -> None:
-        self.fh.flush()
-
-    def close(self) -> None:
-        self.fh.close()
-
-
 def _record(client, path: str, duration: float | None, *, force: bool = False) -> int:
     from hilbench.cli.common import terminate_on_sigterm
     from hilbench.cli.outputs import start_recording
+    from hilbench.fakes.world import RecordLines
 
     first = client.world()
     t = first["time"]
     end = None if duration is None else time.monotonic() + duration
     poses = scans = 0
     terminate_on_sigterm()  # SIGTERM ends the record as Ctrl-C does: renamed into place
-    with start_recording(path, _Lines, force=force) as rec:
+    with start_recording(path, RecordLines, force=force) as rec:
         rec.chunk({"type": "header", "time": t, "unix_time": first["unix_time"],
                    "bodies": {n: b["shape"] for n, b in first["bodies"].items()}, "devices": first["devices"]})
         try:

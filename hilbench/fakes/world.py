@@ -702,32 +702,45 @@ def _segments_hit_box(segs: np.ndarray, x: float, y: float, theta: float, size: 
 # ---------------------------------------------------------------------- recording
 
 
+class RecordLines:
+    """The writer of a world record (one JSON object per line) for
+    :class:`~hilbench.transports.recording_file.Recording`, which flushes and renames it."""
+
+    def __init__(self, path: str) -> None:
+        import json
+
+        self._dumps = json.dumps
+        self.fh = open(path, "w", buffering=1 << 16, encoding="utf-8")  # noqa: SIM115 (closed by close())
+        self.bytes = 0
+        self.records = 0
+
+    def chunk(self, obj: dict[str, Any]) -> None:
+        line = self._dumps(obj, separators=(",", ":")) + "\n"
+        self.fh.write(line)
+        self.bytes += len(line)
+        self.records += 1
+
+    def flush(self) -> None:
+        self.fh.flush()
+
+    def close(self) -> None:
+        self.fh.close()
+
+
 class Recorder:
     """Writes the truth as JSON lines: a header, every body's pose at every world step (``"pose"``) and every
     scan's first and last ray time (``"scan"``). Attach with :meth:`World.listeners` (``world.record(path)``).
 
-    A recording as ``hilbench record`` makes one (:mod:`hilbench.transports.recording_file`): it streams into
-    ``path``'s ``.partial`` file, flushed at least every half second (a kill loses at most that), and
-    :meth:`close` renames it to ``path`` in one step; an old file there stays whole until then."""
+    A recording as ``hilbench record`` makes one (:class:`~hilbench.transports.recording_file.Recording`): it
+    streams into ``path``'s ``.partial`` file, flushed at least every half second (a kill loses at most that),
+    and :meth:`close` renames it to ``path`` in one step; an old file there stays whole until then."""
 
     def __init__(self, path: str, world: World, header: dict[str, Any] | None = None) -> None:
-        import json
-        import time
+        from hilbench.transports.recording_file import Recording
 
-        from hilbench.transports.recording_file import FLUSH_EVERY, RecordingFile
-
-        self._json = json
-        self._time = time.monotonic  # wall-clock: how often the file is flushed (a kill loses at most that)
-        self._flush_every = FLUSH_EVERY
         self.path = str(path)
-        self._file = RecordingFile(self.path, force=True)  # (the caller's path: replaced when the record ends)
-        self._file.claim()
-        try:
-            self.fh = open(self._file.write_path, "w", buffering=1 << 16, encoding="utf-8")  # noqa: SIM115 (closed in close())
-        except BaseException:
-            self._file.abandon(keep=False)
-            raise
-        self._flushed = self._time()
+        # (force: the caller's path is replaced when the record ends)
+        self._recording: Recording | None = Recording(self.path, RecordLines, force=True)
         self.lock = threading.Lock()
         self.poses = 0
         self.scan_count = 0
@@ -737,11 +750,8 @@ class Recorder:
 
     def write(self, obj: dict[str, Any]) -> None:
         with self.lock:
-            if self.fh is not None:
-                self.fh.write(self._json.dumps(obj, separators=(",", ":")) + "\n")
-                if self._time() - self._flushed >= self._flush_every:
-                    self.fh.flush()
-                    self._flushed = self._time()
+            if self._recording is not None:
+                self._recording.chunk(obj)
 
     def on_step(self, world: World, t: float) -> None:
         self.poses += 1
@@ -756,10 +766,9 @@ class Recorder:
     def close(self) -> None:
         """End the record: flushed, and renamed to ``path`` in one step."""
         with self.lock:
-            if self.fh is not None:
-                self.fh.close()
-                self.fh = None
-                self._file.finish()
+            if self._recording is not None:
+                self._recording.close()
+                self._recording = None
 
 
 def read_record(path: str) -> dict[str, Any]:
@@ -783,5 +792,5 @@ def read_record(path: str) -> dict[str, Any]:
     return out
 
 
-__all__ = ["Body", "Driver", "Pose2", "Recorder", "STEP", "ScanRecord", "Shape", "World", "cast_rays", "compose",
+__all__ = ["Body", "Driver", "Pose2", "RecordLines", "Recorder", "STEP", "ScanRecord", "Shape", "World", "cast_rays", "compose",
            "footprint_hits", "read_record", "relative", "twist_motion"]
