@@ -125,14 +125,14 @@ def open_cli_source(spec: str, *, baud: int | None, speed: float | None = None,
             ep = bench.endpoint(endpoint or next(iter(bench.endpoints)))
             source = MediumSource(ep.medium, name=f"bench {bench.profile.name}: {ep.path}",
                                   protocol=ep.spec.protocol)
-            source.bench_overflow = _overflow_of(bench, ep)  # type: ignore[method-assign]
+            source.bench_overflow = _overflow_of(bench, ep)
         else:
             source = open_source(spec, baud=baud, speed=speed, default_baud=default_baud)
             if source.bench_control is not None:  # a bench's tap (its manifest): ask its control channel
                 from hilbench.bench.control import control_overflow
 
                 address, name = source.bench_control
-                source.bench_overflow = lambda: control_overflow(address, name)  # type: ignore[method-assign]
+                source.bench_overflow = lambda: control_overflow(address, name)
     except CaptureError as exc:  # a file that is not a readable capture
         if bench is not None:
             bench.stop()

@@ -160,7 +160,7 @@ def _watch(monitor, args: argparse.Namespace, label: str, status: Callable[[], s
            stop: Callable[[], bool] | None = None, bench: Callable[[], dict | None] | None = None) -> int:
     """Show the dashboard (or, with --summary/--json, just wait), then print the summary; the exit status.
 
-    ``bench`` (a bench endpoint's source: :meth:`~hilbench.transports.sources.Source.bench_overflow`) adds that
+    ``bench`` (a bench endpoint's source: :attr:`~hilbench.transports.sources.Source.bench_overflow`) adds that
     endpoint's overflow counters, asked when the summary is printed, as ``bench`` (a closed bench: nothing)."""
     from hilbench.console import Console
     from hilbench.transports.atomic_file import WriteError
@@ -242,7 +242,7 @@ def cmd_monitor(args: argparse.Namespace) -> int:
         mon.start()
 
         overflow = source.bench_overflow
-        bench = _BenchStatus(overflow) if not (args.summary or args.json) else None
+        bench = _BenchStatus(overflow) if overflow is not None and not (args.summary or args.json) else None
 
         def status() -> str:
             if mon.ended.is_set():

@@ -50,8 +50,12 @@ class Source:
     timestamps = "measured"
     live = True
     #: ``(HOST:PORT, endpoint)``: the control channel of the bench whose endpoint this source watches (a
-    #: manifest's tap sets it; ``hilbench monitor`` asks that channel for the endpoint's overflow).
+    #: manifest's tap sets it; the command line makes :attr:`bench_overflow` of it).
     bench_control: tuple[str, str] | None = None
+    #: For a source that watches a bench's endpoint (a manifest's tap, ``bench:PROFILE``): asks that endpoint's
+    #: overflow counters now (:mod:`hilbench.bench.overflow`; None: the bench no longer answers). None for any
+    #: other source.
+    bench_overflow: Callable[[], dict[str, Any] | None] | None = None
 
     def chunks(self, idle: float | None = None) -> Iterator[Chunk | None]:
         raise NotImplementedError
@@ -68,12 +72,6 @@ class Source:
         times out of order; see :class:`~hilbench.transports.capture_parser.CaptureParser`). Sources that
         carry no capture format have nothing to report."""
         return sound_quality()
-
-    def bench_overflow(self) -> dict[str, Any] | None:
-        """The overflow counters of the bench endpoint this source watches, asked now (the CLI sets this for a
-        bench's manifest and ``bench:PROFILE``: :mod:`hilbench.bench.overflow`); None for any other source, or
-        a bench that no longer answers."""
-        return None
 
     def close(self) -> None:
         """Stop the iteration (thread-safe) and release the source."""
