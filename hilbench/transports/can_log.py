@@ -21,7 +21,8 @@ from hilbench.protocols import can_frame as cf
 SUFFIXES = (".log", ".asc", ".blf", ".trc", ".csv")
 
 
-def _suffix(path: str) -> str:
+def log_suffix(path: str) -> str:
+    """A log's format suffix, lower case: ``.log`` for ``run.log`` and ``run.log.gz``."""
     suffixes = [s.lower() for s in Path(path).suffixes]
     if suffixes and suffixes[-1] == ".gz":
         suffixes = suffixes[:-1]
@@ -35,8 +36,8 @@ def _logger(path: str) -> Any:
 
     import can
 
-    writer = can.io.MESSAGE_WRITERS.get(_suffix(path))
-    if not path.lower().endswith(".gz") or writer is None or _suffix(path) in (".blf", ".db"):
+    writer = can.io.MESSAGE_WRITERS.get(log_suffix(path))
+    if not path.lower().endswith(".gz") or writer is None or log_suffix(path) in (".blf", ".db"):
         return can.Logger(path)  # (python-can's own message for what it cannot write)
     binary = issubclass(writer, can.io.generic.BinaryIOMessageWriter)
     return writer(file=gzip.open(path, "wb" if binary else "wt"))
@@ -86,7 +87,7 @@ class CanLogFormat:
     suffixes = SUFFIXES
 
     def accepts(self, path: str, protocol: str | None) -> bool:
-        return protocol == "can" and _suffix(path) in self.suffixes
+        return protocol == "can" and log_suffix(path) in self.suffixes
 
     def open(self, path: str, *, source: Any, description: str = "") -> CanLogRecorder:
         offset = getattr(source, "wall_offset", None)
@@ -104,4 +105,4 @@ class CanLogFormat:
 
 RECORDER = CanLogFormat()
 
-__all__ = ["RECORDER", "SUFFIXES", "CanLogFormat", "CanLogRecorder"]
+__all__ = ["RECORDER", "SUFFIXES", "CanLogFormat", "CanLogRecorder", "log_suffix"]

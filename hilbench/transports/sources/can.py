@@ -40,6 +40,7 @@ from typing import Any
 from urllib.parse import parse_qs, urlparse
 
 from hilbench.protocols import can_frame as cf
+from hilbench.transports.can_log import log_suffix
 from hilbench.transports.chunk import Chunk, sound_quality
 from hilbench.transports.sources.base import (
     PushSource,
@@ -179,14 +180,6 @@ class CanBusSource(PushSource):
         super().close()
 
 
-def _log_suffix(path: str) -> str:
-    """A log's format suffix: ``.log`` for ``run.log`` and ``run.log.gz``."""
-    suffixes = [s.lower() for s in Path(path).suffixes]
-    if suffixes[-1:] == [".gz"]:
-        suffixes = suffixes[:-1]
-    return suffixes[-1] if suffixes else ""
-
-
 def _open_text(path: str) -> Any:
     """A log's bytes, unpacked if its name ends in ``.gz``."""
     if path.lower().endswith(".gz"):
@@ -242,7 +235,7 @@ class CanLogSource(ReplaySource):
         path = Path(self.name)
         try:
             size = path.stat().st_size
-            if _log_suffix(self.name) == ".blf":
+            if log_suffix(self.name) == ".blf":
                 said = getattr(self.reader, "file_size", 0)
                 if said > size:
                     findings.append(f"truncated: the file is {size} bytes, its header says {said}: what the "
@@ -414,7 +407,7 @@ def open_can_bus(spec: str, target: str, fragment: str, *, baud: int | None = No
 
 def open_can_log(spec: str, target: str, fragment: str, *, baud: int | None = None, speed: float | None = None,
                  **options: object) -> Source:
-    suffix = _log_suffix(target)
+    suffix = log_suffix(target)
     if target.lower().endswith(".gz") and suffix not in GZIP_SUFFIXES:
         raise SourceError(f"{target}: a gzipped file that is no python-can text log (read: "
                           f"{', '.join(s + '.gz' for s in GZIP_SUFFIXES)})")
